@@ -1,0 +1,1 @@
+"""Command-line tools. Each module has ``main(argv=None) -> int``; heavy imports are deferred."""

@@ -1,0 +1,379 @@
+"""One typed configuration shared by the node, the CLIs, training and the YAML files.
+
+The schema is a tree of dataclasses: :class:`Config` has one section per area (``preprocess``,
+``model``, ``registration``, ``node``, ``train``, ``eval``). The same tree is
+
+* loaded from YAML (``Config.from_yaml``), either plain sections or a ROS 2 parameter file
+  (``<node_name>: ros__parameters: {...}``; ``config/deepbbs_ros.yaml`` is one),
+* declared as ROS parameters with dotted names (``preprocess.voxel_size``) via
+  :meth:`Config.to_flat` / :meth:`Config.from_flat`,
+* saved next to every result (``Config.to_dict``) and inside checkpoints.
+
+Units are SI (metres, seconds); angles are radians unless the name ends in ``_deg``.
+Unknown keys, wrong types and out-of-range values raise :class:`~deepbbs_ros.errors.ConfigError`
+naming the offending key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from deepbbs_ros.errors import ConfigError
+
+
+def _check(cond: bool, key: str, msg: str) -> None:
+    if not cond:
+        raise ConfigError(f"config: {key} {msg}")
+
+
+@dataclass
+class PreprocessConfig:
+    """Scan preprocessing: crop, ground removal, voxel grid, farthest-point sampling."""
+
+    min_range: float = 2.0  # m; returns closer than this (ego vehicle) are dropped
+    max_range: float = 80.0  # m; returns farther than this are dropped
+    remove_ground: bool = True
+    ground_method: str = "ransac"  # "ransac" | "seeded_lsq"
+    ground_layer: float = 0.5  # m; thickness of the removed layer around the fitted plane
+    ground_seed_radius: float = 20.0  # m; only points within this radius seed the plane fit
+    voxel_size: float = 0.3  # m; 0 disables voxel downsampling
+    num_points: int = 1000  # points kept by farthest-point sampling
+    seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
+
+    def validate(self) -> None:
+        _check(self.min_range >= 0, "preprocess.min_range", "must be >= 0")
+        _check(self.max_range > self.min_range, "preprocess.max_range", "must be > min_range")
+        _check(
+            self.ground_method in ("ransac", "seeded_lsq"),
+            "preprocess.ground_method",
+            f"must be 'ransac' or 'seeded_lsq', got {self.ground_method!r}",
+        )
+        _check(self.ground_layer > 0, "preprocess.ground_layer", "must be > 0")
+        _check(self.ground_seed_radius > 0, "preprocess.ground_seed_radius", "must be > 0")
+        _check(self.voxel_size >= 0, "preprocess.voxel_size", "must be >= 0")
+        _check(self.num_points >= 3, "preprocess.num_points", "must be >= 3")
+
+
+@dataclass
+class ModelConfig:
+    """The embedding network (DGCNN + transformer) and the coordinate scaling."""
+
+    k: int = 20  # neighbours of the DGCNN edge convolutions (on xyz)
+    dgcnn_widths: list[int] = field(default_factory=lambda: [64, 64, 128, 256])
+    emb_dims: int = 512  # width of the point embedding
+    n_heads: int = 4
+    n_blocks: int = 1  # transformer encoder/decoder blocks
+    ff_dims: int = 1024  # transformer feed-forward width
+    dropout: float = 0.0
+    # LiDAR scenes are ~100 m across; the network and temperatures were designed for unit-sized
+    # objects. Coordinates are multiplied by ``scale`` on the way in and translations divided by it
+    # on the way out (scale = 1/40 maps an 80 m crop radius to 2 units).
+    scale: float = 0.025
+    temperature_min: float = 0.01  # clamp range of the predicted temperature T (scaled units)
+    temperature_max: float = 1.0
+    xi: float = 0.4  # alpha = xi * median_j min_i ||phi_pj - phi_pi||
+
+    def validate(self) -> None:
+        _check(self.k >= 1, "model.k", "must be >= 1")
+        _check(
+            len(self.dgcnn_widths) >= 1 and all(w > 0 for w in self.dgcnn_widths),
+            "model.dgcnn_widths",
+            "must be a non-empty list of positive widths",
+        )
+        _check(self.emb_dims > 0, "model.emb_dims", "must be > 0")
+        _check(self.n_heads >= 1, "model.n_heads", "must be >= 1")
+        _check(self.emb_dims % self.n_heads == 0, "model.emb_dims", "must be divisible by n_heads")
+        _check(self.n_blocks >= 0, "model.n_blocks", "must be >= 0")
+        _check(self.ff_dims > 0, "model.ff_dims", "must be > 0")
+        _check(0 <= self.dropout < 1, "model.dropout", "must be in [0, 1)")
+        _check(self.scale > 0, "model.scale", "must be > 0")
+        _check(
+            0 < self.temperature_min < self.temperature_max,
+            "model.temperature_min",
+            "must satisfy 0 < temperature_min < temperature_max",
+        )
+        _check(self.xi > 0, "model.xi", "must be > 0")
+
+
+@dataclass
+class RegistrationConfig:
+    """The DeepBBS iterations, the DeepBBS++ refinement, ablation switches and the device."""
+
+    device: str = "auto"  # "auto" (CUDA when present), "cpu", "cuda", "cuda:N"
+    weights: str = ""  # checkpoint path; "" = the model shipped with the package
+    max_deep_iters: int = 5
+    deep_rot_tol_deg: float = 0.4  # stop deep iterations when the increment is below both
+    deep_trans_tol: float = 0.05  # m
+    refine: bool = True  # DeepBBS++ refinement in 3D space
+    refine_max_iters: int = 46
+    refine_k: int = 16  # nearest target points per source point in the sparse refinement
+    refine_rot_tol_deg: float = 0.005
+    refine_trans_tol: float = 0.001  # m
+    deep_iterations: bool = True  # ablation: False = one network pass only
+    deep: bool = True  # ablation: False = refinement only (from identity)
+    fixed_temperature: float = 0.0  # ablation: > 0 replaces the predicted T (scaled units)
+    use_gamma: bool = True  # ablation: False = uniform weights in Procrustes
+    spatial_gamma: bool = True  # ablation: False = gamma without the exp(-D/T) spatial term
+    success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
+    success_trans: float = 0.3  # ... the evaluation thresholds (CONVENTIONS.md)
+
+    def validate(self) -> None:
+        dev = self.device
+        _check(
+            dev in ("auto", "cpu", "cuda") or (dev.startswith("cuda:") and dev[5:].isdigit()),
+            "registration.device",
+            f"must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {dev!r}",
+        )
+        _check(self.max_deep_iters >= 1, "registration.max_deep_iters", "must be >= 1")
+        _check(self.deep_rot_tol_deg > 0, "registration.deep_rot_tol_deg", "must be > 0")
+        _check(self.deep_trans_tol > 0, "registration.deep_trans_tol", "must be > 0")
+        _check(self.refine_max_iters >= 1, "registration.refine_max_iters", "must be >= 1")
+        _check(self.refine_k >= 0, "registration.refine_k", "must be >= 0 (0 = dense)")
+        _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
+        _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
+
+
+@dataclass
+class NodeConfig:
+    """The live rclpy node (topics are remapped the ROS way, not configured here)."""
+
+    mode: str = "pair"  # "pair": source_cloud vs target_cloud; "odometry": scan k vs scan k-1
+    queue_size: int = 10  # approximate-time synchroniser queue per input
+    slop: float = 0.05  # s; max stamp difference of a synchronised pair
+    qos_reliability: str = "best_effort"  # "best_effort" (sensor data) | "reliable"
+    qos_depth: int = 5
+    publish_odometry: bool = False
+    publish_tf: bool = False
+    publish_aligned_cloud: bool = False
+    odom_frame: str = "odom"
+    base_frame: str = ""  # "" = the source cloud's frame_id
+    min_points: int = 100  # clouds with fewer valid points are rejected
+    diagnostics_period: float = 1.0  # s
+    error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind
+
+    def validate(self) -> None:
+        _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
+        _check(self.queue_size >= 1, "node.queue_size", "must be >= 1")
+        _check(self.slop >= 0, "node.slop", "must be >= 0")
+        _check(
+            self.qos_reliability in ("best_effort", "reliable"),
+            "node.qos_reliability",
+            f"must be 'best_effort' or 'reliable', got {self.qos_reliability!r}",
+        )
+        _check(self.qos_depth >= 1, "node.qos_depth", "must be >= 1")
+        _check(self.min_points >= 3, "node.min_points", "must be >= 3")
+        _check(self.diagnostics_period > 0, "node.diagnostics_period", "must be > 0")
+        _check(self.error_log_period >= 0, "node.error_log_period", "must be >= 0")
+
+
+@dataclass
+class TrainConfig:
+    """deepbbs-train: data, augmentation, loss and optimiser."""
+
+    epochs: int = 40
+    steps_per_epoch: int = 200
+    batch_size: int = 8
+    lr: float = 1e-3
+    lr_step: int = 15  # epochs between learning-rate decays
+    lr_gamma: float = 0.5
+    beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
+    theta: float = 0.5  # m; a source point has a true partner within theta
+    max_dist: float = 5.0  # m; pairs of frames at most this far apart
+    yaw_aug_deg: float = 45.0  # extra random yaw on top of the real relative pose
+    trans_aug: float = 1.0  # m; extra random translation
+    crop_prob: float = 0.3  # probability of a partial-overlap crop of one cloud
+    noise_sigma: float = 0.01  # m
+    val_every: int = 1  # epochs
+    seed: int = 0
+
+    def validate(self) -> None:
+        for name in ("epochs", "steps_per_epoch", "batch_size", "lr_step", "val_every"):
+            _check(getattr(self, name) >= 1, f"train.{name}", "must be >= 1")
+        _check(self.lr > 0, "train.lr", "must be > 0")
+        _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")
+        _check(0 < self.beta <= 1, "train.beta", "must be in (0, 1]")
+        _check(self.theta > 0, "train.theta", "must be > 0")
+        _check(self.max_dist > 0, "train.max_dist", "must be > 0")
+        _check(0 <= self.crop_prob <= 1, "train.crop_prob", "must be in [0, 1]")
+        _check(self.noise_sigma >= 0, "train.noise_sigma", "must be >= 0")
+
+
+@dataclass
+class EvalConfig:
+    """Pair protocol and success thresholds of CONVENTIONS.md."""
+
+    stride: int = 100
+    max_dist: float = 5.0  # m
+    success_rot_deg: float = 1.0
+    success_trans: float = 0.3  # m
+
+    def validate(self) -> None:
+        _check(self.stride >= 1, "eval.stride", "must be >= 1")
+        _check(self.max_dist > 0, "eval.max_dist", "must be > 0")
+        _check(self.success_rot_deg > 0, "eval.success_rot_deg", "must be > 0")
+        _check(self.success_trans > 0, "eval.success_trans", "must be > 0")
+
+
+@dataclass
+class Config:
+    """The whole configuration; one section per area."""
+
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    node: NodeConfig = field(default_factory=NodeConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def validate(self) -> Config:
+        for f in dataclasses.fields(self):
+            getattr(self, f.name).validate()
+        return self
+
+    # -- conversion -----------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Nested plain dict (YAML/JSON friendly)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> Config:
+        """Build from nested sections; missing keys keep their defaults, unknown keys are errors."""
+        data = dict(data or {})
+        cfg = cls()
+        sections = {f.name: f for f in dataclasses.fields(cls)}
+        for name, values in data.items():
+            if name not in sections:
+                raise ConfigError(f"config: unknown section {name!r} (known: {', '.join(sections)})")
+            if values is None:
+                continue
+            if not isinstance(values, dict):
+                raise ConfigError(f"config: section {name!r} must be a mapping, got {type(values).__name__}")
+            setattr(cfg, name, _build_section(type(getattr(cfg, name)), name, values))
+        return cfg.validate()
+
+    def to_flat(self) -> dict[str, Any]:
+        """Dotted names as used for ROS parameters: ``{"preprocess.voxel_size": 0.3, ...}``."""
+        return {f"{s}.{k}": v for s, sec in self.to_dict().items() for k, v in sec.items()}
+
+    @classmethod
+    def from_flat(cls, flat: dict[str, Any]) -> Config:
+        """Inverse of :meth:`to_flat`; keys without a dot are errors."""
+        nested: dict[str, dict[str, Any]] = {}
+        for key, value in flat.items():
+            section, sep, name = key.partition(".")
+            if not sep or not name:
+                raise ConfigError(f"config: parameter {key!r} is not of the form 'section.name'")
+            nested.setdefault(section, {})[name] = value
+        return cls.from_dict(nested)
+
+    def replace(self, **flat: Any) -> Config:
+        """A copy with some dotted keys changed: ``cfg.replace(**{"preprocess.num_points": 512})``."""
+        merged = self.to_flat()
+        for key in flat:
+            if key not in merged:
+                raise ConfigError(f"config: unknown parameter {key!r}")
+        merged.update(flat)
+        return Config.from_flat(merged)
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Config:
+        """Load plain sections, or a ROS 2 parameter file (``<node>: ros__parameters: ...``)."""
+        import yaml
+
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except FileNotFoundError as err:
+            raise ConfigError(f"config: file not found: {path}") from err
+        except yaml.YAMLError as err:
+            raise ConfigError(f"config: {path} is not valid YAML: {err}".replace("\n", " ")) from err
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise ConfigError(f"config: {path} must hold a mapping at the top level")
+        data = _unwrap_ros_params(data)
+        try:
+            return cls.from_dict(data)
+        except ConfigError as err:
+            raise ConfigError(f"{err} (in {path})") from err
+
+    def to_yaml(self, path: str | Path | None = None, node_name: str | None = None) -> str:
+        """Dump as YAML; with ``node_name`` as a ROS 2 parameter file. Writes ``path`` if given."""
+        import yaml
+
+        data: dict[str, Any] = self.to_dict()
+        if node_name:
+            data = {node_name: {"ros__parameters": data}}
+        text = yaml.safe_dump(data, sort_keys=False)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+
+def _unwrap_ros_params(data: dict[str, Any]) -> dict[str, Any]:
+    """``{node: {ros__parameters: {...}}}`` or ``{/**: {ros__parameters: ...}}`` -> the inner dict."""
+    if len(data) == 1:
+        (inner,) = data.values()
+        if isinstance(inner, dict) and "ros__parameters" in inner:
+            params = dict(inner["ros__parameters"])
+            params.pop("use_sim_time", None)
+            return params
+    return data
+
+
+def _build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in values.items():
+        if key not in known:
+            raise ConfigError(f"config: unknown parameter {section}.{key} (known: {', '.join(sorted(known))})")
+        kwargs[key] = _coerce(value, hints[key], f"{section}.{key}")
+    return cls(**kwargs)
+
+
+def _coerce(value: Any, hint: Any, key: str) -> Any:
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        for arg in typing.get_args(hint):
+            if arg is type(None) and value is None:
+                return None
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        return _coerce(value, args[0], key)
+    if origin is list:
+        (item,) = typing.get_args(hint)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"config: {key} must be a list, got {value!r}")
+        return [_coerce(v, item, f"{key}[{i}]") for i, v in enumerate(value)]
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"config: {key} must be true or false, got {value!r}")
+    if hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        raise ConfigError(f"config: {key} must be an integer, got {value!r}")
+    if hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise ConfigError(f"config: {key} must be a number, got {value!r}")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"config: {key} must be a string, got {value!r}")
+    return value
+
+
+def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Defaults, then a YAML file (if given), then dotted overrides: the order every CLI uses."""
+    cfg = Config.from_yaml(path) if path else Config()
+    if overrides:
+        cfg = cfg.replace(**overrides)
+    return cfg

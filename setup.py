@@ -1,0 +1,71 @@
+"""deepbbs_ros: builds with colcon (ament_python) in a Jazzy workspace and installs with pip anywhere.
+
+pip users: ``make test`` / ``make demo`` create ``.venv/`` and install everything (see README.md).
+The ROS 2 Jazzy Python packages come from PyPI wheels (``ros-jazzy-*``): no ROS install needed.
+"""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "deepbbs_ros"
+
+INSTALL_REQUIRES = [
+    # ROS 2 Jazzy from PyPI wheels: real rclpy and Fast DDS in a plain virtual environment.
+    "ros-jazzy-rclpy[fastrtps]",
+    "ros-jazzy-common-interfaces",
+    # torch: any recent release; the Makefile pins the CPU wheel (TORCH_SPEC) so CI stays fast,
+    # a GPU user installs a CUDA build first and this range accepts it.
+    "torch>=2.3",
+    "numpy>=1.26",
+    "scipy>=1.11",  # cKDTree neighbours, Rotation, Umeyama helpers
+    "rosbags>=0.11",  # ROS 1 / ROS 2 (sqlite3, mcap) bags without a ROS install
+    "mcap>=1.1",  # bare .mcap files
+    "pyyaml>=6",
+    "fpsample>=0.3",  # fast farthest-point sampling (bucket FPS)
+    "small-gicp>=1.0",  # ICP / point-to-plane ICP / GICP baselines
+    "kiss-icp>=1.0",  # KISS-ICP odometry baseline
+    "trimesh>=4",  # scene meshes for the LiDAR simulator
+    "embreex>=4",  # Embree ray casting behind trimesh (fast, pip-only, no system libraries)
+    "tqdm>=4.66",  # progress bars
+    "rich>=13",  # result tables
+    "matplotlib>=3.8",  # plots
+]
+
+TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6"]
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    description="DeepBBS++ LiDAR scan registration for ROS 2 Jazzy: live node, offline replay, odometry benchmark",
+    license="BSD-3-Clause",
+    python_requires=">=3.10",
+    packages=find_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"]),
+    package_data={"deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*"]},
+    include_package_data=True,
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+    ],
+    install_requires=INSTALL_REQUIRES,
+    extras_require={"test": TEST_REQUIRES},
+    tests_require=TEST_REQUIRES,
+    zip_safe=False,
+    entry_points={
+        "console_scripts": [
+            "deepbbs-sim = deepbbs_ros.cli.sim:main",
+            "deepbbs-bag = deepbbs_ros.cli.bag:main",
+            "deepbbs-bench = deepbbs_ros.cli.bench:main",
+            "deepbbs-train = deepbbs_ros.cli.train:main",
+            "deepbbs-replay = deepbbs_ros.cli.replay:main",
+            "deepbbs-play = deepbbs_ros.cli.play:main",
+            "deepbbs-node = deepbbs_ros.node.registration_node:main",
+            # names for `ros2 run deepbbs_ros <executable>` after colcon build
+            "registration_node = deepbbs_ros.node.registration_node:main",
+            "play = deepbbs_ros.cli.play:main",
+            "replay = deepbbs_ros.cli.replay:main",
+        ],
+    },
+)

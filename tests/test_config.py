@@ -1,0 +1,73 @@
+"""The typed configuration: defaults, YAML (plain and ROS parameter files), flat ROS names, errors."""
+
+from pathlib import Path
+
+import pytest
+
+from deepbbs_ros.config import Config, load_config
+from deepbbs_ros.errors import ConfigError, DeepBBSError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_defaults_validate():
+    cfg = Config().validate()
+    assert cfg.preprocess.num_points == 1000
+    assert cfg.model.xi == pytest.approx(0.4)
+
+
+def test_flat_round_trip():
+    cfg = Config()
+    flat = cfg.to_flat()
+    assert flat["preprocess.voxel_size"] == cfg.preprocess.voxel_size
+    assert Config.from_flat(flat) == cfg
+
+
+def test_yaml_round_trip_plain_and_ros(tmp_path):
+    cfg = Config().replace(**{"preprocess.num_points": 512, "model.dgcnn_widths": [32, 32, 64]})
+    plain = tmp_path / "plain.yaml"
+    ros = tmp_path / "ros.yaml"
+    cfg.to_yaml(plain)
+    cfg.to_yaml(ros, node_name="deepbbs_registration")
+    assert Config.from_yaml(plain) == cfg
+    assert Config.from_yaml(ros) == cfg
+
+
+def test_shipped_param_file_loads():
+    cfg = Config.from_yaml(ROOT / "config" / "deepbbs_ros.yaml")
+    assert cfg == Config()
+
+
+@pytest.mark.parametrize(
+    ("data", "match"),
+    [
+        ({"nope": {}}, "unknown section 'nope'"),
+        ({"preprocess": {"voxel": 1}}, r"unknown parameter preprocess\.voxel"),
+        ({"preprocess": {"num_points": "many"}}, r"preprocess\.num_points must be an integer"),
+        ({"preprocess": {"num_points": 1}}, r"preprocess\.num_points must be >= 3"),
+        ({"registration": {"device": "tpu"}}, r"registration\.device"),
+        ({"node": {"publish_tf": "yes"}}, r"node\.publish_tf must be true or false"),
+        ({"model": {"emb_dims": 30, "n_heads": 4}}, r"model\.emb_dims must be divisible"),
+    ],
+)
+def test_bad_values_name_the_key(data, match):
+    with pytest.raises(ConfigError, match=match):
+        Config.from_dict(data)
+
+
+def test_errors_share_one_base(tmp_path):
+    with pytest.raises(DeepBBSError, match="file not found"):
+        load_config(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("preprocess: [1, 2\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+
+
+def test_overrides_apply_last(tmp_path):
+    path = tmp_path / "c.yaml"
+    Config().replace(**{"preprocess.num_points": 256}).to_yaml(path)
+    cfg = load_config(path, {"preprocess.voxel_size": 0.5})
+    assert cfg.preprocess.num_points == 256 and cfg.preprocess.voxel_size == 0.5
+    with pytest.raises(ConfigError, match="unknown parameter"):
+        load_config(None, {"preprocess.bogus": 1})
