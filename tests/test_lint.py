@@ -1,4 +1,4 @@
-"""Lint runs as part of the test suite (ruff, rules and line length fixed here)."""
+"""Lint runs as part of the test suite (ruff; rules and line length are fixed here)."""
 
 import shutil
 import subprocess
@@ -6,7 +6,13 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RUFF_ARGS = ["check", "--line-length", "120", "--select", "E,F,W,I,B", "--ignore", "B008,B905", "--target-version", "py310"]
+RUFF_ARGS = [
+    "check",
+    "--line-length", "120",
+    "--select", "E,F,W,I,B",
+    "--ignore", "B008,B905",
+    "--target-version", "py310",
+]  # fmt: skip
 PATHS = ["deepbbs_ros", "msg_adapters", "tests", "scripts", "launch", "setup.py"]
 
 
@@ -14,4 +20,5 @@ def test_ruff_clean():
     ruff = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
     paths = [p for p in PATHS if (ROOT / p).exists()]
     proc = subprocess.run([ruff, *RUFF_ARGS, *paths], cwd=ROOT, capture_output=True, text=True)
-    assert proc.returncode == 0, f"ruff found problems (fix with: ruff {' '.join(RUFF_ARGS)} --fix .):\n{proc.stdout}{proc.stderr}"
+    hint = f"fix with: ruff {' '.join(RUFF_ARGS)} --fix ."
+    assert proc.returncode == 0, f"ruff found problems ({hint}):\n{proc.stdout}{proc.stderr}"
