@@ -51,7 +51,6 @@ setup(
     ],
     install_requires=INSTALL_REQUIRES,
     extras_require={"test": TEST_REQUIRES},
-    tests_require=TEST_REQUIRES,
     zip_safe=False,
     entry_points={
         "console_scripts": [
