@@ -207,16 +207,55 @@ class TrainConfig:
 class EvalConfig:
     """Pair protocol and success thresholds of CONVENTIONS.md."""
 
-    stride: int = 100
-    max_dist: float = 5.0  # m
+    stride: int = 100  # pairs mode: a source frame every `stride` frames
+    max_dist: float = 5.0  # m; pairs mode: target = last frame within max_dist of the source
+    max_pair_frames: int = 300  # pairs mode: the target is searched at most this many frames ahead
     success_rot_deg: float = 1.0
     success_trans: float = 0.3  # m
+    odom_stride: int = 1  # odometry mode: register every k-th frame against the previous kept one
+    odom_init: str = "constant_velocity"  # odometry initial guess: "constant_velocity" | "identity"
+    perturb_yaw_deg: float = 0.0  # random initial yaw of the source, uniform in [-x, x] (basin test)
+    perturb_trans: float = 0.0  # m; random horizontal initial offset of the source, |offset| <= x
+    trials: int = 1  # perturbed trials per pair
+    seed: int = 0  # seeds the perturbations
+    # Baselines (small_gicp ICP / point-to-plane ICP / GICP): "dense" = crop to
+    # [preprocess.min_range, preprocess.max_range] + voxel grid (ground kept, what ICP needs);
+    # "deepbbs" = exactly the DeepBBS++ preprocessing (1000 FPS non-ground points).
+    baseline_input: str = "dense"
+    baseline_voxel_size: float = 0.5  # m
+    baseline_max_corr_dist: float = 2.0  # m
+    baseline_max_iters: int = 50
+    baseline_neighbors: int = 20  # neighbours for normals / covariances
+    kiss_deskew: bool = True  # KISS-ICP motion compensation when scans carry a per-point "time"
+    threads: int = 0  # baseline threads; 0 = all cores
+    bag_aligned_clouds: int = 5  # pairs whose aligned source cloud goes into the results bag
 
     def validate(self) -> None:
         _check(self.stride >= 1, "eval.stride", "must be >= 1")
         _check(self.max_dist > 0, "eval.max_dist", "must be > 0")
+        _check(self.max_pair_frames >= 1, "eval.max_pair_frames", "must be >= 1")
         _check(self.success_rot_deg > 0, "eval.success_rot_deg", "must be > 0")
         _check(self.success_trans > 0, "eval.success_trans", "must be > 0")
+        _check(self.odom_stride >= 1, "eval.odom_stride", "must be >= 1")
+        _check(
+            self.odom_init in ("constant_velocity", "identity"),
+            "eval.odom_init",
+            f"must be 'constant_velocity' or 'identity', got {self.odom_init!r}",
+        )
+        _check(0 <= self.perturb_yaw_deg <= 180, "eval.perturb_yaw_deg", "must be in [0, 180]")
+        _check(self.perturb_trans >= 0, "eval.perturb_trans", "must be >= 0")
+        _check(self.trials >= 1, "eval.trials", "must be >= 1")
+        _check(
+            self.baseline_input in ("dense", "deepbbs"),
+            "eval.baseline_input",
+            f"must be 'dense' or 'deepbbs', got {self.baseline_input!r}",
+        )
+        _check(self.baseline_voxel_size > 0, "eval.baseline_voxel_size", "must be > 0")
+        _check(self.baseline_max_corr_dist > 0, "eval.baseline_max_corr_dist", "must be > 0")
+        _check(self.baseline_max_iters >= 1, "eval.baseline_max_iters", "must be >= 1")
+        _check(self.baseline_neighbors >= 5, "eval.baseline_neighbors", "must be >= 5")
+        _check(self.threads >= 0, "eval.threads", "must be >= 0")
+        _check(self.bag_aligned_clouds >= 0, "eval.bag_aligned_clouds", "must be >= 0")
 
 
 @dataclass
