@@ -1,0 +1,97 @@
+#!/usr/bin/env python3
+"""Benchmark PointCloud2 -> numpy decoding on an Ouster-layout cloud (goal: <= 5 ms for 131,072 points).
+
+Builds a 1024 x 128 organised cloud in the ouster-ros layout (point_step 48, padding, t/reflectivity/
+ring/ambient/range fields; ~5 % no-return pixels as zeros, one NaN row), then times
+``pointcloud2_to_xyz`` (and, for reference, xyz + intensity/t/ring and the encoder).
+
+    python scripts/bench_adapters.py            # median of 200 runs per case
+    python scripts/bench_adapters.py --runs 500 --flavor rosbags
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+import numpy as np  # noqa: E402
+
+from deepbbs_ros.cli.common import cli_entry  # noqa: E402
+
+
+def ouster_values(width: int = 1024, height: int = 128, seed: int = 0) -> dict[str, np.ndarray]:
+    """Per-point values of a synthetic Ouster scan, row-major (height * width points)."""
+    rng = np.random.default_rng(seed)
+    n = width * height
+    az = np.tile(np.linspace(0, 2 * np.pi, width, endpoint=False), height)
+    el = np.repeat(np.radians(np.linspace(-22.5, 22.5, height)), width)
+    rng_m = rng.uniform(1.0, 80.0, n)
+    xyz = np.stack([rng_m * np.cos(el) * np.cos(az), rng_m * np.cos(el) * np.sin(az), rng_m * np.sin(el)], axis=1)
+    xyz[rng.random(n) < 0.05] = 0.0  # no return: ouster-ros writes zeros
+    xyz[5 * width : 6 * width] = np.nan  # one NaN row
+    return {
+        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+        "intensity": rng.uniform(0, 1000, n), "t": np.tile(np.arange(width, dtype=np.uint32) * 97656, height),
+        "reflectivity": rng.integers(0, 65535, n), "ring": np.repeat(np.arange(height), width),
+        "ambient": rng.integers(0, 65535, n), "range": (rng_m * 1000).astype(np.uint32),
+    }  # fmt: skip
+
+
+def _median_ms(fn, runs: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+@cli_entry("bench_adapters")
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = parser.add_argument_group("benchmark")
+    g.add_argument("--runs", type=int, default=200, help="timed runs per case (median reported)")
+    g.add_argument("--flavor", choices=("rclpy", "rosbags"), default="rclpy", help="message flavour to decode")
+    g.add_argument("--width", type=int, default=1024)
+    g.add_argument("--height", type=int, default=128)
+    args = parser.parse_args(argv)
+
+    from msg_adapters.layouts import OUSTER, build_cloud
+    from msg_adapters.pointcloud2 import arrays_to_pointcloud2, pointcloud2_to_arrays, pointcloud2_to_xyz
+
+    values = ouster_values(args.width, args.height)
+    msg = build_cloud(OUSTER, values, height=args.height, width=args.width, flavor=args.flavor)
+    n = args.width * args.height
+    xyz = pointcloud2_to_xyz(msg)
+    fields = {"intensity": values["intensity"].astype(np.float32), "ring": values["ring"].astype(np.uint16)}
+    rows = [
+        ("decode xyz (pointcloud2_to_xyz)", _median_ms(lambda: pointcloud2_to_xyz(msg), args.runs)),
+        (
+            "decode xyz + intensity, t, ring",
+            _median_ms(lambda: pointcloud2_to_arrays(msg, ("intensity", "t", "ring")), args.runs),
+        ),
+        (
+            f"encode xyz + intensity, ring ({args.flavor})",
+            _median_ms(
+                lambda: arrays_to_pointcloud2(xyz, {k: v[: len(xyz)] for k, v in fields.items()}, flavor=args.flavor),
+                args.runs,
+            ),
+        ),
+    ]
+    print(
+        f"Ouster layout {args.width}x{args.height} = {n} points, point_step 48, {args.flavor} message, "
+        f"{len(xyz)} valid; median of {args.runs} runs"
+    )
+    for name, ms in rows:
+        print(f"  {name:<45s} {ms:8.3f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
