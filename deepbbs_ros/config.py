@@ -41,8 +41,11 @@ class PreprocessConfig:
     ground_method: str = "ransac"  # "ransac" | "seeded_lsq"
     ground_layer: float = 0.5  # m; thickness of the removed layer around the fitted plane
     ground_seed_radius: float = 20.0  # m; only points within this radius seed the plane fit
+    ground_max_tilt_deg: float = 20.0  # the ground normal is within this angle of +z (slopes)
+    ground_ransac_iters: int = 64  # plane hypotheses of the "ransac" method
     voxel_size: float = 0.3  # m; 0 disables voxel downsampling
     num_points: int = 1000  # points kept by farthest-point sampling
+    fps_max_candidates: int = 8192  # FPS runs on a seeded random subset of this many voxels; 0 = all
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
 
     def validate(self) -> None:
@@ -55,6 +58,9 @@ class PreprocessConfig:
         )
         _check(self.ground_layer > 0, "preprocess.ground_layer", "must be > 0")
         _check(self.ground_seed_radius > 0, "preprocess.ground_seed_radius", "must be > 0")
+        _check(0 < self.ground_max_tilt_deg < 90, "preprocess.ground_max_tilt_deg", "must be in (0, 90)")
+        _check(self.ground_ransac_iters >= 1, "preprocess.ground_ransac_iters", "must be >= 1")
+        _check(self.fps_max_candidates >= 0, "preprocess.fps_max_candidates", "must be >= 0")
         _check(self.voxel_size >= 0, "preprocess.voxel_size", "must be >= 0")
         _check(self.num_points >= 3, "preprocess.num_points", "must be >= 3")
 

@@ -1,0 +1,402 @@
+"""Scan preprocessing: invalid-point removal, range crop, ground removal, voxel grid, FPS.
+
+The pipeline turns one raw LiDAR sweep (``(N, 3)`` xyz in the sensor frame, metres, possibly with
+NaN/Inf returns) into a fixed number of well spread non-ground points, the input of the DeepBBS
+network:
+
+1. ``valid_crop``: drop non-finite points, keep ``min_range <= ||p|| <= max_range``.
+2. ``ground``: fit one ground plane ``a x + b y + c z + d = 0`` (unit normal, ``c > 0``) robustly
+   on the points near the sensor and drop the layer ``|a x + b y + c z + d| <= ground_layer / 2``
+   (DeepBBS removes a 0.5 m layer around a least-squares plane). Two robust seedings:
+
+   * ``"ransac"``: planes through random point triples near the sensor, only near-horizontal ones
+     (normal within ``ground_max_tilt_deg`` of +z), scored by their inlier count; the winner is
+     refined by least squares on its inliers.
+   * ``"seeded_lsq"``: the dominant height of the points near the sensor seeds a horizontal plane;
+     least squares over the points close to the current plane is then repeated on growing radii,
+     which follows a slope.
+
+   A plain least-squares fit over the whole scan would be pulled up by buildings: both methods fit
+   only points near the current plane estimate, and walls (vertical) never win a near-horizontal
+   RANSAC hypothesis.
+3. ``voxel``: one point per occupied ``voxel_size`` cube, the centroid of its points.
+4. ``fps``: farthest-point sampling (``fpsample`` bucket FPS) to ``num_points``, deterministic for a
+   given seed. When fewer points remain, the FPS order of all of them is repeated cyclically
+   (``idx[k] = order[k % m]``) so that every batch has exactly ``num_points`` points; each point
+   then appears ``floor(n / m)`` or ``ceil(n / m)`` times.
+
+No ROS import here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from deepbbs_ros.config import PreprocessConfig
+from deepbbs_ros.errors import RegistrationError
+
+MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
+_FIT_SAMPLES = 4096  # the ground plane is fitted on at most this many points near the sensor
+_FIT_TOL = 0.25  # m; widest inlier band of the ground-plane fit
+
+
+@dataclass
+class PreprocessResult:
+    """The output of :func:`preprocess`.
+
+    Attributes:
+        points: (M, 3) float32 sampled non-ground points, sensor frame, metres (M = num_points).
+        ground_plane: (4,) float64 ``[a, b, c, d]`` with ``a x + b y + c z + d = 0``, unit normal,
+            ``c > 0``; None when ground removal is disabled.
+        n_input: points given (including invalid ones).
+        n_valid: finite points inside the range crop.
+        n_nonground: valid points left after ground removal (before voxelisation and sampling).
+        n_voxels: points after voxelisation (the FPS candidates).
+        timings_ms: wall time per step (``valid_crop``, ``ground``, ``voxel``, ``fps``, ``total``).
+    """
+
+    points: np.ndarray
+    ground_plane: np.ndarray | None
+    n_input: int
+    n_valid: int
+    n_nonground: int
+    n_voxels: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+# -- step 1: validity and range ------------------------------------------------------------------
+def crop_range(points: np.ndarray, min_range: float, max_range: float) -> np.ndarray:
+    """Mask of finite points with ``min_range <= ||p|| <= max_range``.
+
+    Args:
+        points: (N, 3) float xyz, metres; NaN/Inf rows are allowed (and never kept).
+        min_range, max_range: metres, Euclidean distance from the sensor origin.
+
+    Returns:
+        (N,) bool mask.
+    """
+    pts = _as_points(points)
+    with np.errstate(invalid="ignore", over="ignore"):
+        r2 = np.einsum("ij,ij->i", pts, pts)
+    # NaN compares False; Inf gives r2 = inf > max_range**2.
+    return (r2 >= min_range * min_range) & (r2 <= max_range * max_range)
+
+
+# -- step 2: ground plane -------------------------------------------------------------------------
+def fit_ground_plane(points: np.ndarray, cfg: PreprocessConfig, *, seed: int | None = None) -> np.ndarray:
+    """Robust ground plane of a scan.
+
+    Args:
+        points: (N, 3) finite xyz, sensor frame, metres (z roughly up).
+        cfg: uses ``ground_method``, ``ground_layer``, ``ground_seed_radius``,
+            ``ground_max_tilt_deg`` and ``seed``.
+        seed: overrides ``cfg.seed`` for the random steps (RANSAC triples, fit subsample).
+
+    Returns:
+        (4,) float64 ``[a, b, c, d]``, ``a x + b y + c z + d = 0``, ``||(a, b, c)|| = 1``, ``c > 0``.
+
+    Raises:
+        RegistrationError: fewer than 3 points within ``ground_seed_radius`` (horizontally), or no
+            near-horizontal plane found.
+    """
+    pts = _as_points(points)
+    rng = np.random.default_rng(cfg.seed if seed is None else seed)
+    near_idx = np.flatnonzero(_r2_xy(pts) <= np.float32(cfg.ground_seed_radius**2))
+    if len(near_idx) < MIN_POINTS:
+        raise RegistrationError(
+            f"ground fit: only {len(near_idx)} points within ground_seed_radius={cfg.ground_seed_radius} m "
+            f"of the sensor (need {MIN_POINTS})"
+        )
+    if len(near_idx) > _FIT_SAMPLES:
+        near_idx = np.sort(rng.choice(near_idx, _FIT_SAMPLES, replace=False))
+    near = np.take(pts, near_idx, axis=0).astype(np.float64)
+    min_nz = float(np.cos(np.deg2rad(cfg.ground_max_tilt_deg)))
+    # Inlier band of the fit: the removed half-layer, but never wider than _FIT_TOL so that a
+    # thick removal layer does not let wall bottoms into the fit.
+    tol = min(cfg.ground_layer / 2.0, _FIT_TOL)
+    if cfg.ground_method == "ransac":
+        plane = _ransac_plane(near, tol, min_nz, cfg.ground_ransac_iters, rng)
+    else:
+        plane = _seeded_plane(near, tol, min_nz, cfg.ground_seed_radius)
+    # Least-squares refinement on the points close to the robust estimate, tightening the band.
+    for band in (tol, 0.5 * tol):
+        inl = np.compress(np.abs(_signed_dist(near, plane)) <= band, near, axis=0)
+        if len(inl) < MIN_POINTS:
+            break
+        cand = _lsq_plane(inl)
+        if cand[2] < min_nz:
+            break
+        plane = cand
+    return plane
+
+
+def remove_ground(
+    points: np.ndarray, cfg: PreprocessConfig, *, seed: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the ground plane and mark the points outside its layer.
+
+    Args:
+        points: (N, 3) finite xyz, sensor frame, metres.
+        cfg: see :func:`fit_ground_plane`; the removed layer is ``|signed distance| <= ground_layer / 2``.
+
+    Returns:
+        ``(nonground_mask (N,) bool, plane (4,) float64)``.
+    """
+    pts = _as_points(points)
+    plane = fit_ground_plane(pts, cfg, seed=seed)
+    dist = _signed_dist(pts, plane.astype(np.float32))
+    return np.abs(dist) > cfg.ground_layer / 2.0, plane
+
+
+def _lsq_plane(pts: np.ndarray) -> np.ndarray:
+    """Total least-squares plane of (K, 3) float64 points: smallest principal axis, ``c >= 0``."""
+    centroid = np.array([pts[:, 0].mean(), pts[:, 1].mean(), pts[:, 2].mean()])
+    q = pts - centroid
+    _, vecs = np.linalg.eigh(np.einsum("ki,kj->ij", q, q))
+    normal = vecs[:, 0]
+    if normal[2] < 0:
+        normal = -normal
+    return np.concatenate([normal, [-normal @ centroid]])
+
+
+def _ransac_plane(pts: np.ndarray, tol: float, min_nz: float, iters: int, rng: np.random.Generator) -> np.ndarray:
+    """Near-horizontal RANSAC plane (all hypotheses scored at once) of (K, 3) float64 points."""
+    # Triples come from the lower half of the points (ground lies below most walls and poles);
+    # scoring uses all points.
+    low = np.compress(pts[:, 2] <= np.median(pts[:, 2]), pts, axis=0)
+    if len(low) < MIN_POINTS:
+        low = pts
+    tri = low[rng.integers(0, len(low), size=(iters, 3))]  # (H, 3 points, 3)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    normals[ok] /= norm[ok, None]
+    normals *= np.where(normals[:, 2:3] < 0, -1.0, 1.0)
+    ok &= normals[:, 2] >= min_nz
+    if not ok.any():
+        raise RegistrationError(
+            f"ground fit: RANSAC found no plane within the allowed tilt of the horizontal among {len(pts)} points"
+        )
+    normals = normals[ok]
+    d = -np.einsum("hj,hj->h", normals, tri[ok, 0])
+    # Score: inliers within tol; ties broken towards the lower plane (smaller height offset d).
+    dist = pts[:, 0:1] * normals[:, 0] + pts[:, 1:2] * normals[:, 1] + pts[:, 2:3] * normals[:, 2] + d
+    counts = np.count_nonzero(np.abs(dist) <= tol, axis=0)
+    best = np.flatnonzero(counts == counts.max())
+    best = best[np.argmax(d[best])]  # d = -height of the plane at the origin: largest d = lowest plane
+    return np.concatenate([normals[best], [d[best]]])
+
+
+def _seeded_plane(pts: np.ndarray, tol: float, min_nz: float, radius: float) -> np.ndarray:
+    """Plane seeded by the dominant height near the sensor, grown outwards by least squares."""
+    r2 = _r2_xy(pts)
+    inner = np.compress(r2 <= (0.5 * radius) ** 2, pts, axis=0)
+    if len(inner) < MIN_POINTS:
+        inner = pts
+    z = inner[:, 2]
+    bin_w = max(tol / 2.0, 0.05)
+    edges = np.arange(z.min(), z.max() + 2 * bin_w, bin_w)
+    hist, edges = np.histogram(z, bins=edges)
+    z0 = 0.5 * (edges[np.argmax(hist)] + edges[np.argmax(hist) + 1])
+    plane = np.array([0.0, 0.0, 1.0, -z0])
+    for frac in (0.25, 0.5, 1.0):
+        sel = np.compress(r2 <= (frac * radius) ** 2, pts, axis=0)
+        for _ in range(2):
+            inl = np.compress(np.abs(_signed_dist(sel, plane)) <= 2.0 * tol, sel, axis=0)
+            if len(inl) < MIN_POINTS:
+                break
+            cand = _lsq_plane(inl)
+            if cand[2] < min_nz:
+                break
+            plane = cand
+    return plane
+
+
+# -- step 3: voxel grid ---------------------------------------------------------------------------
+def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
+    """One point per occupied voxel: the centroid of the points in it.
+
+    Voxels are the cubes ``floor(p / voxel_size)``. The output is ordered by voxel key, hence
+    deterministic for a given input set.
+
+    Args:
+        points: (N, 3) finite xyz, metres.
+        voxel_size: edge length in metres; ``<= 0`` returns the input unchanged (as float32).
+
+    Returns:
+        (M, 3) float32 centroids, M = number of occupied voxels.
+    """
+    pts = _as_points(points)
+    if voxel_size <= 0 or len(pts) == 0:
+        return pts
+    # Pack the integer voxel coordinates into one int64 key, 21 bits per axis (no per-axis
+    # reductions: those are slow on (N, 3) arrays).
+    ijk = np.floor(pts * np.float32(1.0 / voxel_size)).astype(np.int64)
+    lo, hi = int(ijk.min()), int(ijk.max())
+    if hi - lo >= 1 << 21:
+        raise RegistrationError(
+            f"voxel_downsample: cloud spans more than 2**21 voxels of {voxel_size} m along an axis"
+        )
+    ijk -= lo
+    keys = (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+    order = np.argsort(keys)
+    keys = keys[order]
+    starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
+    sums = np.add.reduceat(np.take(pts, order, axis=0).astype(np.float64), starts, axis=0)
+    counts = np.diff(np.append(starts, len(keys)))
+    return (sums / counts[:, None]).astype(np.float32)
+
+
+# -- step 4: farthest-point sampling --------------------------------------------------------------
+def farthest_point_sample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """Indices of ``n`` farthest-point samples (bucket FPS of ``fpsample``).
+
+    Deterministic for a given input and seed: the seed picks the start index. When the cloud has
+    fewer than ``n`` points, the FPS order of all of them is repeated cyclically (each point appears
+    ``floor(n / m)`` or ``ceil(n / m)`` times) so that the output always has ``n`` entries.
+
+    Args:
+        points: (M, 3) finite xyz, metres, M >= 1.
+        n: number of samples, >= 1.
+        seed: start-point seed.
+
+    Returns:
+        (n,) int64 indices into ``points``.
+    """
+    pts = _as_points(points)
+    m = len(pts)
+    if m == 0:
+        raise RegistrationError("farthest_point_sample: empty point cloud")
+    if n < 1:
+        raise RegistrationError(f"farthest_point_sample: n must be >= 1, got {n}")
+    k = min(n, m)
+    start = int(np.random.default_rng(seed).integers(m))
+    if m < 16:  # bucket FPS needs 2**h <= m; a plain FPS on a handful of points is instant
+        idx = _fps_exact(pts, k, start)
+    else:
+        import fpsample
+
+        # Tree height after the fpsample paper: bucket size 2**h, larger clouds want deeper trees.
+        h = int(np.clip(np.log2(m) - 6, 3, 9))
+        idx = fpsample.bucket_fps_kdline_sampling(pts, k, h, start_idx=start).astype(np.int64)
+    if k < n:
+        idx = np.resize(idx, n)  # cyclic repetition of the full FPS order
+    return idx
+
+
+def _fps_exact(pts: np.ndarray, k: int, start: int) -> np.ndarray:
+    """Textbook O(k M) farthest-point sampling (used for tiny clouds)."""
+    idx = np.empty(k, dtype=np.int64)
+    idx[0] = start
+    dist = np.sum((pts - pts[start]) ** 2, axis=1)
+    for i in range(1, k):
+        idx[i] = int(np.argmax(dist))
+        dist = np.minimum(dist, np.sum((pts - pts[idx[i]]) ** 2, axis=1))
+    return idx
+
+
+# -- the pipeline ---------------------------------------------------------------------------------
+def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed: int | None = None) -> PreprocessResult:
+    """Raw scan -> ``cfg.num_points`` non-ground points (see the module docstring for the steps).
+
+    Args:
+        points: (N, 3) float xyz in the sensor frame, metres; NaN/Inf rows are dropped.
+        cfg: preprocessing parameters (defaults when None).
+        seed: overrides ``cfg.seed`` (RANSAC, fit subsample, FPS start).
+
+    Returns:
+        :class:`PreprocessResult` with ``points`` (num_points, 3) float32.
+
+    Raises:
+        RegistrationError: empty input, wrong shape, fewer than 3 finite points inside the range crop,
+            or fewer than 3 points left after ground removal.
+    """
+    cfg = cfg or PreprocessConfig()
+    seed = cfg.seed if seed is None else seed
+    timings: dict[str, float] = {}
+    t_start = t0 = time.perf_counter()
+
+    pts = _as_points(points)
+    n_input = len(pts)
+    if n_input == 0:
+        raise RegistrationError("preprocess: empty point cloud")
+
+    # 1. finite points inside the range crop
+    pts = np.compress(crop_range(pts, cfg.min_range, cfg.max_range), pts, axis=0)
+    n_valid = len(pts)
+    if n_valid < MIN_POINTS:
+        raise RegistrationError(
+            f"preprocess: only {n_valid} of {n_input} points are finite and within "
+            f"[{cfg.min_range}, {cfg.max_range}] m (need {MIN_POINTS})"
+        )
+    t1 = time.perf_counter()
+    timings["valid_crop"] = (t1 - t0) * 1e3
+
+    # 2. ground plane and layer removal
+    plane = None
+    if cfg.remove_ground:
+        keep, plane = remove_ground(pts, cfg, seed=seed)
+        pts = np.compress(keep, pts, axis=0)
+    n_nonground = len(pts)
+    if n_nonground < MIN_POINTS:
+        raise RegistrationError(
+            f"preprocess: only {n_nonground} of {n_valid} valid points are off the ground layer "
+            f"(ground_layer={cfg.ground_layer} m; need {MIN_POINTS})"
+        )
+    t2 = time.perf_counter()
+    timings["ground"] = (t2 - t1) * 1e3
+
+    # 3. voxel grid; keep the raw points when voxelising would leave fewer than num_points
+    vox = voxel_downsample(pts, cfg.voxel_size)
+    if len(vox) < cfg.num_points <= len(pts):
+        vox = pts
+    t3 = time.perf_counter()
+    timings["voxel"] = (t3 - t2) * 1e3
+
+    # 4. farthest-point sampling to a fixed size
+    cand = vox
+    if 0 < cfg.fps_max_candidates < len(cand):
+        # Bucket FPS cost grows with the candidates: a random subset of the (already uniform)
+        # voxel centroids loses little coverage and bounds the time.
+        sub = np.random.default_rng(seed).choice(len(cand), cfg.fps_max_candidates, replace=False)
+        cand = np.take(cand, np.sort(sub), axis=0)
+    idx = farthest_point_sample(cand, cfg.num_points, seed=seed)
+    out = np.ascontiguousarray(np.take(cand, idx, axis=0), dtype=np.float32)
+    t4 = time.perf_counter()
+    timings["fps"] = (t4 - t3) * 1e3
+    timings["total"] = (t4 - t_start) * 1e3
+
+    return PreprocessResult(
+        points=out,
+        ground_plane=plane,
+        n_input=n_input,
+        n_valid=n_valid,
+        n_nonground=n_nonground,
+        n_voxels=len(vox),
+        timings_ms=timings,
+    )
+
+
+def _signed_dist(pts: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """(N,) signed distance of (N, 3) points to ``plane`` (4,) (column ops: no BLAS threads)."""
+    return pts[:, 0] * plane[0] + pts[:, 1] * plane[1] + pts[:, 2] * plane[2] + plane[3]
+
+
+def _r2_xy(pts: np.ndarray) -> np.ndarray:
+    """(N,) squared horizontal distance from the sensor of (N, 3) points."""
+    return pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1]
+
+
+def _as_points(points: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 view/copy of ``points``; raises RegistrationError on another shape."""
+    arr = np.asarray(points)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        if arr.size == 0:
+            return np.zeros((0, 3), dtype=np.float32)
+        raise RegistrationError(f"expected an (N, 3) point array, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise RegistrationError(f"expected a numeric point array, got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float32)
