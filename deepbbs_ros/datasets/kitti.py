@@ -1,0 +1,221 @@
+"""KITTI odometry sequence folders: ``velodyne/NNNNNN.bin`` + ``poses.txt`` + ``calib.txt`` (+ ``times.txt``).
+
+* ``velodyne/NNNNNN.bin``: float32 records ``x y z reflectance`` (read into ``Scan.fields["intensity"]``).
+* ``poses.txt``: one 3x4 row-major matrix per frame, ``P_k`` = the pose of the left camera (cam0) of
+  frame k in the cam0 frame of frame 0 (KITTI's own convention). The official layout keeps it in
+  ``dataset/poses/<seq>.txt``; both places are accepted.
+* ``calib.txt``: ``Tr`` = ``T_cam0_velo`` (3x4), mapping LiDAR points into the camera frame.
+* ``times.txt``: seconds since the start of the sequence, one per frame (else index * 0.1 s).
+
+Ground truth in the LiDAR frame (as kiss-icp's KITTI loader does)::
+
+    T_world_lidar_k = Tr^-1 @ P_k @ Tr
+
+so ``world`` is the LiDAR frame of frame 0 (KITTI's "first camera frame" expressed through ``Tr``;
+``T_world_lidar_0`` is the identity for a real KITTI sequence). The writer inverts it,
+``P_k = Tr @ T_world_lidar_k @ Tr^-1``, with KITTI's own ``Tr`` of sequences 00-02, so a write/read
+round trip returns the same ``T_world_lidar``. Written ``times.txt`` holds stamps relative to the first
+scan (KITTI keeps no absolute time), so absolute stamps are not preserved by this format.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from deepbbs_ros.datasets.base import (
+    APOLLO_LIDAR_FRAME,
+    Scan,
+    ScanSource,
+    parse_stamp,
+    prepare_output,
+    stamp_to_str,
+    valid_mask,
+)
+from deepbbs_ros.errors import DatasetError
+
+# KITTI odometry sequences 00-02: T_cam0_velo and the cam0 projection, written by the writer.
+KITTI_TR = np.array(
+    [
+        [4.276802385584e-04, -9.999672484946e-01, -8.084491683471e-03, -1.198459927713e-02],
+        [-7.210626507497e-03, 8.081198471645e-03, -9.999413164504e-01, -5.403984729748e-02],
+        [9.999738645903e-01, 4.859485810390e-04, -7.206933692422e-03, -2.921968648686e-01],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+_KITTI_P0 = "7.188560000000e+02 0.000000000000e+00 6.071928000000e+02 0.000000000000e+00 0.000000000000e+00 " \
+    "7.188560000000e+02 1.852157000000e+02 0.000000000000e+00 0.000000000000e+00 0.000000000000e+00 " \
+    "1.000000000000e+00 0.000000000000e+00"
+
+
+def is_kitti_folder(path: Path) -> bool:
+    return path.is_dir() and (path / "velodyne").is_dir()
+
+
+def _rows(path: Path, ncols: int, what: str) -> tuple[list[np.ndarray], DatasetError | None]:
+    """Rows of ``ncols`` floats from a text file, up to the first malformed line (and its error)."""
+    rows: list[np.ndarray] = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        return rows, DatasetError(f"{path}: cannot read {what}: {err}")
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.split()
+        try:
+            if len(parts) != ncols:
+                raise ValueError(f"{len(parts)} values, expected {ncols}")
+            vals = np.array([float(v) for v in parts])
+            if not np.all(np.isfinite(vals)):
+                raise ValueError("non-finite value")
+        except ValueError as err:
+            return rows, DatasetError(f"{path}: line {lineno}: malformed {what} line: {err}")
+        rows.append(vals)
+    return rows, None
+
+
+def read_calib_tr(path: Path) -> np.ndarray:
+    """``Tr`` (4, 4) float64 ``T_cam0_velo`` from a KITTI ``calib.txt``; DatasetError if absent/bad."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as err:
+        raise DatasetError(f"{path}: cannot read calibration: {err.strerror or err}") from None
+    for lineno, line in enumerate(lines, start=1):
+        key, _, rest = line.partition(":")
+        if key.strip() == "Tr" or key.strip() == "Tr_velo_to_cam":
+            try:
+                vals = [float(v) for v in rest.split()]
+                if len(vals) != 12:
+                    raise ValueError(f"{len(vals)} values, expected 12")
+            except ValueError as err:
+                raise DatasetError(f"{path}: line {lineno}: malformed Tr: {err}") from None
+            T = np.eye(4)
+            T[:3, :] = np.reshape(vals, (3, 4))
+            return T
+    raise DatasetError(f"{path}: no 'Tr:' line (LiDAR-to-camera calibration)")
+
+
+class KittiSource(ScanSource):
+    """Scans of a KITTI odometry sequence folder, in file order (index = file number, 0-based)."""
+
+    format = "kitti"
+
+    def __init__(self, path: Path | str, *, lenient: bool = False) -> None:
+        super().__init__(path, lenient=lenient)
+        vdir = self.path / "velodyne"
+        if not vdir.is_dir():
+            raise DatasetError(f"{self.path}: not a KITTI sequence folder (no velodyne/ directory)")
+        self.files = sorted((int(f.stem), f) for f in vdir.glob("*.bin") if f.stem.isdigit())
+        if not self.files:
+            raise DatasetError(f"{vdir}: no NNNNNN.bin files")
+        self.topic = str(vdir)
+        self.pose_file: Path | None = None
+        for cand in (self.path / "poses.txt", self.path.parent.parent / "poses" / f"{self.path.name}.txt"):
+            if cand.is_file():
+                self.pose_file = cand
+                break
+        self.poses: list[np.ndarray] = []
+        self.pose_error: DatasetError | None = None
+        if self.pose_file is not None:
+            self.has_ground_truth = True
+            self.gt_topic = str(self.pose_file)
+            Tr = read_calib_tr(self.path / "calib.txt")
+            Tr_inv = np.linalg.inv(Tr)
+            rows, self.pose_error = _rows(self.pose_file, 12, "pose")
+            for r in rows:
+                P = np.eye(4)
+                P[:3, :] = r.reshape(3, 4)
+                self.poses.append(Tr_inv @ P @ Tr)
+            if self.pose_error is not None:
+                self.fault(self.pose_error)
+        self.stamps_ns: list[int] | None = None
+        times = self.path / "times.txt"
+        if times.is_file():
+            stamps: list[int] = []
+            for lineno, line in enumerate(times.read_text().splitlines(), start=1):
+                if not line.strip():
+                    continue
+                try:
+                    stamps.append(parse_stamp(line.strip()))
+                except ValueError as err:
+                    self.fault(DatasetError(f"{times}: line {lineno}: malformed time: {err}"))
+                    break
+            self.stamps_ns = stamps
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def _scans(self) -> Iterator[Scan]:
+        for index, f in self.files:
+            T = None
+            if self.has_ground_truth:
+                if index >= len(self.poses):
+                    if self.pose_error is not None:
+                        raise self.pose_error
+                    raise DatasetError(f"{self.pose_file}: frame {index} ({f.name}) has no ground-truth pose")
+                T = self.poses[index]
+            if self.stamps_ns is not None:
+                if index >= len(self.stamps_ns):
+                    raise DatasetError(f"{self.path / 'times.txt'}: frame {index} ({f.name}) has no time")
+                stamp_ns = self.stamps_ns[index]
+            else:
+                stamp_ns = index * 100_000_000
+            raw = f.read_bytes()
+            if len(raw) % 16:
+                raise DatasetError(f"{f}: size {len(raw)} bytes is not a multiple of 16 (x y z r float32)")
+            rec = np.frombuffer(raw, dtype="<f4").reshape(-1, 4)
+            keep = valid_mask(rec[:, :3])
+            yield Scan(
+                index,
+                stamp_ns,
+                rec[keep, :3],
+                {"intensity": np.ascontiguousarray(rec[keep, 3])},
+                frame_id=APOLLO_LIDAR_FRAME,
+                T_world_lidar=T,
+            )
+
+
+def write_kitti(scans: Iterable[Scan], out: Path | str) -> int:
+    """Write scans as a KITTI odometry sequence folder (files 000000.bin, ... in the order given).
+
+    Writes ``velodyne/*.bin`` (x y z intensity float32; intensity 0 when absent), ``times.txt``
+    (seconds since the first scan), ``calib.txt`` (KITTI's P0..P3 and ``Tr``) and, when the scans
+    carry ground truth, ``poses.txt`` (``P_k = Tr @ T_world_lidar_k @ Tr^-1``).
+
+    Returns:
+        the number of frames written.
+    """
+    out = Path(out)
+    prepare_output(out)
+    (out / "velodyne").mkdir(parents=True, exist_ok=True)
+    Tr = KITTI_TR
+    Tr_inv = np.linalg.inv(Tr)
+    poses: list[str] = []
+    times: list[str] = []
+    t0: int | None = None
+    with_gt: bool | None = None
+    n = 0
+    for n, scan in enumerate(scans, start=1):
+        has = scan.T_world_lidar is not None
+        if with_gt is None:
+            with_gt = has
+        elif has != with_gt:
+            raise DatasetError(f"{out}: scan {scan.index} {'has' if has else 'lacks'} ground truth, unlike the first")
+        intensity = scan.fields.get("intensity")
+        intensity = np.zeros(len(scan), np.float32) if intensity is None else np.asarray(intensity, np.float32)
+        rec = np.concatenate([scan.points, intensity.reshape(-1, 1)], axis=1).astype("<f4")
+        (out / "velodyne" / f"{n - 1:06d}.bin").write_bytes(rec.tobytes())
+        t0 = scan.stamp_ns if t0 is None else t0
+        times.append(stamp_to_str(scan.stamp_ns - t0))
+        if has:
+            P = Tr @ scan.T_world_lidar @ Tr_inv
+            poses.append(" ".join(repr(float(v)) for v in P[:3, :].reshape(-1)))
+    tr_line = " ".join(f"{v:.12e}" for v in Tr[:3, :].reshape(-1))
+    (out / "calib.txt").write_text("".join(f"P{i}: {_KITTI_P0}\n" for i in range(4)) + f"Tr: {tr_line}\n")
+    (out / "times.txt").write_text("".join(t + "\n" for t in times))
+    if with_gt:
+        (out / "poses.txt").write_text("".join(p + "\n" for p in poses))
+    return n

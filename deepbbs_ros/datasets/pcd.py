@@ -1,0 +1,320 @@
+"""PCD files (PCL's Point Cloud Data format, v0.7): ascii, binary and binary_compressed.
+
+Apollo-SouthBay ships its scans as ``pcds/N.pcd`` with fields ``x y z intensity`` (float32, NaNs
+possible). This module reads any PCD field layout (types F/I/U of size 1, 2, 4, 8, any COUNT,
+padding fields named ``_``) and writes the three encodings. ``binary_compressed`` uses LZF
+(liblzf's format, implemented here in pure Python, so no C extension is needed) over the data
+stored field by field (all x, then all y, ...), as PCL does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from deepbbs_ros.errors import DatasetError
+
+_TYPES = {
+    ("F", 4): np.float32,
+    ("F", 8): np.float64,
+    ("I", 1): np.int8,
+    ("I", 2): np.int16,
+    ("I", 4): np.int32,
+    ("I", 8): np.int64,
+    ("U", 1): np.uint8,
+    ("U", 2): np.uint16,
+    ("U", 4): np.uint32,
+    ("U", 8): np.uint64,
+}
+_HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+_ENCODINGS = ("ascii", "binary", "binary_compressed")
+
+
+# --------------------------------------------------------------------------------------------- LZF
+def lzf_decompress(data: bytes, expected_size: int) -> bytes:
+    """Decompress liblzf data to exactly ``expected_size`` bytes; ValueError on corrupt input."""
+    out = bytearray()
+    i, n = 0, len(data)
+    try:
+        while i < n:
+            ctrl = data[i]
+            i += 1
+            if ctrl < 32:  # literal run of ctrl + 1 bytes
+                length = ctrl + 1
+                if i + length > n:
+                    raise ValueError("literal run past the end of the compressed data")
+                out += data[i : i + length]
+                i += length
+            else:  # back reference: length (3 bits, maybe extended), offset (13 bits)
+                length = ctrl >> 5
+                if length == 7:
+                    length += data[i]
+                    i += 1
+                ref = len(out) - ((ctrl & 0x1F) << 8) - data[i] - 1
+                i += 1
+                length += 2
+                if ref < 0:
+                    raise ValueError("back reference before the start of the output")
+                if ref + length <= len(out):
+                    out += out[ref : ref + length]
+                else:  # overlapping copy (a run): byte by byte
+                    for k in range(length):
+                        out.append(out[ref + k])
+            if len(out) > expected_size:
+                break
+    except IndexError:
+        raise ValueError("compressed data ends inside a token") from None
+    if len(out) != expected_size:
+        raise ValueError(f"decompressed to {len(out)} bytes, header says {expected_size}")
+    return bytes(out)
+
+
+def lzf_compress(data: bytes) -> bytes:
+    """Compress with liblzf's format (3-byte hash matches, offsets < 8192, lengths <= 264)."""
+    data = bytes(data)
+    n = len(data)
+    out = bytearray()
+    table: dict[bytes, int] = {}
+    lit_start = 0
+    i = 0
+
+    def flush_literals(end: int) -> None:
+        start = lit_start
+        while start < end:
+            chunk = data[start : min(start + 32, end)]
+            out.append(len(chunk) - 1)
+            out.extend(chunk)
+            start += len(chunk)
+
+    while i < n - 2:
+        key = data[i : i + 3]
+        ref = table.get(key)
+        table[key] = i
+        if ref is not None and i - ref - 1 < 8192:
+            max_len = min(264, n - i)
+            length = 3
+            while length < max_len and data[ref + length] == data[i + length]:
+                length += 1
+            flush_literals(i)
+            off = i - ref - 1
+            code = length - 2
+            if code < 7:
+                out.append((code << 5) | (off >> 8))
+            else:
+                out.append((7 << 5) | (off >> 8))
+                out.append(code - 7)
+            out.append(off & 0xFF)
+            i += length
+            lit_start = i
+        else:
+            i += 1
+    flush_literals(n)
+    return bytes(out)
+
+
+# --------------------------------------------------------------------------------------------- read
+def _header_error(path: Path, lineno: int, msg: str) -> DatasetError:
+    return DatasetError(f"{path}: line {lineno}: bad PCD header: {msg}")
+
+
+def read_pcd(path: Path | str) -> dict[str, np.ndarray]:
+    """Read a PCD file into one array per field.
+
+    Returns:
+        ``{name: array}`` in the file's field order, each ``(N,)`` (COUNT 1) or ``(N, COUNT)`` with
+        the field's dtype (Apollo: ``x y z intensity`` float32). Organised clouds (HEIGHT > 1) come
+        flattened, N = WIDTH * HEIGHT. Invalid points (NaN) are kept: the caller masks them.
+
+    Raises:
+        DatasetError: missing file, bad header (naming the line), unknown DATA encoding, truncated
+            or corrupt data.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise DatasetError(f"{path}: cannot read PCD file: {err.strerror or err}") from None
+
+    header: dict[str, list[str]] = {}
+    lines: dict[str, int] = {}
+    pos = 0
+    lineno = 0
+    while True:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise _header_error(path, lineno + 1, "no DATA line (file ends inside the header)")
+        lineno += 1
+        try:
+            line = raw[pos:end].decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise _header_error(path, lineno, "not ASCII text (is this a PCD file?)") from None
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        if key not in _HEADER_KEYS:
+            raise _header_error(path, lineno, f"unknown keyword {key!r}")
+        header[key] = values
+        lines[key] = lineno
+        if key == "DATA":
+            break
+
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH", "DATA"):
+        if key not in header:
+            raise _header_error(path, lineno, f"missing {key}")
+    names = header["FIELDS"]
+    nf = len(names)
+    counts_s = header.get("COUNT", ["1"] * nf)
+    for key, vals in (("SIZE", header["SIZE"]), ("TYPE", header["TYPE"]), ("COUNT", counts_s)):
+        if len(vals) != nf:
+            raise _header_error(path, lines.get(key, lineno), f"{key} has {len(vals)} entries, FIELDS has {nf}")
+    try:
+        sizes = [int(v) for v in header["SIZE"]]
+        counts = [int(v) for v in counts_s]
+        width = int(header["WIDTH"][0])
+        height = int(header.get("HEIGHT", ["1"])[0])
+        npoints = int(header["POINTS"][0]) if "POINTS" in header else width * height
+    except (ValueError, IndexError):
+        raise _header_error(path, lineno, "SIZE, COUNT, WIDTH, HEIGHT and POINTS must be integers") from None
+    if npoints < 0 or width * height != npoints:
+        raise _header_error(path, lines.get("POINTS", lineno), f"POINTS {npoints} != WIDTH*HEIGHT {width * height}")
+    dtypes = []
+    for name, t, s in zip(names, header["TYPE"], sizes):
+        if (t, s) not in _TYPES:
+            raise _header_error(path, lines["TYPE"], f"field {name!r} has unsupported TYPE {t} SIZE {s}")
+        dtypes.append(np.dtype(_TYPES[(t, s)]).newbyteorder("<"))
+    encoding = header["DATA"][0] if header["DATA"] else ""
+    if encoding not in _ENCODINGS:
+        raise _header_error(path, lines["DATA"], f"DATA {encoding!r} is not one of {', '.join(_ENCODINGS)}")
+
+    body = raw[pos:]
+    point_step = sum(s * c for s, c in zip(sizes, counts))
+    out: dict[str, np.ndarray] = {}
+    if encoding == "binary":
+        need = npoints * point_step
+        if len(body) < need:
+            raise DatasetError(f"{path}: truncated binary PCD data: {len(body)} bytes, {need} expected")
+        offset = 0
+        rec = np.frombuffer(body, dtype=np.uint8, count=need).reshape(npoints, point_step)
+        for name, dt, s, c in zip(names, dtypes, sizes, counts):
+            block = np.ascontiguousarray(rec[:, offset : offset + s * c]).view(dt).reshape(npoints, c)
+            offset += s * c
+            if name != "_":
+                out[name] = (block[:, 0] if c == 1 else block).astype(dt.newbyteorder("="))
+    elif encoding == "binary_compressed":
+        if len(body) < 8:
+            raise DatasetError(f"{path}: truncated binary_compressed PCD data (no size words)")
+        csize, usize = (int(v) for v in np.frombuffer(body[:8], dtype="<u4"))
+        if len(body) - 8 < csize:
+            raise DatasetError(f"{path}: truncated binary_compressed PCD data: {len(body) - 8} of {csize} bytes")
+        if usize != npoints * point_step:
+            raise DatasetError(f"{path}: binary_compressed size {usize} != POINTS*point size {npoints * point_step}")
+        try:
+            data = lzf_decompress(body[8 : 8 + csize], usize) if npoints else b""
+        except ValueError as err:
+            raise DatasetError(f"{path}: corrupt LZF data: {err}") from None
+        offset = 0
+        for name, dt, s, c in zip(names, dtypes, sizes, counts):
+            nbytes = npoints * s * c
+            block = np.frombuffer(data[offset : offset + nbytes], dtype=dt).reshape(npoints, c)
+            offset += nbytes
+            if name != "_":
+                out[name] = (block[:, 0] if c == 1 else block).astype(dt.newbyteorder("="))
+    else:  # ascii
+        text = body.decode("ascii", errors="replace").split("\n")
+        rows = [r.split() for r in text if r.strip()]
+        ncols = sum(counts)
+        if len(rows) < npoints:
+            raise DatasetError(f"{path}: truncated ascii PCD data: {len(rows)} rows, POINTS says {npoints}")
+        first_data_line = lineno + 1
+        for k, r in enumerate(rows[:npoints]):
+            if len(r) != ncols:
+                raise DatasetError(
+                    f"{path}: line {first_data_line + k}: {len(r)} values, {ncols} expected from FIELDS/COUNT"
+                )
+        try:
+            table = np.array(rows[:npoints], dtype=np.float64).reshape(npoints, ncols)
+        except ValueError:
+            raise DatasetError(f"{path}: ascii PCD data holds a value that is not a number") from None
+        col = 0
+        for name, dt, c in zip(names, dtypes, counts):
+            block = table[:, col : col + c]
+            col += c
+            if dt.kind in "iu":  # integers: parse exactly from the text, not through float64
+                block = np.array([r[col - c : col] for r in rows[:npoints]], dtype=np.int64).reshape(npoints, c)
+            arr = block.astype(dt.newbyteorder("="))
+            if name != "_":
+                out[name] = arr[:, 0] if c == 1 else arr
+    return out
+
+
+# -------------------------------------------------------------------------------------------- write
+def _pcd_type(dtype: np.dtype) -> tuple[str, int]:
+    dtype = np.dtype(dtype)
+    kind = {"f": "F", "i": "I", "u": "U", "b": "U"}.get(dtype.kind)
+    if kind is None or (kind, dtype.itemsize) not in _TYPES:
+        raise DatasetError(f"cannot write dtype {dtype} to PCD")
+    return kind, dtype.itemsize
+
+
+def write_pcd(path: Path | str, arrays: dict[str, np.ndarray], encoding: str = "binary") -> None:
+    """Write a PCD v0.7 file.
+
+    Args:
+        path: output file.
+        arrays: ``{name: (N,) or (N, count) array}``; ``x``, ``y``, ``z`` first when present. A
+            ``points``/``xyz`` entry of shape (N, 3) is written as fields ``x y z``.
+            Apollo layout: ``{"points": (N, 3) float32, "intensity": (N,) float32}``.
+        encoding: ``"binary"`` (default), ``"ascii"`` or ``"binary_compressed"`` (LZF).
+    """
+    path = Path(path)
+    if encoding not in _ENCODINGS:
+        raise DatasetError(f"PCD encoding must be one of {', '.join(_ENCODINGS)}, got {encoding!r}")
+    cols: dict[str, np.ndarray] = {}
+    for name, arr in arrays.items():
+        arr = np.asarray(arr)
+        if name in ("points", "xyz"):
+            arr = arr.reshape(-1, 3)
+            cols.update({"x": arr[:, 0], "y": arr[:, 1], "z": arr[:, 2]})
+        else:
+            cols[name] = arr
+    order = [k for k in ("x", "y", "z") if k in cols] + [k for k in cols if k not in ("x", "y", "z")]
+    cols = {k: (cols[k].reshape(len(cols[k]), -1)) for k in order}
+    sizes_n = {len(v) for v in cols.values()}
+    if len(sizes_n) > 1:
+        raise DatasetError(f"{path}: PCD fields have different lengths {sorted(sizes_n)}")
+    npoints = sizes_n.pop() if sizes_n else 0
+    types = [_pcd_type(v.dtype) for v in cols.values()]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\n"
+        "VERSION 0.7\n"
+        f"FIELDS {' '.join(cols)}\n"
+        f"SIZE {' '.join(str(s) for _, s in types)}\n"
+        f"TYPE {' '.join(t for t, _ in types)}\n"
+        f"COUNT {' '.join(str(v.shape[1]) for v in cols.values())}\n"
+        f"WIDTH {npoints}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {npoints}\nDATA {encoding}\n"
+    ).encode("ascii")
+    le = {k: np.ascontiguousarray(v.astype(v.dtype.newbyteorder("<"))) for k, v in cols.items()}
+    if encoding == "binary":
+        rec = np.empty(npoints, dtype=[(f"f{i}", v.dtype, (v.shape[1],)) for i, v in enumerate(le.values())])
+        for i, v in enumerate(le.values()):  # interleave: one record per point
+            rec[f"f{i}"] = v
+        body = rec.tobytes()
+    elif encoding == "binary_compressed":
+        raw = b"".join(v.tobytes() for v in le.values())
+        comp = lzf_compress(raw) if raw else b""
+        body = np.array([len(comp), len(raw)], dtype="<u4").tobytes() + comp
+    else:
+        fmts = []
+        for v in cols.values():
+            f = "%.9g" if v.dtype == np.float32 else "%.17g" if v.dtype.kind == "f" else "%d"
+            fmts += [f] * v.shape[1]
+        table = [v.astype(object) if v.dtype.kind != "f" else v for v in cols.values()]
+        lines = []
+        for i in range(npoints):
+            vals = [x for v in table for x in v[i]]
+            lines.append(" ".join(f % x for f, x in zip(fmts, vals)))
+        body = ("\n".join(lines) + ("\n" if lines else "")).encode("ascii")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(header + body)
