@@ -47,7 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("dst", metavar="DST", help="output directory (must not exist, or be empty)")
     g.add_argument("--format", choices=FORMATS, default="mcap", help="output format (default: mcap rosbag2)")
     g.add_argument("--out-topic", default=None, help="LiDAR topic in a written bag (default: Apollo's)")
-    g.add_argument("--out-gt-topic", default=None, help="ground-truth topic in a written bag (default: /ground_truth/pose)")
+    g.add_argument(
+        "--out-gt-topic", default=None, help="ground-truth topic in a written bag (default: /ground_truth/pose)"
+    )
     g.add_argument("--max-frames", type=int, default=None, metavar="N", help="convert only the first N frames")
     return parser
 

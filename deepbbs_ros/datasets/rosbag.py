@@ -141,7 +141,8 @@ class _McapStreamBackend:
         for file in self.files:
             with open(file, "rb") as f:
                 try:
-                    yield from NonSeekingReader(f, validate_crcs=True).iter_messages(topics=topics, log_time_order=False)
+                    reader = NonSeekingReader(f, validate_crcs=True)
+                    yield from reader.iter_messages(topics=topics, log_time_order=False)
                 except (McapError, EOFError, ValueError, OSError) as err:
                     detail = f"{type(err).__name__}: {err}" if str(err).strip() else type(err).__name__
                     raise _StreamEnd(f"{file}: bag is truncated or corrupt ({detail})") from None
@@ -248,10 +249,13 @@ class BagSource(ScanSource):
         poses = sorted(t for t, (typ, _) in self.backend.topics.items() if typ in POSE_TYPES)
         if gt_topic is not None:
             if gt_topic not in self.backend.topics:
-                raise BagError(f"{self.path}: no ground-truth topic {gt_topic!r}; pose topics: {', '.join(poses) or 'none'}")
+                listing = ", ".join(poses) or "none"
+                raise BagError(f"{self.path}: no ground-truth topic {gt_topic!r}; pose topics: {listing}")
             typ = self.backend.topics[gt_topic][0]
             if typ not in POSE_TYPES:
-                raise BagError(f"{self.path}: ground-truth topic {gt_topic!r} is {typ}, not one of {', '.join(POSE_TYPES)}")
+                raise BagError(
+                    f"{self.path}: ground-truth topic {gt_topic!r} is {typ}, not one of {', '.join(POSE_TYPES)}"
+                )
             return gt_topic
         if GT_POSE_TOPIC in poses:
             return GT_POSE_TOPIC
@@ -291,7 +295,9 @@ class BagSource(ScanSource):
             except BagError:
                 raise
             except (*_rosbags_errors(), OSError, KeyError, ValueError) as err:
-                raise BagError(f"{self.path}: bag is truncated or corrupt after {index} scans on {self.topic}: {err}") from None
+                raise BagError(
+                    f"{self.path}: bag is truncated or corrupt after {index} scans on {self.topic}: {err}"
+                ) from None
             if item is None:
                 return
             _topic, _typ, msg = item
