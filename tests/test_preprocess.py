@@ -109,6 +109,7 @@ def make_scan(
     best_t += rng.normal(0.0, noise, n_rays)
     miss = ~np.isfinite(best_t) | (best_t > max_range) | (rng.random(n_rays) < dropout)
     labels[miss] = NONE
+    best_t[miss] = 0.0
     points = (u * best_t[:, None]).astype(np.float32)
     points[miss] = np.nan
     return points, labels, plane
@@ -214,10 +215,19 @@ def test_ground_fit_is_deterministic_for_a_seed(small_scan):
     np.testing.assert_array_equal(a, b)
 
 
-def test_ground_fit_needs_points_near_the_sensor():
-    far = np.random.default_rng(0).uniform(50, 60, size=(100, 3)).astype(np.float32)
+def test_ground_fit_needs_points_near_the_sensor_and_a_horizontal_plane(rng):
+    far = rng.uniform(50, 60, size=(100, 3)).astype(np.float32)
     with pytest.raises(RegistrationError, match="ground_seed_radius"):
         fit_ground_plane(far, PreprocessConfig())
+    # a cloud of vertical walls only: no near-horizontal plane
+    walls = np.concatenate(
+        [np.column_stack([np.full(500, x), rng.uniform(-10, 10, 500), rng.uniform(-2, 10, 500)]) for x in (-6.0, 7.0)]
+    ).astype(np.float32)
+    with pytest.raises(RegistrationError, match="near-horizontal plane"):
+        fit_ground_plane(walls, PreprocessConfig())
+    # preprocess then keeps every point and reports no plane
+    res = preprocess(walls, PreprocessConfig(num_points=200, voxel_size=0.0), seed=0)
+    assert res.ground_plane is None and res.n_nonground == res.n_valid == len(walls)
 
 
 # -- voxel grid ----------------------------------------------------------------------------------
