@@ -1,0 +1,144 @@
+"""``deepbbs-play SOURCE``: publish a recording's clouds (and ``/clock``) at real or scaled rate.
+
+For pip-only installs that have no ``ros2 bag play``: any source :func:`deepbbs_ros.datasets.open_source`
+reads (ROS 1/2 bags, mcap, Apollo-style and KITTI folders) drives the live node::
+
+    deepbbs-play bags/sample.mcap --rate 0.5 --cloud-topic /points
+    deepbbs-node --ros-args -p node.mode:=odometry -p use_sim_time:=true -r cloud:=/points
+
+Clouds keep their recorded stamps and frames; ``/clock`` follows the recording's time (scaled by
+``--rate``) so nodes with ``use_sim_time`` see the recording's clock. Ground truth, when present, is
+published as ``geometry_msgs/PoseStamped`` on ``--gt-topic``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from deepbbs_ros.cli.common import cli_entry, local_ros_env
+from deepbbs_ros.errors import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="deepbbs-play", description=__doc__.split("\n\n")[0].split(": ", 1)[1])
+    p.add_argument("source", help="bag (.bag, rosbag2 folder, .mcap, .db3), Apollo-style or KITTI folder")
+    g = p.add_argument_group("input")
+    g.add_argument("--topic", help="PointCloud2 topic to read (needed when the bag has several)")
+    g.add_argument("--start", type=int, default=0, metavar="N", help="skip the first N frames")
+    g.add_argument("--frames", type=int, default=0, metavar="N", help="publish at most N frames (0 = all)")
+    g = p.add_argument_group("output")
+    g.add_argument("--cloud-topic", help="topic to publish clouds on (default: the recording's topic)")
+    g.add_argument("--gt-topic", default=None, help="ground-truth PoseStamped topic (default /ground_truth/pose)")
+    g.add_argument("--no-gt", action="store_true", help="do not publish ground truth")
+    g.add_argument("--no-clock", action="store_true", help="do not publish /clock")
+    g.add_argument("--clock-hz", type=float, default=100.0, metavar="HZ", help="/clock rate between frames (Hz)")
+    g.add_argument(
+        "--reliability", choices=("best_effort", "reliable"), default="reliable",
+        help="QoS of the cloud publisher (reliable also reaches best-effort subscribers)",
+    )
+    g = p.add_argument_group("timing")
+    g.add_argument("--rate", type=float, default=1.0, help="speed factor: 1 = real time, 0.5 = half speed")
+    g.add_argument("--loop", action="store_true", help="start again at the end (stamps repeat: nodes reset)")
+    g.add_argument(
+        "--wait", type=float, default=2.0, metavar="S",
+        help="wait up to S seconds for a subscriber on the cloud topic before starting (s)",
+    )
+    g = p.add_argument_group("transport")
+    g.add_argument("--no-shm-profile", action="store_true", help="do not apply the shipped Fast DDS profile")
+    g.add_argument("--local", action="store_true", help="keep DDS on loopback in a per-run domain (demos, tests)")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+@cli_entry("deepbbs-play")
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.rate <= 0:
+        raise ConfigError(f"--rate must be > 0, got {args.rate}")
+    if args.clock_hz <= 0:
+        raise ConfigError(f"--clock-hz must be > 0, got {args.clock_hz}")
+    from deepbbs_ros.datasets import GT_POSE_TOPIC, open_source
+    from deepbbs_ros.node.dds import apply_default_profile
+
+    source = open_source(args.source, topic=args.topic)
+    if args.local:
+        local_ros_env()
+    if not args.no_shm_profile:
+        apply_default_profile()
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import PointCloud2
+    from tqdm import tqdm
+
+    from msg_adapters.pointcloud2 import arrays_to_pointcloud2
+    from msg_adapters.transforms import matrix_to_pose_stamped, ns_to_stamp
+
+    cloud_topic = args.cloud_topic or source.topic
+    gt_topic = args.gt_topic or GT_POSE_TOPIC
+    rclpy.init(args=None)
+    node = rclpy.create_node("deepbbs_play")
+    try:
+        qos = QoSProfile(
+            depth=5,
+            history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.RELIABLE if args.reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
+        )
+        pub_cloud = node.create_publisher(PointCloud2, cloud_topic, qos)
+        pub_gt = None if args.no_gt or not source.has_ground_truth else node.create_publisher(PoseStamped, gt_topic, 10)
+        pub_clock = None if args.no_clock else node.create_publisher(Clock, "/clock", 10)
+
+        deadline = time.monotonic() + args.wait
+        while pub_cloud.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+        def clock(ns: int) -> None:
+            if pub_clock is not None:
+                pub_clock.publish(Clock(clock=ns_to_stamp(ns)))
+
+        sent = 0
+        total = len(source) - args.start
+        if args.frames:
+            total = min(total, args.frames)
+        bar = tqdm(total=max(total, 0), unit="frames", disable=args.quiet, desc=f"play -> {cloud_topic}")
+        while True:
+            t0_wall = None
+            stamp0 = 0
+            for k, scan in enumerate(source):
+                if k < args.start:
+                    continue
+                if args.frames and k - args.start >= args.frames:
+                    break
+                if t0_wall is None:
+                    t0_wall, stamp0 = time.monotonic(), scan.stamp_ns
+                due = t0_wall + (scan.stamp_ns - stamp0) * 1e-9 / args.rate
+                while True:  # /clock ticks while waiting for the frame's time
+                    now = time.monotonic()
+                    if now >= due:
+                        break
+                    clock(stamp0 + int((now - t0_wall) * args.rate * 1e9))
+                    time.sleep(min(1.0 / args.clock_hz, due - now))
+                clock(scan.stamp_ns)
+                msg = arrays_to_pointcloud2(
+                    scan.points, dict(scan.fields), stamp_ns=scan.stamp_ns, frame_id=scan.frame_id
+                )
+                pub_cloud.publish(msg)
+                if pub_gt is not None and scan.T_world_lidar is not None:
+                    from deepbbs_ros.datasets import WORLD_FRAME
+
+                    pub_gt.publish(matrix_to_pose_stamped(scan.T_world_lidar, scan.stamp_ns, WORLD_FRAME))
+                sent += 1
+                bar.update(1)
+            if not args.loop:
+                break
+            bar.reset()
+        bar.close()
+        time.sleep(0.2)  # let the last messages leave before the participant goes away
+        node.get_logger().info(f"published {sent} frames on {cloud_topic}")
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,314 @@
+"""The live node with real rclpy and DDS: conventions, bad input, odometry mode, start-up errors.
+
+The node runs in-process on a MultiThreadedExecutor next to a test client node; clouds travel over
+real DDS (loopback, per-run domain, shipped shared-memory profile). Registration is the real
+DeepBBSRegistration; these tests check the node, so they use a tiny random network with the
+refinement only (``registration.deep: false``, a real configuration) on small motions, which does not
+depend on trained weights. Accuracy with the shipped weights is tested in test_play.py.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.node.dds import apply_default_profile
+
+apply_default_profile()  # before the first DDS participant of this process
+
+rclpy = pytest.importorskip("rclpy")
+
+from geometry_msgs.msg import PoseStamped, TransformStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from deepbbs_ros.config import Config  # noqa: E402
+from deepbbs_ros.errors import NodeError  # noqa: E402
+from deepbbs_ros.metrics import pair_errors  # noqa: E402
+from deepbbs_ros.node.registration_node import RegistrationNode  # noqa: E402
+from deepbbs_ros.node.synthetic import SyntheticTown, pose  # noqa: E402
+from msg_adapters.pointcloud2 import arrays_to_pointcloud2  # noqa: E402
+from msg_adapters.transforms import odometry_to_matrix, pose_stamped_to_matrix, transform_stamped_to_matrix  # noqa: E402
+
+SEC = 1_000_000_000
+N_POINTS = 30_000  # enough structure for the refinement; keeps the tests fast on 2 cores
+
+TINY = {
+    "model.k": 8,
+    "model.dgcnn_widths": [16, 32],
+    "model.emb_dims": 32,
+    "model.n_heads": 2,
+    "model.ff_dims": 64,
+    "preprocess.num_points": 512,
+    "registration.deep": False,
+    "registration.device": "cpu",
+}
+
+
+def tiny_config(**extra) -> Config:
+    return Config().replace(**{**TINY, **extra})
+
+
+def tiny_registration(cfg: Config):
+    import torch
+
+    registration = pytest.importorskip("deepbbs_ros.core.registration", reason="core registration not available")
+    from deepbbs_ros.core.model import DeepBBSNet
+
+    torch.manual_seed(0)
+    return registration.DeepBBSRegistration(cfg, model=DeepBBSNet(cfg.model).eval(), device="cpu")
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+@pytest.fixture(scope="module")
+def town():
+    return SyntheticTown(seed=3)
+
+
+class Harness:
+    """The node plus a client node (publishers of the inputs, subscribers of the outputs)."""
+
+    def __init__(self, cfg: Config, name: str) -> None:
+        self.node = RegistrationNode(cfg, registration=tiny_registration(cfg), node_name=name)
+        self.client = rclpy.create_node(f"{name}_client")
+        self.poses: list[PoseStamped] = []
+        self.transforms: list[TransformStamped] = []
+        self.odoms: list[Odometry] = []
+        c = self.client
+        c.create_subscription(PoseStamped, f"/{name}/pose", self.poses.append, 50)
+        c.create_subscription(TransformStamped, f"/{name}/transform", self.transforms.append, 50)
+        c.create_subscription(Odometry, f"/{name}/odometry", self.odoms.append, 50)
+        self.pub = {t: c.create_publisher(PointCloud2, t, 5) for t in ("source_cloud", "target_cloud", "cloud")}
+        self.reset = c.create_client(Trigger, f"/{name}/reset")
+        self.executor = MultiThreadedExecutor(num_threads=3)
+        self.executor.add_node(self.node)
+        self.executor.add_node(c)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        topics = ("source_cloud", "cloud") if cfg.node.mode == "pair" else ("cloud",)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            if any(self.pub[t].get_subscription_count() > 0 for t in topics) and c.count_publishers(f"/{name}/pose"):
+                break
+            time.sleep(0.05)
+
+    def send(self, topic: str, xyz: np.ndarray, stamp_ns: int, frame: str = "lidar") -> None:
+        self.pub[topic].publish(arrays_to_pointcloud2(xyz, stamp_ns=stamp_ns, frame_id=frame))
+
+    def send_raw(self, topic: str, msg: PointCloud2) -> None:
+        self.pub[topic].publish(msg)
+
+    def wait_for(self, cond, timeout: float = 30.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if cond():
+                return True
+            time.sleep(0.02)
+        return False
+
+    def wait_processed(self, n: int, timeout: float = 30.0) -> None:
+        s = self.node.stats
+        done = self.wait_for(lambda: s()["processed"] + s()["rejected"] >= n and not self.node.worker.busy, timeout)
+        assert done, s()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.client.destroy_node()
+
+
+def _check_pose(T_est: np.ndarray, T_gt: np.ndarray, rot_deg: float = 1.0, trans_m: float = 0.3) -> None:
+    r, t = pair_errors(T_est, T_gt)
+    assert r <= rot_deg and t <= trans_m, f"rot {r:.3f} deg, trans {t:.3f} m\n{T_est}\nvs\n{T_gt}"
+
+
+def test_pair_mode_publishes_T_target_source(ros, town):
+    h = Harness(tiny_config(**{"node.publish_odometry": True}), "reg_pair")
+    try:
+        T_w_tgt = pose(10.0, 2.0, 0.0, 0.1)
+        T_w_src = T_w_tgt @ pose(1.0, 0.2, 0.0, np.deg2rad(3.0))
+        tgt_xyz = town.scan(T_w_tgt, N_POINTS, seed=1)
+        src_xyz = town.scan(T_w_src, N_POINTS, seed=2)
+        h.send("target_cloud", tgt_xyz, 5 * SEC + 20_000_000, "lidar_t")
+        h.send("source_cloud", src_xyz, 5 * SEC, "lidar_s")
+        assert h.wait_for(lambda: h.poses and h.transforms and h.odoms), h.node.stats()
+        T, stamp, frame = pose_stamped_to_matrix(h.poses[0])
+        assert frame == "lidar_t"  # the target cloud's frame
+        assert stamp == 5 * SEC  # the source stamp, never the wall clock
+        _check_pose(T, np.linalg.inv(T_w_tgt) @ T_w_src)
+        T2, stamp2, frame2, child = transform_stamped_to_matrix(h.transforms[0])
+        assert (stamp2, frame2, child) == (5 * SEC, "lidar_t", "lidar_s")
+        np.testing.assert_allclose(T2, T, atol=1e-6)
+        To, _, f_o, c_o = odometry_to_matrix(h.odoms[0])
+        np.testing.assert_allclose(To, T, atol=1e-6)
+        cov = np.asarray(h.odoms[0].pose.covariance).reshape(6, 6)
+        assert (f_o, c_o) == ("lidar_t", "lidar_s")
+        assert np.all(np.diag(cov) > 0) and np.allclose(cov, cov.T)
+        assert np.all(np.linalg.eigvalsh(cov) > -1e-12)
+        s = h.node.stats()
+        assert s["processed"] == 1 and s["dropped"] == 0 and s["errors"] == {}
+        assert {"decode", "preprocess", "register", "publish", "total"} <= set(s["latency_ms"])
+    finally:
+        h.close()
+
+
+def _raw(width: int, height: int, fields, point_step: int, data: bytes, frame: str = "lidar", stamp_s: int = 1):
+    m = PointCloud2()
+    m.header.frame_id = frame
+    m.header.stamp.sec = stamp_s
+    m.width, m.height = width, height
+    m.fields = [PointField(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields]
+    m.point_step = point_step
+    m.row_step = point_step * width
+    m.data = data
+    return m
+
+
+XYZ = [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)]
+
+
+def test_bad_input_rejected_then_recovers(ros, town):
+    cfg = tiny_config(**{"node.error_log_period": 60.0})
+    h = Harness(cfg, "reg_bad")
+    try:
+        good_t = town.scan(pose(), N_POINTS, seed=4)
+        good_s = town.scan(pose(0.8, 0.0, 0.0, np.deg2rad(2.0)), N_POINTS, seed=5)
+        nan = np.full((500, 3), np.nan, dtype=np.float32)
+        pts = np.ones((200, 3), np.float32)
+        cases = [  # (kind, source message)
+            ("malformed_cloud", _raw(10, 1, XYZ[:2], 12, bytes(120))),  # no z field
+            ("malformed_cloud", _raw(10, 1, XYZ, 12, bytes(119))),  # data length != row_step*height
+            ("malformed_cloud", _raw(10, 1, [*XYZ[:2], ("z", 8, 9, 1)], 12, bytes(120))),  # unknown datatype
+            ("malformed_cloud", _raw(10, 1, XYZ, 8, bytes(80))),  # z runs past point_step
+            ("empty_cloud", _raw(0, 0, XYZ, 12, b"")),
+            ("no_valid_points", arrays_to_pointcloud2(nan, stamp_ns=1 * SEC, frame_id="lidar")),
+            ("too_few_points", arrays_to_pointcloud2(pts[:50], stamp_ns=1 * SEC, frame_id="lidar")),
+            ("missing_frame", arrays_to_pointcloud2(good_s, stamp_ns=1 * SEC, frame_id="")),
+        ]
+        for k, (_, msg) in enumerate(cases):
+            stamp = (10 + k) * SEC
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 10 + k, 0
+            h.send("target_cloud", good_t, stamp)
+            h.send_raw("source_cloud", msg)
+            h.wait_processed(k + 1)
+        # a source frame different from the one seen before on that input
+        h.send("target_cloud", good_t, 30 * SEC)
+        h.send("source_cloud", good_s, 30 * SEC)
+        h.wait_processed(len(cases) + 1)
+        h.send("target_cloud", good_t, 31 * SEC)
+        h.send("source_cloud", good_s, 31 * SEC, frame="other_lidar")
+        h.wait_processed(len(cases) + 2)
+        s = h.node.stats()
+        expected: dict[str, int] = {}
+        for kind, _ in cases:
+            expected[kind] = expected.get(kind, 0) + 1
+        expected["mismatched_frame"] = 1
+        assert s["errors"] == expected
+        assert s["rejected"] == len(cases) + 1
+        assert len(h.poses) == 1 and pose_stamped_to_matrix(h.poses[0])[1] == 30 * SEC  # only the good pair
+        # still up: the next good pair is handled
+        h.send("target_cloud", good_t, 40 * SEC)
+        h.send("source_cloud", good_s, 40 * SEC)
+        assert h.wait_for(lambda: len(h.poses) == 2)
+        T, stamp, _ = pose_stamped_to_matrix(h.poses[1])
+        assert stamp == 40 * SEC
+        _check_pose(T, pose(0.8, 0.0, 0.0, np.deg2rad(2.0)))
+    finally:
+        h.close()
+
+
+def test_odometry_mode_accumulates_and_resets(ros, town):
+    h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom"}), "reg_odom")
+    try:
+        T_w = [pose(0.9 * k, 0.05 * k, 0.0, np.deg2rad(1.5 * k)) for k in range(4)]
+        for k, T in enumerate(T_w):
+            h.send("cloud", town.scan(T, N_POINTS, seed=10 + k), (100 + k) * SEC // 10)
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: len(h.poses) == 4)
+        for k, msg in enumerate(h.poses):
+            T, stamp, frame = pose_stamped_to_matrix(msg)
+            assert frame == "odom" and stamp == (100 + k) * SEC // 10
+            _check_pose(T, np.linalg.inv(T_w[0]) @ T_w[k], rot_deg=1.0 * max(k, 1), trans_m=0.3 * max(k, 1))
+        assert h.transforms[-1].child_frame_id == "lidar"
+        assert h.reset.wait_for_service(timeout_sec=5.0)
+        fut = h.reset.call_async(Trigger.Request())
+        assert h.wait_for(fut.done, 10.0) and fut.result().success
+        h.send("cloud", town.scan(T_w[3], N_POINTS, seed=20), 200 * SEC)
+        assert h.wait_for(lambda: len(h.poses) == 5)
+        np.testing.assert_allclose(pose_stamped_to_matrix(h.poses[4])[0], np.eye(4), atol=1e-9)
+    finally:
+        h.close()
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"node.odom_frame": "/odom"}, r"node.odom_frame: invalid frame id '/odom'"),
+        ({"node.base_frame": "base link"}, r"node.base_frame: invalid frame id"),
+        ({"node.publish_tf": True}, r"tf2_msgs"),
+    ],
+)
+def test_startup_errors_in_process(ros, overrides, match):
+    cfg = tiny_config(**overrides)
+    if overrides.get("node.publish_tf"):
+        pytest.importorskip("sys")  # always there; the check below decides
+        try:
+            import tf2_msgs  # noqa: F401
+
+            pytest.skip("tf2_msgs is installed here: publish_tf works")
+        except ImportError:
+            pass
+    with pytest.raises(NodeError, match=match):
+        RegistrationNode(cfg, registration=tiny_registration(cfg), node_name="reg_err")
+
+
+@pytest.mark.parametrize(
+    "name, value, match",
+    [
+        ("registration.device", "tpu", r"registration.device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got 'tpu'"),
+        ("node.mode", "stereo", r"node.mode must be 'pair' or 'odometry', got 'stereo'"),
+        ("node.slop", -1.0, r"node.slop must be >= 0"),
+    ],
+)
+def test_bad_parameters_in_process(ros, name, value, match):
+    from rclpy.parameter import Parameter
+
+    cfg = tiny_config()
+    with pytest.raises(NodeError, match=match):
+        RegistrationNode(cfg, node_name="reg_param", parameter_overrides=[Parameter(name, value=value)])
+
+
+def _run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "deepbbs_ros.node.registration_node", *args],
+        capture_output=True, text=True, timeout=timeout,
+    )
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["--ros-args", "-p", "registration.weights:=/nonexistent/w.pt"], r"registration.weights: file not found"),
+        (["--ros-args", "-r", "source_cloud:=bad topic"], r"source_cloud|topic|remap|bad topic"),
+    ],
+)
+def test_cli_startup_errors(tmp_path, args, match):
+    res = _run_cli(*args)
+    assert res.returncode != 0, res.stderr
+    assert "Traceback" not in res.stderr, res.stderr
+    import re
+
+    assert re.search(match, res.stderr), res.stderr
