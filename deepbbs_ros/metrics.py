@@ -273,18 +273,27 @@ def _quat_xyzw_to_matrix(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
-def write_tum(path: str | Path, stamps_s: Sequence[float] | np.ndarray, T_world: Sequence[np.ndarray] | np.ndarray) -> None:
-    """Write ``timestamp tx ty tz qx qy qz qw`` per line (seconds, metres; w >= 0)."""
+def write_tum(
+    path: str | Path, stamps_s: Sequence[float] | np.ndarray, T_world: Sequence[np.ndarray] | np.ndarray
+) -> None:
+    """Write ``timestamp tx ty tz qx qy qz qw`` per line (seconds, metres; w >= 0).
+
+    ``stamps_s``: (N,) float seconds, or an integer array of nanoseconds (written exactly).
+    """
     P = _stack(T_world, "write_tum") if len(T_world) else np.zeros((0, 4, 4))
-    stamps = np.asarray(stamps_s, dtype=np.float64).ravel()
-    if stamps.shape[0] != P.shape[0]:
-        raise ValueError(f"write_tum: {stamps.shape[0]} stamps for {P.shape[0]} poses")
+    raw = np.asarray(stamps_s).ravel()
+    if np.issubdtype(raw.dtype, np.integer):
+        stamps = [f"{int(v) // 1_000_000_000}.{int(v) % 1_000_000_000:09d}" for v in raw]
+    else:
+        stamps = [f"{v:.9f}" for v in raw.astype(np.float64)]
+    if len(stamps) != P.shape[0]:
+        raise ValueError(f"write_tum: {len(stamps)} stamps for {P.shape[0]} poses")
     with open(path, "w") as fh:
         if P.shape[0]:
             q = _matrix_to_quat_xyzw(P[:, :3, :3])
             for s, T, qq in zip(stamps, P, q):
                 x, y, z = T[:3, 3]
-                fh.write(f"{s:.9f} {x:.9f} {y:.9f} {z:.9f} {qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}\n")
+                fh.write(f"{s} {x:.9f} {y:.9f} {z:.9f} {qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}\n")
 
 
 def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,250 @@
+"""Classical baselines that DeepBBS++ is compared with: small_gicp ICP / point-to-plane ICP / GICP, KISS-ICP.
+
+No ROS import. Transforms follow CONVENTIONS.md: registration of ``source`` against ``target`` returns
+``T_target_source`` (4, 4) float64 with ``p_target = R @ p_source + t`` — the same direction as
+``small_gicp.align(target, source, init_T_target_source)``, pinned by ``tests/test_baselines.py``.
+
+Input clouds ("which preprocessing"):
+
+* ``eval.baseline_input = "dense"`` (default): crop to ``[preprocess.min_range, preprocess.max_range]``
+  then a voxel grid of ``eval.baseline_voxel_size`` metres, **ground kept**. ICP-type methods need
+  dense, ground-bearing clouds (the ground pins z, roll and pitch); on DeepBBS++'s 1000 non-ground
+  points they are handicapped.
+* ``eval.baseline_input = "deepbbs"``: exactly DeepBBS++'s preprocessing (crop, ground removal,
+  voxel grid, farthest-point sampling to ``preprocess.num_points``).
+
+KISS-ICP always runs its own pipeline on the raw scan (adaptive threshold, local voxel map, motion
+compensation), with the same crop ranges; that is the point of the baseline.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.errors import ConfigError, RegistrationError
+
+#: replay method name -> small_gicp ``registration_type``
+SMALL_GICP_TYPES = {"icp": "ICP", "plane-icp": "PLANE_ICP", "gicp": "GICP"}
+
+
+@dataclass
+class BaselineResult:
+    """Result of one baseline registration.
+
+    Attributes:
+        T_target_source: (4, 4) float64.
+        converged: the solver's own convergence flag.
+        iterations: solver iterations.
+        num_inliers: correspondences within ``max_correspondence_distance`` at the end.
+        timings_ms: ``{"preprocess", "register", "total"}`` (preprocess 0 when inputs were prepared).
+    """
+
+    T_target_source: np.ndarray
+    converged: bool
+    iterations: int
+    num_inliers: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class PreparedCloud:
+    """A cloud ready for small_gicp: the downsampled ``PointCloud`` (normals/covariances as needed) and its
+    ``KdTree``; ``n_points`` after downsampling; ``preprocess_ms`` the time it took."""
+
+    cloud: Any
+    tree: Any
+    n_points: int
+    preprocess_ms: float
+
+
+def _threads(n: int) -> int:
+    return n if n > 0 else max(1, os.cpu_count() or 1)
+
+
+def _crop(points: np.ndarray, min_range: float, max_range: float) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    r = np.linalg.norm(pts, axis=1)
+    return pts[(r >= min_range) & (r <= max_range)]
+
+
+class SmallGicpRegistration:
+    """Point-to-point ICP, point-to-plane ICP or GICP from ``small_gicp``.
+
+    Args:
+        method: ``"icp"``, ``"plane-icp"`` or ``"gicp"``.
+        config: the package config; uses ``preprocess`` (crop ranges, or the whole DeepBBS++
+            preprocessing when ``eval.baseline_input == "deepbbs"``) and the ``eval.baseline_*`` keys.
+    """
+
+    def __init__(self, method: str, config: Config | None = None) -> None:
+        if method not in SMALL_GICP_TYPES:
+            raise ConfigError(f"unknown small_gicp method {method!r} (known: {', '.join(SMALL_GICP_TYPES)})")
+        self.method = method
+        self.registration_type = SMALL_GICP_TYPES[method]
+        self.config = config or Config()
+        self.num_threads = _threads(self.config.eval.threads)
+
+    # -- preprocessing ------------------------------------------------------------------------------
+    def preprocess(self, points: np.ndarray) -> PreparedCloud:
+        """Raw scan (N, 3) float32/64 in its sensor frame -> :class:`PreparedCloud`.
+
+        Raises:
+            RegistrationError: fewer than 10 points survive.
+        """
+        import small_gicp
+
+        ev, pp = self.config.eval, self.config.preprocess
+        t0 = time.perf_counter()
+        if ev.baseline_input == "deepbbs":
+            from deepbbs_ros.core.preprocess import preprocess
+
+            pts = np.asarray(preprocess(points, pp, seed=pp.seed).points, dtype=np.float64)
+            cloud = small_gicp.PointCloud(pts)
+        else:
+            pts = _crop(points, pp.min_range, pp.max_range)
+            if pts.shape[0] < 10:
+                raise RegistrationError(f"{self.method}: only {pts.shape[0]} points within the crop range")
+            cloud = small_gicp.voxelgrid_sampling(pts, ev.baseline_voxel_size, num_threads=1)
+        n = int(cloud.size())
+        if n < 10:
+            raise RegistrationError(f"{self.method}: only {n} points left after preprocessing (need >= 10)")
+        tree = small_gicp.KdTree(cloud, num_threads=self.num_threads)
+        if self.registration_type != "ICP":  # point-to-point ICP needs neither normals nor covariances
+            small_gicp.estimate_normals_covariances(
+                cloud, tree, num_neighbors=ev.baseline_neighbors, num_threads=self.num_threads
+            )
+        return PreparedCloud(cloud, tree, n, (time.perf_counter() - t0) * 1e3)
+
+    # -- registration -------------------------------------------------------------------------------
+    def align(
+        self, source: PreparedCloud, target: PreparedCloud, T_init: np.ndarray | None = None
+    ) -> BaselineResult:
+        """Register prepared clouds; returns ``T_target_source`` starting from ``T_init`` (identity if None)."""
+        import small_gicp
+
+        ev = self.config.eval
+        init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        t0 = time.perf_counter()
+        res = small_gicp.align(
+            target.cloud,
+            source.cloud,
+            target.tree,
+            init_T_target_source=init,
+            registration_type=self.registration_type,
+            max_correspondence_distance=ev.baseline_max_corr_dist,
+            num_threads=self.num_threads,
+            max_iterations=ev.baseline_max_iters,
+        )
+        reg_ms = (time.perf_counter() - t0) * 1e3
+        T = np.asarray(res.T_target_source, dtype=np.float64).copy()
+        return BaselineResult(
+            T_target_source=T,
+            converged=bool(res.converged),
+            iterations=int(res.iterations),
+            num_inliers=int(res.num_inliers),
+            timings_ms={"preprocess": 0.0, "register": reg_ms, "total": reg_ms},
+        )
+
+    def register(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray | None = None) -> BaselineResult:
+        """Raw scans (N, 3), (M, 3) -> ``T_target_source``; timings include both preprocessings."""
+        src = self.preprocess(source)
+        tgt = self.preprocess(target)
+        res = self.align(src, tgt, T_init)
+        pre = src.preprocess_ms + tgt.preprocess_ms
+        res.timings_ms.update(preprocess=pre, total=pre + res.timings_ms["register"])
+        return res
+
+
+def _se3_power(T: np.ndarray, a: float) -> np.ndarray:
+    """``exp(a log T)`` for a rigid transform (4, 4); exact inverse for ``a == -1``."""
+    if a == 0.0:
+        return np.eye(4)
+    if a == 1.0:
+        return T.copy()
+    if a == -1.0:
+        Ti = np.eye(4)
+        Ti[:3, :3] = T[:3, :3].T
+        Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+        return Ti
+    from scipy.linalg import expm, logm
+
+    return np.real(expm(a * np.real(logm(T))))
+
+
+class KissICPOdometry:
+    """KISS-ICP (``kiss_icp.kiss_icp.KissICP``) as a frame-by-frame odometry.
+
+    Pose convention (checked against the installed kiss-icp 1.x): the ``time`` field is min-max
+    normalised per scan and deskewing maps every point into the sensor frame at the **last** point's
+    time, so ``KissICP.last_pose`` is the pose at the end of the sweep, relative to the first frame's
+    end-of-sweep pose. :meth:`register` converts it to the pose at the scan stamp (the time origin of
+    ``times``) with KISS-ICP's own constant-velocity model: ``T_stamp = T_end @ delta^(s - 1)``,
+    ``s = (0 - t_min) / (t_max - t_min)``, where ``delta`` is KISS-ICP's last inter-frame motion.
+    Without per-point times (or with ``eval.kiss_deskew`` off) the pose is that of the raw scan.
+
+    Args:
+        config: uses ``preprocess.min_range``/``max_range`` (KISS-ICP's crop), ``eval.kiss_deskew``
+            and ``eval.threads``; the voxel size is KISS-ICP's default ``max_range / 100``.
+    """
+
+    def __init__(self, config: Config | None = None) -> None:
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.config.config import DataConfig, MappingConfig, RegistrationConfig
+        from kiss_icp.kiss_icp import KissICP
+
+        self.config = config or Config()
+        pp, ev = self.config.preprocess, self.config.eval
+        self.deskew = bool(ev.kiss_deskew)
+        kcfg = KISSConfig(
+            data=DataConfig(max_range=pp.max_range, min_range=pp.min_range, deskew=self.deskew),
+            mapping=MappingConfig(voxel_size=pp.max_range / 100.0),
+            registration=RegistrationConfig(max_num_threads=ev.threads),
+        )
+        self.kiss_config = kcfg
+        self._odom = KissICP(kcfg)
+        # KISS-ICP fixes deskewing at construction and divides by the time span: scans without
+        # per-point times go through a second, non-deskewing preprocessor (swapped per frame).
+        from kiss_icp.preprocess import Preprocessor
+
+        self._pre_deskew = self._odom.preprocessor
+        self._pre_plain = Preprocessor(pp.max_range, pp.min_range, False, ev.threads)
+        self._frames = 0
+        self._s0 = 0.0
+        self._origin_inv = np.eye(4)
+
+    def register(self, points: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """Feed the next scan; returns (``T_first_k`` (4, 4) float64 pose of this scan's stamp relative
+        to the first scan's, runtime ms). ``times``: (N,) seconds since the scan stamp, or None."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        ok = np.isfinite(pts).all(axis=1)
+        pts = pts[ok]
+        if pts.shape[0] < 10:
+            raise RegistrationError(f"kiss-icp: only {pts.shape[0]} valid points in the scan")
+        t0 = time.perf_counter()
+        use_times = self.deskew and times is not None and np.ptp(np.asarray(times)[ok]) > 0
+        ts = np.asarray(times, dtype=np.float64)[ok] if use_times else np.zeros(pts.shape[0])
+        self._odom.preprocessor = self._pre_deskew if use_times else self._pre_plain
+        self._odom.register_frame(pts, ts)
+        T_end = np.asarray(self._odom.last_pose, dtype=np.float64)
+        if not use_times:
+            T = T_end.copy()
+        else:
+            s = float((0.0 - ts.min()) / (ts.max() - ts.min()))
+            delta = np.asarray(self._odom.last_delta, dtype=np.float64)
+            T = T_end @ _se3_power(delta, s - 1.0)
+            self._frames += 1
+            if self._frames == 1:  # KISS-ICP's origin is the end of sweep 0; the stamp pose needs a motion
+                self._s0 = s
+                T = np.eye(4)
+            else:
+                if self._frames == 2:  # stamp 0 in the end-of-sweep-0 frame, from the first motion estimate
+                    self._origin_inv = _se3_power(_se3_power(delta, self._s0 - 1.0), -1.0)
+                T = self._origin_inv @ T
+        return T, (time.perf_counter() - t0) * 1e3

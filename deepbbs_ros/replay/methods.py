@@ -1,0 +1,129 @@
+"""The registration methods replay compares, behind one small interface.
+
+Every pairwise method has ``prepare(points) -> (prepared, ms)`` (preprocessing of one raw scan) and
+``align(src, tgt, T_init) -> (T_target_source, info, ms)``; the runtime of a pair is the sum of both
+preparations and the alignment (reading excluded). KISS-ICP is an odometry (scan-to-map with its own
+state), so it only has ``step(scan) -> (T_first_k, ms)``. No ROS import.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.errors import ConfigError
+
+METHODS = ("deepbbs++", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp")
+PAIRWISE = ("deepbbs++", "deepbbs", "icp", "plane-icp", "gicp")
+ODOMETRY_ONLY = ("kiss-icp",)
+
+#: how each method's input clouds are made (reported in metrics.json)
+INPUTS = {
+    "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points)",
+    "deepbbs": "DeepBBS++ preprocessing; deep iterations only (registration.refine = false)",
+    "kiss-icp": "KISS-ICP's own pipeline on the raw scan (crop to preprocess ranges, voxel map, deskew)",
+}
+
+
+def parse_methods(text: str, mode: str) -> list[str]:
+    """``"deepbbs++,gicp"`` -> ``["deepbbs++", "gicp"]``; ConfigError on unknown / mode-incompatible names."""
+    names = [m.strip().lower() for m in text.split(",") if m.strip()]
+    if not names:
+        raise ConfigError("--method: give at least one method")
+    for m in names:
+        if m not in METHODS:
+            raise ConfigError(f"--method: unknown method {m!r} (known: {', '.join(METHODS)})")
+        if m in ODOMETRY_ONLY and mode != "odometry":
+            raise ConfigError(f"--method: {m} is an odometry (scan-to-map) and runs only with --mode odometry")
+    return list(dict.fromkeys(names))
+
+
+def topic_name(method: str) -> str:
+    """A ROS-legal name for a method: ``deepbbs++`` -> ``deepbbs_pp``, ``plane-icp`` -> ``plane_icp``."""
+    return method.replace("++", "_pp").replace("-", "_")
+
+
+class DeepBBSMethod:
+    """DeepBBS++ (``refine=True``) or DeepBBS (``refine=False``) via ``DeepBBSRegistration``."""
+
+    def __init__(self, name: str, config: Config, *, weights: str | None = None, device: str | None = None,
+                 model: Any = None, share_from: DeepBBSMethod | None = None) -> None:
+        from deepbbs_ros.core.registration import DeepBBSRegistration
+
+        self.name = name
+        cfg = config.replace(**{"registration.refine": name == "deepbbs++"})
+        if share_from is not None:  # one network in memory for both variants
+            model = share_from.reg.model
+            device = str(share_from.reg.device)
+        self.reg = DeepBBSRegistration(cfg, weights=weights, device=device, model=model)
+        self.input = INPUTS[name]
+
+    def prepare(self, points: np.ndarray) -> tuple[np.ndarray, float]:
+        t0 = time.perf_counter()
+        res = self.reg.preprocess(points)
+        return res.points, (time.perf_counter() - t0) * 1e3
+
+    def align(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
+        t0 = time.perf_counter()
+        res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
+        ms = (time.perf_counter() - t0) * 1e3
+        info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
+        return np.asarray(res.T_target_source, dtype=np.float64), info, ms
+
+
+class SmallGicpMethod:
+    """``icp``, ``plane-icp``, ``gicp`` via :class:`deepbbs_ros.baselines.SmallGicpRegistration`."""
+
+    def __init__(self, name: str, config: Config) -> None:
+        from deepbbs_ros.baselines import SmallGicpRegistration
+
+        self.name = name
+        self.reg = SmallGicpRegistration(name, config)
+        ev = config.eval
+        if ev.baseline_input == "dense":
+            self.input = (f"crop [{config.preprocess.min_range}, {config.preprocess.max_range}] m + "
+                          f"{ev.baseline_voxel_size} m voxel grid, ground kept (small_gicp)")
+        else:
+            self.input = "DeepBBS++ preprocessing (small_gicp on the same 1000 points)"
+
+    def prepare(self, points: np.ndarray) -> tuple[Any, float]:
+        prep = self.reg.preprocess(points)
+        return prep, prep.preprocess_ms
+
+    def align(self, src: Any, tgt: Any, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
+        res = self.reg.align(src, tgt, T_init)
+        info = {"converged": res.converged, "iterations": res.iterations, "num_inliers": res.num_inliers}
+        return res.T_target_source, info, res.timings_ms["register"]
+
+
+class KissMethod:
+    """KISS-ICP odometry (scan-to-map); ``step`` returns the pose relative to the first scan."""
+
+    def __init__(self, name: str, config: Config) -> None:
+        from deepbbs_ros.baselines import KissICPOdometry
+
+        self.name = name
+        self.odom = KissICPOdometry(config)
+        self.input = INPUTS[name]
+
+    def step(self, points: np.ndarray, times: np.ndarray | None) -> tuple[np.ndarray, float]:
+        return self.odom.register(points, times)
+
+
+def build_methods(names: list[str], config: Config, *, weights: str | None = None, device: str | None = None,
+                  model: Any = None) -> dict[str, Any]:
+    """Instantiate the methods in ``names`` (DeepBBS variants share one network)."""
+    out: dict[str, Any] = {}
+    deep: DeepBBSMethod | None = None
+    for name in names:
+        if name in ("deepbbs++", "deepbbs"):
+            out[name] = DeepBBSMethod(name, config, weights=weights, device=device, model=model, share_from=deep)
+            deep = deep or out[name]
+        elif name in ("icp", "plane-icp", "gicp"):
+            out[name] = SmallGicpMethod(name, config)
+        else:
+            out[name] = KissMethod(name, config)
+    return out

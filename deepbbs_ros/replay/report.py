@@ -1,0 +1,345 @@
+"""Replay outputs: metrics.json (the machine-readable contract), CSV, TUM/KITTI trajectories, the config
+used, the results bag and the terminal table. Plots live in :mod:`deepbbs_ros.replay.plots`.
+
+``metrics.json``::
+
+    {"version", "source", "mode", "complete", "errors", "created", "frames_read", "protocol", ...,
+     "methods": {<method>: {
+        pairs mode:    "pairs", "rot_err_deg" {mean rmse median p95 max}, "trans_err_m" {...},
+                       "success_rate", "runtime_ms" {mean p50 p95}, "input"
+        odometry mode: "frames", "kitti_t_err_pct", "kitti_r_err_deg_per_100m", "kitti_segments",
+                       "ate_rmse_m", "rpe_trans_m" {...}, "rpe_rot_deg" {...}, "runtime_ms" {...},
+                       "fps", "failed_frames", "input"}}}
+
+Numbers that cannot be computed (no ground truth, path shorter than 100 m) are ``null``.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros import __version__, metrics
+from deepbbs_ros.config import Config
+from deepbbs_ros.replay.methods import topic_name
+from deepbbs_ros.replay.runner import OdometryResults, PairResults
+
+
+def _clean(obj: Any) -> Any:
+    """NaN/inf -> None, numpy scalars -> Python, recursively (strict JSON)."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def make_run_dir(out: str | Path) -> Path:
+    """``OUT/<YYYY-mm-dd_HH-MM-SS>/`` (suffixed if taken) and ``OUT/latest`` -> it."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stamp = _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    run = out / stamp
+    n = 1
+    while run.exists():
+        run = out / f"{stamp}_{n}"
+        n += 1
+    run.mkdir()
+    latest = out / "latest"
+    if latest.is_symlink() or latest.exists():
+        latest.unlink()
+    try:
+        latest.symlink_to(run.name, target_is_directory=True)
+    except OSError:  # filesystems without symlinks: a text file naming the folder
+        latest.write_text(run.name + "\n")
+    return run
+
+
+# --------------------------------------------------------------------------------------------------
+# metrics
+# --------------------------------------------------------------------------------------------------
+def pair_metrics(res: PairResults, config: Config) -> dict[str, dict[str, Any]]:
+    ev = config.eval
+    out = {}
+    for name in res.methods:
+        recs = res.of(name)
+        rot = np.array([r.rot_err_deg for r in recs], dtype=np.float64)
+        tr = np.array([r.trans_err_m for r in recs], dtype=np.float64)
+        out[name] = {
+            "pairs": len({r.pair for r in recs}),
+            "registrations": len(recs),
+            "rot_err_deg": metrics.summarize(rot),
+            "trans_err_m": metrics.summarize(tr),
+            "success_rate": metrics.success_rate(rot, tr, ev.success_rot_deg, ev.success_trans),
+            "runtime_ms": metrics.runtime_summary([r.runtime_ms for r in recs]),
+            "failed": sum(1 for r in recs if r.error),
+            "input": res.inputs.get(name, ""),
+        }
+    return out
+
+
+def odometry_metrics(res: OdometryResults) -> dict[str, dict[str, Any]]:
+    out = {}
+    n = res.frames
+    gt = np.stack(res.T_world_gt[:n]) if res.has_ground_truth else None
+    for name in res.methods:
+        est = np.stack(res.T_world_est[name][:n]) if n else np.zeros((0, 4, 4))
+        rt = np.asarray(res.runtime_ms[name][1:n], dtype=np.float64)  # frame 0 has no registration
+        m: dict[str, Any] = {"frames": n, "runtime_ms": metrics.runtime_summary(rt)}
+        mean_rt = m["runtime_ms"]["mean"]
+        m["fps"] = 1000.0 / mean_rt if mean_rt and math.isfinite(mean_rt) else float("nan")
+        nan_summary = metrics.summarize([])
+        if gt is not None and n >= 2:
+            drift = metrics.kitti_drift(est, gt)
+            rpe_t, rpe_r = metrics.rpe(est, gt)
+            m.update(kitti_t_err_pct=drift["t_err_pct"], kitti_r_err_deg_per_100m=drift["r_err_deg_per_100m"],
+                     kitti_segments=drift["segments"], ate_rmse_m=metrics.ate_rmse(est, gt),
+                     rpe_trans_m=metrics.summarize(rpe_t), rpe_rot_deg=metrics.summarize(rpe_r),
+                     path_length_m=float(metrics.trajectory_distances(gt)[-1]))
+        else:
+            m.update(kitti_t_err_pct=float("nan"), kitti_r_err_deg_per_100m=float("nan"), kitti_segments=0,
+                     ate_rmse_m=float("nan"), rpe_trans_m=nan_summary, rpe_rot_deg=nan_summary,
+                     path_length_m=float("nan"))
+        m["failed_frames"] = len(res.failed.get(name, []))
+        m["input"] = res.inputs.get(name, "")
+        out[name] = m
+    return out
+
+
+def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults | OdometryResults,
+                       config: Config, method_metrics: dict, extra: dict | None = None) -> dict:
+    ev = config.eval
+    protocol = ({"stride": ev.stride, "max_dist_m": ev.max_dist, "max_pair_frames": ev.max_pair_frames,
+                 "perturb_yaw_deg": ev.perturb_yaw_deg, "perturb_trans_m": ev.perturb_trans, "trials": ev.trials,
+                 "seed": ev.seed, "success_rot_deg": ev.success_rot_deg, "success_trans_m": ev.success_trans}
+                if mode == "pairs" else
+                {"stride": ev.odom_stride, "init": ev.odom_init, "kitti_lengths_m": list(metrics.KITTI_LENGTHS),
+                 "kitti_step_frames": metrics.KITTI_STEP})
+    doc = {
+        "version": __version__,
+        "source": source,
+        "mode": mode,
+        "complete": bool(res.complete),
+        "errors": list(res.errors),
+        "created": _dt.datetime.now().isoformat(timespec="seconds"),
+        "frames_read": res.frames_read,
+        "protocol": protocol,
+        **(extra or {}),
+        "methods": method_metrics,
+    }
+    doc = _clean(doc)
+    path.write_text(json.dumps(doc, indent=2) + "\n")
+    return doc
+
+
+# --------------------------------------------------------------------------------------------------
+# CSV and trajectories
+# --------------------------------------------------------------------------------------------------
+def write_pairs_csv(path: Path, res: PairResults) -> None:
+    cols = ["method", "pair", "trial", "src_index", "tgt_index", "src_stamp_ns", "tgt_stamp_ns", "gt_dist_m",
+            "rot_err_deg", "trans_err_m", "success", "runtime_ms", "preprocess_ms", "converged",
+            "init_yaw_deg", "init_trans_m"] + [f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
+            f"T_gt_{i}{j}" for i in range(3) for j in range(4)] + ["error"]
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in res.records:
+            yaw = float(np.degrees(np.arctan2(r.T_init[1, 0], r.T_init[0, 0])))
+            w.writerow([r.method, r.pair, r.trial, r.src_index, r.tgt_index, r.src_stamp_ns, r.tgt_stamp_ns,
+                        f"{r.gt_dist_m:.4f}", f"{r.rot_err_deg:.6g}", f"{r.trans_err_m:.6g}", int(r.success),
+                        f"{r.runtime_ms:.3f}", f"{r.preprocess_ms:.3f}", int(r.converged), f"{yaw:.3f}",
+                        f"{np.linalg.norm(r.T_init[:3, 3]):.4f}"]
+                       + [f"{v:.9g}" for v in r.T_est[:3, :].ravel()] + [f"{v:.9g}" for v in r.T_gt[:3, :].ravel()]
+                       + [r.error])
+
+
+def write_odometry_csv(path: Path, res: OdometryResults) -> None:
+    n = res.frames
+    gt = np.stack(res.T_world_gt[:n]) if res.has_ground_truth else None
+    cols = ["frame", "index", "stamp_ns"]
+    for name in res.methods:
+        cols += [f"{name}_x", f"{name}_y", f"{name}_z", f"{name}_runtime_ms"]
+        if gt is not None:
+            cols += [f"{name}_rpe_trans_m", f"{name}_rpe_rot_deg", f"{name}_pos_err_m"]
+    if gt is not None:
+        cols += ["gt_x", "gt_y", "gt_z"]
+    rpes = {}
+    if gt is not None:
+        for name in res.methods:
+            est = np.stack(res.T_world_est[name][:n])
+            t, r = metrics.rpe(est, gt)
+            rpes[name] = (np.concatenate([[0.0], t]), np.concatenate([[0.0], r]))
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for k in range(n):
+            row = [k, res.indices[k], res.stamps_ns[k]]
+            for name in res.methods:
+                T = res.T_world_est[name][k]
+                row += [f"{v:.6f}" for v in T[:3, 3]] + [f"{res.runtime_ms[name][k]:.3f}"]
+                if gt is not None:
+                    row += [f"{rpes[name][0][k]:.6f}", f"{rpes[name][1][k]:.6f}",
+                            f"{np.linalg.norm(T[:3, 3] - gt[k][:3, 3]):.6f}"]
+            if gt is not None:
+                row += [f"{v:.6f}" for v in gt[k][:3, 3]]
+            w.writerow(row)
+
+
+def write_trajectories(run: Path, res: OdometryResults) -> list[Path]:
+    """``traj/<method>.tum|.kitti`` and ``traj/ground_truth.tum|.kitti`` (poses of the sensor in the world)."""
+    n = res.frames
+    d = run / "traj"
+    d.mkdir(exist_ok=True)
+    stamps = np.asarray(res.stamps_ns[:n], dtype=np.int64)  # integer ns: written exactly
+    written = []
+    items = [(topic_name(m), res.T_world_est[m][:n]) for m in res.methods]
+    if res.has_ground_truth:
+        items.append(("ground_truth", res.T_world_gt[:n]))
+    for stem, poses in items:
+        P = np.stack(poses) if poses else np.zeros((0, 4, 4))
+        metrics.write_tum(d / f"{stem}.tum", stamps, P)
+        metrics.write_kitti(d / f"{stem}.kitti", P)
+        written += [d / f"{stem}.tum", d / f"{stem}.kitti"]
+    return written
+
+
+# --------------------------------------------------------------------------------------------------
+# results bag (rosbag2, mcap)
+# --------------------------------------------------------------------------------------------------
+def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_frame: str = "world") -> dict[str, int]:
+    """Write the estimates as a rosbag2 (mcap storage) that Foxglove opens.
+
+    Pairs mode: ``/deepbbs_replay/<method>/pose`` PoseStamped (``T_target_source``, frame = target frame,
+    stamp = source stamp), ``/deepbbs_replay/ground_truth/pose`` and, for the first few pairs,
+    ``/deepbbs_replay/target_cloud`` and ``/deepbbs_replay/<method>/aligned_cloud`` (source points moved
+    into the target frame by the estimate). Odometry mode: ``/deepbbs_replay/<method>/odometry`` and
+    ``/deepbbs_replay/ground_truth/odometry`` nav_msgs/Odometry (``world_frame`` -> sensor frame).
+    Returns the message count per topic.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from msg_adapters.pointcloud2 import arrays_to_pointcloud2
+    from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    counts: dict[str, int] = {}
+    messages: list[tuple[int, str, str, Any]] = []  # (stamp, topic, type, msg)
+
+    def add(stamp, topic, msgtype, msg):
+        messages.append((int(stamp), topic, msgtype, msg))
+
+    if isinstance(res, PairResults):
+        seen_gt = set()
+        for r in res.records:
+            if r.trial != 0 or not np.isfinite(r.T_est).all():
+                continue
+            add(r.src_stamp_ns, f"/deepbbs_replay/{topic_name(r.method)}/pose", "geometry_msgs/msg/PoseStamped",
+                matrix_to_pose_stamped(r.T_est, r.src_stamp_ns, r.frame_id, flavor="rosbags"))
+            if r.pair not in seen_gt:
+                seen_gt.add(r.pair)
+                add(r.src_stamp_ns, "/deepbbs_replay/ground_truth/pose", "geometry_msgs/msg/PoseStamped",
+                    matrix_to_pose_stamped(r.T_gt, r.src_stamp_ns, r.frame_id, flavor="rosbags"))
+        for c in res.clouds:
+            add(c["stamp_ns"], "/deepbbs_replay/target_cloud", "sensor_msgs/msg/PointCloud2",
+                arrays_to_pointcloud2(c["target"], stamp_ns=c["stamp_ns"], frame_id=c["frame_id"], flavor="rosbags"))
+            for name, T in c["T_est"].items():
+                if not np.isfinite(T).all():
+                    continue
+                xyz = (c["source"].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+                add(c["stamp_ns"], f"/deepbbs_replay/{topic_name(name)}/aligned_cloud", "sensor_msgs/msg/PointCloud2",
+                    arrays_to_pointcloud2(xyz, stamp_ns=c["stamp_ns"], frame_id=c["frame_id"], flavor="rosbags"))
+    else:
+        n = res.frames
+        child = res.frame_id or "lidar"
+        tracks = [(topic_name(m), res.T_world_est[m][:n]) for m in res.methods]
+        if res.has_ground_truth:
+            tracks.append(("ground_truth", res.T_world_gt[:n]))
+        for stem, poses in tracks:
+            for k, T in enumerate(poses):
+                add(res.stamps_ns[k], f"/deepbbs_replay/{stem}/odometry", "nav_msgs/msg/Odometry",
+                    matrix_to_odometry(T, res.stamps_ns[k], world_frame, child, flavor="rosbags"))
+
+    messages.sort(key=lambda m: m[0])
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for stamp, topic, msgtype, msg in messages:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
+            counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
+# --------------------------------------------------------------------------------------------------
+# terminal table
+# --------------------------------------------------------------------------------------------------
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], list[tuple[str, str, list[str]]]]:
+    """(method names, [(metric, unit, [value per method])]) of the comparison table."""
+    names = list(method_metrics)
+    M = method_metrics
+
+    def col(fn, digits=3):
+        return [_fmt(fn(M[n]), digits) for n in names]
+
+    if mode == "pairs":
+        rows = [
+            ("pairs", "count", col(lambda m: m["pairs"])),
+            ("rotation error mean (MAE)", "deg", col(lambda m: m["rot_err_deg"]["mean"])),
+            ("rotation error RMSE", "deg", col(lambda m: m["rot_err_deg"]["rmse"])),
+            ("rotation error p95", "deg", col(lambda m: m["rot_err_deg"]["p95"])),
+            ("translation error mean (MTE)", "m", col(lambda m: m["trans_err_m"]["mean"])),
+            ("translation error RMSE", "m", col(lambda m: m["trans_err_m"]["rmse"])),
+            ("translation error p95", "m", col(lambda m: m["trans_err_m"]["p95"])),
+            ("success rate", "%", col(lambda m: None if m["success_rate"] is None else 100 * m["success_rate"], 1)),
+            ("runtime mean", "ms/pair", col(lambda m: m["runtime_ms"]["mean"], 1)),
+            ("runtime p95", "ms/pair", col(lambda m: m["runtime_ms"]["p95"], 1)),
+        ]
+    else:
+        rows = [
+            ("frames", "count", col(lambda m: m["frames"])),
+            ("KITTI translation drift", "%", col(lambda m: m["kitti_t_err_pct"])),
+            ("KITTI rotation drift", "deg/100 m", col(lambda m: m["kitti_r_err_deg_per_100m"])),
+            ("ATE RMSE", "m", col(lambda m: m["ate_rmse_m"])),
+            ("RPE translation mean", "m/frame", col(lambda m: m["rpe_trans_m"]["mean"], 4)),
+            ("RPE rotation mean", "deg/frame", col(lambda m: m["rpe_rot_deg"]["mean"], 4)),
+            ("runtime mean", "ms/frame", col(lambda m: m["runtime_ms"]["mean"], 1)),
+            ("throughput", "frames/s", col(lambda m: m["fps"], 1)),
+        ]
+    return names, rows
+
+
+def print_table(mode: str, method_metrics: dict[str, dict], title: str = "", console: Any = None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    names, rows = table_rows(mode, _clean(method_metrics))
+    table = Table(title=title or f"deepbbs-replay ({mode})")
+    table.add_column("metric")
+    table.add_column("unit")
+    for n in names:
+        table.add_column(n, justify="right")
+    for metric, unit, vals in rows:
+        table.add_row(metric, unit, *vals)
+    (console or Console()).print(table)
