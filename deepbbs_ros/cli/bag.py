@@ -100,6 +100,7 @@ def _convert(args) -> int:
     import itertools
 
     from deepbbs_ros.datasets import APOLLO_LIDAR_TOPIC, GT_POSE_TOPIC, write_scans
+    from deepbbs_ros.datasets.base import SizedIterable
 
     source = _open(args)
     scans = iter(source)
@@ -107,16 +108,8 @@ def _convert(args) -> int:
     if args.max_frames is not None:
         scans = itertools.islice(scans, args.max_frames)
         total = min(total, args.max_frames)
-
-    class _Sized:  # lets the progress bar know the total
-        def __iter__(self):
-            return scans
-
-        def __len__(self):
-            return total
-
     n = write_scans(
-        _Sized(),
+        SizedIterable(scans, total),
         args.dst,
         args.format,
         topic=args.out_topic or APOLLO_LIDAR_TOPIC,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -211,3 +211,17 @@ def prepare_output(out: Path) -> None:
 def valid_mask(points: np.ndarray) -> np.ndarray:
     """(N,) bool: rows of (N, 3) ``points`` whose coordinates are all finite."""
     return np.all(np.isfinite(points), axis=1)
+
+
+class SizedIterable:
+    """Wrap an iterator with a known length, so progress bars show a total (``write_scans(SizedIterable(it, n))``)."""
+
+    def __init__(self, iterable: Iterable[Scan], length: int) -> None:
+        self._iterable = iterable
+        self._length = int(length)
+
+    def __iter__(self) -> Iterator[Scan]:
+        return iter(self._iterable)
+
+    def __len__(self) -> int:
+        return self._length
