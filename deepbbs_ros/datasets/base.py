@@ -92,6 +92,15 @@ class ScanSource:
         if str(err) not in self.errors:
             self.errors.append(str(err))
 
+    def close(self) -> None:
+        """Release open files (bags); iterating afterwards is not supported."""
+
+    def __enter__(self) -> ScanSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def info(self) -> dict[str, Any]:
         """Summary for ``deepbbs-bag info``: format, path, topic, frames, ground truth."""
         return {

@@ -319,6 +319,9 @@ class BagSource(ScanSource):
             yield Scan(index, cloud.stamp_ns, cloud.xyz, dict(cloud.fields), frame_id=cloud.frame_id, T_world_lidar=T)
             index += 1
 
+    def close(self) -> None:
+        self.backend.close()
+
     def info(self) -> dict:
         d = super().info()
         d["duration_s"] = (self.backend.end_ns - self.backend.start_ns) * 1e-9
