@@ -415,7 +415,7 @@ def _rclpy_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, is
     from std_msgs.msg import Header
 
     sec, nanosec = _split_ns(stamp_ns)
-    msg = PointCloud2(
+    kwargs = dict(
         header=Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=str(frame_id)),
         height=int(height),
         width=int(width),
@@ -425,7 +425,12 @@ def _rclpy_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, is
         row_step=int(point_step * width),
         is_dense=is_dense,
     )
-    # fast path: one memcpy into an array.array('B'), which the data setter stores as is
+    try:
+        # Jazzy: with field checks on, the data setter keeps an array.array('B') as is (off, it copies it)
+        msg = PointCloud2(check_fields=True, **kwargs)
+    except (AssertionError, TypeError):  # older generators have no check_fields (and always check)
+        msg = PointCloud2(**kwargs)
+    # fast path: one memcpy from a memoryview of the contiguous buffer into an array.array('B')
     data = array.array("B")
     data.frombytes(memoryview(raw))
     msg.data = data
