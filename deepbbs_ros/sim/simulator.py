@@ -27,7 +27,7 @@ import numpy as np
 
 from deepbbs_ros.datasets.base import APOLLO_LIDAR_FRAME, Scan
 from deepbbs_ros.errors import SimulationError
-from deepbbs_ros.sim.lidar import LidarConfig, RayCaster
+from deepbbs_ros.sim.lidar import LidarConfig, RayCaster, lidar_sweep
 from deepbbs_ros.sim.scene import SCENES, World
 from deepbbs_ros.sim.trajectory import Trajectory, euler_to_matrix
 
@@ -81,7 +81,7 @@ class DriveSimulator:
         ring_rng = np.random.default_rng([self.seed, 707])
         self._ring_gain = ring_rng.uniform(0.85, 1.15, self.lidar.beams)  # per-laser calibration spread
         self._casters: OrderedDict[int, tuple[RayCaster, np.ndarray]] = OrderedDict()
-        self.timings_s = {"build": 0.0, "poses": 0.0, "cast": 0.0, "post": 0.0}
+        self.timings_s = {"build": 0.0, "cast": 0.0, "post": 0.0}
 
     def __len__(self) -> int:
         return self.frames
@@ -156,64 +156,28 @@ class DriveSimulator:
         lid = self.lidar
         t0 = frame * self.period
         caster, albedo = self._static_caster(t0)
-        tp = time.perf_counter()
-        ncol, nb = self._dirs.shape[:2]
+        ncol, nb = lid.columns, lid.beams
         if self.motion_distortion:
-            T_cols = self.T_world_lidar(t0 + self._col_time)  # (C, 4, 4)
-            T0 = T_cols[0]
+            T_cols = self.T_world_lidar(t0 + self._col_time)  # (C, 4, 4): pose at each firing
         else:
-            T0 = self.T_world_lidar(t0)
-            T_cols = np.broadcast_to(T0, (ncol, 4, 4))
-        d_world = np.matmul(self._dirs, T_cols[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
-        o_world = np.broadcast_to(T_cols[:, None, :3, 3], (ncol, nb, 3)).reshape(-1, 3)
-        tc = time.perf_counter()
-        self.timings_s["poses"] += tc - tp
-        dist, face, normal = caster.cast(o_world, d_world, lid.max_range)
-        alb = np.where(face >= 0, albedo[np.maximum(face, 0)], 0.0).astype(np.float32)
+            T_cols = np.broadcast_to(self.T_world_lidar(t0), (ncol, 4, 4))
+        T0 = T_cols[0].copy()
+        dynamic = None
         mv, mf, ma = self.world.moving_mesh(t0 + 0.5 * self.period, T0[:2, 3], lid.max_range + 30.0)
-        sel = self._rays_towards(mv, T_cols[0], T_cols[-1], nb) if len(mf) else np.zeros(0, np.int64)
-        if len(sel):  # moving cars: only the rays whose azimuth can reach one of them
-            d2, f2, n2 = RayCaster(mv, mf, caster.origin).cast(o_world[sel], d_world[sel], lid.max_range)
-            closer = (f2 >= 0) & (d2 < dist[sel])
-            hit = sel[closer]
-            dist[hit], face[hit], normal[hit] = d2[closer], f2[closer], n2[closer]
-            alb[hit] = ma[f2[closer]]
-        tq = time.perf_counter()
-        self.timings_s["cast"] += tq - tc
-
-        # noise, dropouts, intensity
+        if len(mf):  # moving cars, frozen at mid-sweep; only rays whose azimuth can reach them
+            sel = self._rays_towards(mv, T_cols[0], T_cols[-1], nb)
+            dynamic = (RayCaster(mv, mf, caster.origin), ma, sel)
         rng = np.random.default_rng([self.seed, frame, 606])
-        n = ncol * nb
-        nx, ny, nz = normal[:, 0], normal[:, 1], normal[:, 2]
-        dot = nx * d_world[:, 0] + ny * d_world[:, 1] + nz * d_world[:, 2]
-        cos_inc = (np.abs(dot) / np.maximum(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)).astype(np.float32)
-        r = dist + np.float32(lid.range_noise) * rng.standard_normal(n, dtype=np.float32)
-        drop_p = lid.dropout + 0.5 * (cos_inc < 0.05) + 0.3 * (alb < 0.12) * (dist > 0.6 * lid.max_range)
-        valid = (face >= 0) & (r >= lid.min_range) & (r < lid.max_range) & (rng.random(n, dtype=np.float32) >= drop_p)
-        ring = np.broadcast_to(np.arange(nb, dtype=np.uint16), (ncol, nb)).reshape(-1)
-        col = np.broadcast_to(np.arange(ncol, dtype=np.uint16)[:, None], (ncol, nb)).reshape(-1)
-        inten = (
-            255.0
-            * alb
-            * (0.25 + 0.75 * cos_inc)
-            * self._ring_gain[ring]
-            * (1.0 + 0.05 * rng.standard_normal(n, dtype=np.float32))
+        pts, fields = lidar_sweep(
+            lid,
+            T_cols,
+            (caster, albedo),
+            rng,
+            period=self.period,
+            dynamic=dynamic,
+            ring_gain=self._ring_gain,
+            timings=self.timings_s,
         )
-        inten = np.clip(inten, 0.0, 255.0).astype(np.float32)
-        if lid.organized:  # ring-major order, like an image row by row
-            order = np.arange(n).reshape(ncol, nb).T.reshape(-1)
-            order = order[valid[order]]
-        else:
-            order = np.flatnonzero(valid)
-        pts = (r[order, None] * self._dirs.reshape(-1, 3)[order]).astype(np.float32)
-        fields = {
-            "intensity": inten[order],
-            "time": self._col_time[col[order]].astype(np.float32),
-            "ring": ring[order].copy(),
-        }
-        if lid.organized:
-            fields["column"] = col[order].copy()
-        self.timings_s["post"] += time.perf_counter() - tq
         return Scan(
             index=frame,
             stamp_ns=self.stamp_ns(frame),

@@ -1,0 +1,230 @@
+"""LiDAR drive simulator: determinism, occlusion, noise, motion distortion, ground truth, beams, scenes.
+
+Known-geometry tests use a hand-built scene (ground plane + walls) and the real Embree ray caster;
+drive tests use small sensors (few beams, coarse azimuth) so the whole file stays fast.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.errors import SimulationError
+from deepbbs_ros.sim import SCENES, DriveSimulator, LidarConfig, RayCaster, simulate_drive
+from deepbbs_ros.sim.geometry import MeshBuilder, box
+from deepbbs_ros.sim.lidar import lidar_sweep
+from deepbbs_ros.sim.scene import ROAD_DZ
+
+
+def small_lidar(**kw) -> LidarConfig:
+    """32 beams over the HDL-64 field of view, 1 degree azimuth: 11.5k rays per sweep."""
+    return LidarConfig(**{"beams": 32, "azimuth_step_deg": 1.0, "name": "test", **kw})
+
+
+def wall_scene(walls_x=(10.0,), back_wall_x: float | None = None):
+    """Ground plane z=0 (400 m square) and walls 0.2 m thick, 40 m wide, 30 m tall at x = walls_x."""
+    b = MeshBuilder()
+    b.add(box([0, 0, -1.0], (400, 400, 1.0)), 0.2)
+    for x in walls_x:
+        b.add(box([x + 0.1, 0, -1.0], (0.2, 40, 31.0)), 0.5)
+    if back_wall_x is not None:
+        b.add(box([back_wall_x + 0.1, 0, -1.0], (0.2, 40, 31.0)), 0.5)
+    v, f, a = b.build()
+    return RayCaster(v, f), a
+
+
+def sensor_pose(x=0.0, y=0.0, z=1.9, yaw=0.0) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def test_embree_is_used():
+    import trimesh
+
+    assert trimesh.ray.has_embree
+    caster, _ = wall_scene()
+    assert caster._scene is not None and type(caster._scene).__module__.startswith("embreex")
+
+
+def test_no_return_behind_a_wall():
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    T = np.broadcast_to(sensor_pose(), (lid.columns, 4, 4))
+    rng = np.random.default_rng(0)
+    # without the front wall, the back wall at x=20 is seen...
+    pts, _ = lidar_sweep(lid, T, wall_scene(walls_x=(), back_wall_x=20.0), rng)
+    on_back = (np.abs(pts[:, 0] - 20.0) < 1e-3) & (pts[:, 2] > -1.8)
+    assert on_back.sum() > 100
+    # ...with it, nothing at all lies behind the front wall's plane where it blocks the view
+    pts, _ = lidar_sweep(lid, T, wall_scene(walls_x=(10.0,), back_wall_x=20.0), rng)
+    hidden = (pts[:, 0] > 10.0 + 1e-3) & (np.abs(pts[:, 1]) < 20.0 * pts[:, 0] / 10.2 - 0.5)
+    assert not ((np.abs(pts[:, 0] - 20.0) < 1e-3) & (pts[:, 2] > -1.8)).any()
+    assert not hidden.any()
+    # the wall itself is hit where expected
+    on_wall = np.abs(pts[:, 0] - 10.0) < 1e-3
+    assert on_wall.sum() > 300
+
+
+def test_range_noise_statistics():
+    sigma = 0.02
+    lid = small_lidar(range_noise=sigma, dropout=0.0, azimuth_step_deg=0.2)
+    T = np.broadcast_to(sensor_pose(), (lid.columns, 4, 4))
+    pts, _ = lidar_sweep(lid, T, wall_scene(), np.random.default_rng(1))
+    r = np.linalg.norm(pts, axis=1)
+    u = pts / r[:, None]
+    with np.errstate(divide="ignore"):
+        to_wall = np.where(u[:, 0] > 0, 10.0 / u[:, 0], np.inf)  # ray-plane distance to x = 10
+        to_ground = np.where(u[:, 2] < 0, 1.9 / -u[:, 2], np.inf)
+    wall = (to_wall < to_ground - 0.5) & (np.abs(u[:, 1] * to_wall) < 19.0)
+    exact = to_wall[wall]
+    res = r[wall] - exact
+    assert wall.sum() > 2000
+    assert abs(res.mean()) < 4 * sigma / np.sqrt(wall.sum())
+    assert res.std() == pytest.approx(sigma, rel=0.1)
+
+
+def test_dropout_rate():
+    lid = small_lidar(range_noise=0.0, dropout=0.2)
+    T = np.broadcast_to(sensor_pose(), (lid.columns, 4, 4))
+    n_full = len(lidar_sweep(small_lidar(range_noise=0.0, dropout=0.0), T, wall_scene(), np.random.default_rng(2))[0])
+    n_drop = len(lidar_sweep(lid, T, wall_scene(), np.random.default_rng(2))[0])
+    assert n_drop / n_full == pytest.approx(0.8, abs=0.03)
+
+
+def test_motion_distortion_known_scene():
+    """Sensor moving at 10 m/s towards a wall: each distorted point sits on the wall when mapped
+    with the pose of its own firing time, and is off by v * time when mapped with the stamp pose."""
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    period, v = 0.1, 10.0
+    t_col = np.arange(lid.columns) * period / lid.columns
+    T_cols = np.stack([sensor_pose(x=v * t) for t in t_col])
+    pts, fields = lidar_sweep(lid, T_cols, wall_scene(), np.random.default_rng(3), period=period)
+    t = fields["time"]
+    assert t.dtype == np.float32 and t.min() >= 0.0 and t.max() < period
+    assert np.all(np.diff(t) >= 0)  # Velodyne firing order
+    front = (np.abs(pts[:, 1]) < 5.0) & (pts[:, 0] > 5.0) & (pts[:, 2] > -1.8)  # wall, not ground
+    wall_x_true = pts[front, 0] + v * t[front]  # own pose: x shifted by v t
+    assert front.sum() > 100 and np.allclose(wall_x_true, 10.0, atol=1e-3)
+    wall_x_stamp = pts[front, 0]  # stamp pose: short by v t
+    assert np.allclose(10.0 - wall_x_stamp, v * t[front], atol=1e-3)
+    # the same scene without motion: every wall point at x = 10
+    pts0, _ = lidar_sweep(lid, np.broadcast_to(T_cols[0], T_cols.shape), wall_scene(), np.random.default_rng(3))
+    f0 = (np.abs(pts0[:, 1]) < 5.0) & (pts0[:, 0] > 5.0) & (pts0[:, 2] > -1.8)
+    assert f0.sum() > 100 and np.allclose(pts0[f0, 0], 10.0, atol=1e-3)
+
+
+def test_ring_and_beam_angles():
+    lid = LidarConfig.hdl64(azimuth_step_deg=1.0, range_noise=0.0, dropout=0.0)
+    assert lid.beams == 64 and lid.elevations_deg[0] == pytest.approx(-24.8) and lid.elevations_deg[-1] == 2.0
+    T = np.broadcast_to(sensor_pose(), (lid.columns, 4, 4))
+    pts, f = lidar_sweep(lid, T, wall_scene(walls_x=(10.0, -10.0)), np.random.default_rng(4))
+    ring = f["ring"]
+    assert ring.dtype == np.uint16 and ring.max() == 63
+    el = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
+    assert np.allclose(el, lid.elevations()[ring], atol=1e-5)
+    az = np.arctan2(pts[:, 1], pts[:, 0])
+    col = np.round(np.mod(np.pi - az, 2 * np.pi) / np.deg2rad(1.0)).astype(int) % lid.columns
+    assert np.allclose(f["time"], col * 0.1 / lid.columns, atol=1e-6)
+    # ground rings: ring 0 (lowest beam) lands 1.9 / tan(24.8 deg) = 4.1 m away
+    r0 = np.hypot(pts[ring == 0, 0], pts[ring == 0, 1])
+    assert np.allclose(r0, 1.9 / np.tan(np.deg2rad(24.8)), atol=1e-3)
+
+
+def test_presets_and_organized_order():
+    assert LidarConfig.hdl32().beams == 32 and LidarConfig.vlp16().beams == 16
+    os64 = LidarConfig.ouster64(azimuth_step_deg=2.0, dropout=0.0)
+    assert os64.organized
+    T = np.broadcast_to(sensor_pose(), (os64.columns, 4, 4))
+    _, f = lidar_sweep(os64, T, wall_scene(walls_x=(10.0, -10.0)), np.random.default_rng(5))
+    key = f["ring"].astype(np.int64) * os64.columns + f["column"]
+    assert np.all(np.diff(key) > 0)  # ring-major, row by row
+    with pytest.raises(SimulationError, match="unknown LiDAR preset"):
+        LidarConfig.preset("hdl128")
+    with pytest.raises(SimulationError, match="elevations_deg has 2 values"):
+        LidarConfig(beams=3, elevations_deg=(0.0, 1.0)).validate()
+
+
+def test_same_seed_bit_identical_and_random_access():
+    lid = small_lidar()
+    a = list(simulate_drive("urban", 7, 3, lidar=lid))
+    sim = DriveSimulator("urban", 7, lid, frames=3)
+    b2 = sim.scan_at(2)  # random access first
+    b = [sim.scan_at(0), sim.scan_at(1), b2]
+    for x, y in zip(a, b):
+        assert x.stamp_ns == y.stamp_ns and x.index == y.index
+        assert np.array_equal(x.points, y.points)
+        assert np.array_equal(x.T_world_lidar, y.T_world_lidar)
+        for k in ("intensity", "time", "ring"):
+            assert x.fields[k].dtype == y.fields[k].dtype
+            assert np.array_equal(x.fields[k], y.fields[k])
+    c = next(simulate_drive("urban", 8, 1, lidar=lid))
+    assert not np.array_equal(c.T_world_lidar, a[0].T_world_lidar)
+
+
+def test_ground_truth_pose_puts_points_on_surfaces():
+    """Undistorted, noiseless scans mapped by T_world_lidar land on the scene's surfaces."""
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    sim = DriveSimulator("suburban", 3, lid, frames=20, motion_distortion=False)
+    scan = sim.scan_at(15)
+    T = scan.T_world_lidar
+    w = scan.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    caster, _ = sim._static_caster(15 * sim.period)
+    # a ray started 0.3 m before each world point, pointing at it, hits a surface 0.3 m later
+    d = w - T[:3, 3]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist, face, _ = caster.cast(w - 0.3 * d, d, 10.0)
+    static = face >= 0
+    assert static.mean() > 0.95  # the rest hit moving cars (not in the static scene)
+    assert np.allclose(dist[static & (dist < 1.0)], 0.3, atol=2e-3)
+    assert np.mean(np.abs(dist[static] - 0.3) < 2e-3) > 0.95
+    # the lowest ring hits the road near the car: z = terrain + road offset
+    near = (scan.fields["ring"] == 0) & (np.abs(scan.points[:, 1]) < 1.0)
+    g = sim.world.terrain.height(w[near, 0], w[near, 1]) + ROAD_DZ
+    assert near.sum() >= 2 and np.allclose(w[near, 2], g, atol=0.02)
+    # pose: LiDAR 1.9 m above the road, nearly level
+    base = T[:3, 3] - T[:3, 2] * lid.mount_height
+    assert base[2] == pytest.approx(sim.world.terrain.height(base[0], base[1]) + ROAD_DZ, abs=0.02)
+    assert T[2, 2] > np.cos(np.deg2rad(6))
+
+
+def test_motion_distortion_switch_in_a_drive():
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    on = DriveSimulator("highway", 2, lid, frames=5, motion_distortion=True).scan_at(4)
+    off = DriveSimulator("highway", 2, lid, frames=5, motion_distortion=False).scan_at(4)
+    assert np.array_equal(on.T_world_lidar, off.T_world_lidar)
+    t = on.fields["time"]
+    assert t.min() >= 0 and t.max() < 0.1
+    # at highway speed the last columns are ~1.7 m further along: the clouds differ
+    assert len(on) != len(off) or not np.allclose(on.points, off.points, atol=0.05)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_scene_types_produce_plausible_scans(scene):
+    lid = small_lidar()
+    sim = DriveSimulator(scene, 11, lid, frames=30)
+    scans = [sim.scan_at(0), sim.scan_at(29)]
+    rays = lid.columns * lid.beams
+    for s in scans:
+        r = np.linalg.norm(s.points, axis=1)
+        assert 0.5 * rays < len(s) <= rays
+        assert s.points.dtype == np.float32 and s.fields["intensity"].dtype == np.float32
+        assert r.min() >= lid.min_range and r.max() < lid.max_range and np.percentile(r, 90) > 20.0
+        assert 0 <= s.fields["intensity"].min() and s.fields["intensity"].max() <= 255
+        above = s.points[:, 2] > 0.5 - lid.mount_height  # > 0.5 m above the road
+        min_above = 0.003 if scene == "open_road" else 0.02
+        assert above.mean() > min_above, f"{scene}: too little vertical structure"
+    moved = np.linalg.norm(scans[1].T_world_lidar[:3, 3] - scans[0].T_world_lidar[:3, 3])
+    assert moved < 20.0 * 2.9 + 1e-6  # speed <= 20 m/s
+    v = sim.trajectory.v_grid
+    assert v.min() >= -1e-6 and v.max() <= 20.0 + 1e-6
+
+
+def test_bad_arguments():
+    with pytest.raises(SimulationError, match="unknown scene 'mars'"):
+        simulate_drive("mars", 0, 1)
+    with pytest.raises(SimulationError, match="frames must be >= 1"):
+        simulate_drive("urban", 0, 0)
+    with pytest.raises(SimulationError, match="out of range"):
+        DriveSimulator("open_road", 0, small_lidar(), frames=2).scan_at(2)
