@@ -1,0 +1,128 @@
+#!/usr/bin/env python3
+"""Long-drive odometry benchmark (issue 6, section 2): DeepBBS++ vs KISS-ICP vs scan-to-scan GICP.
+
+1. Simulates a drive of ``--frames`` (default 1000) HDL-64 scans with ground truth into
+   ``--cache`` (default ``~/.cache/deepbbs_ros/bench/<scene>_<seed>_<frames>[_az<step>]``) unless it
+   is already there (rosbag2, mcap);
+2. runs ``deepbbs-replay --mode odometry`` on it with the chosen methods;
+3. prints the table, the goal checks (DeepBBS++ drift below scan-to-scan GICP's and within 1.5x of
+   KISS-ICP's; throughput >= 10 frames/s) and where metrics.json / the plots are.
+
+Example::
+
+    python scripts/bench_odometry.py --frames 1000 --scene urban --seed 101
+    python scripts/bench_odometry.py --frames 1000 --scene highway --seed 202 --method deepbbs++,gicp
+
+Extra arguments after ``--`` go to deepbbs-replay (e.g. ``-- --device cuda --weights my.pt``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _cache_dir(args) -> Path:
+    root = Path(args.cache).expanduser() if args.cache else Path.home() / ".cache" / "deepbbs_ros" / "bench"
+    az = "" if args.azimuth_step is None else f"_az{args.azimuth_step:g}"
+    return root / f"{args.scene}_{args.seed}_{args.frames}{az}"
+
+
+def ensure_drive(args) -> Path:
+    """Simulate the drive into the cache (mcap rosbag2) unless a complete one is there."""
+    from deepbbs_ros.datasets import open_source, write_scans
+    from deepbbs_ros.sim import LidarConfig, simulate_drive
+
+    path = _cache_dir(args)
+    if path.exists():
+        try:
+            if len(open_source(path)) == args.frames:
+                print(f"using cached drive {path}")
+                return path
+        except Exception as err:  # noqa: BLE001 - any unreadable cache is regenerated
+            print(f"cached drive {path} unreadable ({err}); regenerating")
+        import shutil
+
+        shutil.rmtree(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    kw = {} if args.azimuth_step is None else {"azimuth_step_deg": args.azimuth_step}
+    lidar = LidarConfig.hdl64(**kw)
+    print(f"simulating {args.frames} frames ({args.scene}, seed {args.seed}) into {path}")
+    tmp = path.with_name(path.name + ".partial")
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    scans = simulate_drive(args.scene, args.seed, args.frames, lidar=lidar)
+    write_scans(_Sized(scans, args.frames), tmp, "mcap", progress=True)
+    tmp.rename(path)
+    return path
+
+
+class _Sized:
+    """An iterator with a length, so the writer's progress bar shows an ETA."""
+
+    def __init__(self, it, n):
+        self.it, self.n = it, n
+
+    def __iter__(self):
+        return iter(self.it)
+
+    def __len__(self):
+        return self.n
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    passthrough = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, passthrough = argv[:i], argv[i + 1 :]
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--frames", type=int, default=1000)
+    p.add_argument("--scene", default="urban", help="urban, suburban, highway, open_road")
+    p.add_argument("--seed", type=int, default=101, help="held-out seed (not used in training)")
+    p.add_argument("--azimuth-step", type=float, default=None, help="deg; default: the HDL-64 preset (0.18)")
+    p.add_argument("--method", default="deepbbs++,kiss-icp,gicp")
+    p.add_argument("--cache", default=None, help="cache root for simulated drives")
+    p.add_argument("--out", default="results/bench_odometry", help="replay results root")
+    p.add_argument("--config", default=None, help="config YAML passed to deepbbs-replay")
+    args = p.parse_args(argv)
+
+    from deepbbs_ros.cli.replay import main as replay
+
+    drive = ensure_drive(args)
+    out = Path(args.out) / f"{args.scene}_{args.seed}_{args.frames}"
+    cmd = [str(drive), "--mode", "odometry", "--method", args.method, "--out", str(out)]
+    if args.config:
+        cmd += ["--config", args.config]
+    cmd += passthrough
+    print("$ deepbbs-replay " + " ".join(cmd))
+    rc = replay(cmd)
+    metrics_path = out / "latest" / "metrics.json"
+    if not metrics_path.exists():
+        return rc or 1
+    doc = json.loads(metrics_path.read_text())
+    M = doc["methods"]
+
+    def drift(name):
+        m = M.get(name) or {}
+        return m.get("kitti_t_err_pct")
+
+    d, g, k = drift("deepbbs++"), drift("gicp"), drift("kiss-icp")
+    print("\ngoal checks (KITTI translation drift, %):")
+    if d is not None and g is not None:
+        print(f"  DeepBBS++ {d:.3f} vs scan-to-scan GICP {g:.3f}: {'PASS' if d < g else 'FAIL'} (lower)")
+    if d is not None and k is not None:
+        print(f"  DeepBBS++ {d:.3f} vs KISS-ICP {k:.3f}: {'PASS' if d <= 1.5 * k else 'FAIL'} (within 1.5x)")
+    if "deepbbs++" in M and M["deepbbs++"].get("fps") is not None:
+        fps = M["deepbbs++"]["fps"]
+        print(f"  DeepBBS++ throughput {fps:.1f} frames/s: {'PASS' if fps >= 10 else 'FAIL'} (>= 10)")
+    print(f"metrics: {metrics_path}\nplots:   {out / 'latest'}/trajectory_xy.png, errors_over_time.png, rpe_cdf.png")
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())
