@@ -205,3 +205,43 @@ def simulate_drive(
     """
     sim = DriveSimulator(scene, seed, lidar, frames=frames, motion_distortion=motion_distortion, rate_hz=rate_hz)
     return iter(sim)  # a plain function, so bad arguments raise here and not at the first next()
+
+
+_WORKER_SIM: DriveSimulator | None = None
+
+
+def _worker_init(kwargs: dict) -> None:
+    global _WORKER_SIM
+    _WORKER_SIM = DriveSimulator(**kwargs)
+
+
+def _worker_scan(frame: int) -> Scan:
+    assert _WORKER_SIM is not None
+    return _WORKER_SIM.scan_at(frame)
+
+
+def iter_frames(sim: DriveSimulator, workers: int = 1) -> Iterator[Scan]:
+    """Yield all frames of ``sim`` in order, simulated in ``workers`` processes (1 = in this one).
+
+    Every worker rebuilds the same world from the same seed, and frames do not depend on the order
+    in which they are simulated, so the output is bit-identical for any number of workers.
+    """
+    if workers <= 1:
+        yield from sim
+        return
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    kwargs = {
+        "scene": sim.scene, "seed": sim.seed, "lidar": sim.lidar, "frames": sim.frames,
+        "motion_distortion": sim.motion_distortion, "rate_hz": sim.rate_hz,
+    }  # fmt: skip
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=(kwargs,)) as pool:
+        pending: list[cf.Future] = []
+        nxt = 0
+        for _ in range(sim.frames):
+            while nxt < sim.frames and len(pending) < 2 * workers:  # bounded read-ahead
+                pending.append(pool.submit(_worker_scan, nxt))
+                nxt += 1
+            yield pending.pop(0).result()
