@@ -33,6 +33,7 @@ import sys
 import threading
 import time
 import traceback
+import zlib
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,7 +125,7 @@ def make_node_class():
             self._errors = _errors_for(self, ncfg.error_log_period)
             self._stages = _stage_times()
             self._lock = threading.Lock()
-            self._pp_cache: OrderedDict[tuple[str, int], Any] = OrderedDict()
+            self._pp_cache: OrderedDict[tuple, Any] = OrderedDict()
             self._frames: dict[str, str] = {}
             self._odom_prev: _Cloud | None = None
             self._odom_prev_pp: Any = None
@@ -333,7 +334,8 @@ def make_node_class():
                 )
 
         def _preprocess(self, cloud: _Cloud):
-            key = (cloud.frame_id, cloud.stamp_ns)
+            # same frame and stamp is not enough (two inputs may carry both): add the content's CRC
+            key = (cloud.frame_id, cloud.stamp_ns, cloud.xyz.shape[0], zlib.crc32(cloud.xyz))
             with self._lock:
                 hit = self._pp_cache.get(key)
             if hit is not None:
@@ -376,6 +378,8 @@ def make_node_class():
                 if tgt is None:  # first odometry scan: it becomes the reference
                     with self._lock:
                         self._odom_prev, self._odom_prev_pp = src, src_pp
+                        self._T_odom = np.eye(4)
+                        self._counts["processed"] += 1
                     self._publish_odometry_pose(src, np.eye(4), None, None)
                     return
                 tgt_pp, ms_t = self._preprocess(tgt)
