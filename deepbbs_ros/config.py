@@ -128,6 +128,8 @@ class RegistrationConfig:
     fixed_temperature: float = 0.0  # ablation: > 0 replaces the predicted T (scaled units)
     use_gamma: bool = True  # ablation: False = uniform weights in Procrustes
     spatial_gamma: bool = True  # ablation: False = gamma without the exp(-D/T) spatial term
+    inlier_dist: float = 1.0  # m; RegistrationResult.inlier_ratio = share of source points this close to the target
+    threads: int = 0  # torch CPU threads; 0 = leave torch's default (and OMP_NUM_THREADS) alone
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (CONVENTIONS.md)
 
@@ -144,6 +146,8 @@ class RegistrationConfig:
         _check(self.refine_max_iters >= 1, "registration.refine_max_iters", "must be >= 1")
         _check(self.refine_k >= 0, "registration.refine_k", "must be >= 0 (0 = dense)")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
+        _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
+        _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = torch default)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 

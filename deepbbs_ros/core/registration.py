@@ -1,0 +1,260 @@
+"""DeepBBS++ registration of one source cloud against one target cloud (no ROS).
+
+``DeepBBSRegistration.register`` reads top-down like kiss-icp's ``register_frame``::
+
+    preprocess  crop, ground removal, voxel grid, farthest-point sampling   (core/preprocess.py)
+    embed       DGCNN + shared transformer on the moved source and target  (core/model.py)
+    match       SoftBBS on the feature distances                            (core/softbbs.py)
+    solve       soft map, gamma weights, weighted Procrustes                (core/procrustes.py)
+    ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS)
+    refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
+
+Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
+ModelConfig) and translations are scaled back. The result is ``T_target_source``
+(p_target = R p_source + t, CONVENTIONS.md), float64.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
+from deepbbs_ros.core.model import DeepBBSNet, solve_transform
+from deepbbs_ros.core.preprocess import PreprocessResult, preprocess
+from deepbbs_ros.core.procrustes import apply_transform
+from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
+from deepbbs_ros.device import resolve_device
+from deepbbs_ros.errors import ModelError, RegistrationError
+
+__all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
+
+
+@dataclass
+class RegistrationResult:
+    """The outcome of one registration.
+
+    Attributes:
+        T_target_source: (4, 4) float64, p_target = R p_source + t (metres).
+        converged: the last stage that ran stopped on its tolerances (not on its iteration cap).
+        iterations: {"deep": network passes, "refine": refinement iterations}.
+        gamma: (N,) float32 confidence of every (preprocessed) source point, from the last stage.
+        inlier_ratio: fraction of source points within ``registration.inlier_dist`` metres of a
+            target point after alignment.
+        temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
+        timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total").
+        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
+    """
+
+    T_target_source: np.ndarray
+    converged: bool
+    iterations: dict[str, int]
+    gamma: np.ndarray
+    inlier_ratio: float
+    temperature: float
+    timings_ms: dict[str, float]
+    source: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
+    target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
+
+
+class _Clock:
+    """Accumulates wall time per stage; synchronises CUDA so GPU stages are timed, not queued."""
+
+    def __init__(self, device: torch.device) -> None:
+        self.cuda = device.type == "cuda"
+        self.ms: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        if self.cuda:
+            torch.cuda.synchronize()
+        now = time.perf_counter()
+        self.ms[stage] = self.ms.get(stage, 0.0) + (now - self._t) * 1e3
+        self._t = now
+
+
+class DeepBBSRegistration:
+    """DeepBBS++ registration with one configuration and one network.
+
+    Args:
+        config: the whole configuration (defaults if None). When weights are loaded, the model
+            section is taken from the checkpoint (it describes the weights).
+        weights: checkpoint path; None -> ``config.registration.weights``; "" -> the shipped model
+            (``deepbbs_ros/models/deepbbspp_lidar.pt``).
+        device: "auto", "cpu", "cuda", "cuda:N"; None -> ``config.registration.device``.
+        model: an already built :class:`DeepBBSNet` (tests, training validation); used as is (its
+            train/eval mode is the caller's) and moved to ``device``.
+
+    Raises:
+        ModelError: the checkpoint is missing, corrupt or does not match.
+    """
+
+    def __init__(
+        self,
+        config: Config | None = None,
+        *,
+        weights: str | Path | None = None,
+        device: str | None = None,
+        model: DeepBBSNet | None = None,
+    ) -> None:
+        config = dataclasses.replace(config or Config())
+        self.device = resolve_device(device or config.registration.device)
+        self.metadata: dict[str, Any] = {}
+        self.weights_path: Path | None = None
+        if model is None:
+            path = weights if weights is not None else config.registration.weights
+            self.weights_path = Path(path).expanduser() if path else default_weights_path()
+            if not self.weights_path.is_file():
+                raise ModelError(f"model file not found: {self.weights_path} (train one with deepbbs-train)")
+            model, ckpt_config, self.metadata = load_checkpoint(self.weights_path, self.device)
+            config.model = ckpt_config.model
+            if ckpt_config.preprocess.num_points != config.preprocess.num_points:
+                warnings.warn(
+                    f"{self.weights_path} was trained on {ckpt_config.preprocess.num_points} points per cloud, "
+                    f"preprocess.num_points is {config.preprocess.num_points}",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+        else:
+            config.model = model.cfg
+        self.model = model.to(self.device)
+        self.config = config
+        if config.registration.threads > 0:  # 0 leaves torch's (and the user's) setting alone
+            torch.set_num_threads(config.registration.threads)
+
+    # -- preprocessing ---------------------------------------------------------------------------
+    def preprocess(self, points: np.ndarray) -> PreprocessResult:
+        """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``)."""
+        return preprocess(points, self.config.preprocess)
+
+    def _cloud(self, points: np.ndarray, preprocessed: bool, name: str) -> np.ndarray:
+        if not preprocessed:
+            return self.preprocess(points).points
+        pts = np.asarray(points, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise RegistrationError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
+        if pts.shape[0] < 3:
+            raise RegistrationError(f"{name}: at least 3 points are needed, got {pts.shape[0]}")
+        if not np.isfinite(pts).all():
+            raise RegistrationError(f"{name}: the point cloud contains NaN or infinite coordinates")
+        return pts
+
+    # -- registration ----------------------------------------------------------------------------
+    def register(
+        self,
+        source: np.ndarray,
+        target: np.ndarray,
+        *,
+        T_init: np.ndarray | None = None,
+        preprocessed: bool = False,
+    ) -> RegistrationResult:
+        """Estimate ``T_target_source`` (4, 4) float64 moving ``source`` onto ``target``.
+
+        Args:
+            source: (N, 3) source scan, metres, sensor frame (raw, or preprocessed when
+                ``preprocessed`` is True).
+            target: (M, 3) target scan, same conventions.
+            T_init: (4, 4) initial guess of T_target_source (identity if None).
+            preprocessed: skip preprocessing (the clouds are already cropped/sampled).
+        """
+        rc, scale = self.config.registration, self.model.scale
+        clock = _Clock(self.device)
+        # preprocess: crop, ground removal, voxel grid, FPS (raw scans only)
+        src_np = self._cloud(source, preprocessed, "source")
+        tgt_np = self._cloud(target, preprocessed, "target")
+        clock.lap("preprocess")
+        T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
+        iters = {"deep": 0, "refine": 0}
+        converged, temperature = False, 0.0
+        with torch.inference_mode():
+            src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
+            tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
+            gamma = src.new_ones(src.shape[1])
+            f_tgt, _ = self.model.point_features(tgt)  # the target does not move: embed it once
+            src_knn = None  # the source's kNN graph is rigid-invariant: built once
+            n_deep = (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
+            clock.lap("embed")
+            for k in range(n_deep):
+                moved = apply_transform(src, R[None], t[None])
+                # embed: DGCNN + transformer on the moved source and the target, temperature head
+                f_src, src_knn = self.model.point_features(moved, src_knn)
+                phi_src, phi_tgt = self.model.cross(f_src, f_tgt)
+                temp = self.model.predict_temperature(phi_src, phi_tgt)
+                clock.lap("embed")
+                # match: SoftBBS on the feature distances
+                log_b = self.model.match(phi_src, phi_tgt)
+                clock.lap("match")
+                # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
+                temperature = float(temp[0]) if k == 0 else temperature
+                temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
+                temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
+                dR, dt, _, g = solve_transform(
+                    moved, tgt, log_b, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
+                )
+                R, t = dR[0] @ R, dR[0] @ t + dt[0]
+                gamma, iters["deep"] = g[0], k + 1
+                small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
+                converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
+                clock.lap("solve")
+                if converged:
+                    break
+            # refine: SoftBBS on xyz over the k nearest targets, until the increment is tiny (DeepBBS++)
+            search = NeighbourSearch(tgt[0])
+            if rc.refine:
+                ref = refine(
+                    src[0], tgt[0], R, t,
+                    k=rc.refine_k, max_iters=rc.refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
+                    trans_tol=rc.refine_trans_tol * scale, xi=self.model.cfg.xi, temperature=1.0,
+                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma, search=search,
+                )  # fmt: skip
+                R, t, gamma, converged, iters["refine"] = ref.R, ref.t, ref.gamma, ref.converged, ref.iterations
+            moved = apply_transform(src, R[None], t[None])[0]
+            inliers = search.nearest_distance(moved) / scale <= rc.inlier_dist
+            inlier_ratio = float(inliers.float().mean())
+            clock.lap("refine")
+        T_out = np.eye(4)
+        T_out[:3, :3] = R.double().cpu().numpy()
+        T_out[:3, 3] = t.double().cpu().numpy() / scale
+        T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
+        timings = {s: clock.ms.get(s, 0.0) for s in ("preprocess", "embed", "match", "solve", "refine")}
+        timings["total"] = sum(timings.values())
+        return RegistrationResult(
+            T_target_source=T_out,
+            converged=bool(converged),
+            iterations=iters,
+            gamma=gamma.float().cpu().numpy(),
+            inlier_ratio=inlier_ratio,
+            temperature=temperature,
+            timings_ms=timings,
+            source=src_np,
+            target=tgt_np,
+        )
+
+
+def _orthonormalize(R: np.ndarray) -> np.ndarray:
+    """Nearest rotation (float64) to a float32-accumulated one."""
+    u, _, vt = np.linalg.svd(R)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def register_pair(
+    source: np.ndarray, target: np.ndarray, config: Config | None = None, **kwargs: Any
+) -> RegistrationResult:
+    """One-shot convenience: ``DeepBBSRegistration(config, weights=, device=, model=).register(...)``.
+
+    ``weights``, ``device`` and ``model`` go to the constructor, everything else to ``register``.
+    """
+    ctor = {k: kwargs.pop(k) for k in ("weights", "device", "model") if k in kwargs}
+    return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
+

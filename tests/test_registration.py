@@ -1,0 +1,213 @@
+"""DeepBBSRegistration end to end on structured synthetic clouds with known transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from deepbbs_ros.config import Config, ModelConfig
+from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.procrustes import weighted_procrustes
+from deepbbs_ros.core.refine import refine
+from deepbbs_ros.core.registration import DeepBBSRegistration, RegistrationResult, register_pair
+from deepbbs_ros.errors import ModelError, RegistrationError
+
+TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
+
+
+def surfaces(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A random sampling (n points, metres) of one fixed street corner: walls, a car-sized box, poles."""
+    k = n // 5
+    u = rng.uniform(size=(n, 3))
+    walls = [
+        np.c_[-15 + 30 * u[:k, 0], np.full(k, 6.0), 6 * u[:k, 1]],
+        np.c_[np.full(k, -9.0), -12 + 18 * u[k : 2 * k, 0], 5 * u[k : 2 * k, 1]],
+        np.c_[4 + 10 * u[2 * k : 3 * k, 0], -5 - 7 * u[2 * k : 3 * k, 0], 3 * u[2 * k : 3 * k, 1]],
+    ]
+    ang = 2 * np.pi * u[3 * k : 4 * k, 0]
+    pole = (u[3 * k : 4 * k, 1] * 4).astype(int)
+    cx, cy = np.array([2.0, 8.0, -4.0, 11.0])[pole], np.array([3.0, -2.0, -7.0, 2.0])[pole]
+    poles = np.c_[cx + 0.3 * np.cos(ang), cy + 0.3 * np.sin(ang), 5 * u[3 * k : 4 * k, 2]]
+    m = n - 4 * k  # box 4.5 x 1.8 x 1.5 m: points on its faces
+    box = u[4 * k :] * [4.5, 1.8, 1.5]
+    face = rng.integers(0, 3, m)
+    box[np.arange(m), face] = np.array([4.5, 1.8, 1.5])[face] * rng.integers(0, 2, m)
+    return np.concatenate([*walls, poles, box + [-2.0, -3.0, 0.0]]).astype(np.float32)
+
+
+def make_pair(rng, yaw_deg=3.0, t=(0.6, -0.4, 0.05), n=600, same_sampling=False):
+    """(source, target, T_target_source): the source is the target scene seen from another pose."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zyx", [yaw_deg, 0.5, -0.3], degrees=True).as_matrix()
+    T[:3, 3] = t
+    target = surfaces(rng, n)
+    scene = target if same_sampling else surfaces(rng, n)
+    source = ((scene - T[:3, 3]) @ T[:3, :3]).astype(np.float32)  # p_source = R^T (p_target - t)
+    return source, target, T
+
+
+def errors(T_est, T_gt):
+    E = np.linalg.inv(T_gt) @ T_est
+    rot = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return rot, np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3])
+
+
+def tiny_registration(**flat) -> DeepBBSRegistration:
+    torch.manual_seed(0)
+    cfg = Config().replace(**{"registration.device": "cpu", **flat})
+    return DeepBBSRegistration(cfg, model=DeepBBSNet(TINY).eval())
+
+
+def _icp(source, target, iters=60):
+    """Point-to-point ICP (1 m gate), the yardstick for what two random samplings allow."""
+    from scipy.spatial import cKDTree
+
+    tree, T = cKDTree(target), np.eye(4)
+    for _ in range(iters):
+        d, i = tree.query(source @ T[:3, :3].T + T[:3, 3])
+        w = torch.tensor((d < 1.0) * 1.0)
+        src64, tgt64 = torch.tensor(source, dtype=torch.float64), torch.tensor(target[i], dtype=torch.float64)
+        R, t = weighted_procrustes(src64, tgt64, w)
+        T[:3, :3], T[:3, 3] = R.numpy(), t.numpy()
+    return T
+
+
+def test_refinement_alone_aligns_two_samplings_and_sparse_matches_dense(rng):
+    source, target, T_gt = make_pair(rng, n=1000)
+    scale = 0.025
+    src, tgt = torch.from_numpy(source) * scale, torch.from_numpy(target) * scale
+    out = {}
+    with torch.inference_mode():
+        for k in (16, 0):
+            r = refine(src, tgt, torch.eye(3), torch.zeros(3), k=k, max_iters=46, rot_tol_deg=0.005, trans_tol=1e-5)
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = r.R.double().numpy(), r.t.double().numpy() / scale
+            out[k] = (T, r.iterations)
+    start = errors(np.eye(4), T_gt)
+    icp = errors(_icp(source, target), T_gt)
+    for k, (T, _) in out.items():
+        rot, trans = errors(T, T_gt)
+        # two independent samplings: as close as point-to-point ICP gets, and far closer than the start
+        assert rot < max(1.5 * icp[0], 0.3) and trans < max(1.5 * icp[1], 0.05), (k, rot, trans, icp, start)
+        assert rot < 0.3 * start[0] and trans < 0.15 * start[1], (k, rot, trans, start)
+    rot_sd, trans_sd = errors(out[16][0], out[0][0])  # sparse vs dense: the same answer
+    assert rot_sd < 0.05 and trans_sd < 0.01, (rot_sd, trans_sd)
+    assert out[16][1] < 46  # stopped early on convergence
+
+
+def test_register_returns_T_target_source(rng):
+    """Tiny random network + refinement: the known transform, in the CONVENTIONS.md direction."""
+    source, target, T_gt = make_pair(rng, same_sampling=True)
+    res = tiny_registration().register(source, target, preprocessed=True)
+    assert isinstance(res, RegistrationResult)
+    assert res.T_target_source.dtype == np.float64 and res.T_target_source.shape == (4, 4)
+    rot, trans = errors(res.T_target_source, T_gt)
+    assert rot < 0.05 and trans < 0.01, (rot, trans)
+    rot_inv, trans_inv = errors(np.linalg.inv(res.T_target_source), T_gt)
+    assert trans_inv > 0.5  # the opposite direction is clearly wrong
+    moved = source @ res.T_target_source[:3, :3].T + res.T_target_source[:3, 3]
+    np.testing.assert_allclose(moved, target, atol=0.01)  # p_target = R p_source + t
+    assert res.converged and res.iterations["refine"] >= 1 and 1 <= res.iterations["deep"] <= 5
+    assert res.gamma.shape == (len(source),) and res.gamma.dtype == np.float32
+    assert res.inlier_ratio > 0.99
+    assert set(res.timings_ms) == {"preprocess", "embed", "match", "solve", "refine", "total"}
+    assert res.timings_ms["total"] >= res.timings_ms["refine"] > 0
+
+
+def test_T_init_is_used(rng):
+    source, target, T_gt = make_pair(rng, same_sampling=True, yaw_deg=25.0, t=(6.0, 3.0, 0.0))
+    reg = tiny_registration(**{"registration.deep": False})
+    res = reg.register(source, target, preprocessed=True, T_init=T_gt @ _small_offset())
+    rot, trans = errors(res.T_target_source, T_gt)
+    assert rot < 0.05 and trans < 0.01, (rot, trans)
+
+
+def _small_offset():
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", 2.0, degrees=True).as_matrix()
+    T[:3, 3] = [0.3, -0.2, 0.0]
+    return T
+
+
+@pytest.mark.parametrize(
+    "flat, deep, refine_iters",
+    [
+        ({"registration.refine": False}, (1, 5), 0),  # DeepBBS, no refinement
+        ({"registration.deep": False}, (0, 0), (1, 46)),  # refinement only
+        ({"registration.deep_iterations": False, "registration.refine": False}, (1, 1), 0),
+        ({"registration.fixed_temperature": 0.1, "registration.refine": False}, (1, 5), 0),
+        ({"registration.use_gamma": False}, (1, 5), (1, 46)),
+        ({"registration.spatial_gamma": False}, (1, 5), (1, 46)),
+        ({"registration.refine_k": 0, "registration.refine_max_iters": 5}, (1, 5), (1, 5)),
+    ],
+)
+def test_ablation_switches(rng, flat, deep, refine_iters):
+    source, target, _ = make_pair(rng, n=200)
+    res = tiny_registration(**flat).register(source, target, preprocessed=True)
+    assert deep[0] <= res.iterations["deep"] <= deep[1]
+    lo, hi = refine_iters if isinstance(refine_iters, tuple) else (refine_iters, refine_iters)
+    assert lo <= res.iterations["refine"] <= hi
+    assert np.isfinite(res.T_target_source).all()
+    R = res.T_target_source[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    if flat.get("registration.fixed_temperature") or not flat.get("registration.deep", True):
+        assert res.temperature == 0.0 or res.temperature > 0
+
+
+def test_raw_scans_are_preprocessed(rng):
+    """Raw scans with a ground plane in: preprocessing runs and reports its time."""
+    source, target, T_gt = make_pair(rng, n=3000, same_sampling=True)
+    ground = np.c_[rng.uniform(-20, 20, (4000, 2)), rng.normal(scale=0.02, size=4000) - 0.0].astype(np.float32)
+    src_raw = np.concatenate([source + [0, 0, 2.0], ground])
+    tgt_raw = np.concatenate([target + [0, 0, 2.0], ground])
+    reg = tiny_registration(**{"preprocess.num_points": 300, "preprocess.voxel_size": 0.2})
+    res = reg.register(src_raw, tgt_raw)
+    assert res.source.shape == (300, 3) and res.target.shape == (300, 3)
+    assert res.timings_ms["preprocess"] > 0
+    assert np.isfinite(res.T_target_source).all()
+
+
+def test_bad_input_raises(rng):
+    reg = tiny_registration()
+    good = rng.normal(size=(50, 3)).astype(np.float32)
+    with pytest.raises(RegistrationError, match="source: at least 3 points"):
+        reg.register(good[:2], good, preprocessed=True)
+    bad = good.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(RegistrationError, match="target: the point cloud contains NaN"):
+        reg.register(good, bad, preprocessed=True)
+    with pytest.raises(RegistrationError, match=r"expected an \(N, 3\) point array"):
+        reg.register(good[:, :2], good, preprocessed=True)
+
+
+def test_missing_weights_raise_model_error(tmp_path):
+    with pytest.raises(ModelError, match=r"model file not found: .*none\.pt \(train one with deepbbs-train\)"):
+        DeepBBSRegistration(Config(), weights=tmp_path / "none.pt", device="cpu")
+
+
+def test_weights_from_checkpoint_and_register_pair(tmp_path, rng):
+    from deepbbs_ros.core.checkpoint import save_checkpoint
+
+    torch.manual_seed(1)
+    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), Config())
+    source, target, T_gt = make_pair(rng, n=300, same_sampling=True)
+    cfg = Config().replace(**{"registration.weights": str(path), "registration.device": "cpu"})
+    res = register_pair(source, target, cfg, preprocessed=True)
+    assert errors(res.T_target_source, T_gt)[1] < 0.02
+    reg = DeepBBSRegistration(cfg)
+    assert reg.config.model == TINY and reg.weights_path == path
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cpu_and_cuda_registration_agree(rng):
+    source, target, T_gt = make_pair(rng, same_sampling=True)
+    torch.manual_seed(0)
+    model = DeepBBSNet(TINY).eval()
+    cfg = Config()
+    cpu = DeepBBSRegistration(cfg, model=model, device="cpu").register(source, target, preprocessed=True)
+    gpu = DeepBBSRegistration(cfg, model=model, device="cuda").register(source, target, preprocessed=True)
+    rot, trans = errors(gpu.T_target_source, cpu.T_target_source)
+    assert rot < 0.05 and trans < 0.01
+    assert errors(gpu.T_target_source, T_gt)[1] < 0.01
