@@ -136,8 +136,8 @@ class DriveSimulator:
         bins = np.zeros(nbins, bool)
         for T in (T_first, T_last):
             rel = vertices[:, :2] - T[:2, 3]
-            if np.min(np.hypot(rel[:, 0], rel[:, 1])) < 6.0:
-                return np.arange(ncol * nb)  # very close: no culling
+            if np.min(np.hypot(rel[:, 0], rel[:, 1])) < 1.5:
+                return np.arange(ncol * nb)  # (nearly) touching the sensor: no culling
             a = np.arctan2(rel[:, 1], rel[:, 0]).reshape(-1, 8)
             da = np.angle(np.exp(1j * (a - a[:, :1])))
             lo = (a[:, 0] + da.min(1) - pad + np.pi) / (2 * np.pi) * nbins
