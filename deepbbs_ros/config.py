@@ -188,25 +188,32 @@ class NodeConfig:
 class TrainConfig:
     """deepbbs-train: data, augmentation, loss and optimiser."""
 
-    epochs: int = 40
-    steps_per_epoch: int = 200
+    epochs: int = 20
+    steps_per_epoch: int = 150
     batch_size: int = 8
+    num_points: int = 0  # points per training cloud; 0 = preprocess.num_points (validation always uses that)
     lr: float = 1e-3
-    lr_step: int = 15  # epochs between learning-rate decays
+    lr_step: int = 8  # epochs between learning-rate decays
     lr_gamma: float = 0.5
+    grad_clip: float = 1.0  # max gradient norm; 0 disables clipping
     beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
-    theta: float = 0.5  # m; a source point has a true partner within theta
+    theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
     max_dist: float = 5.0  # m; pairs of frames at most this far apart
     yaw_aug_deg: float = 45.0  # extra random yaw on top of the real relative pose
     trans_aug: float = 1.0  # m; extra random translation
     crop_prob: float = 0.3  # probability of a partial-overlap crop of one cloud
     noise_sigma: float = 0.01  # m
     val_every: int = 1  # epochs
+    val_pairs: int = 16  # fixed held-out pairs per validation set (plain and with extra yaw)
+    checkpoint_minutes: float = 10.0  # also save the latest state this often within an epoch; 0 = epoch ends only
     seed: int = 0
 
     def validate(self) -> None:
-        for name in ("epochs", "steps_per_epoch", "batch_size", "lr_step", "val_every"):
+        for name in ("epochs", "steps_per_epoch", "batch_size", "lr_step", "val_every", "val_pairs"):
             _check(getattr(self, name) >= 1, f"train.{name}", "must be >= 1")
+        _check(self.num_points == 0 or self.num_points >= 16, "train.num_points", "must be 0 or >= 16")
+        _check(self.grad_clip >= 0, "train.grad_clip", "must be >= 0")
+        _check(self.checkpoint_minutes >= 0, "train.checkpoint_minutes", "must be >= 0")
         _check(self.lr > 0, "train.lr", "must be > 0")
         _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")
         _check(0 < self.beta <= 1, "train.beta", "must be in (0, 1]")

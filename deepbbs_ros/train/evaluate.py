@@ -1,0 +1,219 @@
+"""Accuracy of a model on held-out simulated Apollo-style drives: the figures of the model card.
+
+Protocol (CONVENTIONS.md): HDL-64E-like drives (the simulator's default sensor, motion distortion
+on) from the *test* seed range (90000 + i, never used for training or validation; scene type
+``scenes[i % len(scenes)]``); sources every ``stride`` frames, target = the last frame within
+``max_dist`` (5 m) of the source; no initial guess (identity); 1000 points per cloud
+(``preprocess.num_points``). Every pair is registered twice: as it comes, and with an extra random
+yaw of up to ``yaw_deg`` applied to the source scan (the ground truth adjusted accordingly).
+
+Methods: ``deepbbs++`` (deep iterations + refinement: the shipped pipeline), ``deepbbs`` (no
+refinement), ``refine-only`` (the 3D SoftBBS refinement from identity, no network) and ``gicp``
+(small_gicp GICP from identity on the dense voxelised scan, the replay baseline, for contrast).
+The DeepBBS variants share one preprocessing of each scan (the rotated source is the same points
+rotated: preprocessing commutes with a yaw about the sensor axis up to the FPS start point).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.errors import ConfigError
+from deepbbs_ros.train.cache import TEST_SEED_BASE
+from deepbbs_ros.train.pairs import inv_T, make_T, transform, yaw_matrix
+
+METHODS = ("deepbbs++", "deepbbs", "refine-only", "gicp")
+GOALS = {"rot_mean_deg": 0.05, "trans_mean_m": 0.04, "success": 0.99, "success_yaw": 0.95}
+
+
+def _summary(rot: list[float], trans: list[float], ms: list[float], cfg: Config) -> dict[str, Any]:
+    from deepbbs_ros.metrics import success_rate, summarize
+
+    r, t = np.asarray(rot, dtype=np.float64), np.asarray(trans, dtype=np.float64)
+    sr, st = summarize(r), summarize(t)
+    return {
+        "pairs": int(len(r)),
+        "rot_mean_deg": sr["mean"], "rot_rmse_deg": sr["rmse"], "rot_median_deg": sr["median"],
+        "rot_p95_deg": sr["p95"], "rot_max_deg": sr["max"],
+        "trans_mean_m": st["mean"], "trans_rmse_m": st["rmse"], "trans_median_m": st["median"],
+        "trans_p95_m": st["p95"], "trans_max_m": st["max"],
+        "success": success_rate(r, t, cfg.eval.success_rot_deg, cfg.eval.success_trans) if len(r) else float("nan"),
+        "ms_mean": float(np.mean(ms)) if ms else float("nan"),
+    }
+
+
+def evaluate(config: Config | None = None, *, weights: str | None = "", device: str | None = None,
+             scenes: Sequence[str] | None = None, drives_per_scene: int = 4, seed_base: int | None = None,
+             frames: int = 60, stride: int = 10, yaw_deg: float = 45.0, methods: Sequence[str] = METHODS,
+             progress: bool = True, model=None) -> dict[str, Any]:
+    """Register held-out pairs with every method, with and without extra yaw.
+
+    Returns a JSON-friendly report: ``summary[variant][method][scene | "all"]`` with mean / RMSE /
+    median / p95 / max rotation (deg) and translation (m) errors, success rate and runtime (ms), the
+    goal checks, and every pair's errors under ``pairs``.
+    """
+    from tqdm import tqdm
+
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.metrics import pair_errors
+    from deepbbs_ros.sim import SCENES
+    from deepbbs_ros.sim.simulator import DriveSimulator
+    from deepbbs_ros.train.cache import Drive
+    from deepbbs_ros.train.pairs import protocol_pairs
+
+    cfg = (config or Config()).validate()
+    scenes = list(scenes or SCENES)
+    methods = list(methods)
+    for m in methods:
+        if m not in METHODS:
+            raise ConfigError(f"evaluate: unknown method {m!r} (known: {', '.join(METHODS)})")
+    base = TEST_SEED_BASE if seed_base is None else int(seed_base)
+    seeds = list(range(base, base + drives_per_scene * len(scenes)))
+
+    # registration variants sharing one network
+    regs: dict[str, Any] = {}
+    full = DeepBBSRegistration(cfg, weights=weights, device=device, model=model)
+    shared = {"model": full.model, "device": str(full.device)}
+    cfg_used = full.config  # the checkpoint's model section, the run's other sections
+    if "deepbbs++" in methods:
+        regs["deepbbs++"] = full
+    if "deepbbs" in methods:
+        regs["deepbbs"] = DeepBBSRegistration(cfg_used.replace(**{"registration.refine": False}), **shared)
+    if "refine-only" in methods:
+        regs["refine-only"] = DeepBBSRegistration(
+            cfg_used.replace(**{"registration.deep": False, "registration.refine": True}), **shared)
+    gicp = None
+    if "gicp" in methods:
+        from deepbbs_ros.baselines import SmallGicpRegistration
+
+        gicp = SmallGicpRegistration("gicp", cfg_used)
+
+    variants = [("plain", 0.0)] + ([("yaw", float(yaw_deg))] if yaw_deg > 0 else [])
+    records: list[dict[str, Any]] = []
+    rng = np.random.default_rng([base, 45])
+    # pairs first (poses only, no ray casting), then cast only the frames that are needed
+    plan = []
+    for i, seed in enumerate(seeds):
+        scene = scenes[i % len(scenes)]
+        sim = DriveSimulator(scene, seed, frames=frames)
+        poses = np.stack([sim.pose_at(k) for k in range(frames)])
+        fake = Drive(name=f"{scene}_{seed}", points=np.zeros((0, 3), np.float32),
+                     offsets=np.zeros(frames + 1, np.int64), T_world_lidar=poses,
+                     stamps_ns=np.zeros(frames, np.int64), meta={"scene": scene})
+        plan.append((scene, seed, sim, protocol_pairs(fake, stride, cfg_used.eval.max_dist)))
+    total = sum(len(p[3]) for p in plan)
+    bar = tqdm(total=total, unit="pairs", desc="evaluate", disable=not progress)
+    t_start = time.perf_counter()
+    for scene, seed, sim, pairs in plan:
+        cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+        def frame(k: int, sim=sim, cache=cache) -> tuple[np.ndarray, np.ndarray]:
+            if k not in cache:
+                scan = sim.scan_at(k)
+                cache[k] = (scan.points, full.preprocess(scan.points).points)
+            return cache[k]
+
+        for i, j in pairs:
+            (raw_s, pre_s), (raw_t, pre_t) = frame(i), frame(j)
+            T_gt0 = inv_T(sim.pose_at(j)) @ sim.pose_at(i)
+            for variant, ydeg in variants:
+                A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
+                T_gt = T_gt0 @ inv_T(A)
+                src = transform(pre_s, A)
+                for name, reg in regs.items():
+                    t0 = time.perf_counter()
+                    res = reg.register(src, pre_t, preprocessed=True)
+                    ms = (time.perf_counter() - t0) * 1e3
+                    r, t = pair_errors(res.T_target_source, T_gt)
+                    records.append({"variant": variant, "method": name, "scene": scene, "seed": seed, "i": i, "j": j,
+                                    "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms,
+                                    "dist_m": float(np.linalg.norm(T_gt0[:3, 3]))})
+                if gicp is not None:
+                    t0 = time.perf_counter()
+                    ps, pt = gicp.preprocess(transform(raw_s, A)), gicp.preprocess(raw_t)
+                    res = gicp.align(ps, pt, None)
+                    ms = (time.perf_counter() - t0) * 1e3
+                    r, t = pair_errors(res.T_target_source, T_gt)
+                    records.append({"variant": variant, "method": "gicp", "scene": scene, "seed": seed, "i": i, "j": j,
+                                    "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms,
+                                    "dist_m": float(np.linalg.norm(T_gt0[:3, 3]))})
+            bar.update(1)
+    bar.close()
+
+    summary: dict[str, Any] = {}
+    for variant, _ in variants:
+        summary[variant] = {}
+        for m in methods:
+            summary[variant][m] = {}
+            for sc in [*scenes, "all"]:
+                sel = [r for r in records if r["variant"] == variant and r["method"] == m
+                       and (sc == "all" or r["scene"] == sc)]
+                summary[variant][m][sc] = _summary([r["rot_err_deg"] for r in sel], [r["trans_err_m"] for r in sel],
+                                                   [r["ms"] for r in sel], cfg_used)
+    goals = {}
+    if "deepbbs++" in methods:
+        a = summary["plain"]["deepbbs++"]["all"]
+        goals = {
+            "rot_mean_deg": {"goal": GOALS["rot_mean_deg"], "measured": a["rot_mean_deg"],
+                             "met": a["rot_mean_deg"] <= GOALS["rot_mean_deg"]},
+            "trans_mean_m": {"goal": GOALS["trans_mean_m"], "measured": a["trans_mean_m"],
+                             "met": a["trans_mean_m"] <= GOALS["trans_mean_m"]},
+            "success": {"goal": GOALS["success"], "measured": a["success"], "met": a["success"] >= GOALS["success"]},
+        }
+        if "yaw" in summary:
+            y = summary["yaw"]["deepbbs++"]["all"]
+            goals["success_yaw"] = {"goal": GOALS["success_yaw"], "measured": y["success"],
+                                    "met": y["success"] >= GOALS["success_yaw"]}
+    return {
+        "protocol": {"seeds": [seeds[0], seeds[-1]], "scenes": scenes, "drives_per_scene": drives_per_scene,
+                     "frames": frames, "stride": stride, "max_dist_m": cfg_used.eval.max_dist, "yaw_deg": yaw_deg,
+                     "sensor": "hdl64 (simulator default), motion distortion on", "initial_guess": "identity",
+                     "num_points": cfg_used.preprocess.num_points,
+                     "success": {"rot_deg": cfg_used.eval.success_rot_deg, "trans_m": cfg_used.eval.success_trans}},
+        "weights": str(weights) if weights else "shipped default",
+        "model_metadata": _meta_brief(getattr(full, "metadata", None)),
+        "seconds": round(time.perf_counter() - t_start, 1),
+        "summary": summary,
+        "goals": goals,
+        "pairs": records,
+    }
+
+
+def _meta_brief(meta: Any) -> Any:
+    if not isinstance(meta, dict):
+        return None
+    return {k: meta[k] for k in ("step", "epoch", "train_seconds", "saved_utc") if k in meta}
+
+
+def print_report(report: dict[str, Any], console: Any = None) -> None:
+    """Rich tables: per variant, method and scene type, with units in the header."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = console or Console()
+    for variant, per_method in report["summary"].items():
+        yaw = report["protocol"]["yaw_deg"]
+        title = "held-out pairs, no initial guess"
+        if variant == "yaw":
+            title += f", extra random yaw up to {yaw:g} deg"
+        table = Table(title=title)
+        for col, just in (("method", "left"), ("scene", "left"), ("pairs", "right"), ("MAE rot [deg]", "right"),
+                          ("MTE [m]", "right"), ("p95 rot [deg]", "right"), ("p95 trans [m]", "right"),
+                          ("success [%]", "right"), ("time [ms]", "right")):
+            table.add_column(col, justify=just)
+        for method, per_scene in per_method.items():
+            for scene, s in per_scene.items():
+                if not s["pairs"]:
+                    continue
+                table.add_row(method, scene, str(s["pairs"]), f"{s['rot_mean_deg']:.4f}", f"{s['trans_mean_m']:.4f}",
+                              f"{s['rot_p95_deg']:.3f}", f"{s['trans_p95_m']:.3f}", f"{100 * s['success']:.1f}",
+                              f"{s['ms_mean']:.0f}", end_section=scene == "all")
+        console.print(table)
+    for name, g in report.get("goals", {}).items():
+        console.print(f"goal {name}: measured {g['measured']:.4g} vs goal {g['goal']:g}: "
+                      f"{'met' if g['met'] else 'MISSED'}")
