@@ -258,9 +258,10 @@ def validation_pairs(drives: list[Drive], num_points: int, *, stride: int = 10, 
         for i, j in idx:
             clouds = []
             for f in (i, j):
+                # exactly num_points, as the registration's preprocessing gives (FPS order repeated
+                # cyclically when a frame has fewer points)
                 pts = drive.frame(f)
-                if len(pts) > num_points:
-                    pts = pts[farthest_point_sample(pts, num_points, seed=seed + f)]
+                pts = pts[farthest_point_sample(pts, num_points, seed=seed + f)]
                 clouds.append(np.ascontiguousarray(pts, dtype=np.float32))
             T = inv_T(drive.T_world_lidar[j]) @ drive.T_world_lidar[i]
             src = clouds[0]

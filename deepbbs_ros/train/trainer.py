@@ -25,6 +25,7 @@ import math
 import random
 import sys
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -387,7 +388,13 @@ class Trainer:
                 if epoch_end:
                     val = None
                     if self.val_drives and (self.epoch % tc.val_every == 0 or self.step >= end):
-                        val = self.validate()
+                        try:
+                            val = self.validate()
+                        except Exception:  # noqa: BLE001 - a long unattended run keeps training; the bug is logged
+                            traceback.print_exc()
+                            bar.write(f"validation failed at step {self.step} (traceback above); training goes on")
+                            self.model.train()
+                    if val is not None:
                         val["train_seconds"] = round(self.train_seconds, 1)
                         self.history.append(val)
                         self._log(val)
