@@ -198,6 +198,7 @@ class TrainConfig:
     grad_clip: float = 1.0  # max gradient norm; 0 disables clipping
     beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
     theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
+    trans_weight: float = 1.0  # weight of the translation term (1 = the paper's loss; scaled units, see train/loss.py)
     max_dist: float = 5.0  # m; pairs of frames at most this far apart
     yaw_aug_deg: float = 45.0  # extra random yaw on top of the real relative pose
     trans_aug: float = 1.0  # m; extra random translation
@@ -213,6 +214,7 @@ class TrainConfig:
             _check(getattr(self, name) >= 1, f"train.{name}", "must be >= 1")
         _check(self.num_points == 0 or self.num_points >= 16, "train.num_points", "must be 0 or >= 16")
         _check(self.grad_clip >= 0, "train.grad_clip", "must be >= 0")
+        _check(self.trans_weight > 0, "train.trans_weight", "must be > 0")
         _check(self.checkpoint_minutes >= 0, "train.checkpoint_minutes", "must be >= 0")
         _check(self.lr > 0, "train.lr", "must be > 0")
         _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")

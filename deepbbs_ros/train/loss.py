@@ -1,6 +1,6 @@
 """The DeepBBS training loss (paper, eq. 9), in the network's scaled units.
 
-    L = ||R_gt^T R - I||_F^2 + ||s (t_gt - t)||^2
+    L = ||R_gt^T R - I||_F^2 + w_t ||s (t_gt - t)||^2
         + beta^epoch * sum_i gamma_gt_i ||s (q^_i - (R_gt p_i + t_gt))||^2 / max(sum_i gamma_gt_i, 1)
 
 averaged over the batch, where ``s = model.scale``. Units: the network returns ``t`` and ``q^`` in
@@ -9,7 +9,9 @@ default), i.e. in the unit-sized coordinates the paper's loss (and its weighting
 dimensionless rotation term) was designed for. With s = 0.025, a 1 degree rotation error
 (Frobenius term 6.1e-4) weighs as much as a 1 m translation error (6.3e-4): the same balance LiDAR
 alignment needs, where 1 degree moves points 40 m away by 0.7 m. In metres the translation would
-swamp the rotation by three orders of magnitude.
+swamp the rotation by three orders of magnitude. ``w_t`` (``train.trans_weight``, 1 in the paper)
+shifts that balance: the success criterion (1 degree, 0.3 m) weighs 0.3 m like 1 degree, i.e.
+w_t ~ 5.
 
 ``gamma_gt_i = 1`` when source point p_i, moved by the ground truth, has a target point within
 ``theta`` metres (a true partner), else 0. The mean over partners is guarded: a pair with no
@@ -46,7 +48,8 @@ def partner_mask(src, tgt, R_gt, t_gt, theta: float):
         return (nearest <= theta).to(src.dtype)
 
 
-def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_weight: float) -> LossTerms:
+def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_weight: float,
+                 trans_weight: float = 1.0) -> LossTerms:
     """The loss above.
 
     Args:
@@ -55,6 +58,7 @@ def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_
         R_gt: (B, 3, 3), t_gt: (B, 3) metres: ground-truth T_target_source.
         scale: model.scale (metres -> network units). theta: partner radius in metres.
         corr_weight: beta ** epoch.
+        trans_weight: w_t, the weight of the translation term (1 = the paper).
     """
     import torch
 
@@ -66,6 +70,6 @@ def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_
     q_gt = src @ R_gt.transpose(1, 2) + t_gt[:, None, :]
     err = ((scale * (out.q_hat - q_gt)) ** 2).sum(dim=2)
     corr = (gamma_gt * err).sum(dim=1) / gamma_gt.sum(dim=1).clamp_min(1.0)
-    total = rot + trans + corr_weight * corr
+    total = rot + trans_weight * trans + corr_weight * corr
     return LossTerms(total.mean(), rot.mean().detach(), trans.mean().detach(), corr.mean().detach(),
                      gamma_gt.mean().detach())

@@ -166,7 +166,7 @@ class Trainer:
         self.model.train()
         out = self.model(src, tgt)
         terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=self.config.model.scale, theta=tc.theta,
-                             corr_weight=tc.beta ** self.epoch)
+                             corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
         self.optimizer.zero_grad(set_to_none=True)
         terms.total.backward()
         grad_norm = float("nan")
@@ -215,7 +215,7 @@ class Trainer:
                 src, tgt, R_gt, t_gt = (x.to(self.device) for x in collate(vs.plain[k : k + tc.batch_size]))
                 out = self.model(src, tgt)
                 terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=cfg.model.scale, theta=tc.theta,
-                                     corr_weight=tc.beta ** self.epoch)
+                                     corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
                 losses.append(float(terms.total) * len(src))
             rec["val_loss"] = sum(losses) / max(1, len(vs.plain))
             for name, pairs in (("plain", vs.plain), ("yaw", vs.yaw)):
