@@ -239,6 +239,10 @@ def test_validation_checkpoints_and_curves(tmp_path):
     assert ckpt_cfg.model.emb_dims == 16 and meta["step"] == 2 and meta["validation"]["plain"]["n"] == 2
     for k, v in model.state_dict().items():
         torch.testing.assert_close(v, tr.model.state_dict()[k])
+    from deepbbs_ros.train.trainer import run_report
+
+    text = run_report(run)
+    assert "2 steps" in text and "| 2 | 1 |" in text and "model_best.pt" in text
 
 
 def test_resume_rejects_a_different_model(tmp_path):
@@ -291,3 +295,7 @@ def test_evaluate_reports_every_method_per_scene():
     # the plain pairs are < 5 m apart and GICP from identity registers them (sanity of the ground truth)
     assert report["summary"]["plain"]["gicp"]["all"]["success"] == 1.0
     assert set(report["goals"]) == {"rot_mean_deg", "trans_mean_m", "success", "success_yaw"}
+    from deepbbs_ros.train.evaluate import markdown_report
+
+    md = markdown_report(report)
+    assert "| deepbbs++ | suburban |" in md and "| gicp | all |" in md and "extra random yaw up to 45 deg" in md

@@ -5,6 +5,7 @@
     deepbbs-train fit --cache runs/cache/train --val-cache runs/cache/val --run runs/default
     deepbbs-train fit --run runs/default --resume                              # continue exactly
     deepbbs-train evaluate --weights runs/default/model_best.pt --out runs/default/eval.json
+    deepbbs-train report --run runs/default                                    # speed + validation history
 
 ``fit`` trains on every drive of the ``--cache`` folders (simulated drives and users' recordings
 alike; recordings without ground truth train self-supervised) and validates on ``--val-cache``.
@@ -134,6 +135,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--methods", default="deepbbs++,deepbbs,refine-only,gicp",
                    help="deepbbs++ (full), deepbbs (no refinement), refine-only (no network), gicp (small_gicp)")
     e.add_argument("--out", help="write all figures and per-pair errors to this JSON file")
+    e.add_argument("--markdown", help="also write the summary tables as Markdown (for MODEL.md) to this file")
+
+    # -- report ---------------------------------------------------------------------------------
+    r = sub.add_parser("report", help="Markdown summary of a run: speed, validation history, best checkpoint")
+    r.add_argument("--run", required=True, help="run folder")
     return p
 
 
@@ -261,6 +267,11 @@ def _cmd_evaluate(args) -> int:
                       drives_per_scene=args.drives_per_scene, seed_base=args.seed_base, frames=args.frames,
                       stride=args.stride, yaw_deg=args.yaw_deg, methods=methods, progress=not args.no_progress)
     print_report(report)
+    if args.markdown:
+        from deepbbs_ros.train.evaluate import markdown_report
+
+        Path(args.markdown).write_text(markdown_report(report))
+        print(f"wrote {args.markdown}")
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(report, indent=2))
@@ -272,13 +283,21 @@ def _sigterm(signum, frame):
     raise KeyboardInterrupt
 
 
+def _cmd_report(args) -> int:
+    from deepbbs_ros.train.trainer import run_report
+
+    print(run_report(args.run))
+    return 0
+
+
 @cli_entry("deepbbs-train")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    _set_threads(args.threads)
+    _set_threads(getattr(args, "threads", 0))
     # SIGTERM (kill PID) behaves like Ctrl-C: the loop saves its state before exiting
     signal.signal(signal.SIGTERM, _sigterm)
-    return {"cache": _cmd_cache, "fit": _cmd_fit, "evaluate": _cmd_evaluate}[args.command](args)
+    commands = {"cache": _cmd_cache, "fit": _cmd_fit, "evaluate": _cmd_evaluate, "report": _cmd_report}
+    return commands[args.command](args)
 
 
 if __name__ == "__main__":

@@ -195,7 +195,10 @@ def print_report(report: dict[str, Any], console: Any = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    console = console or Console()
+    if console is None:
+        console = Console()
+        if not console.is_terminal:  # log files: wide enough for every column
+            console = Console(width=132)
     for variant, per_method in report["summary"].items():
         yaw = report["protocol"]["yaw_deg"]
         title = "held-out pairs, no initial guess"
@@ -217,3 +220,25 @@ def print_report(report: dict[str, Any], console: Any = None) -> None:
     for name, g in report.get("goals", {}).items():
         console.print(f"goal {name}: measured {g['measured']:.4g} vs goal {g['goal']:g}: "
                       f"{'met' if g['met'] else 'MISSED'}")
+
+
+def markdown_report(report: dict[str, Any]) -> str:
+    """The summary tables as Markdown (per variant: method x scene)."""
+    lines = []
+    yaw = report["protocol"]["yaw_deg"]
+    for variant, per_method in report["summary"].items():
+        extra = f", extra random yaw up to {yaw:g} deg" if variant == "yaw" else ""
+        lines += [f"**Held-out pairs, no initial guess{extra}**", "",
+                  "| method | scene | pairs | MAE rot (deg) | MTE (m) | p95 rot (deg) | p95 trans (m) | success (%) "
+                  "| time (ms) |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for method, per_scene in per_method.items():
+            for scene, s in per_scene.items():
+                if s["pairs"]:
+                    lines.append(f"| {method} | {scene} | {s['pairs']} | {s['rot_mean_deg']:.4f} | "
+                                 f"{s['trans_mean_m']:.4f} | {s['rot_p95_deg']:.3f} | {s['trans_p95_m']:.3f} | "
+                                 f"{100 * s['success']:.1f} | {s['ms_mean']:.0f} |")
+        lines.append("")
+    for name, g in report.get("goals", {}).items():
+        lines.append(f"- goal `{name}`: measured {g['measured']:.4g}, goal {g['goal']:g}: "
+                     f"{'met' if g['met'] else '**missed**'}")
+    return "\n".join(lines) + "\n"

@@ -437,3 +437,35 @@ def format_val(val: dict[str, Any]) -> str:
             f"plain rot {p['rot_mean_deg']:.3f} deg trans {p['trans_mean_m']:.3f} m success {100 * p['success']:.1f}% "
             f"| +yaw rot {y['rot_mean_deg']:.3f} deg trans {y['trans_mean_m']:.3f} m success "
             f"{100 * y['success']:.1f}% ({val['seconds']:.0f} s)")
+
+
+def run_report(run_dir: str | Path) -> str:
+    """Markdown: steps done, training time, seconds per step (by points per cloud), and the validation
+    history of a run folder (from ``log.jsonl``)."""
+    run_dir = Path(run_dir)
+    log = run_dir / "log.jsonl"
+    if not log.exists():
+        raise ModelError(f"report: no log.jsonl in {run_dir}")
+    train, vals = [], []
+    for ln in log.read_text().splitlines():
+        if ln.strip():
+            rec = json.loads(ln)
+            (vals if rec.get("kind") == "val" else train).append(rec)
+    out = [f"Run `{run_dir}`: {len(train)} steps"]
+    if train:
+        secs = sum(r["s_per_step"] for r in train)
+        out[0] += (f", {secs / 60:.1f} min of training steps ({np.median([r['s_per_step'] for r in train]):.2f} "
+                   f"s/step median), {sum(v.get('seconds', 0) for v in vals) / 60:.1f} min of validation")
+    out += ["", "| step | epoch | val loss | rot (deg) | trans (m) | success (%) | +yaw rot (deg) | +yaw trans (m) "
+            "| +yaw success (%) |", "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for v in vals:
+        p, y = v["plain"], v["yaw"]
+        out.append(f"| {v['step']} | {v['epoch']} | {v['val_loss']:.4g} | {p['rot_mean_deg']:.3f} | "
+                   f"{p['trans_mean_m']:.3f} | {100 * p['success']:.1f} | {y['rot_mean_deg']:.3f} | "
+                   f"{y['trans_mean_m']:.3f} | {100 * y['success']:.1f} |")
+    best = run_dir / "val_best.json"
+    if best.exists():
+        b = json.loads(best.read_text())
+        out += ["", f"Best checkpoint `{run_dir / BEST_MODEL}`: step {b.get('step')} (epoch {b.get('epoch')}), "
+                    f"saved {b.get('saved_utc')}."]
+    return "\n".join(out)
