@@ -28,7 +28,15 @@ from deepbbs_ros.config import ModelConfig
 from deepbbs_ros.core import softbbs
 from deepbbs_ros.core.procrustes import weighted_procrustes
 
-__all__ = ["NetOutput", "DeepBBSNet", "knn_indices", "solve_transform", "count_parameters"]
+__all__ = [
+    "NetOutput",
+    "DeepBBSNet",
+    "TargetCache",
+    "knn_indices",
+    "solve_transform",
+    "solve_transform_inference",
+    "count_parameters",
+]
 
 
 class NetOutput(NamedTuple):
@@ -104,6 +112,123 @@ class DGCNN(nn.Module):
         return self.out(torch.cat(outs, dim=-1)), idx
 
 
+# -- inference-only transformer: the weights of nn.Transformer, fused attention -----------------------
+#
+# nn.Transformer's decoder has no fused inference path and its encoder's fast path still materialises
+# the attention matrices; ``F.scaled_dot_product_attention`` (a tiled flash kernel on the CPU) does
+# not. The functions below compute exactly nn.Transformer's post-/pre-norm layers from its modules'
+# weights (tests/test_inference_equivalence.py checks equality to ~1e-5); they are used only without
+# autograd, so training runs nn.Transformer unchanged.
+
+
+def _heads(x: torch.Tensor, n_heads: int) -> torch.Tensor:
+    """(B, L, E) -> (B, H, L, E / H)."""
+    b, n, e = x.shape
+    return x.reshape(b, n, n_heads, e // n_heads).transpose(1, 2)
+
+
+def _attention(
+    attn: nn.MultiheadAttention, q: torch.Tensor, kv: torch.Tensor | None = None, *, x: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Multi-head attention of ``x`` (B, L, E) onto keys/values; returns (B, L, E) after out_proj.
+
+    ``q``: the already projected queries (B, H, L, hd) or None (then projected from ``x``);
+    ``kv``: the projected keys and values stacked (2, B, H, S, hd), or None for self-attention on x.
+    """
+    e, h = attn.embed_dim, attn.num_heads
+    w, bias = attn.in_proj_weight, attn.in_proj_bias
+    if kv is None and q is None:  # self-attention: one matmul for q, k, v
+        qkv = nn.functional.linear(x, w, bias)
+        q, k, v = (_heads(t, h) for t in qkv.split(e, dim=-1))
+    else:
+        if q is None:
+            q = _heads(nn.functional.linear(x, w[:e], None if bias is None else bias[:e]), h)
+        k, v = kv[0], kv[1]
+    o = nn.functional.scaled_dot_product_attention(q, k, v)
+    b, _, n, _ = o.shape
+    return attn.out_proj(o.transpose(1, 2).reshape(b, n, e))
+
+
+def _project_kv(attn: nn.MultiheadAttention, mem: torch.Tensor) -> torch.Tensor:
+    """Keys and values of ``mem`` (B, S, E): (2, B, H, S, hd)."""
+    e, h = attn.embed_dim, attn.num_heads
+    bias = attn.in_proj_bias
+    kv = nn.functional.linear(mem, attn.in_proj_weight[e:], None if bias is None else bias[e:])
+    k, v = kv.split(e, dim=-1)
+    return torch.stack([_heads(k, h), _heads(v, h)])
+
+
+def _project_q(attn: nn.MultiheadAttention, x: torch.Tensor) -> torch.Tensor:
+    e, h = attn.embed_dim, attn.num_heads
+    bias = attn.in_proj_bias
+    return _heads(nn.functional.linear(x, attn.in_proj_weight[:e], None if bias is None else bias[:e]), h)
+
+
+def _ff(layer: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    return layer.linear2(layer.activation(layer.linear1(x)))
+
+
+def _sublayer(norm: nn.LayerNorm, x: torch.Tensor, f, norm_first: bool) -> torch.Tensor:
+    """Residual sublayer as in nn.TransformerEncoderLayer/DecoderLayer (dropout is identity here)."""
+    if norm_first:
+        return x + f(norm(x))
+    return norm(x + f(x))
+
+
+def _encoder(enc: nn.TransformerEncoder, x: torch.Tensor) -> torch.Tensor:
+    for layer in enc.layers:
+        nf = layer.norm_first
+        x = _sublayer(layer.norm1, x, lambda y, a=layer.self_attn: _attention(a, None, None, x=y), nf)
+        x = _sublayer(layer.norm2, x, lambda y, lay=layer: _ff(lay, y), nf)
+    return x if enc.norm is None else enc.norm(x)
+
+
+def _decoder_self(layer: nn.TransformerDecoderLayer, x: torch.Tensor) -> torch.Tensor:
+    """The decoder layer's first sublayer (self-attention): depends on the queries only."""
+    return _sublayer(layer.norm1, x, lambda y: _attention(layer.self_attn, None, None, x=y), layer.norm_first)
+
+
+def _decoder_rest(
+    layer: nn.TransformerDecoderLayer, x: torch.Tensor, kv: torch.Tensor, q: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Cross-attention (keys/values ``kv`` of the memory) and feed-forward sublayers of a decoder layer.
+
+    ``q``: the cross-attention's projected queries when they are already known (post-norm only).
+    """
+    nf = layer.norm_first
+    x = _sublayer(layer.norm2, x, lambda y: _attention(layer.multihead_attn, q, kv, x=y), nf)
+    return _sublayer(layer.norm3, x, lambda y: _ff(layer, y), nf)
+
+
+def _transformer_supported(tr: nn.Transformer) -> bool:
+    """Layers whose computation the functional path reproduces (standard nn.Transformer layers)."""
+    layers = [*tr.encoder.layers, *tr.decoder.layers]
+    return all(
+        type(layer) in (nn.TransformerEncoderLayer, nn.TransformerDecoderLayer)
+        and all(
+            a._qkv_same_embed_dim and a.bias_k is None and not a.add_zero_attn and a.batch_first
+            for a in (getattr(layer, "self_attn", None), getattr(layer, "multihead_attn", None))
+            if a is not None
+        )
+        for layer in layers
+    )
+
+
+class TargetCache(NamedTuple):
+    """What the deep iterations reuse of a target cloud that does not move (inference only).
+
+    f_tgt: (B, M, E) DGCNN features; memory_kv: per decoder layer, the keys/values of the encoded
+    target (the memory the source attends to); tgt_self: per decoder layer, the output of the target
+    queries' self-attention sublayer, and tgt_q: its cross-attention queries (None with norm_first).
+    Only ``f_tgt`` is set when the model has no transformer or the functional path is unavailable.
+    """
+
+    f_tgt: torch.Tensor
+    memory_kv: list[torch.Tensor] | None = None
+    tgt_self: torch.Tensor | None = None
+    tgt_q: torch.Tensor | None = None
+
+
 class DeepBBSNet(nn.Module):
     """DGCNN + transformer point embedding and temperature head; :meth:`forward` is one deep pass."""
 
@@ -133,10 +258,22 @@ class DeepBBSNet(nn.Module):
         """DGCNN features of one cloud: xyz (B, N, 3) scaled -> (B, N, E), kNN indices (B, N, k)."""
         return self.dgcnn(xyz, idx)
 
+    def _fast_transformer(self) -> bool:
+        """Use the functional SDPA transformer: no autograd, eval mode (dropout off), standard layers."""
+        tr = self.transformer
+        if tr is None or torch.is_grad_enabled() or self.training:
+            return False
+        ok = getattr(self, "_fast_ok", None)
+        if ok is None:
+            ok = self._fast_ok = _transformer_supported(tr)
+        return ok
+
     def cross(self, f_src: torch.Tensor, f_tgt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``phi = f + Transformer(f | other cloud)`` for both clouds with shared weights."""
         if self.transformer is None:
             return f_src, f_tgt
+        if self._fast_transformer():
+            return self.cross_cached(f_src, self.target_cache(f_tgt))
         if f_src.shape == f_tgt.shape:  # both directions in one batch
             b = f_src.shape[0]
             memory_from = torch.cat([f_tgt, f_src], dim=0)
@@ -144,6 +281,48 @@ class DeepBBSNet(nn.Module):
             delta = self.transformer(memory_from, queries)
             return f_src + delta[:b], f_tgt + delta[b:]
         return f_src + self.transformer(f_tgt, f_src), f_tgt + self.transformer(f_src, f_tgt)
+
+    def target_cache(self, f_tgt: torch.Tensor) -> TargetCache:
+        """Precompute the target-only parts of :meth:`cross` (inference: no autograd, eval mode).
+
+        The encoder output of the target, its keys/values for the source's cross-attention, and the
+        target queries' self-attention sublayer do not depend on the source, so the deep iterations
+        compute them once. f_tgt: (B, M, E) DGCNN features of the target.
+        """
+        if not self._fast_transformer():
+            return TargetCache(f_tgt)
+        tr = self.transformer
+        mem = _encoder(tr.encoder, f_tgt)
+        memory_kv = [_project_kv(layer.multihead_attn, mem) for layer in tr.decoder.layers]
+        first = tr.decoder.layers[0]
+        tgt_self = _decoder_self(first, f_tgt)
+        tgt_q = None if first.norm_first else _project_q(first.multihead_attn, tgt_self)
+        return TargetCache(f_tgt, memory_kv, tgt_self, tgt_q)
+
+    def cross_cached(self, f_src: torch.Tensor, cache: TargetCache) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`cross` with the target-only parts from :meth:`target_cache` (same numbers, to round-off).
+
+        f_src: (B, N, E) source DGCNN features -> phi_src (B, N, E), phi_tgt (B, M, E).
+        """
+        f_tgt = cache.f_tgt
+        if cache.memory_kv is None or not self._fast_transformer():
+            return self.cross(f_src, f_tgt)
+        tr = self.transformer
+        dec = tr.decoder.layers
+        mem_src = _encoder(tr.encoder, f_src)
+        # source queries attend to the (cached) encoded target; target queries to the encoded source
+        y_src = f_src
+        y_tgt = f_tgt
+        for i, layer in enumerate(dec):
+            kv_src = _project_kv(layer.multihead_attn, mem_src)
+            if i == 0:
+                y_tgt = _decoder_rest(layer, cache.tgt_self, kv_src, cache.tgt_q)
+            else:
+                y_tgt = _decoder_rest(layer, _decoder_self(layer, y_tgt), kv_src)
+            y_src = _decoder_rest(layer, _decoder_self(layer, y_src), cache.memory_kv[i])
+        if tr.decoder.norm is not None:
+            y_src, y_tgt = tr.decoder.norm(y_src), tr.decoder.norm(y_tgt)
+        return f_src + y_src, f_tgt + y_tgt
 
     def predict_temperature(self, phi_src: torch.Tensor, phi_tgt: torch.Tensor) -> torch.Tensor:
         """T (B,) from ``mean_i phi_src - mean_j phi_tgt``, clamped to [temperature_min, temperature_max]."""
@@ -164,6 +343,14 @@ class DeepBBSNet(nn.Module):
         """``log B~`` (B, N, M): SoftBBS on feature distances, alpha = xi * median NN distance of phi_src."""
         alpha = softbbs.bbs_alpha(phi_src, self.cfg.xi)
         return softbbs.soft_bbs_log(softbbs.pairwise_distances(phi_src, phi_tgt), alpha)
+
+    def match_inference(self, phi_src: torch.Tensor, phi_tgt: torch.Tensor) -> softbbs.SoftBBSInference:
+        """:meth:`match` for inference: ``B~`` (B, N, M) as a product of two softmaxes (no log domain).
+
+        ``result.b`` equals ``match(...).exp()`` to float round-off; use with :func:`solve_transform_inference`.
+        """
+        alpha = softbbs.bbs_alpha(phi_src, self.cfg.xi)
+        return softbbs.soft_bbs_inference(softbbs.pairwise_distances(phi_src, phi_tgt), alpha, inplace=True)
 
     # -- one deep pass, in metres ----------------------------------------------------------------
     def forward(
@@ -212,6 +399,25 @@ def solve_transform(
     gamma = softbbs.bbs_gamma(log_b, d3, temperature)
     weights = gamma if use_gamma else torch.ones_like(gamma)
     R, t = weighted_procrustes(src, q_hat, weights, warn_degenerate=not torch.is_grad_enabled())
+    return R, t, q_hat, gamma
+
+
+@torch.no_grad()
+def solve_transform_inference(
+    src: torch.Tensor,
+    tgt: torch.Tensor,
+    sb: softbbs.SoftBBSInference,
+    temperature: torch.Tensor,
+    *,
+    use_gamma: bool = True,
+    spatial_gamma: bool = True,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`solve_transform` from :meth:`DeepBBSNet.match_inference` (no gradients; same results to
+    float round-off). src (B, N, 3), tgt (B, M, 3) scaled; temperature (B,) -> R, t, q_hat, gamma."""
+    d3 = softbbs.pairwise_distances(src, tgt) if spatial_gamma else None
+    q_hat, gamma = softbbs.soft_map_gamma_inference(sb, tgt, d3, temperature)
+    weights = gamma if use_gamma else torch.ones_like(gamma)
+    R, t = weighted_procrustes(src, q_hat, weights, warn_degenerate=True)
     return R, t, q_hat, gamma
 
 

@@ -28,7 +28,7 @@ import torch
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
-from deepbbs_ros.core.model import DeepBBSNet, solve_transform
+from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
 from deepbbs_ros.core.preprocess import PreprocessResult, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
@@ -180,26 +180,30 @@ class DeepBBSRegistration:
             src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
             tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
             gamma = src.new_ones(src.shape[1])
-            f_tgt, _ = self.model.point_features(tgt)  # the target does not move: embed it once
-            src_knn = None  # the source's kNN graph is rigid-invariant: built once
             n_deep = (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
+            if n_deep:
+                # the target does not move: its DGCNN features and the target-only parts of the
+                # transformer (encoder output, self-attention) are computed once
+                f_tgt, _ = self.model.point_features(tgt)
+                tgt_cache = self.model.target_cache(f_tgt)
+            src_knn = None  # the source's kNN graph is rigid-invariant: built once
             clock.lap("embed")
             for k in range(n_deep):
                 moved = apply_transform(src, R[None], t[None])
                 # embed: DGCNN + transformer on the moved source and the target, temperature head
                 f_src, src_knn = self.model.point_features(moved, src_knn)
-                phi_src, phi_tgt = self.model.cross(f_src, f_tgt)
+                phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache)
                 temp = self.model.predict_temperature(phi_src, phi_tgt)
                 clock.lap("embed")
-                # match: SoftBBS on the feature distances
-                log_b = self.model.match(phi_src, phi_tgt)
+                # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
+                sb = self.model.match_inference(phi_src, phi_tgt)
                 clock.lap("match")
                 # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
                 temperature = float(temp[0]) if k == 0 else temperature
                 temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
                 temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
-                dR, dt, _, g = solve_transform(
-                    moved, tgt, log_b, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
+                dR, dt, _, g = solve_transform_inference(
+                    moved, tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
                 )
                 R, t = dR[0] @ R, dR[0] @ t + dt[0]
                 gamma, iters["deep"] = g[0], k + 1
