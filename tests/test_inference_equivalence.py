@@ -170,3 +170,19 @@ def test_inference_paths_on_cuda(rng):
     for r, g in zip(ref, got):
         torch.testing.assert_close(g.cpu(), r, atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(sb_gpu.b.cpu(), sb_cpu.b, atol=1e-5, rtol=1e-3)
+
+
+def test_moving_knn_equals_tree_query(rng):
+    """The refinement's candidate cache returns the exact k nearest targets as the source moves."""
+    from deepbbs_ros.core.refine import NeighbourSearch, _MovingKnn
+
+    tgt = torch.tensor(rng.uniform(-1, 1, size=(400, 3)), dtype=torch.float32)
+    pts = torch.tensor(rng.uniform(-1, 1, size=(300, 3)), dtype=torch.float32)
+    search = NeighbourSearch(tgt)
+    knn = _MovingKnn(search, 8)
+    for step in range(6):
+        moved = pts + 0.02 * step * torch.tensor([1.0, -0.5, 0.2])  # drifts by up to 0.1
+        d, i = knn.query(moved)
+        d_ref, i_ref = search.query(moved, 8)
+        assert torch.equal(i.sort(dim=1).values, i_ref.sort(dim=1).values)
+        torch.testing.assert_close(d.sort(dim=1).values, d_ref, atol=1e-5, rtol=1e-5)

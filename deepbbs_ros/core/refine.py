@@ -10,7 +10,9 @@ Two variants, the same equations:
 
 * dense (``k = 0``): the full N x M matrices (the reference implementation; 31-46 iterations there);
 * sparse (``k > 0``): only the k nearest target points of every moved source point (a scipy
-  cKDTree on the CPU, built once for the target; ``cdist`` + top-k on other devices). The
+  cKDTree on the CPU, built once for the target; ``cdist`` + top-k on other devices; each point
+  keeps 2k candidates and is searched again only when they can no longer hold its exact k nearest
+  as it moves, see ``_MovingKnn``). The
   per-column log-sum-exp runs over the pairs in the kNN graph; dropped pairs have weight ~0.
 """
 
@@ -75,6 +77,51 @@ class NeighbourSearch:
         return self.query(points, 1)[0][:, 0]
 
 
+class _MovingKnn:
+    """Exact k nearest targets of points that move a little between calls (the refinement's source).
+
+    Every point keeps ``kc > k`` candidate targets from its last tree query at ``anchor``; a target
+    outside them is at least ``r_kc - |p - anchor|`` from the point's new position p, so when the k-th
+    nearest candidate is closer than that, the candidates hold the exact k nearest (ties aside). Only
+    points that fail this test are queried again: a few per iteration once the estimate settles.
+    """
+
+    def __init__(self, search: NeighbourSearch, k: int) -> None:
+        self.search, self.k = search, k
+        m = search.target.shape[0]
+        self.kc = min(2 * k, m)
+        self.complete = self.kc >= m  # every target is a candidate: always exact
+        self.anchor: torch.Tensor | None = None
+
+    def _requery(self, points: torch.Tensor, rows: torch.Tensor | None) -> None:
+        d, i = self.search.query(points if rows is None else points[rows], self.kc)
+        r = d[:, -1] if not self.complete else torch.full_like(d[:, -1], float("inf"))
+        if rows is None:
+            self.anchor, self.cand, self.radius = points.clone(), i, r
+        else:
+            self.anchor[rows], self.cand[rows], self.radius[rows] = points[rows], i, r
+
+    def query(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """points (N, 3) -> (dist (N, k), idx (N, k) int64) of the k nearest targets."""
+        if self.anchor is None:
+            self._requery(points, None)
+        shift = (points - self.anchor).norm(dim=1)
+        dk, pos = self._nearest(points, self.cand)
+        stale = (dk.amax(dim=1) > self.radius - shift).nonzero()[:, 0]
+        if stale.numel():
+            self._requery(points, stale)
+            dk[stale], pos[stale] = self._nearest(points[stale], self.cand[stale])
+        return dk, self.cand.gather(1, pos)
+
+    def _nearest(self, points: torch.Tensor, cand: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """k nearest among the candidates (unordered: the SoftBBS sums do not depend on the order)."""
+        n, kc = cand.shape
+        g = self.search.target.index_select(0, cand.reshape(-1)).reshape(n, kc, 3)
+        d2 = g.sub_(points[:, None, :]).square_().sum(dim=2)
+        d2k, pos = d2.topk(self.k, dim=1, largest=False, sorted=False)
+        return d2k.sqrt_(), pos
+
+
 def source_alpha(src: torch.Tensor, xi: float) -> torch.Tensor:
     """``xi * median_i min_{k != i} ||p_i - p_k||`` of src (N, 3) -> scalar tensor (kd-tree on CPU)."""
     if src.device.type == "cpu":
@@ -120,6 +167,7 @@ def refine(
     dense = k <= 0
     if not dense and search is None:
         search = NeighbourSearch(tgt)
+    knn = None if dense else _MovingKnn(search, k)
     m = tgt.shape[0]
     gamma = src.new_ones(src.shape[0])
     converged = False
@@ -132,7 +180,7 @@ def refine(
             q_hat = softbbs.soft_map(log_b, tgt[None])[0]
             gamma = softbbs.bbs_gamma(log_b, d if spatial_gamma else None, d.new_full((1,), temperature))[0]
         else:
-            dk, idx = search.query(moved, k)
+            dk, idx = knn.query(moved)
             log_b = softbbs.sparse_soft_bbs_log(dk[None], idx[None], m, alpha[None])
             q_hat = softbbs.sparse_soft_map(log_b, idx[None], tgt[None])[0]
             gamma = softbbs.sparse_gamma(log_b, dk[None] if spatial_gamma else None, temperature)[0]
