@@ -11,7 +11,8 @@ Methods: ``deepbbs++`` (deep iterations + refinement: the shipped pipeline), ``d
 refinement), ``refine-only`` (the 3D SoftBBS refinement from identity, no network) and ``gicp``
 (small_gicp GICP from identity on the dense voxelised scan, the replay baseline, for contrast).
 The DeepBBS variants share one preprocessing of each scan (the rotated source is the same points
-rotated: preprocessing commutes with a yaw about the sensor axis up to the FPS start point).
+rotated: preprocessing commutes with a yaw about the sensor axis up to the FPS start point), passed
+as the ``PreprocessResult`` (with its dense points) when the registration takes one.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
         def frame(k: int, sim=sim, cache=cache) -> tuple[np.ndarray, np.ndarray]:
             if k not in cache:
                 scan = sim.scan_at(k)
-                cache[k] = (scan.points, full.preprocess(scan.points).points)
+                cache[k] = (scan.points, full.preprocess(scan.points))
             return cache[k]
 
         for i, j in pairs:
@@ -124,10 +125,10 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
             for variant, ydeg in variants:
                 A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
                 T_gt = T_gt0 @ inv_T(A)
-                src = transform(pre_s, A)
+                src, tgt = _moved(pre_s, A), _moved(pre_t, np.eye(4))
                 for name, reg in regs.items():
                     t0 = time.perf_counter()
-                    res = reg.register(src, pre_t, preprocessed=True)
+                    res = reg.register(src, tgt, preprocessed=True)
                     ms = (time.perf_counter() - t0) * 1e3
                     r, t = pair_errors(res.T_target_source, T_gt)
                     records.append({"variant": variant, "method": name, "scene": scene, "seed": seed, "i": i, "j": j,
@@ -182,6 +183,16 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
         "goals": goals,
         "pairs": records,
     }
+
+
+def _moved(prep: Any, A: np.ndarray) -> Any:
+    """A preprocessed scan moved by A: the ``PreprocessResult`` itself (with its dense points, for the
+    dense refinement) when the registration accepts one, else its sampled points."""
+    import dataclasses
+
+    if getattr(prep, "dense_points", None) is None or not dataclasses.is_dataclass(prep):
+        return transform(prep.points, A)
+    return dataclasses.replace(prep, points=transform(prep.points, A), dense_points=transform(prep.dense_points, A))
 
 
 def _meta_brief(meta: Any) -> Any:
