@@ -271,6 +271,9 @@ def test_cli_fit_and_errors(tmp_path, capsys):
                  "--threads", "1", *sets]) == 0
     assert main(["fit", "--run", str(tmp_path / "run"), "--resume", "--max-steps", "1", "--no-progress"]) == 0
     assert "resumed" in capsys.readouterr().err
+    from deepbbs_ros.cli.train import _state_model_config
+
+    assert _state_model_config(tmp_path / "run")["emb_dims"] == 16  # a resume rebuilds the run's own network
     assert main(["fit", "--run", str(tmp_path / "r2"), "--no-progress"]) == 1
     assert "give --cache" in capsys.readouterr().err
     assert main(["fit", "--cache", str(tmp_path / "nope"), "--run", str(tmp_path / "r3"), "--no-progress"]) == 1

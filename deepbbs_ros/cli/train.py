@@ -203,6 +203,9 @@ def _cmd_fit(args) -> int:
     if not args.cache:
         raise ConfigError("fit: give --cache FOLDER (build one with 'deepbbs-train cache')")
     cfg = _config(args)
+    if args.resume is not None and not any(k.startswith("model.") for k in _overrides(args.set)):
+        # the run's own network, even if the package's default ModelConfig changed since it started
+        cfg = Config.from_dict({**cfg.to_dict(), "model": _state_model_config(args.resume or run / STATE_FILE)})
     model = None
     meta = {"command": "deepbbs-train " + shlex.join(sys.argv[1:]), "cache": args.cache, "val_cache": args.val_cache}
     if args.init:
@@ -242,6 +245,22 @@ def _cmd_fit(args) -> int:
 
         print("best " + format_val(best))
     return 0
+
+
+def _state_model_config(path) -> dict:
+    import torch
+
+    from deepbbs_ros.errors import ModelError
+
+    path = Path(path)
+    if path.is_dir():
+        from deepbbs_ros.train.trainer import STATE_FILE
+
+        path = path / STATE_FILE
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)["config"]["model"]
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        raise ModelError(f"resume: {path} is not a readable training state ({err})") from err
 
 
 def _describe(drives) -> dict:
