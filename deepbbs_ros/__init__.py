@@ -17,6 +17,7 @@ from deepbbs_ros.errors import (  # noqa: E402
     PointCloudFormatError,
     RegistrationError,
     SimulationError,
+    TransformFormatError,
 )
 
 __all__ = [
@@ -30,4 +31,5 @@ __all__ = [
     "PointCloudFormatError",
     "RegistrationError",
     "SimulationError",
+    "TransformFormatError",
 ]

@@ -18,6 +18,10 @@ class PointCloudFormatError(DeepBBSError, ValueError):
     """A PointCloud2 message (or numpy layout) that cannot be decoded or encoded."""
 
 
+class TransformFormatError(DeepBBSError, ValueError):
+    """A matrix, quaternion, stamp or flavour that cannot become (or come from) a ROS message."""
+
+
 class DatasetError(DeepBBSError):
     """A recording or dataset folder that cannot be read or written (PCD, pose file, KITTI)."""
 

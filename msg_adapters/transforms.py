@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.errors import TransformFormatError
 
 __all__ = [
     "TransformFormatError",
@@ -42,10 +42,6 @@ __all__ = [
 _NS = 1_000_000_000
 _FLAVORS = ("rclpy", "rosbags")
 _ORTHO_TOL = 1e-4  # max |R^T R - I| accepted before a matrix is refused as "not a rotation"
-
-
-class TransformFormatError(DeepBBSError, ValueError):
-    """A matrix, quaternion, stamp or flavour that cannot become (or come from) a ROS message."""
 
 
 # --------------------------------------------------------------------------------------------------
