@@ -386,7 +386,7 @@ def make_node_class():
                 timings["preprocess"] = ms_s + ms_t
                 t0 = time.perf_counter()
                 try:
-                    result = self.reg.register(src_pp.points, tgt_pp.points, preprocessed=True)
+                    result = self.reg.register(*_reg_inputs(src_pp, tgt_pp), preprocessed=True)
                 except RegistrationError as err:
                     raise _BadInput("registration_failed", str(err)) from err
                 timings["register"] = (time.perf_counter() - t0) * 1e3
@@ -558,6 +558,15 @@ def make_node_class():
             return super().destroy_node()
 
     return RegistrationNode
+
+
+def _reg_inputs(src_pp, tgt_pp) -> tuple[Any, Any]:
+    """What ``register(..., preprocessed=True)`` gets: the PreprocessResults themselves when both carry
+    ``dense_points`` (so the dense refinement runs, exactly as ``register(raw_src, raw_tgt)`` does
+    offline), else their sampled ``points`` (M, 3) float32."""
+    if getattr(src_pp, "dense_points", None) is not None and getattr(tgt_pp, "dense_points", None) is not None:
+        return src_pp, tgt_pp
+    return src_pp.points, tgt_pp.points
 
 
 def _errors_for(node, period: float):

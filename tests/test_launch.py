@@ -1,0 +1,153 @@
+"""launch/deepbbs_registration.launch.py, checked without ``launch``/``launch_ros`` (no PyPI wheels).
+
+The file is compiled and its syntax tree inspected (nothing is imported or stubbed): it must start the
+executable that setup.py installs where ``ros2 run`` / launch_ros look (lib/deepbbs_ros), under the
+node name the shipped parameter file is keyed by, with that file (installed to share/deepbbs_ros/config)
+as the default ``params_file``, the node's real input names as remappings, and the shipped Fast DDS
+profile in the node's environment.
+"""
+
+from __future__ import annotations
+
+import ast
+import configparser
+import py_compile
+import re
+from pathlib import Path
+
+import yaml
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.node import registration_node
+from deepbbs_ros.node.dds import PROFILE_ENV_VARS, default_profile_path, profile_env
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH = REPO / "launch" / "deepbbs_registration.launch.py"
+
+
+def _tree() -> ast.Module:
+    return ast.parse(LAUNCH.read_text(), filename=str(LAUNCH))
+
+
+def _calls(tree: ast.AST, name: str) -> list[ast.Call]:
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Call):
+            f = n.func
+            if (isinstance(f, ast.Name) and f.id == name) or (isinstance(f, ast.Attribute) and f.attr == name):
+                out.append(n)
+    return out
+
+
+def _kw(call: ast.Call, key: str) -> ast.expr:
+    for k in call.keywords:
+        if k.arg == key:
+            return k.value
+    raise AssertionError(f"{ast.unparse(call.func)}(...) has no {key}= argument")
+
+
+def _node_call() -> ast.Call:
+    nodes = _calls(_tree(), "Node")
+    assert len(nodes) == 1, "exactly one launch_ros Node expected"
+    return nodes[0]
+
+
+def test_launch_file_compiles(tmp_path):
+    py_compile.compile(str(LAUNCH), cfile=str(tmp_path / "launch.pyc"), doraise=True)
+    tree = _tree()
+    funcs = [n.name for n in tree.body if isinstance(n, ast.FunctionDef)]
+    assert "generate_launch_description" in funcs
+    imported = {
+        (n.module if isinstance(n, ast.ImportFrom) else a.name).split(".")[0]
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Import, ast.ImportFrom))
+        for a in n.names
+    }
+    # only ROS launch machinery, the standard library and this package
+    assert imported <= {"os", "launch", "launch_ros", "ament_index_python", "deepbbs_ros"}, imported
+
+
+def test_launch_starts_the_installed_executable():
+    node = _node_call()
+    assert ast.literal_eval(_kw(node, "package")) == "deepbbs_ros"
+    executable = ast.literal_eval(_kw(node, "executable"))
+    assert ast.literal_eval(_kw(node, "name")) == registration_node.NODE_NAME
+    # setup.py declares that console script, pointing at the node's main ...
+    setup = (REPO / "setup.py").read_text()
+    m = re.search(rf'"{re.escape(executable)}\s*=\s*([\w.]+):(\w+)"', setup)
+    assert m, f"console script {executable!r} not in setup.py"
+    assert (m.group(1), m.group(2)) == ("deepbbs_ros.node.registration_node", "main")
+    # ... and setup.cfg installs scripts into lib/<package>, where launch_ros / ros2 run look for them
+    cfg = configparser.ConfigParser(interpolation=None)
+    cfg.read(REPO / "setup.cfg")
+    assert cfg["install"]["install_scripts"] == "$base/lib/deepbbs_ros"
+    assert cfg["develop"]["script_dir"] == "$base/lib/deepbbs_ros"
+
+
+def test_launch_default_params_file_is_the_shipped_yaml():
+    tree = _tree()
+    decl = {ast.literal_eval(c.args[0]): c for c in _calls(tree, "DeclareLaunchArgument")}
+    default = _kw(decl["params_file"], "default_value")
+    # os.path.join(get_package_share_directory("deepbbs_ros"), "config", "deepbbs_ros.yaml")
+    assert isinstance(default, ast.Call) and ast.unparse(default.func) == "os.path.join", ast.unparse(default)
+    parts = [ast.literal_eval(a) for a in default.args[1:]]
+    share = default.args[0]
+    if isinstance(share, ast.Name):  # share = get_package_share_directory("deepbbs_ros") assigned above
+        assigns = [n for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                   and any(isinstance(t, ast.Name) and t.id == share.id for t in n.targets)]
+        share = assigns[0].value
+    assert ast.unparse(share) == "get_package_share_directory('deepbbs_ros')"
+    rel = Path(*parts)
+    assert rel == Path("config", "deepbbs_ros.yaml")
+    # setup.py installs config/* into share/deepbbs_ros/config
+    assert '("share/" + package_name + "/config", glob("config/*"))' in (REPO / "setup.py").read_text()
+    shipped = REPO / rel
+    assert shipped.is_file()
+    # the node's parameters are the first entry; the YAML is keyed by the node's name
+    params = _kw(_node_call(), "parameters")
+    assert isinstance(params, ast.List) and ast.unparse(params.elts[0]) == "LaunchConfiguration('params_file')"
+    doc = yaml.safe_load(shipped.read_text())
+    assert list(doc) == [registration_node.NODE_NAME] and "ros__parameters" in doc[registration_node.NODE_NAME]
+    # every parameter it sets is one the node declares (the node refuses unknown ones)
+    flat: dict[str, object] = {}
+
+    def walk(d: dict, prefix: str = "") -> None:
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(v, f"{prefix}{k}.")
+            else:
+                flat[f"{prefix}{k}"] = v
+
+    walk(doc[registration_node.NODE_NAME]["ros__parameters"])
+    unknown = sorted(set(flat) - set(Config().to_flat()))
+    assert not unknown, f"{shipped.name} sets parameters the node does not know: {unknown}"
+    # the override dict sets node.mode and use_sim_time from launch arguments
+    override = ast.unparse(params.elts[1])
+    assert "'node.mode': LaunchConfiguration('mode')" in override and "'use_sim_time'" in override
+
+
+def test_launch_remaps_the_node_inputs():
+    tree = _tree()
+    declared = {ast.literal_eval(c.args[0]) for c in _calls(tree, "DeclareLaunchArgument")}
+    remaps = _kw(_node_call(), "remappings")
+    pairs = {ast.literal_eval(t.elts[0]): ast.unparse(t.elts[1]) for t in remaps.elts}
+    inputs = (*registration_node.PAIR_INPUTS, registration_node.ODOM_INPUT)
+    assert set(pairs) == set(inputs)
+    for name in inputs:
+        assert pairs[name] == f"LaunchConfiguration('{name}')" and name in declared
+    assert {"params_file", "mode", "use_sim_time"} <= declared
+
+
+def test_launch_applies_the_fastdds_profile():
+    node = _node_call()
+    env = _kw(node, "additional_env")
+    assert ast.unparse(env) == "profile_env()"
+    imports = [n for n in ast.walk(_tree()) if isinstance(n, ast.ImportFrom) and n.module == "deepbbs_ros.node.dds"]
+    assert imports and any(a.name == "profile_env" for a in imports[0].names)
+    # what that call gives at launch time: the shipped profile (installed as package data) ...
+    assert default_profile_path().is_file()
+    assert '"resources/*"' in (REPO / "setup.py").read_text()
+    assert profile_env({}) == {k: str(default_profile_path()) for k in PROFILE_ENV_VARS}
+    # ... unless the user chose a profile or another RMW
+    assert profile_env({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
+    assert profile_env({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) == {}
