@@ -46,6 +46,7 @@ class PreprocessConfig:
     voxel_size: float = 0.3  # m; 0 disables voxel downsampling
     num_points: int = 1000  # points kept by farthest-point sampling
     fps_max_candidates: int = 8192  # FPS runs on a seeded random subset of this many voxels; 0 = all
+    dense_max_points: int = 3000  # PreprocessResult.dense_points: random subset of the voxels; 0 = all
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
 
     def validate(self) -> None:
@@ -63,6 +64,7 @@ class PreprocessConfig:
         _check(self.fps_max_candidates >= 0, "preprocess.fps_max_candidates", "must be >= 0")
         _check(self.voxel_size >= 0, "preprocess.voxel_size", "must be >= 0")
         _check(self.num_points >= 3, "preprocess.num_points", "must be >= 3")
+        _check(self.dense_max_points >= 0, "preprocess.dense_max_points", "must be >= 0 (0 = every voxel)")
 
 
 @dataclass
@@ -123,6 +125,14 @@ class RegistrationConfig:
     refine_k: int = 16  # nearest target points per source point in the sparse refinement
     refine_rot_tol_deg: float = 0.005
     refine_trans_tol: float = 0.001  # m
+    refine_temperature: float = 1.0  # m; T of gamma's spatial term in the refinement; 0 = paper (1 scaled unit)
+    refine_overlap_crop: bool = True  # refine only on points inside both sensors' max_range (unbiased ends)
+    refine_alpha_start: float = 4.0  # coarse-to-fine: alpha x this first, halved on convergence to x1 (1 = paper)
+    dense_refine: bool = False  # final refinement on preprocess' dense_points (voxelised non-ground)
+    dense_refine_k: int = 6  # nearest dense target points per dense source point
+    dense_refine_max_iters: int = 15
+    dense_refine_xi: float = 0.4  # alpha = xi * median nearest-neighbour distance of the dense source
+    dense_refine_temperature: float = 1.0  # m; T of gamma's spatial term exp(-D/T) in the dense stage
     deep_iterations: bool = True  # ablation: False = one network pass only
     deep: bool = True  # ablation: False = refinement only (from identity)
     fixed_temperature: float = 0.0  # ablation: > 0 replaces the predicted T (scaled units)
@@ -145,6 +155,12 @@ class RegistrationConfig:
         _check(self.deep_trans_tol > 0, "registration.deep_trans_tol", "must be > 0")
         _check(self.refine_max_iters >= 1, "registration.refine_max_iters", "must be >= 1")
         _check(self.refine_k >= 0, "registration.refine_k", "must be >= 0 (0 = dense)")
+        _check(self.refine_temperature >= 0, "registration.refine_temperature", "must be >= 0 (0 = paper)")
+        _check(self.refine_alpha_start >= 1, "registration.refine_alpha_start", "must be >= 1 (1 = paper)")
+        _check(self.dense_refine_k >= 1, "registration.dense_refine_k", "must be >= 1")
+        _check(self.dense_refine_max_iters >= 1, "registration.dense_refine_max_iters", "must be >= 1")
+        _check(self.dense_refine_xi > 0, "registration.dense_refine_xi", "must be > 0")
+        _check(self.dense_refine_temperature > 0, "registration.dense_refine_temperature", "must be > 0")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
         _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = torch default)")

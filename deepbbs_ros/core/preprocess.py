@@ -25,6 +25,9 @@ network:
    (``idx[k] = order[k % m]``) so that every batch has exactly ``num_points`` points; each point
    then appears ``floor(n / m)`` or ``ceil(n / m)`` times.
 
+5. ``dense``: the voxel centroids themselves (a seeded random subset of at most
+   ``dense_max_points``) are kept as ``dense_points`` for the final dense refinement.
+
 No ROS import here.
 """
 
@@ -57,7 +60,11 @@ class PreprocessResult:
         n_valid: finite points inside the range crop.
         n_nonground: valid points left after ground removal (before voxelisation and sampling).
         n_voxels: points after voxelisation (the FPS candidates).
-        timings_ms: wall time per step (``valid_crop``, ``ground``, ``voxel``, ``fps``, ``total``).
+        timings_ms: wall time per step (``valid_crop``, ``ground``, ``voxel``, ``fps``, ``total``;
+            the dense subset is in ``total`` only).
+        dense_points: (K, 3) float32 voxelised non-ground points, sensor frame, metres: every voxel
+            centroid, or a seeded random subset of ``cfg.dense_max_points`` of them (the input of the
+            final dense refinement, ``registration.dense_refine``); None when built by hand without it.
     """
 
     points: np.ndarray
@@ -67,6 +74,7 @@ class PreprocessResult:
     n_nonground: int
     n_voxels: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
+    dense_points: np.ndarray | None = None
 
 
 # -- step 1: validity and range ------------------------------------------------------------------
@@ -299,6 +307,26 @@ def farthest_point_sample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarr
     return idx
 
 
+def dense_subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
+    """At most ``max_points`` of ``points`` as a seeded uniform random subset (order kept).
+
+    Used on voxel centroids, which are already evenly spread: a random subset keeps that evenness at
+    a fraction of the cost of farthest-point sampling.
+
+    Args:
+        points: (K, 3) float32 xyz, metres.
+        max_points: cap; ``<= 0`` or ``>= K`` returns ``points`` unchanged.
+        seed: subset seed.
+
+    Returns:
+        (min(K, max_points), 3) float32.
+    """
+    if max_points <= 0 or len(points) <= max_points:
+        return points
+    sub = np.random.default_rng([seed, 5150]).choice(len(points), max_points, replace=False)
+    return np.take(points, np.sort(sub), axis=0)
+
+
 def _fps_exact(pts: np.ndarray, k: int, start: int) -> np.ndarray:
     """Textbook O(k M) farthest-point sampling (used for tiny clouds)."""
     idx = np.empty(k, dtype=np.int64)
@@ -380,9 +408,11 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         cand = np.take(cand, np.sort(sub), axis=0)
     idx = farthest_point_sample(cand, cfg.num_points, seed=seed)
     out = np.ascontiguousarray(np.take(cand, idx, axis=0), dtype=np.float32)
-    t4 = time.perf_counter()
-    timings["fps"] = (t4 - t3) * 1e3
-    timings["total"] = (t4 - t_start) * 1e3
+    timings["fps"] = (time.perf_counter() - t3) * 1e3
+
+    # 5. the dense cloud of the final refinement: the voxel centroids, capped
+    dense = np.ascontiguousarray(dense_subsample(vox, cfg.dense_max_points, seed=seed), dtype=np.float32)
+    timings["total"] = (time.perf_counter() - t_start) * 1e3
 
     return PreprocessResult(
         points=out,
@@ -392,6 +422,7 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         n_nonground=n_nonground,
         n_voxels=len(vox),
         timings_ms=timings,
+        dense_points=dense,
     )
 
 

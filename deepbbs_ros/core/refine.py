@@ -148,6 +148,7 @@ def refine(
     use_gamma: bool = True,
     spatial_gamma: bool = True,
     search: NeighbourSearch | None = None,
+    alpha_start: float = 1.0,
 ) -> RefineResult:
     """Iterate SoftBBS on xyz from the initial estimate (R, t).
 
@@ -160,10 +161,15 @@ def refine(
         xi: alpha = xi * median nearest-neighbour distance of the source xyz.
         temperature: T of gamma's spatial term (scaled units; 1 in DeepBBS++).
         search: a prebuilt :class:`NeighbourSearch` on ``tgt`` (sparse only).
+        alpha_start: coarse-to-fine schedule: the iterations start with ``alpha_start * alpha``
+            (softer matches, a wider basin) and halve the factor each time the increment falls below
+            the tolerances, down to 1 (the paper's alpha), where convergence ends the loop.
+            1 = the paper's fixed alpha.
     Returns:
         :class:`RefineResult`.
     """
     alpha = source_alpha(src, xi)
+    mult = max(1.0, float(alpha_start))
     dense = k <= 0
     if not dense and search is None:
         search = NeighbourSearch(tgt)
@@ -176,12 +182,12 @@ def refine(
         moved = apply_transform(src[None], R[None], t[None])[0]
         if dense:
             d = softbbs.pairwise_distances(moved[None], tgt[None])
-            log_b = softbbs.soft_bbs_log(d, alpha[None])
+            log_b = softbbs.soft_bbs_log(d, alpha[None] * mult)
             q_hat = softbbs.soft_map(log_b, tgt[None])[0]
             gamma = softbbs.bbs_gamma(log_b, d if spatial_gamma else None, d.new_full((1,), temperature))[0]
         else:
             dk, idx = knn.query(moved)
-            log_b = softbbs.sparse_soft_bbs_log(dk[None], idx[None], m, alpha[None])
+            log_b = softbbs.sparse_soft_bbs_log(dk[None], idx[None], m, alpha[None] * mult)
             q_hat = softbbs.sparse_soft_map(log_b, idx[None], tgt[None])[0]
             gamma = softbbs.sparse_gamma(log_b, dk[None] if spatial_gamma else None, temperature)[0]
         weights = gamma if use_gamma else torch.ones_like(gamma)
@@ -190,6 +196,8 @@ def refine(
         dt = t_new - dR @ t
         R, t = R_new, t_new
         if rotation_angle_deg(dR) < rot_tol_deg and float(dt.norm()) < trans_tol:
-            converged = True
-            break
+            if mult <= 1.0:
+                converged = True
+                break
+            mult = max(1.0, 0.5 * mult)  # next, sharper level of the coarse-to-fine schedule
     return RefineResult(R, t, it, converged, gamma)

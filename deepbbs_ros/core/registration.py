@@ -8,6 +8,7 @@
     solve       soft map, gamma weights, weighted Procrustes                (core/procrustes.py)
     ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
+    dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
@@ -45,12 +46,14 @@ class RegistrationResult:
     Attributes:
         T_target_source: (4, 4) float64, p_target = R p_source + t (metres).
         converged: the last stage that ran stopped on its tolerances (not on its iteration cap).
-        iterations: {"deep": network passes, "refine": refinement iterations}.
+        iterations: {"deep": network passes, "refine": refinement iterations, "dense": dense
+            refinement iterations (0 when it did not run)}.
         gamma: (N,) float32 confidence of every (preprocessed) source point, from the last stage.
         inlier_ratio: fraction of source points within ``registration.inlier_dist`` metres of a
             target point after alignment.
         temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
-        timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total").
+        timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total",
+            and "dense" when the dense refinement ran).
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
 
@@ -135,9 +138,18 @@ class DeepBBSRegistration:
         """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``)."""
         return preprocess(points, self.config.preprocess)
 
-    def _cloud(self, points: np.ndarray, preprocessed: bool, name: str) -> np.ndarray:
+    def _cloud(self, points: Any, preprocessed: bool, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None) of one input."""
+        if isinstance(points, PreprocessResult):
+            dense = points.dense_points
+            return self._check(points.points, name), None if dense is None else self._check(dense, name + " dense")
         if not preprocessed:
-            return self.preprocess(points).points
+            res = self.preprocess(points)
+            return res.points, res.dense_points
+        return self._check(points, name), None
+
+    @staticmethod
+    def _check(points: np.ndarray, name: str) -> np.ndarray:
         pts = np.asarray(points, dtype=np.float32)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise RegistrationError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
@@ -160,21 +172,25 @@ class DeepBBSRegistration:
 
         Args:
             source: (N, 3) source scan, metres, sensor frame (raw, or preprocessed when
-                ``preprocessed`` is True).
+                ``preprocessed`` is True), or a :class:`PreprocessResult` (its ``points``, and its
+                ``dense_points`` for the dense refinement).
             target: (M, 3) target scan, same conventions.
+
+        The dense refinement (``registration.dense_refine``) runs when both clouds come with dense
+        points: raw scans, or PreprocessResults; plain preprocessed arrays skip it.
             T_init: (4, 4) initial guess of T_target_source (identity if None).
             preprocessed: skip preprocessing (the clouds are already cropped/sampled).
         """
         rc, scale = self.config.registration, self.model.scale
         clock = _Clock(self.device)
         # preprocess: crop, ground removal, voxel grid, FPS (raw scans only)
-        src_np = self._cloud(source, preprocessed, "source")
-        tgt_np = self._cloud(target, preprocessed, "target")
+        src_np, src_dense = self._cloud(source, preprocessed, "source")
+        tgt_np, tgt_dense = self._cloud(target, preprocessed, "target")
         clock.lap("preprocess")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
         t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
-        iters = {"deep": 0, "refine": 0}
+        iters = {"deep": 0, "refine": 0, "dense": 0}
         converged, temperature = False, 0.0
         with torch.inference_mode():
             src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
@@ -215,22 +231,52 @@ class DeepBBSRegistration:
             # refine: SoftBBS on xyz over the k nearest targets, until the increment is tiny (DeepBBS++)
             search = NeighbourSearch(tgt[0])
             if rc.refine:
+                s_in, t_in, keep = src[0], tgt[0], None
+                if rc.refine_overlap_crop:
+                    keep, t_keep = _overlap(s_in, t_in, R, t, self.config.preprocess.max_range * scale)
+                    if int(keep.sum()) >= 3 and int(t_keep.sum()) >= 3:
+                        s_in, t_in = s_in[keep], t_in[t_keep]
+                    else:
+                        keep = None
+                t_ref = rc.refine_temperature * scale if rc.refine_temperature > 0 else 1.0
                 ref = refine(
-                    src[0], tgt[0], R, t,
+                    s_in, t_in, R, t,
                     k=rc.refine_k, max_iters=rc.refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
-                    trans_tol=rc.refine_trans_tol * scale, xi=self.model.cfg.xi, temperature=1.0,
-                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma, search=search,
+                    trans_tol=rc.refine_trans_tol * scale, xi=self.model.cfg.xi, temperature=t_ref,
+                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma, search=search if keep is None else None,
+                    alpha_start=rc.refine_alpha_start,
                 )  # fmt: skip
                 R, t, gamma, converged, iters["refine"] = ref.R, ref.t, ref.gamma, ref.converged, ref.iterations
+                if keep is not None:  # points outside the overlap get gamma 0
+                    gamma = src.new_zeros(src.shape[1]).masked_scatter_(keep, ref.gamma)
+            clock.lap("refine")
+            # dense: the same refinement on the voxelised non-ground clouds, a sharper alpha (their
+            # spacing is the voxel size, not the ~2 m of 1000 FPS points) and a spatial T in metres
+            if rc.refine and rc.dense_refine and src_dense is not None and tgt_dense is not None:
+                d_src = torch.from_numpy(src_dense).to(self.device) * scale
+                d_tgt = torch.from_numpy(tgt_dense).to(self.device) * scale
+                if rc.refine_overlap_crop:
+                    ks, kt = _overlap(d_src, d_tgt, R, t, self.config.preprocess.max_range * scale)
+                    if int(ks.sum()) >= 3 and int(kt.sum()) >= 3:
+                        d_src, d_tgt = d_src[ks], d_tgt[kt]
+                ref = refine(
+                    d_src, d_tgt, R, t,
+                    k=rc.dense_refine_k, max_iters=rc.dense_refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
+                    trans_tol=rc.refine_trans_tol * scale, xi=rc.dense_refine_xi,
+                    temperature=rc.dense_refine_temperature * scale,
+                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma,
+                )  # fmt: skip
+                R, t, converged, iters["dense"] = ref.R, ref.t, ref.converged, ref.iterations
             moved = apply_transform(src, R[None], t[None])[0]
             inliers = search.nearest_distance(moved) / scale <= rc.inlier_dist
             inlier_ratio = float(inliers.float().mean())
-            clock.lap("refine")
+            clock.lap("dense" if iters["dense"] else "refine")
         T_out = np.eye(4)
         T_out[:3, :3] = R.double().cpu().numpy()
         T_out[:3, 3] = t.double().cpu().numpy() / scale
         T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
-        timings = {s: clock.ms.get(s, 0.0) for s in ("preprocess", "embed", "match", "solve", "refine")}
+        stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if iters["dense"] else ())
+        timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())
         return RegistrationResult(
             T_target_source=T_out,
@@ -243,6 +289,21 @@ class DeepBBSRegistration:
             source=src_np,
             target=tgt_np,
         )
+
+
+def _overlap(
+    src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor, radius: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Masks of the points that both sensors could see: src (N, 3) and tgt (M, 3) (scaled) within
+    ``radius`` of the other sensor under the estimate p_target = R p_source + t.
+
+    Each scan was cropped at ``radius`` around its own sensor: a source point beyond ``radius`` of the
+    target sensor has no partner in the target (and vice versa), and such unpaired ends of roads and
+    walls pull a point-to-point refinement along the road. -> (src_mask (N,) bool, tgt_mask (M,) bool).
+    """
+    src_in_tgt = src @ R.T + t
+    tgt_in_src = (tgt - t) @ R
+    return src_in_tgt.norm(dim=1) <= radius, tgt_in_src.norm(dim=1) <= radius
 
 
 def _orthonormalize(R: np.ndarray) -> np.ndarray:
