@@ -6,7 +6,7 @@ synthetic 120k-point scans at --rate Hz, and times each PoseStamped against the 
 scan was published (same host, same clock). Prints median / p99 and the node's per-stage breakdown
 (from /diagnostics). Goals on the reference machine: median <= 100 ms, p99 <= 200 ms.
 
-    python scripts/bench_node_latency.py --seconds 30 [--weights W.pt] [--device cpu]
+    python scripts/bench_node_latency.py --seconds 30 [--weights W.pt] [--device cpu] [--threads 1]
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     g = p.add_argument_group("node")
     g.add_argument("--weights", default="", help="checkpoint (default: the shipped model)")
     g.add_argument("--device", default="auto", help="auto | cpu | cuda")
+    g.add_argument("--threads", type=int, default=0, help="torch CPU threads of the node (0 = torch default)")
     g.add_argument("--config", help="extra config YAML for the node")
     args = p.parse_args(argv)
 
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
     if args.config:
         cmd += ["--config", args.config]
     cmd += ["--ros-args", "-p", "node.mode:=odometry", "-p", f"registration.device:={args.device}",
+            "-p", f"registration.threads:={args.threads}",
             "-p", "node.diagnostics_period:=1.0", "-r", "cloud:=/bench/points"]
     if args.weights:
         cmd += ["-p", f"registration.weights:={args.weights}"]

@@ -186,8 +186,9 @@ def test_bag_played_into_node_rotation_matches_ground_truth(e2e):
 @needs_weights
 @pytest.mark.xfail(
     strict=True,
-    reason="bootstrap weights (step 600): translation 0.4-0.9 m off on the ~0.9 m steps of the sparse "
-    "(1 deg azimuth) urban sample bag, offline as well (test_node_equals_offline_registration); GICP 0.01 m. "
+    reason="bootstrap weights (step 600): on the ~0.94 m steps of the sparse (1 deg azimuth) urban sample bag "
+    "only 4 of 9 steps are within 0.3 m (0.11-0.74 m, rotation <= 0.17 deg), offline exactly the same "
+    "(test_node_equals_offline_registration): the model/core, not the node; GICP 0.01 m. "
     "Remove this mark when the shipped model passes.",
 )
 def test_bag_played_into_node_translation_matches_ground_truth(e2e):
@@ -197,4 +198,4 @@ def test_bag_played_into_node_translation_matches_ground_truth(e2e):
     for s0, s1, step in steps:
         gt = np.linalg.inv(scans[s0].T_world_lidar) @ scans[s1].T_world_lidar
         errors.append(pair_errors(step, gt)[1])
-    assert max(errors) <= 0.3, [round(e, 3) for e in errors]
+    assert max(errors) <= 0.3, "translation errors (m): " + ", ".join(f"{e:.3f}" for e in errors)
