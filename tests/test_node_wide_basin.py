@@ -9,6 +9,11 @@ Each published pose is checked against ground truth (1 deg / 0.3 m) and against
 mismatch there would be the node's, a miss of both would be the model's. small_gicp GICP from identity
 on the same pairs is measured for contrast (printed, not asserted: the issue expects it to manage
 about a third of such pairs). Run with ``-s`` to see the table.
+
+Measured with the bootstrap weights (step 600): 6 of 6 here, 20 of 20 offline on 20 such perturbations
+of urban seeds 5 and 21 (GICP 1 of 20). Not every scene is that easy: on the node's SyntheticTown (no
+occlusion, random boxes) 7 of 8 offline, one miss at -43.5 deg / 4.1 m (33 deg off), not asserted here.
+Frames 0 and 1 of seed 5 are 2.5 cm apart (the car starts): the motion is almost all the perturbation.
 """
 
 from __future__ import annotations
