@@ -133,6 +133,15 @@ class RegistrationConfig:
     dense_refine_max_iters: int = 15
     dense_refine_xi: float = 0.4  # alpha = xi * median nearest-neighbour distance of the dense source
     dense_refine_temperature: float = 1.0  # m; T of gamma's spatial term exp(-D/T) in the dense stage
+    polish: str = "none"  # optional final local alignment (small_gicp) from the DeepBBS++ estimate: none|gicp|plane_icp
+    polish_voxel: float = 0.5  # m; voxel grid of the polish clouds (dense non-ground points [+ ground]); 0 = none
+    polish_ground: bool = True  # add PreprocessResult.ground_points to the polish clouds (pins z, roll, pitch)
+    polish_max_corr_dist: float = 1.0  # m; small_gicp max_correspondence_distance
+    polish_max_iters: int = 20
+    polish_neighbors: int = 20  # neighbours for covariances / normals
+    polish_max_trans: float = 2.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept)
+    polish_max_rot_deg: float = 5.0  # deg; idem for rotation
+    polish_threads: int = 1  # small_gicp threads
     deep_iterations: bool = True  # ablation: False = one network pass only
     deep: bool = True  # ablation: False = refinement only (from identity)
     fixed_temperature: float = 0.0  # ablation: > 0 replaces the predicted T (scaled units)
@@ -161,6 +170,18 @@ class RegistrationConfig:
         _check(self.dense_refine_max_iters >= 1, "registration.dense_refine_max_iters", "must be >= 1")
         _check(self.dense_refine_xi > 0, "registration.dense_refine_xi", "must be > 0")
         _check(self.dense_refine_temperature > 0, "registration.dense_refine_temperature", "must be > 0")
+        _check(
+            self.polish in ("none", "gicp", "plane_icp"),
+            "registration.polish",
+            f"must be 'none', 'gicp' or 'plane_icp', got {self.polish!r}",
+        )
+        _check(self.polish_voxel >= 0, "registration.polish_voxel", "must be >= 0 (0 = no voxel grid)")
+        _check(self.polish_max_corr_dist > 0, "registration.polish_max_corr_dist", "must be > 0")
+        _check(self.polish_max_iters >= 1, "registration.polish_max_iters", "must be >= 1")
+        _check(self.polish_neighbors >= 5, "registration.polish_neighbors", "must be >= 5")
+        _check(self.polish_max_trans > 0, "registration.polish_max_trans", "must be > 0")
+        _check(self.polish_max_rot_deg > 0, "registration.polish_max_rot_deg", "must be > 0")
+        _check(self.polish_threads >= 1, "registration.polish_threads", "must be >= 1")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
         _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = torch default)")

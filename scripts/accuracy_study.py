@@ -42,6 +42,11 @@ VARIANTS: dict[str, dict] = {
     "current": {},
     # a final refinement on the dense (voxelised non-ground) cloud, after the 1000-point one
     "dense": {"registration.dense_refine": True},
+    # the optional small_gicp polish (core/polish.py) after the shipped refinement, on dense + ground points
+    "polish": {"registration.polish": "gicp"},
+    # the same without the ground points / point-to-plane ICP instead of GICP
+    "polish_ng": {"registration.polish": "gicp", "registration.polish_ground": False},
+    "polish_plane": {"registration.polish": "plane_icp"},
 }
 
 
@@ -72,7 +77,7 @@ def build_frames(args, cfg) -> dict:
                 key = f"{seed}_{k}"
                 if key not in frames:
                     r = preprocess(sim.scan_at(k).points, pcfg)
-                    frames[key] = (r.points, r.dense_points, poses[k])
+                    frames[key] = (r.points, r.dense_points, poses[k], r.ground_points)
             frames["pairs"].append((scene, seed, i, j))
         print(f"drive {seed} {scene}: {len(frames['pairs'])} pairs so far", flush=True)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -141,25 +146,31 @@ def main(argv=None) -> int:
     recs = []
     t_start = time.perf_counter()
     for scene, seed, i, j in frames["pairs"]:
-        ps, ds, Ts = frames[f"{seed}_{i}"]
-        pt, dt_, Tt = frames[f"{seed}_{j}"]
+        ps, ds, Ts, *gs = frames[f"{seed}_{i}"]  # caches before the polish have no ground points
+        pt, dt_, Tt, *gt = frames[f"{seed}_{j}"]
+        gs, gt = (gs or [None])[0], (gt or [None])[0]
         cap = cfg.preprocess.dense_max_points if args.dense_cap < 0 else args.dense_cap
         ds, dt_ = subsample(ds, cap, cfg.preprocess.seed), subsample(dt_, cap, cfg.preprocess.seed)
         T_gt0 = inv_T(Tt) @ Ts
         for variant, ydeg in variants:
             A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
             T_gt = T_gt0 @ inv_T(A)
-            src = PreprocessResult(transform(ps, A), None, 0, 0, 0, dense_points=transform(ds, A))
-            tgt = PreprocessResult(pt, None, 0, 0, 0, dense_points=dt_)
+            src = PreprocessResult(transform(ps, A), None, 0, 0, 0, dense_points=transform(ds, A),
+                                   ground_points=None if gs is None else transform(gs, A))
+            tgt = PreprocessResult(pt, None, 0, 0, 0, dense_points=dt_, ground_points=gt)
             t0 = time.perf_counter()
             res = deep.register(src, tgt, preprocessed=True)
             deep_ms = (time.perf_counter() - t0) * 1e3
             outs = {"deep": (res.T_target_source, deep_ms, res.iterations)}
+            polish_ms: dict[str, float] = {}
+            polish_ok: dict[str, bool] = {}
             for name, reg in regs.items():
                 T0 = T_gt if name.startswith("oracle-") else res.T_target_source
                 t0 = time.perf_counter()
                 r2 = reg.register(src, tgt, preprocessed=True, T_init=T0)
                 outs[name] = (r2.T_target_source, (time.perf_counter() - t0) * 1e3, r2.iterations)
+                polish_ms[name] = r2.timings_ms.get("polish", 0.0)
+                polish_ok[name] = r2.polish in ("ok", "")
             # along-track axis: the direction of travel between the two frames (target frame)
             along = T_gt0[:3, 3] / max(np.linalg.norm(T_gt0[:3, 3]), 1e-6)
             up = np.array([0.0, 0.0, 1.0])
@@ -179,14 +190,15 @@ def main(argv=None) -> int:
                 recs.append({"variant": variant, "method": name, "scene": scene, "seed": int(seed), "i": int(i),
                              "j": int(j), "rot": float(r), "trans": float(t), "along": float(e @ along),
                              "cross": float(e @ cross), "up": float(e[2]), "ms": ms, "iters": dict(its),
-                             "dist": float(np.linalg.norm(T_gt0[:3, 3]))})
+                             "dist": float(np.linalg.norm(T_gt0[:3, 3])), "polish_ms": polish_ms.get(name, 0.0),
+                             "polish_ok": polish_ok.get(name, True)})
     print(f"{len(frames['pairs'])} pairs in {time.perf_counter() - t_start:.0f} s (machine shared: times disturbed)")
     console = Console(width=150)
     methods = ["deep", *regs] + (["gicp", "oracle-gicp"] if args.gicp else [])
     for variant, _ in variants:
         tab = Table(title=f"{variant}: held-out pairs, refinement variants from the deep estimate")
         for col in ("method", "scene", "n", "MAE rot [deg]", "MTE [m]", "med t [m]", "p95 t [m]", "|along| [m]",
-                    "|cross| [m]", "|up| [m]", "success [%]", "ms", "iters"):
+                    "|cross| [m]", "|up| [m]", "success [%]", "ms", "polish ms", "polish kept [%]", "iters"):
             tab.add_column(col, justify="left" if col in ("method", "scene") else "right")
         for m in methods:
             for sc in [*sorted({r["scene"] for r in recs}), "all"]:
@@ -201,7 +213,9 @@ def main(argv=None) -> int:
                             f"{np.percentile(Tt, 95):.3f}", f"{np.mean([abs(r['along']) for r in sel]):.3f}",
                             f"{np.mean([abs(r['cross']) for r in sel]):.3f}",
                             f"{np.mean([abs(r['up']) for r in sel]):.3f}", f"{100 * succ:.1f}",
-                            f"{np.median([r['ms'] for r in sel]):.0f}", f"{it:.1f}", end_section=sc == "all")
+                            f"{np.median([r['ms'] for r in sel]):.0f}",
+                            f"{np.median([r['polish_ms'] for r in sel]):.1f}",
+                            f"{100 * np.mean([r['polish_ok'] for r in sel]):.0f}", f"{it:.1f}", end_section=sc == "all")
         console.print(tab)
         for m in methods if args.show_fail else []:
             worst = sorted((r for r in recs if r["variant"] == variant and r["method"] == m),

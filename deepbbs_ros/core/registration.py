@@ -9,6 +9,7 @@
     ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
+    polish      optional small_gicp GICP / point-to-plane ICP from the estimate (registration.polish, core/polish.py)
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
@@ -30,6 +31,7 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
+from deepbbs_ros.core.polish import polish, polish_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
@@ -47,13 +49,16 @@ class RegistrationResult:
         T_target_source: (4, 4) float64, p_target = R p_source + t (metres).
         converged: the last stage that ran stopped on its tolerances (not on its iteration cap).
         iterations: {"deep": network passes, "refine": refinement iterations, "dense": dense
-            refinement iterations (0 when it did not run)}.
+            refinement iterations (0 when it did not run), "polish": small_gicp iterations (0 when it
+            did not run; counted also when the polish was rejected)}.
         gamma: (N,) float32 confidence of every (preprocessed) source point, from the last stage.
         inlier_ratio: fraction of source points within ``registration.inlier_dist`` metres of a
             target point after alignment.
         temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
         timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total",
-            and "dense" when the dense refinement ran).
+            and "dense" when the dense refinement ran, "polish" when the polish ran).
+        polish: why the polish was accepted ("ok") or rejected, "" when it did not run
+            (``registration.polish`` "none", or no dense points).
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
 
@@ -66,6 +71,7 @@ class RegistrationResult:
     timings_ms: dict[str, float]
     source: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
+    polish: str = ""
 
 
 class _Clock:
@@ -138,15 +144,19 @@ class DeepBBSRegistration:
         """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``)."""
         return preprocess(points, self.config.preprocess)
 
-    def _cloud(self, points: Any, preprocessed: bool, name: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None) of one input."""
+    def _cloud(
+        self, points: Any, preprocessed: bool, name: str
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None, ground points (G, 3)
+        float32 or None) of one input."""
         if isinstance(points, PreprocessResult):
             dense = points.dense_points
-            return self._check(points.points, name), None if dense is None else self._check(dense, name + " dense")
+            return (self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"),
+                    points.ground_points)
         if not preprocessed:
             res = self.preprocess(points)
-            return res.points, res.dense_points
-        return self._check(points, name), None
+            return res.points, res.dense_points, res.ground_points
+        return self._check(points, name), None, None
 
     @staticmethod
     def _check(points: np.ndarray, name: str) -> np.ndarray:
@@ -184,13 +194,13 @@ class DeepBBSRegistration:
         rc, scale = self.config.registration, self.model.scale
         clock = _Clock(self.device)
         # preprocess: crop, ground removal, voxel grid, FPS (raw scans only)
-        src_np, src_dense = self._cloud(source, preprocessed, "source")
-        tgt_np, tgt_dense = self._cloud(target, preprocessed, "target")
+        src_np, src_dense, src_ground = self._cloud(source, preprocessed, "source")
+        tgt_np, tgt_dense, tgt_ground = self._cloud(target, preprocessed, "target")
         clock.lap("preprocess")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
         t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
-        iters = {"deep": 0, "refine": 0, "dense": 0}
+        iters = {"deep": 0, "refine": 0, "dense": 0, "polish": 0}
         converged, temperature = False, 0.0
         with torch.inference_mode():
             src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
@@ -275,7 +285,25 @@ class DeepBBSRegistration:
         T_out[:3, :3] = R.double().cpu().numpy()
         T_out[:3, 3] = t.double().cpu().numpy() / scale
         T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
+        # polish: optional small_gicp local alignment on the dense (+ ground) clouds from the estimate
+        polish_reason = ""
+        p_src = polish_cloud(src_dense, src_ground, rc.polish_ground)
+        p_tgt = polish_cloud(tgt_dense, tgt_ground, rc.polish_ground)
+        if rc.polish != "none" and p_src is not None and p_tgt is not None:
+            pol = polish(p_src, p_tgt, T_out, rc)
+            iters["polish"], polish_reason = pol.iterations, pol.reason
+            if pol.applied:
+                T_out = pol.T_target_source
+                T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
+                with torch.inference_mode():
+                    Rp = torch.as_tensor(T_out[:3, :3], dtype=src.dtype, device=self.device)
+                    tp = torch.as_tensor(T_out[:3, 3] * scale, dtype=src.dtype, device=self.device)
+                    moved = apply_transform(src, Rp[None], tp[None])[0]
+                    inlier_ratio = float((search.nearest_distance(moved) / scale <= rc.inlier_dist).float().mean())
+                converged = pol.converged
+            clock.lap("polish")
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if iters["dense"] else ())
+        stages += ("polish",) if "polish" in clock.ms else ()
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())
         return RegistrationResult(
@@ -288,6 +316,7 @@ class DeepBBSRegistration:
             timings_ms=timings,
             source=src_np,
             target=tgt_np,
+            polish=polish_reason,
         )
 
 

@@ -1,0 +1,186 @@
+"""The optional small_gicp polish after DeepBBS++ (registration.polish, core/polish.py) and its config."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from deepbbs_ros.config import Config, ModelConfig
+from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.polish import polish, polish_cloud
+from deepbbs_ros.core.preprocess import PreprocessResult, dense_subsample, farthest_point_sample, voxel_downsample
+from deepbbs_ros.core.registration import DeepBBSRegistration
+from deepbbs_ros.errors import ConfigError
+
+TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
+
+
+def street(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(non-ground (n, 3), ground (n // 2, 3)) float32 random points on one fixed street scene, metres:
+    two facades with recesses, a cross wall, poles, a car, and the road plane z = -1.9 (sensor frame)."""
+    u = rng.uniform(size=(n, 3))
+    k = n // 6
+    parts = [
+        np.c_[-30 + 60 * u[:k, 0], np.full(k, 7.0) + 1.5 * (np.sin(u[:k, 0] * 9) > 0.6), 8 * u[:k, 1]],
+        np.c_[-30 + 60 * u[k : 2 * k, 0], np.full(k, -8.0) - 2.0 * (np.cos(u[k : 2 * k, 0] * 7) > 0.5),
+              6 * u[k : 2 * k, 1]],
+        np.c_[np.full(k, 25.0), -8 + 15 * u[2 * k : 3 * k, 0], 5 * u[2 * k : 3 * k, 1]],
+    ]  # fmt: skip
+    m = n - 4 * k  # poles on a 7 m grid along both kerbs
+    pole = rng.integers(0, 16, m)
+    ang = 2 * np.pi * u[3 * k : 3 * k + m, 0]
+    cx, cy = -26 + 7 * (pole % 8), np.where(pole < 8, 5.0, -6.0)
+    parts.append(np.c_[cx + 0.2 * np.cos(ang), cy + 0.2 * np.sin(ang), 4 * u[3 * k : 3 * k + m, 2]])
+    box = u[n - k :] * [4.5, 1.8, 1.5]
+    face = rng.integers(0, 3, k)
+    box[np.arange(k), face] = np.array([4.5, 1.8, 1.5])[face] * rng.integers(0, 2, k)
+    parts.append(box + [3.0, -4.0, 0.0])
+    g = rng.uniform(size=(n // 2, 2))
+    ground = np.c_[-30 + 60 * g[:, 0], -8 + 15 * g[:, 1], np.zeros(n // 2)]
+    return (np.concatenate(parts) - [0, 0, 1.9]).astype(np.float32), (ground - [0, 0, 1.9]).astype(np.float32)
+
+
+def _prep(non_ground: np.ndarray, ground: np.ndarray, seed: int) -> PreprocessResult:
+    """The pipeline's outputs after ground removal: 1000 FPS points, dense voxels, ground subset."""
+    v = voxel_downsample(non_ground, 0.3)
+    return PreprocessResult(v[farthest_point_sample(v, 1000, seed=1)], None, 0, 0, 0,
+                            dense_points=dense_subsample(v, 3000, seed=seed),
+                            ground_points=dense_subsample(ground, 1500, seed=seed))
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """Two independent noisy samplings of the street; the source seen from T_target_source."""
+    rng = np.random.default_rng(7)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zyx", [4.0, 0.3, -0.2], degrees=True).as_matrix()
+    T[:3, 3] = [1.2, 0.3, 0.03]
+    tgt = [p + rng.normal(0, 0.01, p.shape).astype(np.float32) for p in street(rng, 40000)]
+    scene = [p + rng.normal(0, 0.01, p.shape).astype(np.float32) for p in street(rng, 40000)]
+    src = [((p - T[:3, 3]) @ T[:3, :3]).astype(np.float32) for p in scene]  # p_source = R^T (p_target - t)
+    return _prep(*src, seed=1), _prep(*tgt, seed=2), T
+
+
+def _offset(trans=(0.4, -0.3, 0.0), yaw_deg=1.0) -> np.ndarray:
+    """A DeepBBS-like error: 0.5 m along/across the road, 1 deg of yaw."""
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    D[:3, 3] = trans
+    return D
+
+
+def _err(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
+    E = np.linalg.inv(T_gt) @ T_est
+    return float(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))), float(np.linalg.norm(E[:3, 3]))
+
+
+def _cfg(**flat):
+    return Config().replace(**{"registration.polish": "gicp", **flat}).registration
+
+
+def _clouds(res: PreprocessResult, ground: bool = True) -> np.ndarray:
+    return polish_cloud(res.dense_points, res.ground_points, ground)
+
+
+@pytest.mark.parametrize("method", ["gicp", "plane_icp"])
+def test_polish_recovers_the_transform_from_a_deepbbs_like_estimate(pair, method):
+    src, tgt, T = pair
+    T0 = T @ _offset()
+    assert _err(T0, T)[1] > 0.4
+    res = polish(_clouds(src), _clouds(tgt), T0, _cfg(**{"registration.polish": method}))
+    rot, trans = _err(res.T_target_source, T)
+    assert res.applied and res.reason == "ok" and res.converged, res
+    assert trans < 0.03 and rot < 0.1, (rot, trans)
+    assert 1 <= res.iterations <= 20 and res.num_inliers > 100
+    assert res.delta_trans_m == pytest.approx(np.linalg.norm(res.T_target_source[:3, 3] - T0[:3, 3]))
+    assert set(res.timings_ms) == {"prepare", "align", "total"}
+
+
+def test_register_runs_the_polish_stage(pair):
+    """register() with a tiny random network (deep stage off, refinement from T_init) + the polish."""
+    src, tgt, T = pair
+    torch.manual_seed(0)
+    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    model = DeepBBSNet(TINY).eval()
+    T0 = T @ _offset()
+    plain = DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
+    pol = DeepBBSRegistration(base.replace(**{"registration.polish": "gicp"}), model=model)
+    res = pol.register(src, tgt, T_init=T0)
+    rot, trans = _err(res.T_target_source, T)
+    assert trans < 0.03 and rot < 0.1, (rot, trans, _err(plain.T_target_source, T))
+    assert res.polish == "ok" and res.iterations["polish"] >= 1 and plain.iterations["polish"] == 0
+    assert "polish" in res.timings_ms and "polish" not in plain.timings_ms and plain.polish == ""
+    assert res.timings_ms["total"] == pytest.approx(sum(v for k, v in res.timings_ms.items() if k != "total"))
+    assert res.inlier_ratio > 0.9
+    # plain arrays carry no dense points: the polish cannot run and is skipped
+    arr = pol.register(src.points, tgt.points, T_init=T0, preprocessed=True)
+    assert arr.polish == "" and arr.iterations["polish"] == 0
+
+
+@pytest.mark.parametrize(
+    "flat, reason",
+    [
+        ({"registration.polish_max_corr_dist": 1e-4}, "not converged|correspondences"),
+        ({"registration.polish_max_trans": 0.05}, "moved .* > polish_max_trans"),
+        ({"registration.polish_max_rot_deg": 0.05}, "turned .* > polish_max_rot_deg"),
+    ],
+)
+def test_polish_falls_back_to_the_deepbbs_estimate(pair, flat, reason):
+    src, tgt, T = pair
+    T0 = T @ _offset()
+    res = polish(_clouds(src), _clouds(tgt), T0, _cfg(**flat))
+    assert not res.applied
+    assert re.search(reason, res.reason), res.reason
+    np.testing.assert_array_equal(res.T_target_source, T0)
+
+
+def test_register_keeps_the_estimate_when_the_polish_is_rejected(pair):
+    src, tgt, T = pair
+    torch.manual_seed(0)
+    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    model = DeepBBSNet(TINY).eval()
+    T0 = T @ _offset()
+    plain = DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
+    cfg = base.replace(**{"registration.polish": "gicp", "registration.polish_max_trans": 0.01})
+    res = DeepBBSRegistration(cfg, model=model).register(src, tgt, T_init=T0)
+    assert res.polish.startswith("moved") and res.iterations["polish"] >= 1
+    np.testing.assert_allclose(res.T_target_source, plain.T_target_source, atol=1e-9)
+    assert res.inlier_ratio == plain.inlier_ratio and res.converged == plain.converged
+
+
+def test_too_few_points_fall_back(pair):
+    src, tgt, T = pair
+    res = polish(src.dense_points[:5], tgt.dense_points, T, _cfg())
+    assert not res.applied and re.match(r"only [0-5] points after the voxel grid", res.reason), res.reason
+    np.testing.assert_array_equal(res.T_target_source, T)
+
+
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("registration.polish", "ndt", "registration.polish must be 'none', 'gicp' or 'plane_icp'"),
+        ("registration.polish_voxel", -0.1, "registration.polish_voxel must be >= 0"),
+        ("registration.polish_max_corr_dist", 0.0, "registration.polish_max_corr_dist must be > 0"),
+        ("registration.polish_max_iters", 0, "registration.polish_max_iters must be >= 1"),
+        ("registration.polish_neighbors", 3, "registration.polish_neighbors must be >= 5"),
+        ("registration.polish_max_trans", 0.0, "registration.polish_max_trans must be > 0"),
+        ("registration.polish_max_rot_deg", -1.0, "registration.polish_max_rot_deg must be > 0"),
+        ("registration.polish_threads", 0, "registration.polish_threads must be >= 1"),
+    ],
+)
+def test_config_validation(key, value, match):
+    with pytest.raises(ConfigError, match=match):
+        Config().replace(**{key: value}).validate()
+
+
+def test_polish_is_off_by_default_and_in_the_shipped_param_file():
+    from pathlib import Path
+
+    assert Config().registration.polish == "none"
+    cfg = Config.from_yaml(Path(__file__).resolve().parents[1] / "config" / "deepbbs_ros.yaml")
+    assert cfg.registration.polish == Config().registration.polish
+    assert cfg.registration.polish_max_trans == Config().registration.polish_max_trans
