@@ -184,3 +184,28 @@ def test_polish_is_off_by_default_and_in_the_shipped_param_file():
     cfg = Config.from_yaml(Path(__file__).resolve().parents[1] / "config" / "deepbbs_ros.yaml")
     assert cfg.registration.polish == Config().registration.polish
     assert cfg.registration.polish_max_trans == Config().registration.polish_max_trans
+
+
+def test_replay_method_deepbbs_pp_gicp(pair):
+    """``deepbbs++gicp`` in replay: parsed, a ROS-legal topic name, prepare keeps the dense/ground points."""
+    from deepbbs_ros.replay.methods import build_methods, parse_methods, topic_name
+
+    assert parse_methods("deepbbs++,deepbbs++gicp,gicp", "pairs") == ["deepbbs++", "deepbbs++gicp", "gicp"]
+    assert topic_name("deepbbs++gicp") == "deepbbs_pp_gicp" and topic_name("deepbbs++") == "deepbbs_pp"
+    rng = np.random.default_rng(3)
+    T = pair[2]
+    tgt = np.concatenate(street(rng, 40000))
+    src = (np.concatenate(street(rng, 40000)) - T[:3, 3]) @ T[:3, :3]
+    torch.manual_seed(0)
+    cfg = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    methods = build_methods(["deepbbs++", "deepbbs++gicp"], cfg, model=DeepBBSNet(TINY).eval())
+    assert methods["deepbbs++gicp"].reg.model is methods["deepbbs++"].reg.model  # one network
+    m = methods["deepbbs++gicp"]
+    p_src, _ = m.prepare(src.astype(np.float32))
+    p_tgt, _ = m.prepare(tgt.astype(np.float32))
+    assert isinstance(p_src, PreprocessResult) and p_src.ground_points is not None and len(p_src.ground_points) > 100
+    T_est, info, ms = m.align(p_src, p_tgt, T @ _offset())
+    assert info["polish"] == "ok" and info["polish_ms"] > 0 and ms > 0
+    rot, trans = _err(T_est, T)
+    assert trans < 0.05 and rot < 0.15, (rot, trans)
+    assert isinstance(methods["deepbbs++"].prepare(src.astype(np.float32))[0], np.ndarray)

@@ -36,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--mode", choices=("pairs", "odometry"), default="pairs",
                    help="pairs: Apollo pair protocol; odometry: scan-to-scan chained trajectory")
     g.add_argument("--method", default="deepbbs++",
-                   help="comma list of deepbbs++, deepbbs, icp, plane-icp, gicp, kiss-icp (odometry only)")
+                   help="comma list of deepbbs++, deepbbs++gicp (+ GICP polish), deepbbs, icp, plane-icp, gicp, "
+                   "kiss-icp (odometry only)")
     g.add_argument("--stride", type=int, default=None,
                    help="pairs: a source frame every N frames (eval.stride); odometry: every N-th frame "
                    "(eval.odom_stride)")

@@ -16,13 +16,16 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError
 
-METHODS = ("deepbbs++", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp")
-PAIRWISE = ("deepbbs++", "deepbbs", "icp", "plane-icp", "gicp")
+METHODS = ("deepbbs++", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp")
+PAIRWISE = ("deepbbs++", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp")
+DEEPBBS_VARIANTS = ("deepbbs++", "deepbbs++gicp", "deepbbs")
 ODOMETRY_ONLY = ("kiss-icp",)
 
 #: how each method's input clouds are made (reported in metrics.json)
 INPUTS = {
     "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points)",
+    "deepbbs++gicp": "DeepBBS++ preprocessing, then a small_gicp GICP polish from the DeepBBS++ estimate on the "
+                     "dense non-ground + ground points (registration.polish = gicp)",
     "deepbbs": "DeepBBS++ preprocessing; deep iterations only (registration.refine = false)",
     "kiss-icp": "KISS-ICP's own pipeline on the raw scan (crop to preprocess ranges, voxel map, deskew)",
 }
@@ -42,35 +45,44 @@ def parse_methods(text: str, mode: str) -> list[str]:
 
 
 def topic_name(method: str) -> str:
-    """A ROS-legal name for a method: ``deepbbs++`` -> ``deepbbs_pp``, ``plane-icp`` -> ``plane_icp``."""
-    return method.replace("++", "_pp").replace("-", "_")
+    """A ROS-legal name for a method: ``deepbbs++`` -> ``deepbbs_pp``, ``deepbbs++gicp`` -> ``deepbbs_pp_gicp``,
+    ``plane-icp`` -> ``plane_icp``."""
+    return method.replace("++gicp", "_pp_gicp").replace("++", "_pp").replace("-", "_")
 
 
 class DeepBBSMethod:
-    """DeepBBS++ (``refine=True``) or DeepBBS (``refine=False``) via ``DeepBBSRegistration``."""
+    """DeepBBS++ (``refine=True``), DeepBBS++ + GICP polish (``deepbbs++gicp``, ``polish="gicp"``) or DeepBBS
+    (``refine=False``) via ``DeepBBSRegistration``."""
 
     def __init__(self, name: str, config: Config, *, weights: str | None = None, device: str | None = None,
                  model: Any = None, share_from: DeepBBSMethod | None = None) -> None:
         from deepbbs_ros.core.registration import DeepBBSRegistration
 
         self.name = name
-        cfg = config.replace(**{"registration.refine": name == "deepbbs++"})
+        self.polish = name == "deepbbs++gicp"
+        cfg = config.replace(**{"registration.refine": name != "deepbbs",
+                                "registration.polish": "gicp" if self.polish else "none"})
         if share_from is not None:  # one network in memory for both variants
             model = share_from.reg.model
             device = str(share_from.reg.device)
         self.reg = DeepBBSRegistration(cfg, weights=weights, device=device, model=model)
         self.input = INPUTS[name]
 
-    def prepare(self, points: np.ndarray) -> tuple[np.ndarray, float]:
+    def prepare(self, points: np.ndarray) -> tuple[Any, float]:
+        """-> (sampled points (N, 3) float32, or the whole PreprocessResult for the polish: it needs the
+        dense and ground points), ms."""
         t0 = time.perf_counter()
         res = self.reg.preprocess(points)
-        return res.points, (time.perf_counter() - t0) * 1e3
+        return res if self.polish else res.points, (time.perf_counter() - t0) * 1e3
 
     def align(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
         t0 = time.perf_counter()
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
         info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
+        if self.polish:
+            info["polish"] = res.polish
+            info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))
         return np.asarray(res.T_target_source, dtype=np.float64), info, ms
 
 
@@ -119,7 +131,7 @@ def build_methods(names: list[str], config: Config, *, weights: str | None = Non
     out: dict[str, Any] = {}
     deep: DeepBBSMethod | None = None
     for name in names:
-        if name in ("deepbbs++", "deepbbs"):
+        if name in DEEPBBS_VARIANTS:
             out[name] = DeepBBSMethod(name, config, weights=weights, device=device, model=model, share_from=deep)
             deep = deep or out[name]
         elif name in ("icp", "plane-icp", "gicp"):
