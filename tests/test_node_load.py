@@ -60,6 +60,7 @@ def _write_tiny(tmp: Path) -> Path:
         "model.k": 8, "model.dgcnn_widths": [16, 32], "model.emb_dims": 32, "model.n_heads": 2,
         "model.ff_dims": 64, "preprocess.num_points": 512, "registration.deep": False,
         "registration.device": "cpu", "node.queue_size": 5,
+        "node.slop": 0.01,  # both inputs carry identical stamps 50 ms apart: never pair neighbours
     })
     torch.manual_seed(0)
     weights = save_checkpoint(tmp / "tiny.pt", DeepBBSNet(cfg.model).eval(), cfg, {"note": "random, for tests"})
