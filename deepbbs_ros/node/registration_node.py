@@ -629,6 +629,12 @@ def main(argv: list[str] | None = None) -> int:
         pass
     except DeepBBSError:
         raise
+    except Exception:
+        # SIGINT/SIGTERM make rclpy's signal handler shut the context down; if that lands while the
+        # executor is building its wait set, rclpy raises RCLError ("context is not valid") instead
+        # of ExternalShutdownException. That is a clean shutdown, anything else is a real error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
