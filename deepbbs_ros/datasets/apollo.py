@@ -22,8 +22,11 @@ from deepbbs_ros.datasets.base import (
     Scan,
     ScanSource,
     T_to_xyzquat,
+    check_ground_truth,
+    missing_pose_error,
     parse_stamp,
     prepare_output,
+    scan_intensity,
     stamp_to_str,
     valid_mask,
     xyzquat_to_T,
@@ -104,9 +107,7 @@ class ApolloSource(ScanSource):
             T = None
             if self.has_ground_truth:
                 if index not in self.poses:
-                    if self.pose_error is not None:
-                        raise self.pose_error
-                    raise DatasetError(f"{self.pose_file}: frame {index} ({f.name}) has no ground-truth pose")
+                    raise missing_pose_error(self.pose_file, self.pose_error, index, f.name)
                 stamp_ns, T = self.poses[index]
             else:
                 stamp_ns = index * 100_000_000
@@ -143,15 +144,9 @@ def write_apollo(scans: Iterable[Scan], out: Path | str, *, encoding: str = "bin
     n = 0
     with_gt: bool | None = None
     for n, scan in enumerate(scans, start=1):
-        has = scan.T_world_lidar is not None
-        if with_gt is None:
-            with_gt = has
-        elif has != with_gt:
-            raise DatasetError(f"{out}: scan {scan.index} {'has' if has else 'lacks'} ground truth, unlike the first")
-        intensity = scan.fields.get("intensity")
-        intensity = np.zeros(len(scan), np.float32) if intensity is None else np.asarray(intensity, np.float32)
-        write_pcd(out / "pcds" / f"{n}.pcd", {"points": scan.points, "intensity": intensity.reshape(-1)}, encoding)
-        if has:
+        with_gt = check_ground_truth(out, scan, with_gt)
+        write_pcd(out / "pcds" / f"{n}.pcd", {"points": scan.points, "intensity": scan_intensity(scan)}, encoding)
+        if with_gt:
             v = T_to_xyzquat(scan.T_world_lidar)
             lines.append(f"{n} {stamp_to_str(scan.stamp_ns)} " + " ".join(repr(float(x)) for x in v))
     if with_gt:

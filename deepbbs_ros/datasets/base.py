@@ -217,6 +217,35 @@ def prepare_output(out: Path) -> None:
         raise DatasetError(f"{out} exists already, not overwriting")
 
 
+def missing_pose_error(pose_file: Path | None, pose_error: DatasetError | None, index: int, name: str) -> DatasetError:
+    """The error for frame ``index`` (file ``name``) that has no ground-truth pose in ``pose_file``.
+
+    The pose file's own fault when reading it stopped early (``pose_error``), else "has no ground-truth pose".
+    """
+    if pose_error is not None:
+        return pose_error
+    return DatasetError(f"{pose_file}: frame {index} ({name}) has no ground-truth pose")
+
+
+def check_ground_truth(out: Path, scan: Scan, with_gt: bool | None) -> bool:
+    """For writers: whether ``scan`` carries ground truth, which must match the scans before it.
+
+    ``with_gt`` is what the first scan decided (None before the first); DatasetError when ``scan``
+    differs from it.
+    """
+    has = scan.T_world_lidar is not None
+    if with_gt is not None and has != with_gt:
+        raise DatasetError(f"{out}: scan {scan.index} {'has' if has else 'lacks'} ground truth, unlike the first")
+    return has
+
+
+def scan_intensity(scan: Scan) -> np.ndarray:
+    """(N,) float32 intensity of ``scan``, zeros when it has none (for formats that always store one)."""
+    intensity = scan.fields.get("intensity")
+    intensity = np.zeros(len(scan), np.float32) if intensity is None else np.asarray(intensity, np.float32)
+    return intensity.reshape(-1)
+
+
 def valid_mask(points: np.ndarray) -> np.ndarray:
     """(N,) bool: rows of (N, 3) ``points`` whose coordinates are all finite."""
     return np.all(np.isfinite(points), axis=1)

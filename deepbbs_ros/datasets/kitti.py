@@ -29,8 +29,11 @@ from deepbbs_ros.datasets.base import (
     APOLLO_LIDAR_FRAME,
     Scan,
     ScanSource,
+    check_ground_truth,
+    missing_pose_error,
     parse_stamp,
     prepare_output,
+    scan_intensity,
     stamp_to_str,
     valid_mask,
 )
@@ -153,9 +156,7 @@ class KittiSource(ScanSource):
             T = None
             if self.has_ground_truth:
                 if index >= len(self.poses):
-                    if self.pose_error is not None:
-                        raise self.pose_error
-                    raise DatasetError(f"{self.pose_file}: frame {index} ({f.name}) has no ground-truth pose")
+                    raise missing_pose_error(self.pose_file, self.pose_error, index, f.name)
                 T = self.poses[index]
             if self.stamps_ns is not None:
                 if index >= len(self.stamps_ns):
@@ -199,18 +200,12 @@ def write_kitti(scans: Iterable[Scan], out: Path | str) -> int:
     with_gt: bool | None = None
     n = 0
     for n, scan in enumerate(scans, start=1):
-        has = scan.T_world_lidar is not None
-        if with_gt is None:
-            with_gt = has
-        elif has != with_gt:
-            raise DatasetError(f"{out}: scan {scan.index} {'has' if has else 'lacks'} ground truth, unlike the first")
-        intensity = scan.fields.get("intensity")
-        intensity = np.zeros(len(scan), np.float32) if intensity is None else np.asarray(intensity, np.float32)
-        rec = np.concatenate([scan.points, intensity.reshape(-1, 1)], axis=1).astype("<f4")
+        with_gt = check_ground_truth(out, scan, with_gt)
+        rec = np.concatenate([scan.points, scan_intensity(scan).reshape(-1, 1)], axis=1).astype("<f4")
         (out / "velodyne" / f"{n - 1:06d}.bin").write_bytes(rec.tobytes())
         t0 = scan.stamp_ns if t0 is None else t0
         times.append(stamp_to_str(scan.stamp_ns - t0))
-        if has:
+        if with_gt:
             P = Tr @ scan.T_world_lidar @ Tr_inv
             poses.append(" ".join(repr(float(v)) for v in P[:3, :].reshape(-1)))
     tr_line = " ".join(f"{v:.12e}" for v in Tr[:3, :].reshape(-1))
