@@ -24,6 +24,7 @@ from deepbbs_ros.datasets.base import (
     T_to_xyzquat,
     check_ground_truth,
     missing_pose_error,
+    numbered_files,
     parse_stamp,
     prepare_output,
     scan_intensity,
@@ -78,16 +79,7 @@ class ApolloSource(ScanSource):
 
     def __init__(self, path: Path | str, *, lenient: bool = False) -> None:
         super().__init__(path, lenient=lenient)
-        pcd_dir = self.path / "pcds"
-        if not pcd_dir.is_dir():
-            raise DatasetError(f"{self.path}: not an Apollo session folder (no pcds/ directory)")
-        files = []
-        for f in pcd_dir.glob("*.pcd"):
-            if f.stem.isdigit():
-                files.append((int(f.stem), f))
-        self.files = sorted(files)
-        if not self.files:
-            raise DatasetError(f"{pcd_dir}: no N.pcd files")
+        pcd_dir, self.files = numbered_files(self.path, "pcds", ".pcd", kind="an Apollo session folder", names="N.pcd")
         self.pose_file = self.path / POSE_FILE
         self.poses: dict[int, tuple[int, np.ndarray]] = {}
         self.pose_error: DatasetError | None = None

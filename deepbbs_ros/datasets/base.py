@@ -217,6 +217,21 @@ def prepare_output(out: Path) -> None:
         raise DatasetError(f"{out} exists already, not overwriting")
 
 
+def numbered_files(root: Path, sub: str, suffix: str, *, kind: str, names: str) -> tuple[Path, list[tuple[int, Path]]]:
+    """``(root / sub, [(number, file), ...])``: the files ``<digits><suffix>`` in ``root / sub``, sorted by number.
+
+    DatasetError when ``root / sub`` is not a directory (``root`` is then not ``kind``) or holds no such
+    file (``names`` says which are expected, e.g. ``"N.pcd"``).
+    """
+    folder = root / sub
+    if not folder.is_dir():
+        raise DatasetError(f"{root}: not {kind} (no {sub}/ directory)")
+    files = sorted((int(f.stem), f) for f in folder.glob(f"*{suffix}") if f.stem.isdigit())
+    if not files:
+        raise DatasetError(f"{folder}: no {names} files")
+    return folder, files
+
+
 def missing_pose_error(pose_file: Path | None, pose_error: DatasetError | None, index: int, name: str) -> DatasetError:
     """The error for frame ``index`` (file ``name``) that has no ground-truth pose in ``pose_file``.
 

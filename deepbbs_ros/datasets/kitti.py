@@ -31,6 +31,7 @@ from deepbbs_ros.datasets.base import (
     ScanSource,
     check_ground_truth,
     missing_pose_error,
+    numbered_files,
     parse_stamp,
     prepare_output,
     scan_intensity,
@@ -108,12 +109,9 @@ class KittiSource(ScanSource):
 
     def __init__(self, path: Path | str, *, lenient: bool = False) -> None:
         super().__init__(path, lenient=lenient)
-        vdir = self.path / "velodyne"
-        if not vdir.is_dir():
-            raise DatasetError(f"{self.path}: not a KITTI sequence folder (no velodyne/ directory)")
-        self.files = sorted((int(f.stem), f) for f in vdir.glob("*.bin") if f.stem.isdigit())
-        if not self.files:
-            raise DatasetError(f"{vdir}: no NNNNNN.bin files")
+        vdir, self.files = numbered_files(
+            self.path, "velodyne", ".bin", kind="a KITTI sequence folder", names="NNNNNN.bin"
+        )
         self.topic = str(vdir)
         self.pose_file: Path | None = None
         for cand in (self.path / "poses.txt", self.path.parent.parent / "poses" / f"{self.path.name}.txt"):
