@@ -22,3 +22,74 @@ def rng() -> np.random.Generator:
     """A seeded generator: every test that draws random data is deterministic."""
     random.seed(0)
     return np.random.default_rng(0)
+
+
+def _street_points(rng: np.random.Generator, n: int, z: float) -> np.ndarray:
+    """(n, 3) float32 random points (metres) on one fixed street scene, lifted by ``z``: two facades
+    with recesses, a cross wall, poles on a 7 m grid along both kerbs, a car. No ground."""
+    u = rng.uniform(size=(n, 3))
+    k = n // 6
+    parts = [
+        np.c_[-30 + 60 * u[:k, 0], np.full(k, 7.0) + 1.5 * (np.sin(u[:k, 0] * 9) > 0.6), 8 * u[:k, 1]],
+        np.c_[-30 + 60 * u[k : 2 * k, 0], np.full(k, -8.0) - 2.0 * (np.cos(u[k : 2 * k, 0] * 7) > 0.5),
+              6 * u[k : 2 * k, 1]],
+        np.c_[np.full(k, 25.0), -8 + 15 * u[2 * k : 3 * k, 0], 5 * u[2 * k : 3 * k, 1]],
+    ]  # fmt: skip
+    m = n - 4 * k  # poles on a 7 m grid along both kerbs
+    pole = rng.integers(0, 16, m)
+    ang = 2 * np.pi * u[3 * k : 3 * k + m, 0]
+    cx, cy = -26 + 7 * (pole % 8), np.where(pole < 8, 5.0, -6.0)
+    parts.append(np.c_[cx + 0.2 * np.cos(ang), cy + 0.2 * np.sin(ang), 4 * u[3 * k : 3 * k + m, 2]])
+    box = u[n - k :] * [4.5, 1.8, 1.5]
+    face = rng.integers(0, 3, k)
+    box[np.arange(k), face] = np.array([4.5, 1.8, 1.5])[face] * rng.integers(0, 2, k)
+    parts.append(box + [3.0, -4.0, 0.0])
+    return (np.concatenate(parts) + [0.0, 0.0, z]).astype(np.float32)
+
+
+def _road(rng: np.random.Generator, n: int, z: float) -> np.ndarray:
+    """(n, 3) float32 random points on the street's road plane at height ``z``."""
+    g = rng.uniform(size=(n, 2))
+    return (np.c_[-30 + 60 * g[:, 0], -8 + 15 * g[:, 1], np.zeros(n)] + [0.0, 0.0, z]).astype(np.float32)
+
+
+def _street(rng: np.random.Generator, n: int, *, road: bool = False) -> list[np.ndarray]:
+    """The street scene as ``[non_ground (n, 3)]`` float32, metres, no ground; with ``road=True``
+    seen from a sensor 1.9 m above the road: ``[non_ground (n, 3), ground (n // 2, 3)]``."""
+    if not road:
+        return [_street_points(rng, n, 0.0)]
+    return [_street_points(rng, n, -1.9), _road(rng, n // 2, -1.9)]
+
+
+def _street_pair(seed: int, n: int, euler_zyx_deg, trans, *, road: bool = False):
+    """Two independent noisy (0.01 m) samplings of the street; the source seen from ``T_target_source``.
+
+    ``T_target_source`` turns by ``euler_zyx_deg`` (degrees) and shifts by ``trans`` (metres). Returns
+    ``(src, tgt, T_target_source)`` with ``src``/``tgt`` (n, 3) float32 clouds; with ``road=True`` the
+    sensor sits 1.9 m above the road and each is ``[non_ground (n, 3), ground (n // 2, 3)]``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zyx", euler_zyx_deg, degrees=True).as_matrix()
+    T[:3, 3] = trans
+
+    def sample() -> list[np.ndarray]:
+        return [p + rng.normal(0, 0.01, p.shape).astype(np.float32) for p in _street(rng, n, road=road)]
+
+    tgt, scene = sample(), sample()
+    src = [((p - T[:3, 3]) @ T[:3, :3]).astype(np.float32) for p in scene]  # p_source = R^T (p_target - t)
+    return (src, tgt, T) if road else (src[0], tgt[0], T)
+
+
+@pytest.fixture(scope="session")
+def street_scene():
+    """The street scene builder ``street_scene(rng, n, road=False) -> [non_ground (, ground)]``."""
+    return _street
+
+
+@pytest.fixture(scope="session")
+def street_pair():
+    """The registration pair builder ``street_pair(seed, n, euler_zyx_deg, trans, road=False)``."""
+    return _street_pair

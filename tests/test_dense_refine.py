@@ -23,44 +23,17 @@ from deepbbs_ros.errors import ConfigError
 TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
 
 
-def street(rng: np.random.Generator, n: int) -> np.ndarray:
-    """n random points (metres) on one fixed street scene: two facades with recesses, poles, a car."""
-    u = rng.uniform(size=(n, 3))
-    k = n // 6
-    parts = [
-        np.c_[-30 + 60 * u[:k, 0], np.full(k, 7.0) + 1.5 * (np.sin(u[:k, 0] * 9) > 0.6), 8 * u[:k, 1]],
-        np.c_[-30 + 60 * u[k : 2 * k, 0], np.full(k, -8.0) - 2.0 * (np.cos(u[k : 2 * k, 0] * 7) > 0.5),
-              6 * u[k : 2 * k, 1]],
-        np.c_[np.full(k, 25.0), -8 + 15 * u[2 * k : 3 * k, 0], 5 * u[2 * k : 3 * k, 1]],
-    ]
-    m = n - 3 * k - k  # poles on a 7 m grid along both kerbs
-    pole = rng.integers(0, 16, m)
-    ang = 2 * np.pi * u[3 * k : 3 * k + m, 0]
-    cx, cy = -26 + 7 * (pole % 8), np.where(pole < 8, 5.0, -6.0)
-    parts.append(np.c_[cx + 0.2 * np.cos(ang), cy + 0.2 * np.sin(ang), 4 * u[3 * k : 3 * k + m, 2]])
-    box = u[n - k :] * [4.5, 1.8, 1.5]
-    face = rng.integers(0, 3, k)
-    box[np.arange(k), face] = np.array([4.5, 1.8, 1.5])[face] * rng.integers(0, 2, k)
-    parts.append(box + [3.0, -4.0, 0.0])
-    return np.concatenate(parts).astype(np.float32)
+def _prep(p: np.ndarray, seed: int) -> PreprocessResult:
+    """The pipeline's steps after ground removal: 1000 FPS points and the dense voxels."""
+    v = voxel_downsample(p, 0.3)
+    return PreprocessResult(v[farthest_point_sample(v, 1000, seed=1)], None, len(p), len(p), len(p),
+                            dense_points=dense_subsample(v, 3000, seed=seed))
 
 
-def _pair(seed: int):
+def _pair(street_pair, seed: int):
     """Two independent samplings of the street; the source seen from T_target_source (0.8 m, 1.5 deg)."""
-    rng = np.random.default_rng(seed)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("zyx", [1.5, 0.2, -0.2], degrees=True).as_matrix()
-    T[:3, 3] = [0.8, 0.3, 0.02]
-    tgt = street(rng, 60000) + rng.normal(0, 0.01, (60000, 3)).astype(np.float32)
-    scene = street(rng, 60000) + rng.normal(0, 0.01, (60000, 3)).astype(np.float32)
-    src = ((scene - T[:3, 3]) @ T[:3, :3]).astype(np.float32)
-
-    def prep(p: np.ndarray) -> PreprocessResult:  # the pipeline's steps after ground removal
-        v = voxel_downsample(p, 0.3)
-        return PreprocessResult(v[farthest_point_sample(v, 1000, seed=1)], None, len(p), len(p), len(p),
-                                dense_points=dense_subsample(v, 3000, seed=seed))
-
-    return prep(src), prep(tgt), T
+    src, tgt, T = street_pair(seed, 60000, [1.5, 0.2, -0.2], [0.8, 0.3, 0.02])
+    return _prep(src, seed), _prep(tgt, seed), T
 
 
 def _err(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
@@ -88,8 +61,8 @@ def _offset() -> np.ndarray:
     strict=False,
 )
 @pytest.mark.parametrize("seed", [3, 11])
-def test_dense_refinement_beats_the_sparse_one(seed):
-    src, tgt, T = _pair(seed)
+def test_dense_refinement_beats_the_sparse_one(street_pair, seed):
+    src, tgt, T = _pair(street_pair, seed)
     T0 = T @ _offset()
     sparse = _reg(**{"registration.dense_refine": False}).register(src, tgt, T_init=T0)
     dense = _reg(**{"registration.dense_refine": True}).register(src, tgt, T_init=T0)
@@ -102,22 +75,22 @@ def test_dense_refinement_beats_the_sparse_one(seed):
 
 
 @pytest.mark.parametrize("seed", [3, 11])
-def test_dense_refinement_runs_and_stays_close(seed):
-    src, tgt, T = _pair(seed)
+def test_dense_refinement_runs_and_stays_close(street_pair, seed):
+    src, tgt, T = _pair(street_pair, seed)
     res = _reg(**{"registration.dense_refine": True}).register(src, tgt, T_init=T @ _offset())
     assert res.iterations["dense"] >= 1 and res.gamma.shape == (1000,) and "dense" in res.timings_ms
     rot, trans = _err(res.T_target_source, T)
     assert trans < 0.06 and rot < 0.3, (rot, trans)  # from 0.5 m / 0.8 deg off
 
 
-def test_plain_arrays_skip_the_dense_stage():
-    src, tgt, T = _pair(3)
+def test_plain_arrays_skip_the_dense_stage(street_pair):
+    src, tgt, T = _pair(street_pair, 3)
     res = _reg().register(src.points, tgt.points, preprocessed=True, T_init=T @ _offset())
     assert res.iterations["dense"] == 0
 
 
-def test_coarse_to_fine_alpha_converges_at_the_paper_alpha():
-    src, tgt, T = _pair(5)
+def test_coarse_to_fine_alpha_converges_at_the_paper_alpha(street_pair):
+    src, tgt, T = _pair(street_pair, 5)
     s, t = torch.from_numpy(src.points) * 0.025, torch.from_numpy(tgt.points) * 0.025
     T0 = T @ _offset()
     R0 = torch.tensor(T0[:3, :3], dtype=torch.float32)
@@ -132,10 +105,10 @@ def test_coarse_to_fine_alpha_converges_at_the_paper_alpha():
         assert _err(Te, T)[1] < 0.3
 
 
-def test_preprocess_dense_points():
+def test_preprocess_dense_points(street_scene):
     rng = np.random.default_rng(0)
     ground = np.c_[rng.uniform(-30, 30, (40000, 2)), rng.normal(-1.8, 0.02, 40000)]
-    pts = np.concatenate([ground, street(rng, 30000) - [0, 0, 1.8]]).astype(np.float32)
+    pts = np.concatenate([ground, street_scene(rng, 30000)[0] - [0, 0, 1.8]]).astype(np.float32)
     cfg = PreprocessConfig(dense_max_points=2500)
     res = preprocess(pts, cfg)
     assert res.points.shape == (cfg.num_points, 3)

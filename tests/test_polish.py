@@ -19,31 +19,6 @@ from deepbbs_ros.errors import ConfigError
 TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
 
 
-def street(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(non-ground (n, 3), ground (n // 2, 3)) float32 random points on one fixed street scene, metres:
-    two facades with recesses, a cross wall, poles, a car, and the road plane z = -1.9 (sensor frame)."""
-    u = rng.uniform(size=(n, 3))
-    k = n // 6
-    parts = [
-        np.c_[-30 + 60 * u[:k, 0], np.full(k, 7.0) + 1.5 * (np.sin(u[:k, 0] * 9) > 0.6), 8 * u[:k, 1]],
-        np.c_[-30 + 60 * u[k : 2 * k, 0], np.full(k, -8.0) - 2.0 * (np.cos(u[k : 2 * k, 0] * 7) > 0.5),
-              6 * u[k : 2 * k, 1]],
-        np.c_[np.full(k, 25.0), -8 + 15 * u[2 * k : 3 * k, 0], 5 * u[2 * k : 3 * k, 1]],
-    ]  # fmt: skip
-    m = n - 4 * k  # poles on a 7 m grid along both kerbs
-    pole = rng.integers(0, 16, m)
-    ang = 2 * np.pi * u[3 * k : 3 * k + m, 0]
-    cx, cy = -26 + 7 * (pole % 8), np.where(pole < 8, 5.0, -6.0)
-    parts.append(np.c_[cx + 0.2 * np.cos(ang), cy + 0.2 * np.sin(ang), 4 * u[3 * k : 3 * k + m, 2]])
-    box = u[n - k :] * [4.5, 1.8, 1.5]
-    face = rng.integers(0, 3, k)
-    box[np.arange(k), face] = np.array([4.5, 1.8, 1.5])[face] * rng.integers(0, 2, k)
-    parts.append(box + [3.0, -4.0, 0.0])
-    g = rng.uniform(size=(n // 2, 2))
-    ground = np.c_[-30 + 60 * g[:, 0], -8 + 15 * g[:, 1], np.zeros(n // 2)]
-    return (np.concatenate(parts) - [0, 0, 1.9]).astype(np.float32), (ground - [0, 0, 1.9]).astype(np.float32)
-
-
 def _prep(non_ground: np.ndarray, ground: np.ndarray, seed: int) -> PreprocessResult:
     """The pipeline's outputs after ground removal: 1000 FPS points, dense voxels, ground subset."""
     v = voxel_downsample(non_ground, 0.3)
@@ -53,15 +28,9 @@ def _prep(non_ground: np.ndarray, ground: np.ndarray, seed: int) -> PreprocessRe
 
 
 @pytest.fixture(scope="module")
-def pair():
-    """Two independent noisy samplings of the street; the source seen from T_target_source."""
-    rng = np.random.default_rng(7)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("zyx", [4.0, 0.3, -0.2], degrees=True).as_matrix()
-    T[:3, 3] = [1.2, 0.3, 0.03]
-    tgt = [p + rng.normal(0, 0.01, p.shape).astype(np.float32) for p in street(rng, 40000)]
-    scene = [p + rng.normal(0, 0.01, p.shape).astype(np.float32) for p in street(rng, 40000)]
-    src = [((p - T[:3, 3]) @ T[:3, :3]).astype(np.float32) for p in scene]  # p_source = R^T (p_target - t)
+def pair(street_pair):
+    """Two independent noisy samplings of the street with its road; the source seen from T_target_source."""
+    src, tgt, T = street_pair(7, 40000, [4.0, 0.3, -0.2], [1.2, 0.3, 0.03], road=True)
     return _prep(*src, seed=1), _prep(*tgt, seed=2), T
 
 
@@ -86,6 +55,17 @@ def _clouds(res: PreprocessResult, ground: bool = True) -> np.ndarray:
     return polish_cloud(res.dense_points, res.ground_points, ground)
 
 
+def _unpolished(src: PreprocessResult, tgt: PreprocessResult, T0: np.ndarray):
+    """A tiny seeded random network (deep stage off, refinement from ``T0``), registered without the polish.
+
+    Returns ``(config, model, result)`` so the polished run can reuse the same config and weights.
+    """
+    torch.manual_seed(0)
+    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    model = DeepBBSNet(TINY).eval()
+    return base, model, DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
+
+
 @pytest.mark.parametrize("method", ["gicp", "plane_icp"])
 def test_polish_recovers_the_transform_from_a_deepbbs_like_estimate(pair, method):
     src, tgt, T = pair
@@ -103,11 +83,8 @@ def test_polish_recovers_the_transform_from_a_deepbbs_like_estimate(pair, method
 def test_register_runs_the_polish_stage(pair):
     """register() with a tiny random network (deep stage off, refinement from T_init) + the polish."""
     src, tgt, T = pair
-    torch.manual_seed(0)
-    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
-    model = DeepBBSNet(TINY).eval()
     T0 = T @ _offset()
-    plain = DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
+    base, model, plain = _unpolished(src, tgt, T0)
     pol = DeepBBSRegistration(base.replace(**{"registration.polish": "gicp"}), model=model)
     res = pol.register(src, tgt, T_init=T0)
     rot, trans = _err(res.T_target_source, T)
@@ -140,11 +117,8 @@ def test_polish_falls_back_to_the_deepbbs_estimate(pair, flat, reason):
 
 def test_register_keeps_the_estimate_when_the_polish_is_rejected(pair):
     src, tgt, T = pair
-    torch.manual_seed(0)
-    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
-    model = DeepBBSNet(TINY).eval()
     T0 = T @ _offset()
-    plain = DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
+    base, model, plain = _unpolished(src, tgt, T0)
     cfg = base.replace(**{"registration.polish": "gicp", "registration.polish_max_trans": 0.01})
     res = DeepBBSRegistration(cfg, model=model).register(src, tgt, T_init=T0)
     assert res.polish.startswith("moved") and res.iterations["polish"] >= 1
@@ -186,7 +160,7 @@ def test_polish_is_off_by_default_and_in_the_shipped_param_file():
     assert cfg.registration.polish_max_trans == Config().registration.polish_max_trans
 
 
-def test_replay_method_deepbbs_pp_gicp(pair):
+def test_replay_method_deepbbs_pp_gicp(pair, street_scene):
     """``deepbbs++gicp`` in replay: parsed, a ROS-legal topic name, prepare keeps the dense/ground points."""
     from deepbbs_ros.replay.methods import build_methods, parse_methods, topic_name
 
@@ -194,8 +168,8 @@ def test_replay_method_deepbbs_pp_gicp(pair):
     assert topic_name("deepbbs++gicp") == "deepbbs_pp_gicp" and topic_name("deepbbs++") == "deepbbs_pp"
     rng = np.random.default_rng(3)
     T = pair[2]
-    tgt = np.concatenate(street(rng, 40000))
-    src = (np.concatenate(street(rng, 40000)) - T[:3, 3]) @ T[:3, :3]
+    tgt = np.concatenate(street_scene(rng, 40000, road=True))
+    src = (np.concatenate(street_scene(rng, 40000, road=True)) - T[:3, 3]) @ T[:3, :3]
     torch.manual_seed(0)
     cfg = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
     methods = build_methods(["deepbbs++", "deepbbs++gicp"], cfg, model=DeepBBSNet(TINY).eval())
