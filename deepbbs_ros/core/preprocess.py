@@ -373,13 +373,9 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
     # 1. finite points inside the range crop
     pts = np.compress(crop_range(pts, cfg.min_range, cfg.max_range), pts, axis=0)
     n_valid = len(pts)
-    if n_valid < MIN_POINTS:
-        raise RegistrationError(
-            f"preprocess: only {n_valid} of {n_input} points are finite and within "
-            f"[{cfg.min_range}, {cfg.max_range}] m (need {MIN_POINTS})"
-        )
-    t1 = time.perf_counter()
-    timings["valid_crop"] = (t1 - t0) * 1e3
+    _need_points(n_valid, f"of {n_input} points are finite and within [{cfg.min_range}, {cfg.max_range}] m "
+                 f"(need {MIN_POINTS})")
+    t1 = _lap(timings, "valid_crop", t0)
 
     # 2. ground plane and layer removal
     plane = ground = None
@@ -391,20 +387,15 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         except RegistrationError:
             plane = None  # no ground near the sensor (e.g. a cropped or indoor cloud): keep every point
     n_nonground = len(pts)
-    if n_nonground < MIN_POINTS:
-        raise RegistrationError(
-            f"preprocess: only {n_nonground} of {n_valid} valid points are off the ground layer "
-            f"(ground_layer={cfg.ground_layer} m; need {MIN_POINTS})"
-        )
-    t2 = time.perf_counter()
-    timings["ground"] = (t2 - t1) * 1e3
+    _need_points(n_nonground, f"of {n_valid} valid points are off the ground layer "
+                 f"(ground_layer={cfg.ground_layer} m; need {MIN_POINTS})")
+    t2 = _lap(timings, "ground", t1)
 
     # 3. voxel grid; keep the raw points when voxelising would leave fewer than num_points
     vox = voxel_downsample(pts, cfg.voxel_size)
     if len(vox) < cfg.num_points <= len(pts):
         vox = pts
-    t3 = time.perf_counter()
-    timings["voxel"] = (t3 - t2) * 1e3
+    t3 = _lap(timings, "voxel", t2)
 
     # 4. farthest-point sampling to a fixed size
     cand = vox
@@ -415,11 +406,11 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         cand = np.take(cand, np.sort(sub), axis=0)
     idx = farthest_point_sample(cand, cfg.num_points, seed=seed)
     out = np.ascontiguousarray(np.take(cand, idx, axis=0), dtype=np.float32)
-    timings["fps"] = (time.perf_counter() - t3) * 1e3
+    _lap(timings, "fps", t3)
 
     # 5. the dense cloud of the final refinement: the voxel centroids, capped
     dense = np.ascontiguousarray(dense_subsample(vox, cfg.dense_max_points, seed=seed), dtype=np.float32)
-    timings["total"] = (time.perf_counter() - t_start) * 1e3
+    _lap(timings, "total", t_start)
 
     return PreprocessResult(
         points=out,
@@ -433,6 +424,19 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         ground_points=None if ground is None else np.ascontiguousarray(
             dense_subsample(ground, GROUND_KEEP, seed=seed), dtype=np.float32),
     )
+
+
+def _need_points(n: int, reason: str) -> None:
+    """RegistrationError ``preprocess: only {n} {reason}`` when fewer than MIN_POINTS points are left."""
+    if n < MIN_POINTS:
+        raise RegistrationError(f"preprocess: only {n} {reason}")
+
+
+def _lap(timings: dict[str, float], name: str, since: float) -> float:
+    """Record ``timings[name]`` = milliseconds since ``since`` (a perf_counter value); returns now."""
+    now = time.perf_counter()
+    timings[name] = (now - since) * 1e3
+    return now
 
 
 def _signed_dist(pts: np.ndarray, plane: np.ndarray) -> np.ndarray:
