@@ -409,13 +409,10 @@ def _split_ns(stamp_ns: int) -> tuple[int, int]:
     return sec, nanosec
 
 
-def _rclpy_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, is_dense):
-    from builtin_interfaces.msg import Time
-    from sensor_msgs.msg import PointCloud2, PointField
-    from std_msgs.msg import Header
-
+def _cloud_kwargs(Time, Header, PointField, pfields, height, width, point_step, stamp_ns, frame_id, is_dense) -> dict:
+    """Every PointCloud2 field but ``data``, built from either flavour's Time, Header and PointField types."""
     sec, nanosec = _split_ns(stamp_ns)
-    kwargs = dict(
+    return dict(
         header=Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=str(frame_id)),
         height=int(height),
         width=int(width),
@@ -425,6 +422,14 @@ def _rclpy_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, is
         row_step=int(point_step * width),
         is_dense=is_dense,
     )
+
+
+def _rclpy_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, is_dense):
+    from builtin_interfaces.msg import Time
+    from sensor_msgs.msg import PointCloud2, PointField
+    from std_msgs.msg import Header
+
+    kwargs = _cloud_kwargs(Time, Header, PointField, pfields, height, width, point_step, stamp_ns, frame_id, is_dense)
     try:
         # Jazzy: with field checks on, the data setter keeps an array.array('B') as is (off, it copies it)
         msg = PointCloud2(check_fields=True, **kwargs)
@@ -443,15 +448,7 @@ def _rosbags_cloud(raw, pfields, height, width, point_step, stamp_ns, frame_id, 
     Header = ts.types["std_msgs/msg/Header"]
     PointField = ts.types["sensor_msgs/msg/PointField"]
     PointCloud2 = ts.types["sensor_msgs/msg/PointCloud2"]
-    sec, nanosec = _split_ns(stamp_ns)
     return PointCloud2(
-        header=Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=str(frame_id)),
-        height=int(height),
-        width=int(width),
-        fields=[PointField(name=n, offset=o, datatype=d, count=c) for n, o, d, c in pfields],
-        is_bigendian=False,
-        point_step=int(point_step),
-        row_step=int(point_step * width),
+        **_cloud_kwargs(Time, Header, PointField, pfields, height, width, point_step, stamp_ns, frame_id, is_dense),
         data=np.frombuffer(memoryview(raw), dtype=np.uint8),  # the packed buffer itself, no extra copy
-        is_dense=is_dense,
     )
