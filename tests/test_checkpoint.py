@@ -66,34 +66,36 @@ def test_truncated_file(tmp_path):
         load_checkpoint(path)
 
 
-def test_not_a_deepbbs_checkpoint(tmp_path):
-    path = tmp_path / "other.pt"
-    torch.save({"weights": torch.zeros(3)}, path)
-    with pytest.raises(ModelError, match=r"other\.pt is not a deepbbs_ros checkpoint"):
+def _saved_payload(tmp_path) -> tuple:
+    """A tiny model saved to ``m.pt``: (path, the payload dict as torch.load reads it back)."""
+    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), _config())
+    return path, torch.load(path, weights_only=True)
+
+
+def _assert_load_fails(path, payload, match: str) -> None:
+    """Save ``payload`` over ``path``; load_checkpoint must raise ModelError matching ``match``."""
+    torch.save(payload, path)
+    with pytest.raises(ModelError, match=match):
         load_checkpoint(path)
+
+
+def test_not_a_deepbbs_checkpoint(tmp_path):
+    _assert_load_fails(tmp_path / "other.pt", {"weights": torch.zeros(3)}, r"other\.pt is not a deepbbs_ros checkpoint")
 
 
 def test_mismatched_weights(tmp_path):
-    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), _config())
-    payload = torch.load(path, weights_only=True)
+    path, payload = _saved_payload(tmp_path)
     payload["config"]["model"]["emb_dims"] = 32
-    torch.save(payload, path)
-    with pytest.raises(ModelError, match=r"m\.pt: weights do not match the model config: .*wrong shape"):
-        load_checkpoint(path)
+    _assert_load_fails(path, payload, r"m\.pt: weights do not match the model config: .*wrong shape")
     payload["config"]["model"]["emb_dims"] = 16
     del payload["state_dict"]["temp_head.0.weight"]
-    torch.save(payload, path)
-    with pytest.raises(ModelError, match=r"1 missing \(e\.g\. temp_head\.0\.weight\)"):
-        load_checkpoint(path)
+    _assert_load_fails(path, payload, r"1 missing \(e\.g\. temp_head\.0\.weight\)")
 
 
 def test_invalid_config_in_checkpoint(tmp_path):
-    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), _config())
-    payload = torch.load(path, weights_only=True)
+    path, payload = _saved_payload(tmp_path)
     payload["config"]["model"]["bogus"] = 1
-    torch.save(payload, path)
-    with pytest.raises(ModelError, match=r"invalid config in checkpoint: .*model\.bogus"):
-        load_checkpoint(path)
+    _assert_load_fails(path, payload, r"invalid config in checkpoint: .*model\.bogus")
 
 
 def test_default_weights_path():
