@@ -139,11 +139,8 @@ def fit_ground_plane(points: np.ndarray, cfg: PreprocessConfig, *, seed: int | N
         plane = _seeded_plane(near, tol, min_nz, cfg.ground_seed_radius)
     # Least-squares refinement on the points close to the robust estimate, tightening the band.
     for band in (tol, 0.5 * tol):
-        inl = np.compress(np.abs(_signed_dist(near, plane)) <= band, near, axis=0)
-        if len(inl) < MIN_POINTS:
-            break
-        cand = _lsq_plane(inl)
-        if cand[2] < min_nz:
+        cand = _refit_plane(near, plane, band, min_nz)
+        if cand is None:
             break
         plane = cand
     return plane
@@ -176,6 +173,18 @@ def _lsq_plane(pts: np.ndarray) -> np.ndarray:
     if normal[2] < 0:
         normal = -normal
     return np.concatenate([normal, [-normal @ centroid]])
+
+
+def _refit_plane(pts: np.ndarray, plane: np.ndarray, band: float, min_nz: float) -> np.ndarray | None:
+    """Least-squares plane of the points of ``pts`` within ``band`` of ``plane``.
+
+    None when fewer than MIN_POINTS are in the band or the fit tilts further than ``min_nz`` allows.
+    """
+    inl = np.compress(np.abs(_signed_dist(pts, plane)) <= band, pts, axis=0)
+    if len(inl) < MIN_POINTS:
+        return None
+    cand = _lsq_plane(inl)
+    return None if cand[2] < min_nz else cand
 
 
 def _ransac_plane(pts: np.ndarray, tol: float, min_nz: float, iters: int, rng: np.random.Generator) -> np.ndarray:
@@ -228,11 +237,8 @@ def _seeded_plane(pts: np.ndarray, tol: float, min_nz: float, radius: float) -> 
     for frac in (0.25, 0.5, 1.0):
         sel = np.compress(r2 <= (frac * radius) ** 2, pts, axis=0)
         for _ in range(2):
-            inl = np.compress(np.abs(_signed_dist(sel, plane)) <= 2.0 * tol, sel, axis=0)
-            if len(inl) < MIN_POINTS:
-                break
-            cand = _lsq_plane(inl)
-            if cand[2] < min_nz:
+            cand = _refit_plane(sel, plane, 2.0 * tol, min_nz)
+            if cand is None:
                 break
             plane = cand
     return plane
