@@ -291,12 +291,15 @@ def test_evaluate_reports_every_method_per_scene():
                       stride=10, yaw_deg=45.0, progress=False)
     assert report["protocol"]["seeds"] == [90000, 90000]
     for variant in ("plain", "yaw"):
-        for method in ("deepbbs++", "deepbbs", "refine-only", "gicp"):
+        for method in ("deepbbs++", "deepbbs", "refine-only", "gicp", "gicp-gt"):
             s = report["summary"][variant][method]
             assert s["suburban"]["pairs"] == s["all"]["pairs"] >= 1
             assert np.isfinite(s["all"]["rot_mean_deg"]) and 0 <= s["all"]["success"] <= 1
     # the plain pairs are < 5 m apart and GICP from identity registers them (sanity of the ground truth)
     assert report["summary"]["plain"]["gicp"]["all"]["success"] == 1.0
+    # GICP started at the ground truth stays there on a structured suburban pair (well-conditioned)
+    for variant in ("plain", "yaw"):
+        assert report["summary"][variant]["gicp-gt"]["all"]["trans_max_m"] < 0.15
     assert set(report["goals"]) == {"rot_mean_deg", "trans_mean_m", "success", "success_yaw"}
     from deepbbs_ros.train.evaluate import markdown_report
 

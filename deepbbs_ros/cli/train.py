@@ -132,8 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--frames", type=int, default=60, help="frames per drive")
     e.add_argument("--stride", type=int, default=10, help="a source frame every stride frames (pair protocol)")
     e.add_argument("--yaw-deg", type=float, default=45.0, help="extra random yaw of the second pass (0 = skip)")
-    e.add_argument("--methods", default="deepbbs++,deepbbs,refine-only,gicp",
-                   help="deepbbs++ (full), deepbbs (no refinement), refine-only (no network), gicp (small_gicp)")
+    e.add_argument("--methods", default="deepbbs++,deepbbs,refine-only,gicp,gicp-gt",
+                   help="deepbbs++ (full), deepbbs (no refinement), refine-only (no network), gicp (small_gicp "
+                   "from identity), gicp-gt (small_gicp from the ground truth: the pair's conditioning floor)")
     e.add_argument("--out", help="write all figures and per-pair errors to this JSON file")
     e.add_argument("--markdown", help="also write the summary tables as Markdown (for MODEL.md) to this file")
 
