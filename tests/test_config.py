@@ -71,3 +71,9 @@ def test_overrides_apply_last(tmp_path):
     assert cfg.preprocess.num_points == 256 and cfg.preprocess.voxel_size == 0.5
     with pytest.raises(ConfigError, match="unknown parameter"):
         load_config(None, {"preprocess.bogus": 1})
+
+
+def test_fast_preset_only_changes_the_speed_keys():
+    cfg = Config.from_yaml(ROOT / "config" / "deepbbs_ros_fast.yaml")
+    assert cfg.preprocess.num_points == 512 and cfg.registration.max_deep_iters == 2
+    assert cfg.replace(**{"preprocess.num_points": 1000, "registration.max_deep_iters": 5}) == Config()
