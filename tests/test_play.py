@@ -186,8 +186,8 @@ def test_bag_played_into_node_rotation_matches_ground_truth(e2e):
 @needs_weights
 @pytest.mark.xfail(
     strict=True,
-    reason="bootstrap weights (step 600): on the ~0.94 m steps of the sparse (1 deg azimuth) urban sample bag "
-    "only 4 of 9 steps are within 0.3 m (0.11-0.74 m, rotation <= 0.17 deg), offline exactly the same "
+    reason="shipped weights (step 1800): on the ~0.94 m steps of the sparse (1 deg azimuth, unlike any training "
+    "sensor) urban sample bag only 3 of 9 steps are within 0.3 m (0.10-0.74 m), offline exactly the same "
     "(test_node_equals_offline_registration): the model/core, not the node; GICP 0.01 m. "
     "Remove this mark when the shipped model passes.",
 )
