@@ -122,7 +122,7 @@ def e2e(ros):
     assert all(s.T_world_lidar is not None for s in scans)
     listener = rclpy.create_node("e2e_listener")
     poses: list[PoseStamped] = []
-    listener.create_subscription(PoseStamped, "/deepbbs_registration/pose", poses.append, 50)
+    sub = listener.create_subscription(PoseStamped, "/deepbbs_registration/pose", poses.append, 50)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     node = subprocess.Popen(
         [sys.executable, "-m", "deepbbs_ros.node.registration_node", "--ros-args", "-p", "node.mode:=odometry",
@@ -130,6 +130,11 @@ def e2e(ros):
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
     try:
+        # the first pose (the odometry origin) is published ~1 s after the first scan: make sure the
+        # listener has discovered the node's publisher before anything is played, else a slow discovery
+        # (busy CPU) loses it and the origin check below fails for the test's sake, not the node's
+        assert _spin_until(listener, lambda: sub.get_publisher_count() > 0, 60), "node's ~/pose never appeared"
+        _spin_until(listener, lambda: False, 0.5)  # let the node's side of the match settle too
         # 1 s per scan: the worker (~0.7 s per pair on one thread) mostly keeps up; drops are harmless
         play = subprocess.run(
             [sys.executable, "-m", "deepbbs_ros.cli.play", str(SAMPLE_BAG), "--cloud-topic", "/e2e/points",
