@@ -27,23 +27,14 @@ import numpy as np
 from deepbbs_ros.baselines import SmallGicpRegistration
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.registration import DeepBBSRegistration
-from deepbbs_ros.datasets.pcd import read_pcd
+from deepbbs_ros.datasets.pcd import read_pcd_points
 from deepbbs_ros.errors import DeepBBSError
 from deepbbs_ros.metrics import pair_errors
-
-
-def _yaw_shift(yaw: float, dx: float, dy: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:2, 3] = dx, dy
-    return T
+from deepbbs_ros.train.pairs import make_T, yaw_matrix
 
 
 def _xyz(path: Path) -> np.ndarray:
-    arrays = read_pcd(path)
-    pts = np.stack([arrays["x"], arrays["y"], arrays["z"]], axis=1).astype(np.float64)
-    return pts[np.isfinite(pts).all(axis=1)]
+    return read_pcd_points(path)[0].astype(np.float64)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         yaw = np.deg2rad(rng.uniform(-args.yaw_deg, args.yaw_deg))
         ang = rng.uniform(0, 2 * np.pi)
         r = args.shift * np.sqrt(rng.uniform())
-        P = _yaw_shift(yaw, r * np.cos(ang), r * np.sin(ang))
+        P = make_T(yaw_matrix(yaw), np.array([r * np.cos(ang), r * np.sin(ang), 0.0]))
         src_p = src @ P[:3, :3].T + P[:3, 3]
         t0 = time.perf_counter()
         T_d = reg.register(src_p, tgt).T_target_source @ P

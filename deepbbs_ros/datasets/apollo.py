@@ -29,10 +29,9 @@ from deepbbs_ros.datasets.base import (
     prepare_output,
     scan_intensity,
     stamp_to_str,
-    valid_mask,
     xyzquat_to_T,
 )
-from deepbbs_ros.datasets.pcd import read_pcd, write_pcd
+from deepbbs_ros.datasets.pcd import read_pcd_points, write_pcd
 from deepbbs_ros.errors import DatasetError
 
 POSE_FILE = Path("poses") / "gt_poses.txt"
@@ -103,13 +102,8 @@ class ApolloSource(ScanSource):
                 stamp_ns, T = self.poses[index]
             else:
                 stamp_ns = index * 100_000_000
-            arrays = read_pcd(f)
-            if not all(k in arrays for k in "xyz"):
-                raise DatasetError(f"{f}: PCD has no x y z fields (has {', '.join(arrays)})")
-            xyz = np.stack([arrays.pop("x"), arrays.pop("y"), arrays.pop("z")], axis=1).astype(np.float32)
-            keep = valid_mask(xyz)
-            fields = {k: v[keep] for k, v in arrays.items()}
-            yield Scan(index, stamp_ns, xyz[keep], fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
+            xyz, fields = read_pcd_points(f)
+            yield Scan(index, stamp_ns, xyz, fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
 
     def info(self) -> dict:
         d = super().info()

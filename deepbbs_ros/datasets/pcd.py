@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deepbbs_ros.datasets.base import valid_mask
 from deepbbs_ros.errors import DatasetError
 
 _TYPES = {
@@ -250,6 +251,21 @@ def read_pcd(path: Path | str) -> dict[str, np.ndarray]:
 
 
 # -------------------------------------------------------------------------------------------- write
+def read_pcd_points(path: Path | str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A PCD file as a point cloud: (xyz (N, 3) float32 metres, the other fields (N,)), rows with a
+    non-finite coordinate dropped.
+
+    Raises:
+        DatasetError: unreadable file, or no ``x y z`` fields.
+    """
+    arrays = read_pcd(path)
+    if not all(k in arrays for k in "xyz"):
+        raise DatasetError(f"{path}: PCD has no x y z fields (has {', '.join(arrays)})")
+    xyz = np.stack([arrays.pop("x"), arrays.pop("y"), arrays.pop("z")], axis=1).astype(np.float32)
+    keep = valid_mask(xyz)
+    return xyz[keep], {k: v[keep] for k, v in arrays.items()}
+
+
 def _pcd_type(dtype: np.dtype) -> tuple[str, int]:
     dtype = np.dtype(dtype)
     kind = {"f": "F", "i": "I", "u": "U", "b": "U"}.get(dtype.kind)
