@@ -28,6 +28,7 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError
+from deepbbs_ros.metrics import pair_errors
 from deepbbs_ros.train.cache import TEST_SEED_BASE
 from deepbbs_ros.train.pairs import inv_T, make_T, transform, yaw_matrix
 
@@ -64,7 +65,6 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
     from tqdm import tqdm
 
     from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.metrics import pair_errors
     from deepbbs_ros.sim import SCENES
     from deepbbs_ros.sim.simulator import DriveSimulator
     from deepbbs_ros.train.cache import Drive
@@ -125,6 +125,9 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
         for i, j in pairs:
             (raw_s, pre_s), (raw_t, pre_t) = frame(i), frame(j)
             T_gt0 = inv_T(sim.pose_at(j)) @ sim.pose_at(i)
+            pt = gicp.preprocess(raw_t) if gicp is not None else None  # the target is the same in every variant
+            pair = {"scene": scene, "seed": seed, "i": i, "j": j, "dist_m": float(np.linalg.norm(T_gt0[:3, 3]))}
+
             for variant, ydeg in variants:
                 A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
                 T_gt = T_gt0 @ inv_T(A)
@@ -133,22 +136,15 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
                     t0 = time.perf_counter()
                     res = reg.register(src, tgt, preprocessed=True)
                     ms = (time.perf_counter() - t0) * 1e3
-                    r, t = pair_errors(res.T_target_source, T_gt)
-                    records.append({"variant": variant, "method": name, "scene": scene, "seed": seed, "i": i, "j": j,
-                                    "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms,
-                                    "dist_m": float(np.linalg.norm(T_gt0[:3, 3]))})
+                    records.append(_record(pair, variant, name, res.T_target_source, T_gt, ms))
                 if gicp is not None:
-                    ps, pt = gicp.preprocess(transform(raw_s, A)), gicp.preprocess(raw_t)
+                    ps = gicp.preprocess(transform(raw_s, A))
                     for name, init in (("gicp", None), ("gicp-gt", T_gt)):
-                        if name not in methods:
-                            continue
-                        t0 = time.perf_counter()
-                        res = gicp.align(ps, pt, init)
-                        ms = (time.perf_counter() - t0) * 1e3 + ps.preprocess_ms + pt.preprocess_ms
-                        r, t = pair_errors(res.T_target_source, T_gt)
-                        records.append({"variant": variant, "method": name, "scene": scene, "seed": seed,
-                                        "i": i, "j": j, "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms,
-                                        "dist_m": float(np.linalg.norm(T_gt0[:3, 3]))})
+                        if name in methods:
+                            t0 = time.perf_counter()
+                            res = gicp.align(ps, pt, init)
+                            ms = (time.perf_counter() - t0) * 1e3 + ps.preprocess_ms + pt.preprocess_ms
+                            records.append(_record(pair, variant, name, res.T_target_source, T_gt, ms))
             bar.update(1)
     bar.close()
 
@@ -189,6 +185,13 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
         "goals": goals,
         "pairs": records,
     }
+
+
+def _record(pair: dict[str, Any], variant: str, method: str, T_est: np.ndarray, T_gt: np.ndarray,
+            ms: float) -> dict[str, Any]:
+    """One row of ``report["pairs"]``: the pair's identity, the method and its errors against T_gt."""
+    r, t = pair_errors(T_est, T_gt)
+    return {"variant": variant, "method": method, **pair, "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms}
 
 
 def _moved(prep: Any, A: np.ndarray) -> Any:
