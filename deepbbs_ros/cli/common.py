@@ -1,38 +1,14 @@
-"""Shared CLI plumbing: known errors become one line and exit code 1; DDS stays on loopback."""
+"""Shared CLI plumbing: known errors become one line and exit code 1 (:func:`cli_entry`, defined in
+:mod:`deepbbs_ros.entry` so that the node shares it without importing the CLI layer); DDS stays on
+loopback (:func:`local_ros_env`)."""
 
 from __future__ import annotations
 
-import functools
 import os
-import sys
-from collections.abc import Callable
 
-from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.entry import cli_entry
 
-
-def cli_entry(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
-    """Decorate ``main(argv=None) -> int``.
-
-    A :class:`DeepBBSError` prints ``<prog>: error: <message>`` on stderr and returns 1; Ctrl-C
-    returns 130 (the command itself is responsible for saving partial results before that).
-    Unknown exceptions keep their traceback: they are bugs.
-    """
-
-    def wrap(func: Callable[..., int]) -> Callable[..., int]:
-        @functools.wraps(func)
-        def inner(*args, **kwargs) -> int:
-            try:
-                return int(func(*args, **kwargs) or 0)
-            except DeepBBSError as err:
-                print(f"{prog}: error: {err}", file=sys.stderr)
-                return 1
-            except KeyboardInterrupt:
-                print(f"{prog}: interrupted", file=sys.stderr)
-                return 130
-
-        return inner
-
-    return wrap
+__all__ = ["cli_entry", "local_ros_env"]
 
 
 def local_ros_env(domain_id: int | None = None) -> None:
