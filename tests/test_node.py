@@ -48,6 +48,8 @@ TINY = {
     "model.ff_dims": 64,
     "preprocess.num_points": 512,
     "registration.deep": False,
+    "registration.refine": True,
+    "registration.polish": "none",
     "registration.device": "cpu",
 }
 

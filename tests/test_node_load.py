@@ -59,6 +59,7 @@ def _write_tiny(tmp: Path) -> Path:
     cfg = Config().replace(**{
         "model.k": 8, "model.dgcnn_widths": [16, 32], "model.emb_dims": 32, "model.n_heads": 2,
         "model.ff_dims": 64, "preprocess.num_points": 512, "registration.deep": False,
+        "registration.refine": True, "registration.polish": "none",
         "registration.device": "cpu", "node.queue_size": 5,
         "node.slop": 0.01,  # both inputs carry identical stamps 50 ms apart: never pair neighbours
     })

@@ -119,3 +119,16 @@ def twist_from_delta(T_prev_curr: np.ndarray, dt: float) -> np.ndarray:
     v = R.T @ t / dt
     w = Rotation.from_matrix(R).as_rotvec() / dt
     return np.concatenate([v, w])
+
+
+def twist_covariance(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) -> np.ndarray:
+    """(6, 6) covariance of :func:`twist_from_delta` from the covariance of ``T_prev_curr``.
+
+    ``cov_prev_curr`` is the registration covariance (left perturbation, previous frame, as
+    :func:`alignment_quality` gives it); the twist is expressed in the current frame, so the
+    perturbation is moved there, ``eps = Ad(T_prev_curr^-1) delta``, and divided by ``dt``:
+    ``Sigma_twist = Ad(T^-1) Sigma Ad(T^-1)^T / dt^2``.
+    """
+    Ad = adjoint(np.linalg.inv(T_prev_curr))
+    cov = Ad @ np.asarray(cov_prev_curr, dtype=np.float64) @ Ad.T / dt**2
+    return 0.5 * (cov + cov.T)

@@ -1,26 +1,28 @@
-"""One registration worker thread fed through a single "latest" slot.
+"""A worker thread fed through a small bounded queue: the node never builds a backlog.
 
-The executor thread hands each synchronised pair to :meth:`LatestSlotWorker.submit` and returns at
-once. The worker runs one job at a time; while it is busy, a newer job replaces the pending one and
-the replaced job is counted as dropped. The node therefore never builds a backlog: at most one job
-runs and one waits, whatever the input rate.
+The executor thread (or an input thread) hands each job to :meth:`LatestSlotWorker.submit` and returns
+at once. The worker runs one job at a time; at most ``capacity`` jobs wait behind it. When a job
+arrives and the queue is full, the oldest waiting job is dropped and counted. With ``capacity=1``
+(the registration worker) this is a "latest" slot: the newest pair wins, whatever the input rate.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 
 class LatestSlotWorker:
-    """Run ``handler(job)`` on a background thread, newest job wins.
+    """Run ``handler(job)`` on a background thread; newest jobs win when it falls behind.
 
     Args:
-        handler: called on the worker thread for every job that is not superseded. Exceptions are
+        handler: called on the worker thread for every job that is not dropped. Exceptions are
             passed to ``on_error(job, exc)`` and the worker keeps going.
-        on_error: see above; default re-raises nothing and ignores the error.
+        on_error: see above; default ignores the error.
         name: thread name (shows in ``py-spy`` / ``top -H``).
+        capacity: jobs that may wait while one runs (>= 1); beyond that the oldest waiting one is dropped.
     """
 
     def __init__(
@@ -28,12 +30,16 @@ class LatestSlotWorker:
         handler: Callable[[Any], None],
         on_error: Callable[[Any, BaseException], None] | None = None,
         name: str = "deepbbs-worker",
+        *,
+        capacity: int = 1,
     ) -> None:
+        if capacity < 1:
+            raise ValueError(f"worker capacity must be >= 1, got {capacity}")
         self._handler = handler
         self._on_error = on_error
         self._cond = threading.Condition()
-        self._pending: Any = None
-        self._has_pending = False
+        self._pending: deque[Any] = deque()
+        self.capacity = int(capacity)
         self._busy = False
         self._stop = False
         self.submitted = 0
@@ -43,13 +49,13 @@ class LatestSlotWorker:
         self._thread.start()
 
     def submit(self, job: Any) -> bool:
-        """Put ``job`` in the slot; returns True when it replaced a pending (now dropped) job."""
+        """Queue ``job``; returns True when the queue was full and its oldest job was dropped."""
         with self._cond:
-            replaced = self._has_pending
+            replaced = len(self._pending) >= self.capacity
             if replaced:
+                self._pending.popleft()
                 self.dropped += 1
-            self._pending = job
-            self._has_pending = True
+            self._pending.append(job)
             self.submitted += 1
             self._cond.notify()
             return replaced
@@ -58,20 +64,18 @@ class LatestSlotWorker:
     def busy(self) -> bool:
         """True while a job runs or waits."""
         with self._cond:
-            return self._busy or self._has_pending
+            return self._busy or bool(self._pending)
 
     def wait_idle(self, timeout: float | None = None) -> bool:
         """Block until no job runs or waits; returns False on timeout."""
         with self._cond:
-            return self._cond.wait_for(lambda: not (self._busy or self._has_pending), timeout)
+            return self._cond.wait_for(lambda: not (self._busy or self._pending), timeout)
 
     def stop(self, timeout: float | None = 5.0) -> None:
-        """Drop the pending job, let the running one finish, and join the thread."""
+        """Drop the waiting jobs, let the running one finish, and join the thread."""
         with self._cond:
             self._stop = True
-            if self._has_pending:
-                self._pending = None
-                self._has_pending = False
+            self._pending.clear()
             self._cond.notify_all()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
@@ -79,11 +83,11 @@ class LatestSlotWorker:
     def _run(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._has_pending or self._stop)
+                self._cond.wait_for(lambda: self._pending or self._stop)
                 if self._stop:
                     self._cond.notify_all()
                     return
-                job, self._pending, self._has_pending = self._pending, None, False
+                job = self._pending.popleft()
                 self._busy = True
             try:
                 self._handler(job)

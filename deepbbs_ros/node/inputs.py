@@ -1,0 +1,254 @@
+"""The node's inputs: every PointCloud2 is decoded, checked and preprocessed on arrival, on its input's
+own thread, while the registration worker handles the previous pair (no ROS import).
+
+::
+
+    executor thread            input thread (one per input topic)
+    callback(msg) ─submit──▶   decode → check (frame, stamp) → preprocess (content cache) ─▶ on_cloud(Cloud)
+                   bounded:    at most ``capacity`` messages wait per input; a new one drops the oldest
+                               waiting one (counted in ``CloudInput.dropped``, on /diagnostics)
+
+Bad input (malformed, empty, NaN-only, too few points, no or changed frame, stamp not increasing,
+preprocessing failure) becomes :class:`BadInput` with a kind; the input reports it through
+``on_bad(kind, message)`` and goes on with the next message.
+
+Preprocessing depends on the points only, so its results are cached by content (point count and two
+checksums of the xyz bytes): a cloud that arrives twice (on both pair inputs, or as the next pair's
+target) is preprocessed once, and a second thread asking for a cloud being preprocessed waits for it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import zlib
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.errors import PointCloudFormatError, RegistrationError
+from deepbbs_ros.node.worker import LatestSlotWorker
+
+PP_CACHE = 4  # preprocessed clouds kept by content: a target reused as the next source is free
+INPUT_QUEUE = 1  # messages waiting per input while one is preprocessed; more arrivals drop the oldest
+
+
+class BadInput(Exception):
+    """A message or pair the node rejects; ``kind`` names the error class in logs and /diagnostics."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+@dataclass
+class Cloud:
+    """A decoded, checked and preprocessed input cloud.
+
+    Attributes:
+        xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
+        stamp_ns: ``header.stamp`` in nanoseconds.
+        frame_id: ``header.frame_id`` (never empty).
+        t_recv: ``time.perf_counter()`` when the message reached the node's callback.
+        pp: what ``registration.preprocess(xyz)`` returned (a PreprocessResult for DeepBBS++).
+        t_ready: ``time.perf_counter()`` when preprocessing finished.
+        timings_ms: ``input_wait`` (callback -> input thread), ``decode``, ``preprocess`` (0 on a cache hit).
+    """
+
+    xyz: np.ndarray
+    stamp_ns: int
+    frame_id: str
+    t_recv: float
+    pp: Any = None
+    t_ready: float = 0.0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, int, str]:
+    """PointCloud2 (rclpy or rosbags) -> ((N, 3) float32 valid xyz, stamp ns, frame id).
+
+    The points are read through a structured dtype over the message buffer (no copy of the buffer,
+    :func:`msg_adapters.pointcloud2.pointcloud2_to_arrays`); only the valid xyz are copied out.
+
+    Raises:
+        BadInput: ``empty_cloud``, ``malformed_cloud``, ``no_valid_points``, ``too_few_points``
+            (fewer than ``min_points`` valid points) or ``missing_frame``, with ``topic`` in the message.
+    """
+    from msg_adapters.pointcloud2 import pointcloud2_to_arrays
+
+    if int(msg.width) * int(msg.height) == 0 and len(msg.data) == 0:
+        raise BadInput("empty_cloud", f"{topic}: empty PointCloud2 (width * height = 0, no data)")
+    try:
+        arr = pointcloud2_to_arrays(msg)
+    except PointCloudFormatError as err:
+        raise BadInput("malformed_cloud", f"{topic}: {err}") from err
+    n_decl = int(msg.width) * int(msg.height)
+    n = int(arr.xyz.shape[0])
+    if n_decl == 0:
+        raise BadInput("empty_cloud", f"{topic}: empty PointCloud2 (width * height = 0)")
+    if n == 0:
+        raise BadInput("no_valid_points", f"{topic}: none of the {n_decl} points is finite (NaN-only cloud)")
+    if n < min_points:
+        raise BadInput("too_few_points", f"{topic}: {n} valid points, fewer than node.min_points={min_points}")
+    if not arr.frame_id:
+        raise BadInput("missing_frame", f"{topic}: header.frame_id is empty")
+    return arr.xyz, int(arr.stamp_ns), arr.frame_id
+
+
+class PreprocessCache:
+    """``preprocess(xyz)`` results keyed by the points' content; thread-safe, at most ``size`` kept.
+
+    Args:
+        preprocess: ``(N, 3) float32 -> result``; may raise :class:`RegistrationError`.
+        size: results kept (least recently used evicted).
+    """
+
+    def __init__(self, preprocess: Callable[[np.ndarray], Any], size: int = PP_CACHE) -> None:
+        self._preprocess = preprocess
+        self.size = int(size)
+        self._lock = threading.Lock()
+        self._entries: OrderedDict[tuple[int, int, int], Future] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    @staticmethod
+    def key(xyz: np.ndarray) -> tuple[int, int, int]:
+        """(points, CRC-32, Adler-32) of the xyz bytes: the same points give the same result."""
+        buf = memoryview(np.ascontiguousarray(xyz)).cast("B")
+        return int(xyz.shape[0]), zlib.crc32(buf), zlib.adler32(buf)
+
+    def get(self, xyz: np.ndarray, label: str) -> tuple[Any, float]:
+        """(result, ms spent here) for ``xyz``; computed at most once per content while cached.
+
+        Raises:
+            BadInput: ``preprocess_failed`` (``label`` names the cloud) when preprocessing raised
+                RegistrationError.
+        """
+        key = self.key(xyz)
+        t0 = time.perf_counter()
+        with self._lock:
+            fut = self._entries.get(key)
+            owner = fut is None
+            if owner:
+                fut = Future()
+                self._entries[key] = fut
+                while len(self._entries) > self.size:
+                    self._entries.popitem(last=False)
+                self.misses += 1
+            else:
+                self._entries.move_to_end(key)
+                self.hits += 1
+        if owner:
+            try:
+                fut.set_result(self._preprocess(xyz))
+            except BaseException as exc:  # noqa: BLE001 - handed to every waiter, then re-raised below
+                fut.set_exception(exc)
+                with self._lock:
+                    if self._entries.get(key) is fut:
+                        del self._entries[key]
+        try:
+            result = fut.result()
+        except RegistrationError as err:
+            raise BadInput("preprocess_failed", f"{label}: {err}") from err
+        return result, (time.perf_counter() - t0) * 1e3 if owner else 0.0
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()
+
+
+class CloudInput:
+    """One input topic: a thread that turns each message into a :class:`Cloud` and hands it on.
+
+    Args:
+        topic: the resolved topic name (for messages).
+        cache: the preprocessing cache shared by the node's inputs.
+        min_points: clouds with fewer valid points are rejected (``node.min_points``).
+        on_cloud: called on the input thread with every good :class:`Cloud`.
+        on_bad: ``(kind, message)`` for every rejected message.
+        on_error: ``(job, exc)`` for unexpected exceptions (bugs); the thread keeps going.
+        increasing_stamps: reject a stamp not after the previous accepted one (odometry input).
+        capacity: messages that may wait while one is processed; the oldest is dropped beyond that.
+    """
+
+    def __init__(
+        self,
+        topic: str,
+        cache: PreprocessCache,
+        min_points: int,
+        on_cloud: Callable[[Cloud], None],
+        on_bad: Callable[[str, str], None],
+        on_error: Callable[[Any, BaseException], None] | None = None,
+        *,
+        increasing_stamps: bool = False,
+        capacity: int = INPUT_QUEUE,
+    ) -> None:
+        self.topic = topic
+        self._cache = cache
+        self._min_points = int(min_points)
+        self._on_cloud = on_cloud
+        self._on_bad = on_bad
+        self._increasing = increasing_stamps
+        self._lock = threading.Lock()
+        self._frame: str | None = None
+        self._last_stamp: int | None = None
+        name = "deepbbs-input-" + topic.strip("/").replace("/", "-")
+        self._worker = LatestSlotWorker(self._handle, on_error, name=name, capacity=capacity)
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped unprocessed because newer ones arrived (oldest first)."""
+        return self._worker.dropped
+
+    @property
+    def busy(self) -> bool:
+        return self._worker.busy
+
+    def submit(self, msg: Any, t_recv: float) -> None:
+        """Queue a message received at ``t_recv`` (``time.perf_counter()``); returns at once."""
+        self._worker.submit((msg, t_recv))
+
+    def reset(self) -> None:
+        """Forget the frame and the last stamp seen (``~/reset``)."""
+        with self._lock:
+            self._frame = None
+            self._last_stamp = None
+
+    def stop(self) -> None:
+        self._worker.stop()
+
+    def _check(self, frame: str, stamp_ns: int) -> None:
+        with self._lock:
+            known = self._frame if self._frame is not None else frame
+            if known != frame:
+                raise BadInput(
+                    "mismatched_frame",
+                    f"{self.topic}: frame_id {frame!r} differs from {known!r} seen before "
+                    "(call ~/reset after a deliberate change)",
+                )
+            if self._increasing and self._last_stamp is not None and stamp_ns <= self._last_stamp:
+                raise BadInput(
+                    "stamp_not_increasing",
+                    f"{self.topic}: stamp {stamp_ns} ns is not after the previous scan's {self._last_stamp} ns "
+                    "(call ~/reset after a time jump)",
+                )
+            self._frame, self._last_stamp = known, stamp_ns
+
+    def _handle(self, job: tuple[Any, float]) -> None:
+        msg, t_recv = job
+        t0 = time.perf_counter()
+        try:
+            xyz, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
+            self._check(frame, stamp_ns)
+            t1 = time.perf_counter()
+            pp, pp_ms = self._cache.get(xyz, f"{frame}@{stamp_ns}")
+        except BadInput as bad:
+            self._on_bad(bad.kind, str(bad))
+            return
+        t_ready = time.perf_counter()
+        timings = {"input_wait": (t0 - t_recv) * 1e3, "decode": (t1 - t0) * 1e3, "preprocess": pp_ms}
+        self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, pp, t_ready, timings))

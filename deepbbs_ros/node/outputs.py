@@ -1,0 +1,138 @@
+"""The node's outputs: publishers and the messages built from a registration (ROS layer).
+
+* ``~/pose`` (geometry_msgs/PoseStamped) and ``~/transform`` (geometry_msgs/TransformStamped), always;
+* ``~/odometry`` (nav_msgs/Odometry: pose, twist and both covariances) when ``node.publish_odometry``;
+* ``/tf`` (the same transform) when ``node.publish_tf``; needs tf2_msgs, or a ``tf_broadcaster``
+  callable given to the node;
+* ``~/aligned_cloud`` (the source moved into the target frame) when ``node.publish_aligned_cloud``;
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
+
+Frames and stamps follow CONVENTIONS.md: a message's stamp is the source cloud's, never the wall clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import PointCloud2
+
+from deepbbs_ros.config import NodeConfig
+from deepbbs_ros.errors import NodeError
+from deepbbs_ros.node.inputs import Cloud
+from deepbbs_ros.node.pipeline import OdometryStep, Registered, motion_twist, registration_covariance
+from msg_adapters.pointcloud2 import arrays_to_pointcloud2
+from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
+
+TfBroadcaster = Callable[[list[Any]], None]  # list of geometry_msgs/TransformStamped -> broadcast on /tf
+
+
+class Outputs:
+    """The publishers of one node (created on ``node``) and what they publish.
+
+    Args:
+        node: the rclpy node that owns the publishers.
+        ncfg: ``node`` section of the config.
+        cloud_qos: QoS of ``~/aligned_cloud`` (the inputs' QoS).
+        on_error: ``(kind, message)`` for rate-limited warnings (e.g. a same-frame TF refused).
+        tf_broadcaster: replaces the ``/tf`` publisher when ``node.publish_tf`` is set (tests, or a
+            tf2_ros broadcaster); default: a tf2_msgs/TFMessage publisher on ``/tf``.
+
+    Raises:
+        NodeError: ``node.publish_tf`` without tf2_msgs and without ``tf_broadcaster``.
+    """
+
+    def __init__(
+        self,
+        node: Any,
+        ncfg: NodeConfig,
+        cloud_qos: Any,
+        on_error: Callable[[str, str], None],
+        tf_broadcaster: TfBroadcaster | None = None,
+    ) -> None:
+        self.cfg = ncfg
+        self._on_error = on_error
+        self.published = 0
+        self.pose = node.create_publisher(PoseStamped, "~/pose", 10)
+        self.transform = node.create_publisher(TransformStamped, "~/transform", 10)
+        self.diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.odometry = node.create_publisher(Odometry, "~/odometry", 10) if ncfg.publish_odometry else None
+        self.aligned = None
+        if ncfg.publish_aligned_cloud:
+            self.aligned = node.create_publisher(PointCloud2, "~/aligned_cloud", cloud_qos)
+        self.tf: TfBroadcaster | None = None
+        if ncfg.publish_tf:
+            self.tf = tf_broadcaster or _tf_publisher(node)
+
+    # -- one registration ---------------------------------------------------------------------------
+    def _pose_and_transform(self, T: np.ndarray, stamp_ns: int, frame: str, child: str) -> None:
+        self.pose.publish(matrix_to_pose_stamped(T, stamp_ns, frame))
+        ts = matrix_to_transform_stamped(T, stamp_ns, frame, child)
+        self.transform.publish(ts)
+        if self.tf is not None:
+            if frame == child:
+                self._on_error("tf_same_frame", f"not broadcasting {frame} -> {child} on /tf: same frame")
+            else:
+                self.tf([ts])
+        self.published += 1
+
+    def pair(self, src: Cloud, tgt: Cloud, reg: Registered) -> None:
+        """Pair mode: ``T_target_source`` in the target frame, stamped with the source stamp; on
+        ``~/odometry`` with the registration covariance and the twist over the two stamps."""
+        self._pose_and_transform(reg.T, src.stamp_ns, tgt.frame_id, src.frame_id)
+        if self.odometry is not None:
+            cov = registration_covariance(src, tgt, reg)
+            twist, twist_cov = motion_twist(reg.T, cov, (src.stamp_ns - tgt.stamp_ns) * 1e-9)
+            child = self.cfg.base_frame or src.frame_id
+            self.odometry.publish(matrix_to_odometry(reg.T, src.stamp_ns, tgt.frame_id, child, twist, cov, twist_cov))
+        self._aligned(src, reg.T, tgt.frame_id)
+
+    def odometry_step(self, cloud: Cloud, step: OdometryStep) -> None:
+        """Odometry mode: ``T_odom_k`` in ``node.odom_frame`` -> ``node.base_frame`` (or the cloud frame)."""
+        odom, child = self.cfg.odom_frame, self.cfg.base_frame or cloud.frame_id
+        self._pose_and_transform(step.T_odom, cloud.stamp_ns, odom, child)
+        if self.odometry is not None:
+            self.odometry.publish(
+                matrix_to_odometry(step.T_odom, cloud.stamp_ns, odom, child, step.twist, step.pose_covariance,
+                                   step.twist_covariance)
+            )  # fmt: skip
+        if step.T_prev_curr is not None:
+            self._aligned(cloud, step.T_prev_curr, cloud.frame_id)  # into the previous scan's frame
+
+    def _aligned(self, src: Cloud, T: np.ndarray, frame: str) -> None:
+        if self.aligned is None:
+            return
+        xyz = (src.xyz.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+        self.aligned.publish(arrays_to_pointcloud2(xyz, stamp_ns=src.stamp_ns, frame_id=frame))
+
+    # -- diagnostics ---------------------------------------------------------------------------------
+    def publish_diagnostics(self, name: str, hardware_id: str, values: dict[str, Any], n_errors: int, stamp) -> None:
+        """One DiagnosticStatus (OK, or WARN once any error was counted) with ``values`` as key/values."""
+        level, message = DiagnosticStatus.OK, "running"
+        if n_errors:
+            level, message = DiagnosticStatus.WARN, f"{n_errors} bad inputs / errors so far"
+        status = DiagnosticStatus(
+            level=level,
+            name=name,
+            message=message,
+            hardware_id=hardware_id,
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        )
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = stamp
+        self.diagnostics.publish(arr)
+
+
+def _tf_publisher(node: Any) -> TfBroadcaster:
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError as err:
+        raise NodeError(
+            "node.publish_tf needs the tf2_msgs package (ROS: ros-jazzy-tf2-msgs), which is not installed"
+        ) from err
+    pub = node.create_publisher(TFMessage, "/tf", 100)
+    return lambda transforms: pub.publish(TFMessage(transforms=transforms))
