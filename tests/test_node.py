@@ -33,7 +33,7 @@ from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.errors import NodeError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
 from deepbbs_ros.node.registration_node import RegistrationNode  # noqa: E402
-from deepbbs_ros.node.synthetic import SyntheticTown, pose  # noqa: E402
+from deepbbs_ros.replay.synthetic import MOUNT_HEIGHT, pose, scan_at, structured_world  # noqa: E402
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2  # noqa: E402
 from msg_adapters.transforms import odometry_to_matrix, pose_stamped_to_matrix, transform_stamped_to_matrix  # noqa: E402
 
@@ -76,8 +76,18 @@ def ros():
 
 
 @pytest.fixture(scope="module")
-def town():
-    return SyntheticTown(seed=3)
+def world():
+    """The structured street (deepbbs_ros.replay.synthetic): road along x, façades, boxes, poles."""
+    return structured_world(3, length=120.0)
+
+
+def at(x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> np.ndarray:
+    """T_world_lidar of a sensor MOUNT_HEIGHT above the road at (x, y), heading ``yaw`` rad."""
+    return pose(x, y, MOUNT_HEIGHT, yaw)
+
+
+def scan(world: np.ndarray, T_world_lidar: np.ndarray, seed: int, n_points: int = N_POINTS) -> np.ndarray:
+    return scan_at(world, T_world_lidar, np.random.default_rng(seed), n_points=n_points)
 
 
 class Harness:
@@ -137,13 +147,13 @@ def _check_pose(T_est: np.ndarray, T_gt: np.ndarray, rot_deg: float = 1.0, trans
     assert r <= rot_deg and t <= trans_m, f"rot {r:.3f} deg, trans {t:.3f} m\n{T_est}\nvs\n{T_gt}"
 
 
-def test_pair_mode_publishes_T_target_source(ros, town):
+def test_pair_mode_publishes_T_target_source(ros, world):
     h = Harness(tiny_config(**{"node.publish_odometry": True}), "reg_pair")
     try:
-        T_w_tgt = pose(10.0, 2.0, 0.0, 0.1)
+        T_w_tgt = at(10.0, 2.0, 0.1)
         T_w_src = T_w_tgt @ pose(1.0, 0.2, 0.0, np.deg2rad(3.0))
-        tgt_xyz = town.scan(T_w_tgt, N_POINTS, seed=1)
-        src_xyz = town.scan(T_w_src, N_POINTS, seed=2)
+        tgt_xyz = scan(world, T_w_tgt, seed=1)
+        src_xyz = scan(world, T_w_src, seed=2)
         h.send("target_cloud", tgt_xyz, 5 * SEC + 20_000_000, "lidar_t")
         h.send("source_cloud", src_xyz, 5 * SEC, "lidar_s")
         assert h.wait_for(lambda: h.poses and h.transforms and h.odoms), h.node.stats()
@@ -182,12 +192,12 @@ def _raw(width: int, height: int, fields, point_step: int, data: bytes, frame: s
 XYZ = [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)]
 
 
-def test_bad_input_rejected_then_recovers(ros, town):
+def test_bad_input_rejected_then_recovers(ros, world):
     cfg = tiny_config(**{"node.error_log_period": 60.0})
     h = Harness(cfg, "reg_bad")
     try:
-        good_t = town.scan(pose(), N_POINTS, seed=4)
-        good_s = town.scan(pose(0.8, 0.0, 0.0, np.deg2rad(2.0)), N_POINTS, seed=5)
+        good_t = scan(world, at(), seed=4)
+        good_s = scan(world, at(0.8, 0.0, np.deg2rad(2.0)), seed=5)
         nan = np.full((500, 3), np.nan, dtype=np.float32)
         pts = np.ones((200, 3), np.float32)
         cases = [  # (kind, source message)
@@ -232,12 +242,12 @@ def test_bad_input_rejected_then_recovers(ros, town):
         h.close()
 
 
-def test_odometry_mode_accumulates_and_resets(ros, town):
+def test_odometry_mode_accumulates_and_resets(ros, world):
     h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom"}), "reg_odom")
     try:
-        T_w = [pose(0.9 * k, 0.05 * k, 0.0, np.deg2rad(1.5 * k)) for k in range(4)]
+        T_w = [at(0.9 * k, 0.05 * k, np.deg2rad(1.5 * k)) for k in range(4)]
         for k, T in enumerate(T_w):
-            h.send("cloud", town.scan(T, N_POINTS, seed=10 + k), (100 + k) * SEC // 10)
+            h.send("cloud", scan(world, T, seed=10 + k), (100 + k) * SEC // 10)
             h.wait_processed(k + 1)
         assert h.wait_for(lambda: len(h.poses) == 4)
         for k, msg in enumerate(h.poses):
@@ -248,7 +258,7 @@ def test_odometry_mode_accumulates_and_resets(ros, town):
         assert h.reset.wait_for_service(timeout_sec=5.0)
         fut = h.reset.call_async(Trigger.Request())
         assert h.wait_for(fut.done, 10.0) and fut.result().success
-        h.send("cloud", town.scan(T_w[3], N_POINTS, seed=20), 200 * SEC)
+        h.send("cloud", scan(world, T_w[3], seed=20), 200 * SEC)
         assert h.wait_for(lambda: len(h.poses) == 5)
         np.testing.assert_allclose(pose_stamped_to_matrix(h.poses[4])[0], np.eye(4), atol=1e-9)
     finally:

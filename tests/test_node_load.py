@@ -30,7 +30,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
-from deepbbs_ros.node.synthetic import SyntheticTown, pose  # noqa: E402
+from deepbbs_ros.replay.synthetic import MOUNT_HEIGHT, pose, scan_at, structured_world  # noqa: E402
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2  # noqa: E402
 from msg_adapters.transforms import ns_to_stamp, pose_stamped_to_matrix  # noqa: E402
 
@@ -71,13 +71,15 @@ def _write_tiny(tmp: Path) -> Path:
 
 
 def test_load_20hz_120k_for_60s(tmp_path):
-    town = SyntheticTown(seed=11)
+    world = structured_world(11, length=130.0, density=5.0)  # ~150k points within 60 m of each pose
     T_gt = [pose(0.3 + 0.15 * m, -0.2 + 0.1 * m, 0.0, np.deg2rad(-2.0 + 0.8 * m)) for m in range(N_PAIRS)]
     msgs = []
     for m in range(N_PAIRS):
-        T_w_tgt = pose(8.0 * m, 0.0, 0.0, 0.2 * m)
-        tgt = arrays_to_pointcloud2(town.scan(T_w_tgt, N_POINTS, seed=2 * m), frame_id="lidar")
-        src = arrays_to_pointcloud2(town.scan(T_w_tgt @ T_gt[m], N_POINTS, seed=2 * m + 1), frame_id="lidar")
+        T_w_tgt = pose(8.0 * m, 0.0, MOUNT_HEIGHT, 0.2 * m)
+        tgt_xyz = scan_at(world, T_w_tgt, np.random.default_rng(2 * m), n_points=N_POINTS)
+        src_xyz = scan_at(world, T_w_tgt @ T_gt[m], np.random.default_rng(2 * m + 1), n_points=N_POINTS)
+        tgt = arrays_to_pointcloud2(tgt_xyz, frame_id="lidar")
+        src = arrays_to_pointcloud2(src_xyz, frame_id="lidar")
         msgs.append((src, tgt))
     cfg_path = _write_tiny(tmp_path)
 

@@ -11,8 +11,8 @@ on the same pairs is measured for contrast (printed, not asserted: the issue exp
 about a third of such pairs). Run with ``-s`` to see the table.
 
 Measured with the bootstrap weights (step 600): 6 of 6 here, 20 of 20 offline on 20 such perturbations
-of urban seeds 5 and 21 (GICP 1 of 20). Not every scene is that easy: on the node's SyntheticTown (no
-occlusion, random boxes) 7 of 8 offline, one miss at -43.5 deg / 4.1 m (33 deg off), not asserted here.
+of urban seeds 5 and 21 (GICP 1 of 20). Not every scene is that easy: on the random-box "town" the node's
+tests used before (no occlusion) 7 of 8 offline, one miss at -43.5 deg / 4.1 m (33 deg off), not asserted here.
 Frames 0 and 1 of seed 5 are 2.5 cm apart (the car starts): the motion is almost all the perturbation.
 """
 
@@ -35,7 +35,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
-from deepbbs_ros.node.synthetic import pose  # noqa: E402
+from deepbbs_ros.replay.synthetic import pose  # noqa: E402
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2  # noqa: E402
 from msg_adapters.transforms import pose_stamped_to_matrix  # noqa: E402
 

@@ -22,7 +22,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from deepbbs_ros.datasets import Scan, write_scans  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
-from deepbbs_ros.node.synthetic import SyntheticTown, pose  # noqa: E402
+from deepbbs_ros.replay.synthetic import synthetic_drive  # noqa: E402
 from msg_adapters.pointcloud2 import pointcloud2_to_xyz  # noqa: E402
 from msg_adapters.transforms import pose_stamped_to_matrix, stamp_to_ns  # noqa: E402
 
@@ -30,14 +30,8 @@ SEC = 1_000_000_000
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _drive(n: int, n_points: int = 20_000) -> list[Scan]:
-    town = SyntheticTown(seed=7)
-    scans = []
-    for k in range(n):
-        T = pose(1.0 * k, 0.1 * k, 0.0, np.deg2rad(1.0 * k))
-        xyz = town.scan(T, n_points, seed=100 + k)
-        scans.append(Scan(k, 1_700_000_000 * SEC + k * SEC // 10, xyz, T_world_lidar=T))
-    return scans
+def _drive(n: int) -> list[Scan]:
+    return synthetic_drive(n, seed=7, keep=0.5)  # ~20k points per scan with intensity, 10 Hz, ground truth
 
 
 @pytest.fixture(scope="module")

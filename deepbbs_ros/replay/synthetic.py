@@ -1,9 +1,11 @@
-"""A tiny structured point world for tests and quick checks when no recording is at hand.
+"""The tiny structured point world for tests and benchmarks when no recording is at hand (the node's
+tests, the replay and baseline tests; the LiDAR simulator :mod:`deepbbs_ros.sim` is the realistic one).
 
-Not a LiDAR simulator (that is :mod:`deepbbs_ros.sim`): the world is a fixed random sample of surface
-points (ground, two façades with gaps, boxes, poles); each "scan" keeps the world points within range
-of the sensor, subsamples them (so two scans never share exactly the same points), adds range noise
-and expresses them in the sensor frame. Good enough to pin transform directions and recover known
+Not a LiDAR simulator: the world is a fixed random sample of surface points along a road on the x axis
+(ground at z = 0, façades with gaps and side walls, boxes, poles); each "scan" keeps the world points
+within range of the sensor, subsamples them (a random fraction, or a fixed count), adds noise and
+expresses them in the sensor frame. There is no occlusion, so two scans overlap exactly and any error
+of a registration is the registration's. Good enough to pin transform directions and recover known
 motions in milliseconds. No ROS import.
 """
 
@@ -12,6 +14,17 @@ from __future__ import annotations
 import numpy as np
 
 from deepbbs_ros.datasets.base import Scan
+
+MOUNT_HEIGHT = 1.9  # m; sensor height above the road in :func:`drive_poses` (put it in hand-made poses too)
+
+
+def pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0) -> np.ndarray:
+    """(4, 4) float64 ``T`` with rotation ``yaw`` (rad) about z and translation (x, y, z) m."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = (x, y, z)
+    return T
 
 
 def _plane(rng: np.random.Generator, n: int, origin, u, v, size_u: float, size_v: float) -> np.ndarray:
@@ -56,27 +69,30 @@ def structured_world(seed: int = 0, length: float = 260.0, density: float = 1.0)
 
 
 def drive_poses(frames: int, speed: float = 8.0, yaw_rate_deg: float = 1.0, rate_hz: float = 10.0,
-                mount_height: float = 1.9) -> np.ndarray:
+                mount_height: float = MOUNT_HEIGHT) -> np.ndarray:
     """(F, 4, 4) float64 ``T_world_lidar`` of a gently curving drive at ``speed`` m/s (starts at the origin)."""
     dt = 1.0 / rate_hz
     poses = np.tile(np.eye(4), (frames, 1, 1))
     x = y = yaw = 0.0
     for k in range(frames):
-        c, s = np.cos(yaw), np.sin(yaw)
-        poses[k, :3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-        poses[k, :3, 3] = [x, y, mount_height]
-        x += speed * dt * c
-        y += speed * dt * s
+        poses[k] = pose(x, y, mount_height, yaw)
+        x += speed * dt * np.cos(yaw)
+        y += speed * dt * np.sin(yaw)
         yaw += np.radians(yaw_rate_deg) * dt * (1.0 + np.sin(0.3 * k * dt))  # yaw rate in [0, 2 x] deg/s
     return poses
 
 
 def scan_at(world: np.ndarray, T_world_lidar: np.ndarray, rng: np.random.Generator, *,
-            max_range: float = 60.0, keep: float = 0.6, noise: float = 0.02) -> np.ndarray:
-    """Points of ``world`` within ``max_range`` of the sensor, a random ``keep`` fraction, in the sensor
-    frame with Gaussian noise: (N, 3) float32."""
+            max_range: float = 60.0, keep: float = 0.6, noise: float = 0.02,
+            n_points: int | None = None) -> np.ndarray:
+    """Points of ``world`` within ``max_range`` of the sensor at ``T_world_lidar``, a random ``keep``
+    fraction of them (or, with ``n_points``, a random subset of exactly that many, all of them when
+    fewer are in range), in the sensor frame with Gaussian noise ``noise`` m: (N, 3) float32."""
     p = world[np.linalg.norm(world[:, :2] - T_world_lidar[:2, 3], axis=1) < max_range]
-    p = p[rng.random(p.shape[0]) < keep]
+    if n_points is None:
+        p = p[rng.random(p.shape[0]) < keep]
+    elif p.shape[0] > n_points:
+        p = p[rng.choice(p.shape[0], n_points, replace=False)]
     R, t = T_world_lidar[:3, :3], T_world_lidar[:3, 3]
     local = (p - t) @ R  # R^T (p - t)
     local += rng.normal(0, noise, local.shape)
