@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.polish import prepare_polish_cloud
 from deepbbs_ros.errors import ConfigError, RegistrationError
 
 #: replay method name -> small_gicp ``registration_type``
@@ -67,13 +68,6 @@ def _threads(n: int) -> int:
     return n if n > 0 else max(1, os.cpu_count() or 1)
 
 
-def _crop(points: np.ndarray, min_range: float, max_range: float) -> np.ndarray:
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    r = np.linalg.norm(pts, axis=1)
-    return pts[(r >= min_range) & (r <= max_range)]
-
-
 class SmallGicpRegistration:
     """Point-to-point ICP, point-to-plane ICP or GICP from ``small_gicp``.
 
@@ -98,28 +92,23 @@ class SmallGicpRegistration:
         Raises:
             RegistrationError: fewer than 10 points survive.
         """
-        import small_gicp
-
         ev, pp = self.config.eval, self.config.preprocess
         t0 = time.perf_counter()
         if ev.baseline_input == "deepbbs":
             from deepbbs_ros.core.preprocess import preprocess
 
             pts = np.asarray(preprocess(points, pp, seed=pp.seed).points, dtype=np.float64)
-            cloud = small_gicp.PointCloud(pts)
-        else:
-            pts = _crop(points, pp.min_range, pp.max_range)
-            if pts.shape[0] < 10:
-                raise RegistrationError(f"{self.method}: only {pts.shape[0]} points within the crop range")
-            cloud = small_gicp.voxelgrid_sampling(pts, ev.baseline_voxel_size, num_threads=1)
-        n = int(cloud.size())
+            prep = prepare_polish_cloud(pts, 0.0, ev.baseline_neighbors, registration_type=self.registration_type,
+                                        threads=self.num_threads)
+        else:  # the same clouds as DeepBBS++'s GICP precision stage (core/polish.py)
+            prep = prepare_polish_cloud(points, ev.baseline_voxel_size, ev.baseline_neighbors,
+                                        registration_type=self.registration_type, min_range=pp.min_range,
+                                        max_range=pp.max_range, threads=self.num_threads)
+            if prep.n_cropped < 10:
+                raise RegistrationError(f"{self.method}: only {prep.n_cropped} points within the crop range")
+        cloud, tree, n = prep.cloud, prep.tree, prep.n_points
         if n < 10:
             raise RegistrationError(f"{self.method}: only {n} points left after preprocessing (need >= 10)")
-        tree = small_gicp.KdTree(cloud, num_threads=self.num_threads)
-        if self.registration_type != "ICP":  # point-to-point ICP needs neither normals nor covariances
-            small_gicp.estimate_normals_covariances(
-                cloud, tree, num_neighbors=ev.baseline_neighbors, num_threads=self.num_threads
-            )
         return PreparedCloud(cloud, tree, n, (time.perf_counter() - t0) * 1e3)
 
     # -- registration -------------------------------------------------------------------------------

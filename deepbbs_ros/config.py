@@ -44,7 +44,7 @@ class PreprocessConfig:
     ground_max_tilt_deg: float = 20.0  # the ground normal is within this angle of +z (slopes)
     ground_ransac_iters: int = 64  # plane hypotheses of the "ransac" method
     voxel_size: float = 0.3  # m; 0 disables voxel downsampling
-    num_points: int = 1000  # points kept by farthest-point sampling
+    num_points: int = 512  # points kept by farthest-point sampling (the network is size-agnostic; trained on 1000)
     fps_max_candidates: int = 8192  # FPS runs on a seeded random subset of this many voxels; 0 = all
     dense_max_points: int = 3000  # PreprocessResult.dense_points: random subset of the voxels; 0 = all
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
@@ -117,10 +117,10 @@ class RegistrationConfig:
 
     device: str = "auto"  # "auto" (CUDA when present), "cpu", "cuda", "cuda:N"
     weights: str = ""  # checkpoint path; "" = the model shipped with the package
-    max_deep_iters: int = 5
+    max_deep_iters: int = 2  # the precision stage needs only the basin: 2 passes (issue 10/11 study)
     deep_rot_tol_deg: float = 0.4  # stop deep iterations when the increment is below both
     deep_trans_tol: float = 0.05  # m
-    refine: bool = True  # DeepBBS++ refinement in 3D space
+    refine: bool = False  # DeepBBS++ SoftBBS refinement in 3D space (the paper's; off: the GICP precision stage wins)
     refine_max_iters: int = 46
     refine_k: int = 16  # nearest target points per source point in the sparse refinement
     refine_rot_tol_deg: float = 0.005
@@ -133,15 +133,14 @@ class RegistrationConfig:
     dense_refine_max_iters: int = 15
     dense_refine_xi: float = 0.4  # alpha = xi * median nearest-neighbour distance of the dense source
     dense_refine_temperature: float = 1.0  # m; T of gamma's spatial term exp(-D/T) in the dense stage
-    polish: str = "none"  # optional final local alignment (small_gicp) from the DeepBBS++ estimate: none|gicp|plane_icp
-    polish_voxel: float = 0.5  # m; voxel grid of the polish clouds (dense non-ground points [+ ground]); 0 = none
-    polish_ground: bool = True  # add PreprocessResult.ground_points to the polish clouds (pins z, roll, pitch)
-    polish_max_corr_dist: float = 1.0  # m; small_gicp max_correspondence_distance
-    polish_max_iters: int = 20
-    polish_neighbors: int = 20  # neighbours for covariances / normals
-    polish_max_trans: float = 2.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept)
-    polish_max_rot_deg: float = 5.0  # deg; idem for rotation
-    polish_threads: int = 1  # small_gicp threads
+    polish: str = "gicp"  # precision stage (small_gicp) from the DeepBBS++ estimate: gicp|plane_icp|none
+    polish_voxel: float = 0.5  # m; voxel grid of the precision clouds (whole cropped scan, ground kept); 0 = none
+    polish_max_corr_dist: float = 2.0  # m; small_gicp max_correspondence_distance (= eval.baseline_max_corr_dist)
+    polish_max_iters: int = 50  # (= eval.baseline_max_iters)
+    polish_neighbors: int = 20  # neighbours for covariances / normals (= eval.baseline_neighbors)
+    polish_max_trans: float = 0.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept); 0 = no limit
+    polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit (a limit cost 6-21 % success, study)
+    polish_threads: int = 0  # small_gicp threads; 0 = every core
     deep_iterations: bool = True  # ablation: False = one network pass only
     deep: bool = True  # ablation: False = refinement only (from identity)
     fixed_temperature: float = 0.0  # ablation: > 0 replaces the predicted T (scaled units)
@@ -179,9 +178,9 @@ class RegistrationConfig:
         _check(self.polish_max_corr_dist > 0, "registration.polish_max_corr_dist", "must be > 0")
         _check(self.polish_max_iters >= 1, "registration.polish_max_iters", "must be >= 1")
         _check(self.polish_neighbors >= 5, "registration.polish_neighbors", "must be >= 5")
-        _check(self.polish_max_trans > 0, "registration.polish_max_trans", "must be > 0")
-        _check(self.polish_max_rot_deg > 0, "registration.polish_max_rot_deg", "must be > 0")
-        _check(self.polish_threads >= 1, "registration.polish_threads", "must be >= 1")
+        _check(self.polish_max_trans >= 0, "registration.polish_max_trans", "must be >= 0 (0 = no limit)")
+        _check(self.polish_max_rot_deg >= 0, "registration.polish_max_rot_deg", "must be >= 0 (0 = no limit)")
+        _check(self.polish_threads >= 0, "registration.polish_threads", "must be >= 0 (0 = every core)")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
         _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = torch default)")

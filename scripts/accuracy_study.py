@@ -42,11 +42,8 @@ VARIANTS: dict[str, dict] = {
     "current": {},
     # a final refinement on the dense (voxelised non-ground) cloud, after the 1000-point one
     "dense": {"registration.dense_refine": True},
-    # the optional small_gicp polish (core/polish.py) after the shipped refinement, on dense + ground points
-    "polish": {"registration.polish": "gicp"},
-    # the same without the ground points / point-to-plane ICP instead of GICP
-    "polish_ng": {"registration.polish": "gicp", "registration.polish_ground": False},
-    "polish_plane": {"registration.polish": "plane_icp"},
+    # (the GICP precision stage needs the whole raw scan, which this study's frame cache does not keep:
+    # it is measured by scripts/pipeline_study.py)
 }
 
 
@@ -77,7 +74,7 @@ def build_frames(args, cfg) -> dict:
                 key = f"{seed}_{k}"
                 if key not in frames:
                     r = preprocess(sim.scan_at(k).points, pcfg)
-                    frames[key] = (r.points, r.dense_points, poses[k], r.ground_points)
+                    frames[key] = (r.points, r.dense_points, poses[k])
             frames["pairs"].append((scene, seed, i, j))
         print(f"drive {seed} {scene}: {len(frames['pairs'])} pairs so far", flush=True)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -146,18 +143,16 @@ def main(argv=None) -> int:
     recs = []
     t_start = time.perf_counter()
     for scene, seed, i, j in frames["pairs"]:
-        ps, ds, Ts, *gs = frames[f"{seed}_{i}"]  # caches before the polish have no ground points
-        pt, dt_, Tt, *gt = frames[f"{seed}_{j}"]
-        gs, gt = (gs or [None])[0], (gt or [None])[0]
+        ps, ds, Ts, *_ = frames[f"{seed}_{i}"]  # older caches carry a fourth item (ground points), unused
+        pt, dt_, Tt, *_ = frames[f"{seed}_{j}"]
         cap = cfg.preprocess.dense_max_points if args.dense_cap < 0 else args.dense_cap
         ds, dt_ = subsample(ds, cap, cfg.preprocess.seed), subsample(dt_, cap, cfg.preprocess.seed)
         T_gt0 = inv_T(Tt) @ Ts
         for variant, ydeg in variants:
             A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
             T_gt = T_gt0 @ inv_T(A)
-            src = PreprocessResult(transform(ps, A), None, 0, 0, 0, dense_points=transform(ds, A),
-                                   ground_points=None if gs is None else transform(gs, A))
-            tgt = PreprocessResult(pt, None, 0, 0, 0, dense_points=dt_, ground_points=gt)
+            src = PreprocessResult(transform(ps, A), None, 0, 0, 0, dense_points=transform(ds, A))
+            tgt = PreprocessResult(pt, None, 0, 0, 0, dense_points=dt_)
             t0 = time.perf_counter()
             res = deep.register(src, tgt, preprocessed=True)
             deep_ms = (time.perf_counter() - t0) * 1e3

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_defaults_validate():
     cfg = Config().validate()
-    assert cfg.preprocess.num_points == 1000
+    assert cfg.preprocess.num_points == 512 and cfg.registration.polish == "gicp" and not cfg.registration.refine
     assert cfg.model.xi == pytest.approx(0.4)
 
 
@@ -75,5 +75,5 @@ def test_overrides_apply_last(tmp_path):
 
 def test_fast_preset_only_changes_the_speed_keys():
     cfg = Config.from_yaml(ROOT / "config" / "deepbbs_ros_fast.yaml")
-    assert cfg.preprocess.num_points == 512 and cfg.registration.max_deep_iters == 2
-    assert cfg.replace(**{"preprocess.num_points": 1000, "registration.max_deep_iters": 5}) == Config()
+    assert cfg.preprocess.num_points == 256 and cfg.registration.max_deep_iters == 1
+    assert cfg.replace(**{"preprocess.num_points": 512, "registration.max_deep_iters": 2}) == Config()

@@ -44,6 +44,7 @@ def _err(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
 def _reg(**flat) -> DeepBBSRegistration:
     torch.manual_seed(0)
     cfg = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1,
+                              "registration.refine": True, "registration.polish": "none",
                               **flat})
     return DeepBBSRegistration(cfg, model=DeepBBSNet(TINY).eval())
 

@@ -1,4 +1,4 @@
-"""The optional small_gicp polish after DeepBBS++ (registration.polish, core/polish.py) and its config."""
+"""The GICP precision stage after DeepBBS++ (registration.polish, core/polish.py) and its config."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from deepbbs_ros.config import Config, ModelConfig
 from deepbbs_ros.core.model import DeepBBSNet
-from deepbbs_ros.core.polish import polish, polish_cloud
+from deepbbs_ros.core.polish import PolishCloud, polish, prepare_polish_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, dense_subsample, farthest_point_sample, voxel_downsample
 from deepbbs_ros.core.registration import DeepBBSRegistration
 from deepbbs_ros.errors import ConfigError
@@ -20,11 +20,12 @@ TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
 
 
 def _prep(non_ground: np.ndarray, ground: np.ndarray, seed: int) -> PreprocessResult:
-    """The pipeline's outputs after ground removal: 1000 FPS points, dense voxels, ground subset."""
+    """The pipeline's outputs: 1000 FPS points, dense voxels, and the whole scan (ground kept) prepared
+    for the precision stage."""
     v = voxel_downsample(non_ground, 0.3)
     return PreprocessResult(v[farthest_point_sample(v, 1000, seed=1)], None, 0, 0, 0,
                             dense_points=dense_subsample(v, 3000, seed=seed),
-                            ground_points=dense_subsample(ground, 1500, seed=seed))
+                            polish_cloud=prepare_polish_cloud(np.concatenate([non_ground, ground]), 0.5, 20))
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +52,8 @@ def _cfg(**flat):
     return Config().replace(**{"registration.polish": "gicp", **flat}).registration
 
 
-def _clouds(res: PreprocessResult, ground: bool = True) -> np.ndarray:
-    return polish_cloud(res.dense_points, res.ground_points, ground)
+def _clouds(res: PreprocessResult) -> PolishCloud:
+    return res.polish_cloud
 
 
 def _unpolished(src: PreprocessResult, tgt: PreprocessResult, T0: np.ndarray):
@@ -61,7 +62,8 @@ def _unpolished(src: PreprocessResult, tgt: PreprocessResult, T0: np.ndarray):
     Returns ``(config, model, result)`` so the polished run can reuse the same config and weights.
     """
     torch.manual_seed(0)
-    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    base = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1,
+                               "registration.refine": True, "registration.polish": "none"})
     model = DeepBBSNet(TINY).eval()
     return base, model, DeepBBSRegistration(base, model=model).register(src, tgt, T_init=T0)
 
@@ -93,7 +95,7 @@ def test_register_runs_the_polish_stage(pair):
     assert "polish" in res.timings_ms and "polish" not in plain.timings_ms and plain.polish == ""
     assert res.timings_ms["total"] == pytest.approx(sum(v for k, v in res.timings_ms.items() if k != "total"))
     assert res.inlier_ratio > 0.9
-    # plain arrays carry no dense points: the polish cannot run and is skipped
+    # plain arrays carry no dense scan: the polish cannot run and is skipped
     arr = pol.register(src.points, tgt.points, T_init=T0, preprocessed=True)
     assert arr.polish == "" and arr.iterations["polish"] == 0
 
@@ -128,7 +130,7 @@ def test_register_keeps_the_estimate_when_the_polish_is_rejected(pair):
 
 def test_too_few_points_fall_back(pair):
     src, tgt, T = pair
-    res = polish(src.dense_points[:5], tgt.dense_points, T, _cfg())
+    res = polish(src.dense_points[:5], tgt.polish_cloud, T, _cfg())
     assert not res.applied and re.match(r"only [0-5] points after the voxel grid", res.reason), res.reason
     np.testing.assert_array_equal(res.T_target_source, T)
 
@@ -141,9 +143,9 @@ def test_too_few_points_fall_back(pair):
         ("registration.polish_max_corr_dist", 0.0, "registration.polish_max_corr_dist must be > 0"),
         ("registration.polish_max_iters", 0, "registration.polish_max_iters must be >= 1"),
         ("registration.polish_neighbors", 3, "registration.polish_neighbors must be >= 5"),
-        ("registration.polish_max_trans", 0.0, "registration.polish_max_trans must be > 0"),
-        ("registration.polish_max_rot_deg", -1.0, "registration.polish_max_rot_deg must be > 0"),
-        ("registration.polish_threads", 0, "registration.polish_threads must be >= 1"),
+        ("registration.polish_max_trans", -1.0, "registration.polish_max_trans must be >= 0"),
+        ("registration.polish_max_rot_deg", -1.0, "registration.polish_max_rot_deg must be >= 0"),
+        ("registration.polish_threads", -1, "registration.polish_threads must be >= 0"),
     ],
 )
 def test_config_validation(key, value, match):
@@ -151,17 +153,17 @@ def test_config_validation(key, value, match):
         Config().replace(**{key: value}).validate()
 
 
-def test_polish_is_off_by_default_and_in_the_shipped_param_file():
+def test_precision_stage_is_on_by_default_and_in_the_shipped_param_file():
     from pathlib import Path
 
-    assert Config().registration.polish == "none"
+    assert Config().registration.polish == "gicp"
     cfg = Config.from_yaml(Path(__file__).resolve().parents[1] / "config" / "deepbbs_ros.yaml")
     assert cfg.registration.polish == Config().registration.polish
     assert cfg.registration.polish_max_trans == Config().registration.polish_max_trans
 
 
 def test_replay_method_deepbbs_pp_gicp(pair, street_scene):
-    """``deepbbs++gicp`` in replay: parsed, a ROS-legal topic name, prepare keeps the dense/ground points."""
+    """``deepbbs++gicp`` in replay: parsed, a ROS-legal topic name, prepare keeps the precision-stage cloud."""
     from deepbbs_ros.replay.methods import build_methods, parse_methods, topic_name
 
     assert parse_methods("deepbbs++,deepbbs++gicp,gicp", "pairs") == ["deepbbs++", "deepbbs++gicp", "gicp"]
@@ -171,15 +173,37 @@ def test_replay_method_deepbbs_pp_gicp(pair, street_scene):
     tgt = np.concatenate(street_scene(rng, 40000, road=True))
     src = (np.concatenate(street_scene(rng, 40000, road=True)) - T[:3, 3]) @ T[:3, :3]
     torch.manual_seed(0)
-    cfg = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1})
+    cfg = Config().replace(**{"registration.device": "cpu", "registration.deep": False, "registration.threads": 1,
+                              "registration.refine": True})
     methods = build_methods(["deepbbs++", "deepbbs++gicp"], cfg, model=DeepBBSNet(TINY).eval())
     assert methods["deepbbs++gicp"].reg.model is methods["deepbbs++"].reg.model  # one network
     m = methods["deepbbs++gicp"]
     p_src, _ = m.prepare(src.astype(np.float32))
     p_tgt, _ = m.prepare(tgt.astype(np.float32))
-    assert isinstance(p_src, PreprocessResult) and p_src.ground_points is not None and len(p_src.ground_points) > 100
+    assert isinstance(p_src, PreprocessResult) and p_src.polish_cloud is not None and p_src.polish_cloud.n_points > 100
     T_est, info, ms = m.align(p_src, p_tgt, T @ _offset())
     assert info["polish"] == "ok" and info["polish_ms"] > 0 and ms > 0
     rot, trans = _err(T_est, T)
     assert trans < 0.05 and rot < 0.15, (rot, trans)
-    assert isinstance(methods["deepbbs++"].prepare(src.astype(np.float32))[0], np.ndarray)
+    assert isinstance(methods["deepbbs++"].prepare(src.astype(np.float32))[0], PreprocessResult)
+
+
+def test_precision_stage_lands_on_gicps_fixed_point(pair, street_scene):
+    """Started inside the basin, the precision stage returns what the small_gicp GICP baseline returns
+    from the truth: the same clouds, the same settings, so the same optimum (issue 11)."""
+    from deepbbs_ros.baselines import SmallGicpRegistration
+
+    rng = np.random.default_rng(5)
+    T = pair[2]
+    tgt = np.concatenate(street_scene(rng, 40000, road=True)).astype(np.float32)
+    src = ((np.concatenate(street_scene(rng, 40000, road=True)) - T[:3, 3]) @ T[:3, :3]).astype(np.float32)
+    cfg = Config()
+    gicp = SmallGicpRegistration("gicp", cfg)
+    base = gicp.align(gicp.preprocess(src), gicp.preprocess(tgt), T).T_target_source
+    rc, pp = cfg.registration, cfg.preprocess
+    clouds = [prepare_polish_cloud(c, rc.polish_voxel, rc.polish_neighbors, min_range=pp.min_range,
+                                   max_range=pp.max_range) for c in (src, tgt)]
+    res = polish(clouds[0], clouds[1], T @ _offset(), rc)
+    assert res.applied
+    rot, trans = _err(res.T_target_source, base)
+    assert rot < 1e-3 and trans < 1e-3, (rot, trans)

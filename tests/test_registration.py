@@ -54,9 +54,13 @@ def errors(T_est, T_gt):
     return rot, np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3])
 
 
+#: the paper's pipeline (deep passes + SoftBBS refinement, no GICP precision stage): what these tests exercise
+PAPER = {"registration.refine": True, "registration.max_deep_iters": 5, "registration.polish": "none"}
+
+
 def tiny_registration(**flat) -> DeepBBSRegistration:
     torch.manual_seed(0)
-    cfg = Config().replace(**{"registration.device": "cpu", **flat})
+    cfg = Config().replace(**{"registration.device": "cpu", **PAPER, **flat})
     return DeepBBSRegistration(cfg, model=DeepBBSNet(TINY).eval())
 
 
@@ -193,7 +197,7 @@ def test_weights_from_checkpoint_and_register_pair(tmp_path, rng):
     torch.manual_seed(1)
     path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), Config())
     source, target, T_gt = make_pair(rng, n=300, same_sampling=True)
-    cfg = Config().replace(**{"registration.weights": str(path), "registration.device": "cpu"})
+    cfg = Config().replace(**{"registration.weights": str(path), "registration.device": "cpu", **PAPER})
     res = register_pair(source, target, cfg, preprocessed=True)
     assert errors(res.T_target_source, T_gt)[1] < 0.02
     reg = DeepBBSRegistration(cfg)

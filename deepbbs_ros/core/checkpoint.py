@@ -92,6 +92,25 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, config: Config, me
     return path
 
 
+def _current_keys(data: object) -> object:
+    """A checkpoint's config without the keys that later versions retired, outside the ``model`` section.
+
+    Only ``model`` describes the weights (strict: an unknown key there is an error); the other
+    sections record how the run was configured, and a renamed registration or node option must not
+    make older weights unloadable.
+    """
+    import dataclasses
+
+    if not isinstance(data, dict):
+        return data
+    known = {f.name: {g.name for g in dataclasses.fields(f.type if isinstance(f.type, type) else
+                                                          type(getattr(Config(), f.name)))}
+             for f in dataclasses.fields(Config)}
+    return {sec: ({k: v for k, v in vals.items() if k in known[sec]}
+                  if sec != "model" and sec in known and isinstance(vals, dict) else vals)
+            for sec, vals in data.items()}
+
+
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu"):
     """Read a checkpoint and build the model on ``device`` (eval mode).
 
@@ -116,7 +135,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu"):
     if payload.get("version") != VERSION:
         raise ModelError(f"{path}: unsupported checkpoint version {payload.get('version')!r} (expected {VERSION})")
     try:
-        config = Config.from_dict(payload.get("config"))
+        config = Config.from_dict(_current_keys(payload.get("config")))
     except ConfigError as err:
         raise ModelError(f"{path}: invalid config in checkpoint: {err}") from err
     model = DeepBBSNet(config.model)

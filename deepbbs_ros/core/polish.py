@@ -1,34 +1,120 @@
-"""Optional final "polish": a local fine alignment with small_gicp started from the DeepBBS++ estimate.
+"""The precision stage ("polish"): small_gicp GICP on the dense scans, started from the DeepBBS++ estimate.
 
-DeepBBS++ has a wide basin (robust to large initial yaw) and gets the rotation right, but its
-translation comes from ~1000 sampled points; GICP / point-to-plane ICP on the dense clouds is precise
-once it starts close to the truth. ``registration.polish`` ("none" | "gicp" | "plane_icp") runs this
-stage after the refinement (core/registration.py). No ROS import.
+DeepBBS++ finds the right basin from far (large yaw, metres of offset) with its sampled points; GICP on
+the dense scans is precise once it starts inside that basin. ``registration.polish`` ("gicp" by
+default, "plane_icp", or "none") runs this stage last in ``DeepBBSRegistration.register``
+(core/registration.py). No ROS import.
 
-Clouds: the voxelised non-ground points (``PreprocessResult.dense_points``) plus, with
-``registration.polish_ground``, the ground-layer points (``PreprocessResult.ground_points``), put on a
-``polish_voxel`` grid. Transforms follow CONVENTIONS.md: ``T_target_source`` (4, 4) float64,
-p_target = R p_source + t, the same direction as ``small_gicp.align(target, source, ..., init_T_target_source)``.
+Clouds: the **whole** cropped scan, ground included, on a ``polish_voxel`` grid, with covariances
+(GICP) or normals (point-to-plane ICP) from ``polish_neighbors`` neighbours: exactly the clouds and the
+settings of the small_gicp GICP baseline (``deepbbs_ros.baselines``, ``eval.baseline_*`` defaults), so
+that, started inside the basin, the stage lands on GICP's own fixed point. (The earlier polish used a
+random subset of 3000 non-ground voxels plus 1500 ground points and a 1 m correspondence distance:
+another cost function, whose optimum lay 1-3 cm off GICP's.) Each scan's cloud is prepared once
+(:func:`prepare_polish_cloud`, called by ``DeepBBSRegistration.preprocess``) and kept in its
+``PreprocessResult``, so in odometry and in the node every scan pays for it once.
 
-Safety: the polish is rejected (the DeepBBS++ estimate kept) when small_gicp reports non-convergence,
+Transforms follow CONVENTIONS.md: ``T_target_source`` (4, 4) float64, p_target = R p_source + t, the
+same direction as ``small_gicp.align(target, source, ..., init_T_target_source)``.
+
+Safety: the result is rejected (the DeepBBS++ estimate kept) when small_gicp reports non-convergence,
 when it moves the estimate by more than ``polish_max_trans`` metres or ``polish_max_rot_deg`` degrees,
 or when a cloud has too few points.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.config import RegistrationConfig
 
-__all__ = ["PolishResult", "polish", "SMALL_GICP_TYPE"]
+__all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "SMALL_GICP_TYPE", "threads_or_all"]
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
 MIN_POLISH_POINTS = 10  # fewer points per cloud (after the voxel grid): no polish
+
+
+def threads_or_all(n: int) -> int:
+    """``n`` threads, or every CPU core for ``n <= 0``."""
+    return n if n > 0 else max(1, os.cpu_count() or 1)
+
+
+@dataclass
+class PolishCloud:
+    """One scan ready for small_gicp: the voxelised ``small_gicp.PointCloud`` (with covariances and
+    normals, or neither for point-to-point ICP), its ``small_gicp.KdTree``; ``n_points`` after the voxel
+    grid; ``n_cropped`` the finite points inside the range crop before it; ``prepare_ms`` the time it
+    took. Sensor frame, metres."""
+
+    cloud: Any
+    tree: Any
+    n_points: int
+    prepare_ms: float = 0.0
+    n_cropped: int = 0
+
+    def points(self) -> np.ndarray:
+        """(n_points, 3) float64 voxel centroids."""
+        return np.asarray(self.cloud.points())[:, :3].copy()
+
+    def transformed(self, T: np.ndarray, neighbors: int, registration_type: str = "GICP",
+                    threads: int = 0) -> PolishCloud:
+        """This cloud moved by T (4, 4) (p' = R p + t), re-prepared (evaluation's extra yaw on a source)."""
+        pts = self.points() @ np.asarray(T)[:3, :3].T + np.asarray(T)[:3, 3]
+        return _prepared(pts, 0.0, neighbors, registration_type, threads)
+
+
+def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, registration_type: str = "GICP",
+                         min_range: float = 0.0, max_range: float = float("inf"), threads: int = 0) -> PolishCloud:
+    """Raw scan -> :class:`PolishCloud`: finite points within [min_range, max_range] m, a ``voxel`` m grid
+    (0 = none), a k-d tree, and covariances + normals from ``neighbors`` neighbours (``"GICP"``,
+    ``"PLANE_ICP"``) or nothing (``"ICP"``). Shared by the precision stage and the small_gicp baselines.
+
+    Args:
+        points: (N, 3) float xyz, sensor frame, metres; NaN/Inf rows allowed (dropped).
+        threads: small_gicp threads (0 = every core).
+    """
+    from deepbbs_ros.core.preprocess import crop_range
+
+    t0 = time.perf_counter()
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        pts = pts.reshape(-1, 3)
+    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
+    out = _prepared(pts, voxel, neighbors, registration_type, threads)
+    out.n_cropped = len(pts)
+    out.prepare_ms = (time.perf_counter() - t0) * 1e3
+    return out
+
+
+def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: str, threads: int) -> PolishCloud:
+    import small_gicp
+
+    th = threads_or_all(threads)
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    if voxel > 0 and len(pts):
+        cloud = small_gicp.voxelgrid_sampling(pts, voxel, num_threads=th)
+    else:
+        cloud = small_gicp.PointCloud(pts)
+    n = int(cloud.size())
+    tree = small_gicp.KdTree(cloud, num_threads=th) if n else None
+    if n >= MIN_POLISH_POINTS and registration_type != "ICP":
+        small_gicp.estimate_normals_covariances(cloud, tree, num_neighbors=neighbors, num_threads=th)
+    return PolishCloud(cloud, tree, n, n_cropped=len(pts))
+
+
+def _as_cloud(c: np.ndarray | PolishCloud, cfg: RegistrationConfig, reg_type: str) -> PolishCloud:
+    """A prepared cloud as is; raw (N, 3) points: finite rows, ``polish_voxel`` grid, covariances."""
+    if isinstance(c, PolishCloud):
+        return c
+    pts = np.asarray(c, dtype=np.float64).reshape(-1, 3)
+    return _prepared(pts[np.isfinite(pts).all(axis=1)], cfg.polish_voxel, cfg.polish_neighbors, reg_type,
+                     cfg.polish_threads)
 
 
 @dataclass
@@ -43,7 +129,7 @@ class PolishResult:
         iterations: small_gicp iterations (0 when it did not run).
         num_inliers: correspondences within ``polish_max_corr_dist`` at the end.
         delta_trans_m, delta_rot_deg: how far the polish moved the estimate (also when rejected).
-        timings_ms: {"prepare": voxel grid + trees + covariances, "align": small_gicp, "total"}.
+        timings_ms: {"prepare": voxel grid + trees + covariances (0 for prepared clouds), "align", "total"}.
     """
 
     T_target_source: np.ndarray
@@ -57,22 +143,14 @@ class PolishResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-def polish_cloud(dense: np.ndarray | None, ground: np.ndarray | None, use_ground: bool) -> np.ndarray | None:
-    """(K, 3) dense points [+ (G, 3) ground points] -> (K [+ G], 3) float64, or None without dense points."""
-    if dense is None:
-        return None
-    parts = [np.asarray(dense, dtype=np.float64).reshape(-1, 3)]
-    if use_ground and ground is not None and len(ground):
-        parts.append(np.asarray(ground, dtype=np.float64).reshape(-1, 3))
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
-
-
-def polish(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, cfg: RegistrationConfig) -> PolishResult:
+def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
+           cfg: RegistrationConfig) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
 
     Args:
-        source: (N, 3) float source points (sensor frame, metres), e.g. dense + ground points.
-        target: (M, 3) float target points, same conventions.
+        source: (N, 3) float source points (sensor frame, metres; prepared here with ``polish_voxel`` and
+            ``polish_neighbors``, no range crop) or a :class:`PolishCloud` prepared with the same type.
+        target: (M, 3) float target points or a :class:`PolishCloud`, same conventions.
         T_init: (4, 4) float64 initial ``T_target_source`` (the DeepBBS++ estimate).
         cfg: ``registration.polish*`` keys; ``cfg.polish`` must be "gicp" or "plane_icp".
 
@@ -84,33 +162,19 @@ def polish(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, cfg: Regi
     t0 = time.perf_counter()
     T_init = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
     reg_type = SMALL_GICP_TYPE[cfg.polish]
-    threads = cfg.polish_threads
-    clouds, trees = [], []
-    for pts in (source, target):
-        pts = np.ascontiguousarray(np.asarray(pts, dtype=np.float64).reshape(-1, 3))
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        if cfg.polish_voxel > 0 and len(pts):
-            cloud = small_gicp.voxelgrid_sampling(pts, cfg.polish_voxel, num_threads=threads)
-        else:
-            cloud = small_gicp.PointCloud(pts)
-        if cloud.size() < MIN_POLISH_POINTS:
-            ms = (time.perf_counter() - t0) * 1e3
-            return PolishResult(T_init.copy(), False, f"only {cloud.size()} points after the voxel grid",
-                                timings_ms={"prepare": ms, "align": 0.0, "total": ms})
-        tree = small_gicp.KdTree(cloud, num_threads=threads)
-        if reg_type == "GICP":
-            small_gicp.estimate_covariances(cloud, tree, num_neighbors=cfg.polish_neighbors, num_threads=threads)
-        else:
-            small_gicp.estimate_normals(cloud, tree, num_neighbors=cfg.polish_neighbors, num_threads=threads)
-        clouds.append(cloud)
-        trees.append(tree)
+    clouds = [_as_cloud(c, cfg, reg_type) for c in (source, target)]
     t1 = time.perf_counter()
+    for c in clouds:
+        if c.n_points < MIN_POLISH_POINTS:
+            ms = (t1 - t0) * 1e3
+            return PolishResult(T_init.copy(), False, f"only {c.n_points} points after the voxel grid",
+                                timings_ms={"prepare": ms, "align": 0.0, "total": ms})
     res = small_gicp.align(
-        clouds[1], clouds[0], trees[1],
+        clouds[1].cloud, clouds[0].cloud, clouds[1].tree,
         init_T_target_source=T_init,
         registration_type=reg_type,
         max_correspondence_distance=cfg.polish_max_corr_dist,
-        num_threads=threads,
+        num_threads=threads_or_all(cfg.polish_threads),
         max_iterations=cfg.polish_max_iters,
     )  # fmt: skip
     t2 = time.perf_counter()
@@ -122,9 +186,9 @@ def polish(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, cfg: Regi
         reason = f"not converged in {res.iterations} iterations"
     elif int(res.num_inliers) < MIN_POLISH_POINTS:
         reason = f"only {res.num_inliers} correspondences within {cfg.polish_max_corr_dist} m"
-    elif d_trans > cfg.polish_max_trans:
+    elif 0 < cfg.polish_max_trans < d_trans:
         reason = f"moved {d_trans:.2f} m > polish_max_trans {cfg.polish_max_trans} m"
-    elif d_rot > cfg.polish_max_rot_deg:
+    elif 0 < cfg.polish_max_rot_deg < d_rot:
         reason = f"turned {d_rot:.2f} deg > polish_max_rot_deg {cfg.polish_max_rot_deg} deg"
     else:
         reason = "ok"

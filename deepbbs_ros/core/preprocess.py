@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,6 @@ from deepbbs_ros.errors import RegistrationError
 MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
 _FIT_SAMPLES = 4096  # the ground plane is fitted on at most this many points near the sensor
 _FIT_TOL = 0.25  # m; widest inlier band of the ground-plane fit
-GROUND_KEEP = 1500  # PreprocessResult.ground_points: at most this many raw ground-layer points
 _MIN_SUPPORT = 0.10  # a RANSAC ground plane must hold this fraction of the points near the sensor
 
 
@@ -66,10 +66,9 @@ class PreprocessResult:
         dense_points: (K, 3) float32 voxelised non-ground points, sensor frame, metres: every voxel
             centroid, or a seeded random subset of ``cfg.dense_max_points`` of them (the input of the
             final dense refinement, ``registration.dense_refine``); None when built by hand without it.
-        ground_points: (G, 3) float32 points of the removed ground layer, sensor frame, metres: a seeded
-            random subset of at most ``GROUND_KEEP`` raw ground points (the ground pins z, roll and pitch
-            in the optional GICP polish, ``registration.polish_ground``); None when no ground was
-            removed or when built by hand.
+        polish_cloud: the whole cropped scan (ground kept) prepared for the GICP precision stage
+            (``core.polish.PolishCloud``: voxel grid, k-d tree, covariances), set by
+            ``DeepBBSRegistration.preprocess`` when ``registration.polish`` is on; None otherwise.
     """
 
     points: np.ndarray
@@ -80,7 +79,7 @@ class PreprocessResult:
     n_voxels: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
     dense_points: np.ndarray | None = None
-    ground_points: np.ndarray | None = None
+    polish_cloud: Any = None
 
 
 # -- step 1: validity and range ------------------------------------------------------------------
@@ -384,11 +383,10 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
     t1 = _lap(timings, "valid_crop", t0)
 
     # 2. ground plane and layer removal
-    plane = ground = None
+    plane = None
     if cfg.remove_ground:
         try:
             keep, plane = remove_ground(pts, cfg, seed=seed)
-            ground = np.compress(~keep, pts, axis=0)
             pts = np.compress(keep, pts, axis=0)
         except RegistrationError:
             plane = None  # no ground near the sensor (e.g. a cropped or indoor cloud): keep every point
@@ -427,8 +425,6 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         n_voxels=len(vox),
         timings_ms=timings,
         dense_points=dense,
-        ground_points=None if ground is None else np.ascontiguousarray(
-            dense_subsample(ground, GROUND_KEEP, seed=seed), dtype=np.float32),
     )
 
 

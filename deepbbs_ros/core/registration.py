@@ -9,7 +9,11 @@
     ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
-    polish      optional small_gicp GICP / point-to-plane ICP from the estimate (registration.polish, core/polish.py)
+    polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
+
+Defaults (issues 10/11, measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
+the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
+centimetres. The refinement, the dense refinement and more deep passes remain options.
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
@@ -31,7 +35,7 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
-from deepbbs_ros.core.polish import polish, polish_cloud
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
@@ -125,10 +129,11 @@ class DeepBBSRegistration:
                 raise ModelError(f"model file not found: {self.weights_path} (train one with deepbbs-train)")
             model, ckpt_config, self.metadata = load_checkpoint(self.weights_path, self.device)
             config.model = ckpt_config.model
-            if ckpt_config.preprocess.num_points != config.preprocess.num_points:
+            trained, used = ckpt_config.preprocess.num_points, config.preprocess.num_points
+            if not 0.5 * trained <= used <= 2 * trained:  # the network is size-agnostic, within reason
                 warnings.warn(
-                    f"{self.weights_path} was trained on {ckpt_config.preprocess.num_points} points per cloud, "
-                    f"preprocess.num_points is {config.preprocess.num_points}",
+                    f"{self.weights_path} was trained on {trained} points per cloud, "
+                    f"preprocess.num_points is {used} (more than 2x apart)",
                     RuntimeWarning,
                     stacklevel=2,
                 )
@@ -141,22 +146,31 @@ class DeepBBSRegistration:
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray) -> PreprocessResult:
-        """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``)."""
-        return preprocess(points, self.config.preprocess)
+        """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
+        precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on. Everything a scan
+        needs is here: a scan preprocessed once serves as source and as target (odometry, the node)."""
+        pp, rc = self.config.preprocess, self.config.registration
+        res = preprocess(points, pp)
+        if rc.polish != "none":
+            res.polish_cloud = prepare_polish_cloud(
+                points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
+                min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads)
+            res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
+            res.timings_ms["total"] += res.polish_cloud.prepare_ms
+        return res
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
-    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None, ground points (G, 3)
-        float32 or None) of one input."""
-        if isinstance(points, PreprocessResult):
-            dense = points.dense_points
-            return (self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"),
-                    points.ground_points)
-        if not preprocessed:
-            res = self.preprocess(points)
-            return res.points, res.dense_points, res.ground_points
-        return self._check(points, name), None, None
+    ) -> tuple[np.ndarray, np.ndarray | None, PolishCloud | None]:
+        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None, precision-stage cloud or
+        None) of one input."""
+        if not isinstance(points, PreprocessResult):
+            if preprocessed:
+                return self._check(points, name), None, None
+            points = self.preprocess(points)
+        dense = points.dense_points
+        return (self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"),
+                points.polish_cloud)
 
     @staticmethod
     def _check(points: np.ndarray, name: str) -> np.ndarray:
@@ -194,8 +208,8 @@ class DeepBBSRegistration:
         rc, scale = self.config.registration, self.model.scale
         clock = _Clock(self.device)
         # preprocess: crop, ground removal, voxel grid, FPS (raw scans only)
-        src_np, src_dense, src_ground = self._cloud(source, preprocessed, "source")
-        tgt_np, tgt_dense, tgt_ground = self._cloud(target, preprocessed, "target")
+        src_np, src_dense, src_pc = self._cloud(source, preprocessed, "source")
+        tgt_np, tgt_dense, tgt_pc = self._cloud(target, preprocessed, "target")
         clock.lap("preprocess")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
@@ -285,12 +299,10 @@ class DeepBBSRegistration:
         T_out[:3, :3] = R.double().cpu().numpy()
         T_out[:3, 3] = t.double().cpu().numpy() / scale
         T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
-        # polish: optional small_gicp local alignment on the dense (+ ground) clouds from the estimate
+        # polish: the precision stage, small_gicp GICP on the dense scans from the estimate
         polish_reason = ""
-        p_src = polish_cloud(src_dense, src_ground, rc.polish_ground)
-        p_tgt = polish_cloud(tgt_dense, tgt_ground, rc.polish_ground)
-        if rc.polish != "none" and p_src is not None and p_tgt is not None:
-            pol = polish(p_src, p_tgt, T_out, rc)
+        if rc.polish != "none" and src_pc is not None and tgt_pc is not None:
+            pol = polish(src_pc, tgt_pc, T_out, rc)
             iters["polish"], polish_reason = pol.iterations, pol.reason
             if pol.applied:
                 T_out = pol.T_target_source

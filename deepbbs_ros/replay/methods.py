@@ -23,10 +23,10 @@ ODOMETRY_ONLY = ("kiss-icp",)
 
 #: how each method's input clouds are made (reported in metrics.json)
 INPUTS = {
-    "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points)",
-    "deepbbs++gicp": "DeepBBS++ preprocessing, then a small_gicp GICP polish from the DeepBBS++ estimate on the "
-                     "dense non-ground + ground points (registration.polish = gicp)",
-    "deepbbs": "DeepBBS++ preprocessing; deep iterations only (registration.refine = false)",
+    "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points) and, "
+                 "with registration.polish on (default), the GICP precision stage on the whole voxelised scan",
+    "deepbbs++gicp": "DeepBBS++ with the GICP precision stage forced on (registration.polish = gicp; the default)",
+    "deepbbs": "DeepBBS++ preprocessing; deep iterations only (no refinement, no precision stage)",
     "kiss-icp": "KISS-ICP's own pipeline on the raw scan (crop to preprocess ranges, voxel map, deskew)",
 }
 
@@ -51,17 +51,21 @@ def topic_name(method: str) -> str:
 
 
 class DeepBBSMethod:
-    """DeepBBS++ (``refine=True``), DeepBBS++ + GICP polish (``deepbbs++gicp``, ``polish="gicp"``) or DeepBBS
-    (``refine=False``) via ``DeepBBSRegistration``."""
+    """DeepBBS++ as configured (``deepbbs++``), with the GICP precision stage forced on (``deepbbs++gicp``), or
+    the deep passes alone (``deepbbs``: no refinement, no precision stage) via ``DeepBBSRegistration``."""
 
     def __init__(self, name: str, config: Config, *, weights: str | None = None, device: str | None = None,
                  model: Any = None, share_from: DeepBBSMethod | None = None) -> None:
         from deepbbs_ros.core.registration import DeepBBSRegistration
 
         self.name = name
-        self.polish = name == "deepbbs++gicp"
-        cfg = config.replace(**{"registration.refine": name != "deepbbs",
-                                "registration.polish": "gicp" if self.polish else "none"})
+        if name == "deepbbs":
+            cfg = config.replace(**{"registration.refine": False, "registration.polish": "none"})
+        elif name == "deepbbs++gicp":
+            cfg = config.replace(**{"registration.polish": "gicp"})
+        else:
+            cfg = config
+        self.polish = cfg.registration.polish != "none"
         if share_from is not None:  # one network in memory for both variants
             model = share_from.reg.model
             device = str(share_from.reg.device)
@@ -69,11 +73,10 @@ class DeepBBSMethod:
         self.input = INPUTS[name]
 
     def prepare(self, points: np.ndarray) -> tuple[Any, float]:
-        """-> (sampled points (N, 3) float32, or the whole PreprocessResult for the polish: it needs the
-        dense and ground points), ms."""
+        """-> (the PreprocessResult: sampled points, dense points, precision-stage cloud), ms."""
         t0 = time.perf_counter()
         res = self.reg.preprocess(points)
-        return res if self.polish else res.points, (time.perf_counter() - t0) * 1e3
+        return res, (time.perf_counter() - t0) * 1e3
 
     def align(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
         t0 = time.perf_counter()

@@ -7,8 +7,9 @@ on) from the *test* seed range (90000 + i, never used for training or validation
 (``preprocess.num_points``). Every pair is registered twice: as it comes, and with an extra random
 yaw of up to ``yaw_deg`` applied to the source scan (the ground truth adjusted accordingly).
 
-Methods: ``deepbbs++`` (deep iterations + refinement: the shipped pipeline), ``deepbbs`` (no
-refinement), ``refine-only`` (the 3D SoftBBS refinement from identity, no network), ``gicp``
+Methods: ``deepbbs++`` (the shipped pipeline as configured: deep passes + GICP precision stage by
+default), ``deepbbs`` (deep passes only), ``refine-only`` (the 3D SoftBBS refinement from identity, no
+network), ``gicp``
 (small_gicp GICP from identity on the dense voxelised scan, the replay baseline, for contrast) and
 ``gicp-gt`` (the same GICP started at the ground truth: how far the dense clouds' own optimum lies
 from the truth, i.e. the floor of rigid registration on the pair; large where a scene is degenerate,
@@ -87,10 +88,12 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
     if "deepbbs++" in methods:
         regs["deepbbs++"] = full
     if "deepbbs" in methods:
-        regs["deepbbs"] = DeepBBSRegistration(cfg_used.replace(**{"registration.refine": False}), **shared)
+        regs["deepbbs"] = DeepBBSRegistration(
+            cfg_used.replace(**{"registration.refine": False, "registration.polish": "none"}), **shared)
     if "refine-only" in methods:
         regs["refine-only"] = DeepBBSRegistration(
-            cfg_used.replace(**{"registration.deep": False, "registration.refine": True}), **shared)
+            cfg_used.replace(**{"registration.deep": False, "registration.refine": True,
+                                "registration.polish": "none"}), **shared)
     gicp = None
     if "gicp" in methods or "gicp-gt" in methods:
         from deepbbs_ros.baselines import SmallGicpRegistration
@@ -131,7 +134,8 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
             for variant, ydeg in variants:
                 A = make_T(yaw_matrix(np.deg2rad(rng.uniform(-ydeg, ydeg))), np.zeros(3)) if ydeg else np.eye(4)
                 T_gt = T_gt0 @ inv_T(A)
-                src, tgt = _moved(pre_s, A), _moved(pre_t, np.eye(4))
+                nb = cfg_used.registration.polish_neighbors
+                src, tgt = _moved(pre_s, A, nb), _moved(pre_t, np.eye(4), nb)
                 for name, reg in regs.items():
                     t0 = time.perf_counter()
                     res = reg.register(src, tgt, preprocessed=True)
@@ -194,14 +198,18 @@ def _record(pair: dict[str, Any], variant: str, method: str, T_est: np.ndarray, 
     return {"variant": variant, "method": method, **pair, "rot_err_deg": float(r), "trans_err_m": float(t), "ms": ms}
 
 
-def _moved(prep: Any, A: np.ndarray) -> Any:
+def _moved(prep: Any, A: np.ndarray, neighbors: int = 20) -> Any:
     """A preprocessed scan moved by A: the ``PreprocessResult`` itself (with its dense points, for the
     dense refinement) when the registration accepts one, else its sampled points."""
     import dataclasses
 
     if getattr(prep, "dense_points", None) is None or not dataclasses.is_dataclass(prep):
         return transform(prep.points, A)
-    return dataclasses.replace(prep, points=transform(prep.points, A), dense_points=transform(prep.dense_points, A))
+    pc = getattr(prep, "polish_cloud", None)
+    if pc is not None and not np.array_equal(A, np.eye(4)):
+        pc = pc.transformed(A, neighbors)
+    return dataclasses.replace(prep, points=transform(prep.points, A), dense_points=transform(prep.dense_points, A),
+                               polish_cloud=pc)
 
 
 def _meta_brief(meta: Any) -> Any:
