@@ -56,7 +56,8 @@ class Cloud:
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
         pp: what ``registration.preprocess(xyz)`` returned (a PreprocessResult for DeepBBS++).
         t_ready: ``time.perf_counter()`` when preprocessing finished.
-        timings_ms: ``input_wait`` (callback -> input thread), ``decode``, ``preprocess`` (0 on a cache hit).
+        timings_ms: ``input_wait`` (callback -> input thread), ``decode``, ``preprocess`` (absent on a
+            cache hit).
     """
 
     xyz: np.ndarray
@@ -250,5 +251,7 @@ class CloudInput:
             self._on_bad(bad.kind, str(bad))
             return
         t_ready = time.perf_counter()
-        timings = {"input_wait": (t0 - t_recv) * 1e3, "decode": (t1 - t0) * 1e3, "preprocess": pp_ms}
+        timings = {"input_wait": (t0 - t_recv) * 1e3, "decode": (t1 - t0) * 1e3}
+        if pp_ms > 0:  # computed here, not a cache hit
+            timings["preprocess"] = pp_ms
         self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, pp, t_ready, timings))

@@ -1,0 +1,78 @@
+"""The GICP anchor node ``gicp_anchor``: the live node with small_gicp GICP in place of DeepBBS++.
+
+The same inputs, outputs, modes, threads and drop policy as ``deepbbs-node``
+(:class:`~deepbbs_ros.node.registration_node.RegistrationNode`); only the registration differs:
+:class:`deepbbs_ros.baselines.SmallGicpRegistration` ``("gicp", config)`` from identity, scan to scan
+(``eval.baseline_*`` keys: voxel grid, neighbours, correspondence distance, iterations, threads). It
+is the baseline that latency and accuracy figures of the node are reported against, measured on the
+same machine in the same minute (``scripts/bench_node_latency.py``).
+
+    python -m deepbbs_ros.node.gicp_anchor [--config YAML] --ros-args -p node.mode:=odometry -r cloud:=/points
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.entry import cli_entry
+from deepbbs_ros.node.registration_node import RegistrationNode, run_node
+
+ANCHOR_NAME = "gicp_anchor"
+
+
+@dataclass
+class PreparedGicpCloud:
+    """A cloud prepared for GICP (:class:`deepbbs_ros.baselines.PreparedCloud`) in the node's interface."""
+
+    prepared: Any
+
+    @property
+    def points(self) -> np.ndarray:
+        """(M, 3) float32 downsampled points, sensor frame (the residuals behind ``~/odometry``'s covariance)."""
+        return np.asarray(self.prepared.cloud.points(), dtype=np.float32)[:, :3]
+
+
+class GicpRegistration:
+    """small_gicp GICP with the node's registration interface: ``preprocess(xyz)``, ``register(src, tgt)``.
+
+    Args:
+        config: the package config (``preprocess`` crop ranges, ``eval.baseline_*``).
+    """
+
+    weights = "none (small_gicp GICP anchor)"
+    device = "cpu"
+
+    def __init__(self, config: Config) -> None:
+        from deepbbs_ros.baselines import SmallGicpRegistration
+
+        self.gicp = SmallGicpRegistration("gicp", config)
+
+    def preprocess(self, points: np.ndarray) -> PreparedGicpCloud:
+        """(N, 3) float32 raw scan -> voxel grid, k-d tree and covariances; RegistrationError when too few points."""
+        return PreparedGicpCloud(self.gicp.preprocess(points))
+
+    def register(self, source: PreparedGicpCloud, target: PreparedGicpCloud) -> Any:
+        """``T_target_source`` from identity (a :class:`deepbbs_ros.baselines.BaselineResult`)."""
+        return self.gicp.align(source.prepared, target.prepared)
+
+
+def make_anchor_node(config: Config, **node_kwargs: Any) -> RegistrationNode:
+    """The anchor node (``rclpy.init`` must have been called)."""
+    node_kwargs.setdefault("node_name", ANCHOR_NAME)
+    return RegistrationNode(config, registration=GicpRegistration(config), **node_kwargs)
+
+
+@cli_entry("deepbbs-gicp-node")
+def main(argv: list[str] | None = None) -> int:
+    """``python -m deepbbs_ros.node.gicp_anchor [--config YAML] [--ros-args ...]``: run until Ctrl-C."""
+    return run_node(argv, "deepbbs-gicp-node", "small_gicp GICP anchor node (the topics of deepbbs-node).",
+                    make_anchor_node)  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())
