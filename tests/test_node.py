@@ -23,6 +23,7 @@ apply_default_profile()  # before the first DDS participant of this process
 
 rclpy = pytest.importorskip("rclpy")
 
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped, TransformStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
@@ -32,10 +33,17 @@ from std_srvs.srv import Trigger  # noqa: E402
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.errors import NodeError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
+from deepbbs_ros.node.covariance import twist_from_delta  # noqa: E402
 from deepbbs_ros.node.registration_node import RegistrationNode  # noqa: E402
 from deepbbs_ros.replay.synthetic import MOUNT_HEIGHT, pose, scan_at, structured_world  # noqa: E402
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2  # noqa: E402
-from msg_adapters.transforms import odometry_to_matrix, pose_stamped_to_matrix, transform_stamped_to_matrix  # noqa: E402
+from msg_adapters.transforms import (  # noqa: E402
+    odometry_covariances,
+    odometry_to_matrix,
+    odometry_twist,
+    pose_stamped_to_matrix,
+    transform_stamped_to_matrix,
+)
 
 SEC = 1_000_000_000
 N_POINTS = 30_000  # enough structure for the refinement; keeps the tests fast on 2 cores
@@ -93,16 +101,19 @@ def scan(world: np.ndarray, T_world_lidar: np.ndarray, seed: int, n_points: int 
 class Harness:
     """The node plus a client node (publishers of the inputs, subscribers of the outputs)."""
 
-    def __init__(self, cfg: Config, name: str) -> None:
-        self.node = RegistrationNode(cfg, registration=tiny_registration(cfg), node_name=name)
+    def __init__(self, cfg: Config, name: str, registration=None, **node_kwargs) -> None:
+        registration = registration or tiny_registration(cfg)
+        self.node = RegistrationNode(cfg, registration=registration, node_name=name, **node_kwargs)
         self.client = rclpy.create_node(f"{name}_client")
         self.poses: list[PoseStamped] = []
         self.transforms: list[TransformStamped] = []
         self.odoms: list[Odometry] = []
+        self.diags: list[DiagnosticArray] = []
         c = self.client
         c.create_subscription(PoseStamped, f"/{name}/pose", self.poses.append, 50)
         c.create_subscription(TransformStamped, f"/{name}/transform", self.transforms.append, 50)
         c.create_subscription(Odometry, f"/{name}/odometry", self.odoms.append, 50)
+        c.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
         self.pub = {t: c.create_publisher(PointCloud2, t, 5) for t in ("source_cloud", "target_cloud", "cloud")}
         self.reset = c.create_client(Trigger, f"/{name}/reset")
         self.executor = MultiThreadedExecutor(num_threads=3)
@@ -116,6 +127,14 @@ class Harness:
             if any(self.pub[t].get_subscription_count() > 0 for t in topics) and c.count_publishers(f"/{name}/pose"):
                 break
             time.sleep(0.05)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        if msg.status and msg.status[0].name.startswith(self.node.get_name() + ":"):
+            self.diags.append(msg)
+
+    def diagnostics(self) -> dict[str, str]:
+        """The key/values of this node's latest /diagnostics message ({} before the first)."""
+        return {kv.key: kv.value for kv in self.diags[-1].status[0].values} if self.diags else {}
 
     def send(self, topic: str, xyz: np.ndarray, stamp_ns: int, frame: str = "lidar") -> None:
         self.pub[topic].publish(arrays_to_pointcloud2(xyz, stamp_ns=stamp_ns, frame_id=frame))
@@ -261,6 +280,95 @@ def test_odometry_mode_accumulates_and_resets(ros, world):
         h.send("cloud", scan(world, T_w[3], seed=20), 200 * SEC)
         assert h.wait_for(lambda: len(h.poses) == 5)
         np.testing.assert_allclose(pose_stamped_to_matrix(h.poses[4])[0], np.eye(4), atol=1e-9)
+    finally:
+        h.close()
+
+
+class CountingRegistration:
+    """The tiny registration, counting preprocess() calls, optionally slowed down (a busy machine)."""
+
+    def __init__(self, reg, delay_s: float = 0.0) -> None:
+        self.reg, self.delay_s, self.device = reg, delay_s, "cpu"
+        self.preprocessed: list[int] = []
+
+    def preprocess(self, xyz):
+        self.preprocessed.append(len(xyz))
+        time.sleep(self.delay_s)
+        return self.reg.preprocess(xyz)
+
+    def register(self, source, target):
+        return self.reg.register(source, target)
+
+
+def test_odometry_output_twist_covariance_tf(ros, world):
+    """Odometry mode with every output: each scan preprocessed exactly once; ~/odometry carries the pose,
+    the twist (the motion since the previous scan over the stamp gap) and both covariances from the
+    registration; odom -> base_frame goes to the TF broadcaster (injected: tf2_msgs has no PyPI wheel)."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
+                         "node.publish_odometry": True, "node.publish_tf": True})  # fmt: skip
+    counting = CountingRegistration(tiny_registration(cfg))
+    tf: list[TransformStamped] = []
+    h = Harness(cfg, "reg_odom_out", registration=counting, tf_broadcaster=tf.extend)
+    dt = 0.1
+    try:
+        T_w = [at(0.8 * k, 0.04 * k, np.deg2rad(1.2 * k)) for k in range(4)]
+        stamps = [(300 + k) * SEC // 10 for k in range(4)]
+        for k, T in enumerate(T_w):
+            h.send("cloud", scan(world, T, seed=40 + k), stamps[k])
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: len(h.odoms) == 4 and len(tf) == 4), h.node.stats()
+        assert counting.preprocessed == [N_POINTS] * 4  # once per scan: the source is reused as next target
+        prev_T, prev_trace = None, -1.0
+        for k, msg in enumerate(h.odoms):
+            T, stamp, frame, child = odometry_to_matrix(msg)
+            assert (stamp, frame, child) == (stamps[k], "odom", "base_link")
+            np.testing.assert_allclose(T, pose_stamped_to_matrix(h.poses[k])[0], atol=1e-9)
+            T_tf, stamp_tf, frame_tf, child_tf = transform_stamped_to_matrix(tf[k])
+            assert (stamp_tf, frame_tf, child_tf) == (stamps[k], "odom", "base_link")
+            np.testing.assert_allclose(T_tf, T, atol=1e-9)
+            twist, (pose_cov, twist_cov) = odometry_twist(msg), odometry_covariances(msg)
+            assert np.allclose(pose_cov, pose_cov.T) and np.allclose(twist_cov, twist_cov.T)
+            if k == 0:  # the origin: pose exact, velocity unknown
+                assert not pose_cov.any() and not twist.any() and np.all(np.diag(twist_cov) >= 1e5)
+            else:
+                step = np.linalg.inv(prev_T) @ T
+                gt_step = np.linalg.inv(T_w[k - 1]) @ T_w[k]
+                np.testing.assert_allclose(twist, twist_from_delta(step, dt), atol=1e-6)
+                v_gt = twist_from_delta(gt_step, dt)
+                assert np.linalg.norm(twist[:3] - v_gt[:3]) <= 0.3 / dt  # the pose tolerance, per second
+                assert np.linalg.norm(twist[3:] - v_gt[3:]) <= np.deg2rad(1.0) / dt
+                for cov in (pose_cov, twist_cov):
+                    assert np.all(np.diag(cov) > 0) and np.all(np.linalg.eigvalsh(cov) > -1e-12)
+                assert np.trace(pose_cov) >= prev_trace  # accumulated along the trajectory
+                assert np.all(np.diag(twist_cov) < 1e5)  # measured, unlike the origin's
+            prev_T, prev_trace = T, float(np.trace(pose_cov))
+    finally:
+        h.close()
+
+
+def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
+    """Preprocessing slower than the scan rate: the input queue stays bounded, the oldest waiting scans
+    are dropped and counted on /diagnostics, and the node still answers the newest."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2})
+    slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
+    h = Harness(cfg, "reg_busy", registration=slow)
+    try:
+        clouds = [scan(world, at(0.5 * k), seed=60 + k) for k in range(6)]
+        h.send("cloud", clouds[0], 500 * SEC)
+        assert h.wait_for(lambda: len(slow.preprocessed) == 1, 10)
+        for k in range(1, 6):  # a 20 Hz burst while the first scan is being preprocessed
+            h.send("cloud", clouds[k], 500 * SEC + k * SEC // 20)
+            time.sleep(0.05)
+        s = h.node.stats
+        assert h.wait_for(lambda: s()["received"] == 6 and not h.node.worker.busy
+                          and not any(i.busy for i in h.node.inputs), 30), s()  # fmt: skip
+        st = s()
+        assert st["input_dropped"][0] >= 3 and len(slow.preprocessed) == 6 - st["input_dropped"][0]
+        assert st["processed"] + st["dropped"] + st["input_dropped"][0] == 6 and st["errors"] == {}
+        assert h.wait_for(lambda: len(h.poses) == st["processed"], 10)
+        assert pose_stamped_to_matrix(h.poses[-1])[1] == 500 * SEC + 5 * SEC // 20  # the newest scan answered
+        key = "clouds dropped before preprocessing (oldest first)"
+        assert h.wait_for(lambda: h.diagnostics().get(key) == str(st["input_dropped"][0]), 5), h.diagnostics()
     finally:
         h.close()
 

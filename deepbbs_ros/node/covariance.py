@@ -124,11 +124,26 @@ def twist_from_delta(T_prev_curr: np.ndarray, dt: float) -> np.ndarray:
 def twist_covariance(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) -> np.ndarray:
     """(6, 6) covariance of :func:`twist_from_delta` from the covariance of ``T_prev_curr``.
 
-    ``cov_prev_curr`` is the registration covariance (left perturbation, previous frame, as
-    :func:`alignment_quality` gives it); the twist is expressed in the current frame, so the
-    perturbation is moved there, ``eps = Ad(T_prev_curr^-1) delta``, and divided by ``dt``:
-    ``Sigma_twist = Ad(T^-1) Sigma Ad(T^-1)^T / dt^2``.
+    ``cov_prev_curr`` is the registration covariance of ``T = (R, t)`` for a left perturbation in the
+    previous frame, ``T' = exp(delta) T`` with ``delta = [dt_ (3), dtheta (3)]`` (as
+    :func:`alignment_quality` gives it). To first order the twist ``[R^T t, log(R)] / dt`` moves by
+    ``[R^T dt_, J_l^-1(phi) dtheta] / dt`` (``phi = log(R)``, ``J_l`` the left Jacobian of SO(3); the
+    translation part does not depend on ``dtheta``), so ``Sigma_twist = M Sigma M^T`` with
+    ``M = diag(R^T, J_l^-1(phi)) / dt``.
     """
-    Ad = adjoint(np.linalg.inv(T_prev_curr))
-    cov = Ad @ np.asarray(cov_prev_curr, dtype=np.float64) @ Ad.T / dt**2
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(T_prev_curr, dtype=np.float64)[:3, :3]
+    phi = Rotation.from_matrix(R).as_rotvec()
+    th = float(np.linalg.norm(phi))
+    P = skew(phi)
+    if th < 1e-6:
+        c = 1.0 / 12.0
+    else:
+        c = 1.0 / th**2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
+    M = np.zeros((6, 6))
+    M[:3, :3] = R.T
+    M[3:, 3:] = np.eye(3) - 0.5 * P + c * P @ P
+    M /= dt
+    cov = M @ np.asarray(cov_prev_curr, dtype=np.float64) @ M.T
     return 0.5 * (cov + cov.T)

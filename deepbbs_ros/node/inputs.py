@@ -51,6 +51,9 @@ class Cloud:
 
     Attributes:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
+        times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
+            (:data:`TIME_FIELDS`); None when the cloud has no time field. Unused by scan-to-scan
+            odometry; for a deskewing odometry.
         stamp_ns: ``header.stamp`` in nanoseconds.
         frame_id: ``header.frame_id`` (never empty).
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
@@ -64,27 +67,36 @@ class Cloud:
     stamp_ns: int
     frame_id: str
     t_recv: float
+    times: np.ndarray | None = None
     pp: Any = None
     t_ready: float = 0.0
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, int, str]:
-    """PointCloud2 (rclpy or rosbags) -> ((N, 3) float32 valid xyz, stamp ns, frame id).
+#: per-point time fields of real drivers -> seconds per unit (Velodyne ``time`` float32 s, Ouster ``t`` uint32 ns)
+TIME_FIELDS = (("time", 1.0), ("t", 1e-9))
+
+
+def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.ndarray | None, int, str]:
+    """PointCloud2 (rclpy or rosbags) -> ((N, 3) float32 valid xyz, (N,) float64 per-point times in
+    seconds since the stamp or None, stamp ns, frame id).
 
     The points are read through a structured dtype over the message buffer (no copy of the buffer,
-    :func:`msg_adapters.pointcloud2.pointcloud2_to_arrays`); only the valid xyz are copied out.
+    :func:`msg_adapters.pointcloud2.pointcloud2_to_arrays`); only the valid points are copied out.
+    Times come from the first of :data:`TIME_FIELDS` the cloud declares (scaled to seconds).
 
     Raises:
         BadInput: ``empty_cloud``, ``malformed_cloud``, ``no_valid_points``, ``too_few_points``
             (fewer than ``min_points`` valid points) or ``missing_frame``, with ``topic`` in the message.
     """
-    from msg_adapters.pointcloud2 import pointcloud2_to_arrays
+    from msg_adapters.pointcloud2 import field_names, pointcloud2_to_arrays
 
     if int(msg.width) * int(msg.height) == 0 and len(msg.data) == 0:
         raise BadInput("empty_cloud", f"{topic}: empty PointCloud2 (width * height = 0, no data)")
+    declared = set(field_names(msg))
+    time_field = next(((name, scale) for name, scale in TIME_FIELDS if name in declared), None)
     try:
-        arr = pointcloud2_to_arrays(msg)
+        arr = pointcloud2_to_arrays(msg, (time_field[0],) if time_field else ())
     except PointCloudFormatError as err:
         raise BadInput("malformed_cloud", f"{topic}: {err}") from err
     n_decl = int(msg.width) * int(msg.height)
@@ -97,7 +109,12 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, int
         raise BadInput("too_few_points", f"{topic}: {n} valid points, fewer than node.min_points={min_points}")
     if not arr.frame_id:
         raise BadInput("missing_frame", f"{topic}: header.frame_id is empty")
-    return arr.xyz, int(arr.stamp_ns), arr.frame_id
+    times = None
+    if time_field is not None:
+        raw = arr.fields[time_field[0]]
+        if raw.ndim == 1:  # a count > 1 time field is not a per-point time
+            times = raw.astype(np.float64) * time_field[1]
+    return arr.xyz, times, int(arr.stamp_ns), arr.frame_id
 
 
 class PreprocessCache:
@@ -243,7 +260,7 @@ class CloudInput:
         msg, t_recv = job
         t0 = time.perf_counter()
         try:
-            xyz, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
+            xyz, times, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
             self._check(frame, stamp_ns)
             t1 = time.perf_counter()
             pp, pp_ms = self._cache.get(xyz, f"{frame}@{stamp_ns}")
@@ -254,4 +271,4 @@ class CloudInput:
         timings = {"input_wait": (t0 - t_recv) * 1e3, "decode": (t1 - t0) * 1e3}
         if pp_ms > 0:  # computed here, not a cache hit
             timings["preprocess"] = pp_ms
-        self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, pp, t_ready, timings))
+        self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, times, pp, t_ready, timings))

@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 from deepbbs_ros.config import NodeConfig
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.inputs import Cloud
-from deepbbs_ros.node.pipeline import OdometryStep, Registered, motion_twist, registration_covariance
+from deepbbs_ros.node.pipeline import OdometryEstimate, Registered, motion_twist, registration_covariance
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2
 from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
 
@@ -91,7 +91,7 @@ class Outputs:
             self.odometry.publish(matrix_to_odometry(reg.T, src.stamp_ns, tgt.frame_id, child, twist, cov, twist_cov))
         self._aligned(src, reg.T, tgt.frame_id)
 
-    def odometry_step(self, cloud: Cloud, step: OdometryStep) -> None:
+    def odometry_step(self, cloud: Cloud, step: OdometryEstimate) -> None:
         """Odometry mode: ``T_odom_k`` in ``node.odom_frame`` -> ``node.base_frame`` (or the cloud frame)."""
         odom, child = self.cfg.odom_frame, self.cfg.base_frame or cloud.frame_id
         self._pose_and_transform(step.T_odom, cloud.stamp_ns, odom, child)

@@ -4,8 +4,15 @@
   ``T_target_source``, the registration result and its timings.
 * :class:`ScanToScanOdometry`: odometry mode, one :meth:`~ScanToScanOdometry.step` per scan,
   ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` (CONVENTIONS.md), every scan preprocessed once (on arrival)
-  and kept as the next scan's target. It returns an :class:`OdometryStep`, everything the outputs
-  need; another odometry (a local map, say) replaces it by providing the same ``step`` / ``reset``.
+  and kept as the next scan's target. It returns an :class:`OdometryEstimate`, everything the outputs
+  need (pose, twist, covariances).
+
+Another odometry (a local map with deskewing, say) replaces :class:`ScanToScanOdometry` in one place,
+``RegistrationNode._make_odometry``: any object with ``reset()`` and ``step(cloud) -> OdometryEstimate``.
+The cloud gives it the raw points ``cloud.xyz``, the per-point times ``cloud.times`` (s since the stamp,
+or None), ``cloud.stamp_ns``, and the preprocessed ``cloud.pp`` (computed on arrival); a pipeline with
+``step(points, times, stamp_ns) -> T_odom_k`` is wrapped by calling it there and filling the estimate
+(``motion_twist`` and ``registration_covariance`` below give the twist and covariances).
 """
 
 from __future__ import annotations
@@ -86,7 +93,7 @@ def motion_twist(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) 
 
 
 @dataclass
-class OdometryStep:
+class OdometryEstimate:
     """What odometry mode publishes for one scan.
 
     Attributes:
@@ -129,7 +136,7 @@ class ScanToScanOdometry:
         self._T_odom = np.eye(4)
         self._cov_odom = np.zeros((6, 6))
 
-    def step(self, cloud: Cloud) -> OdometryStep:
+    def step(self, cloud: Cloud) -> OdometryEstimate:
         """Register ``cloud`` (scan k) against the previous scan and advance ``T_odom``.
 
         Raises:
@@ -138,7 +145,7 @@ class ScanToScanOdometry:
         prev = self._prev
         if prev is None:  # the first scan is the origin: pose known exactly, velocity unknown
             self._prev, self._T_odom, self._cov_odom = cloud, np.eye(4), np.zeros((6, 6))
-            return OdometryStep(np.eye(4), np.zeros((6, 6)), np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV)
+            return OdometryEstimate(np.eye(4), np.zeros((6, 6)), np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV)
         reg = register_clouds(self.registration, cloud, prev)  # T_{k-1}_k
         dt = (cloud.stamp_ns - prev.stamp_ns) * 1e-9
         if self.covariance:
@@ -150,4 +157,4 @@ class ScanToScanOdometry:
             twist, twist_cov = np.zeros(6), np.zeros((6, 6))
         self._T_odom = self._T_odom @ reg.T
         self._prev = cloud
-        return OdometryStep(self._T_odom.copy(), self._cov_odom.copy(), twist, twist_cov, reg.T, reg)
+        return OdometryEstimate(self._T_odom.copy(), self._cov_odom.copy(), twist, twist_cov, reg.T, reg)

@@ -153,7 +153,7 @@ class RegistrationNode(Node):
 
         # pipeline: synchroniser (pair mode), odometry (odometry mode), the registration worker
         self.sync = ApproximateTimeSync(2, ncfg.queue_size, ncfg.slop, self._on_pair)
-        self.odometry = ScanToScanOdometry(registration, covariance=ncfg.publish_odometry)
+        self.odometry = self._make_odometry()
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(self.reg.preprocess)
 
@@ -184,6 +184,11 @@ class RegistrationNode(Node):
             f"weights={self._weights} qos={ncfg.qos_reliability}/{ncfg.qos_depth} slop={ncfg.slop}s "
             f"queue={ncfg.queue_size}"
         )
+
+    def _make_odometry(self) -> ScanToScanOdometry:
+        """The odometry of odometry mode: ``reset()`` and ``step(cloud) -> OdometryEstimate``
+        (:mod:`deepbbs_ros.node.pipeline`); swap the per-scan computation here."""
+        return ScanToScanOdometry(self.reg, covariance=self.cfg.node.publish_odometry)
 
     # -- parameters ---------------------------------------------------------------------------------
     def _declare_config(self, defaults: Config) -> Config:

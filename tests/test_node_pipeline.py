@@ -1,0 +1,293 @@
+"""The node's threads and pipeline without DDS: bounded queues, the preprocessing cache, the input
+stage (decode, checks, drops), scan-to-scan odometry and the twist covariance.
+
+Messages are rosbags-flavoured PointCloud2 (no rclpy needed); registration is a stub that returns
+known transforms, so every figure below is exact or a Monte Carlo check of an equation.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.node.covariance import adjoint, skew, twist_covariance, twist_from_delta
+from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, decode_cloud
+from deepbbs_ros.node.pipeline import UNKNOWN_TWIST_COV, ScanToScanOdometry
+from deepbbs_ros.node.worker import LatestSlotWorker
+from deepbbs_ros.replay.synthetic import pose
+from msg_adapters.layouts import OUSTER, VELODYNE, build_cloud
+from msg_adapters.pointcloud2 import arrays_to_pointcloud2
+
+SEC = 1_000_000_000
+
+
+def _cloud_msg(xyz: np.ndarray, stamp_ns: int, frame: str = "lidar"):
+    return arrays_to_pointcloud2(xyz, stamp_ns=stamp_ns, frame_id=frame, flavor="rosbags")
+
+
+def _points(seed: int, n: int = 500) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-20, 20, (n, 3)).astype(np.float32)
+
+
+# -- the bounded worker --------------------------------------------------------------------------------
+def _gated_worker(capacity: int):
+    gate, started, done = threading.Event(), threading.Event(), []
+
+    def handler(job):
+        started.set()
+        gate.wait(5)
+        done.append(job)
+
+    return LatestSlotWorker(handler, capacity=capacity), gate, started, done
+
+
+@pytest.mark.parametrize("capacity, kept", [(1, [0, 5]), (2, [0, 4, 5]), (4, [0, 2, 3, 4, 5])])
+def test_worker_drops_the_oldest_waiting_jobs(capacity, kept):
+    w, gate, started, done = _gated_worker(capacity)
+    try:
+        w.submit(0)
+        assert started.wait(5)  # job 0 runs and blocks: 1..5 queue behind it
+        for j in range(1, 6):
+            w.submit(j)
+        gate.set()
+        assert w.wait_idle(5)
+        assert done == kept  # in order, newest kept
+        assert w.dropped == 5 - (len(kept) - 1) and w.submitted == 6 and w.processed == len(kept)
+    finally:
+        w.stop()
+
+
+def test_worker_survives_a_failing_job():
+    errors = []
+
+    def handler(job):
+        if job == "bad":
+            raise ValueError("boom")
+
+    w = LatestSlotWorker(handler, lambda job, exc: errors.append((job, str(exc))))
+    try:
+        w.submit("bad")
+        assert w.wait_idle(5)
+        w.submit("good")
+        assert w.wait_idle(5)
+        assert errors == [("bad", "boom")] and w.processed == 2
+    finally:
+        w.stop()
+
+
+# -- the preprocessing cache ---------------------------------------------------------------------------
+def test_cache_computes_each_content_once_even_concurrently():
+    calls = []
+
+    def slow(xyz):
+        calls.append(len(xyz))
+        time.sleep(0.2)
+        return xyz.sum()
+
+    cache = PreprocessCache(slow, size=2)
+    a, b = _points(0), _points(1)
+    out = []
+    threads = [threading.Thread(target=lambda: out.append(cache.get(a.copy(), "a"))) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(calls) == 1 and all(r == a.sum() for r, _ in out)
+    assert sorted(ms > 0 for _, ms in out) == [False, False, True]  # only the thread that computed it
+    cache.get(b, "b")
+    cache.get(_points(2), "c")  # evicts a (least recently used)
+    cache.get(a, "a")
+    assert len(calls) == 4 and (cache.hits, cache.misses) == (2, 4)
+
+
+def test_cache_does_not_keep_failures():
+    n = []
+
+    def fails(xyz):
+        n.append(1)
+        raise RegistrationError("too few points after cropping")
+
+    cache = PreprocessCache(fails)
+    for _ in range(2):
+        with pytest.raises(BadInput, match="scan@1: too few points") as err:
+            cache.get(_points(0), "scan@1")
+        assert err.value.kind == "preprocess_failed"
+    assert len(n) == 2
+
+
+# -- decoding ------------------------------------------------------------------------------------------
+def test_decode_reads_driver_time_fields_in_seconds():
+    xyz = _points(3, 10)
+    vel = build_cloud(VELODYNE, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+                                 "time": np.linspace(0, 0.099, 10, dtype=np.float32)}, flavor="rosbags")  # fmt: skip
+    got, times, _, _ = decode_cloud(vel, "/v", 3)
+    np.testing.assert_array_equal(got, xyz)
+    np.testing.assert_allclose(times, np.linspace(0, 0.099, 10), atol=1e-7)
+    ost = build_cloud(OUSTER, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+                               "t": np.arange(10, dtype=np.uint32) * 97_656}, height=2, flavor="rosbags")  # fmt: skip
+    _, times, _, _ = decode_cloud(ost, "/o", 3)
+    np.testing.assert_allclose(times, np.arange(10) * 97_656e-9)
+    assert decode_cloud(_cloud_msg(xyz, 5), "/p", 3)[1] is None
+
+
+# -- the input stage -----------------------------------------------------------------------------------
+class _Sink:
+    def __init__(self) -> None:
+        self.clouds: list[Cloud] = []
+        self.bad: list[tuple[str, str]] = []
+        self.errors: list[BaseException] = []
+
+
+def _input(preprocess, sink: _Sink, **kw) -> CloudInput:
+    return CloudInput("/cloud", PreprocessCache(preprocess), 100, sink.clouds.append,
+                      lambda kind, msg: sink.bad.append((kind, msg)), lambda job, exc: sink.errors.append(exc),
+                      **kw)  # fmt: skip
+
+
+def test_input_drops_the_oldest_when_busy_and_counts():
+    started = threading.Event()
+
+    def slow(xyz):
+        started.set()
+        time.sleep(0.3)
+        return xyz.mean(axis=0)
+
+    sink = _Sink()
+    inp = _input(slow, sink)
+    try:
+        inp.submit(_cloud_msg(_points(0), 0), time.perf_counter())
+        assert started.wait(5)
+        for k in range(1, 6):  # a burst while busy: each one replaces the waiting one
+            inp.submit(_cloud_msg(_points(k), k * SEC), time.perf_counter())
+        deadline = time.monotonic() + 10
+        while inp.busy and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert [c.stamp_ns for c in sink.clouds] == [0, 5 * SEC]
+        assert inp.dropped == 4 and not sink.bad and not sink.errors
+        c = sink.clouds[-1]
+        np.testing.assert_allclose(c.pp, _points(5).mean(axis=0))  # the cloud's own preprocessing
+        assert c.timings_ms["preprocess"] >= 250 and c.t_ready >= c.t_recv
+    finally:
+        inp.stop()
+
+
+def test_input_rejects_bad_messages_and_goes_on():
+    sink = _Sink()
+    inp = _input(lambda xyz: xyz[:10], sink, increasing_stamps=True)
+    msgs = [
+        _cloud_msg(_points(0), 2 * SEC),
+        _cloud_msg(_points(1), 2 * SEC),  # same stamp again
+        _cloud_msg(_points(2), 3 * SEC, frame="other"),  # frame changed
+        _cloud_msg(_points(3, 50), 4 * SEC),  # too few points
+        _cloud_msg(np.full((500, 3), np.nan, np.float32), 5 * SEC),
+        _cloud_msg(_points(4), 6 * SEC),
+    ]
+    try:
+        for m in msgs:
+            inp.submit(m, time.perf_counter())
+            deadline = time.monotonic() + 5
+            while inp.busy and time.monotonic() < deadline:
+                time.sleep(0.005)
+        assert [c.stamp_ns for c in sink.clouds] == [2 * SEC, 6 * SEC]
+        assert [k for k, _ in sink.bad] == ["stamp_not_increasing", "mismatched_frame", "too_few_points",
+                                            "no_valid_points"]  # fmt: skip
+        assert all("/cloud" in m for _, m in sink.bad)
+        inp.reset()  # forgets frame and stamp
+        inp.submit(_cloud_msg(_points(5), 1 * SEC, frame="other"), time.perf_counter())
+        deadline = time.monotonic() + 5
+        while len(sink.clouds) < 3 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert sink.clouds[-1].frame_id == "other" and len(sink.bad) == 4
+    finally:
+        inp.stop()
+
+
+# -- scan-to-scan odometry -----------------------------------------------------------------------------
+class _KnownMotion:
+    """register() returns T_target_source from ground-truth poses keyed by the clouds' first point."""
+
+    def __init__(self, poses: dict[float, np.ndarray]) -> None:
+        self.poses = poses
+        self.calls = 0
+
+    def preprocess(self, xyz):  # the node's cache calls this on arrival
+        raise AssertionError("odometry must not preprocess: the input stage did")
+
+    def register(self, source, target):
+        self.calls += 1
+        T = np.linalg.inv(self.poses[float(target.points[0, 0])]) @ self.poses[float(source.points[0, 0])]
+
+        class R:
+            T_target_source = T
+            converged = True
+            gamma = None
+
+        return R()
+
+
+class _PP:
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = points
+
+
+def test_scan_to_scan_odometry_pose_twist_covariance():
+    rng = np.random.default_rng(7)
+    poses, clouds = {}, []
+    dt = 0.1
+    for k in range(5):
+        T = pose(1.0 * k, 0.1 * k**2, 0.0, np.deg2rad(2.0 * k))
+        pts = rng.uniform(-30, 30, (400, 3))
+        pts[:, 2] = rng.uniform(-2, 5, 400)
+        pts[0, 0] = 1000.0 + k  # the stub's key
+        poses[pts[0, 0]] = T
+        clouds.append(Cloud(pts.astype(np.float32), int(k * dt * SEC), "lidar", 0.0, pp=_PP(pts)))
+    # source points of step k seen from scan k-1 land exactly on... nothing (random clouds): the
+    # covariance is then the residual one; what is checked is its shape, growth and frame change
+    reg = _KnownMotion(poses)
+    odo = ScanToScanOdometry(reg)
+    first = odo.step(clouds[0])
+    np.testing.assert_array_equal(first.T_odom, np.eye(4))
+    assert not first.pose_covariance.any() and np.allclose(first.twist_covariance, np.eye(6) * UNKNOWN_TWIST_COV)
+    traces = [0.0]
+    for k in range(1, 5):
+        est = odo.step(clouds[k])
+        T_gt = np.linalg.inv(poses[1000.0]) @ poses[1000.0 + k]
+        np.testing.assert_allclose(est.T_odom, T_gt, atol=1e-12)
+        delta = np.linalg.inv(poses[1000.0 + k - 1]) @ poses[1000.0 + k]
+        np.testing.assert_allclose(est.T_prev_curr, delta, atol=1e-12)
+        np.testing.assert_allclose(est.twist, twist_from_delta(delta, dt), atol=1e-9)
+        for cov in (est.pose_covariance, est.twist_covariance):
+            assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
+        traces.append(float(np.trace(est.pose_covariance)))
+    assert traces == sorted(traces) and traces[-1] > 0  # accumulated, never shrinking
+    assert reg.calls == 4
+    odo.reset()
+    np.testing.assert_array_equal(odo.step(clouds[3]).T_odom, np.eye(4))
+
+
+def test_twist_covariance_matches_monte_carlo():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    T = pose(1.2, -0.3, 0.05, np.deg2rad(8.0))
+    A = rng.normal(size=(6, 6))
+    cov = A @ A.T * 1e-6  # registration covariance, left perturbation in the previous frame
+    dt = 0.1
+    samples = rng.multivariate_normal(np.zeros(6), cov, 40_000)
+    tw = []
+    for d in samples:  # T' = exp(delta) T with delta = [dt (3), dtheta (3)]
+        Rd = Rotation.from_rotvec(d[3:]).as_matrix()
+        Tp = np.eye(4)
+        Tp[:3, :3] = Rd @ T[:3, :3]
+        Tp[:3, 3] = Rd @ T[:3, 3] + d[:3]
+        tw.append(twist_from_delta(Tp, dt))
+    mc = np.cov(np.asarray(tw).T)
+    pred = twist_covariance(T, cov, dt)
+    np.testing.assert_allclose(pred, mc, atol=0.05 * np.abs(pred).max())
+    # with no motion the frame change is the identity
+    np.testing.assert_allclose(twist_covariance(np.eye(4), cov, dt), cov / dt**2)
+    assert np.allclose(adjoint(np.eye(4)), np.eye(6)) and np.allclose(skew(np.array([1.0, 2, 3])) @ [1, 2, 3], 0)
