@@ -61,6 +61,27 @@ def test_worker_drops_the_oldest_waiting_jobs(capacity, kept):
         w.stop()
 
 
+def test_gated_worker_waits_for_room_downstream():
+    downstream, gate, started, _ = _gated_worker(1)
+    done = []
+    up = LatestSlotWorker(done.append, capacity=1, gate=downstream.room)
+    try:
+        downstream.submit("running")
+        assert started.wait(5)
+        downstream.submit("waiting")  # downstream full: its room closes, upstream holds its jobs
+        assert not downstream.room.is_set()
+        for j in range(3):
+            up.submit(j)
+        time.sleep(0.2)
+        assert done == [] and up.busy and up.dropped == 2  # only the newest is kept
+        gate.set()  # downstream takes its waiting job: room again
+        assert up.wait_idle(5) and done == [2]
+    finally:
+        gate.set()
+        up.stop()
+        downstream.stop()
+
+
 def test_worker_survives_a_failing_job():
     errors = []
 

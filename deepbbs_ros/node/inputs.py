@@ -7,6 +7,8 @@ own thread, while the registration worker handles the previous pair (no ROS impo
     callback(msg) ─submit──▶   decode → check (frame, stamp) → preprocess (content cache) ─▶ on_cloud(Cloud)
                    bounded:    at most ``capacity`` messages wait per input; a new one drops the oldest
                                waiting one (counted in ``CloudInput.dropped``, on /diagnostics)
+                   gated:      a message is taken only while the registration worker has room, so
+                               preprocessing runs at most one pair ahead of the registration
 
 Bad input (malformed, empty, NaN-only, too few points, no or changed frame, stamp not increasing,
 preprocessing failure) becomes :class:`BadInput` with a kind; the input reports it through
@@ -191,6 +193,8 @@ class CloudInput:
         on_error: ``(job, exc)`` for unexpected exceptions (bugs); the thread keeps going.
         increasing_stamps: reject a stamp not after the previous accepted one (odometry input).
         capacity: messages that may wait while one is processed; the oldest is dropped beyond that.
+        gate: take the next message only while this event is set (the registration worker's ``room``:
+            preprocess at most one pair ahead of the registration).
     """
 
     def __init__(
@@ -204,6 +208,7 @@ class CloudInput:
         *,
         increasing_stamps: bool = False,
         capacity: int = INPUT_QUEUE,
+        gate: threading.Event | None = None,
     ) -> None:
         self.topic = topic
         self._cache = cache
@@ -215,7 +220,7 @@ class CloudInput:
         self._frame: str | None = None
         self._last_stamp: int | None = None
         name = "deepbbs-input-" + topic.strip("/").replace("/", "-")
-        self._worker = LatestSlotWorker(self._handle, on_error, name=name, capacity=capacity)
+        self._worker = LatestSlotWorker(self._handle, on_error, name=name, capacity=capacity, gate=gate)
 
     @property
     def dropped(self) -> int:

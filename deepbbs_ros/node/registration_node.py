@@ -230,7 +230,7 @@ class RegistrationNode(Node):
         self.inputs.append(
             CloudInput(
                 self.resolve_topic_name(name), self._cache, self.cfg.node.min_points, on_cloud, self._on_bad,
-                self._on_thread_error, increasing_stamps=not pair,
+                self._on_thread_error, increasing_stamps=not pair, gate=self.worker.room,
             )
         )  # fmt: skip
         return sub

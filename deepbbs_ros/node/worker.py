@@ -4,6 +4,12 @@ The executor thread (or an input thread) hands each job to :meth:`LatestSlotWork
 at once. The worker runs one job at a time; at most ``capacity`` jobs wait behind it. When a job
 arrives and the queue is full, the oldest waiting job is dropped and counted. With ``capacity=1``
 (the registration worker) this is a "latest" slot: the newest pair wins, whatever the input rate.
+
+Back-pressure: a worker may be given a ``gate`` (another worker's :attr:`LatestSlotWorker.room`): it
+starts its next job only while the gate is open. The node's input threads are gated by the
+registration worker, so clouds are preprocessed ahead of the registration by at most one pair; when
+the registration falls behind, the waiting messages are replaced by newer ones (dropped, counted)
+instead of being preprocessed for nothing.
 """
 
 from __future__ import annotations
@@ -23,6 +29,10 @@ class LatestSlotWorker:
         on_error: see above; default ignores the error.
         name: thread name (shows in ``py-spy`` / ``top -H``).
         capacity: jobs that may wait while one runs (>= 1); beyond that the oldest waiting one is dropped.
+        gate: start a job only while this event is set (jobs keep queueing, and dropping, meanwhile).
+
+    Attributes:
+        room: an event set while fewer than ``capacity`` jobs wait (the gate of upstream workers).
     """
 
     def __init__(
@@ -32,6 +42,7 @@ class LatestSlotWorker:
         name: str = "deepbbs-worker",
         *,
         capacity: int = 1,
+        gate: threading.Event | None = None,
     ) -> None:
         if capacity < 1:
             raise ValueError(f"worker capacity must be >= 1, got {capacity}")
@@ -40,6 +51,9 @@ class LatestSlotWorker:
         self._cond = threading.Condition()
         self._pending: deque[Any] = deque()
         self.capacity = int(capacity)
+        self._gate = gate
+        self.room = threading.Event()
+        self.room.set()
         self._busy = False
         self._stop = False
         self.submitted = 0
@@ -57,6 +71,8 @@ class LatestSlotWorker:
                 self.dropped += 1
             self._pending.append(job)
             self.submitted += 1
+            if len(self._pending) >= self.capacity:
+                self.room.clear()
             self._cond.notify()
             return replaced
 
@@ -76,6 +92,7 @@ class LatestSlotWorker:
         with self._cond:
             self._stop = True
             self._pending.clear()
+            self.room.set()
             self._cond.notify_all()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
@@ -87,7 +104,14 @@ class LatestSlotWorker:
                 if self._stop:
                     self._cond.notify_all()
                     return
+            while self._gate is not None and not self._gate.wait(0.05):  # back-pressure (see module doc)
+                if self._stop:
+                    break
+            with self._cond:
+                if self._stop or not self._pending:
+                    continue
                 job = self._pending.popleft()
+                self.room.set()
                 self._busy = True
             try:
                 self._handler(job)
