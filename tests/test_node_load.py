@@ -1,8 +1,8 @@
 """Load: both inputs at 20 Hz with 120k-point clouds for 60 s into the node running as a subprocess.
 
-Checks: bounded synchroniser queues, RSS growth of the node process <= 50 MB after warm-up, stale pairs
-dropped and counted (registration is slower than 20 Hz on 2 shared cores), and every published pose
-correct for its stamps. The node loads a tiny random checkpoint and runs the refinement only
+Checks: bounded synchroniser queues, RSS growth of the node process <= 50 MB after warm-up, stale clouds
+and pairs dropped and counted (registration is slower than 20 Hz on 2 shared cores), and every published
+pose correct for its stamps. The node loads a tiny random checkpoint and runs the refinement only
 (``registration.deep: false``) on small motions: what is tested is the node under load, not the
 network. This test takes ~75 s on purpose (the issue asks for >= 60 s).
 """
@@ -138,9 +138,13 @@ def test_load_20hz_120k_for_60s(tmp_path):
     values = {kv.key: kv.value for kv in diags[-1].status[0].values}
     processed = int(values["pairs processed"])
     dropped = int(values["pairs dropped (newest wins)"])
-    print(f"sent {k} pairs, processed {processed}, dropped {dropped}, poses {len(poses)}, rss {rss}")
+    dropped_clouds = [int(n) for n in values["clouds dropped before preprocessing (oldest first)"].split(",")]
+    print(f"sent {k} pairs, processed {processed}, pairs dropped {dropped}, clouds dropped {dropped_clouds}, "
+          f"poses {len(poses)}, rss {rss}")
     assert k >= DURATION_S * RATE_HZ * 0.95
-    assert dropped > 0, values  # slower than 20 Hz: stale pairs were dropped and counted
+    # slower than 20 Hz: stale clouds (waiting for preprocessing) or pairs (waiting for registration) were
+    # dropped and counted; the input threads preprocess at most one pair ahead of the registration
+    assert dropped + sum(dropped_clouds) > 0, values
     assert processed >= 10 and len(poses) >= 10
     assert all(int(n) <= 5 for n in values["sync queue lengths"].split(","))  # bounded per input
     assert rss["end"] - rss["warm"] <= 50.0, rss
