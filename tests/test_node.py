@@ -373,6 +373,28 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
         h.close()
 
 
+def test_gicp_anchor_node_pair_mode(ros, world):
+    """The GICP anchor of the latency benchmark: the same node and topics, small_gicp GICP inside."""
+    pytest.importorskip("small_gicp")
+    from deepbbs_ros.node.gicp_anchor import GicpRegistration
+
+    cfg = tiny_config(**{"node.publish_odometry": True})
+    h = Harness(cfg, "gicp_anchor_test", registration=GicpRegistration(cfg))
+    try:
+        T_w_tgt = at(10.0, 2.0, 0.1)
+        T_w_src = T_w_tgt @ pose(1.0, 0.2, 0.0, np.deg2rad(3.0))
+        h.send("target_cloud", scan(world, T_w_tgt, seed=1), 7 * SEC, "lidar")
+        h.send("source_cloud", scan(world, T_w_src, seed=2), 7 * SEC, "lidar")
+        assert h.wait_for(lambda: h.poses and h.odoms), h.node.stats()
+        T, stamp, frame = pose_stamped_to_matrix(h.poses[0])
+        assert (stamp, frame) == (7 * SEC, "lidar")
+        _check_pose(T, np.linalg.inv(T_w_tgt) @ T_w_src)
+        cov = odometry_covariances(h.odoms[0])[0]
+        assert np.all(np.diag(cov) > 0) and h.node.stats()["errors"] == {}
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize(
     "overrides, match",
     [
