@@ -208,6 +208,10 @@ class KissICPOdometry:
         self._s0 = 0.0
         self._origin_inv = np.eye(4)
 
+    def corrupt_prior(self, T: np.ndarray) -> None:
+        """Robustness benchmark: KISS-ICP's next constant-velocity prediction is off by ``T`` (4, 4)."""
+        self._odom.last_delta = np.asarray(self._odom.last_delta) @ T
+
     def register(self, points: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Feed the next scan; returns (``T_first_k`` (4, 4) float64 pose of this scan's stamp relative
         to the first scan's, runtime ms). ``times``: (N,) seconds since the scan stamp, or None."""

@@ -221,6 +221,43 @@ class NodeConfig:
 
 
 @dataclass
+class OdometryConfig:
+    """Local-map odometry (core/odometry.py): ``deepbbs-replay --mode odometry --method deepbbs++`` and the
+    node's ``node.mode: odometry``. KISS-ICP's scan-to-map ICP with DeepBBS++ where the motion prior fails."""
+
+    deepbbs_init: str = "auto"  # DeepBBS++ re-initialises: auto (stamp gap, fit drop, first motion) | always | never
+    voxel_size: float = 0.0  # m; local map voxel; 0 = preprocess.max_range / 100 (KISS-ICP's default)
+    max_points_per_voxel: int = 20
+    initial_threshold: float = 2.0  # m; KISS-ICP adaptive threshold before motion is known
+    min_motion_th: float = 0.1  # m; KISS-ICP: smaller deviations do not update the threshold
+    max_icp_iters: int = 500
+    deskew: bool = True  # motion compensation from per-point times (Velodyne time, Ouster t) when a cloud has them
+    gap_factor: float = 1.5  # a stamp gap above this many nominal periods (dropped scans) asks DeepBBS++
+    fit_radius: float = 1.0  # m; fit = share of scan points this close to the previous scan after alignment
+    fit_drop: float = 0.8  # a fit below this share of the recent median asks DeepBBS++
+    fit_window: int = 20  # frames in the running median of the fit
+    fit_margin: float = 0.02  # DeepBBS++'s start must improve the fit by this much to win
+    reinit_threshold: float = 0.5  # m; smallest adaptive threshold for the ICP from the DeepBBS++ start
+    threads: int = 0  # KISS-ICP threads; 0 = automatic
+
+    def validate(self) -> None:
+        _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
+               f"must be 'auto', 'always' or 'never', got {self.deepbbs_init!r}")
+        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = max_range / 100)")
+        _check(self.max_points_per_voxel >= 1, "odometry.max_points_per_voxel", "must be >= 1")
+        _check(self.initial_threshold > 0, "odometry.initial_threshold", "must be > 0")
+        _check(self.min_motion_th >= 0, "odometry.min_motion_th", "must be >= 0")
+        _check(self.max_icp_iters >= 1, "odometry.max_icp_iters", "must be >= 1")
+        _check(self.gap_factor > 1, "odometry.gap_factor", "must be > 1")
+        _check(self.fit_radius > 0, "odometry.fit_radius", "must be > 0")
+        _check(0 < self.fit_drop <= 1, "odometry.fit_drop", "must be in (0, 1]")
+        _check(self.fit_window >= 1, "odometry.fit_window", "must be >= 1")
+        _check(self.fit_margin >= 0, "odometry.fit_margin", "must be >= 0")
+        _check(self.reinit_threshold > 0, "odometry.reinit_threshold", "must be > 0")
+        _check(self.threads >= 0, "odometry.threads", "must be >= 0 (0 = automatic)")
+
+
+@dataclass
 class TrainConfig:
     """deepbbs-train: data, augmentation, loss and optimiser."""
 
@@ -285,10 +322,21 @@ class EvalConfig:
     baseline_max_iters: int = 50
     baseline_neighbors: int = 20  # neighbours for normals / covariances
     kiss_deskew: bool = True  # KISS-ICP motion compensation when scans carry a per-point "time"
+    drop_frames: int = 0  # odometry robustness: this many gaps of drop_min..drop_max skipped scans (seeded by seed)
+    drop_min: int = 3
+    drop_max: int = 10
+    wrong_prior: int = 0  # odometry robustness: this many frames whose motion prior is off by a random motion
+    wrong_prior_yaw_deg: float = 30.0  # ... of up to this yaw
+    wrong_prior_trans: float = 2.0  # m ... and up to this horizontal shift
     threads: int = 0  # baseline threads; 0 = all cores
     bag_aligned_clouds: int = 5  # pairs whose aligned source cloud goes into the results bag
 
     def validate(self) -> None:
+        _check(self.drop_frames >= 0, "eval.drop_frames", "must be >= 0")
+        _check(1 <= self.drop_min <= self.drop_max, "eval.drop_min", "must be >= 1 and <= eval.drop_max")
+        _check(self.wrong_prior >= 0, "eval.wrong_prior", "must be >= 0")
+        _check(self.wrong_prior_yaw_deg >= 0 and self.wrong_prior_trans >= 0, "eval.wrong_prior_yaw_deg",
+               "and eval.wrong_prior_trans must be >= 0")
         _check(self.stride >= 1, "eval.stride", "must be >= 1")
         _check(self.max_dist > 0, "eval.max_dist", "must be > 0")
         _check(self.max_pair_frames >= 1, "eval.max_pair_frames", "must be >= 1")
@@ -324,6 +372,7 @@ class Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     node: NodeConfig = field(default_factory=NodeConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 

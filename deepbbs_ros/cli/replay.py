@@ -5,6 +5,7 @@ Examples::
     deepbbs-replay bags/sample_drive --mode pairs --method deepbbs++,gicp --stride 10
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp,gicp --out results/replay
     deepbbs-replay apollo/session --perturb-yaw 45 --trials 3 --seed 1
+    deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp --drop-frames 5 --seed 3
 
 Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv or frames.csv,
 traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
@@ -34,9 +35,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/) or KITTI folder (velodyne/)")
     g = p.add_argument_group("what to run")
     g.add_argument("--mode", choices=("pairs", "odometry"), default="pairs",
-                   help="pairs: Apollo pair protocol; odometry: scan-to-scan chained trajectory")
+                   help="pairs: Apollo pair protocol; odometry: a trajectory per method")
     g.add_argument("--method", default="deepbbs++",
-                   help="comma list of deepbbs++, deepbbs++gicp (+ GICP polish), deepbbs, icp, plane-icp, gicp, "
+                   help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
+                   "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
                    "kiss-icp (odometry only)")
     g.add_argument("--stride", type=int, default=None,
                    help="pairs: a source frame every N frames (eval.stride); odometry: every N-th frame "
@@ -47,7 +49,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--perturb-trans", type=float, default=None, metavar="M",
                    help="pairs: random horizontal initial offset up to M metres")
     g.add_argument("--trials", type=int, default=None, help="pairs: perturbed trials per pair")
-    g.add_argument("--seed", type=int, default=None, help="seed of the perturbations")
+    g.add_argument("--seed", type=int, default=None, help="seed of the perturbations, dropped frames, wrong priors")
+    g.add_argument("--drop-frames", type=int, default=None, metavar="N",
+                   help="odometry: skip N runs of 3-10 consecutive scans at random points (eval.drop_frames)")
+    g.add_argument("--wrong-prior", type=int, default=None, metavar="N",
+                   help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (eval.wrong_prior)")
     g.add_argument("--max-frames", type=int, default=None, help="stop after this many frames (odometry: kept frames)")
     g.add_argument("--max-pairs", type=int, default=None, help="pairs: stop after this many pairs")
     i = p.add_argument_group("input")
@@ -73,7 +79,8 @@ def _config(args):
     if args.stride is not None:
         overrides["eval.stride" if args.mode == "pairs" else "eval.odom_stride"] = args.stride
     for flag, key in (("max_dist", "eval.max_dist"), ("perturb_yaw", "eval.perturb_yaw_deg"),
-                      ("perturb_trans", "eval.perturb_trans"), ("trials", "eval.trials"), ("seed", "eval.seed")):
+                      ("perturb_trans", "eval.perturb_trans"), ("trials", "eval.trials"), ("seed", "eval.seed"),
+                      ("drop_frames", "eval.drop_frames"), ("wrong_prior", "eval.wrong_prior")):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
     return load_config(args.config, overrides)
@@ -102,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from deepbbs_ros.replay.methods import build_methods
 
-    methods = build_methods(names, cfg, weights=args.weights, device=args.device)
+    methods = build_methods(names, cfg, weights=args.weights, device=args.device, mode=args.mode)
     return run_replay(args, cfg, source, methods)
 
 

@@ -199,6 +199,29 @@ def _failed(name, pair, trial, src, tgt, dist, T_init, T_gt, err) -> PairRecord:
 # --------------------------------------------------------------------------------------------------
 # odometry
 # --------------------------------------------------------------------------------------------------
+def robustness_plan(n_scans: int, ev: Any) -> tuple[set[int], dict[int, np.ndarray]]:
+    """What breaks constant-velocity odometry, reproducibly (``eval.seed``): ``eval.drop_frames`` gaps of
+    ``drop_min``..``drop_max`` consecutive scans (stream positions to skip), and ``eval.wrong_prior`` frames
+    whose motion prior is multiplied by a random motion (yaw up to ``wrong_prior_yaw_deg``, shift up to
+    ``wrong_prior_trans``). Positions are spread over the middle of a stream of ``n_scans`` scans (the
+    first 10 and the last 10 are kept). Returns (positions to drop, {position: (4, 4) prior error})."""
+    rng = np.random.default_rng([int(ev.seed), 7331])
+    drops: set[int] = set()
+    wrong: dict[int, np.ndarray] = {}
+    lo, hi = 10, n_scans - 10
+    if hi <= lo:
+        return drops, wrong
+    if ev.drop_frames:
+        starts = np.sort(rng.choice(np.arange(lo, hi), size=min(ev.drop_frames, hi - lo), replace=False))
+        for s in starts:
+            drops.update(range(int(s), min(int(s) + int(rng.integers(ev.drop_min, ev.drop_max + 1)), hi)))
+    if ev.wrong_prior:
+        keep = [p for p in range(lo, hi) if p not in drops]
+        for p in rng.choice(keep, size=min(ev.wrong_prior, len(keep)), replace=False):
+            wrong[int(p)] = random_perturbation(rng, ev.wrong_prior_yaw_deg, ev.wrong_prior_trans)
+    return drops, wrong
+
+
 @dataclass
 class OdometryResults:
     methods: list[str]
@@ -244,6 +267,7 @@ def run_odometry(
     Runtime of frame k = preprocessing of scan k + its registration (frame 0: preprocessing only).
     """
     ev = config.eval
+    drops, wrong = robustness_plan(len(scans) if hasattr(scans, "__len__") else 0, ev)
     res = results or OdometryResults(list(methods))
     res.inputs = {name: getattr(m, "input", "") for name, m in methods.items()}
     for name in methods:
@@ -257,7 +281,7 @@ def run_odometry(
             res.frames_read += 1
             if progress:
                 progress(1)
-            if pos % ev.odom_stride:
+            if pos % ev.odom_stride or pos in drops:
                 continue
             if max_frames is not None and len(res.stamps_ns) >= max_frames:
                 break
@@ -265,11 +289,17 @@ def run_odometry(
             if k == 0:
                 T_world_0 = scan.T_world_lidar.copy() if scan.T_world_lidar is not None else np.eye(4)
                 res.frame_id = scan.frame_id
+            bad = wrong.get(pos)
             for name, method in methods.items():
                 st = state[name]
-                if hasattr(method, "step"):  # KISS-ICP
+                if bad is not None and k > 1:  # the motion prior of this frame is off by ``bad``
+                    if hasattr(method, "corrupt_prior"):
+                        method.corrupt_prior(bad)
+                    elif "rel" in st:
+                        st["rel"] = st["rel"] @ bad
+                if hasattr(method, "step"):  # odometries with their own state (KISS-ICP, DeepBBS++ odometry)
                     try:
-                        T_first_k, ms = method.step(scan.points, scan.fields.get("time"))
+                        T_first_k, ms = method.step(scan.points, scan.fields.get("time"), scan.stamp_ns)
                         st["last"] = T_first_k
                     except DeepBBSError as err:
                         T_first_k, ms = st.get("last", np.eye(4)), float("nan")
