@@ -157,7 +157,7 @@ class RegistrationNode(Node):
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(self.reg.preprocess)
 
-        # topics: outputs first (a bad remap of an input must not leave half a node), then the inputs
+        # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         qos = QoSProfile(
             depth=ncfg.qos_depth,
             history=HistoryPolicy.KEEP_LAST,
