@@ -209,140 +209,201 @@ class DeepBBSRegistration:
 
         Args:
             source: (N, 3) source scan, metres, sensor frame (raw, or preprocessed when
-                ``preprocessed`` is True), or a :class:`PreprocessResult` (its ``points``, and its
-                ``dense_points`` for the dense refinement).
+                ``preprocessed`` is True), or a :class:`PreprocessResult` (its ``points``, its
+                ``dense_points`` for the dense refinement and its ``polish_cloud`` for the precision stage).
             target: (M, 3) target scan, same conventions.
-
-        The dense refinement (``registration.dense_refine``) runs when both clouds come with dense
-        points: raw scans, or PreprocessResults; plain preprocessed arrays skip it.
             T_init: (4, 4) initial guess of T_target_source (identity if None).
-            preprocessed: skip preprocessing (the clouds are already cropped/sampled).
+            preprocessed: skip preprocessing (the clouds are already cropped/sampled; plain arrays carry
+                no dense scan, so the dense refinement and the precision stage are skipped).
         """
-        rc, scale = self.config.registration, self.model.scale
         clock = _Clock(self.device)
-        # preprocess: crop, ground removal, voxel grid, FPS (raw scans only)
+        st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
+        clock.lap("preprocess")
+        with torch.inference_mode():
+            self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source
+            self._refine(st)  # SoftBBS on xyz (registration.refine)
+            clock.lap("refine")
+            self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
+            st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
+            clock.lap("dense" if st.iters["dense"] else "refine")
+        self._polish(st, clock)  # the GICP precision stage (registration.polish)
+        return self._result(st, clock)
+
+    # -- the stages of register() ------------------------------------------------------------------
+    def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
+        """Preprocess (raw scans only), the initial estimate, the scaled clouds on the device."""
+        scale = self.model.scale
         src_np, src_dense, src_pc = self._cloud(source, preprocessed, "source")
         tgt_np, tgt_dense, tgt_pc = self._cloud(target, preprocessed, "target")
-        clock.lap("preprocess")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
-        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
-        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
-        iters = {"deep": 0, "refine": 0, "dense": 0, "polish": 0}
-        converged, temperature = False, 0.0
-        with torch.inference_mode():
-            src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
-            tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
-            gamma = src.new_ones(src.shape[1])
-            n_deep = (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
-            if n_deep:
-                # the target does not move: its DGCNN features and the target-only parts of the
-                # transformer (encoder output, self-attention) are computed once
-                f_tgt, _ = self.model.point_features(tgt)
-                tgt_cache = self.model.target_cache(f_tgt)
-            src_knn = None  # the source's kNN graph is rigid-invariant: built once
+        src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
+        tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
+        return _State(
+            src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pc=src_pc, tgt_pc=tgt_pc,
+            src=src, tgt=tgt, search=NeighbourSearch(tgt[0]),
+            R=torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device),
+            t=torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device),
+            gamma=src.new_ones(src.shape[1]),
+        )
+
+    def _deep_passes(self, st: _State, clock: _Clock) -> None:
+        """DeepBBS: network passes on the moved source until the increment is small (or the cap)."""
+        rc, scale = self.config.registration, self.model.scale
+        n_deep = (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
+        if not n_deep:
+            return
+        # the target does not move: its DGCNN features and the target-only parts of the transformer
+        # (encoder output, self-attention) are computed once; the source's kNN graph is rigid-invariant
+        f_tgt, _ = self.model.point_features(st.tgt)
+        tgt_cache = self.model.target_cache(f_tgt)
+        src_knn = None
+        clock.lap("embed")
+        for k in range(n_deep):
+            moved = apply_transform(st.src, st.R[None], st.t[None])
+            # embed: DGCNN + transformer on the moved source and the target, temperature head
+            f_src, src_knn = self.model.point_features(moved, src_knn)
+            phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache)
+            temp = self.model.predict_temperature(phi_src, phi_tgt)
             clock.lap("embed")
-            for k in range(n_deep):
-                moved = apply_transform(src, R[None], t[None])
-                # embed: DGCNN + transformer on the moved source and the target, temperature head
-                f_src, src_knn = self.model.point_features(moved, src_knn)
-                phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache)
-                temp = self.model.predict_temperature(phi_src, phi_tgt)
-                clock.lap("embed")
-                # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
-                sb = self.model.match_inference(phi_src, phi_tgt)
-                clock.lap("match")
-                # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
-                temperature = float(temp[0]) if k == 0 else temperature
-                temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-                temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
-                dR, dt, _, g = solve_transform_inference(
-                    moved, tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
-                )
-                R, t = dR[0] @ R, dR[0] @ t + dt[0]
-                gamma, iters["deep"] = g[0], k + 1
-                small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
-                converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
-                clock.lap("solve")
-                if converged:
-                    break
-            # refine: SoftBBS on xyz over the k nearest targets, until the increment is tiny (DeepBBS++)
-            search = NeighbourSearch(tgt[0])
-            if rc.refine:
-                s_in, t_in, keep = src[0], tgt[0], None
-                if rc.refine_overlap_crop:
-                    keep, t_keep = _overlap(s_in, t_in, R, t, self.config.preprocess.max_range * scale)
-                    if int(keep.sum()) >= 3 and int(t_keep.sum()) >= 3:
-                        s_in, t_in = s_in[keep], t_in[t_keep]
-                    else:
-                        keep = None
-                t_ref = rc.refine_temperature * scale if rc.refine_temperature > 0 else 1.0
-                ref = refine(
-                    s_in, t_in, R, t,
-                    k=rc.refine_k, max_iters=rc.refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
-                    trans_tol=rc.refine_trans_tol * scale, xi=self.model.cfg.xi, temperature=t_ref,
-                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma, search=search if keep is None else None,
-                    alpha_start=rc.refine_alpha_start,
-                )  # fmt: skip
-                R, t, gamma, converged, iters["refine"] = ref.R, ref.t, ref.gamma, ref.converged, ref.iterations
-                if keep is not None:  # points outside the overlap get gamma 0
-                    gamma = src.new_zeros(src.shape[1]).masked_scatter_(keep, ref.gamma)
-            clock.lap("refine")
-            # dense: the same refinement on the voxelised non-ground clouds, a sharper alpha (their
-            # spacing is the voxel size, not the ~2 m of 1000 FPS points) and a spatial T in metres
-            if rc.refine and rc.dense_refine and src_dense is not None and tgt_dense is not None:
-                d_src = torch.from_numpy(src_dense).to(self.device) * scale
-                d_tgt = torch.from_numpy(tgt_dense).to(self.device) * scale
-                if rc.refine_overlap_crop:
-                    ks, kt = _overlap(d_src, d_tgt, R, t, self.config.preprocess.max_range * scale)
-                    if int(ks.sum()) >= 3 and int(kt.sum()) >= 3:
-                        d_src, d_tgt = d_src[ks], d_tgt[kt]
-                ref = refine(
-                    d_src, d_tgt, R, t,
-                    k=rc.dense_refine_k, max_iters=rc.dense_refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
-                    trans_tol=rc.refine_trans_tol * scale, xi=rc.dense_refine_xi,
-                    temperature=rc.dense_refine_temperature * scale,
-                    use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma,
-                )  # fmt: skip
-                R, t, converged, iters["dense"] = ref.R, ref.t, ref.converged, ref.iterations
-            moved = apply_transform(src, R[None], t[None])[0]
-            inliers = search.nearest_distance(moved) / scale <= rc.inlier_dist
-            inlier_ratio = float(inliers.float().mean())
-            clock.lap("dense" if iters["dense"] else "refine")
-        T_out = np.eye(4)
-        T_out[:3, :3] = R.double().cpu().numpy()
-        T_out[:3, 3] = t.double().cpu().numpy() / scale
-        T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
-        # polish: the precision stage, small_gicp GICP on the dense scans from the estimate
-        polish_reason = ""
-        if rc.polish != "none" and src_pc is not None and tgt_pc is not None:
-            pol = polish(src_pc, tgt_pc, T_out, rc)
-            iters["polish"], polish_reason = pol.iterations, pol.reason
-            if pol.applied:
-                T_out = pol.T_target_source
-                T_out[:3, :3] = _orthonormalize(T_out[:3, :3])
-                with torch.inference_mode():
-                    Rp = torch.as_tensor(T_out[:3, :3], dtype=src.dtype, device=self.device)
-                    tp = torch.as_tensor(T_out[:3, 3] * scale, dtype=src.dtype, device=self.device)
-                    moved = apply_transform(src, Rp[None], tp[None])[0]
-                    inlier_ratio = float((search.nearest_distance(moved) / scale <= rc.inlier_dist).float().mean())
-                converged = pol.converged
-            clock.lap("polish")
-        stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if iters["dense"] else ())
+            # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
+            sb = self.model.match_inference(phi_src, phi_tgt)
+            clock.lap("match")
+            # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
+            st.temperature = float(temp[0]) if k == 0 else st.temperature
+            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
+            temp_k = torch.as_tensor(temp_k, dtype=st.src.dtype, device=self.device).reshape(1)
+            dR, dt, _, g = solve_transform_inference(
+                moved, st.tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
+            )
+            st.R, st.t = dR[0] @ st.R, dR[0] @ st.t + dt[0]
+            st.gamma, st.iters["deep"] = g[0], k + 1
+            small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
+            st.converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
+            clock.lap("solve")
+            if st.converged:
+                break
+
+    def _refine(self, st: _State) -> None:
+        """DeepBBS++: SoftBBS on xyz over the k nearest targets, until the increment is tiny."""
+        rc, scale = self.config.registration, self.model.scale
+        if not rc.refine:
+            return
+        s_in, t_in, keep = st.src[0], st.tgt[0], None
+        if rc.refine_overlap_crop:
+            keep, t_keep = _overlap(s_in, t_in, st.R, st.t, self.config.preprocess.max_range * scale)
+            if int(keep.sum()) >= 3 and int(t_keep.sum()) >= 3:
+                s_in, t_in = s_in[keep], t_in[t_keep]
+            else:
+                keep = None
+        t_ref = rc.refine_temperature * scale if rc.refine_temperature > 0 else 1.0
+        ref = refine(
+            s_in, t_in, st.R, st.t,
+            k=rc.refine_k, max_iters=rc.refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
+            trans_tol=rc.refine_trans_tol * scale, xi=self.model.cfg.xi, temperature=t_ref,
+            use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma, search=st.search if keep is None else None,
+            alpha_start=rc.refine_alpha_start,
+        )  # fmt: skip
+        st.R, st.t, st.gamma, st.converged, st.iters["refine"] = ref.R, ref.t, ref.gamma, ref.converged, ref.iterations
+        if keep is not None:  # points outside the overlap get gamma 0
+            st.gamma = st.src.new_zeros(st.src.shape[1]).masked_scatter_(keep, ref.gamma)
+
+    def _dense_refine(self, st: _State) -> None:
+        """The refinement on the voxelised non-ground clouds: a sharper alpha (their spacing is the voxel
+        size, not the ~2 m of the sampled points) and a spatial T in metres."""
+        rc, scale = self.config.registration, self.model.scale
+        if not (rc.refine and rc.dense_refine and st.src_dense is not None and st.tgt_dense is not None):
+            return
+        d_src = torch.from_numpy(st.src_dense).to(self.device) * scale
+        d_tgt = torch.from_numpy(st.tgt_dense).to(self.device) * scale
+        if rc.refine_overlap_crop:
+            ks, kt = _overlap(d_src, d_tgt, st.R, st.t, self.config.preprocess.max_range * scale)
+            if int(ks.sum()) >= 3 and int(kt.sum()) >= 3:
+                d_src, d_tgt = d_src[ks], d_tgt[kt]
+        ref = refine(
+            d_src, d_tgt, st.R, st.t,
+            k=rc.dense_refine_k, max_iters=rc.dense_refine_max_iters, rot_tol_deg=rc.refine_rot_tol_deg,
+            trans_tol=rc.refine_trans_tol * scale, xi=rc.dense_refine_xi,
+            temperature=rc.dense_refine_temperature * scale,
+            use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma,
+        )  # fmt: skip
+        st.R, st.t, st.converged, st.iters["dense"] = ref.R, ref.t, ref.converged, ref.iterations
+
+    def _inlier_ratio(self, st: _State, R: torch.Tensor, t: torch.Tensor) -> float:
+        """Share of the sampled source points within ``registration.inlier_dist`` of a target point."""
+        moved = apply_transform(st.src, R[None], t[None])[0]
+        return float((st.search.nearest_distance(moved) / self.model.scale <= self.config.registration.inlier_dist)
+                     .float().mean())
+
+    def _polish(self, st: _State, clock: _Clock) -> None:
+        """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
+        their ``polish_cloud``; rejected results keep the estimate)."""
+        rc = self.config.registration
+        st.T = _matrix(st.R, st.t, self.model.scale)
+        if rc.polish == "none" or st.src_pc is None or st.tgt_pc is None:
+            return
+        pol = polish(st.src_pc, st.tgt_pc, st.T, rc)
+        st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
+        if pol.applied:
+            st.T = pol.T_target_source
+            st.T[:3, :3] = _orthonormalize(st.T[:3, :3])
+            with torch.inference_mode():
+                Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
+                tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
+                st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
+            st.converged = pol.converged
+        clock.lap("polish")
+
+    def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
+        stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
         stages += ("polish",) if "polish" in clock.ms else ()
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())
         return RegistrationResult(
-            T_target_source=T_out,
-            converged=bool(converged),
-            iterations=iters,
-            gamma=gamma.float().cpu().numpy(),
-            inlier_ratio=inlier_ratio,
-            temperature=temperature,
+            T_target_source=st.T,
+            converged=bool(st.converged),
+            iterations=st.iters,
+            gamma=st.gamma.float().cpu().numpy(),
+            inlier_ratio=st.inlier_ratio,
+            temperature=st.temperature,
             timings_ms=timings,
-            source=src_np,
-            target=tgt_np,
-            polish=polish_reason,
+            source=st.src_np,
+            target=st.tgt_np,
+            polish=st.polish_reason,
         )
+
+
+@dataclass
+class _State:
+    """What the stages of one ``register`` call share: the clouds (numpy, and scaled (1, N, 3) tensors on
+    the device), the estimate R (3, 3), t (3,) in scaled units (T: the float64 metres matrix once the
+    network stages are done), and the bookkeeping of the result."""
+
+    src_np: np.ndarray
+    tgt_np: np.ndarray
+    src_dense: np.ndarray | None
+    tgt_dense: np.ndarray | None
+    src_pc: PolishCloud | None
+    tgt_pc: PolishCloud | None
+    src: torch.Tensor
+    tgt: torch.Tensor
+    search: NeighbourSearch
+    R: torch.Tensor
+    t: torch.Tensor
+    gamma: torch.Tensor
+    T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    iters: dict[str, int] = field(default_factory=lambda: {"deep": 0, "refine": 0, "dense": 0, "polish": 0})
+    converged: bool = False
+    temperature: float = 0.0
+    inlier_ratio: float = 0.0
+    polish_reason: str = ""
+
+
+def _matrix(R: torch.Tensor, t: torch.Tensor, scale: float) -> np.ndarray:
+    """(4, 4) float64 metres from R (3, 3) and t (3,) in scaled units (rotation re-orthonormalised)."""
+    T = np.eye(4)
+    T[:3, :3] = _orthonormalize(R.double().cpu().numpy())
+    T[:3, 3] = t.double().cpu().numpy() / scale
+    return T
 
 
 def _overlap(
