@@ -14,7 +14,9 @@ This process publishes the frames at ``--rate`` Hz (frames played forwards then 
 consecutive scans are always neighbours) to a node running in its own process, first ``deepbbs-node``
 (DeepBBS++), then the GICP anchor ``python -m deepbbs_ros.node.gicp_anchor`` (small_gicp GICP, the same
 node plumbing and topics), and times every PoseStamped against the wall time at which its source cloud
-was published (same host, same clock). ``--mode odometry``: one input, scan k against scan k-1;
+was published (same host, same clock). ``--mode odometry``: one input; deepbbs-node runs its local-map
+odometry (DeepBBSOdometry, DeepBBS++ only on stamp gaps, fit drops and the first motion), the anchor
+chains GICP scan k against scan k-1;
 ``--mode pair``: scan k on ``source_cloud`` and scan k-1 on ``target_cloud``, both stamped like scan k.
 
 Per layout and method it prints the pairs published (after ``--warmup`` seconds), the fraction

@@ -99,7 +99,8 @@ def scan(world: np.ndarray, T_world_lidar: np.ndarray, seed: int, n_points: int 
 
 
 class Harness:
-    """The node plus a client node (publishers of the inputs, subscribers of the outputs)."""
+    """The node plus a client node (publishers of the inputs, subscribers of the outputs); ``node_kwargs``
+    go to RegistrationNode (e.g. ``odometry_method``)."""
 
     def __init__(self, cfg: Config, name: str, registration=None, **node_kwargs) -> None:
         registration = registration or tiny_registration(cfg)
@@ -300,15 +301,19 @@ class CountingRegistration:
         return self.reg.register(source, target)
 
 
-def test_odometry_output_twist_covariance_tf(ros, world):
-    """Odometry mode with every output: each scan preprocessed exactly once; ~/odometry carries the pose,
-    the twist (the motion since the previous scan over the stamp gap) and both covariances from the
-    registration; odom -> base_frame goes to the TF broadcaster (injected: tf2_msgs has no PyPI wheel)."""
+@pytest.mark.parametrize("method", ["local_map", "scan_to_scan"])
+def test_odometry_output_twist_covariance_tf(ros, world, method):
+    """Odometry mode with every output: ~/odometry carries the pose, the twist (the motion since the
+    previous scan over the stamp gap) and both covariances from the registration residuals; odom ->
+    base_frame goes to the TF broadcaster (injected: tf2_msgs has no PyPI wheel). Scan to scan: each scan
+    preprocessed exactly once, on arrival. Local map: nothing preprocessed on arrival; DeepBBS++ consulted
+    on the first motion only (the previous and the current scan preprocessed then)."""
     cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
                          "node.publish_odometry": True, "node.publish_tf": True})  # fmt: skip
     counting = CountingRegistration(tiny_registration(cfg))
     tf: list[TransformStamped] = []
-    h = Harness(cfg, "reg_odom_out", registration=counting, tf_broadcaster=tf.extend)
+    h = Harness(cfg, f"reg_odom_out_{method}", registration=counting, tf_broadcaster=tf.extend,
+                odometry_method=method)  # fmt: skip
     dt = 0.1
     try:
         T_w = [at(0.8 * k, 0.04 * k, np.deg2rad(1.2 * k)) for k in range(4)]
@@ -317,7 +322,11 @@ def test_odometry_output_twist_covariance_tf(ros, world):
             h.send("cloud", scan(world, T, seed=40 + k), stamps[k])
             h.wait_processed(k + 1)
         assert h.wait_for(lambda: len(h.odoms) == 4 and len(tf) == 4), h.node.stats()
-        assert counting.preprocessed == [N_POINTS] * 4  # once per scan: the source is reused as next target
+        if method == "scan_to_scan":
+            assert counting.preprocessed == [N_POINTS] * 4  # once per scan: the source is reused as next target
+        else:
+            assert len(counting.preprocessed) == 2 and h.node.stats()["preprocess_cache"]["misses"] == 0
+            assert (h.node.stats()["deepbbs_consulted"], h.node.odometry.odometry.deepbbs_calls) == (1, 1)
         prev_T, prev_trace = None, -1.0
         for k, msg in enumerate(h.odoms):
             T, stamp, frame, child = odometry_to_matrix(msg)
@@ -346,12 +355,52 @@ def test_odometry_output_twist_covariance_tf(ros, world):
         h.close()
 
 
+def test_odometry_mode_equals_replay_over_dds(ros):
+    """The node's odometry mode over DDS gives replay's trajectory (``deepbbs-replay --mode odometry
+    --method deepbbs++``) on the same motion-distorted toy drive: Velodyne-layout PointCloud2 with per-point
+    times, published reliably one at a time (each answered before the next: no drop can change the
+    trajectory). Same float32 inputs, same config: equal up to KISS-ICP's multi-threaded reductions
+    (~1e-14) and the quaternion round trip of the PoseStamped (~1e-15)."""
+    pytest.importorskip("kiss_icp")
+    from deepbbs_ros.replay.methods import DeepBBSOdomMethod
+    from deepbbs_ros.replay.runner import run_odometry
+    from deepbbs_ros.replay.synthetic import synthetic_drive
+    from msg_adapters.layouts import VELODYNE, build_cloud
+
+    scans = synthetic_drive(15, motion_distortion=True)
+    cfg = tiny_config(**{"node.mode": "odometry", "node.qos_reliability": "reliable", "node.publish_odometry": True})
+    method = DeepBBSOdomMethod("deepbbs++", cfg, registration=tiny_registration(cfg))
+    replay = run_odometry(scans, {"deepbbs++": method}, cfg)
+    T_world = replay.T_world_est["deepbbs++"]
+    want = [np.linalg.inv(T_world[0]) @ T for T in T_world]
+    h = Harness(cfg, "reg_odom_replay")
+    try:
+        for k, s in enumerate(scans):
+            p = s.points
+            h.send_raw("cloud", build_cloud(VELODYNE, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2],
+                                                       "intensity": s.fields["intensity"], "time": s.fields["time"]},
+                                            stamp_ns=s.stamp_ns, frame_id=s.frame_id))  # fmt: skip
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: len(h.poses) == len(scans) and len(h.odoms) == len(scans)), h.node.stats()
+        st = h.node.stats()
+        assert st["processed"] == len(scans) and st["errors"] == {} and st["dropped"] == 0
+        for k, (msg, odom) in enumerate(zip(h.poses, h.odoms)):
+            T, stamp, frame = pose_stamped_to_matrix(msg)
+            assert (stamp, frame) == (scans[k].stamp_ns, "odom")
+            np.testing.assert_allclose(T, want[k], rtol=0, atol=1e-6, err_msg=f"scan {k}")
+            np.testing.assert_allclose(odometry_to_matrix(odom)[0], T, atol=1e-9)
+    finally:
+        h.close()
+
+
 def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
     """Preprocessing slower than the scan rate: the input queue stays bounded, the oldest waiting scans
-    are dropped and counted on /diagnostics, and the node still answers the newest."""
+    are dropped and counted on /diagnostics, and the node still answers the newest. (The scan-to-scan
+    odometry preprocesses on arrival, which is what is slowed down here; the drop policy is the same
+    for the local-map odometry.)"""
     cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2})
     slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
-    h = Harness(cfg, "reg_busy", registration=slow)
+    h = Harness(cfg, "reg_busy", registration=slow, odometry_method="scan_to_scan")
     try:
         clouds = [scan(world, at(0.5 * k), seed=60 + k) for k in range(6)]
         h.send("cloud", clouds[0], 500 * SEC)

@@ -62,8 +62,10 @@ class GicpRegistration:
 
 
 def make_anchor_node(config: Config, **node_kwargs: Any) -> RegistrationNode:
-    """The anchor node (``rclpy.init`` must have been called)."""
+    """The anchor node (``rclpy.init`` must have been called); odometry mode chains GICP scan to scan
+    (``odometry_method="scan_to_scan"``), the baseline the node's odometry is measured against."""
     node_kwargs.setdefault("node_name", ANCHOR_NAME)
+    node_kwargs.setdefault("odometry_method", "scan_to_scan")
     return RegistrationNode(config, registration=GicpRegistration(config), **node_kwargs)
 
 

@@ -1,5 +1,6 @@
-"""The node's inputs: every PointCloud2 is decoded, checked and preprocessed on arrival, on its input's
-own thread, while the registration worker handles the previous pair (no ROS import).
+"""The node's inputs: every PointCloud2 is decoded, checked and (pair mode, scan-to-scan odometry)
+preprocessed on arrival, on its input's own thread, while the registration worker handles the previous
+pair (no ROS import). The local-map odometry takes the decoded raw points: its inputs do not preprocess.
 
 ::
 
@@ -54,12 +55,13 @@ class Cloud:
     Attributes:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
         times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
-            (:data:`TIME_FIELDS`); None when the cloud has no time field. Unused by scan-to-scan
-            odometry; for a deskewing odometry.
+            (:data:`TIME_FIELDS`); None when the cloud has no time field. The local-map odometry
+            deskews with them; pair mode and scan-to-scan odometry do not use them.
         stamp_ns: ``header.stamp`` in nanoseconds.
         frame_id: ``header.frame_id`` (never empty).
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
-        pp: what ``registration.preprocess(xyz)`` returned (a PreprocessResult for DeepBBS++).
+        pp: what ``registration.preprocess(xyz)`` returned (a PreprocessResult for DeepBBS++); None when
+            the input does not preprocess (local-map odometry: DeepBBS++ preprocesses only when consulted).
         t_ready: ``time.perf_counter()`` when preprocessing finished.
         timings_ms: ``input_wait`` (callback -> input thread), ``decode``, ``preprocess`` (absent on a
             cache hit).
@@ -186,7 +188,8 @@ class CloudInput:
 
     Args:
         topic: the resolved topic name (for messages).
-        cache: the preprocessing cache shared by the node's inputs.
+        cache: the preprocessing cache shared by the node's inputs; None: no preprocessing on arrival
+            (``Cloud.pp`` is None; local-map odometry).
         min_points: clouds with fewer valid points are rejected (``node.min_points``).
         on_cloud: called on the input thread with every good :class:`Cloud`.
         on_bad: ``(kind, message)`` for every rejected message.
@@ -200,7 +203,7 @@ class CloudInput:
     def __init__(
         self,
         topic: str,
-        cache: PreprocessCache,
+        cache: PreprocessCache | None,
         min_points: int,
         on_cloud: Callable[[Cloud], None],
         on_bad: Callable[[str, str], None],
@@ -268,7 +271,7 @@ class CloudInput:
             xyz, times, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
             self._check(frame, stamp_ns)
             t1 = time.perf_counter()
-            pp, pp_ms = self._cache.get(xyz, f"{frame}@{stamp_ns}")
+            pp, pp_ms = self._cache.get(xyz, f"{frame}@{stamp_ns}") if self._cache is not None else (None, 0.0)
         except BadInput as bad:
             self._on_bad(bad.kind, str(bad))
             return

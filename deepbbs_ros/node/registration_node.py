@@ -4,27 +4,36 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
 
 * ``node.mode: pair`` (default): ``source_cloud`` and ``target_cloud`` (sensor_msgs/PointCloud2),
   paired by approximate time (``node.queue_size`` per input, ``node.slop`` seconds).
-* ``node.mode: odometry``: one input ``cloud``; each scan is registered against the previous one.
+* ``node.mode: odometry``: one input ``cloud``; the scans run through the odometry of ``deepbbs-replay
+  --mode odometry --method deepbbs++`` (:class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the
+  ``odometry`` config section): deskewing with the per-point times (Velodyne ``time``, Ouster ``t``),
+  KISS-ICP's scan-to-local-map ICP, and DeepBBS++ (the node's network) consulted on stamp gaps, fit drops
+  and the first motion (:class:`deepbbs_ros.node.pipeline.LocalMapOdometry`). The chained scan-to-scan
+  odometry (scan k registered against scan k-1) stays available as ``odometry_method="scan_to_scan"``
+  of :class:`RegistrationNode` (the GICP anchor uses it).
 
 Outputs (CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 * ``~/pose`` (geometry_msgs/PoseStamped). Pair mode: ``T_target_source``, ``frame_id`` = target cloud
-  frame, stamp = source stamp. Odometry mode: the accumulated pose ``T_odom_k``
-  (``T_odom_k = T_odom_{k-1} @ T_{k-1}_k``, identity at the first scan), ``frame_id`` = ``node.odom_frame``.
+  frame, stamp = source stamp. Odometry mode: the pose ``T_odom_k`` of scan k (the odom frame is the
+  first scan's sensor frame at its stamp: identity at the first scan), ``frame_id`` = ``node.odom_frame``.
 * ``~/transform`` (geometry_msgs/TransformStamped): the same transform, ``child_frame_id`` = the source
   frame (pair mode) or ``node.base_frame`` / the cloud frame (odometry mode).
-* opt-in: ``~/odometry`` (nav_msgs/Odometry: twist from the motion over dt, covariances from the
-  registration residuals, :mod:`deepbbs_ros.node.covariance`), ``/tf`` (``node.publish_tf``; needs
+* opt-in: ``~/odometry`` (nav_msgs/Odometry: twist from the motion since the previous scan over the stamp
+  gap, covariances from the registration residuals of that motion, :mod:`deepbbs_ros.node.covariance`,
+  accumulated along the trajectory in odometry mode), ``/tf`` (``node.publish_tf``; needs
   tf2_msgs; odometry mode broadcasts ``odom_frame -> base_frame``), ``~/aligned_cloud`` (the source
   cloud moved into the target frame).
 * ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind,
   model, device. ``~/reset`` (std_srvs/Trigger): restart odometry at identity and clear the synchroniser.
 
-Threads: the executor's callbacks only hand messages on. Each input has its own thread that decodes,
-checks and preprocesses every cloud on arrival (:mod:`deepbbs_ros.node.inputs`; at most one message
-waits per input, older ones are dropped and counted), so a pair's latency is mostly its registration.
-Registration runs on one worker thread behind a "latest" slot (:mod:`deepbbs_ros.node.worker`,
-:mod:`deepbbs_ros.node.pipeline`): the newest pair wins, stale pairs are dropped and counted. Bad input
+Threads: the executor's callbacks only hand messages on. Each input has its own thread that decodes and
+checks every cloud on arrival and preprocesses it for DeepBBS++ (pair mode, scan-to-scan odometry; the
+local-map odometry works on the raw points and preprocesses only the scans it consults DeepBBS++ on)
+(:mod:`deepbbs_ros.node.inputs`; at most one message waits per input, older ones are dropped and
+counted), so a pair's latency is mostly its registration. Registration / odometry runs on one worker
+thread behind a "latest" slot (:mod:`deepbbs_ros.node.worker`, :mod:`deepbbs_ros.node.pipeline`): the
+newest pair or scan wins, stale ones are dropped and counted. Bad input
 (malformed PointCloud2, empty, too few points, NaN-only, missing or changed frames) is logged once per
 kind and period (``node.error_log_period``), nothing is published for it, and the node goes on.
 """
@@ -56,11 +65,12 @@ from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
-from deepbbs_ros.node.pipeline import ScanToScanOdometry, register_clouds
+from deepbbs_ros.node.pipeline import LocalMapOdometry, ScanToScanOdometry, register_clouds
 from deepbbs_ros.node.sync import ApproximateTimeSync
 from deepbbs_ros.node.worker import LatestSlotWorker
 
 NODE_NAME = "deepbbs_registration"
+ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 PAIR_INPUTS = ("source_cloud", "target_cloud")
 ODOM_INPUT = "cloud"
 
@@ -111,6 +121,9 @@ class RegistrationNode(Node):
         registration: a ready registration object (``preprocess(xyz)``, ``register(src_pp, tgt_pp)``),
             e.g. a small test model or the GICP anchor; default: DeepBBS++ with ``registration.weights``.
         tf_broadcaster: used instead of a ``/tf`` publisher when ``node.publish_tf`` is set.
+        odometry_method: odometry mode's pipeline: ``"local_map"`` (default; DeepBBSOdometry, as
+            ``deepbbs-replay --mode odometry --method deepbbs++``) or ``"scan_to_scan"`` (scan k registered
+            against scan k-1 with ``registration``, chained; each scan preprocessed on arrival).
         node_name, node_kwargs: passed to ``rclpy.node.Node``.
 
     Raises:
@@ -123,6 +136,7 @@ class RegistrationNode(Node):
         *,
         registration: Any = None,
         tf_broadcaster: TfBroadcaster | None = None,
+        odometry_method: str = "local_map",
         node_name: str = NODE_NAME,
         **node_kwargs: Any,
     ) -> None:
@@ -133,6 +147,9 @@ class RegistrationNode(Node):
         _validate_frame("node.base_frame", ncfg.base_frame)
         if not ncfg.odom_frame:
             raise NodeError("node.odom_frame: must not be empty")
+        if odometry_method not in ODOMETRY_METHODS:
+            raise NodeError(f"odometry_method must be one of {', '.join(ODOMETRY_METHODS)}, got {odometry_method!r}")
+        self.odometry_method = odometry_method
         self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
         self._stages = StageTimes()
         self._lock = threading.Lock()
@@ -156,6 +173,8 @@ class RegistrationNode(Node):
         self.odometry = self._make_odometry()
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(self.reg.preprocess)
+        # preprocessing on arrival only where every scan is registered by the network
+        self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry)
 
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         qos = QoSProfile(
@@ -182,13 +201,22 @@ class RegistrationNode(Node):
         self.get_logger().info(
             f"mode={ncfg.mode} inputs=[{', '.join(i.topic for i in self.inputs)}] device={self._device} "
             f"weights={self._weights} qos={ncfg.qos_reliability}/{ncfg.qos_depth} slop={ncfg.slop}s "
-            f"queue={ncfg.queue_size}"
+            f"queue={ncfg.queue_size}" + (f" odometry={self.odometry_method}" if self.odometry else "")
         )
 
-    def _make_odometry(self) -> ScanToScanOdometry:
-        """The odometry of odometry mode: ``reset()`` and ``step(cloud) -> OdometryEstimate``
-        (:mod:`deepbbs_ros.node.pipeline`); swap the per-scan computation here."""
-        return ScanToScanOdometry(self.reg, covariance=self.cfg.node.publish_odometry)
+    def _make_odometry(self) -> LocalMapOdometry | ScanToScanOdometry | None:
+        """The odometry of odometry mode (None in pair mode): ``reset()`` and ``step(cloud) ->
+        OdometryEstimate`` (:mod:`deepbbs_ros.node.pipeline`), sharing the node's registration."""
+        if self.cfg.node.mode != "odometry":
+            return None
+        cov = self.cfg.node.publish_odometry
+        if self.odometry_method == "scan_to_scan":
+            return ScanToScanOdometry(self.reg, covariance=cov)
+        try:
+            return LocalMapOdometry(self.cfg, self.reg, covariance=cov)
+        except ImportError as err:
+            raise NodeError(f"odometry mode needs kiss-icp and small_gicp ({err}); "
+                            "install them or use the scan-to-scan odometry") from err
 
     # -- parameters ---------------------------------------------------------------------------------
     def _declare_config(self, defaults: Config) -> Config:
@@ -229,8 +257,9 @@ class RegistrationNode(Node):
         )  # fmt: skip
         self.inputs.append(
             CloudInput(
-                self.resolve_topic_name(name), self._cache, self.cfg.node.min_points, on_cloud, self._on_bad,
-                self._on_thread_error, increasing_stamps=not pair, gate=self.worker.room,
+                self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival else None,
+                self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
+                increasing_stamps=not pair, gate=self.worker.room,
             )
         )  # fmt: skip
         return sub
@@ -261,8 +290,9 @@ class RegistrationNode(Node):
         self.sync.reset()
         for inp in self.inputs:
             inp.reset()
-        with self._odom_lock:
-            self.odometry.reset()
+        if self.odometry is not None:
+            with self._odom_lock:
+                self.odometry.reset()
         response.success = True
         response.message = "odometry restarted at identity; synchroniser and frame memory cleared"
         self.get_logger().info(response.message)
@@ -298,10 +328,7 @@ class RegistrationNode(Node):
         with self._lock:
             self._counts["processed"] += 1
             if reg is not None:
-                self._last_result = {
-                    "inlier_ratio": float(getattr(reg.result, "inlier_ratio", float("nan"))),
-                    "converged": float(bool(getattr(reg.result, "converged", False))),
-                }
+                self._last_result = _result_summary(reg.result)
         if reg is None:  # the odometry origin: nothing was registered
             return
         timings.update(reg.timings_ms)
@@ -323,6 +350,8 @@ class RegistrationNode(Node):
         out["sync_queue"] = list(self.sync.queue_lengths())
         out["errors"] = dict(self._errors.counts)
         out["latency_ms"] = self._stages.summary()
+        if isinstance(self.odometry, LocalMapOdometry):
+            out["deepbbs_consulted"], out["deepbbs_won"] = self.odometry.consulted, self.odometry.won
         return out
 
     def _publish_diagnostics(self) -> None:
@@ -341,11 +370,13 @@ class RegistrationNode(Node):
             "sync overflow / stale / late": "{overflow} / {stale} / {late}".format(**s["sync"]),
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
         }
+        if "deepbbs_consulted" in s:
+            values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
         for stage, st in sorted(s["latency_ms"].items()):
             values[f"latency_ms.{stage}"] = f"median {st['median']:.1f} p99 {st['p99']:.1f} max {st['max']:.1f}"
-        for k in ("inlier_ratio", "converged"):
+        for k in self._last_result:
             if k in s:
                 values[f"last.{k}"] = f"{s[k]:.3f}"
         self.outputs.publish_diagnostics(
@@ -361,6 +392,17 @@ class RegistrationNode(Node):
     def destroy_node(self):
         self._stop_threads()
         return super().destroy_node()
+
+
+def _result_summary(result: Any) -> dict[str, float]:
+    """The last result's figures for /diagnostics: the odometry's fit (an ``OdometryStep``), else the
+    registration's inlier ratio and convergence."""
+    if hasattr(result, "fit") and hasattr(result, "T_first_k"):
+        return {"odometry_fit": float(result.fit), "odometry_deepbbs": float(bool(result.deepbbs))}
+    return {
+        "inlier_ratio": float(getattr(result, "inlier_ratio", float("nan"))),
+        "converged": float(bool(getattr(result, "converged", False))),
+    }
 
 
 def _parser(prog: str, description: str) -> argparse.ArgumentParser:
