@@ -231,13 +231,13 @@ class OdometryConfig:
     initial_threshold: float = 2.0  # m; KISS-ICP adaptive threshold before motion is known
     min_motion_th: float = 0.1  # m; KISS-ICP: smaller deviations do not update the threshold
     max_icp_iters: int = 500
-    deskew: bool = True  # motion compensation from per-point times (Velodyne time, Ouster t) when a cloud has them
+    deskew: bool = False  # motion compensation from per-point times (Velodyne time, Ouster t); off: see MODEL.md
     gap_factor: float = 1.5  # a stamp gap above this many nominal periods (dropped scans) asks DeepBBS++
-    fit_radius: float = 1.0  # m; fit = share of scan points this close to the previous scan after alignment
+    fit_radius: float = 0.5  # m; fit = share of scan points this close to the previous scan after alignment
     fit_drop: float = 0.8  # a fit below this share of the recent median asks DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
-    fit_margin: float = 0.02  # DeepBBS++'s start must improve the fit by this much to win
-    reinit_threshold: float = 0.5  # m; smallest adaptive threshold for the ICP from the DeepBBS++ start
+    fit_margin: float = 0.02  # fit difference that decides between the prediction and DeepBBS++ (first motion: identity)
+    reinit_threshold: float = 0.5  # m; adaptive threshold of the map ICP from the DeepBBS++ start (it is precise)
     threads: int = 0  # KISS-ICP threads; 0 = automatic
 
     def validate(self) -> None:

@@ -111,7 +111,7 @@ def test_deskew_from_per_point_times_undoes_the_sweep():
     assert before.max() > 1.0 and after.max() < 0.05, (before.max(), after.max())
     # the odometry estimates the velocity itself, deskews from the third scan on and restarts its map
     # from the first two scans deskewed once the first motion is known
-    odom = DeepBBSOdometry(_cfg(**{"odometry.deepbbs_init": "never"}))
+    odom = DeepBBSOdometry(_cfg(**{"odometry.deepbbs_init": "never", "odometry.deskew": True}))
     est, gt = _run(odom, dist)
     assert ate_rmse(est, gt) < 0.03
     np.testing.assert_allclose(odom.delta[:3, 3], delta[:3, 3], atol=0.03)

@@ -8,7 +8,8 @@
     align       point-to-point ICP of the scan against the local voxel map from the prediction, adaptive threshold
     check       fit = share of scan points within ``fit_radius`` of the previous scan; on a stamp gap, a fit drop
                 or the first motion, DeepBBS++ registers the scan against the previous one (wide basin) and
-                the map alignment runs again from there; the better fit wins
+                the map alignment runs again from there (first motion: the GICP-precise DeepBBS++ result
+                itself, the map being the first scan); the start with the clearly better fit wins
     update      adaptive threshold (deviation from the prediction that won), map, velocity
 
 Why: KISS-ICP's scan-to-map ICP is the most precise odometry on ordinary drives, and its constant-velocity
@@ -106,7 +107,9 @@ class OdometryStep:
 
     T_first_k: (4, 4) float64 pose of the scan (at its stamp) in the first scan's frame.
     T_prev_k: (4, 4) float64 motion since the previous frame (``T_{k-1}_k``).
-    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start gave the better fit.
+    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (first motion: its fit
+        was not worse than identity's by more than ``odometry.fit_margin``; later: better than the
+        prediction's by more than that).
     fit: share of scan points within ``odometry.fit_radius`` of the previous scan after alignment.
     timings_ms: "deskew", "align", "check", "deepbbs" (0 when not consulted), "total".
     """
@@ -200,9 +203,15 @@ class DeepBBSOdometry:
             T_prev_k = self._deepbbs(frame, points)
             if T_prev_k is not None:
                 init_b = self.pose @ T_prev_k
-                pose_b = self._align(source, init_b, max(sigma, oc.reinit_threshold))
+                if self.frames == 1:  # the map is the first scan: DeepBBS++ (GICP-precise) is scan-to-map
+                    pose_b = init_b
+                else:
+                    pose_b = self._align(source, init_b, oc.reinit_threshold)
                 fit_b = self._fit(source, pose_b)
-                if fit_b > fit + oc.fit_margin:
+                # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
+                # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
+                better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
+                if better:
                     pose, fit, init, won = pose_b, fit_b, init_b, True
             clock.lap("deepbbs")
         T_prev_k = np.linalg.inv(self.pose) @ pose
