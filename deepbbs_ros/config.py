@@ -236,7 +236,7 @@ class OdometryConfig:
     fit_radius: float = 0.5  # m; fit = share of scan points this close to the previous scan after alignment
     fit_drop: float = 0.8  # a fit below this share of the recent median asks DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
-    fit_margin: float = 0.02  # fit difference that decides between the prediction and DeepBBS++ (first motion: identity)
+    fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
     reinit_threshold: float = 0.5  # m; adaptive threshold of the map ICP from the DeepBBS++ start (it is precise)
     threads: int = 0  # KISS-ICP threads; 0 = automatic
 

@@ -15,6 +15,9 @@ APOLLO_LIDAR_TOPIC = "/apollo/sensor/velodyne64/compensator/PointCloud2"
 APOLLO_LIDAR_FRAME = "velodyne64"
 GT_POSE_TOPIC = "/ground_truth/pose"
 WORLD_FRAME = "world"
+#: per-point time fields of real drivers and their unit in seconds: Velodyne ``time`` (s since the
+#: stamp), Ouster ``t`` (ns since the stamp); the first one a cloud has is used
+TIME_FIELDS = (("time", 1.0), ("t", 1e-9))
 
 
 @dataclass
@@ -38,6 +41,13 @@ class Scan:
     fields: dict[str, np.ndarray] = field(default_factory=dict)
     frame_id: str = APOLLO_LIDAR_FRAME
     T_world_lidar: np.ndarray | None = None
+
+    def point_times(self) -> np.ndarray | None:
+        """(N,) float64 seconds since ``stamp_ns`` from the first of :data:`TIME_FIELDS` present, or None."""
+        for name, unit in TIME_FIELDS:
+            if name in self.fields:
+                return np.asarray(self.fields[name], dtype=np.float64) * unit
+        return None
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float32).reshape(-1, 3)

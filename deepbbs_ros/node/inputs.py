@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.datasets.base import TIME_FIELDS
 from deepbbs_ros.errors import PointCloudFormatError, RegistrationError
 from deepbbs_ros.node.worker import LatestSlotWorker
 
@@ -78,7 +79,6 @@ class Cloud:
 
 
 #: per-point time fields of real drivers -> seconds per unit (Velodyne ``time`` float32 s, Ouster ``t`` uint32 ns)
-TIME_FIELDS = (("time", 1.0), ("t", 1e-9))
 
 
 def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.ndarray | None, int, str]:

@@ -110,7 +110,9 @@ def load_registration(cfg: Config) -> tuple[Any, str]:
     weights = str(check_weights(cfg))
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
-    return DeepBBSRegistration(cfg, weights=weights), weights
+    reg = DeepBBSRegistration(cfg, weights=weights)
+    reg.warmup()  # the first registrations set up torch's kernels (seconds): before the first scan, not on it
+    return reg, weights
 
 
 class RegistrationNode(Node):

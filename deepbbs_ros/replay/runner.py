@@ -299,7 +299,7 @@ def run_odometry(
                         st["rel"] = st["rel"] @ bad
                 if hasattr(method, "step"):  # odometries with their own state (KISS-ICP, DeepBBS++ odometry)
                     try:
-                        T_first_k, ms = method.step(scan.points, scan.fields.get("time"), scan.stamp_ns)
+                        T_first_k, ms = method.step(scan.points, scan.point_times(), scan.stamp_ns)
                         st["last"] = T_first_k
                     except DeepBBSError as err:
                         T_first_k, ms = st.get("last", np.eye(4)), float("nan")
