@@ -24,7 +24,7 @@ import time
 
 from deepbbs_ros.cli.common import cli_entry
 
-STAGES = ("preprocess", "embed", "match", "solve", "refine", "total")
+STAGES = ("preprocess", "embed", "match", "solve", "refine", "polish", "total")
 
 
 def build_parser() -> argparse.ArgumentParser:
