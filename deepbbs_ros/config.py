@@ -223,38 +223,36 @@ class NodeConfig:
 @dataclass
 class OdometryConfig:
     """Local-map odometry (core/odometry.py): ``deepbbs-replay --mode odometry --method deepbbs++`` and the
-    node's ``node.mode: odometry``. KISS-ICP's scan-to-map ICP with DeepBBS++ where the motion prior fails."""
+    node's ``node.mode: odometry``. GICP against a local voxel map with DeepBBS++ where the motion prior fails."""
 
     deepbbs_init: str = "auto"  # DeepBBS++ re-initialises: auto (stamp gap, fit drop, first motion) | always | never
-    voxel_size: float = 0.0  # m; local map voxel; 0 = preprocess.max_range / 100 (KISS-ICP's default)
-    max_points_per_voxel: int = 20
-    initial_threshold: float = 2.0  # m; KISS-ICP adaptive threshold before motion is known
-    min_motion_th: float = 0.1  # m; KISS-ICP: smaller deviations do not update the threshold
-    max_icp_iters: int = 500
+    voxel_size: float = 0.0  # m; local map voxel (VGICP); the scan grid is half of it; 0 = preprocess.max_range / 80
+    neighbors: int = 20  # neighbours for the scan's covariances
+    max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map
+    max_iters: int = 20  # GICP iterations per alignment
+    lru_horizon: int = 100  # map voxels not seen for this many scans are dropped ...
+    lru_clear_cycle: int = 10  # ... checked every this many scans
     deskew: bool = False  # motion compensation from per-point times (Velodyne time, Ouster t); off: see MODEL.md
     gap_factor: float = 1.5  # a stamp gap above this many nominal periods (dropped scans) asks DeepBBS++
-    fit_radius: float = 0.5  # m; fit = share of scan points this close to the previous scan after alignment
-    fit_drop: float = 0.8  # a fit below this share of the recent median asks DeepBBS++
+    fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
     fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
-    reinit_threshold: float = 0.5  # m; adaptive threshold of the map ICP from the DeepBBS++ start (it is precise)
-    threads: int = 0  # KISS-ICP threads; 0 = automatic
+    threads: int = 0  # small_gicp threads; 0 = every core
 
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
                f"must be 'auto', 'always' or 'never', got {self.deepbbs_init!r}")
-        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = max_range / 100)")
-        _check(self.max_points_per_voxel >= 1, "odometry.max_points_per_voxel", "must be >= 1")
-        _check(self.initial_threshold > 0, "odometry.initial_threshold", "must be > 0")
-        _check(self.min_motion_th >= 0, "odometry.min_motion_th", "must be >= 0")
-        _check(self.max_icp_iters >= 1, "odometry.max_icp_iters", "must be >= 1")
+        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = max_range / 80)")
+        _check(self.neighbors >= 5, "odometry.neighbors", "must be >= 5")
+        _check(self.max_corr_dist > 0, "odometry.max_corr_dist", "must be > 0")
+        _check(self.max_iters >= 1, "odometry.max_iters", "must be >= 1")
+        _check(self.lru_horizon >= 1 and self.lru_clear_cycle >= 1, "odometry.lru_horizon",
+               "and odometry.lru_clear_cycle must be >= 1")
         _check(self.gap_factor > 1, "odometry.gap_factor", "must be > 1")
-        _check(self.fit_radius > 0, "odometry.fit_radius", "must be > 0")
         _check(0 < self.fit_drop <= 1, "odometry.fit_drop", "must be in (0, 1]")
         _check(self.fit_window >= 1, "odometry.fit_window", "must be >= 1")
         _check(self.fit_margin >= 0, "odometry.fit_margin", "must be >= 0")
-        _check(self.reinit_threshold > 0, "odometry.reinit_threshold", "must be > 0")
-        _check(self.threads >= 0, "odometry.threads", "must be >= 0 (0 = automatic)")
+        _check(self.threads >= 0, "odometry.threads", "must be >= 0 (0 = every core)")
 
 
 @dataclass

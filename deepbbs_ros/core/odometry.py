@@ -1,26 +1,29 @@
-"""DeepBBS++ odometry: scan-to-local-map ICP (KISS-ICP's pipeline) with DeepBBS++ where the motion prior fails.
+"""DeepBBS++ odometry: GICP against a local Gaussian voxel map, with DeepBBS++ where the motion prior fails.
 
 ``DeepBBSOdometry.register_frame`` reads top-down, as kiss-icp's ``register_frame``::
 
-    deskew      per-point times (Velodyne ``time``, Ouster ``t``) + the constant-velocity twist -> the scan at its stamp
-    voxelize    crop, two voxel grids (KISS-ICP's: 0.5 x and 1.5 x ``voxel_size``)
+    deskew      per-point times (Velodyne ``time``, Ouster ``t``) + the constant-velocity twist -> the scan at
+                its stamp (``odometry.deskew``, off by default: see the config)
+    prepare     crop, ``voxel_size / 2`` grid, covariances (small_gicp ``preprocess_points``)
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
-    align       point-to-point ICP of the scan against the local voxel map from the prediction, adaptive threshold
-    check       fit = share of scan points within ``fit_radius`` of the previous scan; on a stamp gap, a fit drop
-                or the first motion, DeepBBS++ registers the scan against the previous one (wide basin) and
-                the map alignment runs again from there (first motion: the GICP-precise DeepBBS++ result
-                itself, the map being the first scan); the start with the clearly better fit wins
-    update      adaptive threshold (deviation from the prediction that won), map, velocity
+    align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
+                voxels, least-recently-used voxels dropped) from the prediction
+    check       fit = share of scan points with a map correspondence; on a stamp gap, a fit drop or the
+                first motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
+                and the map alignment runs again from there; the start with the clearly better fit wins
+                (first motion: the GICP-precise DeepBBS++ result itself, the map being the first scan)
+    update      map, velocity
 
-Why: KISS-ICP's scan-to-map ICP is the most precise odometry on ordinary drives, and its constant-velocity
-prediction is exactly what breaks on dropped frames, sharp turns at low frame rates and a wrong prior;
-DeepBBS++ needs no prior. On ordinary frames DeepBBS++ does not run, so the pipeline costs KISS-ICP's
-time plus the fit check.
+Why: scan-to-map GICP is precise (per-frame errors of millimetres to centimetres where KISS-ICP's
+point-to-point ICP has centimetres) and the map keeps it from drifting like chained scan-to-scan
+registration; its constant-velocity prediction is exactly what breaks on dropped frames, sharp turns
+at low frame rates and a wrong prior, and DeepBBS++ needs no prior. On ordinary frames DeepBBS++ does
+not run.
 
 Frames and conventions (CONVENTIONS.md): the map frame is the first scan's sensor frame at its stamp;
 ``register_frame`` returns ``T_first_k`` (4, 4) float64, the pose of scan k's sensor at its stamp in that
-frame; ``T_{k-1}_k = inv(T_first_{k-1}) @ T_first_k``. Components from ``kiss_icp`` (voxel hash map,
-registration, adaptive threshold, voxelisation, range crop); no ROS import.
+frame; ``T_{k-1}_k = inv(T_first_{k-1}) @ T_first_k``. Map, registration and voxel grids from
+``small_gicp``; no ROS import.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.errors import RegistrationError
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
@@ -110,8 +114,8 @@ class OdometryStep:
     deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (first motion: its fit
         was not worse than identity's by more than ``odometry.fit_margin``; later: better than the
         prediction's by more than that).
-    fit: share of scan points within ``odometry.fit_radius`` of the previous scan after alignment.
-    timings_ms: "deskew", "align", "check", "deepbbs" (0 when not consulted), "total".
+    fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
+    timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted), "total".
     """
 
     T_first_k: np.ndarray
@@ -124,7 +128,7 @@ class OdometryStep:
 
 
 class DeepBBSOdometry:
-    """Scan-to-local-map odometry with DeepBBS++ as the initialiser where the motion prior fails.
+    """Scan-to-local-map GICP odometry with DeepBBS++ as the initialiser where the motion prior fails.
 
     Args:
         config: ``preprocess.min_range``/``max_range`` (crop), the ``odometry`` section, and for DeepBBS++
@@ -135,33 +139,24 @@ class DeepBBSOdometry:
     """
 
     def __init__(self, config: Config | None = None, registration: Any = None) -> None:
-        from kiss_icp.mapping import VoxelHashMap
-        from kiss_icp.preprocess import Preprocessor
-        from kiss_icp.registration import Registration
-        from kiss_icp.threshold import AdaptiveThreshold
-
         self.config = (config or Config()).validate()
         pp, oc = self.config.preprocess, self.config.odometry
-        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 100.0
-        self._crop = Preprocessor(pp.max_range, pp.min_range, False, oc.threads)
-        self._map = VoxelHashMap(self.voxel_size, pp.max_range, oc.max_points_per_voxel)
-        self._icp = Registration(oc.max_icp_iters, 1e-4, oc.threads)
-        self._threshold = AdaptiveThreshold(_KissThresholdConfig(oc.initial_threshold, oc.min_motion_th, pp.max_range))
+        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0  # map voxel, m
+        self.threads = threads_or_all(oc.threads)
         self._reg = registration
         self.reset()
 
     def reset(self) -> None:
         """Forget the map and the motion: the next scan becomes the origin."""
-        if getattr(self, "_map", None) is not None:
-            self._map.clear()
+        self._map = self._new_map()
         self.frames = 0
         self.pose = np.eye(4)  # T_first_{k-1}
         self.delta = np.eye(4)  # last motion per nominal period
         self.period = 0.0  # nominal scan period (s), from the stamps
         self._prev_stamp: int | None = None
-        self._prev_tree: Any = None
         self._prev_points: np.ndarray | None = None
         self._prev_pp: Any = None
+        self._cur_pp: Any = None
         self._first_raw: tuple[np.ndarray, np.ndarray] | None = None
         self._fits: deque[float] = deque(maxlen=max(1, self.config.odometry.fit_window))
         self.deepbbs_calls = 0
@@ -186,50 +181,53 @@ class DeepBBSOdometry:
         scale, gap = self._time_scale(stamp_ns)
         frame = self._deskew(points, times, scale)
         clock.lap("deskew")
-        source, frame_down = self._voxelize(frame)
+        cloud = self._prepare(frame)
+        clock.lap("prepare")
         if self.frames == 0:
-            return self._first(frame, frame_down, stamp_ns, clock, points, times)
-        # predict + align: KISS-ICP from the constant-velocity prediction, scaled to the stamp gap
-        sigma = float(self._threshold.get_threshold())
+            return self._first(frame, cloud, stamp_ns, clock, points, times)
+        # predict + align: GICP against the voxel map from the constant-velocity prediction
         prior = self.pose @ se3_power(self.delta, scale)
-        pose = self._align(source, prior, sigma)
+        pose, fit = self._align(cloud, prior)
         clock.lap("align")
-        fit = self._fit(source, pose)
-        clock.lap("check")
         # check: DeepBBS++ where the prior is suspect
         reason = self._suspect(gap, fit)
-        won, init = False, prior
+        won = False
         if reason:
-            T_prev_k = self._deepbbs(frame, points)
+            T_prev_k = self._deepbbs(frame)
             if T_prev_k is not None:
                 init_b = self.pose @ T_prev_k
                 if self.frames == 1:  # the map is the first scan: DeepBBS++ (GICP-precise) is scan-to-map
-                    pose_b = init_b
+                    pose_b, fit_b = init_b, self._fit_at(cloud, init_b)
                 else:
-                    pose_b = self._align(source, init_b, oc.reinit_threshold)
-                fit_b = self._fit(source, pose_b)
+                    pose_b, fit_b = self._align(cloud, init_b)
                 # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
                 # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
                 better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
                 if better:
-                    pose, fit, init, won = pose_b, fit_b, init_b, True
+                    pose, fit, won = pose_b, fit_b, True
             clock.lap("deepbbs")
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
         if self.frames == 1 and self._first_raw is not None and self._has_times(times):
             # the first velocity is known only now: deskew the first two scans with it and restart the map
-            frame, frame_down, pose, T_prev_k = self._restart_deskewed(points, times, pose, sigma)
-            clock.lap("align")
-        # update: threshold (deviation from the start that won), map, velocity, previous scan
-        self._threshold.update_model_deviation(np.linalg.inv(init) @ pose)
-        self._map.update(frame_down, pose)
+            cloud, frame = self._restart_deskewed(points, times)
+            clock.lap("prepare")
+        # update: map, velocity, previous scan
+        self._map.insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
-        self._remember(frame, frame_down, stamp_ns, points if reason else None)
+        self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done())
 
     # -- stages ------------------------------------------------------------------------------------
+    def _new_map(self) -> Any:
+        import small_gicp
+
+        vmap = small_gicp.GaussianVoxelMap(self.voxel_size)
+        vmap.set_lru(self.config.odometry.lru_horizon, self.config.odometry.lru_clear_cycle)
+        return vmap
+
     def _time_scale(self, stamp_ns: int | None) -> tuple[float, bool]:
         """(dt / nominal period, stamp gap?) from the stamps; (1, False) without stamps."""
         if stamp_ns is None or self._prev_stamp is None:
@@ -251,41 +249,46 @@ class DeepBBSOdometry:
     def _deskew(self, points: np.ndarray, times: np.ndarray | None, scale: float,
                 delta: np.ndarray | None = None) -> np.ndarray:
         """Finite points, deskewed to the stamp with ``delta`` (default: the velocity so far, from the
-        third scan on), cropped: (N, 3) float64."""
+        third scan on), cropped to [min_range, max_range]: (N, 3) float64."""
+        from deepbbs_ros.core.preprocess import crop_range
+
+        pp = self.config.preprocess
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        ok = np.isfinite(pts).all(axis=1)
-        if not ok.all():
-            pts = pts[ok]
         if delta is None and self.frames >= 2 and self.period > 0:
             delta = self.delta
         if delta is not None and self._has_times(times):
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
-            if len(tt) == len(ok):
-                pts = deskew(pts, tt[ok], delta, self.period)
-        frame = self._crop.preprocess(pts, np.zeros(len(pts)), np.eye(4))
+            if len(tt) == len(pts):
+                ok = np.isfinite(pts).all(axis=1)
+                pts = deskew(pts[ok], tt[ok], delta, self.period)
+        frame = pts[crop_range(pts, pp.min_range, pp.max_range)]
         if len(frame) < 10:
             raise RegistrationError(f"odometry: only {len(frame)} valid points within the crop range")
         return frame
 
-    def _voxelize(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """KISS-ICP's two grids: (source for ICP at 1.5 x voxel, map points at 0.5 x voxel)."""
-        from kiss_icp.voxelization import voxel_down_sample
+    def _prepare(self, frame: np.ndarray) -> Any:
+        """small_gicp cloud of the scan: ``voxel_size / 2`` grid, covariances from ``odometry.neighbors``."""
+        import small_gicp
 
-        frame_down = voxel_down_sample(frame, self.voxel_size * 0.5)
-        return voxel_down_sample(frame_down, self.voxel_size * 1.5), frame_down
+        cloud, _ = small_gicp.preprocess_points(
+            np.ascontiguousarray(frame), downsampling_resolution=0.5 * self.voxel_size,
+            num_neighbors=self.config.odometry.neighbors, num_threads=self.threads)
+        if cloud.size() < 10:
+            raise RegistrationError(f"odometry: only {cloud.size()} points after the voxel grid")
+        return cloud
 
-    def _align(self, source: np.ndarray, init: np.ndarray, sigma: float) -> np.ndarray:
-        return np.asarray(self._icp.align_points_to_map(
-            points=source, voxel_map=self._map, initial_guess=init,
-            max_correspondance_distance=3.0 * sigma, kernel=sigma))  # fmt: skip
+    def _align(self, cloud: Any, init: np.ndarray, iters: int | None = None) -> tuple[np.ndarray, float]:
+        """VGICP of the scan against the map from ``init`` -> (pose (4, 4), fit = inlier share)."""
+        import small_gicp
 
-    def _fit(self, source: np.ndarray, pose: np.ndarray) -> float:
-        """Share of the scan's ICP points within ``fit_radius`` of the previous scan, under ``pose``."""
-        T = np.linalg.inv(self.pose) @ pose  # T_{k-1}_k
-        moved = np.ascontiguousarray(source @ T[:3, :3].T + T[:3, 3])
-        _, d2 = self._prev_tree.batch_nearest_neighbor_search(moved, num_threads=2)
-        r = self.config.odometry.fit_radius
-        return float(np.mean(np.asarray(d2) <= r * r))
+        oc = self.config.odometry
+        res = small_gicp.align(self._map, cloud, init, max_correspondence_distance=oc.max_corr_dist,
+                               num_threads=self.threads, max_iterations=iters or oc.max_iters)
+        return np.asarray(res.T_target_source, dtype=np.float64), float(res.num_inliers) / max(1, cloud.size())
+
+    def _fit_at(self, cloud: Any, pose: np.ndarray) -> float:
+        """The fit of the scan near ``pose`` (one GICP iteration)."""
+        return self._align(cloud, pose, iters=1)[1]
 
     def _suspect(self, gap: bool, fit: float) -> str:
         """Why DeepBBS++ should check this frame ("" = it should not)."""
@@ -302,7 +305,7 @@ class DeepBBSOdometry:
             return f"fit {fit:.2f} < {oc.fit_drop} x median {float(np.median(self._fits)):.2f}"
         return ""
 
-    def _deepbbs(self, frame: np.ndarray, raw: np.ndarray) -> np.ndarray | None:
+    def _deepbbs(self, frame: np.ndarray) -> np.ndarray | None:
         """DeepBBS++ ``T_{k-1}_k`` of the (deskewed) scan against the previous one; None if it fails."""
         reg = self.registration
         try:
@@ -318,54 +321,29 @@ class DeepBBSOdometry:
         self.deepbbs_calls += 1
         return res.T_target_source
 
-    def _restart_deskewed(self, points, times, pose, sigma):
-        """Second scan: both scans deskewed with the first velocity, the map rebuilt from them, the second
-        scan aligned again (a map of distorted first scans would bias every later deskewed scan)."""
+    def _restart_deskewed(self, points: np.ndarray, times: np.ndarray) -> tuple[Any, np.ndarray]:
+        """Second scan: both scans deskewed with the first velocity and the map rebuilt from the first (a
+        map of distorted first scans would bias every later deskewed scan). -> (cloud, frame) of scan 1."""
         raw0, times0 = self._first_raw
         self._first_raw = None
-        first = self._deskew(raw0, times0, 1.0, self.delta)
-        self._map.clear()
-        self._map.update(self._voxelize(first)[1], np.eye(4))
+        self._map = self._new_map()
+        self._map.insert(self._prepare(self._deskew(raw0, times0, 1.0, self.delta)), np.eye(4))
         frame = self._deskew(points, times, 1.0, self.delta)
-        source, frame_down = self._voxelize(frame)
-        pose = self._align(source, pose, sigma)
-        T_prev_k = np.linalg.inv(self.pose) @ pose
-        self.delta = T_prev_k
-        return frame, frame_down, pose, T_prev_k
+        return self._prepare(frame), frame
 
-    def _first(self, frame, frame_down, stamp_ns, clock, points=None, times=None) -> OdometryStep:
+    def _first(self, frame, cloud, stamp_ns, clock, points=None, times=None) -> OdometryStep:
         self._first_raw = (np.asarray(points), np.asarray(times)) if self._has_times(times) else None
-        self._map.update(frame_down, np.eye(4))
-        self._remember(frame, frame_down, stamp_ns, None)
+        self._map.insert(cloud, np.eye(4))
+        self._remember(frame, stamp_ns, False)
         self.frames = 1
         return OdometryStep(np.eye(4), np.eye(4), timings_ms=clock.done())
 
-    def _remember(self, frame, frame_down, stamp_ns, consulted) -> None:
-        import small_gicp
-
-        pts = np.ascontiguousarray(frame_down, dtype=np.float64)
-        self._prev_tree = small_gicp.KdTree(pts, num_threads=2)
+    def _remember(self, frame: np.ndarray, stamp_ns: int | None, consulted: bool) -> None:
+        """Keep scan k for DeepBBS++ at k+1 (its preprocessing too, when DeepBBS++ already made it)."""
         self._prev_points = frame
-        self._prev_pp = getattr(self, "_cur_pp", None) if consulted is not None else None
+        self._prev_pp = self._cur_pp if consulted else None
         self._cur_pp = None
         self._prev_stamp = None if stamp_ns is None else int(stamp_ns)
-
-
-@dataclass
-class _KissThresholdConfig:
-    """The attributes of KISSConfig that kiss_icp's AdaptiveThreshold reads."""
-
-    initial_threshold: float
-    min_motion_th: float
-    max_range: float
-
-    @property
-    def adaptive_threshold(self) -> _KissThresholdConfig:
-        return self
-
-    @property
-    def data(self) -> _KissThresholdConfig:
-        return self
 
 
 class _Laps:
