@@ -232,7 +232,8 @@ class OdometryConfig:
     max_iters: int = 20  # GICP iterations per alignment
     lru_horizon: int = 100  # map voxels not seen for this many scans are dropped ...
     lru_clear_cycle: int = 10  # ... checked every this many scans
-    deskew: bool = False  # motion compensation from per-point times (Velodyne time, Ouster t); off: see MODEL.md
+    deskew: bool = True  # motion compensation from per-point times (Velodyne time, Ouster t) when a cloud has them
+    deskew_window: int = 4  # the deskew's velocity: mean of this many last motions (1 = the last: unstable)
     gap_factor: float = 1.5  # a stamp gap above this many nominal periods (dropped scans) asks DeepBBS++
     fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
@@ -248,6 +249,7 @@ class OdometryConfig:
         _check(self.max_iters >= 1, "odometry.max_iters", "must be >= 1")
         _check(self.lru_horizon >= 1 and self.lru_clear_cycle >= 1, "odometry.lru_horizon",
                "and odometry.lru_clear_cycle must be >= 1")
+        _check(self.deskew_window >= 1, "odometry.deskew_window", "must be >= 1")
         _check(self.gap_factor > 1, "odometry.gap_factor", "must be > 1")
         _check(0 < self.fit_drop <= 1, "odometry.fit_drop", "must be in (0, 1]")
         _check(self.fit_window >= 1, "odometry.fit_window", "must be >= 1")

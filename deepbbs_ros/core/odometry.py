@@ -159,6 +159,7 @@ class DeepBBSOdometry:
         self._cur_pp: Any = None
         self._first_raw: tuple[np.ndarray, np.ndarray] | None = None
         self._fits: deque[float] = deque(maxlen=max(1, self.config.odometry.fit_window))
+        self._deltas: deque[np.ndarray] = deque(maxlen=max(1, self.config.odometry.deskew_window))
         self.deepbbs_calls = 0
 
     @property
@@ -208,6 +209,7 @@ class DeepBBSOdometry:
             clock.lap("deepbbs")
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
+        self._deltas.append(self.delta)
         if self.frames == 1 and self._first_raw is not None and self._has_times(times):
             # the first velocity is known only now: deskew the first two scans with it and restart the map
             cloud, frame = self._restart_deskewed(points, times)
@@ -255,7 +257,7 @@ class DeepBBSOdometry:
         pp = self.config.preprocess
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if delta is None and self.frames >= 2 and self.period > 0:
-            delta = self.delta
+            delta = self._deskew_delta()
         if delta is not None and self._has_times(times):
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
             if len(tt) == len(pts):
@@ -265,6 +267,21 @@ class DeepBBSOdometry:
         if len(frame) < 10:
             raise RegistrationError(f"odometry: only {len(frame)} valid points within the crop range")
         return frame
+
+    def _deskew_delta(self) -> np.ndarray:
+        """The motion per period the deskew uses: the mean of the last ``odometry.deskew_window`` motions.
+
+        Deskewing with the last motion alone feeds the pose error back with gain -1 (a scan deskewed with
+        a velocity too high by e lands e T / 2 short, which lowers the next velocity by e: an undamped
+        period-2 oscillation that diverged on the simulated drives); averaging m motions damps it."""
+        from scipy.spatial.transform import Rotation
+
+        ds = list(self._deltas) or [self.delta]
+        w = np.mean([Rotation.from_matrix(d[:3, :3]).as_rotvec() for d in ds], axis=0)
+        out = np.eye(4)
+        out[:3, :3] = Rotation.from_rotvec(w).as_matrix()
+        out[:3, 3] = np.mean([d[:3, 3] for d in ds], axis=0)
+        return out
 
     def _prepare(self, frame: np.ndarray) -> Any:
         """small_gicp cloud of the scan: ``voxel_size / 2`` grid, covariances from ``odometry.neighbors``."""
