@@ -187,14 +187,9 @@ def test_bag_played_into_node_rotation_matches_ground_truth(e2e):
 
 
 @needs_weights
-@pytest.mark.xfail(strict=True, reason="core/odometry.py on this bag's first motion: DeepBBS++ is 8 mm off, but "
-                   "the map ICP from its start (sigma = max(initial_threshold 2.0, reinit_threshold)) ends 0.28 m off, "
-                   "its fit (0.949) does not beat the identity start's (0.942, 0.46 m off) by fit_margin 0.02, and "
-                   "the wrong first velocity leaves steps 1-3 at 0.50 / 0.55 / 0.30 m (later ones < 0.3 m); the node "
-                   "publishes exactly replay's odometry (test_node_equals_offline_odometry)")
 def test_bag_played_into_node_translation_matches_ground_truth(e2e):
-    """The issue's goal: every published step within 0.3 m of ground truth (success threshold). Met by the
-    scan-to-scan odometry since the core's GICP precision stage; not yet by the local-map odometry (xfail)."""
+    """The issue's goal: every published step within 0.3 m of ground truth (success threshold): met by the
+    local-map odometry since its first motion takes the GICP-precise DeepBBS++ result."""
     scans, _, steps = e2e
     errors = []
     for s0, s1, step in steps:
