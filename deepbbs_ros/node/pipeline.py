@@ -4,7 +4,7 @@
   ``T_target_source``, the registration result and its timings.
 * :class:`LocalMapOdometry` (odometry mode, the default): one :meth:`~LocalMapOdometry.step` per scan runs
   :class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the pipeline of ``deepbbs-replay --mode odometry
-  --method deepbbs++`` (KISS-ICP's deskew + scan-to-local-map ICP, DeepBBS++ consulted on stamp gaps, fit
+  --method deepbbs++`` (deskew + GICP against a local voxel map, DeepBBS++ consulted on stamp gaps, fit
   drops and the first motion), on the raw points, per-point times and stamp of each scan.
 * :class:`ScanToScanOdometry` (``RegistrationNode(odometry_method="scan_to_scan")``, the GICP anchor):
   ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` (CONVENTIONS.md), every scan preprocessed once (on arrival) and
@@ -177,7 +177,7 @@ class LocalMapOdometry:
     Twist: the motion since the previous scan ``T_{k-1}_k`` over the stamp gap (:func:`motion_twist`).
     Covariances: the step covariance is the registration-residual one of :mod:`deepbbs_ros.node.covariance`
     evaluated on the step's motion ``T_{k-1}_k``: scan k (deskewed with that motion over the stamp gap,
-    cropped, on KISS-ICP's ICP grid of 1.5 x ``odometry.voxel_size``) against scan k-1 (its map grid,
+    cropped, on a grid of 1.5 x ``odometry.voxel_size``) against scan k-1 (a grid of
     0.5 x voxel). The pose covariance accumulates it as :class:`ScanToScanOdometry` does,
     ``Sigma_k = Sigma_{k-1} + Ad(T_odom_{k-1}) Sigma_step Ad(T_odom_{k-1})^T``: conservative, since the local
     map bounds the drift better than a chain of independent steps.
@@ -241,7 +241,7 @@ class LocalMapOdometry:
     # -- covariance ----------------------------------------------------------------------------------
     def _grid(self, cloud: Cloud, T_step: np.ndarray, dt: float) -> np.ndarray:
         """Scan ``cloud`` deskewed with the motion ``T_step`` over ``dt`` s (when it has times), cropped, on
-        KISS-ICP's map grid (0.5 x voxel): (M, 3) float64."""
+        a 0.5 x voxel grid: (M, 3) float64."""
         from kiss_icp.voxelization import voxel_down_sample
 
         from deepbbs_ros.core.odometry import deskew
