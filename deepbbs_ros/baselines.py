@@ -19,7 +19,6 @@ compensation), with the same crop ranges; that is the point of the baseline.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,7 +26,8 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.polish import prepare_polish_cloud
+from deepbbs_ros.core.odometry import se3_power
+from deepbbs_ros.core.polish import prepare_polish_cloud, threads_or_all
 from deepbbs_ros.errors import ConfigError, RegistrationError
 
 #: replay method name -> small_gicp ``registration_type``
@@ -64,10 +64,6 @@ class PreparedCloud:
     preprocess_ms: float
 
 
-def _threads(n: int) -> int:
-    return n if n > 0 else max(1, os.cpu_count() or 1)
-
-
 class SmallGicpRegistration:
     """Point-to-point ICP, point-to-plane ICP or GICP from ``small_gicp``.
 
@@ -83,7 +79,7 @@ class SmallGicpRegistration:
         self.method = method
         self.registration_type = SMALL_GICP_TYPES[method]
         self.config = config or Config()
-        self.num_threads = _threads(self.config.eval.threads)
+        self.num_threads = threads_or_all(self.config.eval.threads)
 
     # -- preprocessing ------------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray) -> PreparedCloud:
@@ -151,22 +147,6 @@ class SmallGicpRegistration:
         return res
 
 
-def _se3_power(T: np.ndarray, a: float) -> np.ndarray:
-    """``exp(a log T)`` for a rigid transform (4, 4); exact inverse for ``a == -1``."""
-    if a == 0.0:
-        return np.eye(4)
-    if a == 1.0:
-        return T.copy()
-    if a == -1.0:
-        Ti = np.eye(4)
-        Ti[:3, :3] = T[:3, :3].T
-        Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-        return Ti
-    from scipy.linalg import expm, logm
-
-    return np.real(expm(a * np.real(logm(T))))
-
-
 class KissICPOdometry:
     """KISS-ICP (``kiss_icp.kiss_icp.KissICP``) as a frame-by-frame odometry.
 
@@ -231,13 +211,13 @@ class KissICPOdometry:
         else:
             s = float((0.0 - ts.min()) / (ts.max() - ts.min()))
             delta = np.asarray(self._odom.last_delta, dtype=np.float64)
-            T = T_end @ _se3_power(delta, s - 1.0)
+            T = T_end @ se3_power(delta, s - 1.0)
             self._frames += 1
             if self._frames == 1:  # KISS-ICP's origin is the end of sweep 0; the stamp pose needs a motion
                 self._s0 = s
                 T = np.eye(4)
             else:
                 if self._frames == 2:  # stamp 0 in the end-of-sweep-0 frame, from the first motion estimate
-                    self._origin_inv = _se3_power(_se3_power(delta, self._s0 - 1.0), -1.0)
+                    self._origin_inv = se3_power(se3_power(delta, self._s0 - 1.0), -1.0)
                 T = self._origin_inv @ T
         return T, (time.perf_counter() - t0) * 1e3

@@ -2,8 +2,8 @@
 
 ``DeepBBSOdometry.register_frame`` reads top-down, as kiss-icp's ``register_frame``::
 
-    deskew      per-point times (Velodyne ``time``, Ouster ``t``) + the constant-velocity twist -> the scan at
-                its stamp (``odometry.deskew``, off by default: see the config)
+    deskew      per-point times (Velodyne ``time``, Ouster ``t``) + the constant-velocity twist (the mean of
+                the last ``odometry.deskew_window`` motions) -> the scan at its stamp (``odometry.deskew``)
     prepare     crop, ``voxel_size / 2`` grid, covariances (small_gicp ``preprocess_points``)
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``

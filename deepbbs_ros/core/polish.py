@@ -18,8 +18,9 @@ Transforms follow CONVENTIONS.md: ``T_target_source`` (4, 4) float64, p_target =
 same direction as ``small_gicp.align(target, source, ..., init_T_target_source)``.
 
 Safety: the result is rejected (the DeepBBS++ estimate kept) when small_gicp reports non-convergence,
-when it moves the estimate by more than ``polish_max_trans`` metres or ``polish_max_rot_deg`` degrees,
-or when a cloud has too few points.
+when it moves the estimate by more than ``polish_max_trans`` metres or ``polish_max_rot_deg`` degrees
+(both 0 = no limit, the default: a limit threw away good corrections from far starts), or when a cloud
+has too few points.
 """
 
 from __future__ import annotations
