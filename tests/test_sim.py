@@ -200,6 +200,30 @@ def test_motion_distortion_switch_in_a_drive():
     assert len(on) != len(off) or not np.allclose(on.points, off.points, atol=0.05)
 
 
+def test_compensated_sweep_lies_on_surfaces_at_its_stamp():
+    """A motion-distorted sweep compensated with the true column poses (Apollo's compensator) lands
+    on the scene's surfaces when mapped by the stamp pose, as an undistorted scan does; the raw one
+    does not, and only the raw one carries per-point time."""
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    raw_sim = DriveSimulator("highway", 2, lid, frames=5, motion_distortion=True)
+    comp_sim = DriveSimulator("highway", 2, lid, frames=5, motion_distortion=True, compensate=True)
+    raw, comp = raw_sim.scan_at(4), comp_sim.scan_at(4)
+    assert "time" in raw.fields and "time" not in comp.fields
+    assert np.array_equal(raw.T_world_lidar, comp.T_world_lidar) and len(raw) == len(comp)
+    caster, _ = comp_sim._static_caster(4 * comp_sim.period)
+
+    def on_surface(scan):
+        T = scan.T_world_lidar
+        w = scan.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        d = w - T[:3, 3]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        dist, face, _ = caster.cast(w - 0.3 * d, d, 10.0)
+        return np.mean((face >= 0) & (np.abs(dist - 0.3) < 5e-3))
+
+    assert on_surface(comp) > 0.9
+    assert on_surface(raw) < 0.5  # ~1.7 m of travel over the sweep at highway speed
+
+
 @pytest.mark.parametrize("scene", SCENES)
 def test_scene_types_produce_plausible_scans(scene):
     lid = small_lidar()
@@ -254,14 +278,21 @@ def test_cli_writes_a_readable_drive(tmp_path, capsys):
     lid = LidarConfig.hdl64(azimuth_step_deg=2.0)
     keep = np.unique(np.round(np.linspace(0, 63, 16)).astype(int))  # the CLI's beam decimation
     lid.elevations_deg, lid.beams = tuple(np.rad2deg(lid.elevations())[keep].tolist()), 16
-    ref = list(simulate_drive("open_road", 4, 3, lidar=lid))
+    ref = list(simulate_drive("open_road", 4, 3, lidar=lid, compensate=True))  # default: compensated
     for got in src:
-        assert got.points.shape[0] > 0
+        assert got.points.shape[0] > 0 and "time" not in got.fields
         exp = next(r for r in ref if r.stamp_ns == got.stamp_ns)
         assert np.allclose(got.T_world_lidar, exp.T_world_lidar, atol=1e-6)
         assert len(got) == len(exp) and np.allclose(got.points, exp.points, atol=1e-6)
         if "ring" in got.fields:
             assert int(got.fields["ring"].max()) < 16
+    raw_out = tmp_path / "raw"
+    raw_argv = [str(raw_out) if a == str(out) else a for a in argv] + ["--raw"]
+    assert main(raw_argv) == 0
+    raw_ref = {r.stamp_ns: r for r in simulate_drive("open_road", 4, 3, lidar=lid)}
+    for got in open_source(raw_out):
+        exp = raw_ref[got.stamp_ns]
+        assert np.allclose(got.points, exp.points, atol=1e-6) and np.allclose(got.fields["time"], exp.fields["time"])
     assert main(["--frames", "0", "--out", str(tmp_path / "x"), "--quiet"]) == 1
     assert "deepbbs-sim: error: frames must be >= 1" in capsys.readouterr().err
     assert main(["--beams", "65", "--out", str(tmp_path / "y"), "--quiet"]) == 1

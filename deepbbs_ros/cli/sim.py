@@ -3,8 +3,11 @@
     deepbbs-sim --scene urban --seed 0 --frames 100 --format mcap --out drives/urban0
     deepbbs-sim --scene highway --seed 3 --frames 50 --lidar vlp16 --no-motion-distortion --format apollo --out /tmp/hw
 
-Frames are 10 Hz sweeps (``--rate``) with per-point intensity, time and ring, and the ground-truth
-pose of the LiDAR at each scan stamp (start of the sweep). The same arguments give bit-identical
+Frames are 10 Hz sweeps (``--rate``) with per-point intensity and ring, and the ground-truth pose of
+the LiDAR at each scan stamp (start of the sweep). By default every sweep is motion-compensated to
+its stamp, as Apollo's compensator publishes it (topic ``.../compensator/PointCloud2``); ``--raw``
+writes the sweeps as the driver measures them instead, with a per-point ``time`` field (topic
+``/apollo/sensor/velodyne64/PointCloud2``). The same arguments give bit-identical
 output. Known errors print one line and exit with status 1.
 """
 
@@ -43,6 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--no-motion-distortion", action="store_true",
         help="cast the whole sweep from the pose at the stamp (default: each column from its own pose)",
+    )
+    g.add_argument(
+        "--raw", action="store_true",
+        help="write raw sweeps (motion-distorted, per-point time field) instead of compensated ones",
     )
     g = parser.add_argument_group("output")
     g.add_argument("--format", choices=FORMATS, default="mcap", help="output format (default: mcap rosbag2)")
@@ -101,6 +108,7 @@ class _Counted:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from deepbbs_ros.datasets import write_scans
+    from deepbbs_ros.datasets.base import APOLLO_LIDAR_TOPIC, APOLLO_RAW_LIDAR_TOPIC
     from deepbbs_ros.errors import SimulationError
     from deepbbs_ros.sim import DriveSimulator
     from deepbbs_ros.sim.simulator import iter_frames
@@ -111,10 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     sim = DriveSimulator(
         args.scene, args.seed, lidar, frames=args.frames, motion_distortion=not args.no_motion_distortion,
-        rate_hz=args.rate,
+        rate_hz=args.rate, compensate=not args.raw,
     )
     counted = _Counted(iter_frames(sim, workers=args.workers), args.frames)
-    n = write_scans(counted, args.out, args.format, progress=not args.quiet)
+    topic = APOLLO_RAW_LIDAR_TOPIC if args.raw else APOLLO_LIDAR_TOPIC
+    n = write_scans(counted, args.out, args.format, topic=topic, progress=not args.quiet)
     wall = time.perf_counter() - t0
     if not args.quiet:
         from rich.console import Console
@@ -129,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         table.add_column("unit")
         table.add_row("frames written", str(n), "frames")
         table.add_row("LiDAR", f"{lidar.name}, {lidar.beams} beams x {lidar.columns} columns", "")
+        table.add_row("output", "raw sweeps (per-point time)" if args.raw else "motion-compensated to the stamp", "")
         table.add_row("mean points per frame", f"{counted.points / max(counted.frames, 1):.0f}", "points")
         table.add_row("distance driven", f"{dist:.1f}", "m")
         table.add_row("wall time (simulate + write)", f"{wall:.1f}", "s")

@@ -12,6 +12,7 @@ import numpy as np
 from deepbbs_ros.errors import DatasetError
 
 APOLLO_LIDAR_TOPIC = "/apollo/sensor/velodyne64/compensator/PointCloud2"
+APOLLO_RAW_LIDAR_TOPIC = "/apollo/sensor/velodyne64/PointCloud2"  # raw sweeps, per-point time
 APOLLO_LIDAR_FRAME = "velodyne64"
 GT_POSE_TOPIC = "/ground_truth/pose"
 WORLD_FRAME = "world"

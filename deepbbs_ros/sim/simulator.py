@@ -9,7 +9,10 @@ the LiDAR at the stamp, i.e. at the **start** of the sweep. Column ``c`` of the 
 
 Motion distortion: with ``motion_distortion=True`` every column is cast from the pose the sensor
 has at its firing time and the point is reported in that (moving) sensor frame, exactly what an
-uncompensated spinning LiDAR delivers. With ``False`` the whole sweep is cast from the pose at the
+uncompensated spinning LiDAR delivers (a *raw sweep*, with its per-point ``time``). With
+``compensate=True`` the same sweep is then expressed in the sensor frame at the stamp using the true
+pose of every column, as Apollo's compensator does (the ``time`` field is dropped: the scan is
+already de-skewed). With ``motion_distortion=False`` the whole sweep is cast from the pose at the
 stamp (an ideal, instantaneous or perfectly de-skewed scan): then ``T_world_lidar @ p`` lies on the
 scene surface for every noiseless point ``p``.
 
@@ -41,7 +44,7 @@ class DriveSimulator:
 
     scene: one of :data:`SCENES`; seed: any int (same seed -> bit-identical frames);
     lidar: sensor model (default :meth:`LidarConfig.hdl64`); frames: number of frames the world is
-    built for; motion_distortion: see the module docstring; rate_hz: spin rate = frame rate.
+    built for; motion_distortion, compensate: see the module docstring; rate_hz: spin rate = frame rate.
 
     Building is cheap (a fraction of a second per km of road); ``scan_at(k)`` costs one sweep of
     ray casting. ``pose_at(k)`` gives the ground truth without casting (e.g. to pick training pairs).
@@ -56,6 +59,7 @@ class DriveSimulator:
         frames: int = 100,
         motion_distortion: bool = True,
         rate_hz: float = 10.0,
+        compensate: bool = False,
     ) -> None:
         if scene not in SCENES:
             raise SimulationError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
@@ -67,6 +71,7 @@ class DriveSimulator:
         self.lidar.validate()
         self.scene, self.seed, self.frames = scene, int(seed), int(frames)
         self.motion_distortion = bool(motion_distortion)
+        self.compensate = bool(compensate)
         self.rate_hz = float(rate_hz)
         self.period = 1.0 / self.rate_hz
         duration = self.frames * self.period
@@ -148,6 +153,18 @@ class DriveSimulator:
         cols = np.flatnonzero(bins[(col_az / (2 * np.pi) * nbins).astype(np.int64) % nbins])
         return (cols[:, None] * nb + np.arange(nb)[None, :]).reshape(-1)
 
+    def _compensate(self, pts: np.ndarray, fields: dict, T_cols: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Express every point in the sensor frame at the stamp with the true pose of its column (what
+        Apollo's compensator does with its localisation); the ``time`` field goes, since re-applying
+        it would distort the scan again."""
+        fields = dict(fields)
+        t = fields.pop("time")
+        col = np.minimum(np.rint(t.astype(np.float64) / (self.period / self.lidar.columns)).astype(np.int64),
+                         self.lidar.columns - 1)
+        T_rel = np.linalg.inv(T_cols[0]) @ T_cols  # (C, 4, 4) T_lidar0_lidarc
+        p = np.einsum("nij,nj->ni", T_rel[col, :3, :3], pts.astype(np.float64)) + T_rel[col, :3, 3]
+        return p.astype(np.float32), fields
+
     def scan_at(self, frame: int) -> Scan:
         """Simulate frame ``frame`` (0-based): a :class:`~deepbbs_ros.datasets.base.Scan`."""
         if not 0 <= int(frame) < self.frames:
@@ -178,6 +195,8 @@ class DriveSimulator:
             ring_gain=self._ring_gain,
             timings=self.timings_s,
         )
+        if self.compensate:
+            pts, fields = self._compensate(pts, fields, T_cols)
         return Scan(
             index=frame,
             stamp_ns=self.stamp_ns(frame),
@@ -196,6 +215,7 @@ def simulate_drive(
     lidar: LidarConfig | None = None,
     motion_distortion: bool = True,
     rate_hz: float = 10.0,
+    compensate: bool = False,
 ) -> Iterator[Scan]:
     """Yield ``frames`` simulated :class:`Scan` s of one drive (see :class:`DriveSimulator`).
 
@@ -203,7 +223,8 @@ def simulate_drive(
     ``time`` float32 (s since the stamp, in [0, 1/rate_hz)), ``ring`` uint16 (0 = lowest beam),
     plus ``column`` uint16 for organised sensors; ``T_world_lidar`` = ground truth at the stamp.
     """
-    sim = DriveSimulator(scene, seed, lidar, frames=frames, motion_distortion=motion_distortion, rate_hz=rate_hz)
+    sim = DriveSimulator(scene, seed, lidar, frames=frames, motion_distortion=motion_distortion, rate_hz=rate_hz,
+                         compensate=compensate)
     return iter(sim)  # a plain function, so bad arguments raise here and not at the first next()
 
 
@@ -234,7 +255,7 @@ def iter_frames(sim: DriveSimulator, workers: int = 1) -> Iterator[Scan]:
 
     kwargs = {
         "scene": sim.scene, "seed": sim.seed, "lidar": sim.lidar, "frames": sim.frames,
-        "motion_distortion": sim.motion_distortion, "rate_hz": sim.rate_hz,
+        "motion_distortion": sim.motion_distortion, "rate_hz": sim.rate_hz, "compensate": sim.compensate,
     }  # fmt: skip
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=(kwargs,)) as pool:
