@@ -80,6 +80,38 @@ def blob(center: np.ndarray, radii: tuple[float, float, float], rng: np.random.G
     return v * jitter * np.asarray(radii) + np.asarray(center, dtype=np.float64), f.copy()
 
 
+_OCTA_V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
+_OCTA_F = np.array(
+    [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]], dtype=np.int64
+)
+
+
+def clusters(center: np.ndarray, radii: tuple[float, float, float], rng: np.random.Generator, n: int, size: float):
+    """Porous foliage (tree crown, bush, hedge): ``n`` small octahedra (8 faces each, jittered
+    semi-axes around ``size`` metres) scattered through the ellipsoid with semi-axes ``radii``.
+
+    Rays pass through the gaps between clusters, so a crown returns points from its inside and from
+    what lies behind it, as real foliage does.
+    """
+    u = rng.normal(size=(n, 3))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
+    pos = u * (rng.uniform(0.0, 1.0, (n, 1)) ** (1 / 3)) * np.asarray(radii) + np.asarray(center, dtype=np.float64)
+    half = size * rng.uniform(0.5, 1.5, (n, 1, 3))
+    v = (_OCTA_V[None] * half + pos[:, None, :]).reshape(-1, 3)
+    f = (_OCTA_F[None] + 6 * np.arange(n)[:, None, None]).reshape(-1, 3)
+    return v, f
+
+
+def strip(points: np.ndarray):
+    """Triangle strip between rows of points: ``points`` (K, R, 3), K samples along a path, R rows
+    across it; returns the (K-1)(R-1) quads as triangles."""
+    k, r = points.shape[:2]
+    j, i = np.meshgrid(np.arange(k - 1), np.arange(r - 1), indexing="ij")
+    a = (j * r + i).ravel()
+    f = np.concatenate([np.stack([a, a + r, a + r + 1], 1), np.stack([a, a + r + 1, a + 1], 1)])
+    return np.asarray(points, dtype=np.float64).reshape(-1, 3), f.astype(np.int64)
+
+
 class MeshBuilder:
     """Accumulates primitives into one mesh with a per-triangle albedo."""
 
