@@ -292,10 +292,10 @@ class CountingRegistration:
         self.reg, self.delay_s, self.device = reg, delay_s, "cpu"
         self.preprocessed: list[int] = []
 
-    def preprocess(self, xyz):
+    def preprocess(self, xyz, times=None, stamp_ns=None):
         self.preprocessed.append(len(xyz))
         time.sleep(self.delay_s)
-        return self.reg.preprocess(xyz)
+        return self.reg.preprocess(xyz, times, stamp_ns)
 
     def register(self, source, target):
         return self.reg.register(source, target)

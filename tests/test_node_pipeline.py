@@ -105,7 +105,7 @@ def test_worker_survives_a_failing_job():
 def test_cache_computes_each_content_once_even_concurrently():
     calls = []
 
-    def slow(xyz):
+    def slow(xyz, times=None, stamp_ns=None):
         calls.append(len(xyz))
         time.sleep(0.2)
         return xyz.sum()
@@ -129,7 +129,7 @@ def test_cache_computes_each_content_once_even_concurrently():
 def test_cache_does_not_keep_failures():
     n = []
 
-    def fails(xyz):
+    def fails(xyz, times=None, stamp_ns=None):
         n.append(1)
         raise RegistrationError("too few points after cropping")
 
@@ -173,7 +173,7 @@ def _input(preprocess, sink: _Sink, **kw) -> CloudInput:
 def test_input_drops_the_oldest_when_busy_and_counts():
     started = threading.Event()
 
-    def slow(xyz):
+    def slow(xyz, times=None, stamp_ns=None):
         started.set()
         time.sleep(0.3)
         return xyz.mean(axis=0)
@@ -199,7 +199,7 @@ def test_input_drops_the_oldest_when_busy_and_counts():
 
 def test_input_rejects_bad_messages_and_goes_on():
     sink = _Sink()
-    inp = _input(lambda xyz: xyz[:10], sink, increasing_stamps=True)
+    inp = _input(lambda xyz, *_: xyz[:10], sink, increasing_stamps=True)
     msgs = [
         _cloud_msg(_points(0), 2 * SEC),
         _cloud_msg(_points(1), 2 * SEC),  # same stamp again
@@ -236,7 +236,7 @@ class _KnownMotion:
         self.poses = poses
         self.calls = 0
 
-    def preprocess(self, xyz):  # the node's cache calls this on arrival
+    def preprocess(self, xyz, times=None, stamp_ns=None):  # the node's cache calls this on arrival
         raise AssertionError("odometry must not preprocess: the input stage did")
 
     def register(self, source, target):
@@ -340,9 +340,9 @@ class _Counting:
     def __init__(self, reg) -> None:
         self.reg, self.preprocessed = reg, 0
 
-    def preprocess(self, xyz):
+    def preprocess(self, xyz, times=None, stamp_ns=None):
         self.preprocessed += 1
-        return self.reg.preprocess(xyz)
+        return self.reg.preprocess(xyz, times, stamp_ns)
 
     def register(self, source, target):
         return self.reg.register(source, target)

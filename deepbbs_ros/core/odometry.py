@@ -37,6 +37,7 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.polish import threads_or_all
+from deepbbs_ros.core.preprocess import deskew
 from deepbbs_ros.errors import RegistrationError
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
@@ -74,35 +75,6 @@ def _left_jacobian(w: np.ndarray, th: float) -> np.ndarray:
     if th < 1e-9:
         return np.eye(3) + 0.5 * K
     return np.eye(3) + (1 - np.cos(th)) / th**2 * K + (th - np.sin(th)) / th**3 * (K @ K)
-
-
-def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray, period: float) -> np.ndarray:
-    """Motion compensation to the scan stamp under constant velocity.
-
-    Args:
-        points: (N, 3) xyz, each in the sensor frame at its own time, metres.
-        times: (N,) seconds since the scan stamp (negative before it).
-        delta: (4, 4) the last motion ``T_{k-1}_k`` over ``period`` seconds (body frame).
-    Returns:
-        (N, 3) float64: ``p_stamp = T_stamp_t p`` with ``T_stamp_t = exp(t / period * log delta)``;
-        rotation exact (Rodrigues per point), translation to first order in the rotation.
-    """
-    from scipy.spatial.transform import Rotation
-
-    w = Rotation.from_matrix(delta[:3, :3]).as_rotvec() / period  # rad/s
-    v = delta[:3, 3] / period  # m/s
-    p = np.asarray(points, dtype=np.float64)
-    t = np.asarray(times, dtype=np.float64).reshape(-1, 1)
-    speed = float(np.linalg.norm(w))
-    out = p + t * v
-    if speed < 1e-12:
-        return out
-    k = w / speed
-    th = t * speed
-    c, s = np.cos(th), np.sin(th)
-    kxp = np.cross(k, p)
-    kdp = p @ k
-    return out + (c - 1.0) * p + s * kxp + (1.0 - c) * kdp[:, None] * k
 
 
 @dataclass

@@ -34,7 +34,8 @@ import numpy as np
 
 from deepbbs_ros.config import RegistrationConfig
 
-__all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "SMALL_GICP_TYPE", "threads_or_all"]
+__all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "prepared_cloud", "SMALL_GICP_TYPE",
+           "threads_or_all"]
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
@@ -89,6 +90,16 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
     out = _prepared(pts, voxel, neighbors, registration_type, threads)
     out.n_cropped = len(pts)
+    out.prepare_ms = (time.perf_counter() - t0) * 1e3
+    return out
+
+
+def prepared_cloud(points: np.ndarray, neighbors: int, registration_type: str = "GICP",
+                   threads: int = 0) -> PolishCloud:
+    """Points already on the voxel grid (N, 3) (e.g. a :class:`PolishCloud`'s centroids, moved) -> a
+    :class:`PolishCloud` with a new k-d tree and covariances, without another voxel grid."""
+    t0 = time.perf_counter()
+    out = _prepared(np.asarray(points, dtype=np.float64), 0.0, neighbors, registration_type, threads)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
 

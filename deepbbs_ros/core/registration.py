@@ -35,14 +35,19 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud
-from deepbbs_ros.core.preprocess import PreprocessResult, preprocess
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
+from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
 from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
+
+
+MAX_DESKEW_SPEED = 70.0  # m/s; a pair estimate implying more is a failed registration, not a velocity
+MAX_DESKEW_TURN_DEG = 120.0  # deg/s
+MIN_DESKEW_SHIFT, MIN_DESKEW_TURN_DEG = 0.02, 0.05  # m, deg over one sweep: below both, deskewing changes nothing
 
 
 @dataclass
@@ -60,9 +65,12 @@ class RegistrationResult:
             target point after alignment.
         temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
         timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total",
-            and "dense" when the dense refinement ran, "polish" when the polish ran).
+            and "dense" when the dense refinement ran, "deskew" / "polish" when those stages ran).
         polish: why the polish was accepted ("ok") or rejected, "" when it did not run
             (``registration.polish`` "none", or no dense points).
+        deskew: "deskewed" when the precision stage ran on both scans deskewed with the pair's estimated
+            motion (scans with per-point times, ``preprocess.deskew``), else why not; "" when no scan
+            had times.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
 
@@ -76,6 +84,7 @@ class RegistrationResult:
     source: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     polish: str = ""
+    deskew: str = ""
 
 
 class _Clock:
@@ -158,32 +167,60 @@ class DeepBBSRegistration:
             self.register(pts, pts[::-1].copy(), preprocessed=True)
 
     # -- preprocessing ---------------------------------------------------------------------------
-    def preprocess(self, points: np.ndarray) -> PreprocessResult:
+    def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
+                   motion: tuple[np.ndarray, float] | None = None) -> PreprocessResult:
         """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
         precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on. Everything a scan
-        needs is here: a scan preprocessed once serves as source and as target (odometry, the node)."""
+        needs is here: a scan preprocessed once serves as source and as target (odometry, the node).
+
+        Per-point ``times`` (N,) s since the stamp (Velodyne ``time``, Ouster ``t``), with
+        ``preprocess.deskew`` on: with a known ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) of
+        the sensor (a stream's last step) the scan is deskewed to its stamp before anything else;
+        without one the raw scan, its times and ``stamp_ns`` are kept, and ``register`` deskews both
+        scans with the pair's own estimate over the stamp gap before the precision stage.
+        """
         pp, rc = self.config.preprocess, self.config.registration
+        keep_raw, deskew_ms = None, None
+        if pp.deskew and times is not None:
+            tt = np.asarray(times, dtype=np.float64).reshape(-1)
+            if len(tt) != len(points):
+                raise RegistrationError(f"deskew: {len(tt)} per-point times for {len(points)} points")
+            if np.ptp(tt) > 0 and np.isfinite(tt).all():
+                if motion is not None and abs(motion[1]) > 1e-6:
+                    t0 = time.perf_counter()
+                    points = deskew(points, tt, motion[0], motion[1]).astype(np.float32)
+                    deskew_ms = (time.perf_counter() - t0) * 1e3
+                elif rc.polish != "none" and stamp_ns is not None:
+                    keep_raw = (np.asarray(points, dtype=np.float32), tt, int(stamp_ns))
         res = preprocess(points, pp)
+        if deskew_ms is not None:
+            res.timings_ms["deskew"] = deskew_ms
+            res.timings_ms["total"] += deskew_ms
+        if keep_raw is not None:
+            res.raw_points, res.times, res.stamp_ns = keep_raw
         if rc.polish != "none":
-            res.polish_cloud = prepare_polish_cloud(
-                points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
-                min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads)
+            res.polish_cloud = self._polish_cloud(points)
             res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
             res.timings_ms["total"] += res.polish_cloud.prepare_ms
         return res
 
+    def _polish_cloud(self, points: np.ndarray) -> PolishCloud:
+        pp, rc = self.config.preprocess, self.config.registration
+        return prepare_polish_cloud(
+            points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
+            min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads)
+
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
-    ) -> tuple[np.ndarray, np.ndarray | None, PolishCloud | None]:
-        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None, precision-stage cloud or
-        None) of one input."""
+    ) -> tuple[np.ndarray, np.ndarray | None, PreprocessResult | None]:
+        """(sampled points (N, 3) float32, dense points (K, 3) float32 or None, the PreprocessResult (its
+        precision-stage cloud, raw scan and times) or None) of one input."""
         if not isinstance(points, PreprocessResult):
             if preprocessed:
                 return self._check(points, name), None, None
             points = self.preprocess(points)
         dense = points.dense_points
-        return (self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"),
-                points.polish_cloud)
+        return self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"), points
 
     @staticmethod
     def _check(points: np.ndarray, name: str) -> np.ndarray:
@@ -226,6 +263,7 @@ class DeepBBSRegistration:
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
             st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
             clock.lap("dense" if st.iters["dense"] else "refine")
+        self._deskew(st, clock)  # both raw scans deskewed with the estimate over the stamp gap (per-point times)
         self._polish(st, clock)  # the GICP precision stage (registration.polish)
         return self._result(st, clock)
 
@@ -233,13 +271,15 @@ class DeepBBSRegistration:
     def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
         """Preprocess (raw scans only), the initial estimate, the scaled clouds on the device."""
         scale = self.model.scale
-        src_np, src_dense, src_pc = self._cloud(source, preprocessed, "source")
-        tgt_np, tgt_dense, tgt_pc = self._cloud(target, preprocessed, "target")
+        src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
+        tgt_np, tgt_dense, tgt_pre = self._cloud(target, preprocessed, "target")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
         tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
         return _State(
-            src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pc=src_pc, tgt_pc=tgt_pc,
+            src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pre=src_pre, tgt_pre=tgt_pre,
+            src_pc=None if src_pre is None else src_pre.polish_cloud,
+            tgt_pc=None if tgt_pre is None else tgt_pre.polish_cloud,
             src=src, tgt=tgt, search=NeighbourSearch(tgt[0]),
             R=torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device),
             t=torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device),
@@ -334,6 +374,44 @@ class DeepBBSRegistration:
         return float((st.search.nearest_distance(moved) / self.model.scale <= self.config.registration.inlier_dist)
                      .float().mean())
 
+    def _deskew(self, st: _State, clock: _Clock) -> None:
+        """Scans that kept their raw points and per-point times (``preprocess``): the constant body twist
+        ``log(T_target_source) / (stamp_source - stamp_target)`` deskews both to their stamps and their
+        precision-stage clouds are rebuilt from the deskewed scans. Skipped (``st.deskew`` says why) when
+        a scan has no times, the stamps are equal, or the estimate implies an implausible speed."""
+        a, b = st.src_pre, st.tgt_pre
+        if a is None or b is None or a.times is None or b.times is None or st.src_pc is None or st.tgt_pc is None:
+            return
+        dt = (a.stamp_ns - b.stamp_ns) * 1e-9
+        T = _matrix(st.R, st.t, self.model.scale)
+        if abs(dt) < 1e-3:
+            st.deskew = "equal stamps: no velocity"
+            return
+        speed, turn = np.linalg.norm(T[:3, 3]) / abs(dt), rotation_angle_deg(torch.from_numpy(T[:3, :3])) / abs(dt)
+        if speed > MAX_DESKEW_SPEED or turn > MAX_DESKEW_TURN_DEG:
+            st.deskew = f"implausible motion ({speed:.0f} m/s, {turn:.0f} deg/s): not deskewed"
+            return
+        sweep = float(max(np.ptp(a.times), np.ptp(b.times)))
+        if speed * sweep < MIN_DESKEW_SHIFT and turn * sweep < MIN_DESKEW_TURN_DEG:
+            st.deskew = "still: nothing to deskew"
+            return
+        st.src_pc, st.tgt_pc = self._deskewed_cloud(a, st.src_pc, T, dt), self._deskewed_cloud(b, st.tgt_pc, T, dt)
+        st.deskew = "deskewed"
+        clock.lap("deskew")
+
+    def _deskewed_cloud(self, pre: PreprocessResult, pc: PolishCloud, T: np.ndarray, dt: float) -> PolishCloud:
+        """The precision-stage cloud of ``pre`` deskewed with the twist ``log(T) / dt``: its voxel centroids
+        moved with the times their azimuths were measured at (:class:`SweepTimes`, fitted to the raw scan;
+        covariances and k-d tree rebuilt, about half the cost of a full preparation), or, when the times
+        do not follow the azimuth, the raw scan deskewed point by point and prepared again."""
+        rc = self.config.registration
+        sweep = SweepTimes.fit(pre.raw_points, pre.times)
+        if sweep is None:
+            return self._polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
+        c = pc.points()
+        return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
+                              rc.polish_threads)
+
     def _polish(self, st: _State, clock: _Clock) -> None:
         """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
         their ``polish_cloud``; rejected results keep the estimate)."""
@@ -355,7 +433,7 @@ class DeepBBSRegistration:
 
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += ("polish",) if "polish" in clock.ms else ()
+        stages += tuple(s for s in ("deskew", "polish") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())
         return RegistrationResult(
@@ -369,6 +447,7 @@ class DeepBBSRegistration:
             source=st.src_np,
             target=st.tgt_np,
             polish=st.polish_reason,
+            deskew=st.deskew,
         )
 
 
@@ -382,6 +461,8 @@ class _State:
     tgt_np: np.ndarray
     src_dense: np.ndarray | None
     tgt_dense: np.ndarray | None
+    src_pre: PreprocessResult | None
+    tgt_pre: PreprocessResult | None
     src_pc: PolishCloud | None
     tgt_pc: PolishCloud | None
     src: torch.Tensor
@@ -396,6 +477,7 @@ class _State:
     temperature: float = 0.0
     inlier_ratio: float = 0.0
     polish_reason: str = ""
+    deskew: str = ""
 
 
 def _matrix(R: torch.Tensor, t: torch.Tensor, scale: float) -> np.ndarray:

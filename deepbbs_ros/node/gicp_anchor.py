@@ -52,8 +52,10 @@ class GicpRegistration:
 
         self.gicp = SmallGicpRegistration("gicp", config)
 
-    def preprocess(self, points: np.ndarray) -> PreparedGicpCloud:
-        """(N, 3) float32 raw scan -> voxel grid, k-d tree and covariances; RegistrationError when too few points."""
+    def preprocess(self, points: np.ndarray, times: np.ndarray | None = None,
+                   stamp_ns: int | None = None) -> PreparedGicpCloud:
+        """(N, 3) float32 raw scan -> voxel grid, k-d tree and covariances; RegistrationError when too few points.
+        Per-point times are not used: the anchor is small_gicp as it comes (no deskew)."""
         return PreparedGicpCloud(self.gicp.preprocess(points))
 
     def register(self, source: PreparedGicpCloud, target: PreparedGicpCloud) -> Any:

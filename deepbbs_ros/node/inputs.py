@@ -57,7 +57,8 @@ class Cloud:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
         times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
             (:data:`TIME_FIELDS`); None when the cloud has no time field. The local-map odometry
-            deskews with them; pair mode and scan-to-scan odometry do not use them.
+            deskews with its velocity; pair mode and scan-to-scan odometry hand them to DeepBBS++'s
+            preprocessing, whose deskew stage uses the pair's own motion estimate.
         stamp_ns: ``header.stamp`` in nanoseconds.
         frame_id: ``header.frame_id`` (never empty).
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
@@ -122,14 +123,16 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
 
 
 class PreprocessCache:
-    """``preprocess(xyz)`` results keyed by the points' content; thread-safe, at most ``size`` kept.
+    """``preprocess(xyz, times, stamp_ns)`` results keyed by the points' content; thread-safe, at most
+    ``size`` kept.
 
     Args:
-        preprocess: ``(N, 3) float32 -> result``; may raise :class:`RegistrationError`.
+        preprocess: ``((N, 3) float32, (N,) float64 per-point times or None, stamp ns) -> result`` (DeepBBS++
+            keeps the raw scan and its times for the deskew stage); may raise :class:`RegistrationError`.
         size: results kept (least recently used evicted).
     """
 
-    def __init__(self, preprocess: Callable[[np.ndarray], Any], size: int = PP_CACHE) -> None:
+    def __init__(self, preprocess: Callable[..., Any], size: int = PP_CACHE) -> None:
         self._preprocess = preprocess
         self.size = int(size)
         self._lock = threading.Lock()
@@ -143,7 +146,8 @@ class PreprocessCache:
         buf = memoryview(np.ascontiguousarray(xyz)).cast("B")
         return int(xyz.shape[0]), zlib.crc32(buf), zlib.adler32(buf)
 
-    def get(self, xyz: np.ndarray, label: str) -> tuple[Any, float]:
+    def get(self, xyz: np.ndarray, label: str, times: np.ndarray | None = None,
+            stamp_ns: int | None = None) -> tuple[Any, float]:
         """(result, ms spent here) for ``xyz``; computed at most once per content while cached.
 
         Raises:
@@ -166,7 +170,7 @@ class PreprocessCache:
                 self.hits += 1
         if owner:
             try:
-                fut.set_result(self._preprocess(xyz))
+                fut.set_result(self._preprocess(xyz, times, stamp_ns))
             except BaseException as exc:  # noqa: BLE001 - handed to every waiter, then re-raised below
                 fut.set_exception(exc)
                 with self._lock:
@@ -271,7 +275,8 @@ class CloudInput:
             xyz, times, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
             self._check(frame, stamp_ns)
             t1 = time.perf_counter()
-            pp, pp_ms = self._cache.get(xyz, f"{frame}@{stamp_ns}") if self._cache is not None else (None, 0.0)
+            pp, pp_ms = ((None, 0.0) if self._cache is None
+                         else self._cache.get(xyz, f"{frame}@{stamp_ns}", times, stamp_ns))
         except BadInput as bad:
             self._on_bad(bad.kind, str(bad))
             return

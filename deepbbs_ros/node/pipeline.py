@@ -244,7 +244,7 @@ class LocalMapOdometry:
         a 0.5 x voxel grid: (M, 3) float64."""
         from kiss_icp.voxelization import voxel_down_sample
 
-        from deepbbs_ros.core.odometry import deskew
+        from deepbbs_ros.core.preprocess import deskew
 
         cfg = self.odometry.config
         pts = np.asarray(cloud.xyz, dtype=np.float64)

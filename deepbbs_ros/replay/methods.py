@@ -1,6 +1,6 @@
 """The registration methods replay compares, behind one small interface.
 
-Every pairwise method has ``prepare(points) -> (prepared, ms)`` (preprocessing of one raw scan) and
+Every pairwise method has ``prepare(points, times, stamp_ns) -> (prepared, ms)`` (preprocessing of one raw scan) and
 ``align(src, tgt, T_init) -> (T_target_source, info, ms)``; the runtime of a pair is the sum of both
 preparations and the alignment (reading excluded). KISS-ICP is an odometry (scan-to-map with its own
 state), so it only has ``step(scan) -> (T_first_k, ms)``. No ROS import.
@@ -77,10 +77,12 @@ class DeepBBSMethod:
             self.reg.warmup()  # first-call kernel set-up out of the timed frames
         self.input = INPUTS[name]
 
-    def prepare(self, points: np.ndarray) -> tuple[Any, float]:
-        """-> (the PreprocessResult: sampled points, dense points, precision-stage cloud), ms."""
+    def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
+                stamp_ns: int | None = None) -> tuple[Any, float]:
+        """-> (the PreprocessResult: sampled points, dense points, precision-stage cloud, and the raw
+        scan with its per-point times for the deskew stage), ms."""
         t0 = time.perf_counter()
-        res = self.reg.preprocess(points)
+        res = self.reg.preprocess(points, times, stamp_ns)
         return res, (time.perf_counter() - t0) * 1e3
 
     def align(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
@@ -88,6 +90,8 @@ class DeepBBSMethod:
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
         info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
+        if res.deskew:
+            info["deskew"] = res.deskew
         if self.polish:
             info["polish"] = res.polish
             info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))
@@ -109,7 +113,9 @@ class SmallGicpMethod:
         else:
             self.input = "DeepBBS++ preprocessing (small_gicp on the same 1000 points)"
 
-    def prepare(self, points: np.ndarray) -> tuple[Any, float]:
+    def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
+                stamp_ns: int | None = None) -> tuple[Any, float]:
+        """The baseline as small_gicp runs it: per-point times are not used (no deskew)."""
         prep = self.reg.preprocess(points)
         return prep, prep.preprocess_ms
 

@@ -163,8 +163,8 @@ def run_pairs(
                                    "source": src.points, "target": tgt.points, "T_gt": T_gt, "T_est": {}})
             for name, method in methods.items():
                 try:
-                    p_src, ms_src = method.prepare(src.points)
-                    p_tgt, ms_tgt = method.prepare(tgt.points)
+                    p_src, ms_src = method.prepare(src.points, src.point_times(), src.stamp_ns)
+                    p_tgt, ms_tgt = method.prepare(tgt.points, tgt.point_times(), tgt.stamp_ns)
                 except DeepBBSError as err:
                     for t, T_init in enumerate(inits):
                         res.records.append(_failed(name, res.pairs, t, src, tgt, dist, T_init, T_gt, str(err)))
@@ -308,7 +308,7 @@ def run_odometry(
                     res.runtime_ms[name].append(ms)
                     continue
                 try:
-                    prep, ms_prep = method.prepare(scan.points)
+                    prep, ms_prep = method.prepare(scan.points, scan.point_times(), scan.stamp_ns)
                 except DeepBBSError as err:
                     prep, ms_prep = None, float("nan")
                     res.failed[name].append(f"frame {scan.index}: {err}")

@@ -164,7 +164,7 @@ def random_lidar(rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
     mounting height and tilt. Returns the ``LidarConfig`` and a JSON-friendly description."""
     from deepbbs_ros.sim import LidarConfig
 
-    presets = [("hdl64", 0.45), ("ouster64", 0.2), ("hdl32", 0.2), ("vlp16", 0.15)]
+    presets = [("hdl64", 0.35), ("ouster64", 0.25), ("hdl32", 0.25), ("vlp16", 0.15)]
     names, probs = zip(*presets)
     name = str(rng.choice(names, p=np.asarray(probs) / sum(probs)))
     base = getattr(LidarConfig, name)()
@@ -233,8 +233,11 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
                           randomize_sensor: bool = True) -> Path:
     """Simulate one drive, preprocess every frame and write ``<out_dir>/<scene>_<seed>.npz``.
 
-    The sensor (when randomised) and motion distortion are drawn from the scene seed, so a cache is
-    reproducible from its seeds alone.
+    The sensor (when randomised) and the sweep output are drawn from the scene seed, so a cache is
+    reproducible from its seeds alone. Outputs: half the drives are motion-compensated to the stamp
+    (what Apollo's compensator, or the pipeline's deskew, delivers), 30 % raw sweeps (what the network
+    sees before the deskew stage: points measured along the sweep, ground truth at the stamp), 20 %
+    ideal instantaneous scans.
     """
     from deepbbs_ros.sim import LidarConfig, simulate_drive
 
@@ -242,19 +245,22 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
     rng = np.random.default_rng([spec.seed, 7919])
     if randomize_sensor:
         lidar, desc = random_lidar(rng)
-        motion = bool(rng.random() < 0.7)
+        u = float(rng.random())
+        motion, compensate = u < 0.8, u < 0.5
     else:
-        lidar, desc, motion = LidarConfig.hdl64(), {"preset": "hdl64"}, True
+        lidar, desc, motion, compensate = LidarConfig.hdl64(), {"preset": "hdl64"}, True, True
     frames, poses, stamps, raw_counts = [], [], [], []
     t0 = time.perf_counter()
-    for k, scan in enumerate(simulate_drive(spec.scene, spec.seed, spec.frames, lidar=lidar, motion_distortion=motion)):
+    for k, scan in enumerate(simulate_drive(spec.scene, spec.seed, spec.frames, lidar=lidar, motion_distortion=motion,
+                                                   compensate=compensate)):
         frames.append(cache_frame(scan.points, pre, cache_points, seed=spec.seed * 1000 + k))
         poses.append(scan.T_world_lidar)
         stamps.append(scan.stamp_ns)
         raw_counts.append(len(scan.points))
     meta = {
         "kind": "sim", "scene": spec.scene, "seed": spec.seed, "frames": spec.frames, "sensor": desc,
-        "motion_distortion": motion, "preprocess": dataclasses.asdict(pre), "cache_points": cache_points,
+        "motion_distortion": motion, "compensated": compensate, "preprocess": dataclasses.asdict(pre),
+        "cache_points": cache_points,
         "raw_points_mean": float(np.mean(raw_counts)) if raw_counts else 0.0,
         "seconds": round(time.perf_counter() - t0, 2),
     }
