@@ -245,6 +245,65 @@ def test_scene_types_produce_plausible_scans(scene):
     assert v.min() >= -1e-6 and v.max() <= 20.0 + 1e-6
 
 
+@pytest.mark.parametrize("scene", SCENES)
+def test_off_ground_share_like_real_drives(scene):
+    """Real HDL-64E drives keep 28-55 % of returns more than 0.3 m off the ground plane (RANSAC fit
+    within 20 m, as the preprocessing does); the simulated worlds stay inside a slightly wider band
+    on a small sensor (seed 11, two scans)."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.preprocess import fit_ground_plane
+
+    sim = DriveSimulator(scene, 11, small_lidar(azimuth_step_deg=0.5), frames=40, compensate=True)
+    for k in (5, 35):
+        pts = sim.scan_at(k).points
+        plane = fit_ground_plane(pts, Config().preprocess, seed=k)
+        share = np.mean(np.abs(pts.astype(np.float64) @ plane[:3] + plane[3]) > 0.3)
+        assert 0.22 < share < 0.6, f"{scene} frame {k}: {100 * share:.0f} % off the ground"
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_world_structure(scene):
+    """Curved roads, junctions with side roads, porous vegetation, roadside relief off the road."""
+    from deepbbs_ros.sim.scene import World
+
+    w = World(scene, 3, 1500.0)
+    kap = np.abs(w.route.kappa)
+    curved = kap[(kap > 0) & (kap < 1 / 90)]  # not a 90-degree street corner
+    assert len(curved) and 1 / curved.max() >= 99.0 and 1 / curved.min() <= 2001.0
+    assert len(w.junctions) >= 1
+    for j in w.junctions:  # side roads leave the road and stay off it
+        far = j["xy"][j["free_from"]:]
+        assert w.route.clearance(far) > w.style.half_width
+    # the road corridor is untouched by the relief, the land beside it is not
+    s = np.arange(100.0, 1400.0, 7.0)
+    on = w.route.lateral(s, w.style.half_width * 0.5)
+    assert np.allclose(w.terrain.height(on[:, 0], on[:, 1]), w.terrain._base(on[:, 0], on[:, 1]))
+    off = w.route.lateral(s, w.style.half_width + 25.0)
+    relief = w.terrain.height(off[:, 0], off[:, 1]) - w.terrain._base(off[:, 0], off[:, 1])
+    assert np.abs(relief).max() > (0.05 if scene == "urban" else 0.5)
+    # porous crowns: rays through a tree's crown region partly reach beyond it
+    v, f, _ = w.static_mesh(w.route.lateral(700.0, 0.0), 150.0)
+    assert len(f) > 20000
+
+
+def test_porous_crown_lets_rays_through():
+    from deepbbs_ros.sim.geometry import clusters
+
+    rng = np.random.default_rng(0)
+    b = MeshBuilder()
+    b.add(box([0, 0, -1.0], (400, 400, 1.0)), 0.2)
+    b.add(box([15.1, 0, -1.0], (0.2, 40, 31.0)), 0.5)  # wall behind the crown
+    b.add(clusters([8.0, 0.0, 1.0], (2.5, 2.5, 2.5), rng, 27, 0.38), 0.4)  # as World._tree makes them
+    v, f, a = b.build()
+    lid = small_lidar(range_noise=0.0, dropout=0.0, azimuth_step_deg=0.2)
+    T = np.broadcast_to(sensor_pose(), (lid.columns, 4, 4))
+    pts, _ = lidar_sweep(lid, T, (RayCaster(v, f), a), np.random.default_rng(0))
+    cone = (pts[:, 0] > 4.0) & (np.abs(pts[:, 1]) < pts[:, 0] * 1.5 / 8.0) & (pts[:, 2] > -1.0) & (pts[:, 2] < 0.5)
+    crown = cone & (pts[:, 0] < 11.0)
+    behind = cone & (np.abs(pts[:, 0] - 15.0) < 0.05)
+    assert crown.sum() > 50 and behind.sum() > 0.15 * cone.sum()  # partly transmissive
+
+
 def test_bad_arguments():
     with pytest.raises(SimulationError, match="unknown scene 'mars'"):
         simulate_drive("mars", 0, 1)

@@ -100,7 +100,7 @@ STYLES: dict[str, Style] = {
         (6.0, 13.0),
         hills=0.3,
         bank=0.05,
-        junction_gap=(60.0, 160.0),
+        junction_gap=(120.0, 300.0),
         junction_angle=(55.0, 125.0),
     ),
     "suburban": Style(
@@ -493,7 +493,7 @@ class World:
         return bool(np.any(d < self._jclear[i] + margin))
 
     # ---- object makers ------------------------------------------------------------------------
-    def _building(self, rng, s, side, setback, width, depth, height, alb) -> None:
+    def _building(self, rng, s, side, setback, width, depth, height, alb) -> bool:
         """A building of one to three boxes: plain, L-shaped (a wing reaching back) or with a recessed
         centre between two front bays, mostly parallel to the road but sometimes turned by up to
         30 degrees, with set-back upper storeys, balconies and bay windows / pillars."""
@@ -501,7 +501,10 @@ class World:
         _, h, _ = self.route.sample(s)
         xy = self.route.lateral(s, off)
         turned = rng.uniform() < 0.25
-        yaw = float(h) + (rng.uniform(-0.5, 0.5) if turned else rng.normal(0, 0.02))
+        dyaw = rng.uniform(-0.5, 0.5) if turned else rng.normal(0, 0.02)
+        if turned and self.route.clearance(self._corners(xy, float(h) + dyaw, [(0, 0, width, depth)])) < setback - 0.5:
+            dyaw = rng.normal(0, 0.02)  # no room to turn it: parallel to the road
+        yaw = float(h) + dyaw
         R = rot_z(yaw)[:2, :2]
         parts = [(0.0, 0.0, width, depth, height)]  # local x (along), y (towards +side), size
         u = rng.uniform()
@@ -515,15 +518,14 @@ class World:
             for e in (-1, 1):
                 parts.append((e * (width - bw) / 2, -side * (depth - rd) / 2, bw, rd + 0.1,
                               height * rng.uniform(0.7, 1)))
-        corners = []
-        for lx, ly, sx, sy, _ in parts:
-            c = np.array([[lx + a * sx / 2, ly + b * sy / 2] for a in (-1, 1) for b in (-1, 1)])
-            corners.append(c @ R.T + xy)
-        corners = np.concatenate(corners)
+        corners = self._corners(xy, yaw, parts)
         if self.route.clearance(corners) < setback - 0.5 or self._on_side_road(corners, 1.0):
-            return
+            parts = parts[:1] if u < 0.35 else [(0.0, 0.0, width, depth, height)]  # plain box instead
+            corners = self._corners(xy, yaw, parts)
+            if self.route.clearance(corners) < setback - 0.5 or self._on_side_road(corners, 1.0):
+                return False
         if not self._free(xy, 0.5 * math.hypot(width, depth), 0.0):
-            return
+            return False
         z0 = self._ground(xy) - 0.5
         for lx, ly, sx, sy, hh in parts:
             self._add(s, box([*(R @ [lx, ly] + xy), z0], (sx, sy, hh + 0.5), yaw), alb)
@@ -546,6 +548,14 @@ class World:
             c = R @ [lx, front - side * dd / 2] + xy
             self._add(s, box([*c, z0 + 0.2 + rng.uniform(0, 4)], (rng.uniform(0.8, 3.0), dd, rng.uniform(2, 6)), yaw),
                       float(np.clip(alb + rng.normal(0, 0.1), 0.05, 0.9)))
+        return True
+
+    @staticmethod
+    def _corners(xy, yaw, parts) -> np.ndarray:
+        """World xy corners of footprints ``parts`` [(local x, local y, size x, size y, ...)]."""
+        R = rot_z(yaw)[:2, :2]
+        c = np.array([[p[0] + a * p[2] / 2, p[1] + b * p[3] / 2] for p in parts for a in (-1, 1) for b in (-1, 1)])
+        return c @ R.T + xy
 
     def _tree(self, rng, s, xy, scale=1.0, road_clear=0.0) -> None:
         """Trunk plus a porous crown of leaf clusters (broadleaf, or a slender conifer)."""
@@ -560,8 +570,8 @@ class World:
         else:
             radii = (crown_r * rng.uniform(0.8, 1.2), crown_r * rng.uniform(0.8, 1.2), crown_r * rng.uniform(0.7, 1.3))
         self._add(s, cylinder([*xy, z], rng.uniform(0.1, 0.25) * scale, trunk_h + 0.5 + radii[2], sides=5), 0.3)
-        n = int(5.0 * (radii[0] * radii[1] * radii[2]) ** (2 / 3)) + 8
-        self._add(s, clusters([*xy, z + trunk_h + radii[2] * 0.8], radii, rng, n, rng.uniform(0.35, 0.55)),
+        n = int(3.5 * (radii[0] * radii[1] * radii[2]) ** (2 / 3)) + 6
+        self._add(s, clusters([*xy, z + trunk_h + radii[2] * 0.8], radii, rng, n, rng.uniform(0.3, 0.45)),
                   float(rng.uniform(0.3, 0.5)))
 
     def _bush(self, rng, s, xy, road_clear=0.0) -> None:
@@ -718,7 +728,7 @@ class World:
                     w = rng.uniform(10, 35)
                     if not self._near_intersection(s + w / 2, w / 2 + 9):
                         hgt = float(np.clip(rng.lognormal(np.log(14), 0.5), 6, 60))
-                        self._building(
+                        built = self._building(
                             rng,
                             s + w / 2,
                             side,
@@ -728,7 +738,14 @@ class World:
                             hgt,
                             float(rng.uniform(0.15, 0.6)),
                         )
-                    s += w + (rng.uniform(8, 20) if rng.uniform() < 0.15 else rng.uniform(0.3, 4))
+                        if not built:  # no room for a building: a lot behind a wall
+                            self._run(s, side * (W + walk + 0.4), w, rng.uniform(1.5, 2.6), 0.25,
+                                      float(rng.uniform(0.2, 0.6)))
+                    gap = rng.uniform(8, 20) if rng.uniform() < 0.15 else rng.uniform(0.3, 4)
+                    if gap > 8 and not self._near_intersection(s + w + gap / 2, gap / 2 + 9):  # fenced gap
+                        self._run(s + w, side * (W + walk + 0.4), gap, rng.uniform(1.2, 2.2), 0.06,
+                                  float(rng.uniform(0.3, 0.6)), gap=0.1, posts=2.4)
+                    s += w + gap
                 s = rng.uniform(0, 30)
                 while s < L:  # street lights
                     self._pole(rng, s, side * (W + 0.6), rng.uniform(7, 9), arm=rng.uniform(1.5, 2.5))
@@ -790,7 +807,7 @@ class World:
                                 float(rng.uniform(0.3, 0.7)),
                                 posts=1.5,
                             )
-                        elif u < 0.55:  # hedge
+                        elif u < 0.75:  # hedge
                             self._hedge(rng, s + 1, f_off, lot - 2, rng.uniform(1.0, 2.2), rng.uniform(0.8, 1.5))
                         for _ in range(rng.integers(1, 4)):
                             a = rng.uniform(s, s + lot)
@@ -805,6 +822,11 @@ class World:
                         if rng.uniform() < 0.2:
                             self._parked_car(rng, c, side * (W - 1.1))
                     s += lot
+                s = rng.uniform(0, 15)
+                while s < L:  # street trees on the verge
+                    xy = self.route.lateral(s, side * (W + walk * 0.5 + rng.uniform(0, 1.5)))
+                    self._tree(rng, s, xy, 0.9, W + 0.8)
+                    s += rng.uniform(9, 25)
                 if side > 0:
                     s = rng.uniform(0, 40)
                     while s < L:  # utility poles with a cross arm
