@@ -29,6 +29,7 @@ __all__ = [
     "VELODYNE",
     "Layout",
     "build_cloud",
+    "driver_cloud",
 ]
 
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
@@ -150,3 +151,47 @@ def build_cloud(
         data=raw,
         **common,
     )
+
+
+def driver_cloud(
+    driver: str,
+    xyz: np.ndarray,
+    fields: Mapping[str, np.ndarray],
+    *,
+    beams: int = 0,
+    columns: int = 0,
+    flavor: str = "rclpy",
+    stamp_ns: int = 0,
+    frame_id: str = "lidar",
+) -> Any:
+    """A scan as the driver ``driver`` publishes it: ``"velodyne"`` (:data:`VELODYNE`, unorganised, in
+    the given order) or ``"ouster"`` (:data:`OUSTER`, organised ``beams`` x ``columns``, row 0 = the top
+    beam as ouster-ros writes it, no return = zeros, ``t`` in ns).
+
+    Args:
+        xyz: (N, 3) float32 points, sensor frame, metres.
+        fields: ``intensity`` (N,), ``time`` (N,) seconds since the stamp, ``ring`` (N,) (0 = lowest beam),
+            and for Ouster ``column`` (N,) (the simulator's :class:`~deepbbs_ros.datasets.base.Scan` fields).
+    """
+    f = fields
+    if driver == "velodyne":
+        values = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": f["intensity"],
+                  "ring": f["ring"], "time": f["time"]}  # fmt: skip
+        return build_cloud(VELODYNE, values, flavor=flavor, stamp_ns=stamp_ns, frame_id=frame_id)
+    if driver != "ouster":
+        raise PointCloudFormatError(f"unknown driver layout {driver!r}; choose 'velodyne' or 'ouster'")
+    if "column" not in f or beams < 1 or columns < 1:
+        raise PointCloudFormatError("the Ouster layout needs a 'column' field and the beams x columns shape")
+    h, w = int(beams), int(columns)
+    row = (h - 1 - np.asarray(f["ring"]).astype(np.int64)) * w + np.asarray(f["column"]).astype(np.int64)
+    grid = {n: np.zeros(h * w, dtype) for n, dtype in (("x", np.float32), ("y", np.float32), ("z", np.float32),
+            ("intensity", np.float32), ("t", np.uint32), ("reflectivity", np.uint16), ("ring", np.uint16),
+            ("ambient", np.uint16), ("range", np.uint32))}  # fmt: skip
+    for i, n in enumerate("xyz"):
+        grid[n][row] = xyz[:, i]
+    grid["intensity"][row] = f["intensity"]
+    grid["reflectivity"][row] = np.clip(f["intensity"], 0, 255).astype(np.uint16)
+    grid["t"][row] = np.round(np.asarray(f["time"], dtype=np.float64) * 1e9).astype(np.uint32)
+    grid["ring"] = np.repeat(np.arange(h, dtype=np.uint16), w)
+    grid["range"][row] = np.round(np.linalg.norm(xyz, axis=1) * 1000.0).astype(np.uint32)
+    return build_cloud(OUSTER, grid, height=h, width=w, flavor=flavor, stamp_ns=stamp_ns, frame_id=frame_id)

@@ -89,27 +89,10 @@ def _lidar(layout: str, ouster_beams: int):
 def layout_message(layout: str, scan, lidar, frame_id: str):
     """A simulated :class:`~deepbbs_ros.datasets.base.Scan` as the driver of ``layout`` publishes it
     (rclpy PointCloud2, stamp set later)."""
-    from msg_adapters.layouts import OUSTER, VELODYNE, build_cloud
+    from msg_adapters.layouts import driver_cloud
 
-    xyz, f = scan.points, scan.fields
-    if layout == "velodyne":  # unorganised, firing order (the simulator's order)
-        values = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": f["intensity"],
-                  "ring": f["ring"], "time": f["time"]}  # fmt: skip
-        return build_cloud(VELODYNE, values, frame_id=frame_id)
-    # organised beams x columns, row 0 = top beam as ouster-ros; no return = zeros (decoders drop them)
-    h, w = lidar.beams, lidar.columns
-    row = (h - 1 - f["ring"].astype(np.int64)) * w + f["column"].astype(np.int64)
-    grid = {n: np.zeros(h * w, dtype) for n, dtype in (("x", np.float32), ("y", np.float32), ("z", np.float32),
-            ("intensity", np.float32), ("t", np.uint32), ("reflectivity", np.uint16), ("ring", np.uint16),
-            ("ambient", np.uint16), ("range", np.uint32))}  # fmt: skip
-    for i, n in enumerate("xyz"):
-        grid[n][row] = xyz[:, i]
-    grid["intensity"][row] = f["intensity"]
-    grid["reflectivity"][row] = np.clip(f["intensity"], 0, 255).astype(np.uint16)
-    grid["t"][row] = np.round(f["time"].astype(np.float64) * 1e9).astype(np.uint32)
-    grid["ring"] = np.repeat(np.arange(h, dtype=np.uint16), w)
-    grid["range"][row] = np.round(np.linalg.norm(xyz, axis=1) * 1000.0).astype(np.uint32)
-    return build_cloud(OUSTER, grid, height=h, width=w, frame_id=frame_id)
+    return driver_cloud(layout, scan.points, scan.fields, beams=lidar.beams, columns=lidar.columns,
+                        frame_id=frame_id)
 
 
 def make_stream(args, layout: str) -> tuple[list, str]:

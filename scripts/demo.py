@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
-"""``make demo``: replay the bundled sample drive through DeepBBS++ and the baselines.
+"""``make demo``: replay the bundled sample drives through DeepBBS++ and the baselines.
 
-1. pairs mode (Apollo pair protocol, stride 5, max 5 m) on ``bags/urban_drive_hdl64``:
-   DeepBBS++ vs point-to-point ICP vs GICP from identity;
+For each of ``bags/urban_drive_hdl64`` (HDL-64E, Velodyne layout) and ``bags/suburban_drive_os64``
+(Ouster OS1-64 layout), raw sweeps with per-point times:
+
+1. pairs mode (Apollo pair protocol, stride 5, max 5 m): DeepBBS++ vs point-to-point ICP vs GICP
+   from identity;
 2. odometry mode on the same drive: DeepBBS++ vs KISS-ICP vs scan-to-scan GICP.
 
 Each prints its comparison table (with units) and the folder holding metrics.json, the plots,
-trajectories and the results bag (``results/demo/<mode>/latest``). Without the sample bag (a
+trajectories and the results bag (``results/demo/<sample>/<mode>/latest``). Without the sample bags (a
 stripped checkout) a small drive is simulated into a temporary folder first.
 """
 
@@ -18,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "bags" / "urban_drive_hdl64"
+SAMPLES = (ROOT / "bags" / "urban_drive_hdl64", ROOT / "bags" / "suburban_drive_os64")
 
 
 def _simulated_drive(tmp: Path, frames: int = 40) -> Path:
@@ -26,8 +29,8 @@ def _simulated_drive(tmp: Path, frames: int = 40) -> Path:
     from deepbbs_ros.sim import LidarConfig, simulate_drive
 
     out = tmp / "urban_drive"
-    print(f"sample bag not found ({SAMPLE}); simulating a {frames}-frame urban drive into {out}")
-    scans = simulate_drive("urban", 7, frames, lidar=LidarConfig.hdl64(azimuth_step_deg=1.0))
+    print(f"sample bags not found ({SAMPLES[0]}); simulating a {frames}-frame urban drive into {out}")
+    scans = simulate_drive("urban", 7, frames, lidar=LidarConfig.hdl64())
     write_scans(scans, out, "mcap", progress=True)
     return out
 
@@ -44,7 +47,7 @@ def _deepbbs_available() -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--source", default=None, help="recording to replay (default: the bundled sample bag)")
+    p.add_argument("--source", default=None, help="recording to replay (default: the bundled sample bags)")
     p.add_argument("--out", default=str(ROOT / "results" / "demo"), help="results root")
     p.add_argument("--skip-odometry", action="store_true")
     args = p.parse_args(argv)
@@ -54,7 +57,10 @@ def main(argv: list[str] | None = None) -> int:
 
     local_ros_env()
     with tempfile.TemporaryDirectory(prefix="deepbbs_demo_") as tmp:
-        source = Path(args.source) if args.source else (SAMPLE if SAMPLE.exists() else _simulated_drive(Path(tmp)))
+        if args.source:
+            sources = [Path(args.source)]
+        else:
+            sources = [p for p in SAMPLES if p.exists()] or [_simulated_drive(Path(tmp))]
         deep = _deepbbs_available()
         if not deep:
             print("note: DeepBBS++ (core registration or shipped weights) is not available in this checkout; "
@@ -64,11 +70,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.skip_odometry:
             runs.append(("odometry", ["--mode", "odometry", "--method", lead + "kiss-icp,gicp"]))
         rc = 0
-        for mode, extra in runs:
-            out = Path(args.out) / mode
-            print(f"\n$ deepbbs-replay {source} {' '.join(extra)} --out {out}")
-            rc = replay([str(source), *extra, "--out", str(out)]) or rc
-            print(f"plots and metrics.json: {out / 'latest'}/")
+        for source in sources:
+            for mode, extra in runs:
+                out = Path(args.out) / source.name / mode
+                print(f"\n$ deepbbs-replay {source} {' '.join(extra)} --out {out}")
+                rc = replay([str(source), *extra, "--out", str(out)]) or rc
+                print(f"plots and metrics.json: {out / 'latest'}/")
     return rc
 
 

@@ -100,9 +100,12 @@ def write_scans(
     topic: str = APOLLO_LIDAR_TOPIC,
     gt_topic: str = GT_POSE_TOPIC,
     progress: bool = False,
+    driver: str | None = None,
+    shape: tuple[int, int] = (0, 0),
 ) -> int:
     """Write scans to ``out`` as ``fmt``: ``"apollo"``, ``"kitti"``, ``"mcap"`` (rosbag2 directory,
     zstd-compressed mcap) or ``"db3"`` (rosbag2 directory, sqlite3). ``out`` must not exist or be empty.
+    ``driver`` / ``shape``: rosbag2 clouds in a driver's field layout (see ``write_rosbag``).
 
     Returns:
         the number of scans written.
@@ -124,4 +127,5 @@ def write_scans(
         return write_kitti(scans, out)
     from deepbbs_ros.datasets.rosbag import write_rosbag
 
-    return write_rosbag(scans, out, storage="mcap" if fmt == "mcap" else "sqlite3", topic=topic, gt_topic=gt_topic)
+    return write_rosbag(scans, out, storage="mcap" if fmt == "mcap" else "sqlite3", topic=topic, gt_topic=gt_topic,
+                        driver=driver, shape=shape)

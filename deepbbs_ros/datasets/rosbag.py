@@ -355,11 +355,15 @@ def write_rosbag(
     storage: str = "mcap",
     topic: str = APOLLO_LIDAR_TOPIC,
     gt_topic: str = GT_POSE_TOPIC,
+    driver: str | None = None,
+    shape: tuple[int, int] = (0, 0),
 ) -> int:
     """Write scans as a rosbag2 directory (``storage`` ``"mcap"``, zstd chunks, or ``"sqlite3"``).
 
     Each scan becomes a ``sensor_msgs/msg/PointCloud2`` on ``topic`` (x y z float32 + every field of
-    ``Scan.fields``, header stamp = ``stamp_ns``, frame = ``Scan.frame_id``); each ground-truth pose a
+    ``Scan.fields``, header stamp = ``stamp_ns``, frame = ``Scan.frame_id``; or, with ``driver``
+    ``"velodyne"`` / ``"ouster"``, that driver's layout, :func:`msg_adapters.layouts.driver_cloud`, with
+    ``shape`` = (beams, columns) for the organised Ouster cloud); each ground-truth pose a
     ``geometry_msgs/msg/PoseStamped`` on ``gt_topic`` (frame ``world``, pose = ``T_world_lidar``, same
     stamp). Log times equal the header stamps. The output is byte-for-byte deterministic.
 
@@ -369,6 +373,7 @@ def write_rosbag(
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
+    from msg_adapters.layouts import driver_cloud
     from msg_adapters.pointcloud2 import arrays_to_pointcloud2
     from msg_adapters.transforms import matrix_to_pose_stamped
 
@@ -387,9 +392,13 @@ def write_rosbag(
             cloud_conn = writer.add_connection(topic, POINTCLOUD2, typestore=typestore, offered_qos_profiles=qos)
             gt_conn = None
             for scan in scans:
-                msg = arrays_to_pointcloud2(
-                    scan.points, scan.fields, stamp_ns=scan.stamp_ns, frame_id=scan.frame_id, flavor="rosbags"
-                )
+                if driver is None:
+                    msg = arrays_to_pointcloud2(
+                        scan.points, scan.fields, stamp_ns=scan.stamp_ns, frame_id=scan.frame_id, flavor="rosbags"
+                    )
+                else:
+                    msg = driver_cloud(driver, scan.points, scan.fields, beams=shape[0], columns=shape[1],
+                                       flavor="rosbags", stamp_ns=scan.stamp_ns, frame_id=scan.frame_id)
                 writer.write(cloud_conn, scan.stamp_ns, typestore.serialize_cdr(msg, POINTCLOUD2))
                 if scan.T_world_lidar is not None:
                     if gt_conn is None:
