@@ -4,8 +4,8 @@
 Every registration starts from two raw scans (preprocessing of both included in the time, as a user
 calls ``DeepBBSRegistration.register(raw_source, raw_target)``), from identity, on:
 
-* held-out simulated pairs (test seeds 90000+, every scene type, the CONVENTIONS.md pair protocol:
-  sources every ``--stride`` frames, target = the last frame within 5 m);
+* held-out simulated pairs (test seeds 90000+, every scene type, sweeps compensated to their stamps, the
+  pair protocol: sources every ``--stride`` frames, target = the last frame within 5 m);
 * the real KITTI scans in ``--realdata``/kitti/* (pairs up to 5 m apart) and the real HDL-32E pair
   (read from the shared folder, never copied);
 
@@ -52,7 +52,7 @@ def build_pairs(args) -> list[dict]:
     seeds = range(TEST_SEED_BASE, TEST_SEED_BASE + args.drives_per_scene * len(SCENES))
     for i, seed in enumerate(seeds):
         scene = SCENES[i % len(SCENES)]
-        sim = DriveSimulator(scene, seed, frames=args.frames)
+        sim = DriveSimulator(scene, seed, frames=args.frames, compensate=True)
         poses = np.stack([sim.pose_at(k) for k in range(args.frames)])
         fake = Drive(name="plan", points=np.zeros((0, 3), np.float32), offsets=np.zeros(args.frames + 1, np.int64),
                      T_world_lidar=poses, stamps_ns=np.zeros(args.frames, np.int64), meta={})

@@ -132,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--frames", type=int, default=60, help="frames per drive")
     e.add_argument("--stride", type=int, default=10, help="a source frame every stride frames (pair protocol)")
     e.add_argument("--yaw-deg", type=float, default=45.0, help="extra random yaw of the second pass (0 = skip)")
+    e.add_argument("--raw-sweeps", action="store_true",
+                   help="register the raw motion-distorted sweeps (default: sweeps compensated to their stamps)")
     e.add_argument("--methods", default="deepbbs++,deepbbs,refine-only,gicp,gicp-gt",
                    help="deepbbs++ (full), deepbbs (no refinement), refine-only (no network), gicp (small_gicp "
                    "from identity), gicp-gt (small_gicp from the ground truth: the pair's conditioning floor)")
@@ -285,7 +287,8 @@ def _cmd_evaluate(args) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     report = evaluate(cfg, weights=args.weights, device=args.device, scenes=scenes,
                       drives_per_scene=args.drives_per_scene, seed_base=args.seed_base, frames=args.frames,
-                      stride=args.stride, yaw_deg=args.yaw_deg, methods=methods, progress=not args.no_progress)
+                      stride=args.stride, yaw_deg=args.yaw_deg, methods=methods, progress=not args.no_progress,
+                      raw_sweeps=args.raw_sweeps)
     print_report(report)
     if args.markdown:
         from deepbbs_ros.train.evaluate import markdown_report
