@@ -4,6 +4,8 @@ checked against the toy world's ground truth (deepbbs_ros.replay.synthetic) and 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -64,25 +66,43 @@ def test_preprocess_with_a_known_motion_deskews_first(drives, reg):
     assert np.median(cKDTree(b).query(a)[0]) < 0.5 * np.median(cKDTree(b).query(raw)[0])
 
 
-def test_register_deskews_both_scans_with_the_pair_estimate(drives, reg):
-    """A raw pair 0.3 s apart at 15 m/s: the precision stage runs on both scans deskewed with the pair's
-    own motion over the stamp gap and lands on the ground truth; reasons when it cannot."""
-    dist, _ = drives
-    s, t = dist[7], dist[4]
-    T_gt = np.linalg.inv(t.T_world_lidar) @ s.T_world_lidar
+def test_stream_velocity_and_the_registration_deskew(drives, reg):
+    """A raw pair 0.3 s apart at 15 m/s: each scan deskewed with its stream's velocity (the scan before it),
+    the precision stage runs on both deskewed clouds and lands on the ground truth; the raw clouds are
+    kept (with the reason) when only one scan has a velocity or a velocity disagrees with the pair."""
+    import dataclasses
 
-    def prep(scan, times=True):
+    from deepbbs_ros.core.deskew import StreamDeskew
+
+    dist, _ = drives
+    s, t = 7, 4
+    T_gt = np.linalg.inv(dist[t].T_world_lidar) @ dist[s].T_world_lidar
+
+    def prep(k, times=True):
+        scan = dist[k]
         return reg.preprocess(scan.points, scan.point_times() if times else None, scan.stamp_ns)
 
-    res = reg.register(prep(s), prep(t))
-    assert res.deskew == "deskewed" and "deskew" in res.timings_ms
+    def streamed(k):
+        stream = StreamDeskew(reg)
+        first = stream.apply(prep(k - 1))
+        assert first.deskew.startswith("no velocity yet") and first.deskewed_cloud is None
+        out = stream.apply(prep(k))
+        step = np.linalg.inv(dist[k - 1].T_world_lidar) @ dist[k].T_world_lidar
+        rot, trans = _err(out.velocity[0], step)
+        assert out.deskew == "deskewed" and out.velocity[1] == pytest.approx(0.1) and trans < 0.02 and rot < 0.05
+        return out
+
+    src, tgt = streamed(s), streamed(t)
+    assert src.polish_cloud is not src.deskewed_cloud  # the raw cloud is kept beside the deskewed one
+    res = reg.register(src, tgt)
+    assert res.deskew == "deskewed"
     rot, trans = _err(res.T_target_source, T_gt)
     assert rot < 0.05 and trans < 0.02, (rot, trans)
-    plain = reg.register(prep(s, False), prep(t, False))
-    assert plain.deskew == "" and "deskew" not in plain.timings_ms
-    same = reg.register(prep(s), prep(s))
-    assert same.deskew == "equal stamps: no velocity"
+    assert reg.register(prep(s, False), prep(t, False)).deskew == ""
+    assert reg.register(src, prep(t)).deskew == "one scan has no velocity yet: raw clouds"
+    still = dataclasses.replace(tgt, velocity=(np.eye(4), 0.1))  # a velocity of 0 m/s at 15 m/s
+    assert re.match(r"target velocity off the pair's by 1[45]\.\d m/s", reg.register(src, still).deskew)
     with pytest.raises(Exception, match="per-point times for"):
-        reg.preprocess(s.points, s.point_times()[:10], s.stamp_ns)
+        reg.preprocess(dist[s].points, dist[s].point_times()[:10], dist[s].stamp_ns)
     off = DeepBBSRegistration(reg.config.replace(**{"preprocess.deskew": False}), model=reg.model)
-    assert off.preprocess(s.points, s.point_times(), s.stamp_ns).times is None
+    assert off.preprocess(dist[s].points, dist[s].point_times(), dist[s].stamp_ns).times is None

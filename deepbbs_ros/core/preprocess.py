@@ -143,8 +143,13 @@ class PreprocessResult:
             (``core.polish.PolishCloud``: voxel grid, k-d tree, covariances), set by
             ``DeepBBSRegistration.preprocess`` when ``registration.polish`` is on; None otherwise.
         raw_points, times, stamp_ns: the raw scan (N, 3) float32, its per-point times (N,) float64 (s
-            since ``stamp_ns``) and its stamp, kept by ``DeepBBSRegistration.preprocess`` for the deskew
-            stage when the scan has per-point times (``preprocess.deskew``); None otherwise.
+            since ``stamp_ns``) and its stamp, kept by ``DeepBBSRegistration.preprocess`` for deskewing
+            when the scan has per-point times (``preprocess.deskew``); None otherwise.
+        deskew: "deskewed" once ``DeepBBSRegistration.deskew_scan`` built ``deskewed_cloud``, else why not
+            (``core.deskew.StreamDeskew``); "" when nothing was tried.
+        deskewed_cloud, velocity: ``polish_cloud`` deskewed to the stamp with the scan's own velocity
+            ``velocity`` = (``T_prev_cur`` (4, 4), seconds); the registration uses it when both scans have
+            one and both velocities agree with the pair's own motion (``registration._deskew``).
     """
 
     points: np.ndarray
@@ -159,6 +164,9 @@ class PreprocessResult:
     raw_points: np.ndarray | None = None
     times: np.ndarray | None = None
     stamp_ns: int | None = None
+    deskew: str = ""
+    deskewed_cloud: Any = None
+    velocity: tuple[np.ndarray, float] | None = None
 
 
 # -- step 1: validity and range ------------------------------------------------------------------

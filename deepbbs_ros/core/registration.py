@@ -45,9 +45,9 @@ from deepbbs_ros.errors import ModelError, RegistrationError
 __all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
 
 
-MAX_DESKEW_SPEED = 70.0  # m/s; a pair estimate implying more is a failed registration, not a velocity
-MAX_DESKEW_TURN_DEG = 120.0  # deg/s
-MIN_DESKEW_SHIFT, MIN_DESKEW_TURN_DEG = 0.02, 0.05  # m, deg over one sweep: below both, deskewing changes nothing
+# a scan's own velocity (its stream's) agrees with the pair's mean motion within these (m/s + share of the
+# speed, rad/s): a pair up to 5 m apart spans ~0.5 s, over which braking at 2.5 m/s^2 changes the speed ~1 m/s
+DESKEW_TOL_SPEED, DESKEW_TOL_REL, DESKEW_TOL_TURN = 1.5, 0.1, np.radians(10.0)
 
 
 @dataclass
@@ -65,12 +65,11 @@ class RegistrationResult:
             target point after alignment.
         temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
         timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total",
-            and "dense" when the dense refinement ran, "deskew" / "polish" when those stages ran).
+            and "dense" when the dense refinement ran, "polish" / "deskew" when those stages ran).
         polish: why the polish was accepted ("ok") or rejected, "" when it did not run
             (``registration.polish`` "none", or no dense points).
-        deskew: "deskewed" when the precision stage ran on both scans deskewed with the pair's estimated
-            motion (scans with per-point times, ``preprocess.deskew``), else why not; "" when no scan
-            had times.
+        deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
+            else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
 
@@ -176,8 +175,8 @@ class DeepBBSRegistration:
         Per-point ``times`` (N,) s since the stamp (Velodyne ``time``, Ouster ``t``), with
         ``preprocess.deskew`` on: with a known ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) of
         the sensor (a stream's last step) the scan is deskewed to its stamp before anything else;
-        without one the raw scan, its times and ``stamp_ns`` are kept, and ``register`` deskews both
-        scans with the pair's own estimate over the stamp gap before the precision stage.
+        without one the raw scan, its times and ``stamp_ns`` are kept for :meth:`deskew_scan` once the
+        scan's velocity is known (``core.deskew.StreamDeskew`` follows a stream of scans).
         """
         pp, rc = self.config.preprocess, self.config.registration
         keep_raw, deskew_ms = None, None
@@ -199,12 +198,13 @@ class DeepBBSRegistration:
         if keep_raw is not None:
             res.raw_points, res.times, res.stamp_ns = keep_raw
         if rc.polish != "none":
-            res.polish_cloud = self._polish_cloud(points)
+            res.polish_cloud = self.polish_cloud(points)
             res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
             res.timings_ms["total"] += res.polish_cloud.prepare_ms
         return res
 
-    def _polish_cloud(self, points: np.ndarray) -> PolishCloud:
+    def polish_cloud(self, points: np.ndarray) -> PolishCloud:
+        """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
             points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
@@ -263,8 +263,8 @@ class DeepBBSRegistration:
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
             st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
             clock.lap("dense" if st.iters["dense"] else "refine")
-        self._deskew(st, clock)  # both raw scans deskewed with the estimate over the stamp gap (per-point times)
         self._polish(st, clock)  # the GICP precision stage (registration.polish)
+        self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
         return self._result(st, clock)
 
     # -- the stages of register() ------------------------------------------------------------------
@@ -374,30 +374,19 @@ class DeepBBSRegistration:
         return float((st.search.nearest_distance(moved) / self.model.scale <= self.config.registration.inlier_dist)
                      .float().mean())
 
-    def _deskew(self, st: _State, clock: _Clock) -> None:
-        """Scans that kept their raw points and per-point times (``preprocess``): the constant body twist
-        ``log(T_target_source) / (stamp_source - stamp_target)`` deskews both to their stamps and their
-        precision-stage clouds are rebuilt from the deskewed scans. Skipped (``st.deskew`` says why) when
-        a scan has no times, the stamps are equal, or the estimate implies an implausible speed."""
-        a, b = st.src_pre, st.tgt_pre
-        if a is None or b is None or a.times is None or b.times is None or st.src_pc is None or st.tgt_pc is None:
-            return
-        dt = (a.stamp_ns - b.stamp_ns) * 1e-9
-        T = _matrix(st.R, st.t, self.model.scale)
-        if abs(dt) < 1e-3:
-            st.deskew = "equal stamps: no velocity"
-            return
-        speed, turn = np.linalg.norm(T[:3, 3]) / abs(dt), rotation_angle_deg(torch.from_numpy(T[:3, :3])) / abs(dt)
-        if speed > MAX_DESKEW_SPEED or turn > MAX_DESKEW_TURN_DEG:
-            st.deskew = f"implausible motion ({speed:.0f} m/s, {turn:.0f} deg/s): not deskewed"
-            return
-        sweep = float(max(np.ptp(a.times), np.ptp(b.times)))
-        if speed * sweep < MIN_DESKEW_SHIFT and turn * sweep < MIN_DESKEW_TURN_DEG:
-            st.deskew = "still: nothing to deskew"
-            return
-        st.src_pc, st.tgt_pc = self._deskewed_cloud(a, st.src_pc, T, dt), self._deskewed_cloud(b, st.tgt_pc, T, dt)
-        st.deskew = "deskewed"
-        clock.lap("deskew")
+    def deskew_scan(self, pre: PreprocessResult, motion: tuple[np.ndarray, float]) -> PreprocessResult:
+        """A copy of ``pre`` (kept raw points and times: ``preprocess(points, times, stamp_ns)``) with
+        ``deskewed_cloud``, its precision-stage cloud deskewed to the stamp with ``motion`` = (``T_a_b``
+        (4, 4), seconds from a to b), the scan's own velocity (``core.deskew.StreamDeskew`` estimates it
+        from the previous scan of the stream). The sampled points stay as measured (the network is trained
+        on raw and compensated sweeps alike)."""
+        if pre.raw_points is None or pre.times is None or pre.polish_cloud is None:
+            return pre
+        t0 = time.perf_counter()
+        cloud = self._deskewed_cloud(pre, pre.polish_cloud, motion[0], motion[1])
+        ms = (time.perf_counter() - t0) * 1e3
+        timings = {**pre.timings_ms, "deskew": ms, "total": pre.timings_ms.get("total", 0.0) + ms}
+        return dataclasses.replace(pre, deskewed_cloud=cloud, velocity=motion, deskew="deskewed", timings_ms=timings)
 
     def _deskewed_cloud(self, pre: PreprocessResult, pc: PolishCloud, T: np.ndarray, dt: float) -> PolishCloud:
         """The precision-stage cloud of ``pre`` deskewed with the twist ``log(T) / dt``: its voxel centroids
@@ -407,10 +396,44 @@ class DeepBBSRegistration:
         rc = self.config.registration
         sweep = SweepTimes.fit(pre.raw_points, pre.times)
         if sweep is None:
-            return self._polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
+            return self.polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
         c = pc.points()
         return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
                               rc.polish_threads)
+
+    def _deskew(self, st: _State, clock: _Clock) -> None:
+        """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
+        stage runs again, from its result, on their ``deskewed_cloud`` s when each velocity agrees with the
+        pair's mean motion over the stamp gap (a velocity biased by traffic moving with the sensor does
+        not); both or neither, since one deskewed scan against a raw one adds distortion. ``st.deskew``
+        says what happened."""
+        a, b = st.src_pre, st.tgt_pre
+        if a is None or b is None or (a.deskewed_cloud is None and b.deskewed_cloud is None):
+            return
+        if a.deskewed_cloud is None or b.deskewed_cloud is None:
+            st.deskew = "one scan has no velocity yet: raw clouds"
+            return
+        if st.polish_reason != "ok":
+            st.deskew = "precision stage not applied: raw clouds"
+            return
+        dt = (a.stamp_ns - b.stamp_ns) * 1e-9
+        if abs(dt) > 1e-3:  # the pair's mean twist vs each scan's own (equal stamps: two sensors, no check)
+            mean = _twist(st.T, dt)
+            for name, pre in (("source", a), ("target", b)):
+                dv, dw = np.linalg.norm((_twist(*pre.velocity) - mean).reshape(2, 3), axis=1)
+                if dv > DESKEW_TOL_SPEED + DESKEW_TOL_REL * np.linalg.norm(mean[:3]) or dw > DESKEW_TOL_TURN:
+                    st.deskew = (f"{name} velocity off the pair's by {dv:.1f} m/s, {np.degrees(dw):.1f} deg/s: "
+                                 "raw clouds")
+                    return
+        pol = polish(a.deskewed_cloud, b.deskewed_cloud, st.T, self.config.registration)
+        st.iters["polish"] += pol.iterations
+        if not pol.applied:
+            st.deskew = f"precision stage on the deskewed clouds rejected ({pol.reason}): raw clouds"
+            return
+        st.T = pol.T_target_source
+        st.T[:3, :3] = _orthonormalize(st.T[:3, :3])
+        st.deskew = "deskewed"
+        clock.lap("deskew")
 
     def _polish(self, st: _State, clock: _Clock) -> None:
         """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
@@ -433,7 +456,7 @@ class DeepBBSRegistration:
 
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += tuple(s for s in ("deskew", "polish") if s in clock.ms)
+        stages += tuple(s for s in ("polish", "deskew") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())
         return RegistrationResult(
@@ -478,6 +501,13 @@ class _State:
     inlier_ratio: float = 0.0
     polish_reason: str = ""
     deskew: str = ""
+
+
+def _twist(T: np.ndarray, dt: float) -> np.ndarray:
+    """(6,) mean velocity (v m/s, w rad/s; body frame, first order) of the motion T (4, 4) over dt s."""
+    from scipy.spatial.transform import Rotation
+
+    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()]) / dt
 
 
 def _matrix(R: torch.Tensor, t: torch.Tensor, scale: float) -> np.ndarray:

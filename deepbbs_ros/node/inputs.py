@@ -57,8 +57,8 @@ class Cloud:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
         times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
             (:data:`TIME_FIELDS`); None when the cloud has no time field. The local-map odometry
-            deskews with its velocity; pair mode and scan-to-scan odometry hand them to DeepBBS++'s
-            preprocessing, whose deskew stage uses the pair's own motion estimate.
+            deskews with its velocity; in pair mode and scan-to-scan odometry each input follows its topic's
+            velocity (``core.deskew.StreamDeskew``) and deskews the scan's GICP cloud with it.
         stamp_ns: ``header.stamp`` in nanoseconds.
         frame_id: ``header.frame_id`` (never empty).
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
@@ -216,9 +216,11 @@ class CloudInput:
         increasing_stamps: bool = False,
         capacity: int = INPUT_QUEUE,
         gate: threading.Event | None = None,
+        deskew: Any = None,
     ) -> None:
         self.topic = topic
         self._cache = cache
+        self._deskew = deskew  # core.deskew.StreamDeskew of this topic (DeepBBS++ with a cache), or None
         self._min_points = int(min_points)
         self._on_cloud = on_cloud
         self._on_bad = on_bad
@@ -243,7 +245,9 @@ class CloudInput:
         self._worker.submit((msg, t_recv))
 
     def reset(self) -> None:
-        """Forget the frame and the last stamp seen (``~/reset``)."""
+        """Forget the frame, the last stamp seen and the stream's velocity (``~/reset``)."""
+        if self._deskew is not None:
+            self._deskew.reset()
         with self._lock:
             self._frame = None
             self._last_stamp = None
@@ -277,6 +281,10 @@ class CloudInput:
             t1 = time.perf_counter()
             pp, pp_ms = ((None, 0.0) if self._cache is None
                          else self._cache.get(xyz, f"{frame}@{stamp_ns}", times, stamp_ns))
+            if self._deskew is not None and pp is not None and times is not None:
+                t_d = time.perf_counter()
+                pp = self._deskew.apply(pp)  # this topic's velocity; the GICP cloud deskewed with it
+                pp_ms += (time.perf_counter() - t_d) * 1e3
         except BadInput as bad:
             self._on_bad(bad.kind, str(bad))
             return

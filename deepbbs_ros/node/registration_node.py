@@ -261,7 +261,7 @@ class RegistrationNode(Node):
             CloudInput(
                 self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival else None,
                 self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
-                increasing_stamps=not pair, gate=self.worker.room,
+                increasing_stamps=not pair, gate=self.worker.room, deskew=self._stream_deskew(),
             )
         )  # fmt: skip
         return sub
@@ -287,6 +287,17 @@ class RegistrationNode(Node):
         with self._lock:
             self._counts["pairs"] += 1
         self.worker.submit(("odometry", cloud, None))
+
+    def _stream_deskew(self):
+        """A per-topic velocity follower + deskew (``core.deskew.StreamDeskew``) where each scan is
+        preprocessed on arrival by DeepBBS++ with its precision stage; None elsewhere."""
+        if not self._preprocess_on_arrival or not hasattr(self.reg, "deskew_scan"):
+            return None
+        if not self.cfg.preprocess.deskew or self.cfg.registration.polish == "none":
+            return None
+        from deepbbs_ros.core.deskew import StreamDeskew
+
+        return StreamDeskew(self.reg)
 
     def _on_reset(self, request, response):
         self.sync.reset()

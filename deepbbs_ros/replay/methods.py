@@ -9,6 +9,7 @@ state), so it only has ``step(scan) -> (T_first_k, ms)``. No ROS import.
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ METHODS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plan
 PAIRWISE = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp")
 DEEPBBS_VARIANTS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs")
 ODOMETRY_ONLY = ("kiss-icp", "deepbbs++s2s")
+MAX_MOTIONS = 100_000  # per-scan velocities kept by a DeepBBS method (a few hundred bytes each)
 
 #: how each method's input clouds are made (reported in metrics.json)
 INPUTS = {
@@ -73,25 +75,49 @@ class DeepBBSMethod:
             model = share_from.reg.model
             device = str(share_from.reg.device)
         self.reg = DeepBBSRegistration(cfg, weights=weights, device=device, model=model)
+        self._stream = None  # core.deskew.StreamDeskew over the recording (scans with per-point times)
+        if cfg.preprocess.deskew and self.polish:
+            from deepbbs_ros.core.deskew import StreamDeskew
+
+            self._stream = StreamDeskew(self.reg)
+        self._motions: OrderedDict[int, tuple[Any, float]] = OrderedDict()  # stamp -> (velocity or None, ms)
         if share_from is None:
             self.reg.warmup()  # first-call kernel set-up out of the timed frames
         self.input = INPUTS[name]
 
+    def observe(self, points: np.ndarray, times: np.ndarray | None, stamp_ns: int) -> None:
+        """Every scan of the recording, in order (the runner calls it as it reads): the recording's
+        velocity at this scan (``StreamDeskew.velocity``), kept by stamp for ``prepare`` with the time of
+        the estimate (a live stream preprocesses each scan once; replay preprocesses it again in
+        ``prepare``, which is not counted twice)."""
+        if self._stream is None or times is None or stamp_ns in self._motions:
+            return
+        motion = self._stream.velocity(self.reg.preprocess(points, times, stamp_ns))
+        self._motions[int(stamp_ns)] = (motion, self._stream.last_ms)
+        while len(self._motions) > MAX_MOTIONS:
+            self._motions.popitem(last=False)
+
     def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
                 stamp_ns: int | None = None) -> tuple[Any, float]:
-        """-> (the PreprocessResult: sampled points, dense points, precision-stage cloud, and the raw
-        scan with its per-point times for the deskew stage), ms."""
+        """-> (the PreprocessResult: sampled points, dense points, precision-stage cloud (deskewed with the
+        recording's velocity at this scan when the scan has per-point times), ms (the velocity's cost
+        included)."""
+        entry = None
+        if self._stream is not None and times is not None and stamp_ns is not None:
+            self.observe(points, times, stamp_ns)  # in order for scan-to-scan odometry; pairs mode did it
+            entry = self._motions.get(int(stamp_ns))
+        extra = entry[1] if entry is not None else 0.0
         t0 = time.perf_counter()
         res = self.reg.preprocess(points, times, stamp_ns)
-        return res, (time.perf_counter() - t0) * 1e3
+        if entry is not None and entry[0] is not None:
+            res = self.reg.deskew_scan(res, entry[0])
+        return res, (time.perf_counter() - t0) * 1e3 + extra  # + the velocity's cost
 
     def align(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
         t0 = time.perf_counter()
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
         info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
-        if res.deskew:
-            info["deskew"] = res.deskew
         if self.polish:
             info["polish"] = res.polish
             info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))

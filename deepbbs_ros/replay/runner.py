@@ -142,12 +142,20 @@ def run_pairs(
     rng = np.random.default_rng(ev.seed)
     last_read = 0
 
+    observers = [m for m in methods.values() if hasattr(m, "observe")]
+
     def counted():
         nonlocal last_read
         for scan in _count_frames(scans, res):
             if progress:
                 progress(res.frames_read - last_read)
             last_read = res.frames_read
+            times = scan.point_times()
+            for m in observers if times is not None else ():
+                try:  # the recording's velocity at every scan, in order (deskew of raw sweeps)
+                    m.observe(scan.points, times, scan.stamp_ns)
+                except DeepBBSError:
+                    pass  # the scan's own prepare() reports the error where it is used
             yield scan
 
     try:
