@@ -120,13 +120,15 @@ def main(argv: list[str] | None = None) -> int:
                 shares.append(off_ground_share(s.points, seed=int(k)))
                 npts.append(len(s))
             n_here = args.pairs // len(args.seeds) + (1 if si < args.pairs % len(args.seeds) else 0)
+            drawn: set[tuple[int, int]] = set()  # each pair once (a repeated bad pair would count twice)
             for _ in range(n_here):
-                for _try in range(50):
+                for _try in range(200):
                     a = int(rng.integers(0, args.frames))
                     b = int(rng.integers(max(0, a - 40), min(args.frames, a + 41)))
                     dist = np.linalg.norm(sim.pose_at(a)[:3, 3] - sim.pose_at(b)[:3, 3])
-                    if a != b and dist <= 5.0:
+                    if a != b and dist <= 5.0 and (a, b) not in drawn:
                         break
+                drawn.add((a, b))
                 src, tgt = scan(b), scan(a)
                 T_gt = np.linalg.inv(tgt.T_world_lidar) @ src.T_world_lidar
                 T = gicp.register(src.points, tgt.points, T_init=T_gt).T_target_source
