@@ -2,13 +2,14 @@
 """Raw KITTI pairs on a busy computer: DeepBBS++ (default pipeline) and small_gicp GICP, with and without a
 CPU-bound background process, under OpenMP's spinning and passive wait policies (issue 10).
 
-    python scripts/bench_busy.py [--realdata ../shared/realdata] [--rounds 3]
+    python scripts/bench_busy.py [--realdata ../shared/realdata] [--rounds 3] [--policies passive,active,default]
 
 Each (policy, load) cell runs in a fresh process (OMP_WAIT_POLICY is read when OpenMP loads): the real
 KITTI scans in ``--realdata``/kitti/* paired up to 5 m apart, registered raw-to-raw from identity
 ``--rounds`` times; the background load is one process doing single-threaded float32 matrix products
 (a training job's kind of work). Prints p50 / p95 per pair and the ratio to GICP in the same cell.
-deepbbs_ros sets OMP_WAIT_POLICY=PASSIVE by default; "active" is OpenMP's own default.
+deepbbs_ros sets OMP_WAIT_POLICY=PASSIVE unless the user set it; "default" is libgomp's own behaviour
+(spin a while, then sleep), "spin:N" the same with GOMP_SPINCOUNT=N.
 """
 
 from __future__ import annotations
@@ -61,11 +62,20 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--realdata", default="../shared/realdata")
     p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--policies", default="passive,active",
+                   help="comma list: passive, active, default (OpenMP's own: spin a while, then sleep), "
+                        "spin:N (default policy with GOMP_SPINCOUNT=N)")
     args = p.parse_args(argv)
     import numpy as np
 
     rows = []
-    for policy in ("PASSIVE", "ACTIVE"):
+    for policy in args.policies.split(","):
+        env_policy = {"passive": {"OMP_WAIT_POLICY": "PASSIVE"}, "active": {"OMP_WAIT_POLICY": "ACTIVE"},
+                      "default": {"OMP_WAIT_POLICY": ""}}.get(policy)  # "" keeps deepbbs_ros from setting one
+        if env_policy is None and policy.startswith("spin:"):
+            env_policy = {"OMP_WAIT_POLICY": "", "GOMP_SPINCOUNT": policy.split(":", 1)[1]}
+        if env_policy is None:
+            p.error(f"unknown policy {policy!r}")
         for busy in (False, True):
             burner = None
             if busy:
@@ -73,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                                           env={**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
                 time.sleep(1.0)
             try:
-                env = {**os.environ, "OMP_WAIT_POLICY": policy}
+                env = {**os.environ, **env_policy}
                 res = subprocess.run([sys.executable, "-c", WORKER, args.realdata, str(args.rounds)], env=env,
                                      capture_output=True, text=True, check=True)
             finally:
@@ -82,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                     burner.wait()
             ms = json.loads(res.stdout.strip().splitlines()[-1])
             d, g = np.asarray(ms["deepbbs++"]), np.asarray(ms["gicp"])
-            rows.append((policy.lower(), "busy" if busy else "idle", len(d), *np.percentile(d, [50, 95]),
+            rows.append((policy, "busy" if busy else "idle", len(d), *np.percentile(d, [50, 95]),
                          *np.percentile(g, [50, 95])))
             r = rows[-1]
             print(f"  {r[0]:>7} {r[1]}: deepbbs++ p50 {r[3]:.0f} ms, gicp p50 {r[5]:.0f} ms", file=sys.stderr)

@@ -2,7 +2,7 @@
 """Long-drive odometry benchmark: DeepBBS++ odometry vs KISS-ICP vs scan-to-scan GICP (issues 6, 11).
 
 1. Simulates a drive of ``--frames`` (default 1000) HDL-64 scans with ground truth into
-   ``--cache`` (default ``~/.cache/deepbbs_ros/bench/<scene>_<seed>_<frames>[_az<step>]``) unless it
+   ``--cache`` (default ``~/.cache/deepbbs_ros/bench/<scene>_<seed>_<frames>[_az<step>]_w<worlds version>``) unless it
    is already there (rosbag2, mcap);
 2. runs ``deepbbs-replay --mode odometry`` on it with the chosen methods;
 3. prints the table, the goal checks (issue 11: DeepBBS++ drift and ATE no worse than KISS-ICP's;
@@ -32,7 +32,9 @@ def _cache_dir(args) -> Path:
     root = Path(args.cache).expanduser() if args.cache else Path.home() / ".cache" / "deepbbs_ros" / "bench"
     az = "" if args.azimuth_step is None else f"_az{args.azimuth_step:g}"
     hz = "" if args.rate_hz == 10.0 else f"_{args.rate_hz:g}hz"
-    return root / f"{args.scene}_{args.seed}_{args.frames}{az}{hz}"
+    from deepbbs_ros.sim import WORLDS_VERSION
+
+    return root / f"{args.scene}_{args.seed}_{args.frames}{az}{hz}_w{WORLDS_VERSION}"
 
 
 def ensure_drive(args) -> Path:

@@ -10,4 +10,9 @@ from deepbbs_ros.sim.scene import SCENES, World
 from deepbbs_ros.sim.simulator import DriveSimulator, simulate_drive
 from deepbbs_ros.sim.trajectory import Trajectory
 
-__all__ = ["SCENES", "DriveSimulator", "LidarConfig", "RayCaster", "Trajectory", "World", "simulate_drive"]
+#: bumped whenever the worlds a (scene, seed) produces change: caches of simulated drives key on it
+WORLDS_VERSION = 2
+
+__all__ = [
+    "SCENES", "WORLDS_VERSION", "DriveSimulator", "LidarConfig", "RayCaster", "Trajectory", "World", "simulate_drive",
+]
