@@ -290,10 +290,11 @@ class RegistrationNode(Node):
 
     def _stream_deskew(self):
         """A per-topic velocity follower + deskew (``core.deskew.StreamDeskew``) where each scan is
-        preprocessed on arrival by DeepBBS++ with its precision stage; None elsewhere."""
+        preprocessed on arrival by DeepBBS++ with its precision stage and ``node.pair_deskew`` is on; None
+        elsewhere."""
         if not self._preprocess_on_arrival or not hasattr(self.reg, "deskew_scan"):
             return None
-        if not self.cfg.preprocess.deskew or self.cfg.registration.polish == "none":
+        if not (self.cfg.preprocess.deskew and self.cfg.node.pair_deskew) or self.cfg.registration.polish == "none":
             return None
         from deepbbs_ros.core.deskew import StreamDeskew
 
