@@ -47,8 +47,8 @@ class PreprocessConfig:
     num_points: int = 512  # points kept by farthest-point sampling (the network is size-agnostic; trained on 1000)
     fps_max_candidates: int = 8192  # FPS runs on a seeded random subset of this many voxels; 0 = all
     dense_max_points: int = 3000  # PreprocessResult.dense_points: random subset of the voxels; 0 = all
-    # clouds with per-point times (Velodyne time, Ouster t): the precision stage runs on both scans deskewed
-    # with the pair's own estimated motion over the stamp gap (or with a given motion, e.g. odometry's)
+    # clouds with per-point times (Velodyne time, Ouster t): deskewed with a given motion, or with their stream's
+    # velocity (core/deskew.py: replay, node.pair_deskew) for the precision stage; odometry uses odometry.deskew
     deskew: bool = True
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
 

@@ -20,6 +20,7 @@ in the previous scan's frame; the deskew twist is ``log(T_prev_cur) / (stamp_cur
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -66,9 +67,8 @@ class StreamDeskew:
             return pre  # nothing to deskew, or already done (the same cloud reached two inputs)
         motion = self.velocity(pre)
         if motion is None:
-            from dataclasses import replace
-
-            return replace(pre, deskew="no velocity yet (first scan of the stream, after a gap or a failure)")
+            return dataclasses.replace(
+                pre, deskew="no velocity yet (first scan of the stream, after a gap or a failure)")
         return self.reg.deskew_scan(pre, motion)
 
     def velocity(self, pre: PreprocessResult) -> tuple[np.ndarray, float] | None:
@@ -85,15 +85,15 @@ class StreamDeskew:
             self._delta = None
             return None
         T = None
-        if self._delta is not None:  # GICP from the constant-velocity prediction, scaled to the stamp gap
-            pred = se3_power(self._delta[0], dt / self._delta[1])
+        # the constant-velocity prediction, scaled to the stamp gap (none for a stream's first motion)
+        pred = None if self._delta is None else se3_power(self._delta[0], dt / self._delta[1])
+        if pred is not None:  # GICP from the prediction
             res = polish(pre.polish_cloud, prev.polish_cloud, pred, self.reg.config.registration)
             if res.applied and res.delta_trans_m <= GATE_TRANS and res.delta_rot_deg <= GATE_ROT_DEG:
                 T = res.T_target_source
         if T is None:  # first motion, or GICP strayed: the wide basin of DeepBBS++ (+ its GICP stage)
-            init = None if self._delta is None else se3_power(self._delta[0], dt / self._delta[1])
             try:
-                T = self.reg.register(pre, prev, T_init=init).T_target_source
+                T = self.reg.register(pre, prev, T_init=pred).T_target_source
                 self.deepbbs_calls += 1
             except RegistrationError:
                 T = None

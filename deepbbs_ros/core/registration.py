@@ -383,12 +383,12 @@ class DeepBBSRegistration:
         if pre.raw_points is None or pre.times is None or pre.polish_cloud is None:
             return pre
         t0 = time.perf_counter()
-        cloud = self._deskewed_cloud(pre, pre.polish_cloud, motion[0], motion[1])
+        cloud = self._deskewed_cloud(pre, motion[0], motion[1])
         ms = (time.perf_counter() - t0) * 1e3
         timings = {**pre.timings_ms, "deskew": ms, "total": pre.timings_ms.get("total", 0.0) + ms}
         return dataclasses.replace(pre, deskewed_cloud=cloud, velocity=motion, deskew="deskewed", timings_ms=timings)
 
-    def _deskewed_cloud(self, pre: PreprocessResult, pc: PolishCloud, T: np.ndarray, dt: float) -> PolishCloud:
+    def _deskewed_cloud(self, pre: PreprocessResult, T: np.ndarray, dt: float) -> PolishCloud:
         """The precision-stage cloud of ``pre`` deskewed with the twist ``log(T) / dt``: its voxel centroids
         moved with the times their azimuths were measured at (:class:`SweepTimes`, fitted to the raw scan;
         covariances and k-d tree rebuilt, about half the cost of a full preparation), or, when the times
@@ -397,7 +397,7 @@ class DeepBBSRegistration:
         sweep = SweepTimes.fit(pre.raw_points, pre.times)
         if sweep is None:
             return self.polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
-        c = pc.points()
+        c = pre.polish_cloud.points()
         return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
                               rc.polish_threads)
 

@@ -57,8 +57,8 @@ class Cloud:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
         times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
             (:data:`TIME_FIELDS`); None when the cloud has no time field. The local-map odometry
-            deskews with its velocity; in pair mode and scan-to-scan odometry each input follows its topic's
-            velocity (``core.deskew.StreamDeskew``) and deskews the scan's GICP cloud with it.
+            deskews with its velocity; with ``node.pair_deskew`` each input of pair mode follows its
+            topic's velocity (``core.deskew.StreamDeskew``) and deskews the scan's GICP cloud with it.
         stamp_ns: ``header.stamp`` in nanoseconds.
         frame_id: ``header.frame_id`` (never empty).
         t_recv: ``time.perf_counter()`` when the message reached the node's callback.
