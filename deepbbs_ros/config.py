@@ -45,6 +45,9 @@ class PreprocessConfig:
     ground_ransac_iters: int = 64  # plane hypotheses of the "ransac" method
     voxel_size: float = 0.3  # m; 0 disables voxel downsampling
     num_points: int = 512  # points kept by farthest-point sampling (the network is size-agnostic; trained on 1000)
+    # with the precision stage on, sample from its voxel grid (registration.polish_voxel over the whole cropped scan)
+    # instead of a second grid of voxel_size on the non-ground points: one grid per scan
+    share_grid: bool = True
     fps_max_candidates: int = 8192  # FPS runs on a seeded random subset of this many voxels; 0 = all
     dense_max_points: int = 3000  # PreprocessResult.dense_points: random subset of the voxels; 0 = all
     # clouds with per-point times (Velodyne time, Ouster t): deskewed with a given motion, or with their stream's
@@ -150,7 +153,10 @@ class RegistrationConfig:
     use_gamma: bool = True  # ablation: False = uniform weights in Procrustes
     spatial_gamma: bool = True  # ablation: False = gamma without the exp(-D/T) spatial term
     inlier_dist: float = 1.0  # m; RegistrationResult.inlier_ratio = share of source points this close to the target
-    threads: int = 0  # torch CPU threads; 0 = leave torch's default (and OMP_NUM_THREADS) alone
+    # torch CPU threads while register() runs the network (set and restored around it); 0 = leave torch's setting
+    # alone. 1: on 2x512 points a second thread costs more in hand-offs than it gives (OMP_WAIT_POLICY=PASSIVE,
+    # README 'A busy computer'), and it leaves the other cores to small_gicp and the rest of the robot
+    threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (CONVENTIONS.md)
 
@@ -186,7 +192,7 @@ class RegistrationConfig:
         _check(self.polish_threads >= 0, "registration.polish_threads", "must be >= 0 (0 = every core)")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
         _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
-        _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = torch default)")
+        _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = leave torch's setting)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+import deepbbs_ros  # noqa: F401  (first: sets OMP_WAIT_POLICY=PASSIVE before torch loads, as the CLIs do)
+
 VARIANTS: dict[str, dict] = {
     # the paper's DeepBBS++ refinement on the 1000 sampled points (before this study: the default)
     "paper": {"registration.dense_refine": False, "registration.refine_alpha_start": 1.0,

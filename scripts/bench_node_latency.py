@@ -69,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--methods", default="deepbbs,gicp", help="comma-separated: deepbbs, gicp (the anchor)")
     g.add_argument("--weights", default="", help="DeepBBS++ checkpoint (default: the shipped model)")
     g.add_argument("--device", default="auto", help="auto | cpu | cuda")
-    g.add_argument("--threads", type=int, default=0, help="torch CPU threads of the node (0 = torch default)")
+    g.add_argument("--threads", type=int, default=None,
+                   help="registration.threads of the node (torch threads of the network; default: the config's)")
     g.add_argument("--config", help="config YAML for both nodes")
     g.add_argument("--startup-timeout", type=float, default=120.0, help="s to wait for a node to come up")
     return p
@@ -152,7 +153,9 @@ def run_method(args, method: str, msgs: list) -> RunResult:
             "-p", "node.diagnostics_period:=1.0", "-r", "cloud:=/bench/points",
             "-r", "source_cloud:=/bench/source", "-r", "target_cloud:=/bench/target"]  # fmt: skip
     if method == "deepbbs":
-        cmd += ["-p", f"registration.device:={args.device}", "-p", f"registration.threads:={args.threads}"]
+        cmd += ["-p", f"registration.device:={args.device}"]
+        if args.threads is not None:
+            cmd += ["-p", f"registration.threads:={args.threads}"]
         if args.weights:
             cmd += ["-p", f"registration.weights:={args.weights}"]
     log = tempfile.TemporaryFile("w+")  # not a pipe: a chatty node must never block on a full one

@@ -19,6 +19,8 @@ import argparse
 import sys
 import time
 
+import deepbbs_ros  # noqa: F401  (first: sets OMP_WAIT_POLICY=PASSIVE before torch loads, as the CLIs do)
+
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -31,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     import numpy as np
-    import torch
+    import torch  # after deepbbs_ros (module top), which sets OMP_WAIT_POLICY first
 
     from deepbbs_ros.baselines import SmallGicpRegistration
     from deepbbs_ros.config import Config

@@ -28,9 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+import deepbbs_ros  # noqa: F401  (first: sets OMP_WAIT_POLICY=PASSIVE before torch loads, as the CLIs do)
+
 PRESETS = {
     # the shipped defaults: 512 points, 2 deep passes, GICP precision stage
     "default": {},
+    "old": {"preprocess.share_grid": False, "registration.threads": 0},
     # config/deepbbs_ros_fast.yaml
     "fast": {"preprocess.num_points": 256, "registration.max_deep_iters": 1},
     # the paper's pipeline as shipped before (1000 points, up to 5 deep passes, SoftBBS refinement, no GICP)
@@ -126,9 +129,10 @@ def main(argv: list[str] | None = None) -> int:
                          **dict(zip(("r", "t"), pair_errors(T, T_gt))), "id": id(p_)})
             for n, reg in regs.items():
                 t = time.perf_counter()
-                T = reg.register(src, p_["tgt"]).T_target_source
+                res = reg.register(src, p_["tgt"])
                 rows.append({"set": p_["set"], "pert": pert, "m": n, "ms": (time.perf_counter() - t) * 1e3,
-                             **dict(zip(("r", "t"), pair_errors(T, T_gt))), "id": id(p_)})
+                             **dict(zip(("r", "t"), pair_errors(res.T_target_source, T_gt))), "id": id(p_),
+                             "stages": res.timings_ms})
 
     def ok(x):
         return x["r"] <= 1.0 and x["t"] <= 0.3
@@ -160,6 +164,14 @@ def main(argv: list[str] | None = None) -> int:
                             f"{np.median(ms):.0f}", f"{np.percentile(ms, 95):.0f}",
                             f"{np.median(ms) / g50:.2f}", end_section=m == names[-1])
         console.print(tab)
+    stages = Table(title="stage medians (ms) of DeepBBSRegistration.register on the raw pairs, every set and start")
+    names_st = ["preprocess", "embed", "match", "solve", "polish", "deskew", "total"]
+    for col in ("preset", *names_st):
+        stages.add_column(col, justify="left" if col == "preset" else "right")
+    for n in names:
+        st = [x["stages"] for x in rows if x["m"] == n]
+        stages.add_row(n, *[f"{np.median([s.get(k, 0.0) for s in st]):.1f}" for k in names_st])
+    console.print(stages)
     load = Path("/proc/loadavg").read_text().split()[0] if Path("/proc/loadavg").exists() else "?"
     console.print(f"threads={args.threads} load average (1 min) after: {load}")
     return 0

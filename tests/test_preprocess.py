@@ -14,6 +14,7 @@ import pytest
 
 from deepbbs_ros.config import PreprocessConfig
 from deepbbs_ros.core.preprocess import (
+    canonical_order,
     PreprocessResult,
     crop_range,
     farthest_point_sample,
@@ -364,3 +365,18 @@ def test_preprocess_error_when_everything_is_ground():
     # without ground removal the same cloud is fine
     cfg = replace(PreprocessConfig(), remove_ground=False)
     assert preprocess(pts, cfg).points.shape == (cfg.num_points, 3)
+
+
+def test_canonical_order_is_the_same_for_any_order_of_a_set():
+    """small_gicp's threaded voxel grid returns its centroids in a run-dependent order: sorted, any order of
+    one set gives one array (x first; equal x fall back to a full lexsort on x, y, z)."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-40, 40, (2000, 3))
+    ref = canonical_order(pts)
+    assert np.all(np.diff(ref[:, 0]) >= 0)
+    for _ in range(3):
+        np.testing.assert_array_equal(canonical_order(rng.permutation(pts)), ref)
+    ties = np.round(pts, 0)  # many equal x
+    ref = canonical_order(ties)
+    np.testing.assert_array_equal(canonical_order(rng.permutation(ties)), ref)
+    np.testing.assert_array_equal(ref, ties[np.lexsort((ties[:, 2], ties[:, 1], ties[:, 0]))])

@@ -215,3 +215,49 @@ def test_cpu_and_cuda_registration_agree(rng):
     rot, trans = errors(gpu.T_target_source, cpu.T_target_source)
     assert rot < 0.05 and trans < 0.01
     assert errors(gpu.T_target_source, T_gt)[1] < 0.01
+
+
+def test_one_voxel_grid_per_scan_sampled_the_same_every_time():
+    """preprocess.share_grid: the network's points are non-ground centroids of the precision stage's grid, and
+    the same on every call (the grid comes back from small_gicp in a run-dependent order); without it the
+    points come from the preprocessing's own voxel grid. Toy world scan (ground plane, walls, poles)."""
+    from scipy.spatial import cKDTree
+
+    from deepbbs_ros.replay.synthetic import synthetic_drive
+
+    scan = synthetic_drive(frames=1, seed=2)[0].points
+    reg = tiny_registration(**{"registration.polish": "gicp", "preprocess.num_points": 256})
+    a, b = reg.preprocess(scan), reg.preprocess(scan)
+    np.testing.assert_array_equal(a.points, b.points)
+    grid = a.polish_cloud.points()
+    assert cKDTree(grid).query(a.points)[0].max() < 1e-4  # every sampled point is a grid centroid
+    assert a.n_input == len(scan) and a.n_valid == a.polish_cloud.n_cropped
+    plane = a.ground_plane
+    assert plane is not None
+    dist = np.abs(a.points @ plane[:3] + plane[3])
+    assert dist.min() > reg.config.preprocess.ground_layer / 2  # the ground layer is not sampled
+    own = DeepBBSRegistration(reg.config.replace(**{"preprocess.share_grid": False}), model=reg.model).preprocess(scan)
+    assert cKDTree(grid).query(own.points)[0].max() > 1e-3  # its own 0.3 m grid on the non-ground points
+
+
+def test_network_threads_are_set_for_the_network_and_restored():
+    """registration.threads holds while the network runs (process-wide in torch) and the caller's setting
+    comes back after register()."""
+    reg = tiny_registration(**{"registration.threads": 1})
+    seen = []
+    features = reg.model.point_features
+
+    def spy(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return features(*args, **kwargs)
+
+    reg.model.point_features = spy
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        source, target, _ = make_pair(np.random.default_rng(0), n=300)
+        reg.register(source, target, preprocessed=True)
+        assert seen and set(seen) == {1}
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -34,7 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--config", default=None, help="YAML config (plain sections or ROS parameter file)")
     g.add_argument("--weights", default=None, help="checkpoint (default: the shipped model if present, else random)")
     g.add_argument("--device", default=None, help="auto | cpu | cuda | cuda:N (default: registration.device)")
-    g.add_argument("--threads", type=int, default=0, help="torch CPU threads (default 0: torch's own choice)")
+    g.add_argument("--threads", type=int, default=0,
+                   help="torch CPU threads of the network (registration.threads) and small_gicp's "
+                        "(registration.polish_threads); default 0: the config's (1 and every core)")
     g = parser.add_argument_group("data")
     g.add_argument("--scene", default="urban", help="simulated scene (urban, suburban, highway, open_road)")
     g.add_argument("--seed", type=int, default=0, help="simulator seed")
@@ -130,10 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     from deepbbs_ros.core.registration import DeepBBSRegistration
     from deepbbs_ros.metrics import pair_errors
 
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
     console = Console()
     cfg = load_config(args.config)
+    if args.threads > 0:
+        cfg = cfg.replace(**{"registration.threads": args.threads, "registration.polish_threads": args.threads})
     weights = args.weights or cfg.registration.weights or str(default_weights_path())
     if args.weights or os.path.isfile(weights):
         reg = DeepBBSRegistration(cfg, weights=weights, device=args.device)
@@ -148,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     tgt = reg.preprocess(tgt_raw).points
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    console.print(f"[bold]deepbbs-bench[/] device={reg.device} torch threads={torch.get_num_threads()} "
+    console.print(f"[bold]deepbbs-bench[/] device={reg.device} network threads={cfg.registration.threads} "
                   f"cpus={os.cpu_count()} load average (1 min)={load:.2f}")
     console.print(f"model: {model_note}; {n_params / 1e6:.3f} M parameters ({n_params * 4 / 2**20:.2f} MB float32)")
     console.print(f"data: {data_note}; raw {len(src_raw)} / {len(tgt_raw)} points -> {len(src)} / {len(tgt)}")
@@ -198,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     console.print(f"load average (1 min) after: {load_after:.2f} on {os.cpu_count()} CPUs "
                   "(other processes share these CPUs: figures are disturbed when it exceeds the CPU count)")
     if args.json:
-        meta = {"device": str(reg.device), "threads": torch.get_num_threads(), "model": model_note,
+        meta = {"device": str(reg.device), "threads": cfg.registration.threads, "model": model_note,
                 "params": n_params, "data": data_note, "load_before": load, "load_after": load_after,
                 "iterations": its, "repeats": args.repeats}
         with open(args.json, "w") as fh:

@@ -19,7 +19,10 @@ network:
    A plain least-squares fit over the whole scan would be pulled up by buildings: both methods fit
    only points near the current plane estimate, and walls (vertical) never win a near-horizontal
    RANSAC hypothesis.
-3. ``voxel``: one point per occupied ``voxel_size`` cube, the centroid of its points.
+3. ``voxel``: one point per occupied ``voxel_size`` cube, the centroid of its points. Skipped for
+   ``gridded`` input: ``DeepBBSRegistration.preprocess`` (``preprocess.share_grid``, default) hands in
+   the centroids of the precision stage's grid of the whole scan (``registration.polish_voxel``, put in
+   :func:`canonical_order`), so a scan is voxelised once; steps 1, 2 and 4 then run on them.
 4. ``fps``: farthest-point sampling (``fpsample`` bucket FPS) to ``num_points``, deterministic for a
    given seed. When fewer points remain, the FPS order of all of them is repeated cyclically
    (``idx[k] = order[k % m]``) so that every batch has exactly ``num_points`` points; each point
@@ -367,6 +370,22 @@ def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
     return (sums / counts[:, None]).astype(np.float32)
 
 
+def canonical_order(points: np.ndarray) -> np.ndarray:
+    """(N, 3) points sorted by x, then y, then z: the same array for the same set of points in any order.
+
+    small_gicp's multi-threaded voxel grid returns its centroids in a run-dependent order; the random
+    candidate subset and the start point of the sampling are index based, so a grid is put in this order
+    first to keep the sampled points (and the registration) reproducible. One argsort on x, a full
+    lexsort only when two x are equal.
+    """
+    pts = np.asarray(points)
+    order = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[order, 0]
+    if len(xs) > 1 and (xs[1:] == xs[:-1]).any():
+        order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
+    return np.take(pts, order, axis=0)
+
+
 # -- step 4: farthest-point sampling --------------------------------------------------------------
 def farthest_point_sample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     """Indices of ``n`` farthest-point samples (bucket FPS of ``fpsample``).
@@ -437,13 +456,17 @@ def _fps_exact(pts: np.ndarray, k: int, start: int) -> np.ndarray:
 
 
 # -- the pipeline ---------------------------------------------------------------------------------
-def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed: int | None = None) -> PreprocessResult:
+def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed: int | None = None,
+               gridded: bool = False) -> PreprocessResult:
     """Raw scan -> ``cfg.num_points`` non-ground points (see the module docstring for the steps).
 
     Args:
         points: (N, 3) float xyz in the sensor frame, metres; NaN/Inf rows are dropped.
         cfg: preprocessing parameters (defaults when None).
         seed: overrides ``cfg.seed`` (RANSAC, fit subsample, FPS start).
+        gridded: ``points`` are already the voxel centroids of the whole scan (the precision stage's grid,
+            ``preprocess.share_grid``): the voxel step is skipped, the crop, the ground removal and the
+            sampling run on them.
 
     Returns:
         :class:`PreprocessResult` with ``points`` (num_points, 3) float32.
@@ -483,7 +506,7 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
     t2 = _lap(timings, "ground", t1)
 
     # 3. voxel grid; keep the raw points when voxelising would leave fewer than num_points
-    vox = voxel_downsample(pts, cfg.voxel_size)
+    vox = pts if gridded else voxel_downsample(pts, cfg.voxel_size)
     if len(vox) < cfg.num_points <= len(pts):
         vox = pts
     t3 = _lap(timings, "voxel", t2)
