@@ -14,8 +14,8 @@ import pytest
 
 from deepbbs_ros.config import PreprocessConfig
 from deepbbs_ros.core.preprocess import (
-    canonical_order,
     PreprocessResult,
+    canonical_order,
     crop_range,
     farthest_point_sample,
     fit_ground_plane,
