@@ -153,6 +153,9 @@ class RegistrationConfig:
     use_gamma: bool = True  # ablation: False = uniform weights in Procrustes
     spatial_gamma: bool = True  # ablation: False = gamma without the exp(-D/T) spatial term
     inlier_dist: float = 1.0  # m; RegistrationResult.inlier_ratio = share of source points this close to the target
+    # the network passes in a worker process on a CPU (core/network_process.py): "auto" with 2+ cores and weights
+    # from a checkpoint file (they then overlap small_gicp, which holds the GIL), "off" in this process
+    network_process: str = "auto"
     # torch CPU threads while register() runs the network (set and restored around it); 0 = leave torch's setting
     # alone. 1: on 2x512 points a second thread costs more in hand-offs than it gives (OMP_WAIT_POLICY=PASSIVE,
     # README 'A busy computer'), and it leaves the other cores to small_gicp and the rest of the robot
@@ -192,6 +195,8 @@ class RegistrationConfig:
         _check(self.polish_threads >= 0, "registration.polish_threads", "must be >= 0 (0 = every core)")
         _check(self.fixed_temperature >= 0, "registration.fixed_temperature", "must be >= 0")
         _check(self.inlier_dist > 0, "registration.inlier_dist", "must be > 0")
+        _check(self.network_process in ("auto", "off"), "registration.network_process",
+               f"must be 'auto' or 'off', got {self.network_process!r}")
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = leave torch's setting)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 

@@ -252,10 +252,10 @@ def report(layout_desc: str, args, results: dict[str, RunResult]) -> None:
         d = r.diagnostics
         stages = [k for k in ("input_wait", "decode", "preprocess", "queue_wait", "register", "publish", "total")
                   if f"latency_ms.{k}" in d]  # fmt: skip
-        parts = [f"{k} {d[f'latency_ms.{k}'].split(' p99')[0].replace('median ', '')}" for k in stages]
+        parts = [f"{k} {d[f'latency_ms.{k}'].replace('median ', '').replace(' p99 ', ' / ')}" for k in stages]
         drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
                  f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}")  # fmt: skip
-        con.print(f"  {method} node medians (ms): {', '.join(parts) or 'no diagnostics'}; {drops}")
+        con.print(f"  {method} node median / p99 (ms): {', '.join(parts) or 'no diagnostics'}; {drops}")
 
 
 @cli_entry("bench_node_latency")

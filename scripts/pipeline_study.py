@@ -34,6 +34,8 @@ PRESETS = {
     # the shipped defaults: 512 points, 2 deep passes, GICP precision stage
     "default": {},
     "old": {"preprocess.share_grid": False, "registration.threads": 0},
+    "1pass": {"registration.max_deep_iters": 1},
+    "in-process": {"registration.network_process": "off"},
     # config/deepbbs_ros_fast.yaml
     "fast": {"preprocess.num_points": 256, "registration.max_deep_iters": 1},
     # the paper's pipeline as shipped before (1000 points, up to 5 deep passes, SoftBBS refinement, no GICP)

@@ -59,6 +59,21 @@ class PolishCloud:
     n_points: int
     prepare_ms: float = 0.0
     n_cropped: int = 0
+    # (neighbors, registration_type, threads) while the k-d tree and covariances wait (prepare_polish_cloud(
+    # defer=True)): :meth:`complete` builds them; the voxel grid (``points()``) is there already
+    pending: tuple[int, str, int] | None = None
+
+    def complete(self, threads: int | None = None) -> PolishCloud:
+        """Build the deferred k-d tree and covariances (``threads`` overrides the preparation's); no-op when
+        there is nothing pending. Returns self."""
+        if self.pending is None:
+            return self
+        t0 = time.perf_counter()
+        neighbors, registration_type, th = self.pending
+        self.tree = _tree_and_covariances(self.cloud, neighbors, registration_type, th if threads is None else threads)
+        self.pending = None
+        self.prepare_ms += (time.perf_counter() - t0) * 1e3
+        return self
 
     def points(self) -> np.ndarray:
         """(n_points, 3) float64 voxel centroids."""
@@ -72,7 +87,8 @@ class PolishCloud:
 
 
 def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, registration_type: str = "GICP",
-                         min_range: float = 0.0, max_range: float = float("inf"), threads: int = 0) -> PolishCloud:
+                         min_range: float = 0.0, max_range: float = float("inf"), threads: int = 0,
+                         defer: bool = False) -> PolishCloud:
     """Raw scan -> :class:`PolishCloud`: finite points within [min_range, max_range] m, a ``voxel`` m grid
     (0 = none), a k-d tree, and covariances + normals from ``neighbors`` neighbours (``"GICP"``,
     ``"PLANE_ICP"``) or nothing (``"ICP"``). Shared by the precision stage and the small_gicp baselines.
@@ -80,6 +96,8 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     Args:
         points: (N, 3) float xyz, sensor frame, metres; NaN/Inf rows allowed (dropped).
         threads: small_gicp threads (0 = every core).
+        defer: only the voxel grid now; :meth:`PolishCloud.complete` (or :func:`polish`) builds the k-d
+            tree and covariances later (``DeepBBSRegistration`` does it while the network process runs).
     """
     from deepbbs_ros.core.preprocess import crop_range
 
@@ -88,7 +106,7 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     if pts.ndim != 2 or pts.shape[1] != 3:
         pts = pts.reshape(-1, 3)
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
-    out = _prepared(pts, voxel, neighbors, registration_type, threads)
+    out = _prepared(pts, voxel, neighbors, registration_type, threads, defer)
     out.n_cropped = len(pts)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
@@ -104,7 +122,8 @@ def prepared_cloud(points: np.ndarray, neighbors: int, registration_type: str = 
     return out
 
 
-def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: str, threads: int) -> PolishCloud:
+def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: str, threads: int,
+              defer: bool = False) -> PolishCloud:
     import small_gicp
 
     th = threads_or_all(threads)
@@ -113,17 +132,29 @@ def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: 
         cloud = small_gicp.voxelgrid_sampling(pts, voxel, num_threads=th)
     else:
         cloud = small_gicp.PointCloud(pts)
+    if defer:
+        pending = (neighbors, registration_type, th)
+        return PolishCloud(cloud, None, int(cloud.size()), n_cropped=len(pts), pending=pending)
+    tree = _tree_and_covariances(cloud, neighbors, registration_type, th)
+    return PolishCloud(cloud, tree, int(cloud.size()), n_cropped=len(pts))
+
+
+def _tree_and_covariances(cloud: Any, neighbors: int, registration_type: str, threads: int) -> Any:
+    """The k-d tree of a small_gicp cloud; its covariances + normals estimated in place (not for "ICP")."""
+    import small_gicp
+
+    th = threads_or_all(threads)
     n = int(cloud.size())
     tree = small_gicp.KdTree(cloud, num_threads=th) if n else None
     if n >= MIN_POLISH_POINTS and registration_type != "ICP":
         small_gicp.estimate_normals_covariances(cloud, tree, num_neighbors=neighbors, num_threads=th)
-    return PolishCloud(cloud, tree, n, n_cropped=len(pts))
+    return tree
 
 
 def _as_cloud(c: np.ndarray | PolishCloud, cfg: RegistrationConfig, reg_type: str) -> PolishCloud:
     """A prepared cloud as is; raw (N, 3) points: finite rows, ``polish_voxel`` grid, covariances."""
     if isinstance(c, PolishCloud):
-        return c
+        return c.complete()
     pts = np.asarray(c, dtype=np.float64).reshape(-1, 3)
     return _prepared(pts[np.isfinite(pts).all(axis=1)], cfg.polish_voxel, cfg.polish_neighbors, reg_type,
                      cfg.polish_threads)

@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
+import threading
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,8 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
+from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess
+from deepbbs_ros.core.network_process import wanted as network_process_wanted
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
@@ -45,6 +49,8 @@ from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
+
+_log = logging.getLogger(__name__)
 
 
 # a scan's own velocity (its stream's) agrees with the pair's mean motion within these (m/s + share of the
@@ -151,6 +157,11 @@ class DeepBBSRegistration:
             config.model = model.cfg
         self.model = model.to(self.device)
         self.config = config
+        # the network process (registration.network_process): "unstarted" -> "running", or "off" / "failed"
+        self._net: NetworkProcess | None = None
+        self._net_lock = threading.Lock()
+        wants = network_process_wanted(config.registration.network_process, self.device.type, self.weights_path)
+        self._net_state = "unstarted" if wants else "off"
 
     def warmup(self, rounds: int = 2) -> None:
         """Run the network on two random clouds of ``preprocess.num_points`` points ``rounds`` times.
@@ -167,7 +178,7 @@ class DeepBBSRegistration:
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
-                   motion: tuple[np.ndarray, float] | None = None) -> PreprocessResult:
+                   motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False) -> PreprocessResult:
         """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
         precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on. Everything a scan
         needs is here: a scan preprocessed once serves as source and as target (odometry, the node).
@@ -179,7 +190,8 @@ class DeepBBSRegistration:
         ``preprocess.deskew`` on: with a known ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) of
         the sensor (a stream's last step) the scan is deskewed to its stamp before anything else;
         without one the raw scan, its times and ``stamp_ns`` are kept for :meth:`deskew_scan` once the
-        scan's velocity is known (``core.deskew.StreamDeskew`` follows a stream of scans).
+        scan's velocity is known (``core.deskew.StreamDeskew`` follows a stream of scans). ``defer``: the
+        precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
         """
         pp, rc = self.config.preprocess, self.config.registration
         keep_raw, deskew_ms = None, None
@@ -194,7 +206,7 @@ class DeepBBSRegistration:
                     deskew_ms = (time.perf_counter() - t0) * 1e3
                 elif rc.polish != "none" and stamp_ns is not None:
                     keep_raw = (np.asarray(points, dtype=np.float32), tt, int(stamp_ns))
-        pc = self.polish_cloud(points) if rc.polish != "none" else None
+        pc = self.polish_cloud(points, defer=defer) if rc.polish != "none" else None
         if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
             # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
             res = preprocess(canonical_order(pc.points()).astype(np.float32), pp, gridded=True)
@@ -212,12 +224,12 @@ class DeepBBSRegistration:
             res.timings_ms["total"] += res.polish_cloud.prepare_ms
         return res
 
-    def polish_cloud(self, points: np.ndarray) -> PolishCloud:
+    def polish_cloud(self, points: np.ndarray, *, defer: bool = False) -> PolishCloud:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
             points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
-            min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads)
+            min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads, defer=defer)
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
@@ -227,7 +239,8 @@ class DeepBBSRegistration:
         if not isinstance(points, PreprocessResult):
             if preprocessed:
                 return self._check(points, name), None, None
-            points = self.preprocess(points)
+            # the GICP cloud's k-d tree and covariances wait for the network process (_precision_clouds)
+            points = self.preprocess(points, defer=self._n_deep() > 0 and self._net_state in ("unstarted", "running"))
         dense = points.dense_points
         return self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"), points
 
@@ -266,7 +279,9 @@ class DeepBBSRegistration:
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
         clock.lap("preprocess")
         with torch.inference_mode(), self._torch_threads():
-            self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source
+            self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)
+            self._precision_clouds(st, clock)  # meanwhile: the raw scans' GICP clouds (k-d trees, covariances)
+            self._network_result(st, clock)  # the network process's answer
             self._refine(st)  # SoftBBS on xyz (registration.refine)
             clock.lap("refine")
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
@@ -311,41 +326,156 @@ class DeepBBSRegistration:
         )
 
     def _deep_passes(self, st: _State, clock: _Clock) -> None:
-        """DeepBBS: network passes on the moved source until the increment is small (or the cap)."""
-        rc, scale = self.config.registration, self.model.scale
-        n_deep = (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
-        if not n_deep:
+        """DeepBBS: network passes on the moved source until the increment is small (or the cap); in the
+        network process when there is one (``registration.network_process``: started here, read by
+        :meth:`_network_result`)."""
+        if not self._n_deep():
             return
+        net = self._network_process()
+        if net is not None:
+            try:
+                st.pending = net.submit(st.src_np, st.tgt_np, _matrix(st.R, st.t, self.model.scale))
+                return
+            except RegistrationError as err:
+                self._network_failed(err)
+        self._apply_network(st, self._passes(st.src, st.tgt, st.R, st.t, clock.lap))
+
+    def _precision_clouds(self, st: _State, clock: _Clock) -> None:
+        """The k-d trees and covariances of raw scans' precision-stage clouds, deferred by :meth:`_start` while
+        the network process runs (one small_gicp thread: the other core is the network's)."""
+        done = False
+        for pc in (st.src_pc, st.tgt_pc):
+            if pc is not None and pc.pending is not None:
+                pc.complete(threads=1 if st.pending is not None else None)
+                done = True
+        if done:
+            clock.lap("preprocess")
+
+    def _network_result(self, st: _State, clock: _Clock) -> None:
+        """The network process's :class:`NetworkOutput` into the state; if it failed, the passes run here."""
+        if st.pending is None:
+            return
+        pending, st.pending = st.pending, None
+        try:
+            out = pending.result()
+        except RegistrationError as err:
+            self._network_failed(err)
+            out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
+        else:
+            clock.lap("network_wait")
+            st.network_ms = out.ms
+        self._apply_network(st, out)
+
+    def _apply_network(self, st: _State, out: NetworkOutput) -> None:
+        st.R = torch.as_tensor(out.R, dtype=torch.float32, device=self.device)
+        st.t = torch.as_tensor(out.t, dtype=torch.float32, device=self.device)
+        st.gamma = torch.as_tensor(out.gamma, dtype=torch.float32, device=self.device)
+        st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
+
+    def _n_deep(self) -> int:
+        rc = self.config.registration
+        return (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
+
+    def _passes(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+                lap: Callable[[str], None]) -> NetworkOutput:
+        """The deep passes on src (1, N, 3), tgt (1, M, 3) (scaled, on the device) from R (3, 3), t (3,)
+        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve")."""
+        rc, scale = self.config.registration, self.model.scale
+        n_deep = self._n_deep()
         # the target does not move: its DGCNN features and the target-only parts of the transformer
         # (encoder output, self-attention) are computed once; the source's kNN graph is rigid-invariant
-        f_tgt, _ = self.model.point_features(st.tgt)
+        f_tgt, _ = self.model.point_features(tgt)
         tgt_cache = self.model.target_cache(f_tgt)
-        src_knn = None
-        clock.lap("embed")
+        src_knn, temperature, gamma, converged, k = None, 0.0, src.new_ones(src.shape[1]), False, -1
+        lap("embed")
         for k in range(n_deep):
-            moved = apply_transform(st.src, st.R[None], st.t[None])
+            moved = apply_transform(src, R[None], t[None])
             # embed: DGCNN + transformer on the moved source and the target, temperature head
             f_src, src_knn = self.model.point_features(moved, src_knn)
             phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache)
             temp = self.model.predict_temperature(phi_src, phi_tgt)
-            clock.lap("embed")
+            lap("embed")
             # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
             sb = self.model.match_inference(phi_src, phi_tgt)
-            clock.lap("match")
+            lap("match")
             # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
-            st.temperature = float(temp[0]) if k == 0 else st.temperature
+            temperature = float(temp[0]) if k == 0 else temperature
             temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-            temp_k = torch.as_tensor(temp_k, dtype=st.src.dtype, device=self.device).reshape(1)
+            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
             dR, dt, _, g = solve_transform_inference(
-                moved, st.tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
+                moved, tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
             )
-            st.R, st.t = dR[0] @ st.R, dR[0] @ st.t + dt[0]
-            st.gamma, st.iters["deep"] = g[0], k + 1
+            R, t, gamma = dR[0] @ R, dR[0] @ t + dt[0], g[0]
             small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
-            st.converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
-            clock.lap("solve")
-            if st.converged:
+            converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
+            lap("solve")
+            if converged:
                 break
+        return NetworkOutput(R.cpu().numpy(), t.cpu().numpy(), gamma.float().cpu().numpy(), temperature, k + 1,
+                             bool(converged))
+
+    def network_np(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray) -> NetworkOutput:
+        """The deep passes alone on preprocessed clouds (N, 3), (M, 3) float32 metres from T_init (4, 4):
+        what the network process runs (``core/network_process.py``); ``ms`` holds the stage times."""
+        scale, ms = self.model.scale, {}
+        clock = _Clock(self.device)
+
+        def lap(stage: str) -> None:
+            clock.lap(stage)
+
+        src = torch.from_numpy(self._check(source, "source")).to(self.device)[None] * scale
+        tgt = torch.from_numpy(self._check(target, "target")).to(self.device)[None] * scale
+        T = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
+        with torch.inference_mode(), self._torch_threads():
+            out = self._passes(src, tgt, R, t, lap)
+        ms.update(clock.ms)
+        out.ms = ms
+        return out
+
+    # -- the network process -------------------------------------------------------------------------
+    def _network_process(self) -> NetworkProcess | None:
+        """The worker running the network (started on first use), or None (``registration.network_process``
+        "off", a GPU, one core, a model object instead of a checkpoint file, or a worker that failed)."""
+        if self._net_state == "running" and self._net is not None and self._net.alive:
+            return self._net
+        if self._net_state != "unstarted":
+            if self._net_state == "running":  # it died between two registrations
+                self._network_failed(RegistrationError("network process died"))
+            return None
+        with self._net_lock:
+            if self._net_state == "unstarted":
+                try:
+                    self._net = NetworkProcess(self.weights_path, self.config.to_flat())
+                    self._net_state = "running"
+                except ModelError as err:
+                    self._network_failed(err)
+        return self._net if self._net_state == "running" else None
+
+    def _network_failed(self, err: Exception) -> None:
+        """Log once, stop the worker and run the network in this process from now on."""
+        if self._net_state != "failed":
+            _log.warning("%s: running the network in this process from now on", err)
+        self._net_state = "failed"
+        if self._net is not None:
+            self._net.close()
+            self._net = None
+
+    @property
+    def network_process_state(self) -> str:
+        """"running (pid N)", "not started yet", "off" or "failed" (see ``registration.network_process``)."""
+        if self._net_state == "running" and self._net is not None:
+            return f"running (pid {self._net.pid})"
+        return {"unstarted": "not started yet"}.get(self._net_state, self._net_state)
+
+    def close(self) -> None:
+        """Stop the network process, if any (also done when this object is collected or at exit)."""
+        if self._net is not None:
+            self._net.close()
+            self._net = None
+        if self._net_state == "running":
+            self._net_state = "unstarted"
 
     def _refine(self, st: _State) -> None:
         """DeepBBS++: SoftBBS on xyz over the k nearest targets, until the increment is tiny."""
@@ -480,9 +610,11 @@ class DeepBBSRegistration:
 
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += tuple(s for s in ("polish", "deskew") if s in clock.ms)
+        stages += tuple(s for s in ("network_wait", "polish", "deskew") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
-        timings["total"] = sum(timings.values())
+        timings["total"] = sum(timings.values())  # the wall time of register()
+        for s, v in st.network_ms.items():  # ran in the network process, overlapping "preprocess"
+            timings[s] = v
         return RegistrationResult(
             T_target_source=st.T,
             converged=bool(st.converged),
@@ -525,6 +657,8 @@ class _State:
     inlier_ratio: float = 0.0
     polish_reason: str = ""
     deskew: str = ""
+    pending: Any = None  # a network_process.Pending while the network process works
+    network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:

@@ -160,6 +160,7 @@ class RegistrationNode(Node):
         self._last_result: dict[str, float] = {}
 
         # the model: device and weights checked first, with errors naming the parameter
+        self._owns_reg = registration is None  # closed with the node (its network process)
         if registration is None:
             registration, self._weights = load_registration(self.cfg)
         else:
@@ -374,6 +375,7 @@ class RegistrationNode(Node):
             "mode": self.cfg.node.mode,
             "device": self._device,
             "weights": self._weights,
+            "network process": getattr(self.reg, "network_process_state", "-"),
             "messages received": s["received"],
             "pairs synchronised": s["pairs"],
             "pairs processed": s["processed"],
@@ -405,6 +407,8 @@ class RegistrationNode(Node):
 
     def destroy_node(self):
         self._stop_threads()
+        if self._owns_reg and hasattr(self.reg, "close"):
+            self.reg.close()
         return super().destroy_node()
 
 

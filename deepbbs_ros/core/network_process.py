@@ -1,0 +1,230 @@
+"""The DeepBBS++ network passes in a worker process, so that they overlap with small_gicp on a CPU.
+
+small_gicp's Python functions hold the GIL for their whole run (a covariance estimate of one HDL-64 scan
+is ~18 ms), so a network in another *thread* of the same process stalls on every one of them. In a
+worker process the network runs on its own core while the caller prepares the precision-stage clouds
+(``DeepBBSRegistration.register`` on raw scans), or while the node's input threads preprocess the next
+clouds. The messages are small: two (512, 3) float32 clouds in, a rotation, a translation and the
+weights out (~0.3 ms per round trip).
+
+``registration.network_process``: "auto" (default) starts one per :class:`DeepBBSRegistration` on a CPU
+device with 2+ cores and weights read from a checkpoint file (not for a model object handed in, such
+as a training run's, whose weights change); "off" never does. The worker loads the same checkpoint
+with the same configuration and runs :meth:`DeepBBSRegistration.network`, so its results are the
+in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
+itself from then on: nothing is lost. No ROS import.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import weakref
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.errors import ModelError, RegistrationError
+
+__all__ = ["NetworkOutput", "NetworkProcess", "wanted"]
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 120.0  # importing torch and loading the checkpoint on a busy machine
+RESULT_TIMEOUT_S = 60.0  # one registration's network passes (the first ones warm torch's kernels up)
+
+
+@dataclass
+class NetworkOutput:
+    """What the network passes give back (scaled units, see ModelConfig.scale).
+
+    R: (3, 3) float32, t: (3,) float32 (scaled) with p_target = R p_source + t; gamma: (N,) float32;
+    temperature: T of the first pass; iterations: passes run; converged: the last increment was below the
+    tolerances; ms: {"embed", "match", "solve"} wall time of the passes where they ran."""
+
+    R: np.ndarray
+    t: np.ndarray
+    gamma: np.ndarray
+    temperature: float
+    iterations: int
+    converged: bool
+    ms: dict[str, float] = field(default_factory=dict)
+
+
+def wanted(setting: str, device_type: str, weights_path: Path | None) -> bool:
+    """Whether ``registration.network_process`` asks for a worker here ("auto": CPU, 2+ cores, weights
+    from a file; "off": never)."""
+    return setting == "auto" and device_type == "cpu" and weights_path is not None and (os.cpu_count() or 1) >= 2
+
+
+class NetworkProcess:
+    """One worker process running the network of a checkpoint; thread-safe (one request at a time).
+
+    The worker is ``python -m deepbbs_ros.core.network_process`` on a socket pair, in its own session (a
+    Ctrl-C in the terminal goes to the caller only; the worker ends when its socket closes), not a
+    ``multiprocessing`` child: spawn would run the caller's ``__main__`` again, fork would copy torch's
+    and DDS's threads.
+
+    Args:
+        weights: the checkpoint file.
+        flat_config: ``Config.to_flat()`` of the caller (the worker forces ``network_process: off``).
+
+    Raises:
+        ModelError: the worker did not start (it could not load the checkpoint, or timed out).
+    """
+
+    def __init__(self, weights: str | Path, flat_config: dict[str, Any]) -> None:
+        import socket
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+
+        import deepbbs_ros
+
+        ours, theirs = socket.socketpair()
+        env = dict(os.environ)
+        root = str(Path(deepbbs_ros.__file__).resolve().parents[1])  # importable from a source checkout too
+        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "deepbbs_ros.core.network_process", str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=env,
+                start_new_session=True)
+        except OSError as err:
+            ours.close()
+            raise ModelError(f"network process: cannot start {sys.executable} ({err})") from err
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        self._lock = threading.Lock()
+        self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
+        try:
+            self._conn.send((str(weights), flat_config))
+            if not self._conn.poll(START_TIMEOUT_S):
+                raise ModelError(f"network process: no answer within {START_TIMEOUT_S:.0f} s of its start")
+            msg = self._conn.recv()
+        except (EOFError, OSError) as err:
+            self.close()
+            raise ModelError(f"network process exited while starting (exit code {self._proc.poll()})") from err
+        except ModelError:
+            self.close()
+            raise
+        if msg[0] != "ready":
+            self.close()
+            raise ModelError(f"network process: {msg[1]}")
+
+    @property
+    def alive(self) -> bool:
+        return self._proc.poll() is None
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def submit(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray) -> Pending:
+        """Start the passes on src (N, 3), tgt (M, 3) float32 metres from T_init (4, 4); returns at once.
+        The request holds the worker until :meth:`Pending.result` is read."""
+        self._lock.acquire()
+        try:
+            self._conn.send(("run", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
+                             np.asarray(T_init, np.float64)))
+        except (OSError, ValueError) as err:
+            self._lock.release()
+            self.close()
+            raise RegistrationError(f"network process: request failed ({err})") from err
+        return Pending(self)
+
+    def close(self) -> None:
+        """Stop the worker (also done when this object is collected and at interpreter exit)."""
+        self._finalizer()
+
+
+class Pending:
+    """An answer on its way from :class:`NetworkProcess`; :meth:`result` once."""
+
+    def __init__(self, owner: NetworkProcess) -> None:
+        self._owner = owner
+        self._done = False
+
+    def result(self, timeout: float = RESULT_TIMEOUT_S) -> NetworkOutput:
+        """The worker's :class:`NetworkOutput`.
+
+        Raises:
+            RegistrationError: the worker failed, died or timed out (it is then stopped: a late answer
+                must never be read as the next request's).
+        """
+        if self._done:
+            raise RegistrationError("network process: result already read")
+        self._done = True
+        owner = self._owner
+        try:
+            if not owner._conn.poll(timeout):
+                owner.close()
+                raise RegistrationError(f"network process: no answer within {timeout:.0f} s")
+            msg = owner._conn.recv()
+        except (EOFError, OSError) as err:
+            owner.close()
+            raise RegistrationError(f"network process died (exit code {owner._proc.poll()})") from err
+        finally:
+            owner._lock.release()
+        if msg[0] != "ok":
+            raise RegistrationError(f"network process: {msg[1]}")
+        return msg[1]
+
+
+def _shutdown(conn, proc) -> None:
+    try:
+        conn.send(("stop",))
+    except (OSError, ValueError):
+        pass
+    conn.close()
+    try:
+        proc.wait(timeout=2.0)
+    except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+        proc.kill()
+        proc.wait(timeout=2.0)
+
+
+def _worker_main(fd: int) -> int:
+    """The worker: read (weights, flat config), load the checkpoint, warm up, then answer
+    ("run", src, tgt, T_init) until ("stop",) or until the caller is gone (EOF)."""
+    from multiprocessing.connection import Connection
+
+    conn = Connection(fd)
+    try:
+        weights, flat_config = conn.recv()
+        from deepbbs_ros.config import Config
+        from deepbbs_ros.core.registration import DeepBBSRegistration
+
+        cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
+        reg = DeepBBSRegistration(cfg, weights=weights)
+        reg.warmup()
+    except (EOFError, OSError):
+        return 0
+    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return 1
+    conn.send(("ready",))
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return 0
+        if msg[0] != "run":
+            return 0
+        try:
+            out = reg.network_np(msg[1], msg[2], msg[3])
+            conn.send(("ok", out))
+        except (EOFError, OSError):
+            return 0
+        except Exception as err:  # noqa: BLE001 - the caller raises it as a RegistrationError
+            conn.send(("error", f"{type(err).__name__}: {err}"))
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_worker_main(int(sys.argv[1])))

@@ -1,0 +1,97 @@
+"""The network passes in a worker process (core/network_process.py): the same result as in this process, a
+real second process, and nothing lost when it dies. Toy world scans (deepbbs_ros.replay.synthetic), a tiny
+network saved as a real checkpoint."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from deepbbs_ros.config import Config, ModelConfig
+from deepbbs_ros.core.checkpoint import save_checkpoint
+from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.registration import DeepBBSRegistration
+from deepbbs_ros.replay.synthetic import synthetic_drive
+
+TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
+
+pytestmark = pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="network_process 'auto' needs 2+ cores")
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    torch.manual_seed(0)
+    cfg = Config().replace(**{"registration.device": "cpu", "preprocess.num_points": 128, "model.k": 6,
+                              "model.dgcnn_widths": [8, 8], "model.emb_dims": 16, "model.n_heads": 2,
+                              "model.ff_dims": 16})
+    path = save_checkpoint(tmp_path_factory.mktemp("net") / "tiny.pt", DeepBBSNet(TINY), cfg)
+    scans = synthetic_drive(frames=4, seed=3)
+    return cfg, path, scans
+
+
+def test_the_network_process_gives_the_in_process_result(setup):
+    cfg, path, scans = setup
+    here = DeepBBSRegistration(cfg.replace(**{"registration.network_process": "off"}), weights=path)
+    away = DeepBBSRegistration(cfg, weights=path)
+    try:
+        for src, tgt in ((scans[2], scans[0]), (scans[3], scans[1])):
+            a = here.register(src.points, tgt.points)
+            b = away.register(src.points, tgt.points)
+            np.testing.assert_allclose(b.T_target_source, a.T_target_source, atol=1e-9)
+            np.testing.assert_allclose(b.gamma, a.gamma, atol=1e-6)
+            assert b.iterations == a.iterations and b.polish == a.polish == "ok"
+            assert "network_wait" in b.timings_ms and "network_wait" not in a.timings_ms
+            assert b.timings_ms["embed"] > 0  # measured in the worker
+        pid = away._net.pid
+        assert pid != os.getpid() and away._net.alive
+        # preprocessed clouds (the node's and the odometry's path) go there too
+        pa, pb = here.preprocess(scans[2].points), away.preprocess(scans[0].points)
+        np.testing.assert_allclose(away.register(pa, pb).T_target_source, here.register(pa, pb).T_target_source,
+                                   atol=1e-9)
+    finally:
+        away.close()
+    assert away._net is None
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and _running(pid):
+        time.sleep(0.05)
+    assert not _running(pid)
+
+
+def test_a_dead_network_process_loses_nothing(setup, caplog):
+    """The worker killed between two registrations: the next one runs the network here, logs it once, and
+    gives the same result; so does a model object (never a worker: its weights may change, as in training)."""
+    cfg, path, scans = setup
+    reg = DeepBBSRegistration(cfg, weights=path)
+    ref = reg.register(scans[2].points, scans[0].points).T_target_source
+    os.kill(reg._net.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and reg._net.alive:
+        time.sleep(0.05)
+    with caplog.at_level(logging.WARNING, logger="deepbbs_ros.core.registration"):
+        res = reg.register(scans[2].points, scans[0].points)
+        reg.register(scans[3].points, scans[1].points)
+    np.testing.assert_allclose(res.T_target_source, ref, atol=1e-9)
+    assert "network_wait" not in res.timings_ms and reg._net is None
+    warnings = [r for r in caplog.records if "network in this process" in r.getMessage()]
+    assert len(warnings) == 1 and "died" in warnings[0].getMessage()
+    own = DeepBBSRegistration(cfg, model=reg.model)
+    own.register(scans[2].points, scans[0].points)
+    assert own._net is None and own._net_state == "off"
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie is gone for our purpose
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except OSError:
+        return False
