@@ -149,6 +149,13 @@ class Pending:
         self._owner = owner
         self._done = False
 
+    def ready(self) -> bool:
+        """The answer is there (or the worker is gone): :meth:`result` will not wait."""
+        try:
+            return self._done or self._owner._conn.poll(0)
+        except (OSError, ValueError):
+            return True
+
     def result(self, timeout: float = RESULT_TIMEOUT_S) -> NetworkOutput:
         """The worker's :class:`NetworkOutput`.
 

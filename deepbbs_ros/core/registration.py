@@ -342,11 +342,11 @@ class DeepBBSRegistration:
 
     def _precision_clouds(self, st: _State, clock: _Clock) -> None:
         """The k-d trees and covariances of raw scans' precision-stage clouds, deferred by :meth:`_start` while
-        the network process runs (one small_gicp thread: the other core is the network's)."""
+        the network process runs (one small_gicp thread while it does: the other core is the network's)."""
         done = False
         for pc in (st.src_pc, st.tgt_pc):
             if pc is not None and pc.pending is not None:
-                pc.complete(threads=1 if st.pending is not None else None)
+                pc.complete(threads=1 if st.pending is not None and not st.pending.ready() else None)
                 done = True
         if done:
             clock.lap("preprocess")
