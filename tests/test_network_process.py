@@ -16,7 +16,9 @@ import torch
 from deepbbs_ros.config import Config, ModelConfig
 from deepbbs_ros.core.checkpoint import save_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.network_process import NetworkProcessLost
 from deepbbs_ros.core.registration import DeepBBSRegistration
+from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.replay.synthetic import synthetic_drive
 
 TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
@@ -50,6 +52,11 @@ def test_the_network_process_gives_the_in_process_result(setup):
             assert b.timings_ms["embed"] > 0  # measured in the worker
         pid = away._net.pid
         assert pid != os.getpid() and away._net.alive
+        # an error raised by the passes there comes back as one and leaves the worker running
+        bad = np.full((5, 3), np.nan, np.float32)
+        with pytest.raises(RegistrationError, match="NaN") as info:
+            away._net.submit(bad, bad, np.eye(4)).result()
+        assert not isinstance(info.value, NetworkProcessLost) and away._net.alive and away._net.pid == pid
         # preprocessed clouds (the node's and the odometry's path) go there too
         pa, pb = here.preprocess(scans[2].points), away.preprocess(scans[0].points)
         np.testing.assert_allclose(away.register(pa, pb).T_target_source, here.register(pa, pb).T_target_source,

@@ -29,12 +29,17 @@ import numpy as np
 
 from deepbbs_ros.errors import ModelError, RegistrationError
 
-__all__ = ["NetworkOutput", "NetworkProcess", "wanted"]
+__all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
 
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 120.0  # importing torch and loading the checkpoint on a busy machine
 RESULT_TIMEOUT_S = 60.0  # one registration's network passes (the first ones warm torch's kernels up)
+
+
+class NetworkProcessLost(RegistrationError):
+    """The worker died, stopped answering or could not be reached (it is stopped; a late answer must never
+    be read as the next request's). Other worker errors are plain :class:`RegistrationError` s."""
 
 
 @dataclass
@@ -134,7 +139,7 @@ class NetworkProcess:
         except (OSError, ValueError) as err:
             self._lock.release()
             self.close()
-            raise RegistrationError(f"network process: request failed ({err})") from err
+            raise NetworkProcessLost(f"network process: request failed ({err})") from err
         return Pending(self)
 
     def close(self) -> None:
@@ -160,8 +165,8 @@ class Pending:
         """The worker's :class:`NetworkOutput`.
 
         Raises:
-            RegistrationError: the worker failed, died or timed out (it is then stopped: a late answer
-                must never be read as the next request's).
+            NetworkProcessLost: the worker died or timed out (it is then stopped).
+            RegistrationError: the passes raised in the worker (it keeps running).
         """
         if self._done:
             raise RegistrationError("network process: result already read")
@@ -170,11 +175,11 @@ class Pending:
         try:
             if not owner._conn.poll(timeout):
                 owner.close()
-                raise RegistrationError(f"network process: no answer within {timeout:.0f} s")
+                raise NetworkProcessLost(f"network process: no answer within {timeout:.0f} s")
             msg = owner._conn.recv()
         except (EOFError, OSError) as err:
             owner.close()
-            raise RegistrationError(f"network process died (exit code {owner._proc.poll()})") from err
+            raise NetworkProcessLost(f"network process died (exit code {owner._proc.poll()})") from err
         finally:
             owner._lock.release()
         if msg[0] != "ok":

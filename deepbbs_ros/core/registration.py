@@ -39,7 +39,7 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, solve_transform_inference
-from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess
+from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
@@ -336,7 +336,7 @@ class DeepBBSRegistration:
             try:
                 st.pending = net.submit(st.src_np, st.tgt_np, _matrix(st.R, st.t, self.model.scale))
                 return
-            except RegistrationError as err:
+            except NetworkProcessLost as err:
                 self._network_failed(err)
         self._apply_network(st, self._passes(st.src, st.tgt, st.R, st.t, clock.lap))
 
@@ -358,8 +358,10 @@ class DeepBBSRegistration:
         pending, st.pending = st.pending, None
         try:
             out = pending.result()
-        except RegistrationError as err:
+        except NetworkProcessLost as err:
             self._network_failed(err)
+            out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
+        except RegistrationError:  # raised by the passes there: here too (the same error), or an answer
             out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
         else:
             clock.lap("network_wait")
@@ -442,7 +444,7 @@ class DeepBBSRegistration:
             return self._net
         if self._net_state != "unstarted":
             if self._net_state == "running":  # it died between two registrations
-                self._network_failed(RegistrationError("network process died"))
+                self._network_failed(NetworkProcessLost("network process died"))
             return None
         with self._net_lock:
             if self._net_state == "unstarted":
