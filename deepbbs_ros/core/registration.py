@@ -2,14 +2,17 @@
 
 ``DeepBBSRegistration.register`` reads top-down like kiss-icp's ``register_frame``::
 
-    preprocess  crop, ground removal, voxel grid, farthest-point sampling   (core/preprocess.py)
+    preprocess  the GICP cloud's voxel grid, crop, ground removal, farthest-point sampling (core/preprocess.py)
     embed       DGCNN + shared transformer on the moved source and target  (core/model.py)
     match       SoftBBS on the feature distances                            (core/softbbs.py)
     solve       soft map, gamma weights, weighted Procrustes                (core/procrustes.py)
-    ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS)
+    ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS); on a
+        CPU in a worker process (core/network_process.py) while this one builds the raw scans' GICP
+        clouds (k-d trees, covariances: small_gicp holds the GIL, so a thread would not overlap)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
+    deskew      the same on both scans deskewed with their own stream velocities, when they agree
 
 Defaults (issues 10/11, measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
