@@ -25,7 +25,9 @@ import time
 
 from deepbbs_ros.cli.common import cli_entry
 
-STAGES = ("preprocess", "embed", "match", "solve", "refine", "polish", "total")
+# embed / match / solve run in the network process when there is one (registration.network_process), overlapping
+# "preprocess"; "network_wait" is what register() then waited for them; "total" is the wall time of register()
+STAGES = ("preprocess", "embed", "match", "solve", "network_wait", "refine", "polish", "total")
 
 
 def build_parser() -> argparse.ArgumentParser:
