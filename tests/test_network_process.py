@@ -92,6 +92,28 @@ def test_a_dead_network_process_loses_nothing(setup, caplog):
     assert own._net is None and own._net_state == "off"
 
 
+def test_a_stage_that_raises_while_the_network_process_works_leaves_it_usable(setup, monkeypatch):
+    """The precision clouds fail while the worker holds an answer: the answer is read and dropped, and the next
+    registration gets its own."""
+    cfg, path, scans = setup
+    reg = DeepBBSRegistration(cfg, weights=path)
+    try:
+        ref = reg.register(scans[3].points, scans[1].points).T_target_source
+
+        def broken(st, clock):
+            raise RegistrationError("small_gicp failed")
+
+        monkeypatch.setattr(reg, "_precision_clouds", broken)
+        with pytest.raises(RegistrationError, match="small_gicp failed"):
+            reg.register(scans[2].points, scans[0].points)
+        monkeypatch.undo()
+        res = reg.register(scans[3].points, scans[1].points)
+        np.testing.assert_allclose(res.T_target_source, ref, atol=1e-9)
+        assert "network_wait" in res.timings_ms and reg._net.alive
+    finally:
+        reg.close()
+
+
 def _running(pid: int) -> bool:
     try:
         os.kill(pid, 0)

@@ -132,7 +132,8 @@ class NetworkProcess:
     def submit(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray) -> Pending:
         """Start the passes on src (N, 3), tgt (M, 3) float32 metres from T_init (4, 4); returns at once.
         The request holds the worker until :meth:`Pending.result` is read."""
-        self._lock.acquire()
+        if not self._lock.acquire(timeout=RESULT_TIMEOUT_S):  # another request's answer was never read
+            raise NetworkProcessLost(f"network process: still busy after {RESULT_TIMEOUT_S:.0f} s")
         try:
             self._conn.send(("run", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
                              np.asarray(T_init, np.float64)))

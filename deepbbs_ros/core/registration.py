@@ -281,7 +281,7 @@ class DeepBBSRegistration:
         clock = _Clock(self.device)
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
         clock.lap("preprocess")
-        with torch.inference_mode(), self._torch_threads():
+        with torch.inference_mode(), self._torch_threads(), _answer_read(st):
             self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)
             self._precision_clouds(st, clock)  # meanwhile: the raw scans' GICP clouds (k-d trees, covariances)
             self._network_result(st, clock)  # the network process's answer
@@ -664,6 +664,21 @@ class _State:
     deskew: str = ""
     pending: Any = None  # a network_process.Pending while the network process works
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
+
+
+@contextlib.contextmanager
+def _answer_read(st: _State) -> Iterator[None]:
+    """An answer of the network process still pending when a stage raises is read and dropped: the worker
+    takes one request at a time, and the next registration must not get this one's answer."""
+    try:
+        yield
+    finally:
+        if st.pending is not None:
+            pending, st.pending = st.pending, None
+            try:
+                pending.result()
+            except RegistrationError:
+                pass
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:
