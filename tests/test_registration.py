@@ -261,3 +261,35 @@ def test_network_threads_are_set_for_the_network_and_restored():
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_repeated_target_reuses_its_network_state(tmp_path, rng):
+    """Registering against the same target again (a fixed map cloud) skips the target's DGCNN and transformer
+    state and gives the numbers of a fresh registration; a model handed in (training) never keeps one."""
+    from deepbbs_ros.core.checkpoint import save_checkpoint
+
+    torch.manual_seed(2)
+    cfg = Config().replace(**{"registration.device": "cpu", "registration.network_process": "off", **PAPER})
+    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), cfg)
+    source, target, _ = make_pair(rng, n=300)
+    other, _, _ = make_pair(np.random.default_rng(5), n=300)
+    reg = DeepBBSRegistration(cfg, weights=path)
+    seen = []  # the clouds (metres) whose features were computed
+    features = reg.model.point_features
+    reg.model.point_features = lambda xyz, idx=None: seen.append(xyz[0].numpy() / reg.model.scale) or features(xyz, idx)
+
+    def target_computed(tgt):
+        return sum(np.allclose(x, tgt, atol=1e-4) for x in seen)
+
+    reg.register(source, target, preprocessed=True)
+    assert target_computed(target) == 1
+    again = reg.register(other, target, preprocessed=True)
+    assert target_computed(target) == 1  # not again
+    fresh = DeepBBSRegistration(cfg, weights=path).register(other, target, preprocessed=True)
+    np.testing.assert_allclose(again.T_target_source, fresh.T_target_source, atol=1e-9)
+    shifted = target + np.float32(0.5)  # another target: computed anew
+    reg.register(other, shifted, preprocessed=True)
+    assert target_computed(shifted) == 1
+    handed = DeepBBSRegistration(cfg, model=reg.model)
+    handed.register(source, target, preprocessed=True)
+    assert handed._target_memo is None
