@@ -52,6 +52,14 @@ def test_the_network_process_gives_the_in_process_result(setup):
             assert b.timings_ms["embed"] > 0  # measured in the worker
         pid = away._net.pid
         assert pid != os.getpid() and away._net.alive
+        # raw scans: the target goes ahead, so the worker prepares its state while the source is preprocessed
+        sent = []
+        prepare = away._net.prepare_target
+        away._net.prepare_target = lambda tgt: sent.append(tgt.copy()) or prepare(tgt)
+        res = away.register(scans[2].points, scans[0].points)
+        assert len(sent) == 1 and np.array_equal(sent[0], res.target)
+        np.testing.assert_allclose(res.T_target_source, here.register(scans[2].points, scans[0].points)
+                                   .T_target_source, atol=1e-9)
         # an error raised by the passes there comes back as one and leaves the worker running
         bad = np.full((5, 3), np.nan, np.float32)
         with pytest.raises(RegistrationError, match="NaN") as info:

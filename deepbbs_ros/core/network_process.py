@@ -104,7 +104,8 @@ class NetworkProcess:
         finally:
             theirs.close()
         self._conn = Connection(ours.detach())
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # one request at a time: held from submit() until its answer is read
+        self._send_lock = threading.Lock()  # one message at a time on the socket
         self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
         try:
             self._conn.send((str(weights), flat_config))
@@ -135,13 +136,23 @@ class NetworkProcess:
         if not self._lock.acquire(timeout=RESULT_TIMEOUT_S):  # another request's answer was never read
             raise NetworkProcessLost(f"network process: still busy after {RESULT_TIMEOUT_S:.0f} s")
         try:
-            self._conn.send(("run", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
-                             np.asarray(T_init, np.float64)))
+            with self._send_lock:
+                self._conn.send(("run", np.ascontiguousarray(src, np.float32),
+                                 np.ascontiguousarray(tgt, np.float32), np.asarray(T_init, np.float64)))
         except (OSError, ValueError) as err:
             self._lock.release()
             self.close()
             raise NetworkProcessLost(f"network process: request failed ({err})") from err
         return Pending(self)
+
+    def prepare_target(self, tgt: np.ndarray) -> None:
+        """Let the worker compute the network state of target (M, 3) float32 metres now (no answer): the next
+        request with the same target finds it ready (``DeepBBSRegistration._target_state``). Best effort."""
+        try:
+            with self._send_lock:
+                self._conn.send(("target", np.ascontiguousarray(tgt, np.float32)))
+        except (OSError, ValueError):
+            pass  # the next submit() finds out
 
     def close(self) -> None:
         """Stop the worker (also done when this object is collected and at interpreter exit)."""
@@ -203,7 +214,8 @@ def _shutdown(conn, proc) -> None:
 
 def _worker_main(fd: int) -> int:
     """The worker: read (weights, flat config), load the checkpoint, warm up, then answer
-    ("run", src, tgt, T_init) until ("stop",) or until the caller is gone (EOF)."""
+    ("run", src, tgt, T_init), and take ("target", tgt) ahead of a run (no answer), until ("stop",) or until
+    the caller is gone (EOF)."""
     from multiprocessing.connection import Connection
 
     conn = Connection(fd)
@@ -226,6 +238,12 @@ def _worker_main(fd: int) -> int:
             msg = conn.recv()
         except (EOFError, OSError):
             return 0
+        if msg[0] == "target":
+            try:
+                reg.prepare_target_np(msg[1])
+            except Exception:  # noqa: BLE001 - best effort: the run that follows computes it and reports
+                pass
+            continue
         if msg[0] != "run":
             return 0
         try:

@@ -319,8 +319,10 @@ class DeepBBSRegistration:
     def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
         """Preprocess (raw scans only), the initial estimate, the scaled clouds on the device."""
         scale = self.model.scale
-        src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
         tgt_np, tgt_dense, tgt_pre = self._cloud(target, preprocessed, "target")
+        if not preprocessed and not isinstance(source, PreprocessResult) and self._n_deep():
+            self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
+        src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
         tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
@@ -439,6 +441,18 @@ class DeepBBSRegistration:
             with self._target_lock:
                 self._target_memo = (key, tgt.clone(), state)
         return state
+
+    def _send_target(self, tgt_np: np.ndarray) -> None:
+        net = self._network_process()
+        if net is not None:
+            net.prepare_target(tgt_np)
+
+    def prepare_target_np(self, target: np.ndarray) -> None:
+        """Compute and keep the network state of a preprocessed target (M, 3) float32 metres (what the
+        network process does with a target sent ahead of its registration)."""
+        tgt = torch.from_numpy(self._check(target, "target")).to(self.device)[None] * self.model.scale
+        with torch.inference_mode(), self._torch_threads():
+            self._target_state(tgt)
 
     def network_np(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray) -> NetworkOutput:
         """The deep passes alone on preprocessed clouds (N, 3), (M, 3) float32 metres from T_init (4, 4):
