@@ -372,7 +372,7 @@ class DeepBBSRegistration:
         except NetworkProcessLost as err:
             self._network_failed(err)
             out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
-        except RegistrationError:  # raised by the passes there: here too (the same error), or an answer
+        except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
             out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
         else:
             clock.lap("network_wait")
