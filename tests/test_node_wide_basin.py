@@ -18,6 +18,7 @@ Frames 0 and 1 of seed 5 are 2.5 cm apart (the car starts): the motion is almost
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -116,11 +117,14 @@ def test_wide_basin_live(ros):
                                  num_threads=1)
             rows.append((yaw, shift, *pair_errors(T_node, T_gt), *pair_errors(T_off, T_gt),
                          *pair_errors(g.T_target_source, T_gt), T_node, T_off))
+        # the node's network passes ran in its worker process (registration.network_process: auto, 2+ cores)
+        assert (os.cpu_count() or 1) < 2 or node.reg.network_process_state.startswith("running (pid ")
     finally:
         executor.shutdown()
         node.destroy_node()
         client.destroy_node()
         torch.set_num_threads(threads)
+    assert node.reg._net is None  # destroy_node stopped it
 
     def ok(r: float, t: float) -> bool:
         return r <= 1.0 and t <= 0.3
