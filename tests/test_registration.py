@@ -264,8 +264,9 @@ def test_network_threads_are_set_for_the_network_and_restored():
 
 
 def test_a_repeated_target_reuses_its_network_state(tmp_path, rng):
-    """Registering against the same target again (a fixed map cloud) skips the target's DGCNN and transformer
-    state and gives the numbers of a fresh registration; a model handed in (training) never keeps one."""
+    """Registering against the same target again (a fixed map cloud), or against the last source (consecutive
+    pairs), skips the target's DGCNN and transformer state and gives the numbers of a fresh registration; a
+    model handed in (training) never keeps one."""
     from deepbbs_ros.core.checkpoint import save_checkpoint
 
     torch.manual_seed(2)
@@ -290,6 +291,15 @@ def test_a_repeated_target_reuses_its_network_state(tmp_path, rng):
     shifted = target + np.float32(0.5)  # another target: computed anew
     reg.register(other, shifted, preprocessed=True)
     assert target_computed(shifted) == 1
+    # consecutive pairs (scan-to-scan): the last source, seen from identity in the first pass, is the next
+    # target; its state comes from that pass
+    reg.register(other, target, preprocessed=True)
+    n = target_computed(other)
+    nxt = reg.register(source, other, preprocessed=True)
+    assert target_computed(other) == n  # not computed again as a target
+    fresh = DeepBBSRegistration(cfg, weights=path).register(source, other, preprocessed=True)
+    np.testing.assert_allclose(nxt.T_target_source, fresh.T_target_source, atol=1e-9)
+    np.testing.assert_allclose(nxt.gamma, fresh.gamma, atol=1e-7)
     handed = DeepBBSRegistration(cfg, model=reg.model)
     handed.register(source, target, preprocessed=True)
-    assert handed._target_memo is None
+    assert not handed._target_memo

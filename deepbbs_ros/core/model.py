@@ -299,10 +299,14 @@ class DeepBBSNet(nn.Module):
         tgt_q = None if first.norm_first else _project_q(first.multihead_attn, tgt_self)
         return TargetCache(f_tgt, memory_kv, tgt_self, tgt_q)
 
-    def cross_cached(self, f_src: torch.Tensor, cache: TargetCache) -> tuple[torch.Tensor, torch.Tensor]:
+    def cross_cached(self, f_src: torch.Tensor, cache: TargetCache, *, source_cache: list | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`cross` with the target-only parts from :meth:`target_cache` (same numbers, to round-off).
 
         f_src: (B, N, E) source DGCNN features -> phi_src (B, N, E), phi_tgt (B, M, E).
+        ``source_cache``: a list that receives the source's own :class:`TargetCache` (what
+        :meth:`target_cache` would compute for these features: its encoder output's keys/values and its
+        first self-attention sublayer are computed here anyway), for when this cloud becomes a target.
         """
         f_tgt = cache.f_tgt
         if cache.memory_kv is None or not self._fast_transformer():
@@ -313,13 +317,20 @@ class DeepBBSNet(nn.Module):
         # source queries attend to the (cached) encoded target; target queries to the encoded source
         y_src = f_src
         y_tgt = f_tgt
+        kvs, first_self = [], None
         for i, layer in enumerate(dec):
             kv_src = _project_kv(layer.multihead_attn, mem_src)
+            kvs.append(kv_src)
             if i == 0:
                 y_tgt = _decoder_rest(layer, cache.tgt_self, kv_src, cache.tgt_q)
             else:
                 y_tgt = _decoder_rest(layer, _decoder_self(layer, y_tgt), kv_src)
-            y_src = _decoder_rest(layer, _decoder_self(layer, y_src), cache.memory_kv[i])
+            self_out = _decoder_self(layer, y_src)
+            first_self = self_out if i == 0 else first_self
+            y_src = _decoder_rest(layer, self_out, cache.memory_kv[i])
+        if source_cache is not None and first_self is not None:
+            # tgt_q None: the first cross-attention projects its queries itself (the same numbers)
+            source_cache.append(TargetCache(f_src, kvs, first_self, None))
         if tr.decoder.norm is not None:
             y_src, y_tgt = tr.decoder.norm(y_src), tr.decoder.norm(y_tgt)
         return f_src + y_src, f_tgt + y_tgt

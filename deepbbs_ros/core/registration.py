@@ -32,6 +32,7 @@ import threading
 import time
 import warnings
 import zlib
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -169,7 +170,7 @@ class DeepBBSRegistration:
         # the last target's network state (_target_state); the model must not change while it is kept (training
         # hands in a model whose weights do: no memo then)
         self._target_lock = threading.Lock()
-        self._target_memo: tuple[Any, torch.Tensor, TargetCache] | None = None
+        self._target_memo: OrderedDict[tuple, tuple[torch.Tensor, TargetCache]] = OrderedDict()
         self._memo_targets = self.weights_path is not None
 
     def warmup(self, rounds: int = 2) -> None:
@@ -401,11 +402,17 @@ class DeepBBSRegistration:
         tgt_cache = self._target_state(tgt)
         src_knn, temperature, gamma, converged, k = None, 0.0, src.new_ones(src.shape[1]), False, -1
         lap("embed")
+        # from identity, the first pass sees the source as it is: its state as a target comes almost for free
+        # (consecutive pairs, scan-to-scan odometry: this source is the next pair's target)
+        unmoved = self._memo_targets and bool((R == torch.eye(3, device=R.device)).all() and (t == 0).all())
         for k in range(n_deep):
             moved = apply_transform(src, R[None], t[None])
             # embed: DGCNN + transformer on the moved source and the target, temperature head
             f_src, src_knn = self.model.point_features(moved, src_knn)
-            phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache)
+            own = [] if k == 0 and unmoved else None
+            phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache, source_cache=own)
+            if own:
+                self._keep_state(src, own[0])
             temp = self.model.predict_temperature(phi_src, phi_tgt)
             lap("embed")
             # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
@@ -428,19 +435,29 @@ class DeepBBSRegistration:
                              bool(converged))
 
     def _target_state(self, tgt: torch.Tensor) -> TargetCache:
-        """The network's target-only state for tgt (1, M, 3) (scaled): reused while the same target comes back
-        (the same points, byte for byte; one entry, guarded for threads)."""
-        key = (tuple(tgt.shape), zlib.crc32(tgt.detach().cpu().numpy().tobytes()))
+        """The network's target-only state for tgt (1, M, 3) (scaled), reused when the same points (byte for
+        byte) come back as a target: a fixed map cloud, or the last source (:meth:`_keep_state`)."""
+        key = _cloud_key(tgt)
         with self._target_lock:
-            hit = self._target_memo
-        if hit is not None and hit[0] == key and torch.equal(hit[1], tgt):
-            return hit[2]
+            hit = self._target_memo.get(key)
+            if hit is not None:
+                self._target_memo.move_to_end(key)
+        if hit is not None and torch.equal(hit[0], tgt):
+            return hit[1]
         f_tgt, _ = self.model.point_features(tgt)
         state = self.model.target_cache(f_tgt)
-        if self._memo_targets:
-            with self._target_lock:
-                self._target_memo = (key, tgt.clone(), state)
+        self._keep_state(tgt, state)
         return state
+
+    def _keep_state(self, cloud: torch.Tensor, state: TargetCache) -> None:
+        """Keep a cloud's network state for when it is a target (the two most recent clouds: a fixed target
+        and the last source both stay; not for a model object handed in, whose weights may change)."""
+        if not self._memo_targets:
+            return
+        with self._target_lock:
+            self._target_memo[_cloud_key(cloud)] = (cloud.clone(), state)
+            while len(self._target_memo) > 2:
+                self._target_memo.popitem(last=False)
 
     def _send_target(self, tgt_np: np.ndarray) -> None:
         net = self._network_process()
@@ -714,6 +731,11 @@ def _answer_read(st: _State) -> Iterator[None]:
                 pending.result()
             except RegistrationError:
                 pass
+
+
+def _cloud_key(cloud: torch.Tensor) -> tuple:
+    """(shape, CRC-32 of the bytes) of a (1, N, 3) tensor: the target memo's key (then compared exactly)."""
+    return tuple(cloud.shape), zlib.crc32(cloud.detach().cpu().numpy().tobytes())
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:
