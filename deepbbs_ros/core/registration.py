@@ -325,8 +325,7 @@ class DeepBBSRegistration:
             self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
         src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
         T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
-        src = torch.from_numpy(src_np).to(self.device)[None] * scale  # (1, N, 3) scaled
-        tgt = torch.from_numpy(tgt_np).to(self.device)[None] * scale  # (1, M, 3) scaled
+        src, tgt = self._scaled(src_np), self._scaled(tgt_np)
         return _State(
             src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pre=src_pre, tgt_pre=tgt_pre,
             src_pc=None if src_pre is None else src_pre.polish_cloud,
@@ -446,16 +445,18 @@ class DeepBBSRegistration:
             return hit[1]
         f_tgt, _ = self.model.point_features(tgt)
         state = self.model.target_cache(f_tgt)
-        self._keep_state(tgt, state)
+        self._keep_state(tgt, state, key)
         return state
 
-    def _keep_state(self, cloud: torch.Tensor, state: TargetCache) -> None:
+    def _keep_state(self, cloud: torch.Tensor, state: TargetCache, key: tuple | None = None) -> None:
         """Keep a cloud's network state for when it is a target (the two most recent clouds: a fixed target
-        and the last source both stay; not for a model object handed in, whose weights may change)."""
+        and the last source both stay; not for a model object handed in, whose weights may change).
+        ``key``: the cloud's :func:`_cloud_key`, when the caller has it."""
         if not self._memo_targets:
             return
+        key = _cloud_key(cloud) if key is None else key
         with self._target_lock:
-            self._target_memo[_cloud_key(cloud)] = (cloud.clone(), state)
+            self._target_memo[key] = (cloud.clone(), state)
             while len(self._target_memo) > 2:
                 self._target_memo.popitem(last=False)
 
@@ -467,29 +468,26 @@ class DeepBBSRegistration:
     def prepare_target_np(self, target: np.ndarray) -> None:
         """Compute and keep the network state of a preprocessed target (M, 3) float32 metres (what the
         network process does with a target sent ahead of its registration)."""
-        tgt = torch.from_numpy(self._check(target, "target")).to(self.device)[None] * self.model.scale
+        tgt = self._scaled(self._check(target, "target"))
         with torch.inference_mode(), self._torch_threads():
             self._target_state(tgt)
 
     def network_np(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray) -> NetworkOutput:
         """The deep passes alone on preprocessed clouds (N, 3), (M, 3) float32 metres from T_init (4, 4):
         what the network process runs (``core/network_process.py``); ``ms`` holds the stage times."""
-        scale, ms = self.model.scale, {}
         clock = _Clock(self.device)
-
-        def lap(stage: str) -> None:
-            clock.lap(stage)
-
-        src = torch.from_numpy(self._check(source, "source")).to(self.device)[None] * scale
-        tgt = torch.from_numpy(self._check(target, "target")).to(self.device)[None] * scale
+        src, tgt = self._scaled(self._check(source, "source")), self._scaled(self._check(target, "target"))
         T = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
         R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
-        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
         with torch.inference_mode(), self._torch_threads():
-            out = self._passes(src, tgt, R, t, lap)
-        ms.update(clock.ms)
-        out.ms = ms
+            out = self._passes(src, tgt, R, t, clock.lap)
+        out.ms = dict(clock.ms)
         return out
+
+    def _scaled(self, points: np.ndarray) -> torch.Tensor:
+        """Checked (N, 3) float32 metres -> (1, N, 3) on the device in the network's scaled units."""
+        return torch.from_numpy(points).to(self.device)[None] * self.model.scale
 
     # -- the network process -------------------------------------------------------------------------
     def _network_process(self) -> NetworkProcess | None:
