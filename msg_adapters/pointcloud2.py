@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import PointCloudFormatError
+from msg_adapters.transforms import time_to_ns
 
 __all__ = [
     "CloudArrays",
@@ -88,8 +89,10 @@ def field_names(msg: Any) -> list[str]:
 
 
 def _stamp_ns(header: Any) -> int:
+    """``header.stamp`` in ns; PointCloudFormatError for a stamp that does not fit builtin_interfaces/Time
+    (``sec`` outside int32, ``nanosec`` >= 1e9): the outputs could not carry it."""
     stamp = header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return time_to_ns(stamp.sec, stamp.nanosec, PointCloudFormatError)
 
 
 def _buffer(msg: Any) -> np.ndarray:
@@ -210,7 +213,8 @@ def pointcloud2_to_arrays(
     Raises:
         PointCloudFormatError: no x/y/z field, a requested field missing, an unknown datatype, a
             field past ``point_step``, ``row_step < width * point_step``, ``len(data) !=
-            row_step * height``, or ``width * height`` not matching the data.
+            row_step * height``, ``width * height`` not matching the data, or a ``header.stamp`` that
+            does not fit ``builtin_interfaces/Time`` (``sec`` outside int32, ``nanosec >= 1e9``).
     """
     byteorder = ">" if bool(msg.is_bigendian) else "<"
     specs = _field_dtypes(msg, byteorder)

@@ -236,6 +236,15 @@ def test_bad_input_rejected_then_recovers(ros, world):
             h.send("target_cloud", good_t, stamp)
             h.send_raw("source_cloud", msg)
             h.wait_processed(k + 1)
+        # stamps that do not fit builtin_interfaces/Time (the pose could not carry them back) or whose
+        # nanosec would carry into another second: refused at the input, with the malformed clouds
+        for sec, nanosec in ((2147483647, 4294967295), (20, 1_000_000_000)):
+            msg = arrays_to_pointcloud2(good_s, stamp_ns=0, frame_id="lidar")
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            cases.append(("malformed_cloud", msg))
+            h.send("target_cloud", good_t, 20 * SEC)
+            h.send_raw("source_cloud", msg)
+            h.wait_processed(len(cases))
         # a source frame different from the one seen before on that input
         h.send("target_cloud", good_t, 30 * SEC)
         h.send("source_cloud", good_s, 30 * SEC)
