@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import PreprocessConfig
+from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.errors import RegistrationError
 
 MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
@@ -562,12 +563,5 @@ def _r2_xy(pts: np.ndarray) -> np.ndarray:
 
 
 def _as_points(points: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 view/copy of ``points``; raises RegistrationError on another shape."""
-    arr = np.asarray(points)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        if arr.size == 0:
-            return np.zeros((0, 3), dtype=np.float32)
-        raise RegistrationError(f"expected an (N, 3) point array, got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number):
-        raise RegistrationError(f"expected a numeric point array, got dtype {arr.dtype}")
-    return np.ascontiguousarray(arr, dtype=np.float32)
+    """(N, 3) float32 view/copy of ``points``; RegistrationError otherwise (the shared check, core/points.py)."""
+    return as_xyz(points, "preprocess")

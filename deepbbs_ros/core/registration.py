@@ -46,6 +46,7 @@ from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
 from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
+from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
@@ -204,6 +205,7 @@ class DeepBBSRegistration:
         precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
         """
         pp, rc = self.config.preprocess, self.config.registration
+        points = as_xyz(points, "preprocess")  # (N, 3) real numbers, NaN rows dropped by the crop (core/points.py)
         keep_raw, deskew_ms = None, None
         if pp.deskew and times is not None:
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -238,7 +240,7 @@ class DeepBBSRegistration:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
-            points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
+            as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
             min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads, defer=defer)
 
     def _cloud(
@@ -249,6 +251,7 @@ class DeepBBSRegistration:
         if not isinstance(points, PreprocessResult):
             if preprocessed:
                 return self._check(points, name), None, None
+            points = as_xyz(points, name)  # the raw scan: errors name the source / target
             # the GICP cloud's k-d tree and covariances wait for the network process (_precision_clouds)
             points = self.preprocess(points, defer=self._n_deep() > 0 and self._net_state in ("unstarted", "running"))
         dense = points.dense_points
@@ -256,14 +259,8 @@ class DeepBBSRegistration:
 
     @staticmethod
     def _check(points: np.ndarray, name: str) -> np.ndarray:
-        pts = np.asarray(points, dtype=np.float32)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise RegistrationError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
-        if pts.shape[0] < 3:
-            raise RegistrationError(f"{name}: at least 3 points are needed, got {pts.shape[0]}")
-        if not np.isfinite(pts).all():
-            raise RegistrationError(f"{name}: the point cloud contains NaN or infinite coordinates")
-        return pts
+        """A preprocessed cloud: (N >= 3, 3), finite (core/points.py)."""
+        return as_xyz(points, name, finite=True, min_points=3)
 
     # -- registration ----------------------------------------------------------------------------
     def register(
@@ -280,10 +277,17 @@ class DeepBBSRegistration:
             source: (N, 3) source scan, metres, sensor frame (raw, or preprocessed when
                 ``preprocessed`` is True), or a :class:`PreprocessResult` (its ``points``, its
                 ``dense_points`` for the dense refinement and its ``polish_cloud`` for the precision stage).
+                Exactly three columns: a KITTI (N, 4) scan (x, y, z, reflectance) is refused, pass
+                ``scan[:, :3]``. NaN/Inf rows of a raw scan are dropped (missing returns); a preprocessed
+                cloud must be finite (:mod:`deepbbs_ros.core.points`, the check every entry point shares).
             target: (M, 3) target scan, same conventions.
             T_init: (4, 4) initial guess of T_target_source (identity if None).
             preprocessed: skip preprocessing (the clouds are already cropped/sampled; plain arrays carry
                 no dense scan, so the dense refinement and the precision stage are skipped).
+
+        Raises:
+            RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
+                or a ``T_init`` that is not a finite (4, 4) matrix; the message names which.
         """
         clock = _Clock(self.device)
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
@@ -324,7 +328,7 @@ class DeepBBSRegistration:
         if not preprocessed and not isinstance(source, PreprocessResult) and self._n_deep():
             self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
         src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
-        T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        T = np.eye(4) if T_init is None else as_transform(T_init)
         src, tgt = self._scaled(src_np), self._scaled(tgt_np)
         return _State(
             src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pre=src_pre, tgt_pre=tgt_pre,
