@@ -30,6 +30,7 @@ from deepbbs_ros.core.odometry import se3_power
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import prepare_polish_cloud, threads_or_all
 from deepbbs_ros.errors import ConfigError, RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 #: replay method name -> small_gicp ``registration_type``
 SMALL_GICP_TYPES = {"icp": "ICP", "plane-icp": "PLANE_ICP", "gicp": "GICP"}
@@ -46,6 +47,8 @@ class BaselineResult:
         num_inliers: correspondences within ``max_correspondence_distance`` at the end.
         timings_ms: ``{"preprocess", "register", "total"}`` (preprocess 0 when inputs were prepared).
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     converged: bool

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import PointCloudFormatError
+from deepbbs_ros.reprs import short_repr
 from msg_adapters.transforms import time_to_ns
 
 __all__ = [
@@ -65,6 +66,8 @@ class CloudArrays:
             arrays reshape to ``(height, width, ...)`` row-major.
         mask: (height * width,) bool, which raw points were kept (all True when nothing was removed).
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     xyz: np.ndarray
     fields: dict[str, np.ndarray]

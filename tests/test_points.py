@@ -41,7 +41,8 @@ def reg():
 
 #: (bad cloud, what the message must say); the good cloud has 8000 points
 BAD = [
-    ("kitti", lambda p: np.c_[p, np.ones(len(p), np.float32)], r"got shape \(8000, 4\); pass xyz only .*points\[:, :3\]"),
+    ("kitti", lambda p: np.c_[p, np.ones(len(p), np.float32)],
+     r"got shape \(8000, 4\); pass xyz only .*points\[:, :3\]"),
     ("one_d", lambda p: p.reshape(-1), r"expected an \(N, 3\) point array, got shape \(24000,\)"),
     ("single_point", lambda p: p[0], r"got shape \(3,\)"),
     ("organised", lambda p: p.reshape(80, 100, 3), r"got shape \(80, 100, 3\); flatten .*reshape\(-1, 3\)"),

@@ -36,10 +36,11 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
-from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -90,6 +91,8 @@ class OdometryStep:
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
     timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted), "total".
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_first_k: np.ndarray
     T_prev_k: np.ndarray

@@ -34,6 +34,7 @@ import numpy as np
 
 from deepbbs_ros.config import RegistrationConfig
 from deepbbs_ros.core.points import as_xyz
+from deepbbs_ros.reprs import short_repr
 
 __all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "prepared_cloud", "SMALL_GICP_TYPE",
            "threads_or_all"]
@@ -173,6 +174,8 @@ class PolishResult:
         delta_trans_m, delta_rot_deg: how far the polish moved the estimate (also when rejected).
         timings_ms: {"prepare": voxel grid + trees + covariances (0 for prepared clouds), "align", "total"}.
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     applied: bool

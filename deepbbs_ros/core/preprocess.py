@@ -45,6 +45,7 @@ import numpy as np
 from deepbbs_ros.config import PreprocessConfig
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
 _FIT_SAMPLES = 4096  # the ground plane is fitted on at most this many points near the sensor
@@ -155,6 +156,8 @@ class PreprocessResult:
             ``velocity`` = (``T_prev_cur`` (4, 4), seconds); the registration uses it when both scans have
             one and both velocities agree with the pair's own motion (``registration._deskew``).
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     points: np.ndarray
     ground_plane: np.ndarray | None

@@ -53,8 +53,9 @@ from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
 from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError, RegistrationError
+from deepbbs_ros.reprs import short_repr
 
-__all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
+__all__ = ["RegistrationResult", "DeepBBSRegistration", "clear_register_pair_cache", "register_pair"]
 
 _log = logging.getLogger(__name__)
 
@@ -86,6 +87,8 @@ class RegistrationResult:
             else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     converged: bool
@@ -240,8 +243,9 @@ class DeepBBSRegistration:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
-            as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
-            min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads, defer=defer)
+            as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
+            registration_type=SMALL_GICP_TYPE[rc.polish], min_range=pp.min_range, max_range=pp.max_range,
+            threads=rc.polish_threads, defer=defer)
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
@@ -777,13 +781,66 @@ def _orthonormalize(R: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
+_PAIR_CACHE: OrderedDict[tuple, tuple[DeepBBSRegistration, threading.Lock]] = OrderedDict()
+_PAIR_CACHE_SIZE = 2  # registrations kept by register_pair (each holds a network and maybe its worker process)
+_PAIR_CACHE_LOCK = threading.Lock()
+
+
 def register_pair(
     source: np.ndarray, target: np.ndarray, config: Config | None = None, **kwargs: Any
 ) -> RegistrationResult:
     """One-shot convenience: ``DeepBBSRegistration(config, weights=, device=, model=).register(...)``.
 
     ``weights``, ``device`` and ``model`` go to the constructor, everything else to ``register``.
+    The registration object is kept between calls (loading a checkpoint and warming torch up take about
+    2 s): calls with the same checkpoint file (path, size and modification time), device and config reuse
+    it; the two most recent are kept (:func:`clear_register_pair_cache` drops them and stops their network
+    processes). A ``model`` object handed in is used as is and never cached (its weights may change).
     """
     ctor = {k: kwargs.pop(k) for k in ("weights", "device", "model") if k in kwargs}
-    return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
+    if "model" in ctor:
+        return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
+    reg, lock = _cached_registration(config or Config(), ctor.get("weights"), ctor.get("device"))
+    with lock:  # one register() at a time per cached object (it may share one network process)
+        return reg.register(source, target, **kwargs)
 
+
+def _cached_registration(config: Config, weights: str | Path | None,
+                         device: str | None) -> tuple[DeepBBSRegistration, threading.Lock]:
+    path = weights if weights is not None else config.registration.weights
+    path = Path(path).expanduser().resolve() if path else default_weights_path()
+    try:
+        st = path.stat()
+        stamp = (st.st_size, st.st_mtime_ns)
+    except OSError:
+        stamp = None  # the constructor raises ModelError naming the file
+    key = (str(path), stamp, device, tuple((k, repr(v)) for k, v in sorted(config.to_flat().items())))
+    with _PAIR_CACHE_LOCK:
+        hit = _PAIR_CACHE.get(key)
+        if hit is not None:
+            _PAIR_CACHE.move_to_end(key)
+            return hit
+    entry = (DeepBBSRegistration(config, weights=path, device=device), threading.Lock())
+    evicted = []
+    with _PAIR_CACHE_LOCK:
+        if key in _PAIR_CACHE:  # another thread built it meanwhile: use that one
+            evicted.append(entry)
+            entry = _PAIR_CACHE[key]
+        else:
+            _PAIR_CACHE[key] = entry
+        while len(_PAIR_CACHE) > _PAIR_CACHE_SIZE:
+            evicted.append(_PAIR_CACHE.popitem(last=False)[1])
+    for reg, lock in evicted:
+        with lock:  # not in the middle of someone's register()
+            reg.close()
+    return entry
+
+
+def clear_register_pair_cache() -> None:
+    """Forget the registrations :func:`register_pair` keeps (and stop their network processes)."""
+    with _PAIR_CACHE_LOCK:
+        entries = list(_PAIR_CACHE.values())
+        _PAIR_CACHE.clear()
+    for reg, lock in entries:
+        with lock:
+            reg.close()
