@@ -1,6 +1,6 @@
 """Classical baselines that DeepBBS++ is compared with: small_gicp ICP / point-to-plane ICP / GICP, KISS-ICP.
 
-No ROS import. Transforms follow CONVENTIONS.md: registration of ``source`` against ``target`` returns
+No ROS import. Transforms follow docs/CONVENTIONS.md: registration of ``source`` against ``target`` returns
 ``T_target_source`` (4, 4) float64 with ``p_target = R @ p_source + t`` — the same direction as
 ``small_gicp.align(target, source, init_T_target_source)``, pinned by ``tests/test_baselines.py``.
 

@@ -1,6 +1,6 @@
 """4x4 transforms <-> ``Pose`` / ``PoseStamped`` / ``TransformStamped`` / ``nav_msgs/Odometry``, stamps <-> ns.
 
-Conventions (CONVENTIONS.md): a transform is a (4, 4) float64 homogeneous matrix acting on column
+Conventions (docs/CONVENTIONS.md): a transform is a (4, 4) float64 homogeneous matrix acting on column
 vectors, ``p_target = R @ p_source + t``, named ``T_target_source``. A ``PoseStamped`` whose
 ``header.frame_id`` is ``target`` and whose pose is ``T_target_source`` holds ``t`` in
 ``pose.position`` and ``R`` in ``pose.orientation``; a ``TransformStamped`` from ``frame_id`` (target)

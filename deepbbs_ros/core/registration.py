@@ -20,7 +20,7 @@ centimetres. The refinement, the dense refinement and more deep passes remain op
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
-(p_target = R p_source + t, CONVENTIONS.md), float64.
+(p_target = R p_source + t, docs/CONVENTIONS.md), float64.
 """
 
 from __future__ import annotations

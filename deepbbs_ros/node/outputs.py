@@ -9,7 +9,7 @@
   (``frame_id`` = odom frame), so consecutive scans overlay in RViz with the fixed frame ``odom``;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
 
-Frames and stamps follow CONVENTIONS.md: a message's stamp is the source cloud's, never the wall clock.
+Frames and stamps follow docs/CONVENTIONS.md: a message's stamp is the source cloud's, never the wall clock.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
   odometry (scan k registered against scan k-1) stays available as ``odometry_method="scan_to_scan"``
   of :class:`RegistrationNode` (the GICP anchor uses it).
 
-Outputs (CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
+Outputs (docs/CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 * ``~/pose`` (geometry_msgs/PoseStamped). Pair mode: ``T_target_source``, ``frame_id`` = target cloud
   frame, stamp = source stamp. Odometry mode: the pose ``T_odom_k`` of scan k (the odom frame is the
@@ -118,8 +118,8 @@ def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any]
     A name in a declared section that is not a config key (``node.mod``) is an error; a config key of a
     section the node does not use (``train.lr``) and any other unknown name (flat names such as ``mode``)
     are warnings naming the nearest declared parameter; ``odometry.*`` in pair mode (a params file for
-    both modes) is one note. Flat names are not
-    taken as aliases: ``voxel_size`` could be ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
+    both modes) is one note. Flat names are not taken as aliases: ``voxel_size`` could be
+    ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
     sections = {k.partition(".")[0] for k in used}
     errors, warnings, other_mode = [], [], []
     for name in sorted(names):
