@@ -615,6 +615,12 @@ def _run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     [
         (["--ros-args", "-p", "registration.weights:=/nonexistent/w.pt"], r"registration.weights: file not found"),
         (["--ros-args", "-r", "source_cloud:=bad topic"], r"source_cloud|topic|remap|bad topic"),
+        (["--ros-args", "-p", "node.mod:=odometry"], r"deepbbs-node: error: unknown parameter node\.mod; "
+                                                     r"did you mean node\.mode\?"),
+        # KISS-ICP-style flat names: a warning naming the dotted parameter, printed before the model loads
+        (["--ros-args", "-p", "mode:=odometry", "-p", "base_frame:=base_link", "-p", "registration.weights:=/no/w.pt"],
+         r"(?s)unknown parameter base_frame is ignored .*did you mean node\.base_frame\?.*"
+         r"unknown parameter mode is ignored .*did you mean node\.mode\?.*registration.weights: file not found"),
     ],
 )
 def test_cli_startup_errors(tmp_path, args, match):
