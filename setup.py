@@ -6,7 +6,7 @@ The ROS 2 Jazzy Python packages come from PyPI wheels (``ros-jazzy-*``): no ROS 
 
 from glob import glob
 
-from setuptools import find_packages, setup
+from setuptools import find_namespace_packages, setup
 
 package_name = "deepbbs_ros"
 
@@ -40,9 +40,11 @@ setup(
     description="DeepBBS++ LiDAR scan registration for ROS 2 Jazzy: live node, offline replay, odometry benchmark",
     license="BSD-3-Clause",
     python_requires=">=3.10",
-    packages=find_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"]),
-    package_data={"deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*"]},
-    include_package_data=True,
+    # the data folders (models/, resources/) are packages too, so that setuptools ships their files without
+    # "Package would be ignored" warnings; the training state under models/train_state stays in the repository
+    packages=find_namespace_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"],
+                                     exclude=["deepbbs_ros.models.train_state*", "*.__pycache__"]),
+    package_data={"deepbbs_ros.models": ["*.pt", "*.json"], "deepbbs_ros.resources": ["*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
@@ -61,10 +63,8 @@ setup(
             "deepbbs-replay = deepbbs_ros.cli.replay:main",
             "deepbbs-play = deepbbs_ros.cli.play:main",
             "deepbbs-node = deepbbs_ros.node.registration_node:main",
-            # names for `ros2 run deepbbs_ros <executable>` after colcon build
-            "registration_node = deepbbs_ros.node.registration_node:main",
-            "play = deepbbs_ros.cli.play:main",
-            "replay = deepbbs_ros.cli.replay:main",
+            # only deepbbs-* names on the PATH (sox has a `play`); colcon installs these same scripts into
+            # lib/deepbbs_ros (setup.cfg), so `ros2 run deepbbs_ros deepbbs-node` and the launch file use them
         ],
     },
 )

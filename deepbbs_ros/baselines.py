@@ -1,6 +1,6 @@
 """Classical baselines that DeepBBS++ is compared with: small_gicp ICP / point-to-plane ICP / GICP, KISS-ICP.
 
-No ROS import. Transforms follow CONVENTIONS.md: registration of ``source`` against ``target`` returns
+No ROS import. Transforms follow docs/CONVENTIONS.md: registration of ``source`` against ``target`` returns
 ``T_target_source`` (4, 4) float64 with ``p_target = R @ p_source + t`` — the same direction as
 ``small_gicp.align(target, source, init_T_target_source)``, pinned by ``tests/test_baselines.py``.
 
@@ -27,8 +27,10 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.odometry import se3_power
+from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import prepare_polish_cloud, threads_or_all
 from deepbbs_ros.errors import ConfigError, RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 #: replay method name -> small_gicp ``registration_type``
 SMALL_GICP_TYPES = {"icp": "ICP", "plane-icp": "PLANE_ICP", "gicp": "GICP"}
@@ -45,6 +47,8 @@ class BaselineResult:
         num_inliers: correspondences within ``max_correspondence_distance`` at the end.
         timings_ms: ``{"preprocess", "register", "total"}`` (preprocess 0 when inputs were prepared).
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     converged: bool
@@ -83,13 +87,15 @@ class SmallGicpRegistration:
 
     # -- preprocessing ------------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray) -> PreparedCloud:
-        """Raw scan (N, 3) float32/64 in its sensor frame -> :class:`PreparedCloud`.
+        """Raw scan (N, 3) float32/64 in its sensor frame -> :class:`PreparedCloud` (NaN rows dropped).
 
         Raises:
-            RegistrationError: fewer than 10 points survive.
+            RegistrationError: not an (N, 3) real array, empty (:mod:`deepbbs_ros.core.points`), or fewer
+                than 10 points survive.
         """
         ev, pp = self.config.eval, self.config.preprocess
         t0 = time.perf_counter()
+        points = as_xyz(points, self.method, dtype=None)  # (N, 3) only, as every entry point (core/points.py)
         if ev.baseline_input == "deepbbs":
             from deepbbs_ros.core.preprocess import preprocess
 
@@ -115,7 +121,7 @@ class SmallGicpRegistration:
         import small_gicp
 
         ev = self.config.eval
-        init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        init = np.eye(4) if T_init is None else as_transform(T_init)
         t0 = time.perf_counter()
         res = small_gicp.align(
             target.cloud,
@@ -195,7 +201,7 @@ class KissICPOdometry:
     def register(self, points: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Feed the next scan; returns (``T_first_k`` (4, 4) float64 pose of this scan's stamp relative
         to the first scan's, runtime ms). ``times``: (N,) seconds since the scan stamp, or None."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pts = as_xyz(points, "kiss-icp", dtype=np.float64)  # (N, 3) only (core/points.py)
         ok = np.isfinite(pts).all(axis=1)
         pts = pts[ok]
         if pts.shape[0] < 10:

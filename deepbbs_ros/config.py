@@ -4,7 +4,8 @@ The schema is a tree of dataclasses: :class:`Config` has one section per area (`
 ``model``, ``registration``, ``node``, ``train``, ``eval``). The same tree is
 
 * loaded from YAML (``Config.from_yaml``), either plain sections or a ROS 2 parameter file
-  (``<node_name>: ros__parameters: {...}``; ``config/deepbbs_ros.yaml`` is one),
+  (``<node_name>: ros__parameters: {...}`` or ``/**: ros__parameters: {...}``; ``config/deepbbs_ros.yaml``
+  is one, keyed ``/**`` so that it applies to the node under any name),
 * declared as ROS parameters with dotted names (``preprocess.voxel_size``) via
   :meth:`Config.to_flat` / :meth:`Config.from_flat`,
 * saved next to every result (``Config.to_dict``) and inside checkpoints.
@@ -161,7 +162,7 @@ class RegistrationConfig:
     # README 'A busy computer'), and it leaves the other cores to small_gicp and the rest of the robot
     threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
-    success_trans: float = 0.3  # ... the evaluation thresholds (CONVENTIONS.md)
+    success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
 
     def validate(self) -> None:
         dev = self.device
@@ -318,7 +319,7 @@ class TrainConfig:
 
 @dataclass
 class EvalConfig:
-    """Pair protocol and success thresholds of CONVENTIONS.md."""
+    """Pair protocol and success thresholds of docs/CONVENTIONS.md."""
 
     stride: int = 100  # pairs mode: a source frame every `stride` frames
     max_dist: float = 5.0  # m; pairs mode: target = last frame within max_dist of the source

@@ -37,7 +37,7 @@ def generate_launch_description() -> LaunchDescription:
     ]
     node = Node(
         package="deepbbs_ros",
-        executable="registration_node",
+        executable="deepbbs-node",
         name="deepbbs_registration",
         output="screen",
         emulate_tty=True,

@@ -21,6 +21,7 @@ from msg_adapters.transforms import (
     pose_stamped_to_matrix,
     pose_to_matrix,
     stamp_to_ns,
+    time_to_ns,
     transform_stamped_to_matrix,
 )
 
@@ -39,5 +40,6 @@ __all__ = [
     "pose_stamped_to_matrix",
     "pose_to_matrix",
     "stamp_to_ns",
+    "time_to_ns",
     "transform_stamped_to_matrix",
 ]

@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import PointCloudFormatError
+from deepbbs_ros.reprs import short_repr
+from msg_adapters.transforms import time_to_ns
 
 __all__ = [
     "CloudArrays",
@@ -65,6 +67,8 @@ class CloudArrays:
         mask: (height * width,) bool, which raw points were kept (all True when nothing was removed).
     """
 
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
+
     xyz: np.ndarray
     fields: dict[str, np.ndarray]
     stamp_ns: int
@@ -88,8 +92,10 @@ def field_names(msg: Any) -> list[str]:
 
 
 def _stamp_ns(header: Any) -> int:
+    """``header.stamp`` in ns; PointCloudFormatError for a stamp that does not fit builtin_interfaces/Time
+    (``sec`` outside int32, ``nanosec`` >= 1e9): the outputs could not carry it."""
     stamp = header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return time_to_ns(stamp.sec, stamp.nanosec, PointCloudFormatError)
 
 
 def _buffer(msg: Any) -> np.ndarray:
@@ -210,7 +216,8 @@ def pointcloud2_to_arrays(
     Raises:
         PointCloudFormatError: no x/y/z field, a requested field missing, an unknown datatype, a
             field past ``point_step``, ``row_step < width * point_step``, ``len(data) !=
-            row_step * height``, or ``width * height`` not matching the data.
+            row_step * height``, ``width * height`` not matching the data, or a ``header.stamp`` that
+            does not fit ``builtin_interfaces/Time`` (``sec`` outside int32, ``nanosec >= 1e9``).
     """
     byteorder = ">" if bool(msg.is_bigendian) else "<"
     specs = _field_dtypes(msg, byteorder)

@@ -1,6 +1,6 @@
 """4x4 transforms <-> ``Pose`` / ``PoseStamped`` / ``TransformStamped`` / ``nav_msgs/Odometry``, stamps <-> ns.
 
-Conventions (CONVENTIONS.md): a transform is a (4, 4) float64 homogeneous matrix acting on column
+Conventions (docs/CONVENTIONS.md): a transform is a (4, 4) float64 homogeneous matrix acting on column
 vectors, ``p_target = R @ p_source + t``, named ``T_target_source``. A ``PoseStamped`` whose
 ``header.frame_id`` is ``target`` and whose pose is ``T_target_source`` holds ``t`` in
 ``pose.position`` and ``R`` in ``pose.orientation``; a ``TransformStamped`` from ``frame_id`` (target)
@@ -36,6 +36,7 @@ __all__ = [
     "pose_to_matrix",
     "quaternion_to_matrix",
     "stamp_to_ns",
+    "time_to_ns",
     "transform_stamped_to_matrix",
 ]
 
@@ -49,10 +50,29 @@ _ORTHO_TOL = 1e-4  # max |R^T R - I| accepted before a matrix is refused as "not
 # --------------------------------------------------------------------------------------------------
 
 
+def time_to_ns(sec: Any, nanosec: Any, error: type[Exception] = TransformFormatError) -> int:
+    """``builtin_interfaces/Time`` fields -> integer nanoseconds, checked: ``sec`` an int32 and
+    ``0 <= nanosec < 1e9`` (a stamp that does not fit the message, or whose ``nanosec`` would carry into
+    another second, raises ``error`` naming the stamp). Shared by every reader of stamps here."""
+    try:
+        s, n = int(sec), int(nanosec)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise error(f"stamp sec={sec!r} nanosec={nanosec!r} is not a pair of integers") from err
+    if not -(2**31) <= s < 2**31:
+        raise error(f"stamp sec={s} does not fit builtin_interfaces/Time (int32 seconds)")
+    if not 0 <= n < _NS:
+        raise error(f"stamp nanosec={n} is out of range (must be 0 <= nanosec < 1000000000; sec={s})")
+    return s * _NS + n
+
+
 def stamp_to_ns(stamp: Any) -> int:
-    """``builtin_interfaces/Time`` (either flavour, or an ``rclpy.time.Time``) -> integer nanoseconds."""
+    """``builtin_interfaces/Time`` (either flavour, or an ``rclpy.time.Time``) -> integer nanoseconds.
+
+    Raises:
+        TransformFormatError: not a stamp, ``sec`` outside int32 or ``nanosec`` outside [0, 1e9).
+    """
     if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
-        return int(stamp.sec) * _NS + int(stamp.nanosec)
+        return time_to_ns(stamp.sec, stamp.nanosec)
     if hasattr(stamp, "nanoseconds"):  # rclpy.time.Time
         return int(stamp.nanoseconds)
     raise TransformFormatError(f"not a stamp: {type(stamp).__name__} has neither sec/nanosec nor nanoseconds")

@@ -103,12 +103,12 @@ def test_launch_default_params_file_is_the_shipped_yaml():
     assert '("share/" + package_name + "/config", glob("config/*"))' in (REPO / "setup.py").read_text()
     shipped = REPO / rel
     assert shipped.is_file()
-    # the node's parameters are the first entry; the YAML is keyed by the node's name
+    # the node's parameters are the first entry; the YAML is keyed by the /** wildcard (any node name)
     params = _kw(_node_call(), "parameters")
     assert isinstance(params, ast.List) and ast.unparse(params.elts[0]) == "LaunchConfiguration('params_file')"
     doc = yaml.safe_load(shipped.read_text())
-    assert list(doc) == [registration_node.NODE_NAME] and "ros__parameters" in doc[registration_node.NODE_NAME]
-    # every parameter it sets is one the node declares (the node refuses unknown ones)
+    assert list(doc) == ["/**"] and "ros__parameters" in doc["/**"]
+    # every parameter it sets is one the node declares in odometry mode (pair mode notes odometry.* as unused)
     flat: dict[str, object] = {}
 
     def walk(d: dict, prefix: str = "") -> None:
@@ -118,9 +118,9 @@ def test_launch_default_params_file_is_the_shipped_yaml():
             else:
                 flat[f"{prefix}{k}"] = v
 
-    walk(doc[registration_node.NODE_NAME]["ros__parameters"])
-    unknown = sorted(set(flat) - set(Config().to_flat()))
-    assert not unknown, f"{shipped.name} sets parameters the node does not know: {unknown}"
+    walk(doc["/**"]["ros__parameters"])
+    unknown = sorted(set(flat) - set(registration_node.node_parameters(Config(), "odometry")))
+    assert not unknown, f"{shipped.name} sets parameters the node does not declare: {unknown}"
     # the override dict sets node.mode and use_sim_time from launch arguments
     override = ast.unparse(params.elts[1])
     assert "'node.mode': LaunchConfiguration('mode')" in override and "'use_sim_time'" in override
@@ -146,7 +146,7 @@ def test_launch_applies_the_fastdds_profile():
     assert imports and any(a.name == "profile_env" for a in imports[0].names)
     # what that call gives at launch time: the shipped profile (installed as package data) ...
     assert default_profile_path().is_file()
-    assert '"resources/*"' in (REPO / "setup.py").read_text()
+    assert '"deepbbs_ros.resources": ["*.xml"]' in (REPO / "setup.py").read_text()  # test_packaging: in the wheel
     assert profile_env({}) == {k: str(default_profile_path()) for k in PROFILE_ENV_VARS}
     # ... unless the user chose a profile or another RMW
     assert profile_env({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}

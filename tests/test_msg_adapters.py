@@ -377,6 +377,29 @@ def test_malformed_cloud_raises(flavor, mutate, match):
         pointcloud2_to_arrays(msg)
 
 
+@pytest.mark.parametrize("flavor", FLAVORS)
+@pytest.mark.parametrize(
+    "sec,nanosec,match",
+    [
+        (2147483647, 4294967295, r"stamp nanosec=4294967295 is out of range \(must be 0 <= nanosec < 1000000000"),
+        (5, 1_000_000_000, r"stamp nanosec=1000000000 is out of range"),
+        (2**31, 0, r"stamp sec=2147483648 does not fit builtin_interfaces/Time \(int32 seconds\)"),
+        (-(2**31) - 1, 0, r"stamp sec=-2147483649 does not fit"),
+    ],
+)
+def test_stamp_that_does_not_fit_time_is_malformed(flavor, sec, nanosec, match):
+    """A stamp the outputs could not carry (or whose nanosec would carry into another second) is refused
+    at decoding, with the other malformed clouds; the largest valid stamp decodes exactly."""
+    msg = _good(flavor)
+    if flavor == "rclpy" and not (-(2**31) <= sec < 2**31):
+        pytest.skip("rclpy's Time refuses this sec itself (int32 field)")
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    with pytest.raises(PointCloudFormatError, match=match):
+        pointcloud2_to_arrays(msg)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 2**31 - 1, 999_999_999
+    assert pointcloud2_to_arrays(msg).stamp_ns == (2**31 - 1) * 10**9 + 999_999_999
+
+
 def test_missing_requested_field_names_it():
     with pytest.raises(PointCloudFormatError, match=r"no field 'rgb' \(fields: x, y, z, intensity, ring, time\)"):
         pointcloud2_to_arrays(_good(), ["intensity", "rgb"])

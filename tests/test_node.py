@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -46,6 +47,7 @@ from msg_adapters.transforms import (  # noqa: E402
 )
 
 SEC = 1_000_000_000
+REPO = Path(__file__).resolve().parents[1]
 N_POINTS = 30_000  # enough structure for the refinement; keeps the tests fast on 2 cores
 
 TINY = {
@@ -236,6 +238,15 @@ def test_bad_input_rejected_then_recovers(ros, world):
             h.send("target_cloud", good_t, stamp)
             h.send_raw("source_cloud", msg)
             h.wait_processed(k + 1)
+        # stamps that do not fit builtin_interfaces/Time (the pose could not carry them back) or whose
+        # nanosec would carry into another second: refused at the input, with the malformed clouds
+        for sec, nanosec in ((2147483647, 4294967295), (20, 1_000_000_000)):
+            msg = arrays_to_pointcloud2(good_s, stamp_ns=0, frame_id="lidar")
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            cases.append(("malformed_cloud", msg))
+            h.send("target_cloud", good_t, 20 * SEC)
+            h.send_raw("source_cloud", msg)
+            h.wait_processed(len(cases))
         # a source frame different from the one seen before on that input
         h.send("target_cloud", good_t, 30 * SEC)
         h.send("source_cloud", good_s, 30 * SEC)
@@ -281,6 +292,116 @@ def test_odometry_mode_accumulates_and_resets(ros, world):
         h.send("cloud", scan(world, T_w[3], seed=20), 200 * SEC)
         assert h.wait_for(lambda: len(h.poses) == 5)
         np.testing.assert_allclose(pose_stamped_to_matrix(h.poses[4])[0], np.eye(4), atol=1e-9)
+    finally:
+        h.close()
+
+
+def test_odometry_aligned_cloud_lines_up_in_the_odom_frame(ros, world):
+    """Odometry mode's ~/aligned_cloud is the scan moved by T_odom_k into the odom frame and stamped with
+    it: every scan overlays the first one (RViz, fixed frame odom), unlike the raw scans."""
+    from rclpy.qos import qos_profile_sensor_data
+    from scipy.spatial import cKDTree
+
+    from msg_adapters.pointcloud2 import pointcloud2_to_xyz
+
+    cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.publish_aligned_cloud": True})
+    h = Harness(cfg, "reg_aligned")
+    clouds: list[PointCloud2] = []
+    h.client.create_subscription(PointCloud2, "/reg_aligned/aligned_cloud", clouds.append, qos_profile_sensor_data)
+    try:
+        T_w = [at(1.0 * k, 0.05 * k, np.deg2rad(2.0 * k)) for k in range(3)]
+        xyz = [scan(world, T, seed=30 + k) for k, T in enumerate(T_w)]
+        for k in range(3):
+            h.send("cloud", xyz[k], (10 + k) * SEC // 10)
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: len(clouds) == 3 and len(h.poses) == 3), (len(clouds), h.node.stats())
+        first = cKDTree(pointcloud2_to_xyz(clouds[0]))
+        for k, msg in enumerate(clouds):
+            assert msg.header.frame_id == "odom" and msg.header.stamp.sec * SEC + msg.header.stamp.nanosec == (
+                (10 + k) * SEC // 10)
+            T_odom = pose_stamped_to_matrix(h.poses[k])[0]
+            pts = pointcloud2_to_xyz(msg)
+            np.testing.assert_allclose(pts, xyz[k] @ T_odom[:3, :3].T + T_odom[:3, 3], atol=1e-3)
+            if k:  # lines up with the first scan; the raw scan (what the cloud frame shows) does not
+                aligned, raw = np.median(first.query(pts)[0]), np.median(first.query(xyz[k])[0])
+                assert aligned < 0.5 * raw and aligned < 0.3, (k, aligned, raw)
+    finally:
+        h.close()
+
+
+def test_node_declares_only_its_parameters_and_names_the_nearest(ros):
+    """The node declares preprocess.*, registration.*, node.* (and odometry.* in odometry mode), never
+    model.* / train.* / eval.*; flat KISS-ICP-style names are warnings naming the dotted parameter; a
+    misspelt dotted name stops it with the nearest name."""
+    from rclpy.parameter import Parameter
+
+    cfg = tiny_config()
+    flat = [Parameter("mode", value="odometry"), Parameter("base_frame", value="base_link"),
+            Parameter("train.lr", value=0.1), Parameter("odometry.voxel_size", value=1.0),
+            Parameter("qos_overrides./source_cloud.subscription.reliability", value="reliable")]
+    node = RegistrationNode(cfg, registration=tiny_registration(cfg), node_name="reg_params",
+                            parameter_overrides=flat)
+    try:
+        names = set(node._parameters)
+        sections = {n.partition(".")[0] for n in names if "." in n and not n.startswith("qos_overrides.")}
+        assert sections == {"preprocess", "registration", "node"}, sections
+        assert "node.mode" in names and "node.publish_aligned_cloud" in names
+        assert node.cfg.node.mode == "pair" and node.cfg.model == cfg.model  # flat names are not aliases
+        text = "\n".join(node.parameter_warnings)
+        assert "unknown parameter mode is ignored" in text and "did you mean node.mode?" in text
+        assert "unknown parameter base_frame" in text and "did you mean node.base_frame?" in text
+        assert "train.lr is ignored: a deepbbs-train setting" in text
+        assert "odometry" not in text and "qos_overrides" not in text  # a note / rclpy's own parameters
+        # the effective QoS, after qos_overrides (one QoS object per input: the override stays on its topic)
+        assert node.input_qos == {"/source_cloud": "reliable/5", "/target_cloud": "best_effort/5"}
+    finally:
+        node.destroy_node()
+    node = RegistrationNode(cfg, registration=tiny_registration(cfg), node_name="reg_params_odom",
+                            parameter_overrides=[Parameter("node.mode", value="odometry")])
+    try:
+        assert {n.partition(".")[0] for n in node._parameters if "." in n} >= {"odometry"}
+    finally:
+        node.destroy_node()
+    with pytest.raises(NodeError, match=r"unknown parameter node\.mod; did you mean node\.mode\?"):
+        RegistrationNode(cfg, registration=tiny_registration(cfg), node_name="reg_params_bad",
+                         parameter_overrides=[Parameter("node.mod", value="odometry")])
+
+
+def test_params_file_applies_to_a_renamed_node(tmp_path):
+    """config/deepbbs_ros.yaml is keyed by the /** wildcard: it applies whatever the node is renamed to."""
+    import yaml
+    from rclpy.context import Context
+
+    from deepbbs_ros.node.registration_node import NODE_NAME
+
+    shipped = yaml.safe_load((REPO / "config" / "deepbbs_ros.yaml").read_text())
+    assert list(shipped) == ["/**"]
+    shipped["/**"]["ros__parameters"]["node"]["slop"] = 0.123
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(shipped))
+    ctx = Context()
+    rclpy.init(args=["x", "--ros-args", "--params-file", str(path), "-r", "__node:=my_odom"], context=ctx)
+    try:
+        cfg = tiny_config()
+        node = RegistrationNode(cfg, registration=tiny_registration(cfg), node_name=NODE_NAME, context=ctx)
+        try:
+            assert node.get_name() == "my_odom" and node.cfg.node.slop == 0.123
+            assert node.parameter_warnings == []  # the shipped file sets only what the node declares
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_diagnostics_tick_on_the_wall_clock_with_sim_time(ros):
+    """With use_sim_time and no /clock (a bag that ended) ROS time stands still; /diagnostics goes on."""
+    from rclpy.parameter import Parameter
+
+    cfg = tiny_config(**{"node.diagnostics_period": 0.2})
+    h = Harness(cfg, "reg_simtime", parameter_overrides=[Parameter("use_sim_time", value=True)])
+    try:
+        assert h.node.get_clock().now().nanoseconds == 0  # no /clock: sim time is frozen at 0
+        assert h.wait_for(lambda: len(h.diags) >= 3, 20.0), len(h.diags)
     finally:
         h.close()
 
@@ -494,6 +615,12 @@ def _run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     [
         (["--ros-args", "-p", "registration.weights:=/nonexistent/w.pt"], r"registration.weights: file not found"),
         (["--ros-args", "-r", "source_cloud:=bad topic"], r"source_cloud|topic|remap|bad topic"),
+        (["--ros-args", "-p", "node.mod:=odometry"], r"deepbbs-node: error: unknown parameter node\.mod; "
+                                                     r"did you mean node\.mode\?"),
+        # KISS-ICP-style flat names: a warning naming the dotted parameter, printed before the model loads
+        (["--ros-args", "-p", "mode:=odometry", "-p", "base_frame:=base_link", "-p", "registration.weights:=/no/w.pt"],
+         r"(?s)unknown parameter base_frame is ignored .*did you mean node\.base_frame\?.*"
+         r"unknown parameter mode is ignored .*did you mean node\.mode\?.*registration.weights: file not found"),
     ],
 )
 def test_cli_startup_errors(tmp_path, args, match):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -85,6 +86,32 @@ def test_play_errors_are_one_line(tmp_path):
     res = subprocess.run([sys.executable, "-m", "deepbbs_ros.cli.play", str(tmp_path), "--rate", "0"],
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 1 and "--rate must be > 0" in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
+def test_play_stops_cleanly_on_sigterm_and_sigint(ros, tmp_path, sig, code):
+    """SIGTERM (launch, systemd, kill) ends the playback between two messages with exit code 0; Ctrl-C with
+    130; never an RCLError traceback from a publish() on a context the signal shut down."""
+    scans = _drive(3)
+    bag = tmp_path / "drive.mcap"
+    write_scans(scans, bag, "mcap")
+    node = rclpy.create_node("play_stop_listener")
+    clouds = []
+    node.create_subscription(PointCloud2, "/stopped/points", clouds.append, 20)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deepbbs_ros.cli.play", str(bag), "--cloud-topic", "/stopped/points", "--loop",
+         "--rate", "0.5", "--clock-hz", "500", "--wait", "10", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert _spin_until(node, lambda: len(clouds) >= 2 or proc.poll() is not None, 60) and proc.poll() is None
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill() if proc.poll() is None else None
+        node.destroy_node()
+    assert proc.returncode == code, err
+    assert "Traceback" not in err and "RCLError" not in err, err
 
 
 def _shipped_weights() -> Path | None:

@@ -204,6 +204,62 @@ def test_weights_from_checkpoint_and_register_pair(tmp_path, rng):
     assert reg.config.model == TINY and reg.weights_path == path
 
 
+def test_register_pair_keeps_the_loaded_model(tmp_path, rng):
+    """register_pair loads a checkpoint once per (file, device, config): the second call reuses it; a new
+    config or a rewritten file loads again; the cache keeps two."""
+    import os
+
+    from deepbbs_ros.core import registration as core_reg
+    from deepbbs_ros.core.checkpoint import save_checkpoint
+
+    core_reg.clear_register_pair_cache()
+    torch.manual_seed(1)
+    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(TINY), Config())
+    source, target, T_gt = make_pair(rng, n=300, same_sampling=True)
+    cfg = Config().replace(**{"registration.weights": str(path), "registration.device": "cpu", **PAPER})
+    built = []
+    real = core_reg.DeepBBSRegistration.__init__
+
+    def counting(self, *a, **kw):
+        built.append(self)
+        real(self, *a, **kw)
+
+    core_reg.DeepBBSRegistration.__init__ = counting
+    try:
+        first = register_pair(source, target, cfg, preprocessed=True)
+        second = register_pair(source, target, cfg, preprocessed=True)
+        assert len(built) == 1
+        np.testing.assert_array_equal(first.T_target_source, second.T_target_source)
+        assert errors(second.T_target_source, T_gt)[1] < 0.02
+        register_pair(source, target, cfg.replace(**{"registration.refine_max_iters": 40}), preprocessed=True)
+        assert len(built) == 2
+        st = path.stat()
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # a retrained checkpoint, same name
+        register_pair(source, target, cfg, preprocessed=True)
+        assert len(built) == 3 and len(core_reg._PAIR_CACHE) == 2
+        register_pair(source, target, cfg, preprocessed=True, model=DeepBBSNet(TINY).eval())  # never cached
+        assert len(built) == 4 and len(core_reg._PAIR_CACHE) == 2
+    finally:
+        core_reg.DeepBBSRegistration.__init__ = real
+        core_reg.clear_register_pair_cache()
+    assert not core_reg._PAIR_CACHE
+
+
+def test_result_repr_is_short(rng):
+    """print(result) is one readable line: the transform as translation + angle, gamma as its shape."""
+    from deepbbs_ros.core.preprocess import preprocess
+
+    source, target, _ = make_pair(rng, same_sampling=True)
+    res = tiny_registration().register(source, target, preprocessed=True)
+    text = repr(res)
+    assert len(text) < 600 and "\n" not in text, text
+    assert text.startswith("RegistrationResult(T_target_source=T(t=[") and " m, rot=" in text
+    assert f"gamma=array(shape=({len(source)},), dtype=float32)" in text
+    assert "inlier_ratio=" in text and "converged=" in text
+    pp = repr(preprocess(source, Config().preprocess.__class__(remove_ground=False, num_points=100)))
+    assert pp.startswith("PreprocessResult(points=array(shape=(100, 3), dtype=float32)") and len(pp) < 600, pp
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_cpu_and_cuda_registration_agree(rng):
     source, target, T_gt = make_pair(rng, same_sampling=True)

@@ -200,6 +200,18 @@ def test_stamps(flavor, ns, sec, nanosec):
     assert stamp_to_ns(stamp) == ns
 
 
+@pytest.mark.parametrize("flavor", FLAVORS)
+def test_stamp_out_of_range_raises(flavor):
+    stamp = ns_to_stamp(0, flavor)
+    stamp.sec, stamp.nanosec = 3, 1_000_000_000  # would read as 4 s
+    with pytest.raises(TransformFormatError, match=r"nanosec=1000000000 is out of range"):
+        stamp_to_ns(stamp)
+    if flavor == "rosbags":  # rclpy's Time refuses a sec outside int32 itself
+        stamp.sec, stamp.nanosec = 2**31, 0
+        with pytest.raises(TransformFormatError, match=r"sec=2147483648 does not fit"):
+            stamp_to_ns(stamp)
+
+
 def test_stamp_from_rclpy_time():
     from rclpy.time import Time
 

@@ -8,12 +8,15 @@ reads (ROS 1/2 bags, mcap, Apollo-style and KITTI folders) drives the live node:
 
 Clouds keep their recorded stamps and frames; ``/clock`` follows the recording's time (scaled by
 ``--rate``) so nodes with ``use_sim_time`` see the recording's clock. Ground truth, when present, is
-published as ``geometry_msgs/PoseStamped`` on ``--gt-topic``.
+published as ``geometry_msgs/PoseStamped`` on ``--gt-topic``. SIGTERM stops it cleanly between two
+messages (exit code 0); Ctrl-C exits with 130.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
+import threading
 import time
 
 from deepbbs_ros.cli.common import cli_entry, local_ros_env
@@ -79,7 +82,13 @@ def main(argv: list[str] | None = None) -> int:
 
     cloud_topic = args.cloud_topic or source.topic
     gt_topic = args.gt_topic or GT_POSE_TOPIC
-    rclpy.init(args=None)
+    # SIGTERM (a launch file, systemd, `kill`) stops the loop between two messages; rclpy's own handler would
+    # invalidate the context under a publish() and end in an RCLError traceback. Ctrl-C stays KeyboardInterrupt.
+    from rclpy.signals import SignalHandlerOptions
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("deepbbs_play")
     try:
         qos = QoSProfile(
@@ -104,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.frames:
             total = min(total, args.frames)
         bar = tqdm(total=max(total, 0), unit="frames", disable=args.quiet, desc=f"play -> {cloud_topic}")
-        while True:
+        while not stop.is_set():
             t0_wall = None
             stamp0 = 0
             for k, scan in enumerate(source):
@@ -115,12 +124,14 @@ def main(argv: list[str] | None = None) -> int:
                 if t0_wall is None:
                     t0_wall, stamp0 = time.monotonic(), scan.stamp_ns
                 due = t0_wall + (scan.stamp_ns - stamp0) * 1e-9 / args.rate
-                while True:  # /clock ticks while waiting for the frame's time
+                while not stop.is_set():  # /clock ticks while waiting for the frame's time
                     now = time.monotonic()
                     if now >= due:
                         break
                     clock(stamp0 + int((now - t0_wall) * args.rate * 1e9))
                     time.sleep(min(1.0 / args.clock_hz, due - now))
+                if stop.is_set():
+                    break
                 clock(scan.stamp_ns)
                 msg = arrays_to_pointcloud2(
                     scan.points, dict(scan.fields), stamp_ns=scan.stamp_ns, frame_id=scan.frame_id
@@ -137,10 +148,12 @@ def main(argv: list[str] | None = None) -> int:
             bar.reset()
         bar.close()
         time.sleep(0.2)  # let the last messages leave before the participant goes away
-        node.get_logger().info(f"published {sent} frames on {cloud_topic}")
+        node.get_logger().info(f"published {sent} frames on {cloud_topic}" + (" (stopped by SIGTERM)" if stop.is_set()
+                                                                             else ""))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGTERM, previous)
     return 0
 
 

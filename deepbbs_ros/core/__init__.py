@@ -12,6 +12,7 @@ _EXPORTS = {
     "DeepBBSRegistration": "registration",
     "RegistrationResult": "registration",
     "register_pair": "registration",
+    "clear_register_pair_cache": "registration",
     "DeepBBSNet": "model",
     "NetOutput": "model",
     "weighted_procrustes": "procrustes",

@@ -36,9 +36,11 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
 from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -89,6 +91,8 @@ class OdometryStep:
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
     timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted), "total".
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_first_k: np.ndarray
     T_prev_k: np.ndarray
@@ -147,8 +151,9 @@ class DeepBBSOdometry:
     # -- the pipeline ------------------------------------------------------------------------------
     def register_frame(self, points: np.ndarray, times: np.ndarray | None = None,
                        stamp_ns: int | None = None) -> OdometryStep:
-        """Add scan k: (N, 3) xyz in its sensor frame (metres, NaN allowed), optional (N,) per-point
-        times in seconds since ``stamp_ns`` (the scan stamp, ns). Returns the :class:`OdometryStep`."""
+        """Add scan k: (N, 3) xyz in its sensor frame (metres, NaN rows dropped; another shape is a
+        RegistrationError, :mod:`deepbbs_ros.core.points`), optional (N,) per-point times in seconds since
+        ``stamp_ns`` (the scan stamp, ns). Returns the :class:`OdometryStep`."""
         clock = _Laps()
         oc = self.config.odometry
         scale, gap = self._time_scale(stamp_ns)
@@ -227,7 +232,7 @@ class DeepBBSOdometry:
         from deepbbs_ros.core.preprocess import crop_range
 
         pp = self.config.preprocess
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pts = as_xyz(points, "odometry", dtype=np.float64)  # (N, 3) only (core/points.py)
         if delta is None and self.frames >= 2 and self.period > 0:
             delta = self._deskew_delta()
         if delta is not None and self._has_times(times):

@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import RegistrationConfig
+from deepbbs_ros.core.points import as_xyz
+from deepbbs_ros.reprs import short_repr
 
 __all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "prepared_cloud", "SMALL_GICP_TYPE",
            "threads_or_all"]
@@ -102,9 +104,7 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        pts = pts.reshape(-1, 3)
+    pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer)
     out.n_cropped = len(pts)
@@ -155,7 +155,7 @@ def _as_cloud(c: np.ndarray | PolishCloud, cfg: RegistrationConfig, reg_type: st
     """A prepared cloud as is; raw (N, 3) points: finite rows, ``polish_voxel`` grid, covariances."""
     if isinstance(c, PolishCloud):
         return c.complete()
-    pts = np.asarray(c, dtype=np.float64).reshape(-1, 3)
+    pts = as_xyz(c, "polish", dtype=np.float64)
     return _prepared(pts[np.isfinite(pts).all(axis=1)], cfg.polish_voxel, cfg.polish_neighbors, reg_type,
                      cfg.polish_threads)
 
@@ -174,6 +174,8 @@ class PolishResult:
         delta_trans_m, delta_rot_deg: how far the polish moved the estimate (also when rejected).
         timings_ms: {"prepare": voxel grid + trees + covariances (0 for prepared clouds), "align", "total"}.
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     applied: bool

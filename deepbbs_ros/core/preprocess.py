@@ -43,7 +43,9 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import PreprocessConfig
+from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.reprs import short_repr
 
 MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
 _FIT_SAMPLES = 4096  # the ground plane is fitted on at most this many points near the sensor
@@ -154,6 +156,8 @@ class PreprocessResult:
             ``velocity`` = (``T_prev_cur`` (4, 4), seconds); the registration uses it when both scans have
             one and both velocities agree with the pair's own motion (``registration._deskew``).
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     points: np.ndarray
     ground_plane: np.ndarray | None
@@ -562,12 +566,5 @@ def _r2_xy(pts: np.ndarray) -> np.ndarray:
 
 
 def _as_points(points: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 view/copy of ``points``; raises RegistrationError on another shape."""
-    arr = np.asarray(points)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        if arr.size == 0:
-            return np.zeros((0, 3), dtype=np.float32)
-        raise RegistrationError(f"expected an (N, 3) point array, got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number):
-        raise RegistrationError(f"expected a numeric point array, got dtype {arr.dtype}")
-    return np.ascontiguousarray(arr, dtype=np.float32)
+    """(N, 3) float32 view/copy of ``points``; RegistrationError otherwise (the shared check, core/points.py)."""
+    return as_xyz(points, "preprocess")

@@ -26,6 +26,7 @@ import torch
 
 from deepbbs_ros.core import softbbs
 from deepbbs_ros.core.procrustes import apply_transform, weighted_procrustes
+from deepbbs_ros.reprs import short_repr
 
 __all__ = ["RefineResult", "refine", "rotation_angle_deg", "NeighbourSearch"]
 
@@ -33,6 +34,8 @@ __all__ = ["RefineResult", "refine", "rotation_angle_deg", "NeighbourSearch"]
 @dataclass
 class RefineResult:
     """R (3, 3), t (3,) (scaled units; p_target = R p_source + t), iterations, converged, gamma (N,)."""
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     R: torch.Tensor
     t: torch.Tensor

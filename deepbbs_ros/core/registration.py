@@ -20,7 +20,7 @@ centimetres. The refinement, the dense refinement and more deep passes remain op
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
-(p_target = R p_source + t, CONVENTIONS.md), float64.
+(p_target = R p_source + t, docs/CONVENTIONS.md), float64.
 """
 
 from __future__ import annotations
@@ -46,14 +46,16 @@ from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
 from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
+from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
 from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError, RegistrationError
+from deepbbs_ros.reprs import short_repr
 
-__all__ = ["RegistrationResult", "DeepBBSRegistration", "register_pair"]
+__all__ = ["RegistrationResult", "DeepBBSRegistration", "clear_register_pair_cache", "register_pair"]
 
 _log = logging.getLogger(__name__)
 
@@ -85,6 +87,8 @@ class RegistrationResult:
             else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
     """
+
+    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
 
     T_target_source: np.ndarray
     converged: bool
@@ -204,6 +208,7 @@ class DeepBBSRegistration:
         precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
         """
         pp, rc = self.config.preprocess, self.config.registration
+        points = as_xyz(points, "preprocess")  # (N, 3) real numbers, NaN rows dropped by the crop (core/points.py)
         keep_raw, deskew_ms = None, None
         if pp.deskew and times is not None:
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -238,8 +243,9 @@ class DeepBBSRegistration:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
-            points, rc.polish_voxel, rc.polish_neighbors, registration_type=SMALL_GICP_TYPE[rc.polish],
-            min_range=pp.min_range, max_range=pp.max_range, threads=rc.polish_threads, defer=defer)
+            as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
+            registration_type=SMALL_GICP_TYPE[rc.polish], min_range=pp.min_range, max_range=pp.max_range,
+            threads=rc.polish_threads, defer=defer)
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
@@ -249,6 +255,7 @@ class DeepBBSRegistration:
         if not isinstance(points, PreprocessResult):
             if preprocessed:
                 return self._check(points, name), None, None
+            points = as_xyz(points, name)  # the raw scan: errors name the source / target
             # the GICP cloud's k-d tree and covariances wait for the network process (_precision_clouds)
             points = self.preprocess(points, defer=self._n_deep() > 0 and self._net_state in ("unstarted", "running"))
         dense = points.dense_points
@@ -256,14 +263,8 @@ class DeepBBSRegistration:
 
     @staticmethod
     def _check(points: np.ndarray, name: str) -> np.ndarray:
-        pts = np.asarray(points, dtype=np.float32)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise RegistrationError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
-        if pts.shape[0] < 3:
-            raise RegistrationError(f"{name}: at least 3 points are needed, got {pts.shape[0]}")
-        if not np.isfinite(pts).all():
-            raise RegistrationError(f"{name}: the point cloud contains NaN or infinite coordinates")
-        return pts
+        """A preprocessed cloud: (N >= 3, 3), finite (core/points.py)."""
+        return as_xyz(points, name, finite=True, min_points=3)
 
     # -- registration ----------------------------------------------------------------------------
     def register(
@@ -280,10 +281,17 @@ class DeepBBSRegistration:
             source: (N, 3) source scan, metres, sensor frame (raw, or preprocessed when
                 ``preprocessed`` is True), or a :class:`PreprocessResult` (its ``points``, its
                 ``dense_points`` for the dense refinement and its ``polish_cloud`` for the precision stage).
+                Exactly three columns: a KITTI (N, 4) scan (x, y, z, reflectance) is refused, pass
+                ``scan[:, :3]``. NaN/Inf rows of a raw scan are dropped (missing returns); a preprocessed
+                cloud must be finite (:mod:`deepbbs_ros.core.points`, the check every entry point shares).
             target: (M, 3) target scan, same conventions.
             T_init: (4, 4) initial guess of T_target_source (identity if None).
             preprocessed: skip preprocessing (the clouds are already cropped/sampled; plain arrays carry
                 no dense scan, so the dense refinement and the precision stage are skipped).
+
+        Raises:
+            RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
+                or a ``T_init`` that is not a finite (4, 4) matrix; the message names which.
         """
         clock = _Clock(self.device)
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
@@ -324,7 +332,7 @@ class DeepBBSRegistration:
         if not preprocessed and not isinstance(source, PreprocessResult) and self._n_deep():
             self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
         src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
-        T = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64).reshape(4, 4)
+        T = np.eye(4) if T_init is None else as_transform(T_init)
         src, tgt = self._scaled(src_np), self._scaled(tgt_np)
         return _State(
             src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pre=src_pre, tgt_pre=tgt_pre,
@@ -773,13 +781,66 @@ def _orthonormalize(R: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
+_PAIR_CACHE: OrderedDict[tuple, tuple[DeepBBSRegistration, threading.Lock]] = OrderedDict()
+_PAIR_CACHE_SIZE = 2  # registrations kept by register_pair (each holds a network and maybe its worker process)
+_PAIR_CACHE_LOCK = threading.Lock()
+
+
 def register_pair(
     source: np.ndarray, target: np.ndarray, config: Config | None = None, **kwargs: Any
 ) -> RegistrationResult:
     """One-shot convenience: ``DeepBBSRegistration(config, weights=, device=, model=).register(...)``.
 
     ``weights``, ``device`` and ``model`` go to the constructor, everything else to ``register``.
+    The registration object is kept between calls (loading a checkpoint and warming torch up take about
+    2 s): calls with the same checkpoint file (path, size and modification time), device and config reuse
+    it; the two most recent are kept (:func:`clear_register_pair_cache` drops them and stops their network
+    processes). A ``model`` object handed in is used as is and never cached (its weights may change).
     """
     ctor = {k: kwargs.pop(k) for k in ("weights", "device", "model") if k in kwargs}
-    return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
+    if "model" in ctor:
+        return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
+    reg, lock = _cached_registration(config or Config(), ctor.get("weights"), ctor.get("device"))
+    with lock:  # one register() at a time per cached object (it may share one network process)
+        return reg.register(source, target, **kwargs)
 
+
+def _cached_registration(config: Config, weights: str | Path | None,
+                         device: str | None) -> tuple[DeepBBSRegistration, threading.Lock]:
+    path = weights if weights is not None else config.registration.weights
+    path = Path(path).expanduser().resolve() if path else default_weights_path()
+    try:
+        st = path.stat()
+        stamp = (st.st_size, st.st_mtime_ns)
+    except OSError:
+        stamp = None  # the constructor raises ModelError naming the file
+    key = (str(path), stamp, device, tuple((k, repr(v)) for k, v in sorted(config.to_flat().items())))
+    with _PAIR_CACHE_LOCK:
+        hit = _PAIR_CACHE.get(key)
+        if hit is not None:
+            _PAIR_CACHE.move_to_end(key)
+            return hit
+    entry = (DeepBBSRegistration(config, weights=path, device=device), threading.Lock())
+    evicted = []
+    with _PAIR_CACHE_LOCK:
+        if key in _PAIR_CACHE:  # another thread built it meanwhile: use that one
+            evicted.append(entry)
+            entry = _PAIR_CACHE[key]
+        else:
+            _PAIR_CACHE[key] = entry
+        while len(_PAIR_CACHE) > _PAIR_CACHE_SIZE:
+            evicted.append(_PAIR_CACHE.popitem(last=False)[1])
+    for reg, lock in evicted:
+        with lock:  # not in the middle of someone's register()
+            reg.close()
+    return entry
+
+
+def clear_register_pair_cache() -> None:
+    """Forget the registrations :func:`register_pair` keeps (and stop their network processes)."""
+    with _PAIR_CACHE_LOCK:
+        entries = list(_PAIR_CACHE.values())
+        _PAIR_CACHE.clear()
+    for reg, lock in entries:
+        with lock:
+            reg.close()

@@ -4,10 +4,12 @@
 * ``~/odometry`` (nav_msgs/Odometry: pose, twist and both covariances) when ``node.publish_odometry``;
 * ``/tf`` (the same transform) when ``node.publish_tf``; needs tf2_msgs, or a ``tf_broadcaster``
   callable given to the node;
-* ``~/aligned_cloud`` (the source moved into the target frame) when ``node.publish_aligned_cloud``;
+* ``~/aligned_cloud`` when ``node.publish_aligned_cloud``: pair mode, the source moved into the target
+  frame (``frame_id`` = target frame); odometry mode, the scan moved by ``T_odom_k`` into ``node.odom_frame``
+  (``frame_id`` = odom frame), so consecutive scans overlay in RViz with the fixed frame ``odom``;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
 
-Frames and stamps follow CONVENTIONS.md: a message's stamp is the source cloud's, never the wall clock.
+Frames and stamps follow docs/CONVENTIONS.md: a message's stamp is the source cloud's, never the wall clock.
 """
 
 from __future__ import annotations
@@ -92,7 +94,8 @@ class Outputs:
         self._aligned(src, reg.T, tgt.frame_id)
 
     def odometry_step(self, cloud: Cloud, step: OdometryEstimate) -> None:
-        """Odometry mode: ``T_odom_k`` in ``node.odom_frame`` -> ``node.base_frame`` (or the cloud frame)."""
+        """Odometry mode: ``T_odom_k`` in ``node.odom_frame`` -> ``node.base_frame`` (or the cloud frame);
+        ``~/aligned_cloud``: the scan in the odom frame."""
         odom, child = self.cfg.odom_frame, self.cfg.base_frame or cloud.frame_id
         self._pose_and_transform(step.T_odom, cloud.stamp_ns, odom, child)
         if self.odometry is not None:
@@ -100,8 +103,9 @@ class Outputs:
                 matrix_to_odometry(step.T_odom, cloud.stamp_ns, odom, child, step.twist, step.pose_covariance,
                                    step.twist_covariance)
             )  # fmt: skip
-        if step.T_prev_curr is not None:
-            self._aligned(cloud, step.T_prev_curr, cloud.frame_id)  # into the previous scan's frame
+        # the scan moved by its pose into the odom frame, stamped with that frame: it lines up with every
+        # earlier scan in RViz (fixed frame odom), whatever TF holds
+        self._aligned(cloud, step.T_odom, odom)
 
     def _aligned(self, src: Cloud, T: np.ndarray, frame: str) -> None:
         if self.aligned is None:

@@ -1,4 +1,4 @@
-"""The live registration node ``deepbbs_registration`` (console scripts ``deepbbs-node``, ``registration_node``).
+"""The live registration node ``deepbbs_registration`` (console script ``deepbbs-node``).
 
 Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points``):
 
@@ -12,7 +12,7 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
   odometry (scan k registered against scan k-1) stays available as ``odometry_method="scan_to_scan"``
   of :class:`RegistrationNode` (the GICP anchor uses it).
 
-Outputs (CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
+Outputs (docs/CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 * ``~/pose`` (geometry_msgs/PoseStamped). Pair mode: ``T_target_source``, ``frame_id`` = target cloud
   frame, stamp = source stamp. Odometry mode: the pose ``T_odom_k`` of scan k (the odom frame is the
@@ -22,8 +22,8 @@ Outputs (CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 * opt-in: ``~/odometry`` (nav_msgs/Odometry: twist from the motion since the previous scan over the stamp
   gap, covariances from the registration residuals of that motion, :mod:`deepbbs_ros.node.covariance`,
   accumulated along the trajectory in odometry mode), ``/tf`` (``node.publish_tf``; needs
-  tf2_msgs; odometry mode broadcasts ``odom_frame -> base_frame``), ``~/aligned_cloud`` (the source
-  cloud moved into the target frame).
+  tf2_msgs; odometry mode broadcasts ``odom_frame -> base_frame``), ``~/aligned_cloud`` (pair mode: the
+  source cloud moved into the target frame; odometry mode: the scan moved into ``node.odom_frame``).
 * ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind,
   model, device. ``~/reset`` (std_srvs/Trigger): restart odometry at identity and clear the synchroniser.
 
@@ -51,6 +51,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -73,6 +74,80 @@ NODE_NAME = "deepbbs_registration"
 ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 PAIR_INPUTS = ("source_cloud", "target_cloud")
 ODOM_INPUT = "cloud"
+
+
+#: the config sections the node reads (declared as ROS parameters); ``odometry`` too in odometry mode. ``model``
+#: comes from the checkpoint, ``train`` / ``eval`` belong to deepbbs-train / deepbbs-replay.
+NODE_SECTIONS = ("preprocess", "registration", "node")
+_NOT_NODE = {
+    "model": "the model section comes from the checkpoint (registration.weights)",
+    "train": "a deepbbs-train setting",
+    "eval": "a deepbbs-replay setting",
+    "odometry": "used in node.mode odometry only",
+}
+
+
+def node_parameters(cfg: Config, mode: str) -> dict[str, Any]:
+    """The parameters the node declares (dotted name -> value of ``cfg``) for ``mode``: every key of
+    :data:`NODE_SECTIONS`, plus ``odometry.*`` in odometry mode. New keys of these sections are picked up."""
+    sections = NODE_SECTIONS + (("odometry",) if mode == "odometry" else ())
+    return {k: v for k, v in cfg.to_flat().items() if k.partition(".")[0] in sections}
+
+
+def nearest_parameter(name: str, known: Any) -> list[str]:
+    """The known dotted names closest to ``name``: those whose last part equals its last part (flat,
+    KISS-ICP-style names such as ``mode`` or ``base_frame``), else the closest spellings."""
+    import difflib
+
+    known = list(known)
+    leaf = name.rpartition(".")[2]
+    same = [k for k in known if k.rpartition(".")[2] == leaf]
+    if same:
+        return same
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    if close:
+        return close
+    leaves = {k.rpartition(".")[2]: k for k in known}
+    return [leaves[m] for m in difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.6)]
+
+
+def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any],
+                          mode: str) -> tuple[list[str], list[str], list[str]]:
+    """(errors, warnings, notes) for parameter names given to the node that it does not declare.
+
+    A name in a declared section that is not a config key (``node.mod``) is an error; a config key of a
+    section the node does not use (``train.lr``) and any other unknown name (flat names such as ``mode``)
+    are warnings naming the nearest declared parameter; ``odometry.*`` in pair mode (a params file for
+    both modes) is one note. Flat names are not taken as aliases: ``voxel_size`` could be
+    ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
+    sections = {k.partition(".")[0] for k in used}
+    errors, warnings, other_mode = [], [], []
+    for name in sorted(names):
+        if name in used:
+            continue
+        section = name.partition(".")[0]
+        near = nearest_parameter(name, used)
+        hint = f"; did you mean {' or '.join(near)}?" if near else ""
+        if name in flat and section == "odometry":  # a params file for both modes: one line for them all
+            other_mode.append(name)
+        elif name in flat:
+            why = _NOT_NODE.get(section, "not a node parameter")
+            warnings.append(f"parameter {name} is ignored: {why}")
+        elif "." in name and section in sections:
+            errors.append(f"unknown parameter {name}{hint}")
+        else:
+            warnings.append(f"unknown parameter {name} is ignored (the node's parameters are dotted, "
+                            f"e.g. node.mode){hint}")
+    notes = []
+    if other_mode:
+        notes.append(f"{len(other_mode)} odometry.* parameter(s) not used: {_NOT_NODE['odometry']} (node.mode={mode})")
+    return errors, warnings, notes
+
+
+def _qos_text(qos: QoSProfile) -> str:
+    """``reliable/5`` or ``best_effort/5`` (reliability / history depth)."""
+    rel = "reliable" if qos.reliability == ReliabilityPolicy.RELIABLE else "best_effort"
+    return f"{rel}/{qos.depth}"
 
 
 def _validate_frame(key: str, frame: str) -> None:
@@ -180,18 +255,12 @@ class RegistrationNode(Node):
         self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry)
 
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
-        qos = QoSProfile(
-            depth=ncfg.qos_depth,
-            history=HistoryPolicy.KEEP_LAST,
-            reliability=ReliabilityPolicy.BEST_EFFORT
-            if ncfg.qos_reliability == "best_effort"
-            else ReliabilityPolicy.RELIABLE,
-        )
         self.inputs: list[CloudInput] = []
         try:
-            self.outputs = Outputs(self, ncfg, qos, self._errors.log, tf_broadcaster)
+            self.outputs = Outputs(self, ncfg, self._qos(), self._errors.log, tf_broadcaster)
             names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
-            self._subs = [self._make_input(i, name, qos) for i, name in enumerate(names)]
+            # one QoS object per subscription: rclpy applies qos_overrides.<topic>.* to it in place
+            self._subs = [self._make_input(i, name, self._qos()) for i, name in enumerate(names)]
         except NodeError:
             self._stop_threads()
             raise
@@ -199,12 +268,29 @@ class RegistrationNode(Node):
             self._stop_threads()
             raise NodeError(f"cannot create topics: {err}".replace("\n", " ")) from err
         self.srv_reset = self.create_service(Trigger, "~/reset", self._on_reset)
-        self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics)
+        # diagnostics on the steady (wall) clock: with use_sim_time a ROS-time timer stops with /clock (a bag
+        # that ended would leave the counters frozen); the messages still carry the node's time
+        self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        #: the QoS each input really got, after ``qos_overrides.<topic>.subscription.*``: topic -> "reliable/5"
+        self.input_qos = {inp.topic: _qos_text(sub.qos_profile) for inp, sub in zip(self.inputs, self._subs)}
+        qos_text = ", ".join(f"{t}: {q}" for t, q in self.input_qos.items())
         self.get_logger().info(
             f"mode={ncfg.mode} inputs=[{', '.join(i.topic for i in self.inputs)}] device={self._device} "
-            f"weights={self._weights} qos={ncfg.qos_reliability}/{ncfg.qos_depth} slop={ncfg.slop}s "
+            f"weights={self._weights} qos=[{qos_text}] slop={ncfg.slop}s "
             f"queue={ncfg.queue_size}" + (f" odometry={self.odometry_method}" if self.odometry else "")
+        )
+
+    def _qos(self) -> QoSProfile:
+        """A new QoS profile from ``node.qos_reliability`` / ``node.qos_depth``."""
+        ncfg = self.cfg.node
+        return QoSProfile(
+            depth=ncfg.qos_depth,
+            history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.BEST_EFFORT
+            if ncfg.qos_reliability == "best_effort"
+            else ReliabilityPolicy.RELIABLE,
         )
 
     def _make_odometry(self) -> LocalMapOdometry | ScanToScanOdometry | None:
@@ -223,22 +309,33 @@ class RegistrationNode(Node):
 
     # -- parameters ---------------------------------------------------------------------------------
     def _declare_config(self, defaults: Config) -> Config:
+        """Declare the parameters of :data:`NODE_SECTIONS` (and ``odometry.*`` in odometry mode), read them
+        and return the config (the other sections keep ``defaults``). Names the node does not use are
+        reported (:func:`check_parameter_names`): a misspelt name in a declared section is a NodeError, any
+        other unknown or unused name a warning naming the nearest parameter."""
         flat = defaults.to_flat()
-        sections = {k.partition(".")[0] for k in flat}
         overrides = getattr(self, "_parameter_overrides", {}) or {}
-        unknown = sorted(k for k in overrides if k.partition(".")[0] in sections and k not in flat)
-        if unknown:
-            raise NodeError(f"unknown parameter(s): {', '.join(unknown)}")
-        for key, value in flat.items():
+        mode = overrides["node.mode"].value if "node.mode" in overrides else defaults.node.mode
+        used = node_parameters(defaults, mode)
+        ignore = [n for n in overrides if n not in used and (self.has_parameter(n) or n.startswith("qos_overrides."))]
+        errors, warnings, notes = check_parameter_names([n for n in overrides if n not in ignore], used, flat, mode)
+        if errors:
+            raise NodeError("; ".join(errors))
+        for text in warnings:
+            self.get_logger().warning(text)
+        for text in notes:
+            self.get_logger().info(text)
+        self.parameter_warnings = warnings
+        for key, value in used.items():
             self.declare_parameter(key, value, ParameterDescriptor(name=key, dynamic_typing=True))
-        values = {k: self.get_parameter(k).value for k in flat}
+        values = {k: self.get_parameter(k).value for k in used}
         try:
-            return Config.from_flat(values)
+            return Config.from_flat({**flat, **values})
         except ConfigError as err:
             raise NodeError(str(err)) from err
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        ours = [p.name for p in params if p.name in self.cfg.to_flat()]
+        ours = [p.name for p in params if p.name in node_parameters(self.cfg, self.cfg.node.mode)]
         if ours:
             return SetParametersResult(successful=False, reason=f"restart the node to change {', '.join(ours)}")
         return SetParametersResult(successful=True)
