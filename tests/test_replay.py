@@ -196,8 +196,9 @@ def test_odometry_without_ground_truth(scans, fast_config, tmp_path):
 
 
 def test_reader_fault_mid_recording_keeps_results(scans, fast_config, tmp_path, capsys):
-    """An Apollo folder whose 7th PCD is corrupt: the 6 frames before it are evaluated and written,
-    metrics.json says complete: false, and the CLI reports one error line with exit code 1."""
+    """An Apollo folder whose 7th PCD is corrupt: it costs only its own frame (the 6 frames before it and
+    the 3 after it are evaluated and written), metrics.json says complete: false and why, and the CLI
+    reports one error line with exit code 1."""
     folder = tmp_path / "apollo"
     write_scans(scans[:10], folder, "apollo")
     pcds = sorted((folder / "pcds").glob("*.pcd"), key=lambda p: int(p.stem))
@@ -210,9 +211,11 @@ def test_reader_fault_mid_recording_keeps_results(scans, fast_config, tmp_path, 
     assert len(err) == 1 and err[0].startswith("deepbbs-replay: error: recording fault after 6 frames")
     run = (out / "latest").resolve()
     doc = json.loads((run / "metrics.json").read_text())
-    assert doc["complete"] is False and doc["methods"]["gicp"]["frames"] == 6
-    assert any("recording fault" in e for e in doc["errors"])
-    assert metrics.read_kitti(run / "traj" / "gicp.kitti").shape == (6, 4, 4)
+    assert doc["complete"] is False and doc["methods"]["gicp"]["frames"] == 9
+    assert len(doc["errors"]) == 1 and "7.pcd" in doc["errors"][0] and "skipped" in doc["errors"][0]
+    assert metrics.read_kitti(run / "traj" / "gicp.kitti").shape == (9, 4, 4)
+    indices = [int(line.split(",")[1]) for line in (run / "frames.csv").read_text().splitlines()[1:]]
+    assert indices == [1, 2, 3, 4, 5, 6, 8, 9, 10]  # Apollo numbers the frames from 1; 7.pcd is the damaged one
 
 
 def test_interrupt_keeps_results(scans):

@@ -102,7 +102,11 @@ class ApolloSource(ScanSource):
                 stamp_ns, T = self.poses[index]
             else:
                 stamp_ns = index * 100_000_000
-            xyz, fields = read_pcd_points(f)
+            try:
+                xyz, fields = read_pcd_points(f, require_points=True)
+            except DatasetError as err:
+                self.skip(err)  # a damaged PCD costs its own frame
+                continue
             yield Scan(index, stamp_ns, xyz, fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
 
     def info(self) -> dict:

@@ -36,7 +36,6 @@ from deepbbs_ros.datasets.base import (
     prepare_output,
     scan_intensity,
     stamp_to_str,
-    valid_mask,
 )
 from deepbbs_ros.errors import DatasetError
 
@@ -52,6 +51,13 @@ KITTI_TR = np.array(
 _KITTI_P0 = "7.188560000000e+02 0.000000000000e+00 6.071928000000e+02 0.000000000000e+00 0.000000000000e+00 " \
     "7.188560000000e+02 1.852157000000e+02 0.000000000000e+00 0.000000000000e+00 0.000000000000e+00 " \
     "1.000000000000e+00 0.000000000000e+00"
+
+
+def read_bin(path: Path):
+    """A KITTI ``.bin`` scan (see :func:`deepbbs_ros.datasets.folder.read_bin`)."""
+    from deepbbs_ros.datasets.folder import read_bin as _read_bin
+
+    return _read_bin(path)
 
 
 def is_kitti_folder(path: Path) -> bool:
@@ -162,19 +168,12 @@ class KittiSource(ScanSource):
                 stamp_ns = self.stamps_ns[index]
             else:
                 stamp_ns = index * 100_000_000
-            raw = f.read_bytes()
-            if len(raw) % 16:
-                raise DatasetError(f"{f}: size {len(raw)} bytes is not a multiple of 16 (x y z r float32)")
-            rec = np.frombuffer(raw, dtype="<f4").reshape(-1, 4)
-            keep = valid_mask(rec[:, :3])
-            yield Scan(
-                index,
-                stamp_ns,
-                rec[keep, :3],
-                {"intensity": np.ascontiguousarray(rec[keep, 3])},
-                frame_id=APOLLO_LIDAR_FRAME,
-                T_world_lidar=T,
-            )
+            try:
+                xyz, fields = read_bin(f)
+            except DatasetError as err:
+                self.skip(err)  # a damaged scan file costs its own frame
+                continue
+            yield Scan(index, stamp_ns, xyz, fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
 
 
 def write_kitti(scans: Iterable[Scan], out: Path | str) -> int:
