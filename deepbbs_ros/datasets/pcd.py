@@ -299,7 +299,7 @@ def write_pcd(path: Path | str, arrays: dict[str, np.ndarray], encoding: str = "
         else:
             cols[name] = arr
     order = [k for k in ("x", "y", "z") if k in cols] + [k for k in cols if k not in ("x", "y", "z")]
-    cols = {k: (cols[k].reshape(len(cols[k]), -1)) for k in order}
+    cols = {k: (cols[k].reshape(len(cols[k]), -1) if cols[k].ndim > 1 else cols[k].reshape(-1, 1)) for k in order}
     sizes_n = {len(v) for v in cols.values()}
     if len(sizes_n) > 1:
         raise DatasetError(f"{path}: PCD fields have different lengths {sorted(sizes_n)}")

@@ -1,8 +1,13 @@
 """ROS bags: ROS 1 ``.bag``, ROS 2 bag directories (sqlite3 and mcap) and bare ``.mcap`` / ``.db3`` files.
 
-Reading goes through rosbags' ``AnyReader`` (no ROS install). A bare ``.mcap`` that rosbags cannot
-open (no summary section, e.g. a recording cut off mid-write) is read by streaming it with the
-``mcap`` package and decoding the CDR payloads with the rosbags ROS 2 Jazzy typestore.
+Reading (no ROS install): ROS 1 bags and sqlite3 rosbag2 go through rosbags' ``AnyReader``; mcap
+(rosbag2 directories and bare files) is read chunk by chunk with the ``mcap`` package, the CDR
+payloads decoded with the rosbags ROS 2 Jazzy typestore. Each chunk is checked against its CRC; the
+chunks are found through the summary's chunk index, or, when the summary is damaged or missing (a
+recording cut off mid-write), by reading the file from its start. Damage is a :class:`BagError`
+naming the file, the byte range and the log times; a damaged chunk that can be stepped over (intact
+index, or an intact chunk record length) costs only its own messages when the source is lenient.
+Scans and ground truth are read in one pass.
 
 Topics: the LiDAR topic is the only ``sensor_msgs/msg/PointCloud2`` topic, or the one named by
 ``topic`` (several candidates: :class:`DatasetError` listing them and naming ``--topic``). Ground
@@ -16,7 +21,8 @@ poses within the tolerance, else the nearest within it).
 
 Writing uses rosbags' rosbag2 ``Writer`` (format version 9, as ROS 2 Jazzy writes): mcap storage by
 default with zstd chunk compression (rosbags' ``CompressionMode.STORAGE``, which the metadata
-records as no bag-level compression, like rosbag2's own mcap plugin), or sqlite3. Both topics get
+records as no bag-level compression, like rosbag2's own mcap plugin), the mcap file itself written
+by ``mcap.writer.Writer`` with chunk, data-section and summary CRCs (:func:`rosbag2_writer`), or sqlite3. Both topics get
 an explicit offered QoS profile (reliable, volatile, keep-last 10): a reliable publisher matches both
 reliable and best-effort subscribers when the bag is played back.
 """
@@ -148,6 +154,11 @@ class _McapBackend:
         for file in self.files:
             try:
                 with open(file, "rb") as f:
+                    f.seek(max(0, file.stat().st_size - 8))
+                    if f.read(8) != b"\x89MCAP0\r\n":
+                        self.warnings.append(f"{file}: no footer (the file was cut off or never finished); "
+                                             "read from the start")
+                        continue
                     summary = SeekingReader(f, record_size_limit=file.stat().st_size).get_summary()
                 if summary is not None and summary.chunk_indexes and summary.statistics is not None:
                     self.summaries[file] = summary
@@ -580,6 +591,8 @@ class _CrcMcapStorage:
     1 MiB with a CRC of each chunk's data, of the data section and of the summary.
     """
 
+    chunk_size = 2**20  # bytes of messages per chunk (before compression), as rosbag2's mcap plugin
+
     def __init__(self, path: Path, compression) -> None:
         from mcap.writer import CompressionType
         from mcap.writer import Writer as McapWriter
@@ -588,7 +601,7 @@ class _CrcMcapStorage:
         self.path = path / f"{path.name}.mcap"
         self._file = self.path.open("xb")
         zstd = compression == CompressionMode.STORAGE
-        self._writer = McapWriter(self._file, chunk_size=2**20,
+        self._writer = McapWriter(self._file, chunk_size=self.chunk_size,
                                   compression=CompressionType.ZSTD if zstd else CompressionType.NONE,
                                   enable_crcs=True, enable_data_crcs=True)
         from importlib.metadata import version
@@ -622,14 +635,16 @@ class _CrcMcapStorage:
         self._file.close()
 
 
-def rosbag2_writer(out: Path | str, storage: str = "mcap"):
-    """A rosbags rosbag2 ``Writer`` (format version 9) for ``storage`` ``"mcap"`` (zstd chunks, with
-    chunk, data and summary CRCs: :class:`_CrcMcapStorage`) or ``"sqlite3"``."""
+def rosbag2_writer(out: Path | str, storage: str = "mcap", *, chunk_size: int = 2**20):
+    """A rosbags rosbag2 ``Writer`` (format version 9) for ``storage`` ``"mcap"`` (zstd chunks of
+    ``chunk_size`` bytes, with chunk, data and summary CRCs: :class:`_CrcMcapStorage`) or ``"sqlite3"``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
+    storage_cls = type("_CrcMcapStorageSized", (_CrcMcapStorage,), {"chunk_size": int(chunk_size)})
+
     class _Writer(Writer):
-        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _CrcMcapStorage}
+        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: storage_cls}  # noqa: RUF012
 
     writer = _Writer(out, version=9, storage_plugin=StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3)
     if storage == "mcap":
@@ -663,6 +678,7 @@ def write_rosbag(
     gt_topic: str = GT_POSE_TOPIC,
     driver: str | None = None,
     shape: tuple[int, int] = (0, 0),
+    chunk_size: int = 2**20,
 ) -> int:
     """Write scans as a rosbag2 directory (``storage`` ``"mcap"``, zstd chunks, or ``"sqlite3"``).
 
@@ -671,7 +687,8 @@ def write_rosbag(
     ``"velodyne"`` / ``"ouster"``, that driver's layout, :func:`msg_adapters.layouts.driver_cloud`, with
     ``shape`` = (beams, columns) for the organised Ouster cloud); each ground-truth pose a
     ``geometry_msgs/msg/PoseStamped`` on ``gt_topic`` (frame ``world``, pose = ``T_world_lidar``, same
-    stamp). Log times equal the header stamps. The output is byte-for-byte deterministic.
+    stamp). Log times equal the header stamps. mcap: zstd chunks of ``chunk_size`` bytes, each with a
+    CRC, and data and summary CRCs. The output is byte-for-byte deterministic.
 
     Returns:
         the number of scans written.
@@ -689,7 +706,7 @@ def write_rosbag(
     qos = [_qos()]
     n = 0
     try:
-        with rosbag2_writer(out, storage) as writer:
+        with rosbag2_writer(out, storage, chunk_size=chunk_size) as writer:
             cloud_conn = writer.add_connection(topic, POINTCLOUD2, typestore=typestore, offered_qos_profiles=qos)
             gt_conn = None
             for scan in scans:
