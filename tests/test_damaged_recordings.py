@@ -340,6 +340,7 @@ def test_damaged_pose_file_keeps_the_frames_before(kind, frames, scans, tmp_path
     f.write_text("\n".join(lines) + "\n")
     rc, err, doc = run_replay(folder, tmp_path / "out", capsys, "--config", str(fast_config))
     assert rc == 1 and len(err) == 1 and "gt_poses.txt: line 3: malformed pose line" in err[0]
+    assert err[0].startswith(f"deepbbs-replay: error: recording fault after {frames} frames")
     assert doc["complete"] is False and doc["methods"]["gicp"]["frames"] == frames
 
 

@@ -86,7 +86,7 @@ class ApolloSource(ScanSource):
             self.has_ground_truth = True
             self.poses, self.pose_error = read_gt_poses(self.pose_file)
             if self.pose_error is not None:
-                self.fault(self.pose_error)  # strict: raise now; lenient: keep what was read
+                self.defer(self.pose_error)  # strict: raise now; lenient: keep what was read
         self.topic = str(pcd_dir)
         self.gt_topic = str(self.pose_file) if self.has_ground_truth else None
 

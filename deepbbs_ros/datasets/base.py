@@ -84,6 +84,7 @@ class ScanSource:
         self.has_ground_truth = False
         self.errors: list[str] = []
         self.fault_at: list[int] = []
+        self._deferred: list[DatasetError] = []
         self.warnings: list[str] = []  # damage that cost nothing (e.g. a summary rebuilt by reading)
 
     def _scans(self) -> Iterator[Scan]:  # pragma: no cover - abstract
@@ -102,6 +103,16 @@ class ScanSource:
             if not self.lenient:
                 raise
             self.fault(err)
+        else:  # damage found on opening that no scan ran into (e.g. a bad line after the last frame's pose)
+            self.warnings.extend(str(e) for e in self._deferred if str(e) not in self.warnings)
+
+    def defer(self, err: DatasetError) -> None:
+        """Damage found on opening (a pose file's bad line): raise when strict; when lenient, the scans
+        before it are read and the scan that needs what it lost raises it (then recorded by
+        :meth:`fault`, with its position)."""
+        if not self.lenient:
+            raise err
+        self._deferred.append(err)
 
     def fault(self, err: DatasetError) -> None:
         """Raise ``err``, or record it (once) when lenient; the caller then stops as it documents.

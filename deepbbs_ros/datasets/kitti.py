@@ -137,8 +137,9 @@ class KittiSource(ScanSource):
                 P[:3, :] = r.reshape(3, 4)
                 self.poses.append(Tr_inv @ P @ Tr)
             if self.pose_error is not None:
-                self.fault(self.pose_error)
+                self.defer(self.pose_error)
         self.stamps_ns: list[int] | None = None
+        self.times_error: DatasetError | None = None
         times = self.path / "times.txt"
         if times.is_file():
             stamps: list[int] = []
@@ -148,7 +149,8 @@ class KittiSource(ScanSource):
                 try:
                     stamps.append(parse_stamp(line.strip()))
                 except ValueError as err:
-                    self.fault(DatasetError(f"{times}: line {lineno}: malformed time: {err}"))
+                    self.times_error = DatasetError(f"{times}: line {lineno}: malformed time: {err}")
+                    self.defer(self.times_error)
                     break
             self.stamps_ns = stamps
 
@@ -164,6 +166,8 @@ class KittiSource(ScanSource):
                 T = self.poses[index]
             if self.stamps_ns is not None:
                 if index >= len(self.stamps_ns):
+                    if self.times_error is not None:
+                        raise self.times_error
                     raise DatasetError(f"{self.path / 'times.txt'}: frame {index} ({f.name}) has no time")
                 stamp_ns = self.stamps_ns[index]
             else:
