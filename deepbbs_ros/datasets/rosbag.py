@@ -159,6 +159,7 @@ class _McapBackend:
                         self.warnings.append(f"{file}: no footer (the file was cut off or never finished); "
                                              "read from the start")
                         continue
+                    f.seek(0)  # SeekingReader checks the magic where the stream stands
                     summary = SeekingReader(f, record_size_limit=file.stat().st_size).get_summary()
                 if summary is not None and summary.chunk_indexes and summary.statistics is not None:
                     self.summaries[file] = summary

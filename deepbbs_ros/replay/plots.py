@@ -63,8 +63,9 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
     axes[1].axvline(trans_thresh, color="k", ls=":", lw=1, label=f"success threshold ({trans_thresh:g} m)")
     _log_or_note(axes[0], "x", rot_all)
     _log_or_note(axes[1], "x", tr_all)
-    axes[0].set(xlabel="rotation error [deg]", ylabel="fraction of registrations", title="Rotation error CDF")
-    axes[1].set(xlabel="translation error [m]", title="Translation error CDF")
+    axes[0].set(xlabel="rotation error [deg]", ylabel="fraction of registrations", title="Rotation error CDF",
+                ylim=(0.0, 1.02))
+    axes[1].set(xlabel="translation error [m]", title="Translation error CDF", ylim=(0.0, 1.02))
     for ax in axes:
         ax.grid(alpha=0.3)
         _legend(ax, fontsize=8)
