@@ -22,9 +22,9 @@ poses within the tolerance, else the nearest within it).
 Writing uses rosbags' rosbag2 ``Writer`` (format version 9, as ROS 2 Jazzy writes): mcap storage by
 default with zstd chunk compression (rosbags' ``CompressionMode.STORAGE``, which the metadata
 records as no bag-level compression, like rosbag2's own mcap plugin), the mcap file itself written
-by ``mcap.writer.Writer`` with chunk, data-section and summary CRCs (:func:`rosbag2_writer`), or sqlite3. Both topics get
-an explicit offered QoS profile (reliable, volatile, keep-last 10): a reliable publisher matches both
-reliable and best-effort subscribers when the bag is played back.
+by ``mcap.writer.Writer`` with chunk, data-section and summary CRCs (:func:`rosbag2_writer`), or
+sqlite3. Both topics get an explicit offered QoS profile (reliable, volatile, keep-last 10): a
+reliable publisher matches both reliable and best-effort subscribers when the bag is played back.
 """
 
 from __future__ import annotations
