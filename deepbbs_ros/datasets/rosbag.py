@@ -229,7 +229,6 @@ class _McapBackend:
             on_damage(err)
 
         from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
-        from mcap.stream_reader import StreamReader
 
         summary = self.summaries.get(file)
         size = file.stat().st_size
@@ -241,8 +240,18 @@ class _McapBackend:
                 for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
                     where = f"{ci.chunk_start_offset}-{ci.chunk_start_offset + ci.chunk_length}"
                     try:
-                        f.seek(ci.chunk_start_offset + 1 + 8)
+                        f.seek(ci.chunk_start_offset)
+                        head = f.read(9)
                         chunk = Chunk.read(ReadDataStream(f))
+                        # the chunk's own header must say what its index says: a damaged header (a zeroed
+                        # CRC field, size or compression) would otherwise read as a valid empty chunk
+                        seen = (head[:1], chunk.compression, len(chunk.data), chunk.uncompressed_size,
+                                chunk.message_start_time, chunk.message_end_time)
+                        want = (b"\x06", ci.compression, ci.compressed_size, ci.uncompressed_size,
+                                ci.message_start_time, ci.message_end_time)
+                        if seen != want:
+                            raise BagError(f"{file}: damaged chunk at bytes {where}: its header does not match "
+                                           "the summary's chunk index")
                         messages = self._chunk_messages(file, chunk, where, channels, schemas)
                     except BagError as err:
                         damaged(err)
@@ -255,7 +264,7 @@ class _McapBackend:
                         yield (schemas.get(ch.schema_id) if ch else None), ch, m
                 return
             channels, schemas = {}, {}
-            reader = StreamReader(f, emit_chunks=True, record_size_limit=size)
+            reader = _CheckedStreamReader(f, emit_chunks=True, record_size_limit=size)
             records = reader.records
             pos = 0
             while True:
@@ -267,6 +276,10 @@ class _McapBackend:
                                    f"({_detail(err)})") from None
                 if record is None or isinstance(record, (DataEnd, Footer)):
                     return
+                if isinstance(record, _BadRecord):
+                    damaged(BagError(f"{file}: damaged record at bytes {pos}-{f.tell()} (opcode {record.opcode:#04x}, "
+                                     "not an mcap record)"))
+                    continue
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel):
@@ -326,6 +339,30 @@ class _McapBackend:
 
     def close(self) -> None:
         pass
+
+
+class _BadRecord:
+    """A record whose opcode no mcap writer uses (0x00, or an unassigned one below 0x80): damage."""
+
+    def __init__(self, opcode: int) -> None:
+        self.opcode = opcode
+
+
+def _CheckedStreamReader(*args, **kwargs):
+    """``mcap.stream_reader.StreamReader`` that returns a :class:`_BadRecord` (its bytes skipped) for an
+    opcode no writer uses, where StreamReader skips it silently (a zeroed chunk opcode would hide the
+    whole chunk)."""
+    from mcap.opcode import Opcode
+    from mcap.stream_reader import StreamReader
+
+    class Reader(StreamReader):
+        def _read_record(self, opcode: int, length: int):
+            if opcode < 0x80 and opcode not in set(Opcode):
+                self._stream.read(length)
+                return _BadRecord(opcode)
+            return super()._read_record(opcode, length)
+
+    return Reader(*args, **kwargs)
 
 
 def _is_mcap(path: Path) -> bool:
