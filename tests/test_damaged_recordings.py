@@ -398,3 +398,17 @@ def test_convert_a_damaged_bag(scans, tmp_path, capsys):
     copy = open_source(tmp_path / "lenient", lenient=True)  # the copy holds what was readable, as recorded
     back = list(copy)
     assert 1 <= len(back) < N
+
+
+def test_info_checks_the_data_section_crc(scans, tmp_path, capsys):
+    """Damage outside the chunks (a message index record) passes every chunk CRC: info still finds it
+    through the data-section CRC; the scans themselves read fine."""
+    mcap = make_bag(scans, tmp_path / "bag")
+    start, length, _ = chunk_layout(mcap)[1]
+    data = bytearray(mcap.read_bytes())
+    data[start + length + 9 + 2 + 4 + 3] ^= 0xFF  # inside the message index after chunk 1
+    mcap.write_bytes(bytes(data))
+    assert len(list(open_source(tmp_path / "bag"))) == N
+    assert bag_main(["info", str(tmp_path / "bag"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert "data section CRC mismatch" in json.loads(out)["damage"] and "damaged recording" in err

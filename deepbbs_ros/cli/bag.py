@@ -41,7 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
             "--gt-tolerance", type=float, default=0.05, metavar="S",
             help="max seconds between a scan stamp and its ground-truth stamp (default: 0.05)",
         )
-        g.add_argument("--lenient", action="store_true", help="keep everything valid before a fault, report it")
+        g.add_argument("--lenient", action="store_true",
+                       help="convert: keep everything readable (a damaged file or bag chunk costs only itself, a cut "
+                       "keeps what is before it), then report the damage (exit code 1)")
 
     p_info = sub.add_parser("info", help="topics, types, message counts, duration, ground truth")
     add_source_args(p_info)

@@ -30,6 +30,7 @@ reliable publisher matches both reliable and best-effort subscribers when the ba
 from __future__ import annotations
 
 import re
+import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -195,6 +196,29 @@ class _McapBackend:
             damage.append(str(err))
         error = "; ".join(damage) if damage else None
         return topics, lo or 0, hi or 0, error
+
+    def data_crc_errors(self) -> list[str]:
+        """Check each file's data-section CRC (the DataEnd record's, over every byte before it: chunks,
+        message indexes, metadata): one line per file whose bytes do not match it."""
+        import zlib
+
+        out = []
+        for file in self.files:
+            try:
+                data = file.read_bytes()
+                if data[-8:] != b"\x89MCAP0\r\n" or len(data) < 8 + 9 + 20 + 8 + 13:
+                    continue  # cut off: no DataEnd to check against (reading reports the cut)
+                summary_start = struct.unpack("<Q", data[-8 - 20 : -8 - 12])[0]
+                end = summary_start if summary_start else len(data) - 8 - 9 - 20
+                if data[end - 13 : end - 12] != b"\x0f":
+                    continue  # DataEnd not where the footer says: the summary damage is reported as such
+                want = struct.unpack("<I", data[end - 4 : end])[0]
+                if want and zlib.crc32(data[: end - 13]) != want:
+                    out.append(f"{file}: data section CRC mismatch (bytes 0-{end - 13} do not match the CRC "
+                               "written with them)")
+            except OSError as err:
+                out.append(f"{file}: cannot read: {err.strerror or err}")
+        return out
 
     # --- reading -------------------------------------------------------------------------------
     def _chunk_messages(self, file: Path, chunk, where: str, channels: dict, schemas: dict):
@@ -532,6 +556,9 @@ class BagSource(ScanSource):
         the damage met or None)."""
         if isinstance(self.backend, _McapBackend):
             topics, _lo, _hi, error = self.backend.count()
+            crc = self.backend.data_crc_errors()
+            if crc and not error:  # damage outside the chunks (their own CRCs passed)
+                error = "; ".join(crc)
             return topics, error
         topics: dict[str, tuple[str, int]] = {}
         try:
