@@ -138,8 +138,9 @@ class _McapBackend:
 
     With an intact summary section the chunks are read through its index, each one checked against
     its CRC; a damaged or missing summary (a recording cut off mid-write, zeroed bytes) falls back to
-    reading the file record by record from its start. Either way a damaged chunk raises
-    :class:`BagError` naming its byte range and log times, after every message before it.
+    reading the file record by record from its start. Either way a damaged chunk is a
+    :class:`BagError` naming its byte range and log times, after every message before it: raised, or
+    handed to ``on_damage`` and stepped over when its neighbours can still be found.
     """
 
     def __init__(self, path: Path) -> None:
