@@ -11,6 +11,7 @@
 * ``suburban_drive_os64/``: rosbag2 (mcap), 15 frames, scene ``suburban`` seed 13, an Ouster OS1-64-like sensor
   (64 beams, 1024 columns) in the ouster-ros layout (organised 64 x 1024, no return = zeros, ``t`` in ns,
   point_step 48) on /ouster/points, frame ``os_sensor``, raw sweeps.
+* The mcap files carry chunk, data-section and summary CRCs (``deepbbs_ros.datasets.write_scans``).
 * ``apollo_suburban_5/``: Apollo-SouthBay folder, 5 frames, scene ``suburban`` seed 11, HDL-64E at real
   resolution, motion-compensated to each stamp as Apollo's compensator publishes it; binary PCDs
   (x y z intensity) + poses/gt_poses.txt.

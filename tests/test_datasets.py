@@ -198,6 +198,20 @@ def test_ros1_bag(tmp_path):
         np.testing.assert_array_equal(b.points, a.points)
         np.testing.assert_array_equal(b.fields["ring"], a.fields["ring"])
         np.testing.assert_allclose(b.T_world_lidar, a.T_world_lidar, atol=1e-9)
+    data = path.read_bytes()  # damaged copies: a clear error, or scans (a ROS 1 bag has no checksum:
+    for k, cut in enumerate([0.02, 0.3, 0.6, 0.9, 0.99]):  # zeroed payload bytes can pass; a cut keeps a prefix)
+        for how in ("cut", "zero"):
+            bad = tmp_path / f"bad_{how}_{k}.bag"
+            n = int(cut * len(data))
+            bad.write_bytes(data[:n] if how == "cut" else data[:n] + bytes(min(512, len(data) - n)) + data[n + 512:])
+            try:
+                source = open_source(bad, lenient=True)
+                got = list(source)
+            except DatasetError as err:
+                assert bad.name in str(err)
+                continue
+            for a, b in zip(scans, got if how == "cut" else []):
+                np.testing.assert_array_equal(b.points, a.points)
 
 
 # ------------------------------------------------------------------------------------ topic choice

@@ -196,8 +196,9 @@ def test_odometry_without_ground_truth(scans, fast_config, tmp_path):
 
 
 def test_reader_fault_mid_recording_keeps_results(scans, fast_config, tmp_path, capsys):
-    """An Apollo folder whose 7th PCD is corrupt: the 6 frames before it are evaluated and written,
-    metrics.json says complete: false, and the CLI reports one error line with exit code 1."""
+    """An Apollo folder whose 7th PCD is corrupt: it costs only its own frame (the 6 frames before it and
+    the 3 after it are evaluated and written), metrics.json says complete: false and why, and the CLI
+    reports one error line with exit code 1."""
     folder = tmp_path / "apollo"
     write_scans(scans[:10], folder, "apollo")
     pcds = sorted((folder / "pcds").glob("*.pcd"), key=lambda p: int(p.stem))
@@ -210,9 +211,11 @@ def test_reader_fault_mid_recording_keeps_results(scans, fast_config, tmp_path, 
     assert len(err) == 1 and err[0].startswith("deepbbs-replay: error: recording fault after 6 frames")
     run = (out / "latest").resolve()
     doc = json.loads((run / "metrics.json").read_text())
-    assert doc["complete"] is False and doc["methods"]["gicp"]["frames"] == 6
-    assert any("recording fault" in e for e in doc["errors"])
-    assert metrics.read_kitti(run / "traj" / "gicp.kitti").shape == (6, 4, 4)
+    assert doc["complete"] is False and doc["methods"]["gicp"]["frames"] == 9
+    assert len(doc["errors"]) == 1 and "7.pcd" in doc["errors"][0] and "skipped" in doc["errors"][0]
+    assert metrics.read_kitti(run / "traj" / "gicp.kitti").shape == (9, 4, 4)
+    indices = [int(line.split(",")[1]) for line in (run / "frames.csv").read_text().splitlines()[1:]]
+    assert indices == [1, 2, 3, 4, 5, 6, 8, 9, 10]  # Apollo numbers the frames from 1; 7.pcd is the damaged one
 
 
 def test_interrupt_keeps_results(scans):
@@ -252,3 +255,46 @@ def test_cli_errors_are_one_line(args, message, recording, tmp_path, capsys):
     assert rc == 1
     assert len(err) == 1 and err[0].startswith("deepbbs-replay: error:")
     assert message in err[0]
+
+
+def test_plain_folder_odometry_and_table_notes(scans, fast_config, tmp_path, capsys):
+    """A folder of .bin scans: odometry mode writes trajectories and runtime; the table explains its
+    '-' cells (no ground truth); pairs mode refuses with one line naming what is possible."""
+    folder = tmp_path / "bins"
+    folder.mkdir()
+    for k, scan in enumerate(scans[:5]):
+        rec = np.concatenate([scan.points, np.zeros((len(scan), 1), np.float32)], axis=1).astype("<f4")
+        (folder / f"{k:06d}.bin").write_bytes(rec.tobytes())
+    out = tmp_path / "out"
+    rc = main([str(folder), "--mode", "odometry", "--method", "gicp", "--config", str(fast_config),
+               "--out", str(out), "--quiet", "--no-plots", "--no-bag"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "-: needs ground truth" in text and "only trajectories and runtime" in text
+    run = (out / "latest").resolve()
+    assert metrics.read_kitti(run / "traj" / "gicp.kitti").shape == (5, 4, 4)
+    assert not (run / "traj" / "ground_truth.tum").exists()
+    assert main([str(folder), "--method", "gicp", "--out", str(out), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pairs mode needs ground-truth poses" in err[0] and "no errors" in err[0]
+
+
+def test_short_drive_table_note_and_plots(scans, fast_config, tmp_path, capsys):
+    """A drive shorter than 100 m: the drift cells are '-' and a note says why (with the drive's length);
+    the plots of few pairs and of overlapping trajectories are written (error-coloured paths)."""
+    from deepbbs_ros.replay import plots as P
+    from deepbbs_ros.replay.report import odometry_metrics, table_notes
+
+    cfg = Config()
+    cfg.eval.threads = 1
+    res = run_odometry(scans[:6], build_methods(["gicp", "icp"], cfg), cfg)
+    mm = odometry_metrics(res)
+    notes = table_notes("odometry", mm)
+    assert len(notes) == 1 and "needs >= 100 m of path (this drive:" in notes[0]
+    written = P.plot_odometry(tmp_path, res)
+    assert [p.name for p in written] == ["trajectory_xy.png", "errors_over_time.png", "rpe_cdf.png"]
+    cfg.eval.stride, cfg.eval.max_dist = 2, 1.0
+    pres = run_pairs(scans[:6], build_methods(["gicp"], cfg), cfg)
+    for r in pres.records:  # every registration failed: no finite error to put on a log axis
+        r.rot_err_deg = r.trans_err_m = float("nan")
+    assert len(P.plot_pairs(tmp_path, pres, 5.0, 2.0)) == 3

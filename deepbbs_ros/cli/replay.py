@@ -32,7 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("source", metavar="SOURCE",
-                   help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/) or KITTI folder (velodyne/)")
+                   help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/), KITTI folder (velodyne/) "
+                   "or a folder of .bin/.pcd scans (name order, no ground truth: odometry trajectories and runtime)")
     g = p.add_argument_group("what to run")
     g.add_argument("--mode", choices=("pairs", "odometry"), default="pairs",
                    help="pairs: Apollo pair protocol; odometry: a trajectory per method")
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                          lenient=True)
     if args.mode == "pairs" and not source.has_ground_truth:
         raise DatasetError(f"{args.source}: pairs mode needs ground-truth poses (none found); "
-                           "use --mode odometry or give --gt-topic")
+                           "use --mode odometry (trajectories and runtime, no errors) or give --gt-topic")
 
     from deepbbs_ros.replay.methods import build_methods
 
@@ -151,7 +152,9 @@ def run_replay(args, cfg, source, methods) -> int:
     interrupted = any("Ctrl-C" in e for e in res.errors)
     if source.errors:
         res.complete = False
-        res.errors.extend(f"recording fault after {res.frames_read} frames: {e}" for e in source.errors)
+        at = list(getattr(source, "fault_at", []))
+        at += [res.frames_read] * (len(source.errors) - len(at))
+        res.errors.extend(f"recording fault after {n} frames: {e}" for n, e in zip(at, source.errors))
 
     if res.frames_read == 0 and source.errors:
         raise DatasetError(f"no scan could be read: {source.errors[0]}")
@@ -160,28 +163,45 @@ def run_replay(args, cfg, source, methods) -> int:
         mm = report.pair_metrics(res, cfg)
     else:
         mm = report.odometry_metrics(res)
+    warnings = list(getattr(source, "warnings", []))
     extra = {"weights": str(args.weights or cfg.registration.weights or "shipped default"),
              "device": args.device or cfg.registration.device}
-    report.write_metrics_json(run / "metrics.json", source=str(args.source), mode=args.mode, res=res, config=cfg,
-                              method_metrics=mm, extra=extra)
+
+    def write_json():
+        report.write_metrics_json(run / "metrics.json", source=str(args.source), mode=args.mode, res=res, config=cfg,
+                                  method_metrics=mm, extra={**extra, "warnings": warnings})
+
+    write_json()
     if args.mode == "pairs":
         report.write_pairs_csv(run / "pairs.csv", res)
     else:
         report.write_odometry_csv(run / "frames.csv", res)
         report.write_trajectories(run, res)
     plots = []
+    failed_outputs = []
     if not args.no_plots:
         from deepbbs_ros.replay import plots as P
 
-        if args.mode == "pairs":
-            plots = P.plot_pairs(run, res, cfg.eval.success_rot_deg, cfg.eval.success_trans)
-        else:
-            plots = P.plot_odometry(run, res)
+        try:
+            if args.mode == "pairs":
+                plots = P.plot_pairs(run, res, cfg.eval.success_rot_deg, cfg.eval.success_trans)
+            else:
+                plots = P.plot_odometry(run, res)
+        except Exception as err:  # noqa: BLE001 - a plot must not cost the results already computed
+            failed_outputs.append(f"plots not written ({type(err).__name__}: {err})")
     if not args.no_bag:
-        report.write_results_bag(run / "results_bag", res)
+        try:
+            report.write_results_bag(run / "results_bag", res)
+        except Exception as err:  # noqa: BLE001 - nor may the results bag
+            failed_outputs.append(f"results bag not written ({type(err).__name__}: {err})")
+    if failed_outputs:
+        warnings.extend(failed_outputs)
+        write_json()
+    for w in warnings if res.complete else ():  # an incomplete run ends in one error line; all are in metrics.json
+        print(f"{PROG}: warning: {w}", file=sys.stderr)
 
     title = f"deepbbs-replay {args.mode}: {Path(args.source).name}" + ("" if res.complete else " (INCOMPLETE)")
-    report.print_table(args.mode, mm, title=title)
+    report.print_table(args.mode, mm, title=title, has_ground_truth=source.has_ground_truth)
     print(f"results: {run}  (latest: {Path(args.out) / 'latest'})")
     if plots:
         print("plots:   " + ", ".join(p.name for p in plots))
@@ -189,7 +209,8 @@ def run_replay(args, cfg, source, methods) -> int:
         print(f"{PROG}: interrupted; results so far written to {run} (marked incomplete)", file=sys.stderr)
         return 130
     if not res.complete:
-        print(f"{PROG}: error: {res.errors[-1]} (results so far written to {run}, marked incomplete)",
+        more = f"; {len(res.errors) - 1} more in metrics.json" if len(res.errors) > 1 else ""
+        print(f"{PROG}: error: {res.errors[0]}{more} (results so far written to {run}, marked incomplete)",
               file=sys.stderr)
         return 1
     return 0

@@ -1,9 +1,10 @@
-"""Scan sources (readers) and writers for bags, Apollo-style folders and KITTI folders.
+"""Scan sources (readers) and writers for bags, Apollo-style folders, KITTI folders and folders of scans.
 
 One file per format, like kiss-icp's ``datasets/``: :mod:`.rosbag` (ROS 1 ``.bag``, rosbag2
 directories with sqlite3 or mcap storage, bare ``.mcap``), :mod:`.apollo` (Apollo-SouthBay
 ``pcds/`` + ``poses/gt_poses.txt``), :mod:`.kitti` (KITTI odometry ``velodyne/`` + ``poses.txt`` +
-``calib.txt``) and :mod:`.pcd` (PCD files). :func:`open_source` picks the reader from the path,
+``calib.txt``), :mod:`.folder` (plain folders of ``.bin``/``.pcd`` scans) and :mod:`.pcd` (PCD
+files). :func:`open_source` picks the reader from the path,
 :func:`write_scans` the writer from a format name. No ROS install is needed (rosbags, mcap).
 """
 
@@ -49,24 +50,29 @@ def open_source(
     gt_topic: str | None = None,
     gt_tolerance_s: float = 0.05,
     lenient: bool = False,
+    any_topic: bool = False,
 ) -> ScanSource:
     """Open a recording as a :class:`ScanSource` (iterable of :class:`Scan`, ``len``, ``info()``).
 
     Args:
         path: a ROS 1 ``.bag``; a rosbag2 directory (sqlite3 or mcap); a bare ``.mcap`` or ``.db3``;
-            an Apollo session folder (``pcds/``); a KITTI sequence folder (``velodyne/``).
+            an Apollo session folder (``pcds/``); a KITTI sequence folder (``velodyne/``); a plain
+            folder of ``.bin`` (KITTI records) or ``.pcd`` scans, read in name order without ground truth.
         topic: PointCloud2 topic (bags only); None picks the only one.
         gt_topic: ground-truth PoseStamped/Odometry/TransformStamped topic (bags only); None takes
             ``/ground_truth/pose`` (or the only pose topic named ``*ground_truth*``/``*gt*``) if present.
         gt_tolerance_s: seconds; how far a ground-truth stamp may be from a scan's header stamp.
         lenient: yield every valid scan before a fault and record the fault in ``.errors`` instead
             of raising.
+        any_topic: bags with several PointCloud2 topics open without ``topic`` (for listing them:
+            ``topic`` is then None and iterating raises).
 
     Raises:
         DatasetError / BagError: unknown path, unreadable or truncated recording, malformed pose
             file (file and line), ambiguous topic (lists the candidates, names ``--topic``).
     """
     from deepbbs_ros.datasets.apollo import ApolloSource, is_apollo_folder
+    from deepbbs_ros.datasets.folder import FolderSource, is_scan_folder
     from deepbbs_ros.datasets.kitti import KittiSource, is_kitti_folder
     from deepbbs_ros.datasets.rosbag import BagSource, is_bag
 
@@ -84,11 +90,16 @@ def open_source(
         if folder_only:
             raise DatasetError(f"{path}: --topic/--gt-topic apply to bags, not to a KITTI folder")
         return KittiSource(path, lenient=lenient)
+    if is_scan_folder(path) and not (path / "metadata.yaml").is_file():
+        if folder_only:
+            raise DatasetError(f"{path}: --topic/--gt-topic apply to bags, not to a folder of scans")
+        return FolderSource(path, lenient=lenient)
     if is_bag(path):
-        return BagSource(path, topic=topic, gt_topic=gt_topic, gt_tolerance_s=gt_tolerance_s, lenient=lenient)
+        return BagSource(path, topic=topic, gt_topic=gt_topic, gt_tolerance_s=gt_tolerance_s, lenient=lenient,
+                         any_topic=any_topic)
     raise DatasetError(
         f"{path}: not a recording this package reads (.bag, rosbag2 directory, .mcap, .db3, "
-        "Apollo folder with pcds/, KITTI folder with velodyne/)"
+        "Apollo folder with pcds/, KITTI folder with velodyne/, folder of .bin or .pcd scans)"
     )
 
 

@@ -86,7 +86,7 @@ class ApolloSource(ScanSource):
             self.has_ground_truth = True
             self.poses, self.pose_error = read_gt_poses(self.pose_file)
             if self.pose_error is not None:
-                self.fault(self.pose_error)  # strict: raise now; lenient: keep what was read
+                self.defer(self.pose_error)  # strict: raise now; lenient: keep what was read
         self.topic = str(pcd_dir)
         self.gt_topic = str(self.pose_file) if self.has_ground_truth else None
 
@@ -102,7 +102,11 @@ class ApolloSource(ScanSource):
                 stamp_ns, T = self.poses[index]
             else:
                 stamp_ns = index * 100_000_000
-            xyz, fields = read_pcd_points(f)
+            try:
+                xyz, fields = read_pcd_points(f, require_points=True)
+            except DatasetError as err:
+                self.skip(err)  # a damaged PCD costs its own frame
+                continue
             yield Scan(index, stamp_ns, xyz, fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
 
     def info(self) -> dict:

@@ -68,8 +68,10 @@ class ScanSource:
 
     Subclasses fill ``path``, ``topic``, ``has_ground_truth`` and implement :meth:`_scans` and
     :meth:`__len__`. With ``lenient=True`` iteration stops quietly at the first fault, after yielding
-    every valid scan before it, and appends the fault's message to :attr:`errors`; otherwise the
-    fault raises :class:`~deepbbs_ros.errors.DatasetError` (or its subclass ``BagError``).
+    every valid scan before it, and appends the fault's message to :attr:`errors`; damage that costs
+    only itself (a damaged scan file, a damaged bag chunk: :meth:`skip`) is recorded the same way and
+    reading goes on after it. Otherwise every fault raises :class:`~deepbbs_ros.errors.DatasetError`
+    (or its subclass ``BagError``).
     """
 
     format: str = "?"
@@ -81,6 +83,9 @@ class ScanSource:
         self.gt_topic: str | None = None
         self.has_ground_truth = False
         self.errors: list[str] = []
+        self.fault_at: list[int] = []
+        self._deferred: list[DatasetError] = []
+        self.warnings: list[str] = []  # damage that cost nothing (e.g. a summary rebuilt by reading)
 
     def _scans(self) -> Iterator[Scan]:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -89,19 +94,41 @@ class ScanSource:
         raise NotImplementedError
 
     def __iter__(self) -> Iterator[Scan]:
+        self.yielded = 0
         try:
-            yield from self._scans()
+            for scan in self._scans():
+                self.yielded += 1
+                yield scan
         except DatasetError as err:
             if not self.lenient:
                 raise
             self.fault(err)
+        else:  # damage found on opening that no scan ran into (e.g. a bad line after the last frame's pose)
+            self.warnings.extend(str(e) for e in self._deferred if str(e) not in self.warnings)
+
+    def defer(self, err: DatasetError) -> None:
+        """Damage found on opening (a pose file's bad line): raise when strict; when lenient, the scans
+        before it are read and the scan that needs what it lost raises it (then recorded by
+        :meth:`fault`, with its position)."""
+        if not self.lenient:
+            raise err
+        self._deferred.append(err)
 
     def fault(self, err: DatasetError) -> None:
-        """Raise ``err``, or record it (once) when lenient; the caller then stops as it documents."""
+        """Raise ``err``, or record it (once) when lenient; the caller then stops as it documents.
+        ``fault_at`` keeps, for each recorded fault, how many scans had been yielded before it."""
         if not self.lenient:
             raise err
         if str(err) not in self.errors:
             self.errors.append(str(err))
+            self.fault_at.append(getattr(self, "yielded", 0))
+
+    def skip(self, err: DatasetError) -> None:
+        """Damage that costs only itself (one scan file, one bag chunk): raise ``err`` when strict;
+        when lenient record it and let reading go on after it."""
+        if not self.lenient:
+            raise err
+        self.fault(type(err)(f"{err}; skipped, reading went on"))
 
     def close(self) -> None:
         """Release open files (bags); iterating afterwards is not supported."""
@@ -149,23 +176,38 @@ class PoseTrack:
 
     def __init__(self, stamps_ns: Sequence[int], poses: Sequence[np.ndarray], tolerance_ns: int) -> None:
         order = np.argsort(np.asarray(stamps_ns, dtype=np.int64), kind="stable")
-        self.stamps_ns = np.asarray(stamps_ns, dtype=np.int64)[order]
+        self.stamps_ns: list[int] = [int(stamps_ns[i]) for i in order]
         self.poses = [np.asarray(poses[i], dtype=np.float64) for i in order]
         self.tolerance_ns = int(tolerance_ns)
 
     def __len__(self) -> int:
         return len(self.poses)
 
+    def add(self, stamp_ns: int, T: np.ndarray) -> None:
+        """Add one pose (poses read in recording order: appended; out of order: inserted)."""
+        import bisect
+
+        i = bisect.bisect_right(self.stamps_ns, int(stamp_ns))
+        self.stamps_ns.insert(i, int(stamp_ns))
+        self.poses.insert(i, np.asarray(T, dtype=np.float64))
+
+    def decided(self, stamp_ns: int) -> bool:
+        """True once a pose later than ``stamp_ns + tolerance_ns`` is known: poses still to come (in
+        stamp order) cannot change :meth:`lookup` at ``stamp_ns``."""
+        return bool(self.stamps_ns) and self.stamps_ns[-1] > stamp_ns + self.tolerance_ns
+
     def lookup(self, stamp_ns: int) -> np.ndarray | None:
         """(4, 4) float64 ``T_world_lidar`` at ``stamp_ns``, or None when no pose is close enough."""
+        import bisect
+
         if not self.poses:
             return None
-        i = int(np.searchsorted(self.stamps_ns, stamp_ns, side="left"))
+        i = bisect.bisect_left(self.stamps_ns, stamp_ns)
         if i < len(self.poses) and self.stamps_ns[i] == stamp_ns:
             return self.poses[i].copy()
         lo, hi = i - 1, i
-        d_lo = stamp_ns - int(self.stamps_ns[lo]) if lo >= 0 else None
-        d_hi = int(self.stamps_ns[hi]) - stamp_ns if hi < len(self.poses) else None
+        d_lo = stamp_ns - self.stamps_ns[lo] if lo >= 0 else None
+        d_hi = self.stamps_ns[hi] - stamp_ns if hi < len(self.poses) else None
         ok_lo = d_lo is not None and d_lo <= self.tolerance_ns
         ok_hi = d_hi is not None and d_hi <= self.tolerance_ns
         if ok_lo and ok_hi:
@@ -275,6 +317,14 @@ def scan_intensity(scan: Scan) -> np.ndarray:
 def valid_mask(points: np.ndarray) -> np.ndarray:
     """(N,) bool: rows of (N, 3) ``points`` whose coordinates are all finite."""
     return np.all(np.isfinite(points), axis=1)
+
+
+def check_scan_file(path: Path, total: int, kept: int) -> None:
+    """DatasetError when a scan file held ``total`` points of which ``kept`` are finite and none is left
+    (an all-NaN or empty file is a damaged frame, not a scan)."""
+    if kept == 0:
+        what = "no points" if total == 0 else f"no finite point (all {total} points are NaN/Inf)"
+        raise DatasetError(f"{path}: {what}")
 
 
 class SizedIterable:

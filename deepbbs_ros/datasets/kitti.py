@@ -36,7 +36,6 @@ from deepbbs_ros.datasets.base import (
     prepare_output,
     scan_intensity,
     stamp_to_str,
-    valid_mask,
 )
 from deepbbs_ros.errors import DatasetError
 
@@ -52,6 +51,13 @@ KITTI_TR = np.array(
 _KITTI_P0 = "7.188560000000e+02 0.000000000000e+00 6.071928000000e+02 0.000000000000e+00 0.000000000000e+00 " \
     "7.188560000000e+02 1.852157000000e+02 0.000000000000e+00 0.000000000000e+00 0.000000000000e+00 " \
     "1.000000000000e+00 0.000000000000e+00"
+
+
+def read_bin(path: Path):
+    """A KITTI ``.bin`` scan (see :func:`deepbbs_ros.datasets.folder.read_bin`)."""
+    from deepbbs_ros.datasets.folder import read_bin as _read_bin
+
+    return _read_bin(path)
 
 
 def is_kitti_folder(path: Path) -> bool:
@@ -131,8 +137,9 @@ class KittiSource(ScanSource):
                 P[:3, :] = r.reshape(3, 4)
                 self.poses.append(Tr_inv @ P @ Tr)
             if self.pose_error is not None:
-                self.fault(self.pose_error)
+                self.defer(self.pose_error)
         self.stamps_ns: list[int] | None = None
+        self.times_error: DatasetError | None = None
         times = self.path / "times.txt"
         if times.is_file():
             stamps: list[int] = []
@@ -142,7 +149,8 @@ class KittiSource(ScanSource):
                 try:
                     stamps.append(parse_stamp(line.strip()))
                 except ValueError as err:
-                    self.fault(DatasetError(f"{times}: line {lineno}: malformed time: {err}"))
+                    self.times_error = DatasetError(f"{times}: line {lineno}: malformed time: {err}")
+                    self.defer(self.times_error)
                     break
             self.stamps_ns = stamps
 
@@ -158,23 +166,18 @@ class KittiSource(ScanSource):
                 T = self.poses[index]
             if self.stamps_ns is not None:
                 if index >= len(self.stamps_ns):
+                    if self.times_error is not None:
+                        raise self.times_error
                     raise DatasetError(f"{self.path / 'times.txt'}: frame {index} ({f.name}) has no time")
                 stamp_ns = self.stamps_ns[index]
             else:
                 stamp_ns = index * 100_000_000
-            raw = f.read_bytes()
-            if len(raw) % 16:
-                raise DatasetError(f"{f}: size {len(raw)} bytes is not a multiple of 16 (x y z r float32)")
-            rec = np.frombuffer(raw, dtype="<f4").reshape(-1, 4)
-            keep = valid_mask(rec[:, :3])
-            yield Scan(
-                index,
-                stamp_ns,
-                rec[keep, :3],
-                {"intensity": np.ascontiguousarray(rec[keep, 3])},
-                frame_id=APOLLO_LIDAR_FRAME,
-                T_world_lidar=T,
-            )
+            try:
+                xyz, fields = read_bin(f)
+            except DatasetError as err:
+                self.skip(err)  # a damaged scan file costs its own frame
+                continue
+            yield Scan(index, stamp_ns, xyz, fields, frame_id=APOLLO_LIDAR_FRAME, T_world_lidar=T)
 
 
 def write_kitti(scans: Iterable[Scan], out: Path | str) -> int:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepbbs_ros.datasets.base import valid_mask
+from deepbbs_ros.datasets.base import check_scan_file, valid_mask
 from deepbbs_ros.errors import DatasetError
 
 _TYPES = {
@@ -251,18 +251,21 @@ def read_pcd(path: Path | str) -> dict[str, np.ndarray]:
 
 
 # -------------------------------------------------------------------------------------------- write
-def read_pcd_points(path: Path | str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def read_pcd_points(path: Path | str, *, require_points: bool = False) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """A PCD file as a point cloud: (xyz (N, 3) float32 metres, the other fields (N,)), rows with a
     non-finite coordinate dropped.
 
     Raises:
-        DatasetError: unreadable file, or no ``x y z`` fields.
+        DatasetError: unreadable file, or no ``x y z`` fields; with ``require_points``, also a file
+            without a single finite point (a damaged scan).
     """
     arrays = read_pcd(path)
     if not all(k in arrays for k in "xyz"):
         raise DatasetError(f"{path}: PCD has no x y z fields (has {', '.join(arrays)})")
     xyz = np.stack([arrays.pop("x"), arrays.pop("y"), arrays.pop("z")], axis=1).astype(np.float32)
     keep = valid_mask(xyz)
+    if require_points:
+        check_scan_file(Path(path), len(xyz), int(keep.sum()))
     return xyz[keep], {k: v[keep] for k, v in arrays.items()}
 
 
@@ -296,7 +299,7 @@ def write_pcd(path: Path | str, arrays: dict[str, np.ndarray], encoding: str = "
         else:
             cols[name] = arr
     order = [k for k in ("x", "y", "z") if k in cols] + [k for k in cols if k not in ("x", "y", "z")]
-    cols = {k: (cols[k].reshape(len(cols[k]), -1)) for k in order}
+    cols = {k: (cols[k].reshape(len(cols[k]), -1) if cols[k].ndim > 1 else cols[k].reshape(-1, 1)) for k in order}
     sizes_n = {len(v) for v in cols.values()}
     if len(sizes_n) > 1:
         raise DatasetError(f"{path}: PCD fields have different lengths {sorted(sizes_n)}")

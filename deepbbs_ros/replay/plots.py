@@ -21,9 +21,30 @@ def _plt():
 
 
 def _cdf(ax, values, label):
-    v = np.sort(np.asarray(values, dtype=np.float64)[np.isfinite(values)])
+    v = np.asarray(values, dtype=np.float64)
+    v = np.sort(v[np.isfinite(v)])
     if v.size:
         ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=label)
+
+
+def _finite_positive(values) -> bool:
+    v = np.asarray(values, dtype=np.float64)
+    return bool(np.any(np.isfinite(v) & (v > 0)))
+
+
+def _log_or_note(ax, axis: str, values) -> None:
+    """Log scale on ``axis`` when some value is finite and > 0, else a linear axis and a note saying
+    why it is empty (every registration failed, or an exact zero error)."""
+    if _finite_positive(values):
+        (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
+    else:
+        ax.text(0.5, 0.5, "no finite error > 0 to plot", transform=ax.transAxes, ha="center", va="center",
+                color="0.4")
+
+
+def _legend(ax, **kw) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kw)
 
 
 def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: float) -> list[Path]:
@@ -32,18 +53,22 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
     plt = _plt()
     out = []
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    rot_all = [r.rot_err_deg for r in res.records]
+    tr_all = [r.trans_err_m for r in res.records]
     for name in res.methods:
         recs = res.of(name)
         _cdf(axes[0], [r.rot_err_deg for r in recs], name)
         _cdf(axes[1], [r.trans_err_m for r in recs], name)
-    axes[0].axvline(rot_thresh, color="k", ls=":", lw=1)
-    axes[1].axvline(trans_thresh, color="k", ls=":", lw=1)
-    axes[0].set(xscale="log", xlabel="rotation error [deg]", ylabel="fraction of registrations",
-                title="Rotation error CDF")
-    axes[1].set(xscale="log", xlabel="translation error [m]", title="Translation error CDF")
+    axes[0].axvline(rot_thresh, color="k", ls=":", lw=1, label=f"success threshold ({rot_thresh:g} deg)")
+    axes[1].axvline(trans_thresh, color="k", ls=":", lw=1, label=f"success threshold ({trans_thresh:g} m)")
+    _log_or_note(axes[0], "x", rot_all)
+    _log_or_note(axes[1], "x", tr_all)
+    axes[0].set(xlabel="rotation error [deg]", ylabel="fraction of registrations", title="Rotation error CDF",
+                ylim=(0.0, 1.02))
+    axes[1].set(xlabel="translation error [m]", title="Translation error CDF", ylim=(0.0, 1.02))
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend()
+        _legend(ax, fontsize=8)
     fig.tight_layout()
     out.append(run / "errors_cdf.png")
     fig.savefig(out[-1], dpi=110)
@@ -60,7 +85,7 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
     axes[0].set(xlabel="log10 rotation error [deg]", ylabel="registrations", title="Rotation error histogram")
     axes[1].set(xlabel="log10 translation error [m]", title="Translation error histogram")
     for ax in axes:
-        ax.legend()
+        _legend(ax)
     fig.tight_layout()
     out.append(run / "errors_hist.png")
     fig.savefig(out[-1], dpi=110)
@@ -72,11 +97,17 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
         x = [r.pair for r in recs]
         axes[0].plot(x, [r.rot_err_deg for r in recs], ".-", label=name)
         axes[1].plot(x, [r.trans_err_m for r in recs], ".-", label=name)
-    axes[0].set(yscale="log", ylabel="rotation error [deg]", title="Error per pair (trial 0)")
-    axes[1].set(yscale="log", ylabel="translation error [m]", xlabel="pair")
+    from matplotlib.ticker import MaxNLocator
+
+    trial0 = [r for r in res.records if r.trial == 0]
+    _log_or_note(axes[0], "y", [r.rot_err_deg for r in trial0])
+    _log_or_note(axes[1], "y", [r.trans_err_m for r in trial0])
+    axes[0].set(ylabel="rotation error [deg]", title="Error per pair (trial 0)")
+    axes[1].set(ylabel="translation error [m]", xlabel="pair")
+    axes[1].xaxis.set_major_locator(MaxNLocator(integer=True))  # pairs are whole numbers
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].legend()
+    _legend(axes[0])
     fig.tight_layout()
     out.append(run / "errors_over_pairs.png")
     fig.savefig(out[-1], dpi=110)
@@ -95,16 +126,29 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
     gt = np.stack(res.T_world_gt[:n]) if res.has_ground_truth else None
     t = (np.asarray(res.stamps_ns[:n], dtype=np.int64) - res.stamps_ns[0]) * 1e-9
 
-    fig, ax = plt.subplots(figsize=(7, 7))
+    ests = {name: np.stack(res.T_world_est[name][:n]) for name in res.methods}
+    cols = 1 + (len(ests) if gt is not None else 0)
+    fig, axs = plt.subplots(1, cols, figsize=(7 + 4.2 * (cols - 1), 7 if cols == 1 else 5), squeeze=False)
+    ax = axs[0, 0]
     if gt is not None:
         ax.plot(gt[:, 0, 3], gt[:, 1, 3], "k--", lw=2, label="ground truth")
-    for name in res.methods:
-        P = np.stack(res.T_world_est[name][:n])
+    for name, P in ests.items():
         ax.plot(P[:, 0, 3], P[:, 1, 3], lw=1.2, label=name)
     ax.set(xlabel="x [m]", ylabel="y [m]", title="Trajectory (top view)", aspect="equal")
     ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
+    ax.legend(fontsize=8)
+    if gt is not None:  # trajectories that overlap at this scale: the ground-truth path coloured by each error
+        errs = {name: np.linalg.norm(P[:, :3, 3] - gt[:, :3, 3], axis=1) for name, P in ests.items()}
+        finite = [e[np.isfinite(e)] for e in errs.values()]
+        vmax = max([float(e.max()) for e in finite if e.size] + [1e-6])
+        for ax, (name, e) in zip(axs[0, 1:], errs.items()):
+            sc = ax.scatter(gt[:, 0, 3], gt[:, 1, 3], c=e, cmap="viridis", vmin=0.0, vmax=vmax, s=18)
+            worst = float(np.nanmax(e)) if np.isfinite(e).any() else float("nan")
+            ax.set(xlabel="x [m]", title=f"{name}: position error\n(max {worst:.3f} m)", aspect="equal")
+            ax.grid(alpha=0.3)
+        fig.colorbar(sc, ax=list(axs[0, 1:]), label="position error [m] (T_world_0 = ground truth)", shrink=0.8)
+    else:
+        fig.tight_layout()
     out.append(run / "trajectory_xy.png")
     fig.savefig(out[-1], dpi=110)
     plt.close(fig)
@@ -124,7 +168,7 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
     axes[-1].set(ylabel="runtime [ms/frame]", xlabel="time [s]")
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        _legend(ax, fontsize=8)
     fig.tight_layout()
     out.append(run / "errors_over_time.png")
     fig.savefig(out[-1], dpi=110)
@@ -137,11 +181,14 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
             tr, rot = metrics.rpe(P, gt)
             _cdf(axes[0], tr, name)
             _cdf(axes[1], rot, name)
-        axes[0].set(xscale="log", xlabel="RPE translation [m/frame]", ylabel="fraction of frames", title="RPE CDF")
-        axes[1].set(xscale="log", xlabel="RPE rotation [deg/frame]")
+        rpes = [metrics.rpe(P, gt) for P in ests.values()]
+        _log_or_note(axes[0], "x", np.concatenate([t for t, _ in rpes]) if rpes else [])
+        _log_or_note(axes[1], "x", np.concatenate([r for _, r in rpes]) if rpes else [])
+        axes[0].set(xlabel="RPE translation [m/frame]", ylabel="fraction of frames", title="RPE CDF")
+        axes[1].set(xlabel="RPE rotation [deg/frame]")
         for ax in axes:
             ax.grid(alpha=0.3)
-            ax.legend()
+            _legend(ax)
         fig.tight_layout()
         out.append(run / "rpe_cdf.png")
         fig.savefig(out[-1], dpi=110)
@@ -149,4 +196,4 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
     return out
 
 
-__all__ = ["plot_pairs", "plot_odometry", "topic_name"]
+__all__ = ["plot_odometry", "plot_pairs", "topic_name"]

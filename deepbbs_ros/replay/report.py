@@ -229,9 +229,9 @@ def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_f
     ``/deepbbs_replay/ground_truth/odometry`` nav_msgs/Odometry (``world_frame`` -> sensor frame).
     Returns the message count per topic.
     """
-    from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
+    from deepbbs_ros.datasets.rosbag import rosbag2_writer
     from msg_adapters.pointcloud2 import arrays_to_pointcloud2
     from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped
 
@@ -274,7 +274,7 @@ def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_f
                     matrix_to_odometry(T, res.stamps_ns[k], world_frame, child, flavor="rosbags"))
 
     messages.sort(key=lambda m: m[0])
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    with rosbag2_writer(path, "mcap") as writer:  # zstd chunks with chunk, data and summary CRCs
         conns = {}
         for stamp, topic, msgtype, msg in messages:
             if topic not in conns:
@@ -330,12 +330,40 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
     return names, rows
 
 
-def print_table(mode: str, method_metrics: dict[str, dict], title: str = "", console: Any = None) -> None:
+def table_notes(mode: str, method_metrics: dict[str, dict], has_ground_truth: bool = True) -> list[str]:
+    """Footnotes for the ``-`` cells of the comparison table: why a number could not be computed."""
+    _names, rows = table_rows(mode, _clean(method_metrics))
+    if not any("-" in vals for _m, _u, vals in rows):
+        return []
+    notes = []
+    if mode == "odometry":
+        if not has_ground_truth:
+            notes.append("-: needs ground truth (none in this recording): only trajectories and runtime are "
+                         "measured, no drift, ATE or RPE")
+        else:
+            lengths = [m.get("path_length_m") for m in _clean(method_metrics).values()]
+            length = next((v for v in lengths if v is not None), None)
+            if any(m.get("kitti_segments") == 0 for m in method_metrics.values()):
+                shortest = min(metrics.KITTI_LENGTHS)
+                have = f" (this drive: {length:.1f} m)" if length is not None else ""
+                notes.append(f"-: KITTI drift is averaged over path segments of {shortest:g} m and longer; it needs "
+                             f">= {shortest:g} m of path{have}")
+            if any(m.get("frames", 0) < 2 for m in method_metrics.values()):
+                notes.append("-: fewer than 2 frames: no motion to score")
+    else:
+        notes.append("-: nothing to summarise (no pair, or every registration of the method failed)")
+    return notes
+
+
+def print_table(mode: str, method_metrics: dict[str, dict], title: str = "", console: Any = None,
+                has_ground_truth: bool = True) -> None:
     from rich.console import Console
     from rich.table import Table
 
     names, rows = table_rows(mode, _clean(method_metrics))
-    table = Table(title=title or f"deepbbs-replay ({mode})")
+    notes = table_notes(mode, method_metrics, has_ground_truth)
+    table = Table(title=title or f"deepbbs-replay ({mode})", caption="\n".join(notes) or None,
+                  caption_justify="left")
     table.add_column("metric")
     table.add_column("unit")
     for n in names:
