@@ -25,6 +25,7 @@ import io
 import json
 import logging
 import math
+import os
 import re
 import shutil
 import sys
@@ -55,7 +56,7 @@ def expand_sources(items: list[str]) -> list[str]:
     def add(item: str, base: Path | None) -> None:
         path = Path(item)
         if base is not None and not path.is_absolute():
-            path = base / path
+            path = Path(os.path.normpath(base / path))
         text = str(path)
         if path.suffix.lower() in LIST_SUFFIXES and not path.is_dir():
             if not path.is_file():
@@ -308,8 +309,8 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
                 del out
                 frames += rec.frames_read or 0
                 failed += rec.status != "ok"
-                bar.update(1)
                 bar.set_postfix(frames=frames, failed=failed, refresh=False)
+                bar.update(1)
                 if on_result:
                     on_result(rec)
     except KeyboardInterrupt:
@@ -421,10 +422,12 @@ def print_summary(doc: dict[str, Any], console: Any = None) -> None:
     for m in methods:
         p.add_column(m, justify="right")
     rows = ([("recordings", "count", "recordings", 0), ("pairs", "count", "pairs", 0),
-             ("rotation error mean", "deg", "rot_err_deg.mean", 3), ("rotation error RMSE", "deg", "rot_err_deg.rmse", 3),
+             ("rotation error mean", "deg", "rot_err_deg.mean", 3),
+             ("rotation error RMSE", "deg", "rot_err_deg.rmse", 3),
              ("rotation error max", "deg", "rot_err_deg.max", 3),
              ("translation error mean", "m", "trans_err_m.mean", 3),
-             ("translation error RMSE", "m", "trans_err_m.rmse", 3), ("translation error max", "m", "trans_err_m.max", 3),
+             ("translation error RMSE", "m", "trans_err_m.rmse", 3),
+             ("translation error max", "m", "trans_err_m.max", 3),
              ("success rate", "%", "success_rate", 1), ("runtime mean", "ms/pair", "runtime_ms.mean", 1)]
             if mode == "pairs" else
             [("recordings", "count", "recordings", 0), ("frames", "count", "frames", 0),
