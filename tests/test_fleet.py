@@ -8,6 +8,7 @@ import json
 import math
 import os
 import signal
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -223,6 +224,7 @@ def test_a_killed_worker_is_retried(local_ray, fleet_dir, tmp_path):
                          tmp_path / f"single_{r.name}")
         _close(r.methods, single["methods"])
         assert (tmp_path / r.name / "metrics.json").exists()
+    assert not list(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*"))  # the killed worker's folder too
 
 
 def test_ctrl_c_keeps_finished_recordings(local_ray, fleet_dir, tmp_path):

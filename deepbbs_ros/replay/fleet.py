@@ -101,13 +101,14 @@ def recording_names(sources: list[str]) -> list[str]:
 # --------------------------------------------------------------------------------------------------
 # the Ray task
 # --------------------------------------------------------------------------------------------------
-def replay_task(replay_one: Callable[[Any], int], args: Any, source: str) -> dict[str, Any]:
+def replay_task(replay_one: Callable[[Any], int], args: Any, source: str, tag: str = "") -> dict[str, Any]:
     """One recording in a worker process: ``replay_one(args)`` with ``args.source = source`` and a private
     output folder; returns ``{"status", "rc", "error", "seconds", "metrics", "files"}`` where ``files``
-    maps each written file (relative path) to its bytes. Errors become the one-line ``error``."""
+    maps each written file (relative path) to its bytes. Errors become the one-line ``error``. The
+    private folder is removed on return (``tag`` names it, so the driver can remove a killed worker's)."""
     import copy
 
-    tmp = Path(tempfile.mkdtemp(prefix="deepbbs-fleet-"))
+    tmp = Path(tempfile.mkdtemp(prefix=f"deepbbs-fleet-{tag}-"))
     t0 = time.perf_counter()
     args = copy.copy(args)
     args.source, args.out, args.quiet = source, str(tmp), True
@@ -291,10 +292,12 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
                dynamic_ncols=True)
     pending: dict[Any, int] = {}
     frames = failed = 0
+    tag = "none"
     try:
         task = ray.remote(num_cpus=1, num_gpus=gpus_per_task, max_retries=retries)(replay_task)
         fn_ref, args_ref = ray.put(replay_one), ray.put(args)
-        pending = {task.remote(fn_ref, args_ref, r.source): i for i, r in enumerate(recs)}
+        tag = f"{os.getpid()}{int(time.time() * 1000) % 10**8}"
+        pending = {task.remote(fn_ref, args_ref, r.source, tag): i for i, r in enumerate(recs)}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)  # Ctrl-C is seen between waits
             for ref in ready:
@@ -322,6 +325,8 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
         bar.close()
         if started:
             ray.shutdown()
+        for d in Path(tempfile.gettempdir()).glob(f"deepbbs-fleet-{tag}-*"):  # of workers killed on this machine
+            shutil.rmtree(d, ignore_errors=True)
     res.wall_s = time.perf_counter() - t0
     for r in recs:
         if r.status != "ok":
