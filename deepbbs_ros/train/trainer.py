@@ -119,7 +119,6 @@ class Trainer:
 
         from deepbbs_ros.core.model import DeepBBSNet
         from deepbbs_ros.device import resolve_device
-
         from deepbbs_ros.train import distributed
 
         self.config = config.validate()
