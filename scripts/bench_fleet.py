@@ -14,11 +14,11 @@ Example::
 
     python scripts/bench_fleet.py                                    # 8 recordings, 1 vs 2 workers
     python scripts/bench_fleet.py --recordings 16 --workers 1,2,4 --methods "gicp;kiss-icp"
-    python scripts/bench_fleet.py --methods "deepbbs++" --network-off     # the network's process vs in-process
+    python scripts/bench_fleet.py --methods "deepbbs++" --network-process  # + 2 CPUs/recording, network apart
 
-``deepbbs++`` on a CPU runs its network in a worker process of its own next to each recording's process
-(``registration.network_process: auto``); a config with ``network_process: off`` keeps it in-process
-(``--network-off`` adds that variant). Extra arguments after ``--`` go to deepbbs-replay.
+A fleet task has ``--cpus-per-task`` CPUs (1): DeepBBS++ runs its network in its own process (what a
+single run does on a CPU, ``registration.network_process: auto``) only with 2 or more; ``--network-process``
+adds that variant (``--cpus-per-task 2``). Extra arguments after ``--`` go to deepbbs-replay.
 """
 
 from __future__ import annotations
@@ -91,24 +91,23 @@ def main() -> int:
     p.add_argument("--workers", default="1,2", help="comma list of worker counts (Ray CPUs)")
     p.add_argument("--methods", default="gicp,kiss-icp;deepbbs++",
                    help="';'-separated method sets, each a deepbbs-replay --method list")
-    p.add_argument("--network-off", action="store_true",
-                   help="also run every set containing deepbbs++ with registration.network_process: off")
+    p.add_argument("--network-process", action="store_true",
+                   help="also run every set containing deepbbs++ with 2 CPUs per recording (its network in a "
+                   "process of its own)")
     p.add_argument("--cache", help="folder of the simulated recordings")
     p.add_argument("--json", help="also write the rows to this JSON file")
     args = p.parse_args(argv)
     workers = [int(w) for w in args.workers.split(",") if w.strip()]
     sources = ensure_recordings(args)
-    variants: list[tuple[str, str, list[str]]] = []
+    variants: list[tuple[str, str, list[str], int]] = []  # label, methods, extra args, CPUs per recording
     for m in (m.strip() for m in args.methods.split(";") if m.strip()):
-        variants.append((m, m, extra))
-        if args.network_off and "deepbbs++" in m:
-            cfg = Path(tempfile.gettempdir()) / "bench_fleet_network_off.yaml"
-            cfg.write_text("registration:\n  network_process: \"off\"\n")
-            variants.append((f"{m} (network in-process)", m, [*extra, "--config", str(cfg)]))
+        variants.append((m, m, extra, 1))
+        if args.network_process and "deepbbs++" in m:
+            variants.append((f"{m} (2 CPUs/rec., network apart)", m, [*extra, "--cpus-per-task", "2"], 2))
     rows = []
-    for label, methods, ex in variants:
+    for label, methods, ex, cpt in variants:
         base = None
-        for w in workers:
+        for w in (w for w in workers if w >= cpt):
             r = run_once(sources, methods, w, ex)
             r["label"] = label
             base = base or r["fleet_wall_s"]
@@ -119,15 +118,15 @@ def main() -> int:
             print(f"  {label}: {w} worker(s) {r['fleet_wall_s']:.1f} s ({r['ok']}/{r['total']} ok)", flush=True)
     print()
     print(f"{args.recordings} recordings x {args.frames} frames (HDL-64, simulated), deepbbs-replay --mode odometry")
-    head = (f"{'methods':<34} {'workers':>7} {'command s':>10} {'fleet s':>8} {'speedup':>8} "
+    head = (f"{'methods':<34} {'CPUs':>7} {'command s':>10} {'fleet s':>8} {'speedup':>8} "
             f"{'s/recording':>12} {'frames/s':>9} {'frames/s/CPU':>13}")
     print(head)
     print("-" * len(head))
     for r in rows:
         print(f"{r['label']:<34} {r['workers']:>7} {r['cmd_wall_s']:>10.1f} {r['fleet_wall_s']:>8.1f} "
               f"{r['speedup']:>7.2f}x {r['task_s_mean']:>12.2f} {r['fps']:>9.2f} {r['fps_per_cpu']:>13.2f}")
-    print("command s: the whole deepbbs-replay process (Ray start-up included); fleet s: after Ray is up; "
-          "s/recording: one recording in its worker (imports of a fresh worker included)")
+    print("CPUs: --workers (Ray CPUs); command s: the whole deepbbs-replay process (Ray start-up included); "
+          "fleet s: after Ray is up; s/recording: one recording in its worker (imports of a fresh worker included)")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))
     return 0

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from deepbbs_ros.cli.replay import main, replay_recording
+from deepbbs_ros.config import Config
 from deepbbs_ros.datasets import Scan, write_scans
 from deepbbs_ros.errors import DatasetError
 from deepbbs_ros.replay import fleet
@@ -34,12 +35,13 @@ def local_ray():
              object_store_memory=200 * 1024**2)
     session = Path(ray._private.worker._global_node.get_session_dir_path()).name
     yield
+    ours = _descendants(_processes(session))  # Ray's daemons, its workers and what they started
+    assert ours
     ray.shutdown()
     deadline = time.monotonic() + 20
-    while _processes(session) and time.monotonic() < deadline:
+    while _alive(ours) and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert not _processes(session), "Ray processes left behind"
-    assert not _processes("ray::"), "Ray worker processes left behind"
+    assert not _alive(ours), "Ray processes left behind"
 
 
 def _processes(needle: str) -> list[int]:
@@ -55,6 +57,36 @@ def _processes(needle: str) -> list[int]:
     return out
 
 
+def _descendants(pids: list[int]) -> set[int]:
+    parent = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                parent[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                pass
+    out, todo = set(pids), list(pids)
+    while todo:
+        p = todo.pop()
+        for child, ppid in parent.items():
+            if ppid == p and child not in out:
+                out.add(child)
+                todo.append(child)
+    return out
+
+
+def _alive(pids: set[int]) -> list[int]:
+    alive = []
+    for p in pids:
+        try:
+            state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            if state != "Z":
+                alive.append(p)
+        except OSError:
+            pass
+    return alive
+
+
 @pytest.fixture(scope="module")
 def fleet_dir(tmp_path_factory):
     """Three good recordings, one without ground truth, one truncated, and a config that keeps them quick."""
@@ -66,8 +98,29 @@ def fleet_dir(tmp_path_factory):
     mcap = next((d / "drive_0").glob("*.mcap"))
     (d / "broken").mkdir()
     (d / "broken" / "broken.mcap").write_bytes(mcap.read_bytes()[:3000])  # truncated after its header
-    (d / "fast.yaml").write_text("eval:\n  threads: 1\n  baseline_max_iters: 30\npreprocess:\n  num_points: 256\n")
+    (d / "fast.yaml").write_text("eval:\n  threads: 1\n  baseline_max_iters: 30\npreprocess:\n  num_points: 256\n"
+                                 # one small_gicp thread: otherwise DeepBBS++ picks its GICP threads by whether
+                                 # its network process has answered yet, and the last digits follow the timing
+                                 "registration:\n  max_deep_iters: 2\n  threads: 1\n  polish_threads: 1\n"
+                                 "odometry:\n  threads: 1\n")
     return d
+
+
+@pytest.fixture(scope="module")
+def tiny_weights(tmp_path_factory):
+    """A tiny random DeepBBS network (the fleet only needs DeepBBS++ to run, deterministically)."""
+    import torch
+
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.checkpoint import save_checkpoint
+    from deepbbs_ros.core.model import DeepBBSNet
+
+    cfg = Config().replace(**{"model.k": 8, "model.dgcnn_widths": [16, 16], "model.emb_dims": 32,
+                              "model.n_heads": 2, "model.ff_dims": 32, "preprocess.num_points": 256})
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("w") / "tiny.pt"
+    save_checkpoint(path, DeepBBSNet(cfg.model), cfg, {"note": "random tiny model for tests"})
+    return path
 
 
 def _close(a, b, path=""):
@@ -132,6 +185,17 @@ def test_pooled_figures_from_per_recording_metrics():
     assert o["runtime_ms"]["mean"] == pytest.approx((10 * 20 + 20 * 50) / 30) and o["fps"] == pytest.approx(25.0)
 
 
+def test_fleet_task_share_of_the_machine():
+    """Thread settings of 0 (every core) mean the task's CPUs; DeepBBS++'s network process needs 2 of them."""
+    from deepbbs_ros.cli.replay import fleet_overrides
+
+    assert fleet_overrides(Config(), 1) == {"eval.threads": 1, "odometry.threads": 1, "registration.polish_threads": 1,
+                                            "registration.network_process": "off"}
+    assert fleet_overrides(Config(), 2) == {"eval.threads": 2, "odometry.threads": 2, "registration.polish_threads": 2}
+    assert fleet_overrides(Config().replace(**{"eval.threads": 3, "registration.network_process": "off"}), 1) == {
+        "odometry.threads": 1, "registration.polish_threads": 1}
+
+
 # -- a real fleet ----------------------------------------------------------------------------------
 def test_fleet_pairs_equal_single_runs_and_failures_are_one_line(local_ray, fleet_dir, tmp_path, capsys):
     argv = ["--mode", "pairs", "--method", "icp,gicp", "--stride", "4", "--max-dist", "2.0",
@@ -161,6 +225,8 @@ def test_fleet_pairs_equal_single_runs_and_failures_are_one_line(local_ray, flee
         _close(mine["methods"], single["methods"])
         _close(rows[name]["methods"], single["methods"])
         assert mine["complete"] and mine["frames_read"] == single["frames_read"] == 10
+        used = Config.from_yaml(sub / "config_used.yaml")  # the task's share of the machine, recorded
+        assert used.odometry.threads == 1 and used.registration.network_process == "off"
     # the pooled figures come from the per-recording ones
     pooled = fleet.pool_metrics("pairs", [rows["drive_0"]["methods"], rows["drive_1"]["methods"]])
     _close(doc["pooled"], json.loads(json.dumps(pooled)))
@@ -169,8 +235,9 @@ def test_fleet_pairs_equal_single_runs_and_failures_are_one_line(local_ray, flee
     assert lines[0].startswith("recording,source,status") and len(lines) == 5
 
 
-def test_fleet_odometry_equal_single_runs(local_ray, fleet_dir, tmp_path):
-    argv = ["--mode", "odometry", "--method", "gicp,kiss-icp", "--config", str(fleet_dir / "fast.yaml")]
+def test_fleet_odometry_equal_single_runs(local_ray, fleet_dir, tiny_weights, tmp_path):
+    argv = ["--mode", "odometry", "--method", "gicp,kiss-icp,deepbbs++", "--config", str(fleet_dir / "fast.yaml"),
+            "--weights", str(tiny_weights)]
     out = tmp_path / "fleet"
     lst = tmp_path / "drives.txt"
     lst.write_text("".join(f"{fleet_dir / n}\n" for n in ("drive_1", "drive_2")))
@@ -184,6 +251,7 @@ def test_fleet_odometry_equal_single_runs(local_ray, fleet_dir, tmp_path):
         assert (run / name / "traj" / "gicp.tum").read_text() == (
             (tmp_path / f"single_{name}" / "latest").resolve() / "traj" / "gicp.tum").read_text()
     assert doc["pooled"]["gicp"]["frames"] == 20 and doc["pooled"]["kiss-icp"]["recordings"] == 2
+    assert doc["pooled"]["deepbbs++"]["frames"] == 20
 
 
 def _args(fleet_dir, **over):
@@ -248,7 +316,9 @@ def test_fleet_cli_errors(fleet_dir, tmp_path, capsys):
     base = [str(fleet_dir / "drive_0"), str(fleet_dir / "drive_1"), "--out", str(tmp_path), "--quiet"]
     for extra, message in ((["--workers", "0"], "--workers must be >= 1"),
                            (["--device", "cuda"], "--gpus-per-task"),
-                           (["--method", "ndt"], "unknown method")):
+                           (["--method", "ndt"], "unknown method"),
+                           (["--ray-address", "127.0.0.1:1"], "cannot reach the Ray cluster"),
+                           (["--ray-address", "head-node"], "expected HOST:PORT")):
         assert main([*base, *extra]) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err

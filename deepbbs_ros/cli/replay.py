@@ -80,9 +80,12 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--quiet", action="store_true", help="no progress bar")
     f = p.add_argument_group("fleet (several recordings as Ray tasks)")
     f.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="start Ray here with N CPUs, one recording per CPU (default for several sources: all cores)")
+                   help="start Ray here with N CPUs, N / --cpus-per-task recordings at a time (default: all cores)")
     f.add_argument("--ray-address", default=None, metavar="ADDR",
                    help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead")
+    f.add_argument("--cpus-per-task", type=int, default=1, metavar="N",
+                   help="CPUs Ray gives each recording; thread settings of 0 (every core) mean these N, and "
+                   "DeepBBS++ runs its network in a process of its own only with N >= 2")
     f.add_argument("--retries", type=int, default=3, help="times Ray reruns a recording whose worker process died")
     f.add_argument("--gpus-per-task", type=float, default=0.0, metavar="G",
                    help="GPUs Ray gives each recording (0: CPU only; e.g. 0.25 shares a GPU between 4 tasks)")
@@ -100,7 +103,19 @@ def _config(args):
                       ("drop_frames", "eval.drop_frames"), ("wrong_prior", "eval.wrong_prior")):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
+    overrides.update(getattr(args, "fleet_overrides", None) or {})  # a fleet task's share of the machine
     return load_config(args.config, overrides)
+
+
+def fleet_overrides(cfg, cpus: int) -> dict:
+    """What "every core" means in a fleet task: the task's ``cpus`` (thread settings of 0), and the
+    network's own process (``network_process: auto``) only when the task has 2 CPUs or more."""
+    out = {key: cpus for key, value in (("eval.threads", cfg.eval.threads), ("odometry.threads", cfg.odometry.threads),
+                                         ("registration.polish_threads", cfg.registration.polish_threads))
+           if value == 0}
+    if cfg.registration.network_process == "auto" and cpus < 2:
+        out["registration.network_process"] = "off"
+    return out
 
 
 @cli_entry(PROG)
@@ -234,22 +249,31 @@ def run_fleet(args, sources: list[str]) -> int:
         raise ConfigError("--workers must be >= 1")
     if args.retries < 0 or args.gpus_per_task < 0:
         raise ConfigError("--retries and --gpus-per-task must be >= 0")
+    if args.cpus_per_task < 1:
+        raise ConfigError("--cpus-per-task must be >= 1")
     if (args.device or "").startswith("cuda") and args.gpus_per_task <= 0:
         raise ConfigError(f"--device {args.device}: give --gpus-per-task > 0 (Ray gives a task no GPU otherwise)")
-    cfg = _config(args)  # a bad config is one error here, not one per recording
+    cfg = _config(args)  # a bad config or option is one error here, not one per recording
+    args.fleet_overrides = fleet_overrides(cfg, args.cpus_per_task)
+    cfg = _config(args)
     from deepbbs_ros.replay.methods import parse_methods
 
     parse_methods(args.method, args.mode)
+    for flag in ("max_frames", "max_pairs"):
+        if getattr(args, flag) is not None and getattr(args, flag) < 1:
+            raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1")
     # workers may run elsewhere: absolute paths for every file the single run opens
     sources = [os.path.abspath(s) for s in sources]
     for flag in ("config", "weights"):
         if getattr(args, flag) and Path(getattr(args, flag)).exists():
             setattr(args, flag, os.path.abspath(getattr(args, flag)))
-    workers = None if args.ray_address else (args.workers or min(len(sources), os.cpu_count() or 1))
+    workers = None if args.ray_address else (args.workers or max(
+        args.cpus_per_task, min(len(sources) * args.cpus_per_task, os.cpu_count() or 1)))
     run = report.make_run_dir(args.out)
     cfg.to_yaml(run / "config_used.yaml")
     res = fleet.run_fleet(replay_recording, args, sources, run, workers=workers, address=args.ray_address,
-                          retries=args.retries, gpus_per_task=args.gpus_per_task, progress=not args.quiet)
+                          retries=args.retries, cpus_per_task=args.cpus_per_task, gpus_per_task=args.gpus_per_task,
+                          progress=not args.quiet)
     doc = fleet.write_summary(run, res, extra={"method": args.method, "config": args.config})
     fleet.print_summary(doc)
     print(f"results: {run}  (latest: {Path(args.out) / 'latest'})")

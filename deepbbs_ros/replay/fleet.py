@@ -259,6 +259,8 @@ def init_ray(workers: int | None, address: str | None) -> tuple[bool, int]:
     except ImportError as err:  # pragma: no cover - ray is an install requirement
         raise ConfigError("fleet runs need Ray: pip install ray") from err
     started = False
+    if address:
+        _check_reachable(address)
     if not ray.is_initialized():
         kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                               "logging_level": logging.ERROR, "configure_logging": True}
@@ -275,11 +277,27 @@ def init_ray(workers: int | None, address: str | None) -> tuple[bool, int]:
     return started, cpus
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A quick TCP connect to ``HOST:PORT`` (Ray itself retries an unreachable address for minutes)."""
+    import socket
+
+    if address == "auto":
+        return
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")
+    if not sep or not port.isdigit():
+        raise ConfigError(f"--ray-address: expected HOST:PORT or 'auto', got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as err:
+        raise ConfigError(f"--ray-address: cannot reach the Ray cluster at {address} ({err.strerror or err})") from err
+
+
 def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], run_dir: Path, *,
-              workers: int | None = None, address: str | None = None, retries: int = 3, gpus_per_task: float = 0.0,
+              workers: int | None = None, address: str | None = None, retries: int = 3, cpus_per_task: int = 1,
+              gpus_per_task: float = 0.0,
               progress: bool = True, on_result: Callable[[Recording], None] | None = None) -> FleetResult:
-    """Replay every source as a Ray task (1 CPU, ``gpus_per_task`` GPUs each) and write each recording's
-    files into ``run_dir/<name>/`` as they arrive. ``on_result`` is called after each recording."""
+    """Replay every source as a Ray task (``cpus_per_task`` CPUs, ``gpus_per_task`` GPUs each) and write each
+    recording's files into ``run_dir/<name>/`` as they arrive. ``on_result`` is called after each recording."""
     import ray
     from tqdm import tqdm
 
@@ -294,7 +312,7 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
     frames = failed = 0
     tag = "none"
     try:
-        task = ray.remote(num_cpus=1, num_gpus=gpus_per_task, max_retries=retries)(replay_task)
+        task = ray.remote(num_cpus=cpus_per_task, num_gpus=gpus_per_task, max_retries=retries)(replay_task)
         fn_ref, args_ref = ray.put(replay_one), ray.put(args)
         tag = f"{os.getpid()}{int(time.time() * 1000) % 10**8}"
         pending = {task.remote(fn_ref, args_ref, r.source, tag): i for i, r in enumerate(recs)}
