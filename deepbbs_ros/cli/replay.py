@@ -251,6 +251,8 @@ def run_fleet(args, sources: list[str]) -> int:
         raise ConfigError("--retries and --gpus-per-task must be >= 0")
     if args.cpus_per_task < 1:
         raise ConfigError("--cpus-per-task must be >= 1")
+    if args.workers is not None and args.workers < args.cpus_per_task:
+        raise ConfigError(f"--workers {args.workers} cannot run a task of --cpus-per-task {args.cpus_per_task}")
     if (args.device or "").startswith("cuda") and args.gpus_per_task <= 0:
         raise ConfigError(f"--device {args.device}: give --gpus-per-task > 0 (Ray gives a task no GPU otherwise)")
     cfg = _config(args)  # a bad config or option is one error here, not one per recording

@@ -355,15 +355,16 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
 
 
 def _store(folder: Path, rec: Recording, out: dict[str, Any]) -> None:
-    rec.status, rec.error, rec.seconds = out["status"], out.get("error", ""), out.get("seconds")
-    doc = out.get("metrics")
-    if doc is not None:
-        rec.frames_read = doc.get("frames_read")
-        rec.methods = doc.get("methods") or {}
+    """Write a task's files, then fill its row (a Ctrl-C while writing leaves the row 'not run')."""
     for rel, data in (out.get("files") or {}).items():
         path = folder / rel
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
+    doc = out.get("metrics")
+    if doc is not None:
+        rec.frames_read = doc.get("frames_read")
+        rec.methods = doc.get("methods") or {}
+    rec.status, rec.error, rec.seconds = out["status"], out.get("error", ""), out.get("seconds")
 
 
 # --------------------------------------------------------------------------------------------------
