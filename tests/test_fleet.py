@@ -301,7 +301,12 @@ def test_ctrl_c_keeps_finished_recordings(local_ray, fleet_dir, tmp_path):
         os.kill(os.getpid(), signal.SIGINT)
 
     sources = [str(fleet_dir / f"drive_{i}") for i in range(3)] * 2  # more recordings than CPUs
-    res = fleet.run_fleet(replay_recording, _args(fleet_dir), sources, tmp_path, progress=False, on_result=interrupt)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in deepbbs-replay (rclpy tests change it)
+    try:
+        res = fleet.run_fleet(replay_recording, _args(fleet_dir), sources, tmp_path, progress=False,
+                              on_result=interrupt)
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert res.complete is False and any("Ctrl-C" in e for e in res.errors)
     done = [r for r in res.recordings if r.status == "ok"]
     assert done and any(r.status == "not run" for r in res.recordings)
