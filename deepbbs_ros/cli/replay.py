@@ -7,7 +7,7 @@ Examples::
     deepbbs-replay apollo/session --perturb-yaw 45 --trials 3 --seed 1
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp --drop-frames 5 --seed 3
     deepbbs-replay 'fleet/*.mcap' --mode odometry --method gicp,kiss-icp --workers 8     # a fleet, local Ray
-    deepbbs-replay drives.txt --ray-address 10.0.0.1:6379                               # a fleet, Ray cluster
+    deepbbs-replay drives.txt --ray-address head-node:6379                              # a fleet, Ray cluster
 
 Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv or frames.csv,
 traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
