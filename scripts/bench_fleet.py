@@ -118,12 +118,12 @@ def main() -> int:
             print(f"  {label}: {w} worker(s) {r['fleet_wall_s']:.1f} s ({r['ok']}/{r['total']} ok)", flush=True)
     print()
     print(f"{args.recordings} recordings x {args.frames} frames (HDL-64, simulated), deepbbs-replay --mode odometry")
-    head = (f"{'methods':<34} {'CPUs':>7} {'command s':>10} {'fleet s':>8} {'speedup':>8} "
+    head = (f"{'methods':<38} {'CPUs':>7} {'command s':>10} {'fleet s':>8} {'speedup':>8} "
             f"{'s/recording':>12} {'frames/s':>9} {'frames/s/CPU':>13}")
     print(head)
     print("-" * len(head))
     for r in rows:
-        print(f"{r['label']:<34} {r['workers']:>7} {r['cmd_wall_s']:>10.1f} {r['fleet_wall_s']:>8.1f} "
+        print(f"{r['label']:<38} {r['workers']:>7} {r['cmd_wall_s']:>10.1f} {r['fleet_wall_s']:>8.1f} "
               f"{r['speedup']:>7.2f}x {r['task_s_mean']:>12.2f} {r['fps']:>9.2f} {r['fps_per_cpu']:>13.2f}")
     print("CPUs: --workers (Ray CPUs); command s: the whole deepbbs-replay process (Ray start-up included); "
           "fleet s: after Ray is up; s/recording: one recording in its worker (imports of a fresh worker included)")
