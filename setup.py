@@ -30,6 +30,7 @@ INSTALL_REQUIRES = [
     "tqdm>=4.66",  # progress bars
     "rich>=13",  # result tables
     "matplotlib>=3.8",  # plots
+    "ray>=2.40",  # fleet replay: recordings fanned out as tasks, locally or on a cluster (core only, no extras)
 ]
 
 TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6"]

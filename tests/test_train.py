@@ -305,3 +305,66 @@ def test_evaluate_reports_every_method_per_scene():
 
     md = markdown_report(report)
     assert "| deepbbs++ | suburban |" in md and "| gicp | all |" in md and "extra random yaw up to 45 deg" in md
+
+
+# -- several processes (torchrun, DistributedDataParallel on gloo) ----------------------------------
+def _torchrun_fit(*args: str) -> None:
+    """``torchrun --standalone --nproc_per_node 2 deepbbs-train fit ...``: 2 real CPU processes on gloo."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           "-m", "deepbbs_ros.cli.train", "fit", "--no-progress", "--threads", "1", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=root)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+
+
+def _digest(state_dict) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    for v in state_dict.values():
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def test_distributed_fit_two_processes_and_exact_resume(tmp_path):
+    """2 gloo processes: each draws its own pairs, both end with the same weights (not the start's), rank 0
+    alone writes the run; 2 + 2 steps with a resume between == 4 steps straight, every rank's generator too."""
+    from deepbbs_ros.core.checkpoint import load_checkpoint
+
+    cache = tmp_path / "cache"
+    for seed in (1, 2):
+        d = synthetic_drive(f"suburban_{seed}", frames=5, seed=seed)
+        save_drive(cache / f"{d.name}.npz", [d.frame(i) for i in range(len(d))], d.T_world_lidar, d.stamps_ns,
+                   d.meta)
+    sets = [f"--set={k}={json.dumps(v)}" for k, v in TINY.items()]
+    _torchrun_fit("--cache", str(cache), "--run-dir", str(tmp_path / "a"), "--max-steps", "4", *sets)
+    _torchrun_fit("--cache", str(cache), "--run-dir", str(tmp_path / "b"), "--max-steps", "2", *sets)
+    _torchrun_fit("--run-dir", str(tmp_path / "b"), "--resume", "--max-steps", "2")
+
+    a = torch.load(tmp_path / "a" / "state_latest.pt", weights_only=False)
+    assert a["world_size"] == 2 and a["step"] == 4 and [r["rank"] for r in a["ranks"]] == [0, 1]
+    r0, r1 = a["ranks"]
+    assert r0["weights_sha256"] == r1["weights_sha256"] == _digest(a["model"])  # gradients were averaged
+    assert r0["np_rng"] != r1["np_rng"]  # each rank drew its own pairs
+    model, _, meta = load_checkpoint(tmp_path / "a" / "model_latest.pt")
+    assert _digest(model.state_dict()) == r0["weights_sha256"] and meta["processes"] == 2
+    start = Trainer(tiny_config(), tmp_path / "start", [synthetic_drive(frames=4)], progress=False, curves=False)
+    assert _digest(start.model.state_dict()) != r0["weights_sha256"]  # the same seeded start, trained away
+    # rank 0 alone wrote the run folder: each step logged once
+    assert [json.loads(ln)["step"] for ln in (tmp_path / "a" / "log.jsonl").read_text().splitlines()] == [1, 2, 3, 4]
+
+    b = torch.load(tmp_path / "b" / "state_latest.pt", weights_only=False)
+    assert b["step"] == 4 and b["scheduler"] == a["scheduler"]
+    assert b["optimizer"]["param_groups"][0]["lr"] == a["optimizer"]["param_groups"][0]["lr"]
+    for k in a["model"]:
+        torch.testing.assert_close(b["model"][k], a["model"][k], rtol=0, atol=1e-6, msg=k)
+    for ra, rb in zip(a["ranks"], b["ranks"]):
+        assert ra["np_rng"] == rb["np_rng"] and torch.equal(ra["torch_rng"], rb["torch_rng"])
+    assert [json.loads(ln)["step"] for ln in (tmp_path / "b" / "log.jsonl").read_text().splitlines()] == [1, 2, 3, 4]

@@ -6,11 +6,19 @@ Examples::
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp,gicp --out results/replay
     deepbbs-replay apollo/session --perturb-yaw 45 --trials 3 --seed 1
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp --drop-frames 5 --seed 3
+    deepbbs-replay 'fleet/*.mcap' --mode odometry --method gicp,kiss-icp --workers 8     # a fleet, local Ray
+    deepbbs-replay drives.txt --ray-address head-node:6379                              # a fleet, Ray cluster
 
 Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv or frames.csv,
 traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
 1 error (or a recording fault mid-way: results so far are written, marked incomplete), 130 Ctrl-C
 (results so far are written, marked incomplete).
+
+Several sources (paths, quoted globs, or a ``.txt`` file with one source per line), ``--workers`` or
+``--ray-address`` make a fleet run (:mod:`deepbbs_ros.replay.fleet`): each recording runs as a Ray task
+through the same code as a single run and gets its own ``OUT/<timestamp>/<recording>/`` folder; the
+top-level metrics.json and recordings.csv hold the per-recording table and the pooled figures.
+Exit codes: 0 every recording complete, 1 some failed or are incomplete, 130 Ctrl-C.
 """
 
 from __future__ import annotations
@@ -31,9 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
         "and a results bag.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("source", metavar="SOURCE",
+    p.add_argument("source", metavar="SOURCE", nargs="+",
                    help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/), KITTI folder (velodyne/) "
-                   "or a folder of .bin/.pcd scans (name order, no ground truth: odometry trajectories and runtime)")
+                   "or a folder of .bin/.pcd scans (name order, no ground truth: odometry trajectories and runtime); "
+                   "several, a quoted glob or a .txt list (one per line) make a fleet run")
     g = p.add_argument_group("what to run")
     g.add_argument("--mode", choices=("pairs", "odometry"), default="pairs",
                    help="pairs: Apollo pair protocol; odometry: a trajectory per method")
@@ -70,6 +79,17 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     o.add_argument("--no-bag", action="store_true", help="skip the results bag")
     o.add_argument("--quiet", action="store_true", help="no progress bar")
+    f = p.add_argument_group("fleet (several recordings as Ray tasks)")
+    f.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="start Ray here with N CPUs, N / --cpus-per-task recordings at a time (default: all cores)")
+    f.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead")
+    f.add_argument("--cpus-per-task", type=int, default=1, metavar="N",
+                   help="CPUs Ray gives each recording; thread settings of 0 (every core) mean these N, and "
+                   "DeepBBS++ runs its network in a process of its own only with N >= 2")
+    f.add_argument("--retries", type=int, default=3, help="times Ray reruns a recording whose worker process died")
+    f.add_argument("--gpus-per-task", type=float, default=0.0, metavar="G",
+                   help="GPUs Ray gives each recording (0: CPU only; e.g. 0.25 shares a GPU between 4 tasks)")
     return p
 
 
@@ -84,12 +104,35 @@ def _config(args):
                       ("drop_frames", "eval.drop_frames"), ("wrong_prior", "eval.wrong_prior")):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
+    overrides.update(getattr(args, "fleet_overrides", None) or {})  # a fleet task's share of the machine
     return load_config(args.config, overrides)
+
+
+def fleet_overrides(cfg, cpus: int) -> dict:
+    """What "every core" means in a fleet task: the task's ``cpus`` (thread settings of 0), and the
+    network's own process (``network_process: auto``) only when the task has 2 CPUs or more."""
+    out = {key: cpus for key, value in (("eval.threads", cfg.eval.threads), ("odometry.threads", cfg.odometry.threads),
+                                         ("registration.polish_threads", cfg.registration.polish_threads))
+           if value == 0}
+    if cfg.registration.network_process == "auto" and cpus < 2:
+        out["registration.network_process"] = "off"
+    return out
 
 
 @cli_entry(PROG)
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from deepbbs_ros.replay.fleet import expand_sources
+
+    sources = expand_sources(args.source)
+    if len(sources) > 1 or args.workers is not None or args.ray_address is not None:
+        return run_fleet(args, sources)
+    args.source = sources[0]
+    return replay_recording(args)
+
+
+def replay_recording(args) -> int:
+    """One recording (``args.source``), what ``deepbbs-replay SOURCE`` runs; a fleet runs it per recording."""
     from deepbbs_ros.errors import ConfigError, DatasetError
 
     cfg = _config(args)
@@ -212,6 +255,58 @@ def run_replay(args, cfg, source, methods) -> int:
         more = f"; {len(res.errors) - 1} more in metrics.json" if len(res.errors) > 1 else ""
         print(f"{PROG}: error: {res.errors[0]}{more} (results so far written to {run}, marked incomplete)",
               file=sys.stderr)
+        return 1
+    return 0
+
+
+def run_fleet(args, sources: list[str]) -> int:
+    """Every source as a Ray task through :func:`replay_recording`; the fleet summary at the top."""
+    import os
+
+    from deepbbs_ros.errors import ConfigError
+    from deepbbs_ros.replay import fleet, report
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("--workers must be >= 1")
+    if args.retries < 0 or args.gpus_per_task < 0:
+        raise ConfigError("--retries and --gpus-per-task must be >= 0")
+    if args.cpus_per_task < 1:
+        raise ConfigError("--cpus-per-task must be >= 1")
+    if args.workers is not None and args.workers < args.cpus_per_task:
+        raise ConfigError(f"--workers {args.workers} cannot run a task of --cpus-per-task {args.cpus_per_task}")
+    if (args.device or "").startswith("cuda") and args.gpus_per_task <= 0:
+        raise ConfigError(f"--device {args.device}: give --gpus-per-task > 0 (Ray gives a task no GPU otherwise)")
+    cfg = _config(args)  # a bad config or option is one error here, not one per recording
+    args.fleet_overrides = fleet_overrides(cfg, args.cpus_per_task)
+    cfg = _config(args)
+    from deepbbs_ros.replay.methods import parse_methods
+
+    parse_methods(args.method, args.mode)
+    for flag in ("max_frames", "max_pairs"):
+        if getattr(args, flag) is not None and getattr(args, flag) < 1:
+            raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1")
+    # workers may run elsewhere: absolute paths for every file the single run opens
+    sources = [os.path.abspath(s) for s in sources]
+    for flag in ("config", "weights"):
+        if getattr(args, flag) and Path(getattr(args, flag)).exists():
+            setattr(args, flag, os.path.abspath(getattr(args, flag)))
+    workers = None if args.ray_address else (args.workers or max(
+        args.cpus_per_task, min(len(sources) * args.cpus_per_task, os.cpu_count() or 1)))
+    run = report.make_run_dir(args.out)
+    cfg.to_yaml(run / "config_used.yaml")
+    res = fleet.run_fleet(replay_recording, args, sources, run, workers=workers, address=args.ray_address,
+                          retries=args.retries, cpus_per_task=args.cpus_per_task, gpus_per_task=args.gpus_per_task,
+                          progress=not args.quiet)
+    doc = fleet.write_summary(run, res, extra={"method": args.method, "config": args.config})
+    fleet.print_summary(doc)
+    print(f"results: {run}  (latest: {Path(args.out) / 'latest'})")
+    if any("Ctrl-C" in e for e in res.errors):
+        print(f"{PROG}: interrupted; finished recordings written to {run} (marked incomplete)", file=sys.stderr)
+        return 130
+    if not res.complete:
+        bad = [r.name for r in res.recordings if r.status != "ok"]
+        print(f"{PROG}: error: {len(bad)} of {len(res.recordings)} recordings failed or are incomplete "
+              f"({', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}); see {run / 'metrics.json'}", file=sys.stderr)
         return 1
     return 0
 

@@ -6,6 +6,10 @@
     deepbbs-train fit --run runs/default --resume                              # continue exactly
     deepbbs-train evaluate --weights runs/default/model_best.pt --out runs/default/eval.json
     deepbbs-train report --run runs/default                                    # speed + validation history
+    torchrun --nproc_per_node 4 $(which deepbbs-train) fit --cache runs/cache/train --run-dir runs/ddp
+
+``fit`` under ``torchrun`` trains with DistributedDataParallel (gloo on a CPU, NCCL with one GPU per
+process): train.batch_size pairs per process, gradients averaged, rank 0 writes the run folder.
 
 ``fit`` trains on every drive of the ``--cache`` folders (simulated drives and users' recordings
 alike; recordings without ground truth train self-supervised) and validates on ``--val-cache``.
@@ -110,7 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--cache", action="append", default=[], help="training cache folder(s) (repeatable)")
     g.add_argument("--val-cache", action="append", default=[], help="held-out cache folder(s) for validation")
     g = f.add_argument_group("run")
-    g.add_argument("--run", required=True, help="run folder: logs, checkpoints, curves")
+    g.add_argument("--run", "--run-dir", dest="run", required=True,
+                   help="run folder: logs, checkpoints, curves (write --run-dir under torchrun, whose own parser "
+                   "takes --run for its --run-path)")
     g.add_argument("--resume", nargs="?", const="", default=None, metavar="STATE",
                    help="continue from the run folder's state_latest.pt (or STATE); data and config are "
                         "taken from the run's saved command unless given again")
@@ -187,6 +193,19 @@ def _cmd_cache(args) -> int:
 
 
 def _cmd_fit(args) -> int:
+    from deepbbs_ros.train import distributed
+
+    if distributed.env_world_size() <= 1:
+        return _fit(args, main_rank=True)
+    # torchrun: join the process group first (the device of this rank decides gloo or NCCL)
+    args.device = distributed.init_from_env(args.device or _config(args).registration.device)
+    try:
+        return _fit(args, main_rank=distributed.world()[0] == 0)
+    finally:
+        distributed.destroy()
+
+
+def _fit(args, main_rank: bool) -> int:
     from deepbbs_ros.config import Config
     from deepbbs_ros.train.cache import load_cache
     from deepbbs_ros.train.trainer import STATE_FILE, Trainer
@@ -226,20 +245,28 @@ def _cmd_fit(args) -> int:
                       progress=not args.no_progress, meta=meta)
     if args.resume is not None:
         step = trainer.resume(args.resume or None)
-        print(f"deepbbs-train: resumed {run} at step {step} (epoch {trainer.epoch})", file=sys.stderr)
-    saved_args.write_text(json.dumps({"cache": args.cache, "val_cache": args.val_cache, "config": args.config,
-                                      "set": args.set}, indent=2))
+        if main_rank:
+            print(f"deepbbs-train: resumed {run} at step {step} (epoch {trainer.epoch})", file=sys.stderr)
+    if main_rank:
+        saved_args.write_text(json.dumps({"cache": args.cache, "val_cache": args.val_cache, "config": args.config,
+                                          "set": args.set}, indent=2))
     max_steps = args.max_steps
     if args.until_epoch is not None:
         left = args.until_epoch * cfg.train.steps_per_epoch - trainer.step
         max_steps = left if max_steps is None else min(max_steps, left)
         if left <= 0:
-            print(f"deepbbs-train: epoch {args.until_epoch} already reached", file=sys.stderr)
+            if main_rank:
+                print(f"deepbbs-train: epoch {args.until_epoch} already reached", file=sys.stderr)
             return 0
     budget = None if args.time_budget_min is None else 60.0 * args.time_budget_min
-    print(f"deepbbs-train: {len(train_drives)} training drives ({trainer.sampler.num_pairs} frame pairs), "
-          f"{len(val_drives or [])} validation drives, device {trainer.device}, run {run}", file=sys.stderr)
+    procs = f", {trainer.world_size} processes" if trainer.world_size > 1 else ""
+    if main_rank:
+        print(f"deepbbs-train: {len(train_drives)} training drives ({trainer.sampler.num_pairs} frame pairs), "
+              f"{len(val_drives or [])} validation drives, device {trainer.device}{procs}, run {run}",
+              file=sys.stderr)
     res = trainer.fit(max_steps=max_steps, time_budget_s=budget)
+    if not main_rank:
+        return 0
     best = res.get("best_val")
     print(f"deepbbs-train: stopped at step {res['step']} (epoch {res['epoch']}), "
           f"{res['train_seconds'] / 60:.1f} min of training; checkpoints in {run}")

@@ -15,6 +15,13 @@ A run folder holds:
 Determinism: all randomness of the data comes from one ``numpy.random.Generator`` owned by the
 trainer, the model's from torch's global generator; both are saved, so running 2 + 2 steps with a
 resume in between gives the same weights as 4 steps straight.
+
+Several processes (``torchrun``, :mod:`deepbbs_ros.train.distributed`): the network is wrapped in
+``DistributedDataParallel``, every process draws its own ``train.batch_size`` pairs from its own
+generator (seeded with the seed and its rank), gradients are averaged, and every decision that ends or
+saves (time budget, periodic checkpoints, a non-finite loss) is rank 0's, taken by all at the same step.
+Rank 0 alone validates and writes files; the state file holds every rank's generators (``ranks``), so a
+resume with the same number of processes continues exactly.
 """
 
 from __future__ import annotations
@@ -112,13 +119,16 @@ class Trainer:
 
         from deepbbs_ros.core.model import DeepBBSNet
         from deepbbs_ros.device import resolve_device
+        from deepbbs_ros.train import distributed
 
         self.config = config.validate()
         tc = config.train
+        self.rank, self.world_size = distributed.world()
+        self.is_main = self.rank == 0
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.device = resolve_device(device or config.registration.device)
-        self.progress = progress
+        self.progress = progress and self.is_main
         self.curves = curves
         self.meta = dict(meta or {})
         self.num_points = tc.num_points or config.preprocess.num_points
@@ -126,9 +136,16 @@ class Trainer:
         # deterministic seeds: torch (init + model randomness), python, and the data generator
         torch.manual_seed(tc.seed)
         random.seed(tc.seed)
-        self.rng = np.random.default_rng(tc.seed)
+        self.rng = np.random.default_rng(tc.seed if self.world_size == 1 else [tc.seed, self.rank])
 
         self.model = (model if model is not None else DeepBBSNet(config.model)).to(self.device)
+        self.net = self.model  # what a training step calls: the model, or its DistributedDataParallel wrapper
+        if self.world_size > 1:
+            from torch.nn.parallel import DistributedDataParallel
+
+            # rank 0's weights are broadcast here; gradients are averaged in backward()
+            self.net = DistributedDataParallel(self.model, device_ids=[self.device.index]
+                                               if self.device.type == "cuda" else None)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=tc.lr)
         self.scheduler = torch.optim.lr_scheduler.StepLR(
             self.optimizer, step_size=tc.lr_step * tc.steps_per_epoch, gamma=tc.lr_gamma
@@ -144,6 +161,8 @@ class Trainer:
         self._tail: list[dict[str, Any]] = []
         self.meta.setdefault("train_drives", len(train_drives))
         self.meta.setdefault("train_pairs", self.sampler.num_pairs)
+        if self.world_size > 1:
+            self.meta["processes"] = self.world_size
 
     # -- properties --------------------------------------------------------------------------
     @property
@@ -164,7 +183,7 @@ class Trainer:
             pairs = self.sampler.batch(self.rng, tc.batch_size)
         src, tgt, R_gt, t_gt = (x.to(self.device) for x in collate(pairs))
         self.model.train()
-        out = self.model(src, tgt)
+        out = self.net(src, tgt)
         terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=self.config.model.scale, theta=tc.theta,
                              corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
         self.optimizer.zero_grad(set_to_none=True)
@@ -172,15 +191,20 @@ class Trainer:
         grad_norm = float("nan")
         if tc.grad_clip > 0:
             grad_norm = float(torch.nn.utils.clip_grad_norm_(self.model.parameters(), tc.grad_clip))
-        finite = bool(torch.isfinite(terms.total).item())
+        values = [float(terms.total.detach()), float(terms.rot), float(terms.trans), float(terms.corr),
+                  float(terms.partner_ratio)]
+        if self.world_size > 1:  # the mean over the processes: one non-finite loss skips the step everywhere
+            from deepbbs_ros.train.distributed import reduce_mean
+
+            values = reduce_mean(values, self.device)
+        finite = math.isfinite(values[0])
         if finite:
             self.optimizer.step()
         self.scheduler.step()
         self.step += 1
         return {
-            "loss": float(terms.total.detach()), "rot": float(terms.rot), "trans": float(terms.trans),
-            "corr": float(terms.corr), "partners": float(terms.partner_ratio), "grad_norm": grad_norm,
-            "skipped": 0.0 if finite else 1.0,
+            "loss": values[0], "rot": values[1], "trans": values[2], "corr": values[3], "partners": values[4],
+            "grad_norm": grad_norm, "skipped": 0.0 if finite else 1.0,
         }
 
     # -- validation --------------------------------------------------------------------------------
@@ -243,12 +267,33 @@ class Trainer:
                 "num_points": self.num_points, "validation": val, "saved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
                                                                                              time.gmtime())}
 
+    def _rank_state(self) -> dict[str, Any]:
+        """This process's generators and a digest of its weights (the same on every rank when in sync)."""
+        import hashlib
+
+        import torch
+
+        digest = hashlib.sha256()
+        for v in self.model.state_dict().values():
+            digest.update(v.detach().cpu().contiguous().numpy().tobytes())
+        return {"rank": self.rank, "np_rng": self.rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None,
+                "py_rng": random.getstate(), "weights_sha256": digest.hexdigest()}
+
     def save(self, val: dict[str, Any] | None = None, best: bool = False) -> None:
-        """Write ``state_latest.pt`` and ``model_latest.pt`` (and ``model_best.pt`` when ``best``)."""
+        """Write ``state_latest.pt`` and ``model_latest.pt`` (and ``model_best.pt`` when ``best``).
+        With several processes every rank calls it (their generators are gathered); rank 0 writes."""
         import torch
 
         from deepbbs_ros.core.checkpoint import save_checkpoint
 
+        ranks = None
+        if self.world_size > 1:
+            from deepbbs_ros.train.distributed import all_gather
+
+            ranks = all_gather(self._rank_state())
+            if not self.is_main:
+                return
         state = {
             "format": "deepbbs_ros.train/1",
             "model": self.model.state_dict(),
@@ -265,6 +310,8 @@ class Trainer:
             "history": self.history,
             "config": self.config.to_dict(),
             "meta": self.meta,
+            "world_size": self.world_size,
+            "ranks": ranks,
         }
         tmp = self.run_dir / (STATE_FILE + ".tmp")
         torch.save(state, tmp)
@@ -303,14 +350,32 @@ class Trainer:
         if state.get("cuda_rng") is not None and torch.cuda.is_available():
             torch.cuda.set_rng_state_all(state["cuda_rng"])
         random.setstate(state["py_rng"])
+        saved_world = int(state.get("world_size") or 1)
+        ranks = state.get("ranks") or []
+        if self.world_size > 1:
+            if self.rank < len(ranks):  # this rank's own generators
+                mine = ranks[self.rank]
+                self.rng.bit_generator.state = mine["np_rng"]
+                torch.set_rng_state(mine["torch_rng"])
+                if mine.get("cuda_rng") is not None and self.device.type == "cuda":
+                    torch.cuda.set_rng_state(mine["cuda_rng"], self.device)
+                random.setstate(mine["py_rng"])
+            else:  # a rank the saved run did not have: a fresh generator of its own
+                self.rng = np.random.default_rng([self.config.train.seed, self.rank, self.step])
+        if saved_world != self.world_size and self.is_main:
+            print(f"deepbbs-train: resuming a state saved by {saved_world} process(es) with {self.world_size}: "
+                  "weights, optimiser and schedule continue, the order of the pairs differs", file=sys.stderr)
         self.best_score = state.get("best_score")
         self.best_val = state.get("best_val")
         self.history = list(state.get("history", []))
-        self._truncate_log()
+        if self.is_main:
+            self._truncate_log()
         return self.step
 
     # -- logs ------------------------------------------------------------------------------------
     def _log(self, rec: dict[str, Any]) -> None:
+        if not self.is_main:
+            return
         with open(self.run_dir / "log.jsonl", "a") as fh:
             fh.write(json.dumps(rec) + "\n")
 
@@ -324,7 +389,7 @@ class Trainer:
 
     def _write_val_csv(self) -> None:
         vals = [h for h in self.history if h.get("kind") == "val"]
-        if not vals:
+        if not vals or not self.is_main:
             return
         cols = ["step", "epoch", "val_loss"] + [f"{s}_{k}" for s in ("plain", "yaw")
                                                   for k in ("rot_mean_deg", "trans_mean_m", "success")]
@@ -341,7 +406,7 @@ class Trainer:
         from deepbbs_ros.train.plots import plot_curves
 
         log = self.run_dir / "log.jsonl"
-        if not self.curves or not log.exists():
+        if not self.curves or not self.is_main or not log.exists():
             return None
         return plot_curves(log, self.run_dir / "curves.png")
 
@@ -359,7 +424,8 @@ class Trainer:
 
         tc = self.config.train
         end = self.total_steps if max_steps is None else min(self.total_steps, self.step + max_steps)
-        (self.run_dir / "config.yaml").write_text(self.config.to_yaml())
+        if self.is_main:
+            (self.run_dir / "config.yaml").write_text(self.config.to_yaml())
         t_start = time.perf_counter()
         last_save = time.perf_counter()
         bar = tqdm(total=end, initial=self.step, unit="step", desc="train", disable=not self.progress,
@@ -378,7 +444,7 @@ class Trainer:
                 del self._tail[:-10]
                 bar.update(1)
                 bar.set_postfix(loss=f"{terms['loss']:.4g}", s_step=f"{dt:.2f}", epoch=rec["epoch"])
-                if not self.progress and self.step % 10 == 0:  # plain progress lines for log files
+                if not self.progress and self.is_main and self.step % 10 == 0:  # plain progress lines for log files
                     m = {k: np.mean([r[k] for r in self._recent(10)]) for k in ("loss", "rot", "trans", "corr",
                                                                                  "s_per_step")}
                     print(f"step {self.step}/{end} epoch {rec['epoch']} loss {m['loss']:.4g} (rot {m['rot']:.3g} "
@@ -387,7 +453,7 @@ class Trainer:
                 epoch_end = self.step % tc.steps_per_epoch == 0
                 if epoch_end:
                     val = None
-                    if self.val_drives and (self.epoch % tc.val_every == 0 or self.step >= end):
+                    if self.val_drives and self.is_main and (self.epoch % tc.val_every == 0 or self.step >= end):
                         try:
                             val = self.validate()
                         except Exception:  # noqa: BLE001 - a long unattended run keeps training; the bug is logged
@@ -411,13 +477,26 @@ class Trainer:
                     self.save(val, best=is_best)
                     self.plot()
                     last_save = time.perf_counter()
-                elif tc.checkpoint_minutes > 0 and time.perf_counter() - last_save > 60 * tc.checkpoint_minutes:
+                save_now = (not epoch_end and tc.checkpoint_minutes > 0
+                            and time.perf_counter() - last_save > 60 * tc.checkpoint_minutes)
+                stop = time_budget_s is not None and time.perf_counter() - t_start > time_budget_s
+                if self.world_size > 1:  # rank 0's clock decides for every process
+                    from deepbbs_ros.train.distributed import agree
+
+                    save_now, stop = agree([save_now, stop], self.device)
+                if save_now:
                     self.save()
                     last_save = time.perf_counter()
-                if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
-                    bar.write(f"time budget of {time_budget_s:.0f} s reached at step {self.step}")
+                if stop:
+                    if self.is_main:
+                        bar.write(f"time budget of {time_budget_s:.0f} s reached at step {self.step}")
                     break
         except KeyboardInterrupt:
+            if self.world_size > 1:  # the processes may be at different steps: keep the last common save
+                if self.is_main:
+                    print(f"interrupted at step {self.step}: the state saved last in {self.run_dir / STATE_FILE} "
+                          "is kept (resume from it)", file=sys.stderr)
+                raise
             bar.write(f"interrupted at step {self.step}: saving {self.run_dir / STATE_FILE}")
             self.save()
             self.plot()
