@@ -24,7 +24,9 @@ scan k-1. ``--mode pair``: two inputs, both stamped alike, ``--stream``:
 
 * ``consecutive``: scan k on ``source_cloud`` and scan k-1 on ``target_cloud`` (frames played forwards
   then backwards, so that consecutive scans are always neighbours);
-* ``fixed``: the same pair every period (a fixed target cloud: a map, a reference scan).
+* ``fixed``: a fixed target cloud (a map, a reference scan: frame 0 every period) for sources that move
+  (frames 1 to 4 and back);
+* ``same``: the same pair every period.
 
 ``--runs N`` repeats every configuration (a fresh node each run); ``--busy-runs M`` adds M runs with one
 CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
@@ -83,8 +85,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=5, help="simulator seed")
     g = p.add_argument_group("stream")
     g.add_argument("--mode", choices=("pair", "odometry"), default="odometry", help="node mode")
-    g.add_argument("--stream", choices=("consecutive", "fixed", "both"), default="consecutive",
-                   help="pair mode: consecutive scans, or the same pair every period (a fixed target)")
+    g.add_argument("--stream", choices=("consecutive", "fixed", "same", "both"), default="consecutive",
+                   help="pair mode: consecutive scans; a fixed target (frame 0) for frames 1-4; the same pair every "
+                        "period; both = consecutive and fixed")
     g.add_argument("--seconds", type=float, default=10.0, help="measured streaming time per run (s)")
     g.add_argument("--warmup", type=float, default=2.0, help="streaming time before the measurement (s)")
     g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
@@ -138,10 +141,17 @@ def playback_order(n_frames: int, n_total: int) -> list[int]:
     return [cycle[k % len(cycle)] for k in range(n_total)]
 
 
+FIXED_SOURCES = 4  # --stream fixed: the sources are frames 1..4 (KITTI: 1-6 m from the target)
+
+
 def stream_pairs(n_frames: int, stream: str) -> list[tuple[int, int]]:
-    """(source, target) frame indices per period: consecutive neighbours back and forth, or one fixed pair."""
-    if stream == "fixed":
+    """(source, target) frame indices per period: consecutive neighbours back and forth; frame 0 as a fixed
+    target of frames 1, 2, .., FIXED_SOURCES, .., 2 (back and forth); or the same pair (1, 0) every period."""
+    if stream == "same":
         return [(1, 0)]
+    if stream == "fixed":
+        m = min(FIXED_SOURCES, n_frames - 1)
+        return [(1 + i, 0) for i in playback_order(m, max(1, 2 * m - 2))] if m > 1 else [(1, 0)]
     order = playback_order(n_frames, 2 * n_frames - 1)
     return [(order[k + 1], order[k]) for k in range(len(order) - 1)]
 
@@ -447,9 +457,9 @@ def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]])
             if r.error:
                 con.print(f"[red]{label} {method}: node failed[/red]: {r.error[-2000:]}")
             else:
-                con.print(f"  {label} {method}: {stage_line(r.diagnostics)}")
+                con.print(f"  {label} {method}: {stage_line(r.diagnostics)}", soft_wrap=True)
                 if r.cpu:
-                    con.print(f"  {label} {method}: {r.cpu}")
+                    con.print(f"  {label} {method}: {r.cpu}", soft_wrap=True)
 
 
 @cli_entry("bench_node_latency")
@@ -464,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs < 0 or args.busy_runs < 0 or args.runs + args.busy_runs == 0:
         raise DeepBBSError("--runs and --busy-runs must be >= 0, one of them > 0")
     if args.mode == "odometry" and args.stream != "consecutive":
-        raise DeepBBSError("--stream fixed is a pair-mode stream (odometry mode takes consecutive scans)")
+        raise DeepBBSError(f"--stream {args.stream} is a pair-mode stream (odometry mode takes consecutive scans)")
     seqs = kitti_sequences(args.kitti) if args.data == "kitti" else []
 
     from deepbbs_ros.cli.common import local_ros_env
