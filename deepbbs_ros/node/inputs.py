@@ -18,6 +18,8 @@ preprocessing failure) becomes :class:`BadInput` with a kind; the input reports 
 Preprocessing depends on the points only, so its results are cached by content (point count and two
 checksums of the xyz bytes): a cloud that arrives twice (on both pair inputs, or as the next pair's
 target) is preprocessed once, and a second thread asking for a cloud being preprocessed waits for it.
+DeepBBS++ with a network process leaves the GICP cloud's k-d tree and covariances to ``register``
+(:func:`arrival_preprocess`), which builds them while the network process runs the passes.
 """
 
 from __future__ import annotations
