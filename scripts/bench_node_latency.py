@@ -1,29 +1,44 @@
 #!/usr/bin/env python3
 """Latency of the live node against a GICP anchor: real driver layouts streamed at a fixed rate.
 
-For each ``--layout`` the simulator (:func:`deepbbs_ros.sim.simulate_drive`) drives ``--scans`` frames
-through an urban scene with the matching sensor model, and every frame is encoded in the field layout
-its real driver publishes (:mod:`msg_adapters.layouts`):
+Clouds (``--data``):
 
-* ``velodyne``: HDL-64E, ``velodyne_pointcloud`` PointXYZIRT (packed, point_step 22, unorganised,
-  firing order; ~120k points);
-* ``ouster``: OS1-128 (or OS1-64, ``--ouster-beams``), ouster-ros PointOS (point_step 48, organised
-  ``beams x 1024`` with zeros where no return came back, like the driver).
+* ``sim`` (default): the simulator (:func:`deepbbs_ros.sim.simulate_drive`) drives ``--scans`` frames through
+  an urban scene with the sensor model of the layout (raw sweeps with per-point times);
+* ``kitti``: real HDL-64E scans of the KITTI odometry sequences under ``--kitti`` (a sequence folder, or a
+  folder of them; read at run time, ~120k points, not motion-compensated, no per-point time: the time
+  field is written as 0, as a driver without timing does). Run ``r`` streams sequence ``r mod n``.
 
-This process publishes the frames at ``--rate`` Hz (frames played forwards then backwards, so that
-consecutive scans are always neighbours) to a node running in its own process, first ``deepbbs-node``
-(DeepBBS++), then the GICP anchor ``python -m deepbbs_ros.node.gicp_anchor`` (small_gicp GICP, the same
-node plumbing and topics), and times every PoseStamped against the wall time at which its source cloud
-was published (same host, same clock). ``--mode odometry``: one input; deepbbs-node runs its local-map
-odometry (DeepBBSOdometry, DeepBBS++ only on stamp gaps, fit drops and the first motion), the anchor
-chains GICP scan k against scan k-1;
-``--mode pair``: scan k on ``source_cloud`` and scan k-1 on ``target_cloud``, both stamped like scan k.
+Every frame is encoded in the field layout its real driver publishes (:mod:`msg_adapters.layouts`):
 
-Per layout and method it prints the pairs published (after ``--warmup`` seconds), the fraction
-answered, p50 / p99 latency and their ratio to the anchor, then the node's own stage breakdown (from
-/diagnostics). DDS stays on loopback in a run-specific domain. Quick check (about a minute):
+* ``velodyne``: ``velodyne_pointcloud`` PointXYZIRT (packed, point_step 22, unorganised, firing order);
+* ``ouster``: ouster-ros PointOS (point_step 48, organised ``beams x columns`` with zeros where no return
+  came back; simulated OS1-128 / OS1-64 (``--ouster-beams``), or the KITTI scans' 64 rings).
+
+This process publishes the frames at ``--rate`` Hz to a node running in its own process, first
+``deepbbs-node`` (DeepBBS++), then the GICP anchor ``python -m deepbbs_ros.node.gicp_anchor`` (small_gicp
+GICP, the same node plumbing and topics), one node start per run, and times every PoseStamped against the
+wall time at which its source cloud was published (same host, same clock). ``--mode odometry``: one
+input, consecutive scans; deepbbs-node runs its local-map odometry, the anchor chains GICP scan k against
+scan k-1. ``--mode pair``: two inputs, both stamped alike, ``--stream``:
+
+* ``consecutive``: scan k on ``source_cloud`` and scan k-1 on ``target_cloud`` (frames played forwards
+  then backwards, so that consecutive scans are always neighbours);
+* ``fixed``: a fixed target cloud (a map, a reference scan: frame 0 every period) for sources that move
+  (frames 1 to 4 and back);
+* ``same``: the same pair every period.
+
+``--runs N`` repeats every configuration (a fresh node each run); ``--busy-runs M`` adds M runs with one
+CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
+seconds), the share answered, p50 / p99 latency, p99 / p50, the ratio to the anchor of the same run and
+the node's own stage breakdown (from /diagnostics); the last lines judge the DeepBBS++ node against the
+goal (``--goal-*``, ``--busy-*``). DDS stays on loopback in a run-specific domain. Quick check (a minute):
 
     python scripts/bench_node_latency.py --seconds 5 --layout both --mode odometry
+
+The real-scan pair-mode goal (about 25 minutes):
+
+    python scripts/bench_node_latency.py --data kitti --mode pair --stream both --layout both --runs 5 --busy-runs 1
 """
 
 from __future__ import annotations
@@ -39,7 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
 from deepbbs_ros.entry import cli_entry  # noqa: E402
 from deepbbs_ros.errors import DeepBBSError  # noqa: E402
@@ -51,20 +67,33 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
     "gicp": ("deepbbs_ros.node.gicp_anchor", "gicp_anchor"),
 }
 ANCHOR = "gicp"
+KITTI_DEFAULT = ROOT.parent / "shared" / "realdata" / "kitti"
+STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.network_wait",
+          "register.polish", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    g = p.add_argument_group("stream")
+    g = p.add_argument_group("clouds")
+    g.add_argument("--data", choices=("sim", "kitti"), default="sim", help="simulated or real (KITTI) scans")
+    g.add_argument("--kitti", type=Path, default=KITTI_DEFAULT,
+                   help=f"KITTI sequence folder, or a folder of them (--data kitti; default {KITTI_DEFAULT})")
     g.add_argument("--layout", choices=("velodyne", "ouster", "both"), default="both", help="driver layout(s)")
-    g.add_argument("--ouster-beams", type=int, choices=(64, 128), default=128, help="OS1-64 or OS1-128")
-    g.add_argument("--mode", choices=("pair", "odometry"), default="odometry", help="node mode")
-    g.add_argument("--seconds", type=float, default=30.0, help="measured streaming time per run (s)")
-    g.add_argument("--warmup", type=float, default=2.0, help="streaming time before the measurement (s)")
-    g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
+    g.add_argument("--ouster-beams", type=int, choices=(64, 128), default=128, help="simulated OS1-64 or OS1-128")
     g.add_argument("--scans", type=int, default=20, help="distinct simulated frames (played back and forth)")
     g.add_argument("--scene", default="urban", help="simulator scene")
     g.add_argument("--seed", type=int, default=5, help="simulator seed")
+    g = p.add_argument_group("stream")
+    g.add_argument("--mode", choices=("pair", "odometry"), default="odometry", help="node mode")
+    g.add_argument("--stream", choices=("consecutive", "fixed", "same", "both"), default="consecutive",
+                   help="pair mode: consecutive scans; a fixed target (frame 0) for frames 1-4; the same pair every "
+                        "period; both = consecutive and fixed")
+    g.add_argument("--seconds", type=float, default=10.0, help="measured streaming time per run (s)")
+    g.add_argument("--warmup", type=float, default=2.0, help="streaming time before the measurement (s)")
+    g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
+    g.add_argument("--runs", type=int, default=1, help="runs per configuration, a fresh node each")
+    g.add_argument("--busy-runs", type=int, default=0,
+                   help="further runs per configuration with one CPU-bound background process")
     g = p.add_argument_group("nodes")
     g.add_argument("--methods", default="deepbbs,gicp", help="comma-separated: deepbbs, gicp (the anchor)")
     g.add_argument("--weights", default="", help="DeepBBS++ checkpoint (default: the shipped model)")
@@ -72,11 +101,28 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--threads", type=int, default=None,
                    help="registration.threads of the node (torch threads of the network; default: the config's)")
     g.add_argument("--config", help="config YAML for both nodes")
+    g.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a ROS parameter for the DeepBBS++ node (repeatable)")
     g.add_argument("--startup-timeout", type=float, default=120.0, help="s to wait for a node to come up")
+    g = p.add_argument_group("goal (the DeepBBS++ node, every run)")
+    g.add_argument("--goal-answered", type=float, default=99.0, help="%% of pairs answered, at least")
+    g.add_argument("--goal-p99", type=float, default=150.0, help="p99 latency (ms), at most")
+    g.add_argument("--goal-ratio", type=float, default=1.5, help="p99 / p50, at most")
+    g.add_argument("--busy-answered", type=float, default=95.0, help="busy runs: %% answered, at least")
+    g.add_argument("--busy-p99", type=float, default=250.0, help="busy runs: p99 latency (ms), at most")
     return p
 
 
 # -- the clouds -----------------------------------------------------------------------------------------
+@dataclass
+class Stream:
+    """Messages and what is published each period: ``pairs[k % len(pairs)]`` = (source, target) indices."""
+
+    msgs: list
+    pairs: list[tuple[int, int]]
+    desc: str
+
+
 def _lidar(layout: str, ouster_beams: int):
     from deepbbs_ros.sim.lidar import LidarConfig
 
@@ -87,37 +133,97 @@ def _lidar(layout: str, ouster_beams: int):
     return LidarConfig.ouster64(name="os1-64")
 
 
-def layout_message(layout: str, scan, lidar, frame_id: str):
-    """A simulated :class:`~deepbbs_ros.datasets.base.Scan` as the driver of ``layout`` publishes it
-    (rclpy PointCloud2, stamp set later)."""
-    from msg_adapters.layouts import driver_cloud
+def playback_order(n_frames: int, n_total: int) -> list[int]:
+    """Frame index of every published scan: 0, 1, ..., n-1, n-2, ..., 1, 0, 1, ... (neighbours only)."""
+    if n_frames < 2:
+        raise DeepBBSError("a stream needs at least 2 frames")
+    cycle = list(range(n_frames)) + list(range(n_frames - 2, 0, -1))
+    return [cycle[k % len(cycle)] for k in range(n_total)]
 
-    return driver_cloud(layout, scan.points, scan.fields, beams=lidar.beams, columns=lidar.columns,
-                        frame_id=frame_id)
+
+FIXED_SOURCES = 4  # --stream fixed: the sources are frames 1..4 (KITTI: 1-6 m from the target)
 
 
-def make_stream(args, layout: str) -> tuple[list, str]:
+def stream_pairs(n_frames: int, stream: str) -> list[tuple[int, int]]:
+    """(source, target) frame indices per period: consecutive neighbours back and forth; frame 0 as a fixed
+    target of frames 1, 2, .., FIXED_SOURCES, .., 2 (back and forth); or the same pair (1, 0) every period."""
+    if stream == "same":
+        return [(1, 0)]
+    if stream == "fixed":
+        m = min(FIXED_SOURCES, n_frames - 1)
+        return [(1 + i, 0) for i in playback_order(m, max(1, 2 * m - 2))] if m > 1 else [(1, 0)]
+    order = playback_order(n_frames, 2 * n_frames - 1)
+    return [(order[k + 1], order[k]) for k in range(len(order) - 1)]
+
+
+def _describe(msgs: list, n_valid: float, sensor: str, layout: str) -> str:
+    m = msgs[0]
+    return (f"{sensor} ({layout} driver layout, point_step {m.point_step}, {m.height}x{m.width}, "
+            f"{n_valid:.0f} valid points, {len(m.data) / 1e6:.1f} MB)")  # fmt: skip
+
+
+def sim_stream(args, layout: str, stream: str) -> Stream:
     from deepbbs_ros.sim import simulate_drive
+    from msg_adapters.layouts import driver_cloud
 
     lidar = _lidar(layout, args.ouster_beams)
     t0 = time.perf_counter()
     scans = list(simulate_drive(args.scene, args.seed, args.scans, lidar=lidar))
     frame = "velodyne" if layout == "velodyne" else "os_sensor"
-    msgs = [layout_message(layout, s, lidar, frame) for s in scans]
-    n = np.mean([len(s.points) for s in scans])
-    m = msgs[0]
-    desc = (f"{lidar.name} ({layout} driver layout, point_step {m.point_step}, {m.height}x{m.width}, "
-            f"{n:.0f} valid points, {len(m.data) / 1e6:.1f} MB)")  # fmt: skip
+    msgs = [driver_cloud(layout, s.points, s.fields, beams=lidar.beams, columns=lidar.columns, frame_id=frame)
+            for s in scans]  # fmt: skip
+    desc = _describe(msgs, np.mean([len(s.points) for s in scans]), f"simulated {lidar.name}", layout)
     print(f"  simulated {len(scans)} frames of {desc} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return msgs, desc
+    return Stream(msgs, stream_pairs(len(msgs), stream), desc)
 
 
-def playback_order(n_frames: int, n_total: int) -> list[int]:
-    """Frame index of every published scan: 0, 1, ..., n-1, n-2, ..., 1, 0, 1, ... (neighbours only)."""
-    if n_frames < 2:
-        raise DeepBBSError("--scans must be >= 2")
-    cycle = list(range(n_frames)) + list(range(n_frames - 2, 0, -1))
-    return [cycle[k % len(cycle)] for k in range(n_total)]
+def kitti_sequences(path: Path) -> list[Path]:
+    """The KITTI sequence folders at ``path``: itself when it holds ``velodyne/``, else its sub-folders that do."""
+    path = Path(path).expanduser()
+    if (path / "velodyne").is_dir():
+        return [path]
+    seqs = sorted(p for p in path.iterdir() if (p / "velodyne").is_dir()) if path.is_dir() else []
+    if not seqs:
+        raise DeepBBSError(f"--kitti {path}: no KITTI sequence folder (velodyne/NNNNNN.bin) there")
+    return seqs
+
+
+def kitti_rings(xyz: np.ndarray) -> np.ndarray:
+    """(N,) ring (0 = the last laser of the file) of a KITTI scan: each laser's points sweep the azimuth once
+    in file order, so a ring ends where the azimuth wraps around."""
+    az = np.mod(np.arctan2(xyz[:, 1], xyz[:, 0]), 2 * np.pi)
+    k = np.concatenate(([0], np.cumsum(np.diff(az) < -np.pi)))
+    return (k.max() - k).astype(np.uint16)
+
+
+def kitti_stream(args, layout: str, stream: str, seq: Path) -> Stream:
+    """Real HDL-64E scans of one sequence in a driver's layout, with a per-point time field that is all 0
+    (KITTI has no per-point time; Ouster: the 64 rings organised, each ring's points in file order)."""
+    from deepbbs_ros.datasets import open_source
+    from msg_adapters.layouts import driver_cloud
+
+    with open_source(seq) as src:
+        scans = list(src)
+    msgs = []
+    for s in scans:
+        xyz = np.ascontiguousarray(s.points, dtype=np.float32)
+        ring = kitti_rings(xyz)
+        n = len(xyz)
+        fields = {"intensity": np.asarray(s.fields["intensity"], np.float32), "ring": ring,
+                  "time": np.zeros(n, np.float32)}  # fmt: skip
+        if layout == "ouster":
+            order = np.argsort(ring, kind="stable")
+            starts = np.searchsorted(ring[order], np.arange(int(ring.max()) + 1))
+            column = np.empty(n, np.int64)
+            column[order] = np.arange(n) - np.repeat(starts, np.diff(np.append(starts, n)))
+            fields["column"] = column
+        msgs.append((xyz, fields))
+    beams = int(max(f["ring"].max() for _, f in msgs)) + 1
+    columns = int(max(f.get("column", np.zeros(1, np.int64)).max() for _, f in msgs)) + 1
+    frame = "velodyne" if layout == "velodyne" else "os_sensor"
+    out = [driver_cloud(layout, xyz, f, beams=beams, columns=columns, frame_id=frame) for xyz, f in msgs]
+    desc = _describe(out, np.mean([len(x) for x, _ in msgs]), f"KITTI {seq.name} HDL-64E, time field 0", layout)
+    return Stream(out, stream_pairs(len(out), stream), desc)
 
 
 # -- one run ---------------------------------------------------------------------------------------------
@@ -127,6 +233,7 @@ class RunResult:
     latencies_ms: list[float] = field(default_factory=list)
     diagnostics: dict[str, str] = field(default_factory=dict)
     error: str = ""
+    cpu: str = ""  # CPU ms per period per thread group (cpu_line)
 
     @property
     def answered(self) -> float:
@@ -136,7 +243,61 @@ class RunResult:
         return float(np.percentile(self.latencies_ms, q)) if self.latencies_ms else float("nan")
 
 
-def run_method(args, method: str, msgs: list) -> RunResult:
+def _descendants(pid: int) -> list[int]:
+    """``pid`` and every process below it (Linux /proc)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                todo += [int(c) for c in (task / "children").read_text().split()]
+            except OSError:
+                pass
+    return out
+
+
+def cpu_snapshot(pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) of every thread of ``pid`` and its child processes, summed per
+    ``"process: thread name"`` (the node names its worker threads; unnamed threads are the executor's, DDS's
+    and OpenMP's). Empty where /proc is not there."""
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    out: dict[str, float] = {}
+    for i, p in enumerate(_descendants(pid)):
+        proc = "node" if i == 0 else "child"
+        try:
+            if "network_process" in Path(f"/proc/{p}/cmdline").read_text():
+                proc = "network process"
+        except OSError:
+            continue
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                name = (task / "comm").read_text().strip()
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            name = name if name.startswith(("input", "registration")) else "other"
+            key = f"{proc}: {name}"
+            out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def cpu_line(before: dict[str, float], after: dict[str, float], periods: int) -> str:
+    """CPU ms per period per thread group between two :func:`cpu_snapshot` s."""
+    if not before or not after or periods <= 0:
+        return ""
+    d = {k: (after.get(k, 0.0) - before.get(k, 0.0)) * 1e3 / periods for k in after}
+    parts = [f"{k} {v:.1f}" for k, v in sorted(d.items(), key=lambda kv: -kv[1]) if v >= 0.05]
+    return f"CPU ms per period: {', '.join(parts)}; total {sum(d.values()):.1f}"
+
+
+def _busy_process() -> subprocess.Popen:
+    """One CPU-bound process (a Python busy loop) until killed."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)  # fmt: skip
+
+
+def run_method(args, method: str, stream: Stream) -> RunResult:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
@@ -158,6 +319,8 @@ def run_method(args, method: str, msgs: list) -> RunResult:
             cmd += ["-p", f"registration.threads:={args.threads}"]
         if args.weights:
             cmd += ["-p", f"registration.weights:={args.weights}"]
+        for p in args.param:
+            cmd += ["-p", p]
     log = tempfile.TemporaryFile("w+")  # not a pipe: a chatty node must never block on a full one
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, text=True)
     node = rclpy.create_node(f"bench_{method}")
@@ -175,6 +338,7 @@ def run_method(args, method: str, msgs: list) -> RunResult:
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     topics = ("/bench/points",) if args.mode == "odometry" else ("/bench/target", "/bench/source")
     pubs = [node.create_publisher(PointCloud2, t, qos_profile_sensor_data) for t in topics]
+    msgs, pairs = stream.msgs, stream.pairs
     try:
         deadline = time.monotonic() + args.startup_timeout
         while not (all(p.get_subscription_count() for p in pubs) and pose_sub.get_publisher_count()):
@@ -184,20 +348,23 @@ def run_method(args, method: str, msgs: list) -> RunResult:
             rclpy.spin_once(node, timeout_sec=0.1)
         n_warm = int(round(args.warmup * args.rate))
         n_total = n_warm + int(round(args.seconds * args.rate))
-        order = playback_order(len(msgs), n_total + 1)
         t0 = time.perf_counter()
+        cpu0, cpu_self0 = {}, 0.0
         for k in range(n_total):
             due = t0 + k / args.rate
             while (now := time.perf_counter()) < due:
                 rclpy.spin_once(node, timeout_sec=min(0.005, due - now))
             stamp = STAMP0_NS + k * int(SEC / args.rate)
-            src = msgs[order[k + 1]]
+            i_src, i_tgt = pairs[k % len(pairs)]
+            src = msgs[i_src]
             src.header.stamp = ns_to_stamp(stamp)
             if args.mode == "pair":
-                tgt = msgs[order[k]]
+                tgt = msgs[i_tgt]
                 tgt.header.stamp = ns_to_stamp(stamp)  # same stamp: the pair is synchronised at once
                 pubs[0].publish(tgt)
             measured = k >= n_warm
+            if k == n_warm:
+                cpu0, cpu_self0 = cpu_snapshot(proc.pid), time.process_time()
             if measured:
                 res.pairs += 1
                 sent[stamp] = time.perf_counter()
@@ -205,6 +372,10 @@ def run_method(args, method: str, msgs: list) -> RunResult:
         end = time.perf_counter() + 3.0
         while time.perf_counter() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
+        periods = n_total - n_warm
+        res.cpu = cpu_line(cpu0, cpu_snapshot(proc.pid), periods)
+        if res.cpu:
+            res.cpu += f"; this publisher {(time.process_time() - cpu_self0) * 1e3 / max(periods, 1):.1f}"
     finally:
         proc.terminate()
         try:
@@ -227,35 +398,68 @@ def _ratio(a: float, b: float) -> str:
     return f"{a / b:.2f}x" if b > 0 and np.isfinite(a) and np.isfinite(b) else "-"
 
 
-def report(layout_desc: str, args, results: dict[str, RunResult]) -> None:
+def stage_line(d: dict[str, str]) -> str:
+    """The node's median / p99 per stage and its drop counters, from its last /diagnostics message."""
+    stages = [k for k in STAGES if f"latency_ms.{k}" in d]
+    parts = [f"{k} {d[f'latency_ms.{k}'].replace('median ', '').replace(' p99 ', ' / ').split(' max')[0]}"
+             for k in stages]  # fmt: skip
+    drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
+             f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}, preprocessing cache hits / "
+             f"misses {d.get('preprocessing cache hits / misses', '?')}")  # fmt: skip
+    return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
+
+
+@dataclass
+class Judged:
+    label: str
+    busy: bool
+    result: RunResult
+
+    def failures(self, args) -> list[str]:
+        r = self.result
+        if r.error:
+            return ["node failed"]
+        p50, p99, ans = r.pct(50), r.pct(99), 100 * r.answered
+        need_ans, need_p99 = (args.busy_answered, args.busy_p99) if self.busy else (args.goal_answered, args.goal_p99)
+        out = []
+        if ans < need_ans:
+            out.append(f"answered {ans:.0f} % < {need_ans:g} %")
+        if not p99 <= need_p99:
+            out.append(f"p99 {p99:.0f} ms > {need_p99:g} ms")
+        if not self.busy and not p99 <= args.goal_ratio * p50:
+            out.append(f"p99 / p50 {p99 / p50:.2f} > {args.goal_ratio:g}")
+        return out
+
+
+def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]]) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    con = Console(width=120)
-    t = Table(title=f"{layout_desc}\n{args.mode} mode, {args.rate:g} Hz, {args.seconds:g} s measured (after "
+    con = Console(width=160)
+    t = Table(title=f"{title}\n{args.mode} mode, {args.rate:g} Hz, {args.seconds:g} s measured per run (after "
                     f"{args.warmup:g} s warm-up); latency = source published -> PoseStamped received")  # fmt: skip
-    for c in ("method", "pairs published", "answered", "p50 ms", "p99 ms", "p50 / anchor", "p99 / anchor"):
-        t.add_column(c, justify="left" if c == "method" else "right")
-    anchor = results.get(ANCHOR)
-    for method, r in results.items():
-        if r.error:
-            t.add_row(method, "-", "-", "-", "-", "-", "-")
-            continue
+    for c in ("run", "method", "pairs", "answered", "p50 ms", "p99 ms", "p99 / p50", "p50 / anchor",
+              "p99 / anchor"):  # fmt: skip
+        t.add_column(c, justify="left" if c in ("run", "method") else "right")
+    for label, _, results in runs:
+        anchor = results.get(ANCHOR)
         a50, a99 = (anchor.pct(50), anchor.pct(99)) if anchor and not anchor.error else (np.nan, np.nan)
-        t.add_row(method + (" (anchor)" if method == ANCHOR else ""), str(r.pairs), f"{100 * r.answered:.0f} %",
-                  f"{r.pct(50):.1f}", f"{r.pct(99):.1f}", _ratio(r.pct(50), a50), _ratio(r.pct(99), a99))  # fmt: skip
+        for method, r in results.items():
+            if r.error:
+                t.add_row(label, method, "-", "failed", "-", "-", "-", "-", "-")
+                continue
+            t.add_row(label, method + (" (anchor)" if method == ANCHOR else ""), str(r.pairs),
+                      f"{100 * r.answered:.0f} %", f"{r.pct(50):.1f}", f"{r.pct(99):.1f}",
+                      _ratio(r.pct(99), r.pct(50)), _ratio(r.pct(50), a50), _ratio(r.pct(99), a99))  # fmt: skip
     con.print(t)
-    for method, r in results.items():
-        if r.error:
-            con.print(f"[red]{method}: node failed[/red]: {r.error[-2000:]}")
-            continue
-        d = r.diagnostics
-        stages = [k for k in ("input_wait", "decode", "preprocess", "queue_wait", "register", "publish", "total")
-                  if f"latency_ms.{k}" in d]  # fmt: skip
-        parts = [f"{k} {d[f'latency_ms.{k}'].replace('median ', '').replace(' p99 ', ' / ')}" for k in stages]
-        drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
-                 f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}")  # fmt: skip
-        con.print(f"  {method} node median / p99 (ms): {', '.join(parts) or 'no diagnostics'}; {drops}")
+    for label, _, results in runs:
+        for method, r in results.items():
+            if r.error:
+                con.print(f"[red]{label} {method}: node failed[/red]: {r.error[-2000:]}")
+            else:
+                con.print(f"  {label} {method}: {stage_line(r.diagnostics)}", soft_wrap=True)
+                if r.cpu:
+                    con.print(f"  {label} {method}: {r.cpu}", soft_wrap=True)
 
 
 @cli_entry("bench_node_latency")
@@ -267,6 +471,11 @@ def main(argv: list[str] | None = None) -> int:
         raise DeepBBSError(f"--methods: unknown {unknown or methods}; choose from {', '.join(METHODS)}")
     if args.seconds <= 0 or args.rate <= 0 or args.warmup < 0:
         raise DeepBBSError("--seconds and --rate must be > 0, --warmup >= 0")
+    if args.runs < 0 or args.busy_runs < 0 or args.runs + args.busy_runs == 0:
+        raise DeepBBSError("--runs and --busy-runs must be >= 0, one of them > 0")
+    if args.mode == "odometry" and args.stream != "consecutive":
+        raise DeepBBSError(f"--stream {args.stream} is a pair-mode stream (odometry mode takes consecutive scans)")
+    seqs = kitti_sequences(args.kitti) if args.data == "kitti" else []
 
     from deepbbs_ros.cli.common import local_ros_env
     from deepbbs_ros.node.dds import apply_default_profile
@@ -276,21 +485,46 @@ def main(argv: list[str] | None = None) -> int:
     import rclpy
 
     layouts = ("velodyne", "ouster") if args.layout == "both" else (args.layout,)
-    streams = {layout: make_stream(args, layout) for layout in layouts}
+    streams = ("consecutive", "fixed") if args.stream == "both" else (args.stream,)
+    plan = [False] * args.runs + [True] * args.busy_runs
+    judged: list[Judged] = []
     rclpy.init()
     try:
         for layout in layouts:
-            msgs, desc = streams[layout]
-            results = {}
-            for method in methods:
-                print(f"  {layout}: {method} ...", file=sys.stderr)
-                results[method] = run_method(args, method, msgs)
-            report(desc, args, results)
+            for kind in streams:
+                runs = []
+                sim = sim_stream(args, layout, kind) if args.data == "sim" else None
+                for i, busy in enumerate(plan):
+                    st = sim or kitti_stream(args, layout, kind, seqs[i % len(seqs)])
+                    label = f"{i + 1}{' busy' if busy else ''}" + ("" if sim else f" ({seqs[i % len(seqs)].name})")
+                    results = {}
+                    hog = _busy_process() if busy else None
+                    try:
+                        for method in methods:
+                            print(f"  {layout} {kind} run {label}: {method} ...", file=sys.stderr)
+                            results[method] = run_method(args, method, st)
+                    finally:
+                        if hog is not None:
+                            hog.kill()
+                            hog.wait()
+                    runs.append((label, busy, results))
+                    if "deepbbs" in results:
+                        judged.append(Judged(f"{layout} {kind} run {label}", busy, results["deepbbs"]))
+                desc = (sim or kitti_stream(args, layout, kind, seqs[0])).desc
+                report(f"{desc}, {kind} {'pairs' if args.mode == 'pair' else 'scans'}", args, runs)
     finally:
         rclpy.try_shutdown()
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} CPUs"
           + (": figures disturbed by other work" if load > 0.5 * (os.cpu_count() or 1) else ""))  # fmt: skip
+    if judged and args.mode == "pair":  # the goal is pair mode's
+        bad = [(j, f) for j in judged if (f := j.failures(args))]
+        print(f"goal: DeepBBS++ >= {args.goal_answered:g} % answered, p99 <= {args.goal_p99:g} ms and <= "
+              f"{args.goal_ratio:g} x p50 in every run (busy runs: >= {args.busy_answered:g} %, p99 <= "
+              f"{args.busy_p99:g} ms): {'PASS' if not bad else 'FAIL'} ({len(judged) - len(bad)} of {len(judged)} "
+              "runs)")  # fmt: skip
+        for j, f in bad:
+            print(f"  {j.label}: {'; '.join(f)}")
     return 0
 
 

@@ -132,3 +132,31 @@ def _running(pid: int) -> bool:
             return f.read().split()[2] != "Z"
     except OSError:
         return False
+
+
+def test_node_inputs_leave_the_covariances_to_register(setup):
+    # the node's inputs preprocess on arrival with the precision stage's k-d tree and covariances deferred:
+    # register() builds them while the network process runs the passes, with the same result
+    from deepbbs_ros.node.inputs import arrival_preprocess
+
+    cfg, path, scans = setup
+    here = DeepBBSRegistration(cfg.replace(**{"registration.network_process": "off"}), weights=path)
+    away = DeepBBSRegistration(cfg, weights=path)
+    try:
+        assert away.defers_precision and not here.defers_precision
+        assert arrival_preprocess(here) == here.preprocess
+        src, tgt = (arrival_preprocess(away)(s.points) for s in (scans[2], scans[0]))
+        assert src.polish_cloud.pending is not None and src.polish_cloud.tree is None
+        full = here.register(here.preprocess(scans[2].points), here.preprocess(scans[0].points))
+        res = away.register(src, tgt)
+        assert src.polish_cloud.pending is None and tgt.polish_cloud.pending is None  # completed in place, once
+        np.testing.assert_allclose(res.T_target_source, full.T_target_source, atol=1e-9)
+        assert res.polish == "ok" and res.timings_ms["preprocess"] > 0
+        again = away.register(src, tgt)  # the cached clouds serve again as they are
+        np.testing.assert_allclose(again.T_target_source, full.T_target_source, atol=1e-9)
+        # small_gicp threads: every core while the worker is idle, one fewer while it computes
+        assert not away._net.working and away.gicp_threads() == os.cpu_count()
+        fixed = DeepBBSRegistration(cfg.replace(**{"registration.polish_threads": 1}), weights=path)
+        assert fixed.gicp_threads() == 1
+    finally:
+        away.close()

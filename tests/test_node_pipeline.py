@@ -156,6 +156,18 @@ def test_decode_reads_driver_time_fields_in_seconds():
     assert decode_cloud(_cloud_msg(xyz, 5), "/p", 3)[1] is None
 
 
+def test_decode_a_time_field_with_one_value_is_no_time():
+    # KITTI-style clouds in a driver layout: the time field is there but 0 for every point (no per-point timing)
+    xyz = _points(3, 10)
+    for layout, name, value in ((VELODYNE, "time", np.float32(0)), (OUSTER, "t", np.uint32(0)),
+                                (VELODYNE, "time", np.float32(0.05))):  # fmt: skip
+        msg = build_cloud(layout, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], name: np.full(10, value)},
+                          flavor="rosbags")  # fmt: skip
+        got, times, _, _ = decode_cloud(msg, "/v", 3)
+        np.testing.assert_array_equal(got, xyz)
+        assert times is None
+
+
 # -- the input stage -----------------------------------------------------------------------------------
 class _Sink:
     def __init__(self) -> None:

@@ -130,6 +130,16 @@ class NetworkProcess:
     def pid(self) -> int:
         return self._proc.pid
 
+    @property
+    def working(self) -> bool:
+        """A request is running in the worker (submitted, its answer not there yet): it uses a core."""
+        if not self._lock.locked():
+            return False
+        try:
+            return not self._conn.poll(0)
+        except (OSError, ValueError):
+            return False
+
     def submit(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray) -> Pending:
         """Start the passes on src (N, 3), tgt (M, 3) float32 metres from T_init (4, 4); returns at once.
         The request holds the worker until :meth:`Pending.result` is read."""

@@ -26,6 +26,7 @@ has too few points.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -64,17 +65,23 @@ class PolishCloud:
     # (neighbors, registration_type, threads) while the k-d tree and covariances wait (prepare_polish_cloud(
     # defer=True)): :meth:`complete` builds them; the voxel grid (``points()``) is there already
     pending: tuple[int, str, int] | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def complete(self, threads: int | None = None) -> PolishCloud:
         """Build the deferred k-d tree and covariances (``threads`` overrides the preparation's); no-op when
-        there is nothing pending. Returns self."""
+        there is nothing pending. Thread-safe (the node's registration thread and an input thread may both
+        need a cached cloud): built once. Returns self."""
         if self.pending is None:
             return self
-        t0 = time.perf_counter()
-        neighbors, registration_type, th = self.pending
-        self.tree = _tree_and_covariances(self.cloud, neighbors, registration_type, th if threads is None else threads)
-        self.pending = None
-        self.prepare_ms += (time.perf_counter() - t0) * 1e3
+        with self._lock:
+            if self.pending is None:
+                return self
+            t0 = time.perf_counter()
+            neighbors, registration_type, th = self.pending
+            self.tree = _tree_and_covariances(self.cloud, neighbors, registration_type,
+                                              th if threads is None else threads)
+            self.pending = None
+            self.prepare_ms += (time.perf_counter() - t0) * 1e3
         return self
 
     def points(self) -> np.ndarray:

@@ -47,7 +47,14 @@ from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_infe
 from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
 from deepbbs_ros.core.points import as_transform, as_xyz
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, polish, prepare_polish_cloud, prepared_cloud
+from deepbbs_ros.core.polish import (
+    SMALL_GICP_TYPE,
+    PolishCloud,
+    polish,
+    prepare_polish_cloud,
+    prepared_cloud,
+    threads_or_all,
+)
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
@@ -244,8 +251,24 @@ class DeepBBSRegistration:
         pp, rc = self.config.preprocess, self.config.registration
         return prepare_polish_cloud(
             as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
-            registration_type=SMALL_GICP_TYPE[rc.polish], min_range=pp.min_range, max_range=pp.max_range,
-            threads=rc.polish_threads, defer=defer)
+            registration_type=SMALL_GICP_TYPE[rc.polish],
+            min_range=pp.min_range, max_range=pp.max_range, threads=self.gicp_threads(), defer=defer)
+
+    @property
+    def defers_precision(self) -> bool:
+        """Raw scans' precision-stage k-d trees and covariances are best left to :meth:`register`, which builds
+        them while the network process runs the passes (``preprocess(..., defer=True)``; the node's inputs)."""
+        return self._n_deep() > 0 and self._net_state in ("unstarted", "running")
+
+    def gicp_threads(self) -> int:
+        """small_gicp threads for a call made now: ``registration.polish_threads``, or (0) every core but the
+        one the network process computes on while it works on a request (small_gicp holds the GIL, so one
+        small_gicp call runs at a time in this process: cores = its threads + the network's)."""
+        n = self.config.registration.polish_threads
+        if n > 0:
+            return n
+        cores = threads_or_all(0)
+        return max(1, cores - 1) if self._net is not None and self._net.working else cores
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
@@ -257,7 +280,7 @@ class DeepBBSRegistration:
                 return self._check(points, name), None, None
             points = as_xyz(points, name)  # the raw scan: errors name the source / target
             # the GICP cloud's k-d tree and covariances wait for the network process (_precision_clouds)
-            points = self.preprocess(points, defer=self._n_deep() > 0 and self._net_state in ("unstarted", "running"))
+            points = self.preprocess(points, defer=self.defers_precision)
         dense = points.dense_points
         return self._check(points.points, name), None if dense is None else self._check(dense, name + " dense"), points
 
@@ -360,12 +383,12 @@ class DeepBBSRegistration:
         self._apply_network(st, self._passes(st.src, st.tgt, st.R, st.t, clock.lap))
 
     def _precision_clouds(self, st: _State, clock: _Clock) -> None:
-        """The k-d trees and covariances of raw scans' precision-stage clouds, deferred by :meth:`_start` while
-        the network process runs (one small_gicp thread while it does: the other core is the network's)."""
+        """The k-d trees and covariances of raw scans' precision-stage clouds, deferred by :meth:`_start` (or by
+        the node's inputs) while the network process runs (every core but the network's while it works)."""
         done = False
         for pc in (st.src_pc, st.tgt_pc):
             if pc is not None and pc.pending is not None:
-                pc.complete(threads=1 if st.pending is not None and not st.pending.ready() else None)
+                pc.complete(threads=self.gicp_threads())
                 done = True
         if done:
             clock.lap("preprocess")
@@ -616,7 +639,7 @@ class DeepBBSRegistration:
             return self.polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
         c = pre.polish_cloud.points()
         return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
-                              rc.polish_threads)
+                              self.gicp_threads())
 
     def _deskew(self, st: _State, clock: _Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision

@@ -18,10 +18,13 @@ preprocessing failure) becomes :class:`BadInput` with a kind; the input reports 
 Preprocessing depends on the points only, so its results are cached by content (point count and two
 checksums of the xyz bytes): a cloud that arrives twice (on both pair inputs, or as the next pair's
 target) is preprocessed once, and a second thread asking for a cloud being preprocessed waits for it.
+DeepBBS++ with a network process leaves the GICP cloud's k-d tree and covariances to ``register``
+(:func:`arrival_preprocess`), which builds them while the network process runs the passes.
 """
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 import zlib
@@ -90,6 +93,8 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     :func:`msg_adapters.pointcloud2.pointcloud2_to_arrays`); only the valid points are copied out.
     Times come from the first of :data:`TIME_FIELDS` the cloud declares (scaled to seconds).
 
+    A time field with the same value for every point (e.g. all 0) gives None: it carries no timing.
+
     Raises:
         BadInput: ``empty_cloud``, ``malformed_cloud``, ``no_valid_points``, ``too_few_points``
             (fewer than ``min_points`` valid points) or ``missing_frame``, with ``topic`` in the message.
@@ -117,9 +122,21 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     times = None
     if time_field is not None:
         raw = arr.fields[time_field[0]]
-        if raw.ndim == 1:  # a count > 1 time field is not a per-point time
+        # a count > 1 time field is not a per-point time; one value for every point (a driver without per-point
+        # timing writes 0) says nothing about when each point was measured: no times, as without the field
+        if raw.ndim == 1 and raw.min() != raw.max():
             times = raw.astype(np.float64) * time_field[1]
     return arr.xyz, times, int(arr.stamp_ns), arr.frame_id
+
+
+def arrival_preprocess(registration: Any) -> Callable[..., Any]:
+    """What the inputs call to preprocess a cloud on arrival: ``registration.preprocess``, with DeepBBS++'s
+    precision-stage k-d tree and covariances deferred to its ``register`` when it has a network process
+    (``defers_precision``): they are built there while the network runs the passes, so the registration starts
+    on a cloud sooner and that small_gicp work (which holds the GIL) runs when the GIL is otherwise idle."""
+    if getattr(registration, "defers_precision", False):
+        return functools.partial(registration.preprocess, defer=True)
+    return registration.preprocess
 
 
 class PreprocessCache:

@@ -64,7 +64,7 @@ from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
 from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
-from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache
+from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
 from deepbbs_ros.node.pipeline import LocalMapOdometry, ScanToScanOdometry, register_clouds
 from deepbbs_ros.node.sync import ApproximateTimeSync
@@ -250,7 +250,7 @@ class RegistrationNode(Node):
         self.sync = ApproximateTimeSync(2, ncfg.queue_size, ncfg.slop, self._on_pair)
         self.odometry = self._make_odometry()
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
-        self._cache = PreprocessCache(self.reg.preprocess)
+        self._cache = PreprocessCache(arrival_preprocess(self.reg))
         # preprocessing on arrival only where every scan is registered by the network
         self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry)
 
