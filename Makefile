@@ -16,11 +16,13 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
 venv: $(STAMP)
 
-$(STAMP): setup.py setup.cfg package.xml
+$(STAMP): setup.py setup.cfg package.xml scripts/build_interfaces.py $(wildcard interfaces/*/package.xml interfaces/*/msg/*)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --upgrade pip
 	$(BIN)/python -m pip install $(TORCH_SPEC)
 	$(BIN)/python -m pip install -e '.[test]'
+	# tf2_msgs has no PyPI wheel: built from interfaces/ with the rosidl generators of the ROS wheels (gcc, g++)
+	$(BIN)/python scripts/build_interfaces.py
 	touch $(STAMP)
 
 test: venv
