@@ -41,7 +41,10 @@ setup(
     license="BSD-3-Clause",
     python_requires=">=3.10",
     packages=find_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"]),
-    package_data={"deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*"]},
+    package_data={
+        "deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*.xml", "resources/interfaces/*/package.xml",
+                        "resources/interfaces/*/msg/*"],
+    },
     include_package_data=True,
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

@@ -263,7 +263,7 @@ def test_bad_input_rejected_then_recovers(ros, world):
 
 
 def test_odometry_mode_accumulates_and_resets(ros, world):
-    h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom"}), "reg_odom")
+    h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": ""}), "reg_odom")
     try:
         T_w = [at(0.9 * k, 0.05 * k, np.deg2rad(1.5 * k)) for k in range(4)]
         for k, T in enumerate(T_w):

@@ -1,16 +1,16 @@
-#!/usr/bin/env python3
 """Build and install ROS 2 message packages that PyPI has no wheel for (today: ``tf2_msgs``).
 
-The definitions live in this repository (``interfaces/<package>/msg/*.idl``, ``*.msg`` beside them for
-reference, ``package.xml``). The code is generated with the rosidl generators that the ROS 2 Jazzy PyPI
-wheels install (rosidl_generator_c / _py, rosidl_typesupport_c / _fastrtps_c / _introspection_c), compiled
-with gcc / g++ against the wheels' headers and libraries, and installed into the running environment as a
-small local wheel (``pip install``): the Python package into site-packages, the libraries into
+The definitions ship with this package (``deepbbs_ros/resources/interfaces/<package>/msg/*.idl``, the
+``*.msg`` beside them for reference, ``package.xml``). The code is generated with the rosidl generators
+that the ROS 2 Jazzy PyPI wheels install (rosidl_generator_c / _py, rosidl_typesupport_c / _fastrtps_c /
+_introspection_c), compiled with gcc / g++ against the wheels' headers and libraries, and installed into
+the running environment as a small local wheel (``pip install``): the Python package into site-packages, the libraries into
 ``<prefix>/lib`` (where the ROS wheels keep theirs and look them up), the definitions into
-``<prefix>/share/<package>``. ``make venv`` runs it; run it by hand with the environment's Python::
+``<prefix>/share/<package>``. ``make venv`` runs it; after a plain ``pip install`` run it once::
 
-    .venv/bin/python scripts/build_interfaces.py            # build and install what is missing
-    .venv/bin/python scripts/build_interfaces.py --force    # rebuild
+    deepbbs-ros build-interfaces            # build and install what is missing
+    deepbbs-ros build-interfaces --force    # rebuild
+    python -m deepbbs_ros.interfaces        # the same
 
 Needs a C and a C++ compiler (gcc, g++) and the Python headers (Python.h) of the interpreter.
 """
@@ -28,8 +28,7 @@ import sys
 import sysconfig
 import textwrap
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-INTERFACES = ROOT / "interfaces"
+INTERFACES = pathlib.Path(__file__).resolve().parent / "resources" / "interfaces"
 #: package -> message dependencies (their libraries are linked)
 PACKAGES = {"tf2_msgs": ["geometry_msgs", "std_msgs", "builtin_interfaces"]}
 
@@ -84,7 +83,8 @@ def _compile(package: str, deps: list[str], gen: pathlib.Path, stage: pathlib.Pa
             shutil.copy2(f, dst)
     import numpy
 
-    incs = [str(inc_root), str(prefix / "include")] + sorted(str(p) for p in (prefix / "include").iterdir() if p.is_dir())
+    incs = [str(inc_root), str(prefix / "include")]
+    incs += sorted(str(p) for p in (prefix / "include").iterdir() if p.is_dir())
     incs += [sysconfig.get_paths()["include"], numpy.get_include()]
     if not (pathlib.Path(sysconfig.get_paths()["include"]) / "Python.h").is_file():
         raise BuildError(f"Python.h not found in {sysconfig.get_paths()['include']}: install the Python headers")
@@ -158,7 +158,7 @@ def _stage_package(package: str, src: pathlib.Path, gen: pathlib.Path, stage: pa
         setup(
             name="ros-{package.replace('_', '-')}",
             version="{version}",
-            description="{package} built from its definition by deepbbs_ros (scripts/build_interfaces.py)",
+            description="{package} built from its definition by deepbbs_ros (deepbbs-ros build-interfaces)",
             packages=["{package}", "{package}.msg"],
             package_data={{"{package}": ["*.so"]}},
             data_files=[
@@ -203,25 +203,36 @@ def build_package(package: str, build_dir: pathlib.Path, install: bool = True) -
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("packages", nargs="*", default=sorted(PACKAGES), help=f"default: {' '.join(sorted(PACKAGES))}")
-    p.add_argument("--build-dir", type=pathlib.Path, default=ROOT / "build" / "interfaces")
+    p.add_argument("--build-dir", type=pathlib.Path, default=None,
+                   help="where to generate and compile (default: a temporary folder)")
     p.add_argument("--force", action="store_true", help="rebuild even when the package imports already")
     p.add_argument("--no-install", action="store_true", help="build and stage only")
     args = p.parse_args(argv)
+    if args.build_dir is None:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="deepbbs-interfaces-") as tmp:
+            args.build_dir = pathlib.Path(tmp)
+            return _build_all(args)
+    return _build_all(args)
+
+
+def _build_all(args: argparse.Namespace) -> int:
     for package in args.packages:
         if package not in PACKAGES:
-            print(f"build_interfaces: unknown package {package!r} (known: {', '.join(PACKAGES)})", file=sys.stderr)
+            print(f"build-interfaces: unknown package {package!r} (known: {', '.join(PACKAGES)})", file=sys.stderr)
             return 1
         if not args.force and not args.no_install and installed(package):
-            print(f"build_interfaces: {package} already installed")
+            print(f"build-interfaces: {package} already installed")
             continue
         try:
             stage = build_package(package, args.build_dir, install=not args.no_install)
         except BuildError as err:
-            print(f"build_interfaces: {package}: {err}", file=sys.stderr)
+            print(f"build-interfaces: {package}: {err}", file=sys.stderr)
             return 1
-        print(f"build_interfaces: {package} built in {stage}" + ("" if args.no_install else " and installed"))
+        print(f"build-interfaces: {package} built in {stage}" + ("" if args.no_install else " and installed"))
         if not args.no_install and not installed(package):
-            print(f"build_interfaces: {package} installed but does not import", file=sys.stderr)
+            print(f"build-interfaces: {package} installed but does not import", file=sys.stderr)
             return 1
     return 0
 
