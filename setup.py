@@ -64,6 +64,7 @@ setup(
             "deepbbs-replay = deepbbs_ros.cli.replay:main",
             "deepbbs-play = deepbbs_ros.cli.play:main",
             "deepbbs-node = deepbbs_ros.node.registration_node:main",
+            "deepbbs-ros = deepbbs_ros.cli.ros:main",  # topic echo/hz, param get/set, reset, dds-profile (no ros2 CLI)
             # names for `ros2 run deepbbs_ros <executable>` after colcon build
             "registration_node = deepbbs_ros.node.registration_node:main",
             "play = deepbbs_ros.cli.play:main",

@@ -1,11 +1,11 @@
 """Build and install ROS 2 message packages that PyPI has no wheel for (today: ``tf2_msgs``).
 
 The definitions ship with this package (``deepbbs_ros/resources/interfaces/<package>/msg/*.idl``, the
-``*.msg`` beside them for reference, ``package.xml``). The code is generated with the rosidl generators
-that the ROS 2 Jazzy PyPI wheels install (rosidl_generator_c / _py, rosidl_typesupport_c / _fastrtps_c /
-_introspection_c), compiled with gcc / g++ against the wheels' headers and libraries, and installed into
-the running environment as a small local wheel (``pip install``): the Python package into site-packages, the libraries into
-``<prefix>/lib`` (where the ROS wheels keep theirs and look them up), the definitions into
+``*.msg`` beside them for reference, ``package.xml``). The code is generated with the rosidl generators that
+the ROS 2 Jazzy PyPI wheels install (rosidl_generator_c / _py, rosidl_typesupport_c / _fastrtps_c /
+_introspection_c), compiled with gcc / g++ against the wheels' headers and libraries, and installed into the
+running environment as a small local wheel (``pip install``): the Python package into site-packages, the
+libraries into ``<prefix>/lib`` (where the ROS wheels keep theirs and look them up), the definitions into
 ``<prefix>/share/<package>``. ``make venv`` runs it; after a plain ``pip install`` run it once::
 
     deepbbs-ros build-interfaces            # build and install what is missing
