@@ -229,7 +229,7 @@ class LocalMapOdometry:
         prev_stamp, self._prev_stamp = self._prev_stamp, cloud.stamp_ns
         if prev_stamp is None:  # the origin: pose known exactly, velocity unknown
             self._T_odom, self._cov_odom = np.eye(4), np.zeros((6, 6))
-            self._prev_grid = cloud if self.covariance else None
+            self._prev_grid = (cloud if out.points is None else out.points) if self.covariance else None
             return OdometryEstimate(np.eye(4), np.zeros((6, 6)), np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV)
         self.consulted += int(out.deepbbs)
         self.won += int(out.won)
@@ -237,7 +237,7 @@ class LocalMapOdometry:
         twist, twist_cov = np.zeros(6), np.zeros((6, 6))
         if self.covariance:
             t1 = time.perf_counter()
-            cov_step = self._step_covariance(cloud, T_step, dt)
+            cov_step = self._step_covariance(cloud, T_step, dt, out.points)
             Ad = adjoint(self._T_odom)
             self._cov_odom = self._cov_odom + Ad @ cov_step @ Ad.T
             twist, twist_cov = motion_twist(T_step, cov_step, dt)
@@ -263,15 +263,18 @@ class LocalMapOdometry:
         pts = np.ascontiguousarray(pts[(r > cfg.preprocess.min_range) & (r < cfg.preprocess.max_range)])
         return np.asarray(voxel_down_sample(pts, self.odometry.voxel_size * 0.5))
 
-    def _step_covariance(self, cloud: Cloud, T_step: np.ndarray, dt: float) -> np.ndarray:
+    def _step_covariance(self, cloud: Cloud, T_step: np.ndarray, dt: float,
+                         registered: np.ndarray | None = None) -> np.ndarray:
         """(6, 6) covariance of ``T_{k-1}_k`` (left perturbation in scan k-1's frame) from the residuals
-        of scan k's ICP grid against scan k-1's map grid under the step's motion."""
+        of scan k's ICP grid against scan k-1's map grid under the step's motion. ``registered``: scan k as
+        the odometry registered it (deskewed, cropped, that grid: ``OdometryStep.points``), used as it is
+        instead of deskewing and gridding the raw scan again (~3x cheaper on a 120k-point scan)."""
         from kiss_icp.voxelization import voxel_down_sample
 
         prev = self._prev_grid
         if isinstance(prev, Cloud):  # the origin, deskewed with the first motion now that it is known
             prev = self._grid(prev, T_step, dt)
-        grid = self._grid(cloud, T_step, dt)
+        grid = registered if registered is not None and len(registered) >= 3 else self._grid(cloud, T_step, dt)
         self._prev_grid = grid
         source = np.asarray(voxel_down_sample(grid, self.odometry.voxel_size * 1.5))
         if prev is None or len(prev) < 3 or len(source) < 3:

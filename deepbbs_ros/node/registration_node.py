@@ -199,7 +199,7 @@ class RegistrationNode(Node):
         self.inputs: list[CloudInput] = []
         self.static_tf = StaticTransforms()
         self._extrinsics: dict[str, Any] = {}  # cloud frame -> T_base_sensor, once known (or given up on)
-        self._t_ready = time.monotonic()
+        self._t_ready = self._t_tf = time.monotonic()  # the static transform's wait counts from here
         try:
             self.outputs = Outputs(self, ncfg, qos, self._errors.log, tf_broadcaster, extrinsic=self._base_from_sensor)
             self._sub_tf_static = self._subscribe_tf_static()
@@ -329,7 +329,9 @@ class RegistrationNode(Node):
 
     def _base_from_sensor(self, frame: str):
         """``T_base_sensor`` for a cloud in ``frame`` (odometry mode, on the worker thread): looked up on
-        ``/tf_static``; the first scan waits for it until ``node.tf_timeout`` s after start-up, then the
+        ``/tf_static``; the first scan waits for it until ``node.tf_timeout`` s after the subscription was made
+        (during start-up: the model and the warm-up usually take longer, so a running robot_state_publisher's
+        transform is there before the first scan and nothing waits), then the
         identity is used with one warning (and the lookup goes on: a transform that arrives later is used
         from then on, with one log line)."""
         import numpy as np
@@ -341,7 +343,7 @@ class RegistrationNode(Node):
         if known is not None and known[1]:
             return known[0]
         if known is None:
-            left = self._t_ready + self.cfg.node.tf_timeout - time.monotonic()
+            left = self._t_tf + self.cfg.node.tf_timeout - time.monotonic()
             T = self.static_tf.wait(base, frame, max(0.0, left))
         else:
             T = self.static_tf.lookup(base, frame)
