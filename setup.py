@@ -42,7 +42,7 @@ setup(
     python_requires=">=3.10",
     packages=find_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"]),
     package_data={
-        "deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*.xml", "resources/interfaces/*/package.xml",
+        "deepbbs_ros": ["models/*.pt", "models/*.json", "resources/*", "resources/interfaces/*/package.xml",
                         "resources/interfaces/*/msg/*"],
     },
     include_package_data=True,
@@ -51,6 +51,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        ("share/" + package_name + "/rviz", glob("rviz/*.rviz")),
     ],
     install_requires=INSTALL_REQUIRES,
     extras_require={"test": TEST_REQUIRES},
