@@ -358,7 +358,7 @@ class RegistrationNode(Node):
             self.get_logger().warning(
                 f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} s: "
                 f"publishing the sensor's motion as {base}'s (identity); publish it (robot_state_publisher) "
-                "or set node.base_frame:='' to use the cloud frame"
+                "or set -p \"node.base_frame:=''\" to use the cloud frame"
             )
         return np.eye(4)
 
