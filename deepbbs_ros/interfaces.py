@@ -172,6 +172,14 @@ def _stage_package(package: str, src: pathlib.Path, gen: pathlib.Path, stage: pa
         """))
 
 
+def _setuptools_version() -> tuple[int, ...]:
+    try:
+        import setuptools
+    except ImportError:
+        return (0,)
+    return tuple(int(x) for x in setuptools.__version__.split(".")[:2] if x.isdigit())
+
+
 def installed(package: str) -> bool:
     """True when ``<package>.msg`` imports with its C type support in this environment."""
     if importlib.util.find_spec(package) is None:
@@ -195,8 +203,11 @@ def build_package(package: str, build_dir: pathlib.Path, install: bool = True) -
     _compile(package, PACKAGES[package], gen, stage)
     _stage_package(package, src, gen, stage)
     if install:
-        _run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-              "--force-reinstall", str(stage)])
+        # the environment's setuptools builds the local wheel (no download) when it can: setuptools >= 70.1 has
+        # bdist_wheel itself, older ones need the wheel package; else pip fetches a build backend
+        own = importlib.util.find_spec("wheel") is not None or _setuptools_version() >= (70, 1)
+        _run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--force-reinstall",
+              *(["--no-build-isolation"] if own else []), str(stage)])
     return stage
 
 
