@@ -305,7 +305,7 @@ class CountingRegistration:
 def test_odometry_output_twist_covariance_tf(ros, world, method):
     """Odometry mode with every output: ~/odometry carries the pose, the twist (the motion since the
     previous scan over the stamp gap) and both covariances from the registration residuals; odom ->
-    base_frame goes to the TF broadcaster (injected: tf2_msgs has no PyPI wheel). Scan to scan: each scan
+    base_frame goes to the TF broadcaster (injected here; /tf over DDS: test_node_ros_stack.py). Scan to scan: each scan
     preprocessed exactly once, on arrival. Local map: nothing preprocessed on arrival; DeepBBS++ consulted
     on the first motion only (the previous and the current scan preprocessed then)."""
     cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
@@ -449,7 +449,7 @@ def test_gicp_anchor_node_pair_mode(ros, world):
     [
         ({"node.odom_frame": "/odom"}, r"node.odom_frame: invalid frame id '/odom'"),
         ({"node.base_frame": "base link"}, r"node.base_frame: invalid frame id"),
-        ({"node.publish_tf": True}, r"tf2_msgs"),
+        ({"node.mode": "odometry", "node.publish_tf": True}, r"tf2_msgs"),  # pair mode broadcasts only with pair_tf
     ],
 )
 def test_startup_errors_in_process(ros, overrides, match):

@@ -15,17 +15,27 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
 Outputs (CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 * ``~/pose`` (geometry_msgs/PoseStamped). Pair mode: ``T_target_source``, ``frame_id`` = target cloud
-  frame, stamp = source stamp. Odometry mode: the pose ``T_odom_k`` of scan k (the odom frame is the
-  first scan's sensor frame at its stamp: identity at the first scan), ``frame_id`` = ``node.odom_frame``.
+  frame, stamp = source stamp. Odometry mode: the base's pose ``T_odom_base = T_base_sensor @ T_odom_sensor @
+  inv(T_base_sensor)`` (REP-105; the odom frame is the base at the first scan; ``T_base_sensor`` looked up on
+  ``/tf_static`` for ``node.base_frame``, :mod:`deepbbs_ros.node.tf_static`; identity with one warning when
+  none arrives within ``node.tf_timeout``, or with ``node.base_frame: ''``), ``frame_id`` = ``node.odom_frame``.
+  Latched target (``node.target_mode: latched``): the scan's pose in the map frame.
 * ``~/transform`` (geometry_msgs/TransformStamped): the same transform, ``child_frame_id`` = the source
   frame (pair mode) or ``node.base_frame`` / the cloud frame (odometry mode).
-* opt-in: ``~/odometry`` (nav_msgs/Odometry: twist from the motion since the previous scan over the stamp
-  gap, covariances from the registration residuals of that motion, :mod:`deepbbs_ros.node.covariance`,
-  accumulated along the trajectory in odometry mode), ``/tf`` (``node.publish_tf``; needs
-  tf2_msgs; odometry mode broadcasts ``odom_frame -> base_frame``), ``~/aligned_cloud`` (the source
-  cloud moved into the target frame).
-* ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind,
-  model, device. ``~/reset`` (std_srvs/Trigger): restart odometry at identity and clear the synchroniser.
+* ``~/odometry`` (nav_msgs/Odometry, ``node.publish_odometry``, on by default: twist from the motion since the
+  previous scan over the stamp gap, covariances from the registration residuals of that motion,
+  :mod:`deepbbs_ros.node.covariance`, accumulated along the trajectory in odometry mode), ``/tf``
+  (``node.publish_tf``, on by default in odometry mode: ``odom_frame -> base_frame``, or the inverse with
+  ``node.invert_tf``; pair mode only with ``node.pair_tf``; needs tf2_msgs: ``deepbbs-ros build-interfaces``),
+  opt-in ``~/aligned_cloud`` (the source cloud moved into the target frame).
+* ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind (an input
+  that never pairs: ``unpaired_input``), odometry restarts on time jumps, model, device. ``~/reset``
+  (std_srvs/Trigger): restart odometry at identity (a latched target: at ``node.initial_pose``) and clear the
+  synchroniser.
+
+Start-up: the model is loaded and every stage run once on a synthetic drive (``node.warmup``) before the node
+logs ``ready in X s``. A scan more than 1 s before the previous one in odometry mode (a bag played again)
+restarts the odometry with one log line.
 
 Threads: the executor's callbacks only hand messages on. Each input has its own thread that decodes and
 checks every cloud on arrival and preprocesses it for DeepBBS++ (pair mode, scan-to-scan odometry; the
