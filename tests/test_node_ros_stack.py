@@ -226,3 +226,24 @@ def test_deepbbs_ros_dds_profile():
     res = _ros_cli("dds-profile")
     assert res.returncode == 0 and res.stdout.strip().endswith("fastdds_shm.xml")
     assert os.path.isfile(res.stdout.strip())
+
+
+@pytest.mark.parametrize("mode", ["odometry", "pair"])
+def test_warmup_with_the_shipped_model(ros, world, mode):
+    """The node with its own registration (the shipped weights) runs every stage once before it reports ready
+    (decode, preprocessing, GICP, the network process, the odometry / pair path) and forgets it: the first real
+    scan is the odometry's origin."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.node.registration_node import RegistrationNode
+
+    cfg = Config().replace(**{"node.mode": mode, "node.base_frame": "", "registration.device": "cpu"})
+    node = RegistrationNode(cfg, node_name=f"reg_warm_{mode}")
+    try:
+        assert node.warmed_up and node.startup_s > 0
+        if mode == "odometry":
+            assert node.odometry.odometry.frames == 0 and node.odometry.consulted == 0  # reset after the warm-up
+        state = node.reg.network_process_state
+        assert state.startswith("running") or state == "off", state  # started during the warm-up where it is used
+        assert node.stats()["processed"] == 0 and node.stats()["errors"] == {}
+    finally:
+        node.destroy_node()

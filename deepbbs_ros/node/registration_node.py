@@ -225,9 +225,11 @@ class RegistrationNode(Node):
         self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         t_warm = time.perf_counter()
+        self.warmed_up = False
         if ncfg.warmup and self._owns_reg:  # an injected registration (tests, the GICP anchor) is the caller's
             try:
                 self._warmup()
+                self.warmed_up = True
             except Exception as err:  # noqa: BLE001 - a failed warm-up costs the first scans' latency, nothing else
                 self.get_logger().warning(f"warm-up failed ({type(err).__name__}: {err}); the first scans run cold")
         t_end = time.perf_counter()
