@@ -22,6 +22,7 @@ apply_default_profile()  # before the first DDS participant of this process
 rclpy = pytest.importorskip("rclpy")
 
 import test_node  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from test_node import SEC, Harness, _check_pose, at, scan, tiny_config  # noqa: E402
@@ -155,12 +156,13 @@ def test_unpaired_input_is_reported(ros, world):
         xyz = scan(world, at(), seed=1)
         t0 = time.monotonic()
         k = 0
-        while time.monotonic() - t0 < 6.0 and "errors.unpaired_input" not in h.diagnostics():
+        while time.monotonic() - t0 < 6.0 and "warnings.unpaired_input" not in h.diagnostics():
             h.send("source_cloud", xyz, (100 + k) * SEC)
             h.send("target_cloud", xyz, (90 + k) * SEC)
             k += 1
             time.sleep(0.25)
-        assert "errors.unpaired_input" in h.diagnostics(), h.diagnostics()
+        assert "warnings.unpaired_input" in h.diagnostics(), h.diagnostics()
+        assert h.diags[-1].status[0].level == DiagnosticStatus.WARN
         assert h.node.stats()["pairs"] == 0 and not h.poses
     finally:
         h.close()

@@ -166,6 +166,8 @@ class RegistrationNode(Node):
             raise NodeError(f"odometry_method must be one of {', '.join(ODOMETRY_METHODS)}, got {odometry_method!r}")
         self.odometry_method = odometry_method
         self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
+        # conditions of the graph, not of a message: an input that never pairs, a target not there yet
+        self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), ncfg.error_log_period)
         self._stages = StageTimes()
         self._lock = threading.Lock()
         self._odom_lock = threading.Lock()  # the odometry state: worker thread vs ~/reset
@@ -396,7 +398,7 @@ class RegistrationNode(Node):
         """Latched target: every source is paired with the latest map (no stamp matching)."""
         map_cloud = self._map_target.map
         if map_cloud is None:
-            self._errors.log("no_target", f"{self.inputs[0].topic}: scan at {cloud.stamp_ns} ns dropped: no target "
+            self._warnings.log("no_target", f"{self.inputs[0].topic}: scan at {cloud.stamp_ns} ns dropped: no target "
                              f"(map) on {self.inputs[1].topic} yet (latched: transient_local, reliable)")
             return
         with self._lock:
@@ -542,12 +544,12 @@ class RegistrationNode(Node):
         names = [inp.topic for inp in self.inputs]
         if len(arrivals) < len(self.inputs):
             missing = [names[i] for i in range(len(self.inputs)) if i not in arrivals]
-            self._errors.log("unpaired_input", f"no pair for {now - last_pair:.1f} s: {', '.join(missing)} has "
+            self._warnings.log("unpaired_input", f"no pair for {now - last_pair:.1f} s: {', '.join(missing)} has "
                              f"received nothing while {', '.join(names[i] for i in recent)} receives clouds")
             return
         (_, s0), (_, s1) = arrivals[0], arrivals[1]
         gap = (s0 - s1) * 1e-9
-        self._errors.log(
+        self._warnings.log(
             "unpaired_input",
             f"no pair for {now - last_pair:.1f} s: {names[0]} stamps are {gap:+.3f} s from {names[1]}'s "
             f"(latest), beyond node.slop={self.cfg.node.slop} s; synchronise the stamps, raise node.slop, or "
@@ -567,6 +569,7 @@ class RegistrationNode(Node):
         out["sync"] = dict(self.sync.stats)
         out["sync_queue"] = list(self.sync.queue_lengths())
         out["errors"] = dict(self._errors.counts)
+        out["warnings"] = dict(self._warnings.counts)
         out["latency_ms"] = self._stages.summary()
         if isinstance(self.odometry, LocalMapOdometry):
             out["deepbbs_consulted"], out["deepbbs_won"] = self.odometry.consulted, self.odometry.won
@@ -595,13 +598,16 @@ class RegistrationNode(Node):
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
+        for kind, n in sorted(s["warnings"].items()):
+            values[f"warnings.{kind}"] = n
         for stage, st in sorted(s["latency_ms"].items()):
             values[f"latency_ms.{stage}"] = f"median {st['median']:.1f} p99 {st['p99']:.1f} max {st['max']:.1f}"
         for k in self._last_result:
             if k in s:
                 values[f"last.{k}"] = f"{s[k]:.3f}"
         self.outputs.publish_diagnostics(
-            f"{self.get_name()}: registration", self._device, values, sum(s["errors"].values()),
+            f"{self.get_name()}: registration", self._device, values,
+            sum(s["errors"].values()) + sum(s["warnings"].values()),
             self.get_clock().now().to_msg(),
         )  # fmt: skip
 
