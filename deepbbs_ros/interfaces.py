@@ -241,7 +241,8 @@ def _build_all(args: argparse.Namespace) -> int:
         except BuildError as err:
             print(f"build-interfaces: {package}: {err}", file=sys.stderr)
             return 1
-        print(f"build-interfaces: {package} built in {stage}" + ("" if args.no_install else " and installed"))
+        where = "" if args.build_dir.name.startswith("deepbbs-interfaces-") else f" in {stage}"
+        print(f"build-interfaces: {package} built{where}" + ("" if args.no_install else " and installed"))
         if not args.no_install and not installed(package):
             print(f"build-interfaces: {package} installed but does not import", file=sys.stderr)
             return 1

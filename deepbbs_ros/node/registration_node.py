@@ -216,7 +216,7 @@ class RegistrationNode(Node):
             self.outputs = Outputs(self, ncfg, qos, self._errors.log, tf_broadcaster, extrinsic=self._base_from_sensor)
             self._sub_tf_static = self._subscribe_tf_static()
             names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
-            self._subs = [self._make_input(i, name, qos) for i, name in enumerate(names)]
+            subscribe = [self._make_input(i, name, qos) for i, name in enumerate(names)]
         except NodeError:
             self._stop_threads()
             raise
@@ -234,6 +234,11 @@ class RegistrationNode(Node):
                 self.warmed_up = True
             except Exception as err:  # noqa: BLE001 - a failed warm-up costs the first scans' latency, nothing else
                 self.get_logger().warning(f"warm-up failed ({type(err).__name__}: {err}); the first scans run cold")
+        try:
+            self._subs = [make() for make in subscribe]
+        except Exception as err:  # rclpy raises several types for bad (remapped) names
+            self._stop_threads()
+            raise NodeError(f"cannot create topics: {err}".replace("\n", " ")) from err
         t_end = time.perf_counter()
         self._t_ready = time.monotonic()
         self._last_pair_t = self._t_ready
@@ -308,10 +313,13 @@ class RegistrationNode(Node):
         if latched:  # a map server's QoS: reliable, transient local (the map published once reaches late joiners)
             qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        sub = self.create_subscription(
-            PointCloud2, name, lambda msg: self._on_message(index, msg), qos,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )  # fmt: skip
+        def subscribe():  # after the warm-up: a publisher (deepbbs-play) sees the node once it is ready
+            return self.create_subscription(
+                PointCloud2, name, lambda msg: self._on_message(index, msg), qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            )  # fmt: skip
+
+        self.resolve_topic_name(name)  # a bad (remapped) name fails here, before the model's warm-up
         self.inputs.append(
             CloudInput(
                 self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival and not latched else None,
@@ -320,7 +328,7 @@ class RegistrationNode(Node):
                 deskew=None if latched else self._stream_deskew(),
             )
         )  # fmt: skip
-        return sub
+        return subscribe
 
     # -- TF: base <- sensor from /tf_static --------------------------------------------------------
     def _subscribe_tf_static(self):
