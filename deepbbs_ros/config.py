@@ -230,6 +230,9 @@ class NodeConfig:
     map_crop_radius: float = 0.0  # m; latched: map points within this of the estimate; 0 = preprocess.max_range
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
     warmup: bool = True  # run every stage once on a synthetic scan before reporting ready (first scans answered)
+    # odometry mode: scans that may wait for the odometry (beyond that the oldest is dropped): a short transient
+    # (the first motion, a busy moment) is answered late instead of leaving a gap; pair mode keeps 1 (newest wins)
+    odometry_backlog: int = 3
     min_points: int = 100  # clouds with fewer valid points are rejected
     diagnostics_period: float = 1.0  # s
     error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind
@@ -257,6 +260,7 @@ class NodeConfig:
         _check(len(self.initial_pose) == 6, "node.initial_pose", "must be [x, y, z, roll, pitch, yaw]")
         _check(self.map_crop_radius >= 0, "node.map_crop_radius", "must be >= 0 (0 = preprocess.max_range)")
         _check(self.unpaired_warn_after > 0, "node.unpaired_warn_after", "must be > 0")
+        _check(self.odometry_backlog >= 1, "node.odometry_backlog", "must be >= 1")
 
 
 @dataclass

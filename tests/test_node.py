@@ -397,8 +397,8 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
     """Preprocessing slower than the scan rate: the input queue stays bounded, the oldest waiting scans
     are dropped and counted on /diagnostics, and the node still answers the newest. (The scan-to-scan
     odometry preprocesses on arrival, which is what is slowed down here; the drop policy is the same
-    for the local-map odometry.)"""
-    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2})
+    for the local-map odometry.) One scan may wait (``node.odometry_backlog: 1``, the pair mode's policy)."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2, "node.odometry_backlog": 1})
     slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
     h = Harness(cfg, "reg_busy", registration=slow, odometry_method="scan_to_scan")
     try:
@@ -418,6 +418,29 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
         assert pose_stamped_to_matrix(h.poses[-1])[1] == 500 * SEC + 5 * SEC // 20  # the newest scan answered
         key = "clouds dropped before preprocessing (oldest first)"
         assert h.wait_for(lambda: h.diagnostics().get(key) == str(st["input_dropped"][0]), 5), h.diagnostics()
+    finally:
+        h.close()
+
+
+def test_odometry_backlog_answers_a_short_burst(ros, world):
+    """Odometry mode's default backlog (3 scans): a transient (here the first scan's slow preprocessing, as the
+    first motion is on a cold start) is answered late instead of leaving a gap: every scan of the burst gets a
+    pose, in order."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.base_frame": ""})
+    assert cfg.node.odometry_backlog == 3
+    slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
+    h = Harness(cfg, "reg_backlog", registration=slow, odometry_method="scan_to_scan")
+    try:
+        clouds = [scan(world, at(0.5 * k), seed=70 + k) for k in range(4)]
+        stamps = [600 * SEC + k * SEC // 10 for k in range(4)]
+        h.send("cloud", clouds[0], stamps[0])
+        assert h.wait_for(lambda: len(slow.preprocessed) == 1, 10)
+        for k in range(1, 4):  # a 10 Hz burst while the first scan is being preprocessed
+            h.send("cloud", clouds[k], stamps[k])
+            time.sleep(0.1)
+        assert h.wait_for(lambda: len(h.poses) == 4, 30), h.node.stats()
+        assert [pose_stamped_to_matrix(m)[1] for m in h.poses] == stamps
+        assert h.node.stats()["input_dropped"] == [0]
     finally:
         h.close()
 

@@ -326,6 +326,7 @@ class RegistrationNode(Node):
                 self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
                 increasing_stamps=not pair, gate=None if latched else self.worker.room,
                 deskew=None if latched else self._stream_deskew(),
+                capacity=1 if pair else self.cfg.node.odometry_backlog,
             )
         )  # fmt: skip
         return subscribe
