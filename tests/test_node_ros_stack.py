@@ -220,6 +220,19 @@ def test_deepbbs_ros_param_and_reset(ros, world):
         np.testing.assert_allclose(pose_stamped_to_matrix(h.poses[1])[0], np.eye(4), atol=1e-9)  # restarted
         res = _ros_cli("reset", "/no_such_node")
         assert res.returncode == 1 and "not available" in res.stderr
+        # topic echo: a summary line per message, the rate / latency line at the end
+        cmd = [sys.executable, "-m", "deepbbs_ros.cli.ros", "--timeout", "20", "topic", "echo", "/reg_cli/pose",
+               "--count", "1", "--duration", "40"]  # fmt: skip
+        echo = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+        try:
+            assert h.wait_for(lambda: h.node.count_subscribers("/reg_cli/pose") >= 2, 30)  # the harness + the tool
+            h.send("cloud", scan(world, at(1.6), seed=5), 9 * SEC)
+            out, err = echo.communicate(timeout=60)
+        finally:
+            echo.kill()
+        assert echo.returncode == 0, err
+        assert out.splitlines()[0].startswith("PoseStamped 9.000 odom xyz [") and "yaw" in out, out
+        assert "/reg_cli/pose: 1 messages" in err and "latency p50" in err, err
     finally:
         h.close()
 
