@@ -74,7 +74,9 @@ def test_tf_odom_to_base_from_tf_static(ros, world, invert):
     node.invert_tf), and ~/pose carries the same."""
     from tf2_msgs.msg import TFMessage  # built by `make venv` (deepbbs-ros build-interfaces)
 
-    T_base_lidar = pose(0.6, 0.1, 1.4, np.deg2rad(8.0)) @ _rot(np.deg2rad(1.0), np.deg2rad(-2.0), 0.0)
+    # the lidar mounted turned 90 deg (its x to the base's left), 1.2 m ahead: the base's motion and the
+    # sensor's differ by far more than the tolerances below
+    T_base_lidar = pose(1.2, 0.1, 1.4, np.deg2rad(90.0)) @ _rot(np.deg2rad(1.0), np.deg2rad(-2.0), 0.0)
     name = f"reg_tf_{int(invert)}"
     static = rclpy.create_node(f"{name}_static")
     static_pub = static.create_publisher(TFMessage, "/tf_static", LATCHED)
@@ -93,6 +95,10 @@ def test_tf_odom_to_base_from_tf_static(ros, world, invert):
             h.send("cloud", scan(world, T, seed=60 + k), stamps[k])
             h.wait_processed(k + 1)
         assert h.wait_for(lambda: len(tf) >= 4 and len(h.poses) >= 4 and len(h.odoms) >= 4), h.node.stats()
+        from deepbbs_ros.metrics import pair_errors
+
+        sensor_motion = np.linalg.inv(T_w[0]) @ T_w[3]
+        assert pair_errors(sensor_motion, np.linalg.inv(T_w_base[0]) @ T_w_base[3])[1] > 3 * 0.9  # discriminates
         for k in range(4):
             want = np.linalg.inv(T_w_base[0]) @ T_w_base[k]  # odom = the base at the first scan
             T_tf, stamp, frame, child = transform_stamped_to_matrix(tf[k])
