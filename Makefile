@@ -16,11 +16,13 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
 venv: $(STAMP)
 
-$(STAMP): setup.py setup.cfg package.xml
+$(STAMP): setup.py setup.cfg package.xml deepbbs_ros/interfaces.py $(wildcard deepbbs_ros/resources/interfaces/*/package.xml deepbbs_ros/resources/interfaces/*/msg/*)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --upgrade pip
 	$(BIN)/python -m pip install $(TORCH_SPEC)
 	$(BIN)/python -m pip install -e '.[test]'
+	# tf2_msgs has no PyPI wheel: built from deepbbs_ros/resources/interfaces/ with the rosidl generators of the ROS wheels (gcc, g++)
+	$(BIN)/python -m deepbbs_ros.interfaces
 	touch $(STAMP)
 
 test: venv

@@ -45,12 +45,19 @@ setup(
     # "Package would be ignored" warnings; the training state under models/train_state stays in the repository
     packages=find_namespace_packages(include=["deepbbs_ros", "deepbbs_ros.*", "msg_adapters", "msg_adapters.*"],
                                      exclude=["deepbbs_ros.models.train_state*", "*.__pycache__"]),
-    package_data={"deepbbs_ros.models": ["*.pt", "*.json"], "deepbbs_ros.resources": ["*.xml"]},
+    package_data={
+        "deepbbs_ros.models": ["*.pt", "*.json"],
+        "deepbbs_ros.resources": ["*.xml"],
+        # tf2_msgs definitions, built at install time (deepbbs_ros/interfaces.py)
+        "deepbbs_ros.resources.interfaces.tf2_msgs": ["package.xml"],
+        "deepbbs_ros.resources.interfaces.tf2_msgs.msg": ["*"],
+    },
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        ("share/" + package_name + "/rviz", glob("rviz/*.rviz")),
     ],
     install_requires=INSTALL_REQUIRES,
     extras_require={"test": TEST_REQUIRES},
@@ -64,6 +71,7 @@ setup(
             "deepbbs-replay = deepbbs_ros.cli.replay:main",
             "deepbbs-play = deepbbs_ros.cli.play:main",
             "deepbbs-node = deepbbs_ros.node.registration_node:main",
+            "deepbbs-ros = deepbbs_ros.cli.ros:main",  # topic echo/hz, param get/set, reset, dds-profile (no ros2 CLI)
             # only deepbbs-* names on the PATH (sox has a `play`); colcon installs these same scripts into
             # lib/deepbbs_ros (setup.cfg), so `ros2 run deepbbs_ros deepbbs-node` and the launch file use them
         ],

@@ -211,11 +211,29 @@ class NodeConfig:
     slop: float = 0.05  # s; max stamp difference of a synchronised pair
     qos_reliability: str = "best_effort"  # "best_effort" (sensor data) | "reliable"
     qos_depth: int = 5
-    publish_odometry: bool = False
-    publish_tf: bool = False
+    publish_odometry: bool = True  # ~/odometry (nav_msgs/Odometry: pose, twist, covariances)
+    # odometry mode: odom_frame -> base_frame on /tf (REP-105); needs tf2_msgs (built by `make venv`, or
+    # `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with node.pair_tf
+    publish_tf: bool = True
+    pair_tf: bool = False
+    invert_tf: bool = False  # broadcast base_frame -> odom_frame instead (another node owns odom's tree)
     publish_aligned_cloud: bool = False
     odom_frame: str = "odom"
-    base_frame: str = ""  # "" = the source cloud's frame_id
+    # odometry mode: the published motion is the base's, T_base_sensor looked up on /tf_static (robot_state_publisher);
+    # "" = the cloud's frame (no lookup)
+    base_frame: str = "base_link"
+    tf_timeout: float = 1.0  # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity
+    # pair mode: "stamped" pairs source and target by stamp (slop); "latched" takes the target topic as a map /
+    # reference cloud (transient_local, reliable): the latest target serves every source, cropped around the
+    # current estimate, the answer is the scan's pose in the target frame, the last answer the next start
+    target_mode: str = "stamped"
+    initial_pose: list[float] = field(default_factory=lambda: [0.0] * 6)  # latched: first start x y z roll pitch yaw
+    map_crop_radius: float = 0.0  # m; latched: map points within this of the estimate; 0 = preprocess.max_range
+    unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
+    warmup: bool = True  # run every stage once on a synthetic scan before reporting ready (first scans answered)
+    # odometry mode: scans that may wait for the odometry (beyond that the oldest is dropped): a short transient
+    # (the first motion, a busy moment) is answered late instead of leaving a gap; pair mode keeps 1 (newest wins)
+    odometry_backlog: int = 3
     min_points: int = 100  # clouds with fewer valid points are rejected
     diagnostics_period: float = 1.0  # s
     error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind
@@ -237,6 +255,13 @@ class NodeConfig:
         _check(self.min_points >= 3, "node.min_points", "must be >= 3")
         _check(self.diagnostics_period > 0, "node.diagnostics_period", "must be > 0")
         _check(self.error_log_period >= 0, "node.error_log_period", "must be >= 0")
+        _check(self.tf_timeout >= 0, "node.tf_timeout", "must be >= 0")
+        _check(self.target_mode in ("stamped", "latched"), "node.target_mode",
+               f"must be 'stamped' or 'latched', got {self.target_mode!r}")
+        _check(len(self.initial_pose) == 6, "node.initial_pose", "must be [x, y, z, roll, pitch, yaw]")
+        _check(self.map_crop_radius >= 0, "node.map_crop_radius", "must be >= 0 (0 = preprocess.max_range)")
+        _check(self.unpaired_warn_after > 0, "node.unpaired_warn_after", "must be > 0")
+        _check(self.odometry_backlog >= 1, "node.odometry_backlog", "must be >= 1")
 
 
 @dataclass

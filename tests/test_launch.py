@@ -151,3 +151,35 @@ def test_launch_applies_the_fastdds_profile():
     # ... unless the user chose a profile or another RMW
     assert profile_env({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
     assert profile_env({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) == {}
+
+
+def test_launch_has_the_arguments_kiss_icp_users_expect():
+    tree = _tree()
+    decl = {ast.literal_eval(c.args[0]): c for c in _calls(tree, "DeclareLaunchArgument")}
+    assert {"base_frame", "odom_frame", "publish_tf", "invert_tf", "use_sim_time", "topic", "visualize",
+            "target_mode"} <= set(decl)  # fmt: skip
+    assert ast.unparse(_kw(decl["cloud"], "default_value")) == "LaunchConfiguration('topic')"  # topic:= feeds cloud
+    override = ast.unparse(_kw(_node_call(), "parameters").elts[1])
+    flat = Config().to_flat()
+    for arg, param in [("base_frame", "node.base_frame"), ("odom_frame", "node.odom_frame"),
+                       ("publish_tf", "node.publish_tf"), ("invert_tf", "node.invert_tf"),
+                       ("target_mode", "node.target_mode")]:  # fmt: skip
+        assert f"'{param}'" in override and f"LaunchConfiguration('{arg}')" in override and param in flat
+        default = ast.literal_eval(_kw(decl[arg], "default_value"))
+        assert str(flat[param]).lower() == default.lower(), (arg, default, flat[param])  # the node's own default
+
+
+def test_rviz_config_is_shipped_and_shows_the_outputs():
+    rviz = REPO / "rviz" / "deepbbs_ros.rviz"
+    assert '("share/" + package_name + "/rviz", glob("rviz/*.rviz"))' in (REPO / "setup.py").read_text()
+    doc = yaml.safe_load(rviz.read_text())
+    displays = {d["Name"]: d for d in doc["Visualization Manager"]["Displays"]}
+    topic = {name: d.get("Topic", {}).get("Value") for name, d in displays.items()}
+    node = "/" + registration_node.NODE_NAME
+    assert displays["Input cloud"]["Class"] == "rviz_default_plugins/PointCloud2" and topic["Input cloud"]
+    assert topic["Aligned cloud"] == f"{node}/aligned_cloud"
+    assert displays["Trajectory"]["Class"] == "rviz_default_plugins/Odometry"
+    assert topic["Trajectory"] == f"{node}/odometry"
+    assert "rviz_default_plugins/TF" in {d["Class"] for d in displays.values()}
+    assert doc["Visualization Manager"]["Global Options"]["Fixed Frame"] == Config().node.odom_frame
+    assert "rviz" in ast.unparse(_tree()) and "deepbbs_ros.rviz" in LAUNCH.read_text()

@@ -274,7 +274,7 @@ def test_bad_input_rejected_then_recovers(ros, world):
 
 
 def test_odometry_mode_accumulates_and_resets(ros, world):
-    h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom"}), "reg_odom")
+    h = Harness(tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": ""}), "reg_odom")
     try:
         T_w = [at(0.9 * k, 0.05 * k, np.deg2rad(1.5 * k)) for k in range(4)]
         for k, T in enumerate(T_w):
@@ -426,7 +426,7 @@ class CountingRegistration:
 def test_odometry_output_twist_covariance_tf(ros, world, method):
     """Odometry mode with every output: ~/odometry carries the pose, the twist (the motion since the
     previous scan over the stamp gap) and both covariances from the registration residuals; odom ->
-    base_frame goes to the TF broadcaster (injected: tf2_msgs has no PyPI wheel). Scan to scan: each scan
+    base_frame goes to the TF broadcaster (injected here; /tf over DDS: test_node_ros_stack.py). Scan to scan: each scan
     preprocessed exactly once, on arrival. Local map: nothing preprocessed on arrival; DeepBBS++ consulted
     on the first motion only (the previous and the current scan preprocessed then)."""
     cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
@@ -518,8 +518,8 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
     """Preprocessing slower than the scan rate: the input queue stays bounded, the oldest waiting scans
     are dropped and counted on /diagnostics, and the node still answers the newest. (The scan-to-scan
     odometry preprocesses on arrival, which is what is slowed down here; the drop policy is the same
-    for the local-map odometry.)"""
-    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2})
+    for the local-map odometry.) One scan may wait (``node.odometry_backlog: 1``, the pair mode's policy)."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2, "node.odometry_backlog": 1})
     slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
     h = Harness(cfg, "reg_busy", registration=slow, odometry_method="scan_to_scan")
     try:
@@ -539,6 +539,29 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
         assert pose_stamped_to_matrix(h.poses[-1])[1] == 500 * SEC + 5 * SEC // 20  # the newest scan answered
         key = "clouds dropped before preprocessing (oldest first)"
         assert h.wait_for(lambda: h.diagnostics().get(key) == str(st["input_dropped"][0]), 5), h.diagnostics()
+    finally:
+        h.close()
+
+
+def test_odometry_backlog_answers_a_short_burst(ros, world):
+    """Odometry mode's default backlog (3 scans): a transient (here the first scan's slow preprocessing, as the
+    first motion is on a cold start) is answered late instead of leaving a gap: every scan of the burst gets a
+    pose, in order."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.base_frame": ""})
+    assert cfg.node.odometry_backlog == 3
+    slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
+    h = Harness(cfg, "reg_backlog", registration=slow, odometry_method="scan_to_scan")
+    try:
+        clouds = [scan(world, at(0.5 * k), seed=70 + k) for k in range(4)]
+        stamps = [600 * SEC + k * SEC // 10 for k in range(4)]
+        h.send("cloud", clouds[0], stamps[0])
+        assert h.wait_for(lambda: len(slow.preprocessed) == 1, 10)
+        for k in range(1, 4):  # a 10 Hz burst while the first scan is being preprocessed
+            h.send("cloud", clouds[k], stamps[k])
+            time.sleep(0.1)
+        assert h.wait_for(lambda: len(h.poses) == 4, 30), h.node.stats()
+        assert [pose_stamped_to_matrix(m)[1] for m in h.poses] == stamps
+        assert h.node.stats()["input_dropped"] == [0]
     finally:
         h.close()
 
@@ -570,7 +593,7 @@ def test_gicp_anchor_node_pair_mode(ros, world):
     [
         ({"node.odom_frame": "/odom"}, r"node.odom_frame: invalid frame id '/odom'"),
         ({"node.base_frame": "base link"}, r"node.base_frame: invalid frame id"),
-        ({"node.publish_tf": True}, r"tf2_msgs"),
+        ({"node.mode": "odometry", "node.publish_tf": True}, r"tf2_msgs"),  # pair mode broadcasts only with pair_tf
     ],
 )
 def test_startup_errors_in_process(ros, overrides, match):

@@ -90,6 +90,8 @@ class OdometryStep:
         prediction's by more than that).
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
     timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted), "total".
+    points: (M, 3) float64 the scan as it was registered (deskewed, cropped, on the ``voxel_size / 2`` grid),
+        sensor frame: what a caller needs to score the step (the node's covariance) without redoing it.
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -101,6 +103,14 @@ class OdometryStep:
     reason: str = ""
     fit: float = float("nan")
     timings_ms: dict[str, float] = field(default_factory=dict)
+    points: np.ndarray | None = None
+
+
+def _cloud_points(cloud: Any) -> np.ndarray | None:
+    try:
+        return np.asarray(cloud.points(), dtype=np.float64)[:, :3]
+    except Exception:  # noqa: BLE001 - a cloud type without points(): the caller does without
+        return None
 
 
 class DeepBBSOdometry:
@@ -197,7 +207,7 @@ class DeepBBSOdometry:
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
-        return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done())
+        return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud))
 
     # -- stages ------------------------------------------------------------------------------------
     def _new_map(self) -> Any:
@@ -330,7 +340,7 @@ class DeepBBSOdometry:
         self._map.insert(cloud, np.eye(4))
         self._remember(frame, stamp_ns, False)
         self.frames = 1
-        return OdometryStep(np.eye(4), np.eye(4), timings_ms=clock.done())
+        return OdometryStep(np.eye(4), np.eye(4), timings_ms=clock.done(), points=_cloud_points(cloud))
 
     def _remember(self, frame: np.ndarray, stamp_ns: int | None, consulted: bool) -> None:
         """Keep scan k for DeepBBS++ at k+1 (its preprocessing too, when DeepBBS++ already made it)."""

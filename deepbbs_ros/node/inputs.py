@@ -215,7 +215,8 @@ class CloudInput:
         on_cloud: called on the input thread with every good :class:`Cloud`.
         on_bad: ``(kind, message)`` for every rejected message.
         on_error: ``(job, exc)`` for unexpected exceptions (bugs); the thread keeps going.
-        increasing_stamps: reject a stamp not after the previous accepted one (odometry input).
+        increasing_stamps: reject a stamp not after the previous accepted one (odometry input), unless it is
+            more than ``jump_back_s`` before it: a time jump (a bag played again), which the node handles.
         capacity: messages that may wait while one is processed; the oldest is dropped beyond that.
         gate: take the next message only while this event is set (the registration worker's ``room``:
             preprocess at most one pair ahead of the registration).
@@ -234,7 +235,9 @@ class CloudInput:
         capacity: int = INPUT_QUEUE,
         gate: threading.Event | None = None,
         deskew: Any = None,
+        jump_back_s: float = 1.0,
     ) -> None:
+        self._jump_back_ns = int(jump_back_s * 1e9)
         self.topic = topic
         self._cache = cache
         self._deskew = deskew  # core.deskew.StreamDeskew of this topic (DeepBBS++ with a cache), or None
@@ -281,7 +284,8 @@ class CloudInput:
                     f"{self.topic}: frame_id {frame!r} differs from {known!r} seen before "
                     "(call ~/reset after a deliberate change)",
                 )
-            if self._increasing and self._last_stamp is not None and stamp_ns <= self._last_stamp:
+            last = self._last_stamp
+            if self._increasing and last is not None and last - self._jump_back_ns <= stamp_ns <= last:
                 raise BadInput(
                     "stamp_not_increasing",
                     f"{self.topic}: stamp {stamp_ns} ns is not after the previous scan's {self._last_stamp} ns "

@@ -2,10 +2,14 @@
 
 * ``~/pose`` (geometry_msgs/PoseStamped) and ``~/transform`` (geometry_msgs/TransformStamped), always;
 * ``~/odometry`` (nav_msgs/Odometry: pose, twist and both covariances) when ``node.publish_odometry``;
-* ``/tf`` (the same transform) when ``node.publish_tf``; needs tf2_msgs, or a ``tf_broadcaster``
-  callable given to the node;
+* ``/tf`` when ``node.publish_tf`` (odometry mode; pair mode also needs ``node.pair_tf``): ``odom_frame ->
+  base_frame``, or its inverse ``base_frame -> odom_frame`` with ``node.invert_tf``; needs tf2_msgs
+  (``deepbbs-ros build-interfaces``), or a ``tf_broadcaster`` callable given to the node;
+* odometry mode publishes the base's motion, ``T_odom_base = T_base_sensor @ T_odom_sensor @
+  inv(T_base_sensor)`` with ``T_base_sensor`` from ``/tf_static`` (:mod:`deepbbs_ros.node.tf_static`;
+  ``extrinsic(cloud_frame)`` given by the node; identity when ``node.base_frame`` is empty);
 * ``~/aligned_cloud`` when ``node.publish_aligned_cloud``: pair mode, the source moved into the target
-  frame (``frame_id`` = target frame); odometry mode, the scan moved by ``T_odom_k`` into ``node.odom_frame``
+  frame (``frame_id`` = target frame); odometry mode, the scan moved by its pose into ``node.odom_frame``
   (``frame_id`` = odom frame), so consecutive scans overlay in RViz with the fixed frame ``odom``;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
 
@@ -25,8 +29,16 @@ from sensor_msgs.msg import PointCloud2
 
 from deepbbs_ros.config import NodeConfig
 from deepbbs_ros.errors import NodeError
+from deepbbs_ros.node.covariance import twist_from_delta
 from deepbbs_ros.node.inputs import Cloud
-from deepbbs_ros.node.pipeline import OdometryEstimate, Registered, motion_twist, registration_covariance
+from deepbbs_ros.node.pipeline import (
+    UNKNOWN_TWIST_COV,
+    OdometryEstimate,
+    Registered,
+    motion_twist,
+    registration_covariance,
+)
+from deepbbs_ros.node.tf_static import base_covariance, base_motion
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2
 from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
 
@@ -43,6 +55,7 @@ class Outputs:
         on_error: ``(kind, message)`` for rate-limited warnings (e.g. a same-frame TF refused).
         tf_broadcaster: replaces the ``/tf`` publisher when ``node.publish_tf`` is set (tests, or a
             tf2_ros broadcaster); default: a tf2_msgs/TFMessage publisher on ``/tf``.
+        extrinsic: ``cloud_frame -> T_base_sensor`` (4, 4) for odometry mode; default: identity.
 
     Raises:
         NodeError: ``node.publish_tf`` without tf2_msgs and without ``tf_broadcaster``.
@@ -55,8 +68,10 @@ class Outputs:
         cloud_qos: Any,
         on_error: Callable[[str, str], None],
         tf_broadcaster: TfBroadcaster | None = None,
+        extrinsic: Callable[[str], np.ndarray] | None = None,
     ) -> None:
         self.cfg = ncfg
+        self._extrinsic = extrinsic or (lambda frame: np.eye(4))
         self._on_error = on_error
         self.published = 0
         self.pose = node.create_publisher(PoseStamped, "~/pose", 10)
@@ -67,7 +82,7 @@ class Outputs:
         if ncfg.publish_aligned_cloud:
             self.aligned = node.create_publisher(PointCloud2, "~/aligned_cloud", cloud_qos)
         self.tf: TfBroadcaster | None = None
-        if ncfg.publish_tf:
+        if ncfg.publish_tf and (ncfg.mode == "odometry" or ncfg.pair_tf):
             self.tf = tf_broadcaster or _tf_publisher(node)
 
     # -- one registration ---------------------------------------------------------------------------
@@ -78,6 +93,8 @@ class Outputs:
         if self.tf is not None:
             if frame == child:
                 self._on_error("tf_same_frame", f"not broadcasting {frame} -> {child} on /tf: same frame")
+            elif self.cfg.invert_tf:  # base -> odom: the tree of a stack whose odom frame has another parent
+                self.tf([matrix_to_transform_stamped(np.linalg.inv(T), stamp_ns, child, frame)])
             else:
                 self.tf([ts])
         self.published += 1
@@ -89,23 +106,46 @@ class Outputs:
         if self.odometry is not None:
             cov = registration_covariance(src, tgt, reg)
             twist, twist_cov = motion_twist(reg.T, cov, (src.stamp_ns - tgt.stamp_ns) * 1e-9)
-            child = self.cfg.base_frame or src.frame_id
-            self.odometry.publish(matrix_to_odometry(reg.T, src.stamp_ns, tgt.frame_id, child, twist, cov, twist_cov))
+            self.odometry.publish(
+                matrix_to_odometry(reg.T, src.stamp_ns, tgt.frame_id, src.frame_id, twist, cov, twist_cov)
+            )
         self._aligned(src, reg.T, tgt.frame_id)
 
+    def localized(self, src: Cloud, frame: str, reg: Registered, target_points: np.ndarray | None) -> None:
+        """Latched target: ``T_map_source`` in the map ``frame``, stamped with the source stamp; on
+        ``~/odometry`` with the registration covariance against the map crop (no velocity: unknown twist)."""
+        self._pose_and_transform(reg.T, src.stamp_ns, frame, src.frame_id)
+        if self.odometry is not None:
+            if target_points is None:
+                cov = np.eye(6) * UNKNOWN_TWIST_COV
+            else:
+                cov = registration_covariance(src, Cloud(target_points, 0, frame, 0.0, pp=_Points(target_points)), reg)
+            self.odometry.publish(
+                matrix_to_odometry(reg.T, src.stamp_ns, frame, src.frame_id, np.zeros(6), cov,
+                                   np.eye(6) * UNKNOWN_TWIST_COV)
+            )  # fmt: skip
+        self._aligned(src, reg.T, frame)
+
     def odometry_step(self, cloud: Cloud, step: OdometryEstimate) -> None:
-        """Odometry mode: ``T_odom_k`` in ``node.odom_frame`` -> ``node.base_frame`` (or the cloud frame);
+        """Odometry mode: the base's pose ``T_odom_base`` in ``node.odom_frame`` -> ``node.base_frame`` (or the
+        cloud frame): the sensor's odometry conjugated with ``T_base_sensor``, twist and covariances moved along;
         ``~/aligned_cloud``: the scan in the odom frame."""
         odom, child = self.cfg.odom_frame, self.cfg.base_frame or cloud.frame_id
-        self._pose_and_transform(step.T_odom, cloud.stamp_ns, odom, child)
+        T_bs = self._extrinsic(cloud.frame_id)
+        T_odom = base_motion(T_bs, step.T_odom)
+        self._pose_and_transform(T_odom, cloud.stamp_ns, odom, child)
         if self.odometry is not None:
+            twist = step.twist
+            if step.T_prev_curr is not None and step.dt > 1e-3 and not np.allclose(T_bs, np.eye(4)):
+                twist = twist_from_delta(base_motion(T_bs, step.T_prev_curr), step.dt)  # in the base frame
             self.odometry.publish(
-                matrix_to_odometry(step.T_odom, cloud.stamp_ns, odom, child, step.twist, step.pose_covariance,
-                                   step.twist_covariance)
+                matrix_to_odometry(T_odom, cloud.stamp_ns, odom, child, twist,
+                                   base_covariance(T_bs, step.pose_covariance),
+                                   base_covariance(T_bs, step.twist_covariance))
             )  # fmt: skip
-        # the scan moved by its pose into the odom frame, stamped with that frame: it lines up with every
-        # earlier scan in RViz (fixed frame odom), whatever TF holds
-        self._aligned(cloud, step.T_odom, odom)
+        # the scan (sensor frame) moved into the odom frame, stamped with that frame: it lines up with every
+        # earlier scan in RViz (fixed frame odom), whatever TF holds; T_odom_base @ T_base_sensor
+        self._aligned(cloud, T_odom @ T_bs, odom)
 
     def _aligned(self, src: Cloud, T: np.ndarray, frame: str) -> None:
         if self.aligned is None:
@@ -131,12 +171,21 @@ class Outputs:
         self.diagnostics.publish(arr)
 
 
+class _Points:
+    """A preprocessed-cloud stand-in: the points the covariance reads (``.points``)."""
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = points
+
+
 def _tf_publisher(node: Any) -> TfBroadcaster:
     try:
         from tf2_msgs.msg import TFMessage
     except ImportError as err:
         raise NodeError(
-            "node.publish_tf needs the tf2_msgs package (ROS: ros-jazzy-tf2-msgs), which is not installed"
+            "node.publish_tf needs the tf2_msgs package, which is not installed: build it with "
+            "`deepbbs-ros build-interfaces` (`make venv` does; ROS: ros-jazzy-tf2-msgs), or set node.publish_tf:=false"
         ) from err
     pub = node.create_publisher(TFMessage, "/tf", 100)
     return lambda transforms: pub.publish(TFMessage(transforms=transforms))
+

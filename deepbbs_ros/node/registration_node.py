@@ -15,17 +15,28 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
 Outputs (docs/CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 * ``~/pose`` (geometry_msgs/PoseStamped). Pair mode: ``T_target_source``, ``frame_id`` = target cloud
-  frame, stamp = source stamp. Odometry mode: the pose ``T_odom_k`` of scan k (the odom frame is the
-  first scan's sensor frame at its stamp: identity at the first scan), ``frame_id`` = ``node.odom_frame``.
+  frame, stamp = source stamp. Odometry mode: the base's pose ``T_odom_base = T_base_sensor @ T_odom_sensor @
+  inv(T_base_sensor)`` (REP-105; the odom frame is the base at the first scan; ``T_base_sensor`` looked up on
+  ``/tf_static`` for ``node.base_frame``, :mod:`deepbbs_ros.node.tf_static`; identity with one warning when
+  none arrives within ``node.tf_timeout``, or with ``node.base_frame: ''``), ``frame_id`` = ``node.odom_frame``.
+  Latched target (``node.target_mode: latched``): the scan's pose in the map frame.
 * ``~/transform`` (geometry_msgs/TransformStamped): the same transform, ``child_frame_id`` = the source
   frame (pair mode) or ``node.base_frame`` / the cloud frame (odometry mode).
-* opt-in: ``~/odometry`` (nav_msgs/Odometry: twist from the motion since the previous scan over the stamp
-  gap, covariances from the registration residuals of that motion, :mod:`deepbbs_ros.node.covariance`,
-  accumulated along the trajectory in odometry mode), ``/tf`` (``node.publish_tf``; needs
-  tf2_msgs; odometry mode broadcasts ``odom_frame -> base_frame``), ``~/aligned_cloud`` (pair mode: the
-  source cloud moved into the target frame; odometry mode: the scan moved into ``node.odom_frame``).
-* ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind,
-  model, device. ``~/reset`` (std_srvs/Trigger): restart odometry at identity and clear the synchroniser.
+* ``~/odometry`` (nav_msgs/Odometry, ``node.publish_odometry``, on by default: twist from the motion since the
+  previous scan over the stamp gap, covariances from the registration residuals of that motion,
+  :mod:`deepbbs_ros.node.covariance`, accumulated along the trajectory in odometry mode), ``/tf``
+  (``node.publish_tf``, on by default in odometry mode: ``odom_frame -> base_frame``, or the inverse with
+  ``node.invert_tf``; pair mode only with ``node.pair_tf``; needs tf2_msgs: ``deepbbs-ros build-interfaces``),
+  opt-in ``~/aligned_cloud`` (pair mode: the source cloud moved into the target frame; odometry mode: the scan
+  moved into ``node.odom_frame``).
+* ``/diagnostics``: latency per stage, clouds / pairs received, processed, dropped, errors per kind (an input
+  that never pairs: ``unpaired_input``), odometry restarts on time jumps, model, device. ``~/reset``
+  (std_srvs/Trigger): restart odometry at identity (a latched target: at ``node.initial_pose``) and clear the
+  synchroniser.
+
+Start-up: the model is loaded and every stage run once on a synthetic drive (``node.warmup``) before the node
+logs ``ready in X s``. A scan more than 1 s before the previous one in odometry mode (a bag played again)
+restarts the odometry with one log line.
 
 Threads: the executor's callbacks only hand messages on. Each input has its own thread that decodes and
 checks every cloud on arrival and preprocesses it for DeepBBS++ (pair mode, scan-to-scan odometry; the
@@ -54,7 +65,7 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
@@ -66,14 +77,16 @@ from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
-from deepbbs_ros.node.pipeline import LocalMapOdometry, ScanToScanOdometry, register_clouds
+from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, ScanToScanOdometry, register_clouds
 from deepbbs_ros.node.sync import ApproximateTimeSync
+from deepbbs_ros.node.tf_static import StaticTransforms
 from deepbbs_ros.node.worker import LatestSlotWorker
 
 NODE_NAME = "deepbbs_registration"
 ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 PAIR_INPUTS = ("source_cloud", "target_cloud")
 ODOM_INPUT = "cloud"
+JUMP_BACK_S = 1.0  # s; odometry mode: a stamp this far before the last one is a time jump (reset)
 
 
 #: the config sections the node reads (declared as ROS parameters); ``odometry`` too in odometry mode. ``model``
@@ -217,6 +230,7 @@ class RegistrationNode(Node):
         node_name: str = NODE_NAME,
         **node_kwargs: Any,
     ) -> None:
+        t_start = time.perf_counter()
         super().__init__(node_name, **node_kwargs)
         self.cfg = self._declare_config(config or Config())
         ncfg = self.cfg.node
@@ -228,17 +242,25 @@ class RegistrationNode(Node):
             raise NodeError(f"odometry_method must be one of {', '.join(ODOMETRY_METHODS)}, got {odometry_method!r}")
         self.odometry_method = odometry_method
         self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
+        # conditions of the graph, not of a message: an input that never pairs, a target not there yet
+        self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), ncfg.error_log_period)
         self._stages = StageTimes()
         self._lock = threading.Lock()
         self._odom_lock = threading.Lock()  # the odometry state: worker thread vs ~/reset
-        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0}
+        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0, "time_jumps": 0}
         self._last_result: dict[str, float] = {}
+        self._last_odom_stamp: int | None = None  # odometry mode: a stamp far before it is a time jump (reset)
+        self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
+        self._last_pair_t = time.monotonic()
+        self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
 
         # the model: device and weights checked first, with errors naming the parameter
         self._owns_reg = registration is None  # closed with the node (its network process)
         if registration is None:
             registration, self._weights = load_registration(self.cfg)
+            t_model = time.perf_counter() - t_start
         else:
+            t_model = 0.0
             self._weights = str(getattr(registration, "weights", "") or "<injected model>")
         self.reg = registration
         self._device = str(getattr(registration, "device", "cpu"))
@@ -256,11 +278,16 @@ class RegistrationNode(Node):
 
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         self.inputs: list[CloudInput] = []
+        self.static_tf = StaticTransforms()
+        self._extrinsics: dict[str, Any] = {}  # cloud frame -> T_base_sensor, once known (or given up on)
+        self._t_ready = self._t_tf = time.monotonic()  # the static transform's wait counts from here
         try:
-            self.outputs = Outputs(self, ncfg, self._qos(), self._errors.log, tf_broadcaster)
+            self.outputs = Outputs(self, ncfg, self._qos(), self._errors.log, tf_broadcaster,
+                                   extrinsic=self._base_from_sensor)
+            self._sub_tf_static = self._subscribe_tf_static()
             names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
             # one QoS object per subscription: rclpy applies qos_overrides.<topic>.* to it in place
-            self._subs = [self._make_input(i, name, self._qos()) for i, name in enumerate(names)]
+            subscribe = [self._make_input(i, name, self._qos()) for i, name in enumerate(names)]
         except NodeError:
             self._stop_threads()
             raise
@@ -273,6 +300,23 @@ class RegistrationNode(Node):
         self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics,
                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        t_warm = time.perf_counter()
+        self.warmed_up = False
+        if ncfg.warmup and self._owns_reg:  # an injected registration (tests, the GICP anchor) is the caller's
+            try:
+                self._warmup()
+                self.warmed_up = True
+            except Exception as err:  # noqa: BLE001 - a failed warm-up costs the first scans' latency, nothing else
+                self.get_logger().warning(f"warm-up failed ({type(err).__name__}: {err}); the first scans run cold")
+        try:
+            self._subs = [make() for make in subscribe]
+        except Exception as err:  # rclpy raises several types for bad (remapped) names
+            self._stop_threads()
+            raise NodeError(f"cannot create topics: {err}".replace("\n", " ")) from err
+        t_end = time.perf_counter()
+        self._t_ready = time.monotonic()
+        self._last_pair_t = self._t_ready
+        self.startup_s = t_end - t_start
         #: the QoS each input really got, after ``qos_overrides.<topic>.subscription.*``: topic -> "reliable/5"
         self.input_qos = {inp.topic: _qos_text(sub.qos_profile) for inp, sub in zip(self.inputs, self._subs)}
         qos_text = ", ".join(f"{t}: {q}" for t, q in self.input_qos.items())
@@ -280,6 +324,10 @@ class RegistrationNode(Node):
             f"mode={ncfg.mode} inputs=[{', '.join(i.topic for i in self.inputs)}] device={self._device} "
             f"weights={self._weights} qos=[{qos_text}] slop={ncfg.slop}s "
             f"queue={ncfg.queue_size}" + (f" odometry={self.odometry_method}" if self.odometry else "")
+            + (f" target=latched ({self.inputs[1].topic})" if self._map_target is not None else "")
+        )
+        self.get_logger().info(
+            f"ready in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up {t_end - t_warm:.1f} s)"
         )
 
     def _qos(self) -> QoSProfile:
@@ -343,26 +391,98 @@ class RegistrationNode(Node):
     # -- inputs (executor thread, then one thread per input) -----------------------------------------
     def _make_input(self, index: int, name: str, qos: QoSProfile):
         pair = self.cfg.node.mode == "pair"
+        latched = self._map_target is not None and name == "target_cloud"
 
         def on_cloud(cloud: Cloud) -> None:  # on the input's thread, once the cloud is preprocessed
             self._stages.add(cloud.timings_ms)
-            if pair:
+            with self._lock:
+                self._arrivals[index] = (time.monotonic(), cloud.stamp_ns)
+            if latched:
+                self._map_target.set_map(cloud)
+                self.get_logger().info(
+                    f"target (map) from {self.inputs[index].topic}: {len(cloud.xyz)} points in {cloud.frame_id!r}"
+                )
+            elif self._map_target is not None:
+                self._on_map_source(cloud)
+            elif pair:
                 self.sync.add(index, cloud.stamp_ns, cloud)
             else:
                 self._on_scan(cloud)
 
-        sub = self.create_subscription(
-            PointCloud2, name, lambda msg: self._on_message(index, msg), qos,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )  # fmt: skip
+        if latched:  # a map server's QoS: reliable, transient local (the map published once reaches late joiners)
+            qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        def subscribe():  # after the warm-up: a publisher (deepbbs-play) sees the node once it is ready
+            return self.create_subscription(
+                PointCloud2, name, lambda msg: self._on_message(index, msg), qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            )  # fmt: skip
+
+        self.resolve_topic_name(name)  # a bad (remapped) name fails here, before the model's warm-up
         self.inputs.append(
             CloudInput(
-                self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival else None,
+                self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival and not latched else None,
                 self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
-                increasing_stamps=not pair, gate=self.worker.room, deskew=self._stream_deskew(),
+                increasing_stamps=not pair, gate=None if latched else self.worker.room,
+                deskew=None if latched else self._stream_deskew(),
+                capacity=1 if pair else self.cfg.node.odometry_backlog,
             )
         )  # fmt: skip
-        return sub
+        return subscribe
+
+    # -- TF: base <- sensor from /tf_static --------------------------------------------------------
+    def _subscribe_tf_static(self):
+        """Subscribe ``/tf_static`` (transient local, as robot_state_publisher latches it) where odometry mode
+        needs ``T_base_sensor``; None elsewhere, or without tf2_msgs (then the base frame moves as the sensor)."""
+        ncfg = self.cfg.node
+        if ncfg.mode != "odometry" or not ncfg.base_frame:
+            return None
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning(
+                f"tf2_msgs is not installed: no /tf_static lookup of {ncfg.base_frame} <- the cloud frame "
+                "(identity used); build it with `deepbbs-ros build-interfaces`"
+            )
+            return None
+        qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        return self.create_subscription(TFMessage, "/tf_static", self.static_tf.add_message, qos)
+
+    def _base_from_sensor(self, frame: str):
+        """``T_base_sensor`` for a cloud in ``frame`` (odometry mode, on the worker thread): looked up on
+        ``/tf_static``; the first scan waits for it until ``node.tf_timeout`` s after the subscription was made
+        (during start-up: the model and the warm-up usually take longer, so a running robot_state_publisher's
+        transform is there before the first scan and nothing waits), then the
+        identity is used with one warning (and the lookup goes on: a transform that arrives later is used
+        from then on, with one log line)."""
+        import numpy as np
+
+        base = self.cfg.node.base_frame
+        if not base or base == frame:
+            return np.eye(4)
+        known = self._extrinsics.get(frame)
+        if known is not None and known[1]:
+            return known[0]
+        if known is None:
+            left = self._t_tf + self.cfg.node.tf_timeout - time.monotonic()
+            T = self.static_tf.wait(base, frame, max(0.0, left))
+        else:
+            T = self.static_tf.lookup(base, frame)
+        if T is not None:
+            self._extrinsics[frame] = (T, True)
+            t, log = T[:3, 3], self.get_logger().info
+            log(f"{base} <- {frame} from /tf_static: translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m; "
+                f"publishing the motion of {base}" + (" from now on" if known is not None else ""))
+            return T
+        if known is None:
+            self._extrinsics[frame] = (np.eye(4), False)
+            self.get_logger().warning(
+                f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} s: "
+                f"publishing the sensor's motion as {base}'s (identity); publish it (robot_state_publisher) "
+                "or set -p \"node.base_frame:=''\" to use the cloud frame"
+            )
+        return np.eye(4)
 
     def _on_message(self, index: int, msg: PointCloud2) -> None:
         t_recv = time.perf_counter()
@@ -379,7 +499,20 @@ class RegistrationNode(Node):
         (_, src), (_, tgt) = items
         with self._lock:
             self._counts["pairs"] += 1
+            self._last_pair_t = time.monotonic()
         self.worker.submit(("pair", src, tgt))
+
+    def _on_map_source(self, cloud: Cloud) -> None:
+        """Latched target: every source is paired with the latest map (no stamp matching)."""
+        map_cloud = self._map_target.map
+        if map_cloud is None:
+            self._warnings.log("no_target", f"{self.inputs[0].topic}: scan at {cloud.stamp_ns} ns dropped: no target "
+                             f"(map) on {self.inputs[1].topic} yet (latched: transient_local, reliable)")
+            return
+        with self._lock:
+            self._counts["pairs"] += 1
+            self._last_pair_t = time.monotonic()
+        self.worker.submit(("map", cloud, map_cloud))
 
     def _on_scan(self, cloud: Cloud) -> None:
         with self._lock:
@@ -405,6 +538,9 @@ class RegistrationNode(Node):
         if self.odometry is not None:
             with self._odom_lock:
                 self.odometry.reset()
+                self._last_odom_stamp = None
+        if self._map_target is not None:
+            self._map_target.reset()
         response.success = True
         response.message = "odometry restarted at identity; synchroniser and frame memory cleared"
         self.get_logger().info(response.message)
@@ -427,9 +563,15 @@ class RegistrationNode(Node):
                 reg = register_clouds(self.reg, src, tgt)
                 t0 = time.perf_counter()
                 self.outputs.pair(src, tgt, reg)
+            elif mode == "map":
+                reg, tgt_points = self._map_target.register(self.reg, src)
+                t0 = time.perf_counter()
+                self.outputs.localized(src, tgt.frame_id, reg, tgt_points)
             else:
                 with self._odom_lock:  # ~/reset runs on the executor thread
+                    self._check_time_jump(src)
                     step = self.odometry.step(src)
+                    self._last_odom_stamp = src.stamp_ns
                 reg = step.registered
                 t0 = time.perf_counter()
                 self.outputs.odometry_step(src, step)
@@ -448,6 +590,80 @@ class RegistrationNode(Node):
         timings["total"] = (t_end - t_in) * 1e3
         self._stages.add(timings)
 
+    def _check_time_jump(self, cloud: Cloud) -> None:
+        """Odometry mode: a scan more than ``JUMP_BACK_S`` before the last one (a bag played again, ``deepbbs-play
+        --loop``, simulated time rewound) restarts the odometry at identity, with one log line."""
+        last = self._last_odom_stamp
+        if last is not None and cloud.stamp_ns < last - int(JUMP_BACK_S * 1e9):
+            self.odometry.reset()
+            with self._lock:
+                self._counts["time_jumps"] += 1
+            self.get_logger().info(
+                f"{self.inputs[0].topic}: time jumped back {(last - cloud.stamp_ns) * 1e-9:.2f} s "
+                f"(stamp {cloud.stamp_ns} ns after {last} ns): odometry restarted at identity"
+            )
+
+    def _warmup(self) -> None:
+        """Run what the first scans would run for the first time (PointCloud2 decoding, preprocessing, the
+        precision stage's GICP, the network process, the odometry or pair path) on a synthetic drive, then
+        forget it: the first real scans are answered at the node's usual speed."""
+        from deepbbs_ros.node.inputs import decode_cloud
+        from deepbbs_ros.replay.synthetic import synthetic_drive
+        from msg_adapters.layouts import VELODYNE, build_cloud
+
+        scans = synthetic_drive(3, motion_distortion=True, max_range=min(60.0, self.cfg.preprocess.max_range))
+        clouds = []
+        for s in scans:
+            p = s.points
+            msg = build_cloud(VELODYNE, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2],
+                                         "intensity": s.fields["intensity"], "time": s.fields["time"]},
+                              stamp_ns=s.stamp_ns, frame_id="deepbbs_warmup")  # fmt: skip
+            xyz, times, stamp_ns, frame = decode_cloud(msg, "warm-up", 3)
+            clouds.append(Cloud(xyz, stamp_ns, frame, time.perf_counter(), times))
+        if self.odometry is not None:
+            with self._odom_lock:
+                for c in clouds:
+                    if self._preprocess_on_arrival:
+                        c.pp = self.reg.preprocess(c.xyz, c.times, c.stamp_ns)
+                    self.odometry.step(c)
+                self.odometry.reset()
+                if isinstance(self.odometry, LocalMapOdometry):
+                    self.odometry.consulted = self.odometry.won = 0
+        else:
+            for c in clouds[:2]:
+                c.pp = self.reg.preprocess(c.xyz, c.times, c.stamp_ns)
+            register_clouds(self.reg, clouds[1], clouds[0])
+            register_clouds(self.reg, clouds[1], clouds[0])  # the kept target state's path too
+
+    def _check_unpaired(self) -> None:
+        """Pair mode (stamped): an input that has received clouds without a pair for ``node.unpaired_warn_after``
+        s is reported (log and /diagnostics), naming the topics and the stamp gap."""
+        if self.cfg.node.mode != "pair" or self._map_target is not None:
+            return
+        now = time.monotonic()
+        wait = self.cfg.node.unpaired_warn_after
+        with self._lock:
+            arrivals, last_pair = dict(self._arrivals), self._last_pair_t
+        if not arrivals or now - last_pair < wait:
+            return
+        recent = {i: a for i, a in arrivals.items() if now - a[0] < wait}
+        if not recent:
+            return  # nothing arriving: not a pairing problem
+        names = [inp.topic for inp in self.inputs]
+        if len(arrivals) < len(self.inputs):
+            missing = [names[i] for i in range(len(self.inputs)) if i not in arrivals]
+            self._warnings.log("unpaired_input", f"no pair for {now - last_pair:.1f} s: {', '.join(missing)} has "
+                             f"received nothing while {', '.join(names[i] for i in recent)} receives clouds")
+            return
+        (_, s0), (_, s1) = arrivals[0], arrivals[1]
+        gap = (s0 - s1) * 1e-9
+        self._warnings.log(
+            "unpaired_input",
+            f"no pair for {now - last_pair:.1f} s: {names[0]} stamps are {gap:+.3f} s from {names[1]}'s "
+            f"(latest), beyond node.slop={self.cfg.node.slop} s; synchronise the stamps, raise node.slop, or "
+            "use node.target_mode:=latched for a static target (a map)",
+        )
+
     # -- diagnostics --------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
         """Counters of the node, its inputs, the synchroniser and the worker (also on /diagnostics)."""
@@ -461,12 +677,14 @@ class RegistrationNode(Node):
         out["sync"] = dict(self.sync.stats)
         out["sync_queue"] = list(self.sync.queue_lengths())
         out["errors"] = dict(self._errors.counts)
+        out["warnings"] = dict(self._warnings.counts)
         out["latency_ms"] = self._stages.summary()
         if isinstance(self.odometry, LocalMapOdometry):
             out["deepbbs_consulted"], out["deepbbs_won"] = self.odometry.consulted, self.odometry.won
         return out
 
     def _publish_diagnostics(self) -> None:
+        self._check_unpaired()
         s = self.stats()
         values = {
             "mode": self.cfg.node.mode,
@@ -482,18 +700,22 @@ class RegistrationNode(Node):
             "preprocessing cache hits / misses": "{hits} / {misses}".format(**s["preprocess_cache"]),
             "sync overflow / stale / late": "{overflow} / {stale} / {late}".format(**s["sync"]),
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
+            "odometry restarts on time jumps": s["time_jumps"],
         }
         if "deepbbs_consulted" in s:
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
+        for kind, n in sorted(s["warnings"].items()):
+            values[f"warnings.{kind}"] = n
         for stage, st in sorted(s["latency_ms"].items()):
             values[f"latency_ms.{stage}"] = f"median {st['median']:.1f} p99 {st['p99']:.1f} max {st['max']:.1f}"
         for k in self._last_result:
             if k in s:
                 values[f"last.{k}"] = f"{s[k]:.3f}"
         self.outputs.publish_diagnostics(
-            f"{self.get_name()}: registration", self._device, values, sum(s["errors"].values()),
+            f"{self.get_name()}: registration", self._device, values,
+            sum(s["errors"].values()) + sum(s["warnings"].values()),
             self.get_clock().now().to_msg(),
         )  # fmt: skip
 

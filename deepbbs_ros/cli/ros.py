@@ -1,0 +1,336 @@
+"""``deepbbs-ros``: what a ROS user does with ``ros2`` on the node, for pip installs that have no ``ros2``.
+
+Real rclpy underneath (the same DDS graph as ``ros2``)::
+
+    deepbbs-ros topic list                                     # topics and types
+    deepbbs-ros topic echo /deepbbs_registration/pose          # messages, with rate and latency
+    deepbbs-ros topic hz /deepbbs_registration/odometry        # rate and latency (receive time - header.stamp)
+    deepbbs-ros param list /deepbbs_registration
+    deepbbs-ros param get /deepbbs_registration node.mode
+    deepbbs-ros param set /deepbbs_registration use_sim_time true
+    deepbbs-ros reset                                          # calls /deepbbs_registration/reset
+    deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
+    deepbbs-ros build-interfaces                               # tf2_msgs for /tf (no PyPI wheel)
+
+Latency is the receive time minus the message's ``header.stamp``: meaningful when the stamps are
+wall-clock time (a live driver); a recording played with ``deepbbs-play`` keeps its recorded stamps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+from typing import Any
+
+from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.errors import NodeError
+
+DEFAULT_NODE = "/deepbbs_registration"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="deepbbs-ros", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="The node's topics, parameters and ~/reset from a pip install (no ros2 command needed).",
+        epilog="examples:\n" + __doc__.split("\n\n")[2] + "\n\n" + __doc__.split("\n\n")[3],
+    )
+    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                   help="seconds to wait for a node, service or publisher (default 5)")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    topic = sub.add_parser("topic", help="list, echo, hz").add_subparsers(dest="action", required=True)
+    topic.add_parser("list", help="topics and their types")
+    for name, text in (("echo", "print messages (a summary line each) with rate and latency"),
+                       ("hz", "rate and latency once a second")):
+        t = topic.add_parser(name, help=text)
+        t.add_argument("topic")
+        t.add_argument("--count", type=int, default=0, metavar="N", help="stop after N messages (0 = Ctrl-C)")
+        t.add_argument("--duration", type=float, default=0.0, metavar="S", help="stop after S seconds (0 = Ctrl-C)")
+        t.add_argument("--latched", action="store_true",
+                       help="transient-local, reliable subscription (a map, /tf_static); automatic for /tf_static")
+        if name == "echo":
+            t.add_argument("--full", action="store_true", help="the whole message instead of a summary")
+
+    param = sub.add_parser("param", help="list, get, set").add_subparsers(dest="action", required=True)
+    pl = param.add_parser("list", help="parameter names of a node")
+    pl.add_argument("node", nargs="?", default=DEFAULT_NODE)
+    pg = param.add_parser("get", help="a parameter's value")
+    pg.add_argument("node")
+    pg.add_argument("name")
+    ps = param.add_parser("set", help="set a parameter (value in YAML: true, 0.1, [1, 2], text)")
+    ps.add_argument("node")
+    ps.add_argument("name")
+    ps.add_argument("value")
+
+    r = sub.add_parser("reset", help="call the node's ~/reset (odometry restarts at identity)")
+    r.add_argument("node", nargs="?", default=DEFAULT_NODE)
+    sub.add_parser("dds-profile", help="print the shipped Fast DDS profile path (and the line to export it)")
+    b = sub.add_parser("build-interfaces", help="build and install tf2_msgs from its definition (gcc, g++)")
+    b.add_argument("--force", action="store_true", help="rebuild even when installed")
+    return p
+
+
+@cli_entry("deepbbs-ros")
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command == "dds-profile":
+        from deepbbs_ros.node.dds import PROFILE_ENV_VARS, default_profile_path
+
+        path = default_profile_path()
+        print(path)
+        print("# give your driver the same transport:", file=sys.stderr)
+        for var in PROFILE_ENV_VARS:
+            print(f"export {var}={path}", file=sys.stderr)
+        return 0
+    if args.command == "build-interfaces":
+        from deepbbs_ros import interfaces
+
+        return interfaces.main(["--force"] if args.force else [])
+    return _with_node(args)
+
+
+# -- rclpy ----------------------------------------------------------------------------------------
+def _with_node(args: argparse.Namespace) -> int:
+    from deepbbs_ros.node.dds import apply_default_profile
+
+    apply_default_profile()
+    import rclpy
+
+    rclpy.init(args=[])
+    node = rclpy.create_node(f"deepbbs_ros_cli_{int(time.time() * 1000) % 100000}")
+    try:
+        if args.command == "topic":
+            return _topic(node, args)
+        if args.command == "param":
+            return _param(node, args)
+        return _reset(node, args)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def _node_name(name: str) -> str:
+    return name if name.startswith("/") else "/" + name
+
+
+def _spin_until(node: Any, future: Any, timeout: float, what: str) -> Any:
+    import rclpy
+
+    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+    if not future.done():
+        raise NodeError(f"{what}: no answer within {timeout} s")
+    if future.exception() is not None:
+        raise NodeError(f"{what}: {future.exception()}")
+    return future.result()
+
+
+def _client(node: Any, srv_type: Any, name: str, timeout: float) -> Any:
+    cli = node.create_client(srv_type, name)
+    if not cli.wait_for_service(timeout_sec=timeout):
+        raise NodeError(f"service {name} not available within {timeout} s (is the node running, same ROS_DOMAIN_ID?)")
+    return cli
+
+
+def _reset(node: Any, args: argparse.Namespace) -> int:
+    from std_srvs.srv import Trigger
+
+    name = _node_name(args.node) + "/reset"
+    res = _spin_until(node, _client(node, Trigger, name, args.timeout).call_async(Trigger.Request()),
+                      args.timeout, name)  # fmt: skip
+    print(f"{name}: {'ok' if res.success else 'failed'}: {res.message}")
+    return 0 if res.success else 1
+
+
+def _param(node: Any, args: argparse.Namespace) -> int:
+    from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+    from rclpy.parameter import Parameter, parameter_value_to_python
+
+    target = _node_name(args.node)
+    if args.action == "list":
+        res = _spin_until(node, _client(node, ListParameters, f"{target}/list_parameters", args.timeout)
+                          .call_async(ListParameters.Request()), args.timeout, f"{target}/list_parameters")
+        for name in sorted(res.result.names):
+            print(name)
+        return 0
+    if args.action == "get":
+        req = GetParameters.Request(names=[args.name])
+        res = _spin_until(node, _client(node, GetParameters, f"{target}/get_parameters", args.timeout)
+                          .call_async(req), args.timeout, f"{target}/get_parameters")
+        if not res.values or res.values[0].type == 0:
+            raise NodeError(f"{target}: parameter {args.name!r} is not set")
+        print(_format_value(parameter_value_to_python(res.values[0])))
+        return 0
+    import yaml
+
+    try:
+        value = yaml.safe_load(args.value)
+    except yaml.YAMLError:
+        value = args.value
+    if value is None:
+        value = args.value
+    try:
+        msg = Parameter(args.name, value=value).to_parameter_msg()
+    except (TypeError, ValueError) as err:
+        raise NodeError(f"{args.name}: cannot send {args.value!r} as a parameter value ({err})") from err
+    res = _spin_until(node, _client(node, SetParameters, f"{target}/set_parameters", args.timeout)
+                      .call_async(SetParameters.Request(parameters=[msg])), args.timeout, f"{target}/set_parameters")
+    result = res.results[0]
+    if not result.successful:
+        raise NodeError(f"{target}: setting {args.name} refused: {result.reason or 'no reason given'}")
+    print(f"{target}: {args.name} = {_format_value(value)}")
+    return 0
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)) or type(value).__name__ == "ndarray":
+        return "[" + ", ".join(_format_value(v) for v in list(value)) + "]"
+    return str(value)
+
+
+# -- topics ---------------------------------------------------------------------------------------
+def _msg_class(type_name: str) -> Any:
+    pkg, _, name = type_name.replace("/msg/", "/").partition("/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    except (ImportError, AttributeError) as err:
+        hint = " (deepbbs-ros build-interfaces)" if pkg == "tf2_msgs" else ""
+        raise NodeError(f"message type {type_name} is not installed here{hint}") from err
+
+
+def _topic_type(node: Any, topic: str, timeout: float) -> str:
+    deadline = time.monotonic() + timeout
+    while True:
+        types = dict(node.get_topic_names_and_types())
+        if topic in types:
+            return types[topic][0]
+        if time.monotonic() > deadline:
+            raise NodeError(f"topic {topic} not found within {timeout} s (deepbbs-ros topic list shows the graph)")
+        time.sleep(0.1)
+
+
+def _topic(node: Any, args: argparse.Namespace) -> int:
+    if args.action == "list":
+        time.sleep(min(args.timeout, 1.0))  # discovery
+        for name, types in sorted(node.get_topic_names_and_types()):
+            print(f"{name} [{', '.join(types)}]")
+        return 0
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    topic = args.topic if args.topic.startswith("/") else "/" + args.topic
+    cls = _msg_class(_topic_type(node, topic, args.timeout))
+    latched = args.latched or topic == "/tf_static"
+    qos = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE if latched else ReliabilityPolicy.BEST_EFFORT,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+    stats = TopicStats()
+    echo = args.action == "echo"
+
+    def on_msg(msg: Any) -> None:
+        stats.add(time.time_ns(), _stamp_ns(msg))
+        if echo:
+            print(str(msg) if args.full else summary(msg), flush=True)
+
+    node.create_subscription(cls, topic, on_msg, qos)
+    start = last_report = time.monotonic()
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.1)
+        now = time.monotonic()
+        if now - last_report >= 1.0:
+            last_report = now
+            print(stats.line(topic), file=sys.stderr if echo else sys.stdout, flush=True)
+        if (args.count and stats.n >= args.count) or (args.duration and now - start >= args.duration):
+            break
+    if not echo or args.count or args.duration:
+        print(stats.line(topic), file=sys.stderr if echo else sys.stdout, flush=True)
+    return 0
+
+
+class TopicStats:
+    """Message count, rate over the last ``window`` messages and latency (receive time - header.stamp)."""
+
+    def __init__(self, window: int = 100) -> None:
+        self.window = window
+        self.n = 0
+        self._recv: list[int] = []
+        self._lat_ms: list[float] = []
+
+    def add(self, recv_ns: int, stamp_ns: int | None) -> None:
+        self.n += 1
+        self._recv = (self._recv + [recv_ns])[-self.window:]
+        if stamp_ns:
+            self._lat_ms = (self._lat_ms + [(recv_ns - stamp_ns) * 1e-6])[-self.window:]
+
+    @property
+    def rate_hz(self) -> float:
+        if len(self._recv) < 2:
+            return 0.0
+        return (len(self._recv) - 1) / max((self._recv[-1] - self._recv[0]) * 1e-9, 1e-9)
+
+    def line(self, topic: str) -> str:
+        text = f"{topic}: {self.n} messages, {self.rate_hz:.2f} Hz"
+        if self._lat_ms:
+            import numpy as np
+
+            lat = np.asarray(self._lat_ms)
+            text += f", latency p50 {np.median(lat):.1f} ms, p99 {np.percentile(lat, 99):.1f} ms (now - stamp)"
+        return text
+
+
+def _stamp_ns(msg: Any) -> int | None:
+    header = getattr(msg, "header", None)
+    if header is None:
+        transforms = getattr(msg, "transforms", None)
+        header = transforms[0].header if transforms else None
+    if header is None:
+        return None
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def summary(msg: Any) -> str:
+    """One line per message for the node's outputs (pose, transform, odometry, TF, clouds, diagnostics)."""
+    name = type(msg).__name__
+    stamp = _stamp_ns(msg)
+    head = f"{name} {stamp * 1e-9:.3f}" if stamp is not None else name
+    if hasattr(msg, "pose") and hasattr(msg.pose, "pose"):  # Odometry / PoseWithCovarianceStamped
+        return f"{head} {msg.header.frame_id} -> {getattr(msg, 'child_frame_id', '')} {_pose_text(msg.pose.pose)}"
+    if name == "PoseStamped":
+        return f"{head} {msg.header.frame_id} {_pose_text(msg.pose)}"
+    if name == "TransformStamped":
+        return f"{head} {_tf_text(msg)}"
+    if name == "TFMessage":
+        return f"{head} " + "; ".join(_tf_text(t) for t in msg.transforms)
+    if name == "PointCloud2":
+        fields = ",".join(f.name for f in msg.fields)
+        return f"{head} {msg.header.frame_id} {msg.width * msg.height} points [{fields}]"
+    if name == "DiagnosticArray":
+        return "\n".join(f"{head} {s.name}: {s.message}\n" + "\n".join(f"  {kv.key}: {kv.value}" for kv in s.values)
+                         for s in msg.status)
+    text = str(msg)
+    return text if len(text) <= 300 else text[:300] + "..."
+
+
+def _pose_text(p: Any) -> str:
+    import numpy as np
+
+    q = p.orientation
+    yaw = np.degrees(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z)))
+    return f"xyz [{p.position.x:.3f}, {p.position.y:.3f}, {p.position.z:.3f}] yaw {yaw:.2f} deg"
+
+
+def _tf_text(t: Any) -> str:
+    import numpy as np
+
+    tr, q = t.transform.translation, t.transform.rotation
+    yaw = np.degrees(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z)))
+    return f"{t.header.frame_id} -> {t.child_frame_id} xyz [{tr.x:.3f}, {tr.y:.3f}, {tr.z:.3f}] yaw {yaw:.2f} deg"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

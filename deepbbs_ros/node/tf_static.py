@@ -1,0 +1,101 @@
+"""Static transforms of ``/tf_static`` and the REP-105 base motion (no ROS import).
+
+``robot_state_publisher`` (or ``static_transform_publisher``) latches the robot's fixed frames on
+``/tf_static`` as ``tf2_msgs/TFMessage``: each ``TransformStamped`` holds ``T_parent_child``. The node keeps
+them in a :class:`StaticTransforms` tree and looks up ``T_base_sensor`` (any chain of static frames between
+``node.base_frame`` and the cloud's frame). Odometry runs in the sensor frame; what the node publishes is
+the base's motion (as KISS-ICP's ROS 2 node does)::
+
+    T_odom_base = T_base_sensor @ T_odom_sensor @ inv(T_base_sensor)
+
+(:func:`base_motion`), i.e. the odom frame is the base frame at the first scan.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.node.covariance import adjoint
+
+
+class StaticTransforms:
+    """A thread-safe tree of static transforms, fed with ``tf2_msgs/TFMessage`` (``add_message``)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._parent: dict[str, tuple[str, np.ndarray]] = {}  # child -> (parent, T_parent_child)
+
+    def add(self, parent: str, child: str, T_parent_child: np.ndarray) -> None:
+        with self._cond:
+            self._parent[str(child)] = (str(parent), np.asarray(T_parent_child, dtype=np.float64))
+            self._cond.notify_all()
+
+    def add_message(self, msg: Any) -> int:
+        """Add every transform of a TFMessage; returns how many were added (invalid ones are skipped)."""
+        from msg_adapters.transforms import transform_stamped_to_matrix
+
+        n = 0
+        for ts in getattr(msg, "transforms", []):
+            try:
+                T, _, parent, child = transform_stamped_to_matrix(ts)
+            except Exception:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
+                continue
+            if parent and child and parent != child and np.all(np.isfinite(T)):
+                self.add(parent, child, T)
+                n += 1
+        return n
+
+    @property
+    def frames(self) -> set[str]:
+        with self._cond:
+            return set(self._parent) | {p for p, _ in self._parent.values()}
+
+    def _root(self, frame: str) -> tuple[str, np.ndarray]:
+        """(root frame, ``T_root_frame``) following the parents of ``frame`` (cycles stop the walk)."""
+        T, cur, seen = np.eye(4), frame, set()
+        while cur in self._parent and cur not in seen:
+            seen.add(cur)
+            parent, T_parent_cur = self._parent[cur]
+            T = T_parent_cur @ T
+            cur = parent
+        return cur, T
+
+    def lookup(self, target: str, source: str) -> np.ndarray | None:
+        """``T_target_source`` (4, 4) through the static tree, or None when the frames are not connected."""
+        if target == source:
+            return np.eye(4)
+        with self._cond:
+            (root_t, T_rt), (root_s, T_rs) = self._root(target), self._root(source)
+        if root_t != root_s:
+            return None
+        return np.linalg.inv(T_rt) @ T_rs
+
+    def wait(self, target: str, source: str, timeout: float) -> np.ndarray | None:
+        """:meth:`lookup`, waiting up to ``timeout`` s for the transforms to arrive."""
+        end = time.monotonic() + max(0.0, timeout)
+        with self._cond:
+            while True:
+                T = self.lookup(target, source)
+                if T is not None:
+                    return T
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+
+
+def base_motion(T_base_sensor: np.ndarray, T_odom_sensor: np.ndarray) -> np.ndarray:
+    """``T_odom_base = T_base_sensor @ T_odom_sensor @ inv(T_base_sensor)`` (odom = the base at the first scan)."""
+    T_bs = np.asarray(T_base_sensor, dtype=np.float64)
+    return T_bs @ np.asarray(T_odom_sensor, dtype=np.float64) @ np.linalg.inv(T_bs)
+
+
+def base_covariance(T_base_sensor: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """A (6, 6) pose / twist covariance of the sensor's motion moved to the base's, ``Ad Sigma Ad^T``."""
+    Ad = adjoint(np.asarray(T_base_sensor, dtype=np.float64))
+    out = Ad @ np.asarray(cov, dtype=np.float64) @ Ad.T
+    return 0.5 * (out + out.T)

@@ -1,0 +1,83 @@
+#!/usr/bin/env python3
+"""First contact: a cold node in odometry mode, the sample drive played once at its recorded rate.
+
+Each run starts ``deepbbs-node`` (odometry mode, a fresh process) and ``deepbbs-play`` at the same moment (the
+player waits for the node's subscription, which the node makes once it is ready), counts the poses the node
+publishes for the drive's scans and reads the node's ``ready in X s`` line::
+
+    python scripts/first_contact.py                      # bags/urban_drive_hdl64, 3 runs
+    python scripts/first_contact.py --runs 5 --bag bags/suburban_drive_os64 --loop
+
+``--loop`` plays the drive twice (the second time after a backward time jump: the odometry restarts) and
+counts both plays. Runs in its own DDS domain on loopback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_run(args: argparse.Namespace, domain: int) -> dict:
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain))
+    py = sys.executable
+    with tempfile.TemporaryDirectory() as tmp:
+        node_log = Path(tmp) / "node.log"
+        t0 = time.monotonic()
+        with open(node_log, "w") as log:
+            node = subprocess.Popen([py, "-m", "deepbbs_ros.node.registration_node", "--ros-args",
+                                     "-p", "node.mode:=odometry", "-r", "cloud:=/points"],
+                                    stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        n_scans = args.frames * (2 if args.loop else 1)
+        echo = subprocess.Popen([py, "-m", "deepbbs_ros.cli.ros", "--timeout", "180", "topic", "echo",
+                                 "/deepbbs_registration/pose", "--count", str(n_scans), "--duration", "300"],
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)  # fmt: skip
+        play = [py, "-m", "deepbbs_ros.cli.play", args.bag, "--cloud-topic", "/points", "--wait", "180", "--quiet"]
+        subprocess.run(play, env=env, capture_output=True, timeout=400)
+        if args.loop:
+            time.sleep(1.0)
+            subprocess.run(play, env=env, capture_output=True, timeout=400)
+        time.sleep(4.0)
+        echo.send_signal(2)
+        out, _ = echo.communicate(timeout=30)
+        node.send_signal(2)
+        node.wait(timeout=30)
+        text = node_log.read_text()
+    m = re.search(r"ready in ([\d.]+) s \(model ([\d.]+) s, warm-up ([\d.]+) s\)", text)
+    return {
+        "answered": sum(1 for line in out.splitlines() if line.startswith("PoseStamped")),
+        "scans": n_scans,
+        "ready_s": float(m.group(1)) if m else float("nan"),
+        "model_s": float(m.group(2)) if m else float("nan"),
+        "warmup_s": float(m.group(3)) if m else float("nan"),
+        "wall_s": time.monotonic() - t0,
+        "time_jumps": text.count("time jumped back"),
+    }
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--bag", default=str(ROOT / "bags" / "urban_drive_hdl64"))
+    p.add_argument("--frames", type=int, default=15, help="scans in the recording (15 for the samples)")
+    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--loop", action="store_true", help="play the drive twice (a backward time jump between)")
+    p.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "77")))
+    args = p.parse_args()
+    for k in range(args.runs):
+        r = one_run(args, args.domain)
+        print(f"run {k + 1}: answered {r['answered']} of {r['scans']} scans; ready in {r['ready_s']:.1f} s "
+              f"(model {r['model_s']:.1f} s, warm-up {r['warmup_s']:.1f} s); odometry restarts {r['time_jumps']}",
+              flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
