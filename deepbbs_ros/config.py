@@ -340,6 +340,7 @@ class EvalConfig:
     baseline_max_corr_dist: float = 2.0  # m
     baseline_max_iters: int = 50
     baseline_neighbors: int = 20  # neighbours for normals / covariances
+    kiss_matcher_voxel: float = 0.3  # m; KISS-Matcher's voxel size (its default for outdoor LiDAR)
     kiss_deskew: bool = True  # KISS-ICP motion compensation when scans carry a per-point "time"
     drop_frames: int = 0  # odometry robustness: this many gaps of drop_min..drop_max skipped scans (seeded by seed)
     drop_min: int = 3
@@ -379,6 +380,7 @@ class EvalConfig:
         _check(self.baseline_max_corr_dist > 0, "eval.baseline_max_corr_dist", "must be > 0")
         _check(self.baseline_max_iters >= 1, "eval.baseline_max_iters", "must be >= 1")
         _check(self.baseline_neighbors >= 5, "eval.baseline_neighbors", "must be >= 5")
+        _check(self.kiss_matcher_voxel > 0, "eval.kiss_matcher_voxel", "must be > 0")
         _check(self.threads >= 0, "eval.threads", "must be >= 0")
         _check(self.bag_aligned_clouds >= 0, "eval.bag_aligned_clouds", "must be >= 0")
 
