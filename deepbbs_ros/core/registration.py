@@ -13,6 +13,8 @@
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
     deskew      the same on both scans deskewed with their own stream velocities, when they agree
+    verdict     the score of the pose and whether it can be trusted (core/verdict.py)
+    global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
 Defaults (issues 10/11, measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -42,6 +44,7 @@ import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core import global_search, verdict
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
 from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
@@ -86,6 +89,10 @@ class RegistrationResult:
         deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
             else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
+        valid: the verdict: the pose can be trusted (``score >= registration.verdict_threshold``).
+        score: the verdict's score (core/verdict.py): share of the sampled source points within
+            ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
+        starts: start yaws tried (1: the given start; more when the global search ran, core/global_search.py).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -101,6 +108,9 @@ class RegistrationResult:
     target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     polish: str = ""
     deskew: str = ""
+    valid: bool = False
+    score: float = float("nan")
+    starts: int = 1
 
 
 class _Clock:
@@ -189,6 +199,8 @@ class DeepBBSRegistration:
         pts = rng.uniform(-30.0, 30.0, (n, 3)).astype(np.float32)
         for _ in range(rounds):
             self.register(pts, pts[::-1].copy(), preprocessed=True)
+            if self.config.registration.global_search != "off" and self._net_state == "running":
+                self.network_np(pts, pts[::-1].copy(), np.eye(4))  # the global search's passes run in this process
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -305,8 +317,11 @@ class DeepBBSRegistration:
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
             st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
             clock.lap("dense" if st.iters["dense"] else "refine")
+            self._global_search(st, clock)  # other start yaws when this answer looks wrong (registration.global_*)
         self._polish(st, clock)  # the GICP precision stage (registration.polish)
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
+        self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
+        st = self._global_retry(st, clock)  # still not trusted: the other starts' best through the precision stage
         return self._result(st, clock)
 
     @contextlib.contextmanager
@@ -341,7 +356,7 @@ class DeepBBSRegistration:
             src=src, tgt=tgt, search=NeighbourSearch(tgt[0]),
             R=torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device),
             t=torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device),
-            gamma=src.new_ones(src.shape[1]),
+            gamma=src.new_ones(src.shape[1]), T_start=T,
         )
 
     def _deep_passes(self, st: _State, clock: _Clock) -> None:
@@ -398,11 +413,12 @@ class DeepBBSRegistration:
         return (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
 
     def _passes(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-                lap: Callable[[str], None]) -> NetworkOutput:
+                lap: Callable[[str], None], n_passes: int | None = None) -> NetworkOutput:
         """The deep passes on src (1, N, 3), tgt (1, M, 3) (scaled, on the device) from R (3, 3), t (3,)
-        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve")."""
+        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve"); ``n_passes``
+        overrides the configured number (the global search ranks its starts after one)."""
         rc, scale = self.config.registration, self.model.scale
-        n_deep = self._n_deep()
+        n_deep = self._n_deep() if n_passes is None else n_passes
         # the target does not move: its DGCNN features and the target-only parts of the transformer
         # (encoder output, self-attention) are computed once, and kept for the next registration against the
         # same target (a fixed map cloud); the source's kNN graph is rigid-invariant
@@ -671,9 +687,90 @@ class DeepBBSRegistration:
             st.converged = pol.converged
         clock.lap("polish")
 
+    def _score(self, st: _State, T: np.ndarray, dist: float | None = None) -> float:
+        """The verdict's score of the pose T (4, 4) (core/verdict.py) at ``dist`` m (``verdict_dist``): against
+        the target's precision-stage cloud when it has one, else against its sampled points."""
+        d = self.config.registration.verdict_dist if dist is None else dist
+        if st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None:
+            return verdict.fitness(st.src_np, st.tgt_pc.tree, T, d)
+        return verdict.fitness_to_points(st.src_np, st.tgt_np, T, d)
+
+    def _verdict(self, st: _State) -> None:
+        st.score = self._score(st, st.T)
+        st.valid = verdict.is_valid(st.score, self.config.registration.verdict_threshold)
+
+    def _global_search(self, st: _State, clock: _Clock, force: bool = False) -> None:
+        """The global search before the precision stage (core/global_search.py): when the deep answer's fitness
+        (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one deep pass from each
+        other start yaw (in this process; the target's network state computed once), the start with the best
+        fitness finished with the remaining passes; it replaces the answer when it fits better."""
+        rc, scale = self.config.registration, self.model.scale
+        if rc.global_search == "off" or rc.global_yaws < 2 or not self._n_deep() or not rc.deep:
+            return
+        rank_dist = 2.0 * rc.verdict_dist
+        T_deep = _matrix(st.R, st.t, scale)
+        here = self._score(st, T_deep, rank_dist)
+        if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
+            return
+
+        def passes(T: np.ndarray, n: int = 1):
+            R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
+            t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
+            out = self._passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
+            return out, _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+
+        ranked = global_search.rank_starts(global_search.yaw_starts(st.T_start, rc.global_yaws), passes,
+                                           lambda T: self._score(st, T, rank_dist))
+        st.starts = rc.global_yaws
+        st.others = ranked
+        if ranked and ranked[0][0] > here:
+            out, T = ranked[0][1], ranked[0][2]
+            if self._n_deep() > 1:
+                out, T = passes(T, self._n_deep() - 1)
+            st.replaced = (st.R, st.t, st.gamma)
+            self._apply_network(st, out)
+            st.iters["deep"] += 1
+            st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
+        clock.lap("global")
+
+    def _global_retry(self, st: _State, clock: _Clock) -> _State:
+        """The answer still fails the verdict after the precision stage: the next best starts of the search (the
+        given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
+        verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+        rc = self.config.registration
+        if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not self._n_deep() or not rc.deep:
+            return st
+        def tensors(out: NetworkOutput) -> tuple:
+            return tuple(torch.as_tensor(x, dtype=torch.float32, device=self.device) for x in (out.R, out.t, out.gamma))
+
+        if st.others is None:  # the deep answer fitted, the precision stage's pose does not: rank the others now
+            probe = dataclasses.replace(st, iters=dict(st.iters))
+            with torch.inference_mode(), self._torch_threads():
+                self._global_search(probe, clock, force=True)
+            ranked, replaced = probe.others or [], probe.replaced is not None
+            others = [(probe.R, probe.t, probe.gamma)] if replaced else []
+        else:
+            ranked, replaced = st.others, st.replaced is not None
+            others = [st.replaced] if replaced else []
+        others += [tensors(out) for _, out, _ in ranked[1 if replaced else 0:]]
+        st.starts = rc.global_yaws
+        best = st
+        for R, t, g in others[: max(0, rc.global_polish - 1)]:
+            cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
+            cand.R, cand.t, cand.gamma = R, t, g
+            self._polish(cand, _Clock(self.device))
+            self._deskew(cand, _Clock(self.device))
+            self._verdict(cand)
+            if cand.score > best.score:
+                best = cand
+            if best.valid:
+                break
+        clock.lap("global")
+        return best
+
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += tuple(s for s in ("network_wait", "polish", "deskew") if s in clock.ms)
+        stages += tuple(s for s in ("network_wait", "polish", "deskew", "global") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())  # the wall time of register()
         for s, v in st.network_ms.items():  # ran in the network process, overlapping "preprocess"
@@ -690,6 +787,9 @@ class DeepBBSRegistration:
             target=st.tgt_np,
             polish=st.polish_reason,
             deskew=st.deskew,
+            valid=bool(st.valid),
+            score=float(st.score),
+            starts=int(st.starts),
         )
 
 
@@ -720,6 +820,12 @@ class _State:
     inlier_ratio: float = 0.0
     polish_reason: str = ""
     deskew: str = ""
+    T_start: np.ndarray = field(default_factory=lambda: np.eye(4))  # the given start (the global search turns it)
+    score: float = float("nan")  # the verdict (core/verdict.py)
+    valid: bool = False
+    starts: int = 1
+    others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]
+    replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
     pending: Any = None  # a network_process.Pending while the network process works
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
