@@ -125,7 +125,8 @@ class DeepBBSMethod:
         t0 = time.perf_counter()
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
-        info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
+        info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio), "valid": bool(res.valid),
+                "score": float(res.score)}
         if self.polish:
             info["polish"] = res.polish
             info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))
