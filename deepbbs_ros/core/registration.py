@@ -689,11 +689,15 @@ class DeepBBSRegistration:
 
     def _score(self, st: _State, T: np.ndarray, dist: float | None = None) -> float:
         """The verdict's score of the pose T (4, 4) (core/verdict.py) at ``dist`` m (``verdict_dist``): against
-        the target's precision-stage cloud when it has one, else against its sampled points."""
-        d = self.config.registration.verdict_dist if dist is None else dist
+        the target's precision-stage cloud when it has one (calibrated), else against its voxelised non-ground
+        points, else against its sampled points within ``max(dist, inlier_dist)``."""
+        rc = self.config.registration
+        d = rc.verdict_dist if dist is None else dist
         if st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None:
             return verdict.fitness(st.src_np, st.tgt_pc.tree, T, d)
-        return verdict.fitness_to_points(st.src_np, st.tgt_np, T, d)
+        if st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np):  # no precision stage: voxelised
+            return verdict.fitness_to_points(st.src_np, st.tgt_dense, T, d)
+        return verdict.fitness_to_points(st.src_np, st.tgt_np, T, max(d, rc.inlier_dist))  # sparse: a wider gate
 
     def _verdict(self, st: _State) -> None:
         st.score = self._score(st, st.T)

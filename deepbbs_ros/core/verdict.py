@@ -9,8 +9,9 @@ source points make the ground, which any two roads share, count for nothing. The
 the score reaches ``registration.verdict_threshold`` (calibrated by scripts/verdict_study.py on simulated
 and real pairs; the measured rates are in MODEL.md).
 
-Without the target's precision-stage cloud (clouds registered as preprocessed arrays) the score is taken
-against the target's sampled points, a sparser reference: the same threshold then rejects more true pairs.
+Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
+arrays) the score is taken against the target's voxelised non-ground points, or its sampled points within
+``max(verdict_dist, inlier_dist)``: sparser references, for which the threshold is not calibrated.
 """
 
 from __future__ import annotations
