@@ -167,13 +167,14 @@ class RegistrationConfig:
     # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated by
     # scripts/verdict_study.py on simulated and real pairs)
     verdict_dist: float = 0.5  # m
-    verdict_threshold: float = 0.3
+    verdict_threshold: float = 0.35
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
     # every registration ("always") or never ("off"); global_yaws starts at 360 / global_yaws degree steps (the
     # given start included), the global_polish best of them (ranked by their fitness before it) get the precision stage
     global_search: str = "auto"
     global_yaws: int = 4
     global_polish: int = 2
+    global_shift: float = 8.0  # m; none valid after the yaw starts: 8 starts this far and twice as far around the best
 
     def validate(self) -> None:
         dev = self.device
@@ -216,6 +217,7 @@ class RegistrationConfig:
                f"must be 'auto', 'always' or 'off', got {self.global_search!r}")
         _check(self.global_yaws >= 1, "registration.global_yaws", "must be >= 1 (1 = the given start only)")
         _check(self.global_polish >= 1, "registration.global_polish", "must be >= 1")
+        _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 

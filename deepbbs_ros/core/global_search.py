@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["yaw_starts", "rank_starts"]
+__all__ = ["yaw_starts", "shift_starts", "rank_starts"]
 
 
 def yaw_starts(T_start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -29,6 +29,18 @@ def yaw_starts(T_start: np.ndarray, n: int) -> list[np.ndarray]:
         Rz = np.eye(4)
         Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
         out.append(np.asarray(T_start, dtype=np.float64) @ Rz)
+    return out
+
+
+def shift_starts(T: np.ndarray, shift: float) -> list[np.ndarray]:
+    """Eight starts ``shift`` and ``2 * shift`` m from the pose T (4, 4) along +x, -x, +y, -y of the target frame
+    (a pose of the right yaw slid along a road by more than the deep passes' reach)."""
+    out = []
+    for r in (shift, 2.0 * shift):
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            S = np.asarray(T, dtype=np.float64).copy()
+            S[:2, 3] += (r * dx, r * dy)
+            out.append(S)
     return out
 
 

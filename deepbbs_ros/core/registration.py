@@ -769,7 +769,37 @@ class DeepBBSRegistration:
                 best = cand
             if best.valid:
                 break
+        if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
+            best = self._shift_retry(best, st)
         clock.lap("global")
+        return best
+
+    def _shift_retry(self, best: _State, st: _State) -> _State:
+        """Starts ``registration.global_shift`` and twice that m from the best pose so far (four horizontal
+        directions, in the target frame): the full deep passes from each, the best fitting ones through the
+        precision stage."""
+        rc, scale = self.config.registration, self.model.scale
+        T_best = best.T.copy()
+        outs = []
+        with torch.inference_mode(), self._torch_threads():
+            for T0 in global_search.shift_starts(T_best, rc.global_shift):
+                R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=self.device)
+                t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=self.device)
+                out = self._passes(st.src, st.tgt, R, t, lambda _stage: None)
+                T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+                outs.append((self._score(st, T, 2.0 * rc.verdict_dist), out))
+        outs.sort(key=lambda o: -o[0])
+        for _, out in outs[: rc.global_polish]:
+            cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
+            self._apply_network(cand, out)
+            self._polish(cand, _Clock(self.device))
+            self._deskew(cand, _Clock(self.device))
+            self._verdict(cand)
+            if cand.score > best.score:
+                best = cand
+            if best.valid:
+                break
+        best.starts = rc.global_yaws + len(outs)
         return best
 
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
