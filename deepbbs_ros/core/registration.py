@@ -317,11 +317,11 @@ class DeepBBSRegistration:
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
             st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
             clock.lap("dense" if st.iters["dense"] else "refine")
-            self._global_search(st, clock)  # other start yaws when this answer looks wrong (registration.global_*)
+            global_search.before_precision(self, st, clock)  # other start yaws when this answer does not fit
         self._polish(st, clock)  # the GICP precision stage (registration.polish)
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
         self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
-        st = self._global_retry(st, clock)  # still not trusted: the other starts' best through the precision stage
+        st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
         return self._result(st, clock)
 
     @contextlib.contextmanager
@@ -702,105 +702,6 @@ class DeepBBSRegistration:
     def _verdict(self, st: _State) -> None:
         st.score = self._score(st, st.T)
         st.valid = verdict.is_valid(st.score, self.config.registration.verdict_threshold)
-
-    def _global_search(self, st: _State, clock: _Clock, force: bool = False) -> None:
-        """The global search before the precision stage (core/global_search.py): when the deep answer's fitness
-        (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one deep pass from each
-        other start yaw (in this process; the target's network state computed once), the start with the best
-        fitness finished with the remaining passes; it replaces the answer when it fits better."""
-        rc, scale = self.config.registration, self.model.scale
-        if rc.global_search == "off" or rc.global_yaws < 2 or not self._n_deep() or not rc.deep:
-            return
-        rank_dist = 2.0 * rc.verdict_dist
-        T_deep = _matrix(st.R, st.t, scale)
-        here = self._score(st, T_deep, rank_dist)
-        if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
-            return
-
-        def passes(T: np.ndarray, n: int = 1):
-            R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
-            t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device)
-            out = self._passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
-            return out, _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
-
-        ranked = global_search.rank_starts(global_search.yaw_starts(st.T_start, rc.global_yaws), passes,
-                                           lambda T: self._score(st, T, rank_dist))
-        st.starts = rc.global_yaws
-        st.others = ranked
-        if ranked and ranked[0][0] > here:
-            out, T = ranked[0][1], ranked[0][2]
-            if self._n_deep() > 1:
-                out, T = passes(T, self._n_deep() - 1)
-            st.replaced = (st.R, st.t, st.gamma)
-            self._apply_network(st, out)
-            st.iters["deep"] += 1
-            st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
-        clock.lap("global")
-
-    def _global_retry(self, st: _State, clock: _Clock) -> _State:
-        """The answer still fails the verdict after the precision stage: the next best starts of the search (the
-        given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
-        verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
-        rc = self.config.registration
-        if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not self._n_deep() or not rc.deep:
-            return st
-        def tensors(out: NetworkOutput) -> tuple:
-            return tuple(torch.as_tensor(x, dtype=torch.float32, device=self.device) for x in (out.R, out.t, out.gamma))
-
-        if st.others is None:  # the deep answer fitted, the precision stage's pose does not: rank the others now
-            probe = dataclasses.replace(st, iters=dict(st.iters))
-            with torch.inference_mode(), self._torch_threads():
-                self._global_search(probe, clock, force=True)
-            ranked, replaced = probe.others or [], probe.replaced is not None
-            others = [(probe.R, probe.t, probe.gamma)] if replaced else []
-        else:
-            ranked, replaced = st.others, st.replaced is not None
-            others = [st.replaced] if replaced else []
-        others += [tensors(out) for _, out, _ in ranked[1 if replaced else 0:]]
-        st.starts = rc.global_yaws
-        best = st
-        for R, t, g in others[: max(0, rc.global_polish - 1)]:
-            cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
-            cand.R, cand.t, cand.gamma = R, t, g
-            self._polish(cand, _Clock(self.device))
-            self._deskew(cand, _Clock(self.device))
-            self._verdict(cand)
-            if cand.score > best.score:
-                best = cand
-            if best.valid:
-                break
-        if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
-            best = self._shift_retry(best, st)
-        clock.lap("global")
-        return best
-
-    def _shift_retry(self, best: _State, st: _State) -> _State:
-        """Starts ``registration.global_shift`` and twice that m from the best pose so far (four horizontal
-        directions, in the target frame): the full deep passes from each, the best fitting ones through the
-        precision stage."""
-        rc, scale = self.config.registration, self.model.scale
-        T_best = best.T.copy()
-        outs = []
-        with torch.inference_mode(), self._torch_threads():
-            for T0 in global_search.shift_starts(T_best, rc.global_shift):
-                R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=self.device)
-                t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=self.device)
-                out = self._passes(st.src, st.tgt, R, t, lambda _stage: None)
-                T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
-                outs.append((self._score(st, T, 2.0 * rc.verdict_dist), out))
-        outs.sort(key=lambda o: -o[0])
-        for _, out in outs[: rc.global_polish]:
-            cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
-            self._apply_network(cand, out)
-            self._polish(cand, _Clock(self.device))
-            self._deskew(cand, _Clock(self.device))
-            self._verdict(cand)
-            if cand.score > best.score:
-                best = cand
-            if best.valid:
-                break
-        best.starts = rc.global_yaws + len(outs)
-        return best
 
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
