@@ -73,9 +73,9 @@ def _clock(reg: Any) -> Any:
 
 def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
-    deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one deep pass from each
-    other start yaw (in this process; the target's network state computed once), the start with the best
-    fitness finished with the remaining passes; it replaces the answer when it fits better."""
+    deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
+    deep pass from each other start yaw (in this process; the target's network state computed once), the start
+    with the best fitness finished with the remaining passes; it replaces the answer when it fits better."""
     rc, scale = reg.config.registration, reg.model.scale
     if rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
         return
