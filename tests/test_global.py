@@ -83,3 +83,29 @@ def test_any_start_and_the_verdict(scans, registrations):
     assert not local.valid and local.score < res.score
     lost = registrations["auto"].register(elsewhere, tgt)  # another place: a pose, but not a valid one
     assert not lost.valid and lost.starts == 4 + 8  # the yaw starts, then the shifted ones: none valid
+
+
+def test_odometry_recovers_a_kidnapped_sensor():
+    """Mid-drive the sensor is turned by 130 degrees and moved 2.2 m at once (a kidnapped robot): the map fit
+    collapses, DeepBBS++ (its global search) registers the scan against the previous one, the jump is reported
+    (``deepbbs``, ``won``, the fit drop as ``reason``) and the track goes on within 1 deg / 0.3 m."""
+    if not default_weights_path().is_file():
+        pytest.skip("shipped weights missing")
+    from deepbbs_ros.core.odometry import DeepBBSOdometry
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    sim = DriveSimulator("urban", 5, frames=30, compensate=True)
+    J = pose(2.0, -1.0, 0.0, np.radians(130.0))
+    odo = DeepBBSOdometry(Config().replace(**{"registration.network_process": "off"}))
+    P0, steps = sim.pose_at(10), []
+    for k in range(10, 19):
+        pts, Pk = sim.scan_at(k).points, sim.pose_at(k)
+        if k >= 15:  # the sensor at Pk @ J sees p' = J^-1 p
+            pts, Pk = ((pts - J[:3, 3]) @ J[:3, :3]).astype(np.float32), Pk @ J
+        out = odo.register_frame(pts)
+        steps.append(out)
+        rot, tr = pair_errors(out.T_first_k, np.linalg.inv(P0) @ Pk)
+        assert rot < 1.0 and tr < 0.3, (k, rot, tr, out.reason)
+    jump = steps[5]
+    assert jump.deepbbs and jump.won and jump.reason.startswith("fit")
+    assert pair_errors(jump.T_prev_k, np.linalg.inv(sim.pose_at(14)) @ sim.pose_at(15) @ J)[0] < 1.0
