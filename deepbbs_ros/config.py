@@ -174,7 +174,8 @@ class RegistrationConfig:
     global_search: str = "auto"
     global_yaws: int = 4
     global_polish: int = 2
-    global_shift: float = 8.0  # m; none valid after the yaw starts: 8 starts this far and twice as far around the best
+    global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
+    # twice as far around both
 
     def validate(self) -> None:
         dev = self.device

@@ -82,7 +82,7 @@ def test_any_start_and_the_verdict(scans, registrations):
     assert max(pair_errors(local.T_target_source @ P, T_gt)) > 1.0
     assert not local.valid and local.score < res.score
     lost = registrations["auto"].register(elsewhere, tgt)  # another place: a pose, but not a valid one
-    assert not lost.valid and lost.starts == 4 + 8  # the yaw starts, then the shifted ones: none valid
+    assert not lost.valid and lost.starts == 4 + 17  # the yaw starts, then the turned and shifted ones: none valid
 
 
 def test_odometry_recovers_a_kidnapped_sensor():

@@ -6,8 +6,11 @@ the cone with margin) cover the whole circle: each runs the deep passes from the
 source's z axis, is ranked by its fitness before the precision stage (:func:`deepbbs_ros.core.verdict.fitness`
 at twice ``registration.verdict_dist``: the deep estimate is good to decimetres), and the
 ``registration.global_polish`` best get the precision stage and the verdict; the result with the best verdict
-score is kept. ``DeepBBSRegistration.register`` runs the search when the answer from the given start fails the
-verdict (``registration.global_search: auto``), so a good start (consecutive scans, odometry) pays nothing more.
+score is kept. When none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
+``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
+get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
+runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
+good start (consecutive scans, odometry) pays nothing more.
 The target's network state is computed once for every start (the target memo of ``DeepBBSRegistration``).
 """
 
@@ -145,14 +148,15 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
 
 def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
-    """Starts ``registration.global_shift`` and twice that m from the best pose so far (four horizontal
-    directions, in the target frame): the full deep passes from each, the best fitting ones through the
-    precision stage."""
+    """The best pose so far turned by 180 degrees (a road seen backwards), and starts ``registration.global_shift``
+    and twice that m from both (four horizontal directions, in the target frame): the full deep passes from
+    each (17 starts), the best fitting ones through the precision stage."""
     rc, scale = reg.config.registration, reg.model.scale
     T_best = best.T.copy()
     outs = []
     with torch.inference_mode(), reg._torch_threads():
-        for T0 in shift_starts(T_best, rc.global_shift):
+        flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
+        for T0 in [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift):
             R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=reg.device)
             t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=reg.device)
             out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None)
