@@ -25,6 +25,8 @@ INSTALL_REQUIRES = [
     "fpsample>=0.3",  # fast farthest-point sampling (bucket FPS)
     "small-gicp>=1.0",  # ICP / point-to-plane ICP / GICP baselines
     "kiss-icp>=1.0",  # KISS-ICP odometry baseline
+    # KISS-Matcher (MIT SPARK): the global registration baseline of deepbbs-replay (kiss-matcher, kiss-matcher+gicp)
+    "kiss-matcher>=1.0.2",
     "trimesh>=4",  # scene meshes for the LiDAR simulator
     "embreex>=4",  # Embree ray casting behind trimesh (fast, pip-only, no system libraries)
     "tqdm>=4.66",  # progress bars

@@ -163,6 +163,19 @@ class RegistrationConfig:
     threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
+    # the verdict (core/verdict.py): RegistrationResult.score = share of the source's sampled points within
+    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated by
+    # scripts/verdict_study.py on simulated and real pairs)
+    verdict_dist: float = 0.5  # m
+    verdict_threshold: float = 0.35
+    # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
+    # every registration ("always") or never ("off"); global_yaws starts at 360 / global_yaws degree steps (the
+    # given start included), the global_polish best of them (ranked by their fitness before it) get the precision stage
+    global_search: str = "auto"
+    global_yaws: int = 4
+    global_polish: int = 2
+    global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
+    # twice as far around both
 
     def validate(self) -> None:
         dev = self.device
@@ -199,6 +212,13 @@ class RegistrationConfig:
         _check(self.network_process in ("auto", "off"), "registration.network_process",
                f"must be 'auto' or 'off', got {self.network_process!r}")
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = leave torch's setting)")
+        _check(self.verdict_dist > 0, "registration.verdict_dist", "must be > 0")
+        _check(0 <= self.verdict_threshold <= 1, "registration.verdict_threshold", "must be in [0, 1]")
+        _check(self.global_search in ("auto", "always", "off"), "registration.global_search",
+               f"must be 'auto', 'always' or 'off', got {self.global_search!r}")
+        _check(self.global_yaws >= 1, "registration.global_yaws", "must be >= 1 (1 = the given start only)")
+        _check(self.global_polish >= 1, "registration.global_polish", "must be >= 1")
+        _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 
@@ -365,6 +385,7 @@ class EvalConfig:
     baseline_max_corr_dist: float = 2.0  # m
     baseline_max_iters: int = 50
     baseline_neighbors: int = 20  # neighbours for normals / covariances
+    kiss_matcher_voxel: float = 0.3  # m; KISS-Matcher's voxel size (its default for outdoor LiDAR)
     kiss_deskew: bool = True  # KISS-ICP motion compensation when scans carry a per-point "time"
     drop_frames: int = 0  # odometry robustness: this many gaps of drop_min..drop_max skipped scans (seeded by seed)
     drop_min: int = 3
@@ -404,6 +425,7 @@ class EvalConfig:
         _check(self.baseline_max_corr_dist > 0, "eval.baseline_max_corr_dist", "must be > 0")
         _check(self.baseline_max_iters >= 1, "eval.baseline_max_iters", "must be >= 1")
         _check(self.baseline_neighbors >= 5, "eval.baseline_neighbors", "must be >= 5")
+        _check(self.kiss_matcher_voxel > 0, "eval.kiss_matcher_voxel", "must be > 0")
         _check(self.threads >= 0, "eval.threads", "must be >= 0")
         _check(self.bag_aligned_clouds >= 0, "eval.bag_aligned_clouds", "must be >= 0")
 

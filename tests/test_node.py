@@ -199,6 +199,32 @@ def test_pair_mode_publishes_T_target_source(ros, world):
         h.close()
 
 
+def test_pair_mode_withholds_a_pose_the_verdict_rejects(ros, world):
+    """A source with nothing in common with the target (points scattered in free space) gets a pose the verdict
+    rejects: nothing on ~/pose, counted in the stats and /diagnostics, logged once; the next true pair is published."""
+    h = Harness(tiny_config(), "reg_verdict")
+    try:
+        T_w_tgt = at(10.0, 2.0, 0.1)
+        tgt_xyz = scan(world, T_w_tgt, seed=1)
+        rng = np.random.default_rng(5)
+        d = rng.normal(size=(N_POINTS, 3))
+        noise = (d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(5, 60, (N_POINTS, 1))).astype(np.float32)
+        h.send("target_cloud", tgt_xyz, 5 * SEC, "lidar_t")
+        h.send("source_cloud", noise, 5 * SEC, "lidar_s")
+        h.wait_processed(1)
+        assert h.wait_for(lambda: h.diagnostics().get("poses not published (the verdict rejected them)") == "1")
+        s = h.node.stats()
+        assert not h.poses and s["untrusted"] == 1 and s["errors"] == {"untrusted_pose": 1}
+        assert s["verdict_score"] < h.node.cfg.registration.verdict_threshold
+        src_xyz = scan(world, T_w_tgt @ pose(1.0, 0.2, 0.0, np.deg2rad(3.0)), seed=2)
+        h.send("target_cloud", tgt_xyz, 6 * SEC, "lidar_t")
+        h.send("source_cloud", src_xyz, 6 * SEC, "lidar_s")
+        assert h.wait_for(lambda: h.poses), h.node.stats()
+        assert h.node.stats()["untrusted"] == 1
+    finally:
+        h.close()
+
+
 def _raw(width: int, height: int, fields, point_step: int, data: bytes, frame: str = "lidar", stamp_s: int = 1):
     m = PointCloud2()
     m.header.frame_id = frame

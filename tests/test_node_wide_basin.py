@@ -1,4 +1,5 @@
-"""Wide basin, live: a source turned by up to 45 deg of yaw and moved up to 5 m still registers.
+"""Wide basin, live: a source turned by up to 45 deg of yaw and moved up to 5 m still registers, and so does
+one turned by 150 or -120 deg and moved 6-8 m (the global search of the default configuration).
 
 The node runs in-process with the shipped weights (pair mode, real rclpy and DDS, one torch thread).
 Target: frame 0 of a simulated urban HDL-64E drive (``deepbbs_ros.sim``, ~120k points, occlusion,
@@ -58,6 +59,8 @@ SCENE, SEED = "urban", 5
 PERTURBATIONS = [(45.0, 5.0, 0.0), (-45.0, 5.0, np.pi / 2), (45.0, 5.0, np.pi), (-45.0, 5.0, -np.pi / 2)]
 _rng = np.random.default_rng(1)
 PERTURBATIONS += [(_rng.uniform(-45, 45), _rng.uniform(0, 5), _rng.uniform(0, 2 * np.pi)) for _ in range(2)]
+# any rotation about z (two sensors with an unknown mounting): outside the network's cone, the global search
+PERTURBATIONS += [(150.0, 6.0, 1.0), (-120.0, 8.0, -2.0)]
 
 
 def _config() -> Config:

@@ -112,6 +112,14 @@ def test_pairs_mode_end_to_end(recording, fast_config, tiny_weights, tmp_path, c
     assert doc["methods"]["gicp"]["trans_err_m"]["max"] < 0.1
     lines = (run / "pairs.csv").read_text().splitlines()
     assert lines[0].startswith("method,pair,trial") and len(lines) == 1 + 3 * len(doc["methods"])
+    import csv
+
+    rows = list(csv.DictReader(open(run / "pairs.csv")))
+    assert all(r["valid"] == "" for r in rows if r["method"] == "gicp")  # a method without a verdict
+    if HAVE_CORE:  # DeepBBS++'s verdict on every pose: in pairs.csv, counted in metrics.json and the table
+        assert {r["valid"] for r in rows if r["method"] == "deepbbs++"} <= {"0", "1"}
+        m = doc["methods"]["deepbbs++"]
+        assert m["accepted"] + m["rejected"] == 3 and "accepted" not in doc["methods"]["gicp"]
     for png in ("errors_cdf.png", "errors_hist.png", "errors_over_pairs.png"):
         assert (run / png).stat().st_size > 1000
     assert Config.from_yaml(run / "config_used.yaml").eval.threads == 1
@@ -120,6 +128,7 @@ def test_pairs_mode_end_to_end(recording, fast_config, tiny_weights, tmp_path, c
     assert topics["/deepbbs_replay/gicp/aligned_cloud"] == 3 and topics["/deepbbs_replay/target_cloud"] == 3
     printed = capsys.readouterr().out
     assert "unit" in printed and "ms/pair" in printed and "results:" in printed
+    assert ("poses accepted" in printed) == HAVE_CORE
 
 
 def _bag_topics(path: Path) -> dict[str, int]:

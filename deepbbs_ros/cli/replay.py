@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--method", default="deepbbs++",
                    help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
                    "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
-                   "kiss-icp (odometry only)")
+                   "kiss-icp (odometry only), kiss-matcher, kiss-matcher+gicp (global, pairs only)")
     g.add_argument("--stride", type=int, default=None,
                    help="pairs: a source frame every N frames (eval.stride); odometry: every N-th frame "
                    "(eval.odom_stride)")

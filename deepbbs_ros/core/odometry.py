@@ -147,6 +147,7 @@ class DeepBBSOdometry:
         self._fits: deque[float] = deque(maxlen=max(1, self.config.odometry.fit_window))
         self._deltas: deque[np.ndarray] = deque(maxlen=max(1, self.config.odometry.deskew_window))
         self.deepbbs_calls = 0
+        self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
 
     @property
     def registration(self) -> Any:
@@ -323,6 +324,9 @@ class DeepBBSOdometry:
             return None
         self._cur_pp = cur
         self.deepbbs_calls += 1
+        if not getattr(res, "valid", True):  # the verdict rejected it (no start registered the two scans)
+            self.deepbbs_rejected += 1
+            return None
         return res.T_target_source
 
     def _restart_deskewed(self, points: np.ndarray, times: np.ndarray) -> tuple[Any, np.ndarray]:

@@ -13,6 +13,8 @@
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
     deskew      the same on both scans deskewed with their own stream velocities, when they agree
+    verdict     the score of the pose and whether it can be trusted (core/verdict.py)
+    global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
 Defaults (issues 10/11, measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -42,6 +44,7 @@ import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core import global_search, verdict
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
 from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
@@ -93,6 +96,10 @@ class RegistrationResult:
         deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
             else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
+        valid: the verdict: the pose can be trusted (``score >= registration.verdict_threshold``).
+        score: the verdict's score (core/verdict.py): share of the sampled source points within
+            ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
+        starts: start yaws tried (1: the given start; more when the global search ran, core/global_search.py).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -108,6 +115,9 @@ class RegistrationResult:
     target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     polish: str = ""
     deskew: str = ""
+    valid: bool = False
+    score: float = float("nan")
+    starts: int = 1
 
 
 class _Clock:
@@ -196,6 +206,8 @@ class DeepBBSRegistration:
         pts = rng.uniform(-30.0, 30.0, (n, 3)).astype(np.float32)
         for _ in range(rounds):
             self.register(pts, pts[::-1].copy(), preprocessed=True)
+            if self.config.registration.global_search != "off" and self._net_state == "running":
+                self.network_np(pts, pts[::-1].copy(), np.eye(4))  # the global search's passes run in this process
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -328,8 +340,11 @@ class DeepBBSRegistration:
             self._dense_refine(st)  # the same on the voxelised clouds (registration.dense_refine)
             st.inlier_ratio = self._inlier_ratio(st, st.R, st.t)
             clock.lap("dense" if st.iters["dense"] else "refine")
+            global_search.before_precision(self, st, clock)  # other start yaws when this answer does not fit
         self._polish(st, clock)  # the GICP precision stage (registration.polish)
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
+        self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
+        st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
         return self._result(st, clock)
 
     @contextlib.contextmanager
@@ -364,7 +379,7 @@ class DeepBBSRegistration:
             src=src, tgt=tgt, search=NeighbourSearch(tgt[0]),
             R=torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device),
             t=torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=self.device),
-            gamma=src.new_ones(src.shape[1]),
+            gamma=src.new_ones(src.shape[1]), T_start=T,
         )
 
     def _deep_passes(self, st: _State, clock: _Clock) -> None:
@@ -421,11 +436,12 @@ class DeepBBSRegistration:
         return (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
 
     def _passes(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-                lap: Callable[[str], None]) -> NetworkOutput:
+                lap: Callable[[str], None], n_passes: int | None = None) -> NetworkOutput:
         """The deep passes on src (1, N, 3), tgt (1, M, 3) (scaled, on the device) from R (3, 3), t (3,)
-        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve")."""
+        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve"); ``n_passes``
+        overrides the configured number (the global search ranks its starts after one)."""
         rc, scale = self.config.registration, self.model.scale
-        n_deep = self._n_deep()
+        n_deep = self._n_deep() if n_passes is None else n_passes
         # the target does not move: its DGCNN features and the target-only parts of the transformer
         # (encoder output, self-attention) are computed once, and kept for the next registration against the
         # same target (a fixed map cloud); the source's kNN graph is rigid-invariant
@@ -694,9 +710,25 @@ class DeepBBSRegistration:
             st.converged = pol.converged
         clock.lap("polish")
 
+    def _score(self, st: _State, T: np.ndarray, dist: float | None = None) -> float:
+        """The verdict's score of the pose T (4, 4) (core/verdict.py) at ``dist`` m (``verdict_dist``): against
+        the target's precision-stage cloud when it has one (calibrated), else against its voxelised non-ground
+        points, else against its sampled points within ``max(dist, inlier_dist)``."""
+        rc = self.config.registration
+        d = rc.verdict_dist if dist is None else dist
+        if st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None:
+            return verdict.fitness(st.src_np, st.tgt_pc.tree, T, d)
+        if st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np):  # no precision stage: voxelised
+            return verdict.fitness_to_points(st.src_np, st.tgt_dense, T, d)
+        return verdict.fitness_to_points(st.src_np, st.tgt_np, T, max(d, rc.inlier_dist))  # sparse: a wider gate
+
+    def _verdict(self, st: _State) -> None:
+        st.score = self._score(st, st.T)
+        st.valid = verdict.is_valid(st.score, self.config.registration.verdict_threshold)
+
     def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += tuple(s for s in ("network_wait", "polish", "deskew") if s in clock.ms)
+        stages += tuple(s for s in ("network_wait", "polish", "deskew", "global") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())  # the wall time of register()
         for s, v in st.network_ms.items():  # ran in the network process, overlapping "preprocess"
@@ -713,6 +745,9 @@ class DeepBBSRegistration:
             target=st.tgt_np,
             polish=st.polish_reason,
             deskew=st.deskew,
+            valid=bool(st.valid),
+            score=float(st.score),
+            starts=int(st.starts),
         )
 
 
@@ -743,6 +778,12 @@ class _State:
     inlier_ratio: float = 0.0
     polish_reason: str = ""
     deskew: str = ""
+    T_start: np.ndarray = field(default_factory=lambda: np.eye(4))  # the given start (the global search turns it)
+    score: float = float("nan")  # the verdict (core/verdict.py)
+    valid: bool = False
+    starts: int = 1
+    others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]
+    replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
     pending: Any = None  # a network_process.Pending while the network process works
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 

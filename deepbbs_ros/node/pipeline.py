@@ -371,7 +371,8 @@ class MapTarget:
         with self._lock:
             if self.map is map_cloud:
                 self._crop = crop
-                self.T_map_sensor = T_map_source.copy()
+                if getattr(reg.result, "valid", True):  # a pose the verdict rejects is not the next start
+                    self.T_map_sensor = T_map_source.copy()
         reg.timings_ms.update(timings)
         pts = getattr(crop.cloud.pp, "points", None)
         pts_map = None if pts is None else (np.asarray(pts, np.float64) @ crop.T_map_crop[:3, :3].T

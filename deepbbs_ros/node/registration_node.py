@@ -247,7 +247,7 @@ class RegistrationNode(Node):
         self._stages = StageTimes()
         self._lock = threading.Lock()
         self._odom_lock = threading.Lock()  # the odometry state: worker thread vs ~/reset
-        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0, "time_jumps": 0}
+        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0, "time_jumps": 0, "untrusted": 0}
         self._last_result: dict[str, float] = {}
         self._last_odom_stamp: int | None = None  # odometry mode: a stamp far before it is a time jump (reset)
         self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
@@ -562,11 +562,17 @@ class RegistrationNode(Node):
             if mode == "pair":
                 reg = register_clouds(self.reg, src, tgt)
                 t0 = time.perf_counter()
-                self.outputs.pair(src, tgt, reg)
+                if getattr(reg.result, "valid", True):
+                    self.outputs.pair(src, tgt, reg)
+                else:  # the verdict: a pose that cannot be trusted is not published (counted, logged rate-limited)
+                    self._untrusted(reg.result)
             elif mode == "map":
                 reg, tgt_points = self._map_target.register(self.reg, src)
                 t0 = time.perf_counter()
-                self.outputs.localized(src, tgt.frame_id, reg, tgt_points)
+                if getattr(reg.result, "valid", True):
+                    self.outputs.localized(src, tgt.frame_id, reg, tgt_points)
+                else:
+                    self._untrusted(reg.result)
             else:
                 with self._odom_lock:  # ~/reset runs on the executor thread
                     self._check_time_jump(src)
@@ -664,6 +670,13 @@ class RegistrationNode(Node):
             "use node.target_mode:=latched for a static target (a map)",
         )
 
+    def _untrusted(self, result: Any) -> None:
+        with self._lock:
+            self._counts["untrusted"] += 1
+        self._errors.log("untrusted_pose", f"pose not published: the verdict's score {result.score:.2f} is below "
+                         f"registration.verdict_threshold {self.cfg.registration.verdict_threshold} (the scans do not "
+                         "overlap, or no start yaw registered them)")
+
     # -- diagnostics --------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
         """Counters of the node, its inputs, the synchroniser and the worker (also on /diagnostics)."""
@@ -697,6 +710,7 @@ class RegistrationNode(Node):
             "pairs dropped (newest wins)": s["dropped"],
             "clouds dropped before preprocessing (oldest first)": ",".join(map(str, s["input_dropped"])),
             "clouds or pairs rejected (bad input)": s["rejected"],
+            "poses not published (the verdict rejected them)": s["untrusted"],
             "preprocessing cache hits / misses": "{hits} / {misses}".format(**s["preprocess_cache"]),
             "sync overflow / stale / late": "{overflow} / {stale} / {late}".format(**s["sync"]),
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
@@ -739,6 +753,7 @@ def _result_summary(result: Any) -> dict[str, float]:
     return {
         "inlier_ratio": float(getattr(result, "inlier_ratio", float("nan"))),
         "converged": float(bool(getattr(result, "converged", False))),
+        "verdict_score": float(getattr(result, "score", float("nan"))),
     }
 
 

@@ -17,10 +17,13 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError
 
-METHODS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp")
-PAIRWISE = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp")
-DEEPBBS_VARIANTS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs")
+METHODS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp",
+           "kiss-matcher", "kiss-matcher+gicp")
+PAIRWISE = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-matcher",
+            "kiss-matcher+gicp")
+GLOBAL = ("kiss-matcher", "kiss-matcher+gicp")  # global registrations: pairs mode only
 ODOMETRY_ONLY = ("kiss-icp", "deepbbs++s2s")
+DEEPBBS_VARIANTS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs")
 MAX_MOTIONS = 100_000  # per-scan velocities kept by a DeepBBS method (a few hundred bytes each)
 
 #: how each method's input clouds are made (reported in metrics.json)
@@ -32,6 +35,9 @@ INPUTS = {
     "deepbbs++s2s": "DeepBBS++ scan-to-scan, chained (the paper's pipeline as an odometry)",
     "deepbbs++odom": "DeepBBS++ odometry (core/odometry.py): KISS-ICP-style scan-to-local-map ICP on the raw scan "
                      "(crop, voxel map, deskew from per-point times), DeepBBS++ where the motion prior fails",
+    "kiss-matcher": "KISS-Matcher (global, no initial guess) on the raw scan cropped to the preprocess ranges, "
+                    "its own voxel grid (eval.kiss_matcher_voxel)",
+    "kiss-matcher+gicp": "KISS-Matcher, then small_gicp GICP from its answer on the GICP baseline's clouds",
     "kiss-icp": "KISS-ICP's own pipeline on the raw scan (crop to preprocess ranges, voxel map, deskew)",
 }
 
@@ -46,13 +52,15 @@ def parse_methods(text: str, mode: str) -> list[str]:
             raise ConfigError(f"--method: unknown method {m!r} (known: {', '.join(METHODS)})")
         if m in ODOMETRY_ONLY and mode != "odometry":
             raise ConfigError(f"--method: {m} is an odometry and runs only with --mode odometry")
+        if m in GLOBAL and mode == "odometry":
+            raise ConfigError(f"--method: {m} is a global pair registration and runs only with --mode pairs")
     return list(dict.fromkeys(names))
 
 
 def topic_name(method: str) -> str:
     """A ROS-legal name for a method: ``deepbbs++`` -> ``deepbbs_pp``, ``deepbbs++gicp`` -> ``deepbbs_pp_gicp``,
     ``plane-icp`` -> ``plane_icp``."""
-    return method.replace("++gicp", "_pp_gicp").replace("++", "_pp").replace("-", "_")
+    return method.replace("++gicp", "_pp_gicp").replace("++", "_pp").replace("+", "_").replace("-", "_")
 
 
 class DeepBBSMethod:
@@ -117,7 +125,8 @@ class DeepBBSMethod:
         t0 = time.perf_counter()
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
-        info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio)}
+        info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio), "valid": bool(res.valid),
+                "score": float(res.score)}
         if self.polish:
             info["polish"] = res.polish
             info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))
@@ -142,6 +151,28 @@ class SmallGicpMethod:
     def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
                 stamp_ns: int | None = None) -> tuple[Any, float]:
         """The baseline as small_gicp runs it: per-point times are not used (no deskew)."""
+        prep = self.reg.preprocess(points)
+        return prep, prep.preprocess_ms
+
+    def align(self, src: Any, tgt: Any, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
+        res = self.reg.align(src, tgt, T_init)
+        info = {"converged": res.converged, "iterations": res.iterations, "num_inliers": res.num_inliers}
+        return res.T_target_source, info, res.timings_ms["register"]
+
+
+class KissMatcherMethod:
+    """``kiss-matcher``, ``kiss-matcher+gicp`` via :class:`deepbbs_ros.baselines.KissMatcherRegistration`
+    (the start guess moves the source cloud: a global method is judged from every start alike)."""
+
+    def __init__(self, name: str, config: Config) -> None:
+        from deepbbs_ros.baselines import KissMatcherRegistration
+
+        self.name = name
+        self.reg = KissMatcherRegistration(name, config)
+        self.input = INPUTS[name]
+
+    def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
+                stamp_ns: int | None = None) -> tuple[Any, float]:
         prep = self.reg.preprocess(points)
         return prep, prep.preprocess_ms
 
@@ -207,6 +238,8 @@ def build_methods(names: list[str], config: Config, *, weights: str | None = Non
             deep = deep or out[name]
         elif name in ("icp", "plane-icp", "gicp"):
             out[name] = SmallGicpMethod(name, config)
+        elif name in GLOBAL:
+            out[name] = KissMatcherMethod(name, config)
         else:
             out[name] = KissMethod(name, config)
     return out

@@ -88,6 +88,10 @@ def pair_metrics(res: PairResults, config: Config) -> dict[str, dict[str, Any]]:
             "failed": sum(1 for r in recs if r.error),
             "input": res.inputs.get(name, ""),
         }
+        judged = [r for r in recs if r.valid is not None]
+        if judged:  # the method's verdict: poses it accepted / rejected
+            out[name]["accepted"] = sum(1 for r in judged if r.valid)
+            out[name]["rejected"] = sum(1 for r in judged if not r.valid)
     return out
 
 
@@ -150,7 +154,7 @@ def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults |
 # --------------------------------------------------------------------------------------------------
 def write_pairs_csv(path: Path, res: PairResults) -> None:
     cols = ["method", "pair", "trial", "src_index", "tgt_index", "src_stamp_ns", "tgt_stamp_ns", "gt_dist_m",
-            "rot_err_deg", "trans_err_m", "success", "runtime_ms", "preprocess_ms", "converged",
+            "rot_err_deg", "trans_err_m", "success", "runtime_ms", "preprocess_ms", "converged", "valid", "score",
             "init_yaw_deg", "init_trans_m"] + [f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
             f"T_gt_{i}{j}" for i in range(3) for j in range(4)] + ["error"]
     with open(path, "w", newline="") as fh:
@@ -160,7 +164,8 @@ def write_pairs_csv(path: Path, res: PairResults) -> None:
             yaw = float(np.degrees(np.arctan2(r.T_init[1, 0], r.T_init[0, 0])))
             w.writerow([r.method, r.pair, r.trial, r.src_index, r.tgt_index, r.src_stamp_ns, r.tgt_stamp_ns,
                         f"{r.gt_dist_m:.4f}", f"{r.rot_err_deg:.6g}", f"{r.trans_err_m:.6g}", int(r.success),
-                        f"{r.runtime_ms:.3f}", f"{r.preprocess_ms:.3f}", int(r.converged), f"{yaw:.3f}",
+                        f"{r.runtime_ms:.3f}", f"{r.preprocess_ms:.3f}", int(r.converged),
+                        "" if r.valid is None else int(r.valid), f"{r.score:.4f}", f"{yaw:.3f}",
                         f"{np.linalg.norm(r.T_init[:3, 3]):.4f}"]
                        + [f"{v:.9g}" for v in r.T_est[:3, :].ravel()] + [f"{v:.9g}" for v in r.T_gt[:3, :].ravel()]
                        + [r.error])
@@ -316,6 +321,9 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
             ("runtime mean", "ms/pair", col(lambda m: m["runtime_ms"]["mean"], 1)),
             ("runtime p95", "ms/pair", col(lambda m: m["runtime_ms"]["p95"], 1)),
         ]
+        if any("accepted" in M[n] for n in names):  # the verdict (DeepBBS++): poses accepted / rejected
+            rows += [("poses accepted", "count", col(lambda m: m.get("accepted"))),
+                     ("poses rejected", "count", col(lambda m: m.get("rejected")))]
     else:
         rows = [
             ("frames", "count", col(lambda m: m["frames"])),

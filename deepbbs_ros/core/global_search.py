@@ -1,0 +1,177 @@
+"""The global search: registration from any start by several start yaws (no ROS).
+
+DeepBBS++'s basin is a cone of about +-70 degrees of yaw around the start (its training augmentation is 45
+degrees). ``registration.global_yaws`` starts ``360 / global_yaws`` degrees apart (4: 90 degree steps, inside
+the cone with margin) cover the whole circle: each runs the deep passes from the start guess turned about the
+source's z axis, is ranked by its fitness before the precision stage (:func:`deepbbs_ros.core.verdict.fitness`
+at twice ``registration.verdict_dist``: the deep estimate is good to decimetres), and the
+``registration.global_polish`` best get the precision stage and the verdict; the result with the best verdict
+score is kept. When none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
+``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
+get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
+runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
+good start (consecutive scans, odometry) pays nothing more.
+The target's network state is computed once for every start (the target memo of ``DeepBBSRegistration``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+
+__all__ = ["yaw_starts", "shift_starts", "rank_starts", "before_precision", "retry"]
+
+
+def yaw_starts(T_start: np.ndarray, n: int) -> list[np.ndarray]:
+    """The ``n - 1`` other starts: ``T_start @ Rz(k * 360 / n)``, k = 1 .. n - 1 ((4, 4) float64 each)."""
+    out = []
+    for k in range(1, n):
+        a = 2.0 * np.pi * k / n
+        Rz = np.eye(4)
+        Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        out.append(np.asarray(T_start, dtype=np.float64) @ Rz)
+    return out
+
+
+def shift_starts(T: np.ndarray, shift: float) -> list[np.ndarray]:
+    """Eight starts ``shift`` and ``2 * shift`` m from the pose T (4, 4) along +x, -x, +y, -y of the target frame
+    (a pose of the right yaw slid along a road by more than the deep passes' reach)."""
+    out = []
+    for r in (shift, 2.0 * shift):
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            S = np.asarray(T, dtype=np.float64).copy()
+            S[:2, 3] += (r * dx, r * dy)
+            out.append(S)
+    return out
+
+
+def rank_starts(starts: list[np.ndarray], passes: Callable[[np.ndarray], Any],
+                score: Callable[[np.ndarray], float]) -> list[tuple[float, Any, np.ndarray]]:
+    """Run ``passes(T_start) -> (output, T_estimate)`` from every start and rank them by ``score(T_estimate)``:
+    -> [(score, output, T_estimate)] best first."""
+    ranked = []
+    for T0 in starts:
+        out, T = passes(T0)
+        ranked.append((float(score(T)), out, T))
+    ranked.sort(key=lambda r: -r[0])
+    return ranked
+
+
+# -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
+def _matrix(R: Any, t: Any, scale: float) -> np.ndarray:
+    from deepbbs_ros.core.registration import _matrix as matrix
+
+    return matrix(R, t, scale)
+
+
+def _clock(reg: Any) -> Any:
+    from deepbbs_ros.core.registration import _Clock
+
+    return _Clock(reg.device)
+
+
+def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
+    """The search before the precision stage (``register`` calls it in its torch inference context): when the
+    deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
+    deep pass from each other start yaw (in this process; the target's network state computed once), the start
+    with the best fitness finished with the remaining passes; it replaces the answer when it fits better."""
+    rc, scale = reg.config.registration, reg.model.scale
+    if rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+        return
+    rank_dist = 2.0 * rc.verdict_dist
+    T_deep = _matrix(st.R, st.t, scale)
+    here = reg._score(st, T_deep, rank_dist)
+    if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
+        return
+
+    def passes(T: np.ndarray, n: int = 1):
+        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=reg.device)
+        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=reg.device)
+        out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
+        return out, _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+
+    ranked = rank_starts(yaw_starts(st.T_start, rc.global_yaws), passes, lambda T: reg._score(st, T, rank_dist))
+    st.starts = rc.global_yaws
+    st.others = ranked
+    if ranked and ranked[0][0] > here:
+        out, T = ranked[0][1], ranked[0][2]
+        if reg._n_deep() > 1:
+            out, T = passes(T, reg._n_deep() - 1)
+        st.replaced = (st.R, st.t, st.gamma)
+        reg._apply_network(st, out)
+        st.iters["deep"] += 1
+        st.inlier_ratio = reg._inlier_ratio(st, st.R, st.t)
+    clock.lap("global")
+
+
+def retry(reg: Any, st: Any, clock: Any) -> Any:
+    """The answer still fails the verdict after the precision stage: the next best starts of the search (the
+    given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
+    verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+    rc = reg.config.registration
+    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+        return st
+
+    def tensors(out: Any) -> tuple:
+        return tuple(torch.as_tensor(x, dtype=torch.float32, device=reg.device) for x in (out.R, out.t, out.gamma))
+
+    if st.others is None:  # the deep answer fitted, the precision stage's pose does not: rank the others now
+        probe = dataclasses.replace(st, iters=dict(st.iters))
+        with torch.inference_mode(), reg._torch_threads():
+            before_precision(reg, probe, clock, force=True)
+        ranked, replaced = probe.others or [], probe.replaced is not None
+        others = [(probe.R, probe.t, probe.gamma)] if replaced else []
+    else:
+        ranked, replaced = st.others, st.replaced is not None
+        others = [st.replaced] if replaced else []
+    others += [tensors(out) for _, out, _ in ranked[1 if replaced else 0:]]
+    st.starts = rc.global_yaws
+    best = st
+    for R, t, g in others[: max(0, rc.global_polish - 1)]:
+        cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
+        cand.R, cand.t, cand.gamma = R, t, g
+        reg._polish(cand, _clock(reg))
+        reg._deskew(cand, _clock(reg))
+        reg._verdict(cand)
+        if cand.score > best.score:
+            best = cand
+        if best.valid:
+            break
+    if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
+        best = _shift_retry(reg, best, st)
+    clock.lap("global")
+    return best
+
+
+def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
+    """The best pose so far turned by 180 degrees (a road seen backwards), and starts ``registration.global_shift``
+    and twice that m from both (four horizontal directions, in the target frame): the full deep passes from
+    each (17 starts), the best fitting ones through the precision stage."""
+    rc, scale = reg.config.registration, reg.model.scale
+    T_best = best.T.copy()
+    outs = []
+    with torch.inference_mode(), reg._torch_threads():
+        flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
+        for T0 in [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift):
+            R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=reg.device)
+            t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=reg.device)
+            out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None)
+            T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+            outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
+    outs.sort(key=lambda o: -o[0])
+    for _, out in outs[: rc.global_polish]:
+        cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
+        reg._apply_network(cand, out)
+        reg._polish(cand, _clock(reg))
+        reg._deskew(cand, _clock(reg))
+        reg._verdict(cand)
+        if cand.score > best.score:
+            best = cand
+        if best.valid:
+            break
+    best.starts = rc.global_yaws + len(outs)
+    return best

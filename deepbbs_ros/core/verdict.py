@@ -1,0 +1,50 @@
+"""The verdict on a registration: can its pose be trusted? (no ROS)
+
+The score is the **fitness** of the final pose: the share of the source's sampled points (the network's
+non-ground points, ``preprocess.num_points`` of them) that land within ``registration.verdict_dist`` metres of
+the target's precision-stage cloud (the whole cropped scan on the ``registration.polish_voxel`` grid, ground
+included) under ``T_target_source``. A true pair puts the source's walls, poles and trees on the target's;
+two different places (or a wrong pose of the right place) leave most of them in free space. Non-ground
+source points make the ground, which any two roads share, count for nothing. The result is ``valid`` when
+the score reaches ``registration.verdict_threshold`` (calibrated by scripts/verdict_study.py on simulated
+and real pairs; the measured rates are in MODEL.md).
+
+Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
+arrays) the score is taken against the target's voxelised non-ground points, or its sampled points within
+``max(verdict_dist, inlier_dist)``: sparser references, for which the threshold is not calibrated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["fitness", "fitness_to_points", "is_valid"]
+
+
+def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    T = np.asarray(T, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+
+
+def fitness(points: np.ndarray, target_tree, T: np.ndarray, dist: float, threads: int = 1) -> float:
+    """Share of ``points`` (N, 3) (source frame, metres) within ``dist`` m of the target cloud whose
+    ``small_gicp.KdTree`` is ``target_tree``, under ``T`` (4, 4) ``T_target_source``. 0 for no points."""
+    if len(points) == 0 or target_tree is None:
+        return 0.0
+    _, sq = target_tree.batch_nearest_neighbor_search(_moved(points, T), num_threads=max(1, threads))
+    return float(np.mean(np.asarray(sq, dtype=np.float64) <= dist * dist))
+
+
+def fitness_to_points(points: np.ndarray, target: np.ndarray, T: np.ndarray, dist: float) -> float:
+    """:func:`fitness` against a plain target cloud (M, 3) (a k-d tree built here)."""
+    from scipy.spatial import cKDTree
+
+    if len(points) == 0 or len(target) == 0:
+        return 0.0
+    d, _ = cKDTree(np.asarray(target, dtype=np.float64)).query(_moved(points, T), k=1)
+    return float(np.mean(d <= dist))
+
+
+def is_valid(score: float, threshold: float) -> bool:
+    """The decision: the score reaches the threshold (a NaN score is never valid)."""
+    return bool(np.isfinite(score) and score >= threshold)
