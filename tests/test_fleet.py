@@ -278,6 +278,7 @@ def test_a_killed_worker_is_retried(local_ray, fleet_dir, tmp_path):
             time.sleep(0.01)
 
     th = threading.Thread(target=killer, daemon=True)
+    before = set(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*"))  # other runs' leftovers are not this one's
     th.start()
     sources = [str(fleet_dir / "drive_0"), str(fleet_dir / "drive_2")]
     try:
@@ -292,7 +293,7 @@ def test_a_killed_worker_is_retried(local_ray, fleet_dir, tmp_path):
                          tmp_path / f"single_{r.name}")
         _close(r.methods, single["methods"])
         assert (tmp_path / r.name / "metrics.json").exists()
-    assert not list(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*"))  # the killed worker's folder too
+    assert not set(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*")) - before  # the killed worker's folder too
 
 
 def test_ctrl_c_keeps_finished_recordings(local_ray, fleet_dir, tmp_path):
