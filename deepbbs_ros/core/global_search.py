@@ -130,10 +130,23 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
         others = [st.replaced] if replaced else []
     others += [tensors(out) for _, out, _ in ranked[1 if replaced else 0:]]
     st.starts = rc.global_yaws
-    best = st
-    for R, t, g in others[: max(0, rc.global_polish - 1)]:
+    def from_tensors(cand: Any, start: tuple) -> None:
+        cand.R, cand.t, cand.gamma = start
+
+    best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
+    if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
+        best = _shift_retry(reg, best, st)
+    clock.lap("global")
+    return best
+
+
+def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
+    """Each deep answer of ``starts`` (in order) set on a copy of ``st`` by ``apply(cand, start)``, then the
+    precision stage, the deskew stage and the verdict; the best score so far is kept, and the first valid one
+    ends the loop."""
+    for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
-        cand.R, cand.t, cand.gamma = R, t, g
+        apply(cand, start)
         reg._polish(cand, _clock(reg))
         reg._deskew(cand, _clock(reg))
         reg._verdict(cand)
@@ -141,9 +154,6 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
             best = cand
         if best.valid:
             break
-    if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
-        best = _shift_retry(reg, best, st)
-    clock.lap("global")
     return best
 
 
@@ -163,15 +173,6 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
             T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])
-    for _, out in outs[: rc.global_polish]:
-        cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
-        reg._apply_network(cand, out)
-        reg._polish(cand, _clock(reg))
-        reg._deskew(cand, _clock(reg))
-        reg._verdict(cand)
-        if cand.score > best.score:
-            best = cand
-        if best.valid:
-            break
+    best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network)
     best.starts = rc.global_yaws + len(outs)
     return best

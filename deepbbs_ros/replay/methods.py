@@ -160,9 +160,10 @@ class SmallGicpMethod:
         return res.T_target_source, info, res.timings_ms["register"]
 
 
-class KissMatcherMethod:
+class KissMatcherMethod(SmallGicpMethod):
     """``kiss-matcher``, ``kiss-matcher+gicp`` via :class:`deepbbs_ros.baselines.KissMatcherRegistration`
-    (the start guess moves the source cloud: a global method is judged from every start alike)."""
+    (the start guess moves the source cloud: a global method is judged from every start alike); ``prepare`` and
+    ``align`` as the small_gicp baselines'."""
 
     def __init__(self, name: str, config: Config) -> None:
         from deepbbs_ros.baselines import KissMatcherRegistration
@@ -170,16 +171,6 @@ class KissMatcherMethod:
         self.name = name
         self.reg = KissMatcherRegistration(name, config)
         self.input = INPUTS[name]
-
-    def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
-                stamp_ns: int | None = None) -> tuple[Any, float]:
-        prep = self.reg.preprocess(points)
-        return prep, prep.preprocess_ms
-
-    def align(self, src: Any, tgt: Any, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
-        res = self.reg.align(src, tgt, T_init)
-        info = {"converged": res.converged, "iterations": res.iterations, "num_inliers": res.num_inliers}
-        return res.T_target_source, info, res.timings_ms["register"]
 
 
 class KissMethod:
