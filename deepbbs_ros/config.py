@@ -289,7 +289,7 @@ class OdometryConfig:
     """Local-map odometry (core/odometry.py): ``deepbbs-replay --mode odometry --method deepbbs++`` and the
     node's ``node.mode: odometry``. GICP against a local voxel map with DeepBBS++ where the motion prior fails."""
 
-    deepbbs_init: str = "auto"  # DeepBBS++ re-initialises: auto (stamp gap, fit drop, first motion) | always | never
+    deepbbs_init: str = "auto"  # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
     voxel_size: float = 0.0  # m; local map voxel (VGICP); the scan grid is half of it; 0 = preprocess.max_range / 80
     neighbors: int = 20  # neighbours for the scan's covariances
     max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map
@@ -298,7 +298,11 @@ class OdometryConfig:
     lru_clear_cycle: int = 10  # ... checked every this many scans
     deskew: bool = True  # motion compensation from per-point times (Velodyne time, Ouster t) when a cloud has them
     deskew_window: int = 4  # the deskew's velocity: mean of this many last motions (1 = the last: unstable)
-    gap_factor: float = 1.5  # a stamp gap above this many nominal periods (dropped scans) asks DeepBBS++
+    gap_factor: float = 1.5  # a stamp gap: above this many nominal periods (dropped scans) ...
+    # ... DeepBBS++ checks a gap longer than this many periods (3.5: one or two dropped scans are left to GICP from the
+    # constant-velocity prediction scaled to the gap, checked by the fit as every scan); a gap up to it asks
+    # DeepBBS++ only when the fit after GICP falls below fit_drop x the running median
+    gap_trust: float = 3.5
     fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
     fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
@@ -315,6 +319,7 @@ class OdometryConfig:
                "and odometry.lru_clear_cycle must be >= 1")
         _check(self.deskew_window >= 1, "odometry.deskew_window", "must be >= 1")
         _check(self.gap_factor > 1, "odometry.gap_factor", "must be > 1")
+        _check(self.gap_trust >= 1, "odometry.gap_trust", "must be >= 1 (1: every gap asks DeepBBS++)")
         _check(0 < self.fit_drop <= 1, "odometry.fit_drop", "must be in (0, 1]")
         _check(self.fit_window >= 1, "odometry.fit_window", "must be >= 1")
         _check(self.fit_margin >= 0, "odometry.fit_margin", "must be >= 0")

@@ -34,7 +34,8 @@ def one_run(args: argparse.Namespace, domain: int) -> dict:
         t0 = time.monotonic()
         with open(node_log, "w") as log:
             node = subprocess.Popen([py, "-m", "deepbbs_ros.node.registration_node", "--ros-args",
-                                     "-p", "node.mode:=odometry", "-r", "cloud:=/points"],
+                                     "-p", "node.mode:=odometry", "-r", "cloud:=/points",
+                                     "--log-level", "deepbbs_registration:=debug"],
                                     stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
         n_scans = args.frames * (2 if args.loop else 1)
         echo = subprocess.Popen([py, "-m", "deepbbs_ros.cli.ros", "--timeout", "180", "topic", "echo",
@@ -60,6 +61,8 @@ def one_run(args: argparse.Namespace, domain: int) -> dict:
         "warmup_s": float(m.group(3)) if m else float("nan"),
         "wall_s": time.monotonic() - t0,
         "time_jumps": text.count("time jumped back"),
+        "trace": [line for line in text.splitlines() if "odometry step" in line or "dropped (scan" in line
+                  or "stopping:" in line or "time jumped back" in line or "ERROR" in line or "WARN" in line],
     }
 
 
@@ -69,6 +72,8 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=15, help="scans in the recording (15 for the samples)")
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--loop", action="store_true", help="play the drive twice (a backward time jump between)")
+    p.add_argument("--trace", action="store_true", help="print each scan's path (GICP / DeepBBS++ and why), "
+                   "its timings, the drops and the node's closing counts")
     p.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "77")))
     args = p.parse_args()
     for k in range(args.runs):
@@ -76,6 +81,9 @@ def main() -> int:
         print(f"run {k + 1}: answered {r['answered']} of {r['scans']} scans; ready in {r['ready_s']:.1f} s "
               f"(model {r['model_s']:.1f} s, warm-up {r['warmup_s']:.1f} s); odometry restarts {r['time_jumps']}",
               flush=True)  # fmt: skip
+        if args.trace:
+            for line in r["trace"]:
+                print("   ", line.split("]: ", 1)[-1], flush=True)
     return 0
 
 

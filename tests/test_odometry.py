@@ -83,6 +83,26 @@ def test_stamp_gaps_scale_the_constant_velocity_prior(drive):
     assert r < 0.3 and t < 0.15, (r, t)
 
 
+def test_a_dropped_scan_is_left_to_gicp_a_long_gap_asks_deepbbs(drive):
+    """One or two dropped scans (a node busy for a moment) take the GICP path from the prediction scaled to
+    the gap, not DeepBBS++ (which would make a busy node slower still); a gap longer than
+    ``odometry.gap_trust`` periods asks DeepBBS++. Both stay on the ground truth."""
+    odom = DeepBBSOdometry(_cfg())
+    paths, est, gt = {}, [], []
+    for k, s in enumerate(drive):
+        if k in (8, 14, 15) or 21 <= k <= 25:  # gaps of 2, 3 and 6 periods
+            continue
+        step = odom.register_frame(s.points, s.fields.get("time"), s.stamp_ns)
+        paths[k] = step.reason
+        est.append(step.T_first_k)
+        gt.append(np.linalg.inv(drive[0].T_world_lidar) @ s.T_world_lidar)
+    assert paths[1] == "first motion"
+    assert paths[9] == "" and paths[16] == "", paths  # one and two dropped scans: GICP, no DeepBBS++
+    assert paths[26] == "stamp gap of 6.0 periods", paths
+    assert odom.deepbbs_calls == 2, paths
+    assert ate_rmse(np.array(est), np.array(gt)) < 0.05
+
+
 def test_deepbbs_recovers_a_wrong_prior(drive):
     """A 35 deg / 2 m error in the motion prior: the scan-to-map ICP alone loses the track, the fit
     check asks DeepBBS++ (shipped weights), and the trajectory stays on the ground truth."""

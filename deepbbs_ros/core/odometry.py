@@ -8,16 +8,17 @@
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
                 voxels, least-recently-used voxels dropped) from the prediction
-    check       fit = share of scan points with a map correspondence; on a stamp gap, a fit drop or the
-                first motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
+    check       fit = share of scan points with a map correspondence; on a fit drop, a stamp gap longer
+                than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
+                motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
                 and the map alignment runs again from there; the start with the clearly better fit wins
                 (first motion: the GICP-precise DeepBBS++ result itself, the map being the first scan)
     update      map, velocity
 
 Why: scan-to-map GICP is precise (per-frame errors of millimetres to centimetres where KISS-ICP's
 point-to-point ICP has centimetres) and the map keeps it from drifting like chained scan-to-scan
-registration; its constant-velocity prediction is exactly what breaks on dropped frames, sharp turns
-at low frame rates and a wrong prior, and DeepBBS++ needs no prior. On ordinary frames DeepBBS++ does
+registration; its constant-velocity prediction is exactly what breaks on long runs of dropped frames, sharp
+turns at low frame rates and a wrong prior, and DeepBBS++ needs no prior. On ordinary frames DeepBBS++ does
 not run.
 
 Frames and conventions (CONVENTIONS.md): the map frame is the first scan's sensor frame at its stamp;
@@ -179,7 +180,7 @@ class DeepBBSOdometry:
         pose, fit = self._align(cloud, prior)
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
-        reason = self._suspect(gap, fit)
+        reason = self._suspect(scale, gap, fit)
         won = False
         if reason:
             T_prev_k = self._deepbbs(frame)
@@ -295,19 +296,26 @@ class DeepBBSOdometry:
         """The fit of the scan near ``pose`` (one GICP iteration)."""
         return self._align(cloud, pose, iters=1)[1]
 
-    def _suspect(self, gap: bool, fit: float) -> str:
-        """Why DeepBBS++ should check this frame ("" = it should not)."""
+    def _suspect(self, scale: float, gap: bool, fit: float) -> str:
+        """Why DeepBBS++ should check this frame ("" = it should not).
+
+        A stamp gap of up to ``odometry.gap_trust`` periods (one or two dropped scans: a node that was busy
+        for a moment) is left to GICP from the prediction scaled to the gap: over a few periods constant
+        velocity is off by centimetres, well inside GICP's basin, and the fit check below catches the
+        rest (it needs one earlier fit on a gap, three otherwise). Asking DeepBBS++ on every dropped scan
+        made a busy node slower exactly when it was behind, so that it dropped more scans."""
         oc = self.config.odometry
         if oc.deepbbs_init == "never":
             return ""
         if oc.deepbbs_init == "always":
             return "always"
-        if gap:
-            return "stamp gap"
+        if gap and scale > oc.gap_trust:
+            return f"stamp gap of {scale:.1f} periods"
         if self.frames == 1:
             return "first motion"
-        if len(self._fits) >= 3 and fit < oc.fit_drop * float(np.median(self._fits)):
-            return f"fit {fit:.2f} < {oc.fit_drop} x median {float(np.median(self._fits)):.2f}"
+        median = float(np.median(self._fits)) if self._fits else float("nan")
+        if len(self._fits) >= (1 if gap else 3) and fit < oc.fit_drop * median:
+            return f"{f'stamp gap of {scale:.1f} periods, ' if gap else ''}fit {fit:.2f} < {oc.fit_drop} x median {median:.2f}"
         return ""
 
     def _deepbbs(self, frame: np.ndarray) -> np.ndarray | None:

@@ -64,6 +64,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -488,7 +489,12 @@ class RegistrationNode(Node):
         t_recv = time.perf_counter()
         with self._lock:
             self._counts["received"] += 1
-        self.inputs[index].submit(msg, t_recv)
+        inp = self.inputs[index]
+        dropped = inp.dropped
+        inp.submit(msg, t_recv)
+        if inp.dropped > dropped and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
+            self.get_logger().debug(f"{inp.topic}: the oldest waiting cloud dropped (scan at "
+                                    f"{_stamp_ns(msg)} ns arrived, {inp.dropped} dropped so far)")
 
     def _on_bad(self, kind: str, message: str) -> None:
         with self._lock:
@@ -590,11 +596,16 @@ class RegistrationNode(Node):
             if reg is not None:
                 self._last_result = _result_summary(reg.result)
         if reg is None:  # the odometry origin: nothing was registered
+            if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
+                self.get_logger().debug(f"odometry step {src.stamp_ns} ns: origin; ms: queue_wait "
+                                        f"{timings['queue_wait']:.0f} total {(t_end - t_in) * 1e3:.0f}")
             return
         timings.update(reg.timings_ms)
         timings["publish"] = (t_end - t0) * 1e3
         timings["total"] = (t_end - t_in) * 1e3
         self._stages.add(timings)
+        if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
+            self.get_logger().debug(_step_line(src, reg, timings))
 
     def _check_time_jump(self, cloud: Cloud) -> None:
         """Odometry mode: a scan more than ``JUMP_BACK_S`` before the last one (a bag played again, ``deepbbs-play
@@ -740,9 +751,32 @@ class RegistrationNode(Node):
 
     def destroy_node(self):
         self._stop_threads()
+        s = self.stats()
+        line = (f"stopping: {s['received']} clouds received, {s['processed']} processed, {s['published']} poses "
+                f"published; dropped before preprocessing {sum(s['input_dropped'])}, by the worker {s['dropped']}, "
+                f"rejected {s['rejected']}, not trusted {s['untrusted']}")
+        if "deepbbs_consulted" in s:
+            line += f"; odometry: DeepBBS++ consulted {s['deepbbs_consulted']}, won {s['deepbbs_won']}"
+        self.get_logger().info(line)
         if self._owns_reg and hasattr(self.reg, "close"):
             self.reg.close()
         return super().destroy_node()
+
+
+def _stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _step_line(cloud: Cloud, reg: Any, timings: dict[str, float]) -> str:
+    """One odometry step for the debug log: the stamp, the path it took (GICP from the prediction, or DeepBBS++
+    consulted and why), the fit and where its time went."""
+    step = reg.result
+    path = "gicp"
+    if getattr(step, "deepbbs", False):
+        path = f"deepbbs++ ({step.reason}; {'won' if step.won else 'not used'})"
+    stages = " ".join(f"{k} {timings[k]:.0f}" for k in ("queue_wait", "register", "register.deepbbs", "total")
+                      if k in timings)
+    return f"odometry step {cloud.stamp_ns} ns: {path}, fit {getattr(step, 'fit', float('nan')):.2f}; ms: {stages}"
 
 
 def _result_summary(result: Any) -> dict[str, float]:
