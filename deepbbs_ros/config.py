@@ -252,8 +252,9 @@ class NodeConfig:
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
     warmup: bool = True  # run every stage once on a synthetic scan before reporting ready (first scans answered)
     # odometry mode: scans that may wait for the odometry (beyond that the oldest is dropped): a short transient
-    # (the first motion, a busy moment) is answered late instead of leaving a gap; pair mode keeps 1 (newest wins)
-    odometry_backlog: int = 3
+    # (the first motion, which asks DeepBBS++: 0.3-0.6 s on two cores; a busy moment) is answered late instead of
+    # leaving a gap; pair mode keeps 1 (newest wins)
+    odometry_backlog: int = 6
     min_points: int = 100  # clouds with fewer valid points are rejected
     diagnostics_period: float = 1.0  # s
     error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind

@@ -570,22 +570,22 @@ def test_busy_node_drops_oldest_clouds_and_counts(ros, world):
 
 
 def test_odometry_backlog_answers_a_short_burst(ros, world):
-    """Odometry mode's default backlog (3 scans): a transient (here the first scan's slow preprocessing, as the
+    """Odometry mode's default backlog (6 scans): a transient (here the first scan's slow preprocessing, as the
     first motion is on a cold start) is answered late instead of leaving a gap: every scan of the burst gets a
     pose, in order."""
     cfg = tiny_config(**{"node.mode": "odometry", "node.base_frame": ""})
-    assert cfg.node.odometry_backlog == 3
+    assert cfg.node.odometry_backlog == 6
     slow = CountingRegistration(tiny_registration(cfg), delay_s=0.6)
     h = Harness(cfg, "reg_backlog", registration=slow, odometry_method="scan_to_scan")
     try:
-        clouds = [scan(world, at(0.5 * k), seed=70 + k) for k in range(4)]
-        stamps = [600 * SEC + k * SEC // 10 for k in range(4)]
+        clouds = [scan(world, at(0.5 * k), seed=70 + k) for k in range(7)]
+        stamps = [600 * SEC + k * SEC // 10 for k in range(7)]
         h.send("cloud", clouds[0], stamps[0])
         assert h.wait_for(lambda: len(slow.preprocessed) == 1, 10)
-        for k in range(1, 4):  # a 10 Hz burst while the first scan is being preprocessed
+        for k in range(1, 7):  # a 10 Hz burst while the first scan is being preprocessed
             h.send("cloud", clouds[k], stamps[k])
             time.sleep(0.1)
-        assert h.wait_for(lambda: len(h.poses) == 4, 30), h.node.stats()
+        assert h.wait_for(lambda: len(h.poses) == 7, 30), h.node.stats()
         assert [pose_stamped_to_matrix(m)[1] for m in h.poses] == stamps
         assert h.node.stats()["input_dropped"] == [0]
     finally:

@@ -774,8 +774,8 @@ def _step_line(cloud: Cloud, reg: Any, timings: dict[str, float]) -> str:
     path = "gicp"
     if getattr(step, "deepbbs", False):
         path = f"deepbbs++ ({step.reason}; {'won' if step.won else 'not used'})"
-    stages = " ".join(f"{k} {timings[k]:.0f}" for k in ("queue_wait", "register", "register.deepbbs", "total")
-                      if k in timings)
+    times = {**cloud.timings_ms, **timings}
+    stages = " ".join(f"{k.removeprefix('register.')} {v:.0f}" for k, v in times.items())
     return f"odometry step {cloud.stamp_ns} ns: {path}, fit {getattr(step, 'fit', float('nan')):.2f}; ms: {stages}"
 
 
