@@ -441,6 +441,33 @@ def test_node_odometry_equals_replay_on_a_recording(tmp_path):
     np.testing.assert_array_equal(odo.step(sink.clouds[5]).T_odom, np.eye(4))
 
 
+def test_node_odometry_bridges_a_dropped_scan_without_deepbbs():
+    """The node's odometry on a stream where the node dropped scans (one, then two in a row, as a busy node
+    does): GICP from the prediction scaled to the stamp gap answers the next scans; DeepBBS++ runs at the first
+    motion only (two scans preprocessed for it), so a dropped scan does not make the next step slower, and
+    the poses stay on the ground truth."""
+    pytest.importorskip("kiss_icp")
+    pytest.importorskip("small_gicp")
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.node.pipeline import LocalMapOdometry
+    from deepbbs_ros.replay.synthetic import synthetic_drive
+
+    scans = synthetic_drive(14, motion_distortion=True)
+    cfg = Config().replace(**TINY)
+    reg = _Counting(_tiny_registration(cfg))
+    odo = LocalMapOdometry(cfg, reg)
+    kept = [k for k in range(len(scans)) if k not in (5, 9, 10)]
+    for k in kept:
+        s = scans[k]
+        est = odo.step(Cloud(s.points.astype(np.float32), s.stamp_ns, s.frame_id, time.perf_counter(),
+                             np.asarray(s.fields["time"], np.float64)))
+        if k in (6, 11):  # the scans after a gap of 2 and 3 periods
+            assert not est.registered.result.deepbbs and est.dt == pytest.approx((3 if k == 11 else 2) * 0.1)
+        gt = np.linalg.inv(scans[0].T_world_lidar) @ s.T_world_lidar
+        assert np.linalg.norm(est.T_odom[:3, 3] - gt[:3, 3]) < 0.1, k
+    assert odo.consulted == 1 and reg.preprocessed == 2
+
+
 def test_input_follows_its_topics_velocity_and_deskews():
     """node.pair_deskew: an input with a StreamDeskew hands on raw sweeps (per-point ``time``) with a deskewed
     GICP cloud from the second scan on, the velocity being the toy drive's 1.5 m per scan."""

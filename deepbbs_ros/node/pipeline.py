@@ -4,7 +4,7 @@
   ``T_target_source``, the registration result and its timings.
 * :class:`LocalMapOdometry` (odometry mode, the default): one :meth:`~LocalMapOdometry.step` per scan runs
   :class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the pipeline of ``deepbbs-replay --mode odometry
-  --method deepbbs++`` (deskew + GICP against a local voxel map, DeepBBS++ consulted on stamp gaps, fit
+  --method deepbbs++`` (deskew + GICP against a local voxel map, DeepBBS++ consulted on long stamp gaps, fit
   drops and the first motion), on the raw points, per-point times and stamp of each scan.
 * :class:`MapTarget` (pair mode, ``node.target_mode: latched``): every source against the latest map, cropped
   around the current estimate (the last answer; ``node.initial_pose`` at first), answered in the map frame.
@@ -178,7 +178,7 @@ class LocalMapOdometry:
         config: the node's :class:`~deepbbs_ros.config.Config` (``preprocess`` crop, the ``odometry``
             section; ``preprocess``/``model``/``registration`` for DeepBBS++).
         registration: the node's registration, shared with the odometry (its network): DeepBBS++ runs
-            only when the odometry consults it (stamp gap, fit drop, first motion).
+            only when the odometry consults it (long stamp gap, fit drop, first motion).
         covariance: compute the twist and the pose / twist covariances (``node.publish_odometry``).
 
     Pose: ``T_odom_k = T_first_k`` (the odom frame is the first scan's sensor frame at its stamp).

@@ -7,7 +7,7 @@ Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points
 * ``node.mode: odometry``: one input ``cloud``; the scans run through the odometry of ``deepbbs-replay
   --mode odometry --method deepbbs++`` (:class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the
   ``odometry`` config section): deskewing with the per-point times (Velodyne ``time``, Ouster ``t``),
-  GICP against a local voxel map, and DeepBBS++ (the node's network) consulted on stamp gaps, fit drops
+  GICP against a local voxel map, and DeepBBS++ (the node's network) consulted on long stamp gaps, fit drops
   and the first motion (:class:`deepbbs_ros.node.pipeline.LocalMapOdometry`). The chained scan-to-scan
   odometry (scan k registered against scan k-1) stays available as ``odometry_method="scan_to_scan"``
   of :class:`RegistrationNode` (the GICP anchor uses it).
