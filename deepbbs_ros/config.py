@@ -290,7 +290,8 @@ class OdometryConfig:
     """Local-map odometry (core/odometry.py): ``deepbbs-replay --mode odometry --method deepbbs++`` and the
     node's ``node.mode: odometry``. GICP against a local voxel map with DeepBBS++ where the motion prior fails."""
 
-    deepbbs_init: str = "auto"  # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
+    # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
+    deepbbs_init: str = "auto"
     voxel_size: float = 0.0  # m; local map voxel (VGICP); the scan grid is half of it; 0 = preprocess.max_range / 80
     neighbors: int = 20  # neighbours for the scan's covariances
     max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map

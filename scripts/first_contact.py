@@ -10,7 +10,8 @@ publishes for the drive's scans and reads the node's ``ready in X s`` line::
 
 ``--loop`` plays the drive twice (the second time after a backward time jump: the odometry restarts) and
 counts both plays. ``--trace`` prints, per run, the node's debug line for each scan (the odometry's path: GICP
-from the prediction, or DeepBBS++ and why; its timings in ms), each dropped scan, and the node's closing counts. Runs in its own DDS domain on loopback.
+from the prediction, or DeepBBS++ and why; its timings in ms), each dropped scan, and the node's closing counts.
+Runs in its own DDS domain on loopback.
 """
 
 from __future__ import annotations

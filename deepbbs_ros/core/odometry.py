@@ -315,7 +315,8 @@ class DeepBBSOdometry:
             return "first motion"
         median = float(np.median(self._fits)) if self._fits else float("nan")
         if len(self._fits) >= (1 if gap else 3) and fit < oc.fit_drop * median:
-            return f"{f'stamp gap of {scale:.1f} periods, ' if gap else ''}fit {fit:.2f} < {oc.fit_drop} x median {median:.2f}"
+            why = f"fit {fit:.2f} < {oc.fit_drop} x median {median:.2f}"
+            return f"stamp gap of {scale:.1f} periods, {why}" if gap else why
         return ""
 
     def _deepbbs(self, frame: np.ndarray) -> np.ndarray | None:
