@@ -36,7 +36,9 @@ Outputs (docs/CONVENTIONS.md, :mod:`deepbbs_ros.node.outputs`):
 
 Start-up: the model is loaded and every stage run once on a synthetic drive (``node.warmup``) before the node
 logs ``ready in X s``. A scan more than 1 s before the previous one in odometry mode (a bag played again)
-restarts the odometry with one log line.
+restarts the odometry with one log line. With ``--ros-args --log-level deepbbs_registration:=debug`` every
+odometry step is logged (the path it took: GICP from the prediction, or DeepBBS++ and why; the fit; where
+its time went) and every scan dropped for a newer one; the node logs its counts when it stops.
 
 Threads: the executor's callbacks only hand messages on. Each input has its own thread that decodes and
 checks every cloud on arrival and preprocesses it for DeepBBS++ (pair mode, scan-to-scan odometry; the
