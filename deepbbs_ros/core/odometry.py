@@ -90,7 +90,8 @@ class OdometryStep:
         was not worse than identity's by more than ``odometry.fit_margin``; later: better than the
         prediction's by more than that).
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
-    timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted), "total".
+    timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted; at the first scan: its preprocessing
+        for the first motion's DeepBBS++), "total".
     points: (M, 3) float64 the scan as it was registered (deskewed, cropped, on the ``voxel_size / 2`` grid),
         sensor frame: what a caller needs to score the step (the node's covariance) without redoing it.
     """
@@ -353,6 +354,14 @@ class DeepBBSOdometry:
         self._map.insert(cloud, np.eye(4))
         self._remember(frame, stamp_ns, False)
         self.frames = 1
+        if self.config.odometry.deepbbs_init != "never":
+            # the first motion always asks DeepBBS++: this scan's preprocessing for it is done now, while a live
+            # node has nothing waiting (the next scan is a period away), not on the first motion's long step
+            try:
+                self._prev_pp = self.registration.preprocess(frame.astype(np.float32))
+            except RegistrationError:
+                self._prev_pp = None  # the first motion tries again (and fails the same way: no DeepBBS++)
+            clock.lap("deepbbs")
         return OdometryStep(np.eye(4), np.eye(4), timings_ms=clock.done(), points=_cloud_points(cloud))
 
     def _remember(self, frame: np.ndarray, stamp_ns: int | None, consulted: bool) -> None:
