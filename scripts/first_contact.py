@@ -35,9 +35,9 @@ def one_run(args: argparse.Namespace, domain: int) -> dict:
         node_log = Path(tmp) / "node.log"
         t0, t0_wall = time.monotonic(), time.time()
         with open(node_log, "w") as log:
+            debug = ["--log-level", "deepbbs_registration:=debug"] if args.trace else []
             node = subprocess.Popen([py, "-m", "deepbbs_ros.node.registration_node", "--ros-args",
-                                     "-p", "node.mode:=odometry", "-r", "cloud:=/points",
-                                     "--log-level", "deepbbs_registration:=debug"],
+                                     "-p", "node.mode:=odometry", "-r", "cloud:=/points", *debug],
                                     stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
         n_scans = args.frames * (2 if args.loop else 1)
         echo = subprocess.Popen([py, "-m", "deepbbs_ros.cli.ros", "--timeout", "180", "topic", "echo",
