@@ -383,7 +383,7 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         for k in range(n_total):
             due = t0 + k / args.rate
             while (now := time.perf_counter()) < due:
-                rclpy.spin_once(node, timeout_sec=min(0.005, due - now))
+                rclpy.spin_once(node, timeout_sec=due - now)  # returns on a pose (timed at once) or when due
             stamp = STAMP0_NS + k * int(SEC / args.rate)
             i_src, i_tgt = pairs[k % len(pairs)]
             src = stamped(msgs[i_src], stamp)
