@@ -69,8 +69,8 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
 }
 ANCHOR = "gicp"
 KITTI_DEFAULT = ROOT.parent / "shared" / "realdata" / "kitti"
-STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.network_wait",
-          "register.polish", "publish", "total")  # fmt: skip
+STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess", "register.network_wait",
+          "register.polish", "register.global", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -432,7 +432,8 @@ def stage_line(d: dict[str, str]) -> str:
              for k in stages]  # fmt: skip
     drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
              f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}, preprocessing cache hits / "
-             f"misses {d.get('preprocessing cache hits / misses', '?')}")  # fmt: skip
+             f"misses {d.get('preprocessing cache hits / misses', '?')}, poses the verdict rejected "
+             f"{d.get('poses not published (the verdict rejected them)', '?')}")  # fmt: skip
     return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
 
 
