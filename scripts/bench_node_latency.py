@@ -69,8 +69,8 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
 }
 ANCHOR = "gicp"
 KITTI_DEFAULT = ROOT.parent / "shared" / "realdata" / "kitti"
-STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess", "register.network_wait",
-          "register.polish", "register.global", "publish", "total")  # fmt: skip
+STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
+          "register.network_wait", "register.polish", "register.global", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -94,9 +94,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
     g.add_argument("--runs", type=int, default=1, help="runs per configuration, a fresh node each")
     g.add_argument("--publish", choices=("serialized", "message"), default="serialized",
-                   help="serialized: every cloud serialised once, each period only its stamp rewritten in the CDR bytes "
-                        "(what a C++ driver costs the machine); message: rclpy converts the message every period "
-                        "(~10 ms of this process's CPU per HDL-64E cloud, taken from the node's two cores)")
+                   help="serialized: every cloud serialised once, each period only its stamp rewritten in the CDR "
+                        "bytes (what a C++ driver costs the machine); message: rclpy converts the message every "
+                        "period (~10 ms of this process's CPU per HDL-64E cloud, taken from the node's two cores)")
     g.add_argument("--busy-runs", type=int, default=0,
                    help="further runs per configuration with one CPU-bound background process")
     g = p.add_argument_group("nodes")
