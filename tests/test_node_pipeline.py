@@ -482,6 +482,7 @@ def test_node_deep_passes_replace_the_registrations_in_pair_mode_only():
     assert out.registration.max_deep_iters == 1 and cfg.registration.max_deep_iters == 3
     assert out.node == cfg.node and out.preprocess == cfg.preprocess
     for node in (NodeConfig(mode="pair", deep_passes=0), NodeConfig(mode="odometry", deep_passes=1)):
-        assert node_registration_config(Config(registration=cfg.registration, node=node)).registration.max_deep_iters == 3
+        other = node_registration_config(Config(registration=cfg.registration, node=node))
+        assert other.registration.max_deep_iters == 3
     with pytest.raises(ConfigError, match="node.deep_passes"):
         Config(node=NodeConfig(deep_passes=-1)).validate()
