@@ -32,7 +32,6 @@ __all__ = [
     "DATATYPES",
     "arrays_to_pointcloud2",
     "field_names",
-    "pointcloud2_from_cdr",
     "pointcloud2_to_arrays",
     "pointcloud2_to_xyz",
 ]
@@ -306,22 +305,6 @@ def pointcloud2_to_arrays(
 def pointcloud2_to_xyz(msg: Any) -> np.ndarray:
     """Valid points of a PointCloud2 as (N, 3) float32 (finite, ``||p|| >= 1e-3`` m), message frame."""
     return pointcloud2_to_arrays(msg).xyz
-
-
-def pointcloud2_from_cdr(raw: bytes | bytearray | memoryview) -> Any:
-    """A serialised ``sensor_msgs/PointCloud2`` (CDR, as an rclpy subscription with ``raw=True`` takes it) ->
-    a rosbags PointCloud2 whose ``data`` is a view of ``raw`` (no copy).
-
-    rclpy's own take converts the message into a C struct and then a Python message (copying the data
-    twice, ~5-10 ms for a 2.7 MB HDL-64E cloud, holding the GIL); the raw take is one copy and this ~1 ms.
-
-    Raises:
-        PointCloudFormatError: the bytes are not a PointCloud2 (cut, wrong type).
-    """
-    try:
-        return _typestore().deserialize_cdr(raw, "sensor_msgs/msg/PointCloud2")
-    except Exception as err:  # noqa: BLE001 - rosbags raises several types on bad bytes
-        raise PointCloudFormatError(f"undecodable PointCloud2 ({len(raw)} bytes of CDR): {err}") from err
 
 
 # --------------------------------------------------------------------------------------------------

@@ -486,25 +486,3 @@ def test_node_deep_passes_replace_the_registrations_in_pair_mode_only():
         assert other.registration.max_deep_iters == 3
     with pytest.raises(ConfigError, match="node.deep_passes"):
         Config(node=NodeConfig(deep_passes=-1)).validate()
-
-
-def test_decode_cloud_reads_the_cdr_bytes_of_a_raw_subscription():
-    """The node subscribes raw: decode_cloud reads a PointCloud2's CDR bytes (a view, no rclpy message) to the
-    same points, times, stamp and frame as the message; cut bytes are a malformed cloud, not an exception."""
-    from rclpy.serialization import serialize_message
-
-    rng = np.random.default_rng(3)
-    n = 500
-    xyz = rng.uniform(-20, 20, (n, 3)).astype(np.float32)
-    xyz[7] = np.nan
-    values = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": rng.uniform(0, 1, n).astype(np.float32),
-              "time": np.linspace(0.0, 0.1, n, dtype=np.float32)}  # fmt: skip
-    msg = build_cloud(VELODYNE, values, stamp_ns=1_234_000_000_567, frame_id="velodyne")
-    raw = serialize_message(msg)
-    got, want = decode_cloud(raw, "/points", 3), decode_cloud(msg, "/points", 3)
-    np.testing.assert_array_equal(got[0], want[0])
-    np.testing.assert_array_equal(got[1], want[1])
-    assert got[2:] == want[2:] == (1_234_000_000_567, "velodyne") and len(got[0]) == n - 1
-    with pytest.raises(BadInput, match="/points: undecodable PointCloud2") as err:
-        decode_cloud(raw[:40], "/points", 3)
-    assert err.value.kind == "malformed_cloud"

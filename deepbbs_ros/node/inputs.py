@@ -94,20 +94,13 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     Times come from the first of :data:`TIME_FIELDS` the cloud declares (scaled to seconds).
 
     A time field with the same value for every point (e.g. all 0) gives None: it carries no timing.
-    ``msg`` may also be the message's CDR bytes (the node's raw subscriptions:
-    :func:`msg_adapters.pointcloud2.pointcloud2_from_cdr`, a view of the bytes instead of rclpy's two copies).
 
     Raises:
         BadInput: ``empty_cloud``, ``malformed_cloud``, ``no_valid_points``, ``too_few_points``
             (fewer than ``min_points`` valid points) or ``missing_frame``, with ``topic`` in the message.
     """
-    from msg_adapters.pointcloud2 import field_names, pointcloud2_from_cdr, pointcloud2_to_arrays
+    from msg_adapters.pointcloud2 import field_names, pointcloud2_to_arrays
 
-    if isinstance(msg, (bytes, bytearray, memoryview)):
-        try:
-            msg = pointcloud2_from_cdr(msg)
-        except PointCloudFormatError as err:
-            raise BadInput("malformed_cloud", f"{topic}: {err}") from err
     if int(msg.width) * int(msg.height) == 0 and len(msg.data) == 0:
         raise BadInput("empty_cloud", f"{topic}: empty PointCloud2 (width * height = 0, no data)")
     declared = set(field_names(msg))

@@ -423,10 +423,8 @@ class RegistrationNode(Node):
             qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         def subscribe():  # after the warm-up: a publisher (deepbbs-play) sees the node once it is ready
-            # raw: the CDR bytes, read by the input thread as a view (inputs.decode_cloud); rclpy's own take copies
-            # a cloud twice into a Python message on the executor thread, holding the GIL (~5-10 ms per HDL-64E)
             return self.create_subscription(
-                PointCloud2, name, lambda msg: self._on_message(index, msg), qos, raw=True,
+                PointCloud2, name, lambda msg: self._on_message(index, msg), qos,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )  # fmt: skip
 
@@ -496,7 +494,7 @@ class RegistrationNode(Node):
             )
         return np.eye(4)
 
-    def _on_message(self, index: int, msg: PointCloud2 | bytes) -> None:
+    def _on_message(self, index: int, msg: PointCloud2) -> None:
         t_recv = time.perf_counter()
         with self._lock:
             self._counts["received"] += 1
@@ -625,8 +623,6 @@ class RegistrationNode(Node):
         """Run what the first scans would run for the first time (PointCloud2 decoding, preprocessing, the
         precision stage's GICP, the network process, the odometry or pair path) on a synthetic drive, then
         forget it: the first real scans are answered at the node's usual speed."""
-        from rclpy.serialization import serialize_message
-
         from deepbbs_ros.node.inputs import decode_cloud
         from deepbbs_ros.replay.synthetic import synthetic_drive
         from msg_adapters.layouts import VELODYNE, build_cloud
@@ -638,7 +634,7 @@ class RegistrationNode(Node):
             msg = build_cloud(VELODYNE, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2],
                                          "intensity": s.fields["intensity"], "time": s.fields["time"]},
                               stamp_ns=s.stamp_ns, frame_id="deepbbs_warmup")  # fmt: skip
-            xyz, times, stamp_ns, frame = decode_cloud(serialize_message(msg), "warm-up", 3)  # as subscribed
+            xyz, times, stamp_ns, frame = decode_cloud(msg, "warm-up", 3)
             clouds.append(Cloud(xyz, stamp_ns, frame, time.perf_counter(), times))
         if self.odometry is not None:
             with self._odom_lock:
