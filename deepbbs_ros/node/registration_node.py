@@ -64,7 +64,7 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -802,7 +802,9 @@ def run_node(
     node = None
     try:
         node = make_node(defaults)
-        executor = MultiThreadedExecutor(num_threads=2)
+        # one thread: every callback only hands off (the inputs and the registration have their own threads), and
+        # rclpy's multi-threaded executor cost ~2 ms more CPU per received 2.7 MB cloud (measured, paired runs)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
