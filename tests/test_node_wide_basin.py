@@ -7,8 +7,8 @@ noise, dropouts); source: frame 1 of the same drive (an independent scan 0.1 s l
 seeded perturbation ``A`` (yaw, horizontal shift), so ``T_target_source' = T_target_source @ inv(A)``.
 Each published pose is checked against ground truth (1 deg / 0.3 m) and against
 ``DeepBBSRegistration.register`` run offline on the same two clouds (the node's config, ``node.deep_passes``
-included, and weights): a mismatch there would be the node's, a miss of both would be the model's. small_gicp GICP from identity
-on the same pairs is measured for contrast (printed, not asserted: the issue expects it to manage
+included, and weights): a mismatch there would be the node's, a miss of both would be the model's.
+small_gicp GICP from identity on the same pairs is measured for contrast (printed, not asserted: the issue expects it to manage
 about a third of such pairs). Run with ``-s`` to see the table.
 
 Measured with the bootstrap weights (step 600): 6 of 6 here, 20 of 20 offline on 20 such perturbations
