@@ -8,8 +8,8 @@ seeded perturbation ``A`` (yaw, horizontal shift), so ``T_target_source' = T_tar
 Each published pose is checked against ground truth (1 deg / 0.3 m) and against
 ``DeepBBSRegistration.register`` run offline on the same two clouds (the node's config, ``node.deep_passes``
 included, and weights): a mismatch there would be the node's, a miss of both would be the model's.
-small_gicp GICP from identity on the same pairs is measured for contrast (printed, not asserted: the issue expects it to manage
-about a third of such pairs). Run with ``-s`` to see the table.
+small_gicp GICP from identity on the same pairs is measured for contrast (printed, not asserted: the issue
+expects it to manage about a third of such pairs). Run with ``-s`` to see the table.
 
 Measured with the bootstrap weights (step 600): 6 of 6 here, 20 of 20 offline on 20 such perturbations
 of urban seeds 5 and 21 (GICP 1 of 20). Not every scene is that easy: on the random-box "town" the node's
