@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import struct
 import subprocess
 import sys
 import tempfile
@@ -93,10 +92,6 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--warmup", type=float, default=2.0, help="streaming time before the measurement (s)")
     g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
     g.add_argument("--runs", type=int, default=1, help="runs per configuration, a fresh node each")
-    g.add_argument("--publish", choices=("serialized", "message"), default="serialized",
-                   help="serialized: every cloud serialised once, each period only its stamp rewritten in the CDR "
-                        "bytes (what a C++ driver costs the machine); message: rclpy converts the message every "
-                        "period (~10 ms of this process's CPU per HDL-64E cloud, taken from the node's two cores)")
     g.add_argument("--busy-runs", type=int, default=0,
                    help="further runs per configuration with one CPU-bound background process")
     g = p.add_argument_group("nodes")
@@ -302,29 +297,6 @@ def _busy_process() -> subprocess.Popen:
                             stderr=subprocess.DEVNULL)  # fmt: skip
 
 
-class SerializedCloud:
-    """A PointCloud2 serialised once (CDR, little-endian); :func:`stamped` rewrites only its stamp: bytes 4-11
-    after the 4-byte encapsulation header are ``header.stamp`` (int32 sec, uint32 nanosec)."""
-
-    def __init__(self, msg) -> None:
-        from rclpy.serialization import serialize_message
-
-        self.raw = bytearray(serialize_message(msg))
-        if self.raw[:2] != b"\x00\x01":  # CDR_LE: the stamp's place and byte order below
-            raise DeepBBSError("serialized PointCloud2 is not little-endian CDR")
-
-
-def stamped(msg, stamp_ns: int):
-    """``msg`` (a PointCloud2 or a :class:`SerializedCloud`) stamped ``stamp_ns``, ready to publish."""
-    from msg_adapters.transforms import ns_to_stamp
-
-    if isinstance(msg, SerializedCloud):
-        msg.raw[4:12] = struct.pack("<iI", stamp_ns // SEC, stamp_ns % SEC)
-        return bytes(msg.raw)
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    return msg
-
-
 def run_method(args, method: str, stream: Stream) -> RunResult:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -332,7 +304,7 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import PointCloud2
 
-    from msg_adapters.transforms import stamp_to_ns
+    from msg_adapters.transforms import ns_to_stamp, stamp_to_ns
 
     module, name = METHODS[method]
     cmd = [sys.executable, "-m", module]
@@ -367,8 +339,6 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
     topics = ("/bench/points",) if args.mode == "odometry" else ("/bench/target", "/bench/source")
     pubs = [node.create_publisher(PointCloud2, t, qos_profile_sensor_data) for t in topics]
     msgs, pairs = stream.msgs, stream.pairs
-    if args.publish == "serialized":
-        msgs = [SerializedCloud(m) for m in msgs]
     try:
         deadline = time.monotonic() + args.startup_timeout
         while not (all(p.get_subscription_count() for p in pubs) and pose_sub.get_publisher_count()):
@@ -386,9 +356,12 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
                 rclpy.spin_once(node, timeout_sec=due - now)  # returns on a pose (timed at once) or when due
             stamp = STAMP0_NS + k * int(SEC / args.rate)
             i_src, i_tgt = pairs[k % len(pairs)]
-            src = stamped(msgs[i_src], stamp)
+            src = msgs[i_src]
+            src.header.stamp = ns_to_stamp(stamp)
             if args.mode == "pair":
-                pubs[0].publish(stamped(msgs[i_tgt], stamp))  # same stamp: the pair is synchronised at once
+                tgt = msgs[i_tgt]
+                tgt.header.stamp = ns_to_stamp(stamp)  # same stamp: the pair is synchronised at once
+                pubs[0].publish(tgt)
             measured = k >= n_warm
             if k == n_warm:
                 cpu0, cpu_self0 = cpu_snapshot(proc.pid), time.process_time()
