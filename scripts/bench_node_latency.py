@@ -68,8 +68,8 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
 }
 ANCHOR = "gicp"
 KITTI_DEFAULT = ROOT.parent / "shared" / "realdata" / "kitti"
-STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.network_wait",
-          "register.polish", "publish", "total")  # fmt: skip
+STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
+          "register.network_wait", "register.polish", "register.global", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -353,7 +353,7 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         for k in range(n_total):
             due = t0 + k / args.rate
             while (now := time.perf_counter()) < due:
-                rclpy.spin_once(node, timeout_sec=min(0.005, due - now))
+                rclpy.spin_once(node, timeout_sec=due - now)  # returns on a pose (timed at once) or when due
             stamp = STAMP0_NS + k * int(SEC / args.rate)
             i_src, i_tgt = pairs[k % len(pairs)]
             src = msgs[i_src]
@@ -405,7 +405,8 @@ def stage_line(d: dict[str, str]) -> str:
              for k in stages]  # fmt: skip
     drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
              f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}, preprocessing cache hits / "
-             f"misses {d.get('preprocessing cache hits / misses', '?')}")  # fmt: skip
+             f"misses {d.get('preprocessing cache hits / misses', '?')}, poses the verdict rejected "
+             f"{d.get('poses not published (the verdict rejected them)', '?')}")  # fmt: skip
     return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
 
 

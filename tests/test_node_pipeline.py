@@ -495,3 +495,21 @@ def test_input_follows_its_topics_velocity_and_deskews():
     assert sink.clouds[0].pp.deskewed_cloud is None and sink.clouds[0].pp.deskew.startswith("no velocity yet")
     for c in sink.clouds[1:]:
         assert c.pp.deskew == "deskewed" and abs(c.pp.velocity[0][0, 3] - 1.5) < 0.02 and c.pp.velocity[1] == 0.1
+
+
+def test_node_deep_passes_replace_the_registrations_in_pair_mode_only():
+    """node.deep_passes sets the network passes of the node's DeepBBS++ in pair mode (0 keeps
+    registration.max_deep_iters); odometry mode and the caller's config are left alone."""
+    from deepbbs_ros.config import Config, NodeConfig, RegistrationConfig
+    from deepbbs_ros.errors import ConfigError
+    from deepbbs_ros.node.registration_node import node_registration_config
+
+    cfg = Config(registration=RegistrationConfig(max_deep_iters=3), node=NodeConfig(mode="pair", deep_passes=1))
+    out = node_registration_config(cfg)
+    assert out.registration.max_deep_iters == 1 and cfg.registration.max_deep_iters == 3
+    assert out.node == cfg.node and out.preprocess == cfg.preprocess
+    for node in (NodeConfig(mode="pair", deep_passes=0), NodeConfig(mode="odometry", deep_passes=1)):
+        other = node_registration_config(Config(registration=cfg.registration, node=node))
+        assert other.registration.max_deep_iters == 3
+    with pytest.raises(ConfigError, match="node.deep_passes"):
+        Config(node=NodeConfig(deep_passes=-1)).validate()

@@ -6,10 +6,10 @@ Target: frame 0 of a simulated urban HDL-64E drive (``deepbbs_ros.sim``, ~120k p
 noise, dropouts); source: frame 1 of the same drive (an independent scan 0.1 s later) moved by a
 seeded perturbation ``A`` (yaw, horizontal shift), so ``T_target_source' = T_target_source @ inv(A)``.
 Each published pose is checked against ground truth (1 deg / 0.3 m) and against
-``DeepBBSRegistration.register`` run offline on the same two clouds (same config and weights): a
-mismatch there would be the node's, a miss of both would be the model's. small_gicp GICP from identity
-on the same pairs is measured for contrast (printed, not asserted: the issue expects it to manage
-about a third of such pairs). Run with ``-s`` to see the table.
+``DeepBBSRegistration.register`` run offline on the same two clouds (the node's config, ``node.deep_passes``
+included, and weights): a mismatch there would be the node's, a miss of both would be the model's.
+small_gicp GICP from identity on the same pairs is measured for contrast (printed, not asserted: the issue
+expects it to manage about a third of such pairs). Run with ``-s`` to see the table.
 
 Measured with the bootstrap weights (step 600): 6 of 6 here, 20 of 20 offline on 20 such perturbations
 of urban seeds 5 and 21 (GICP 1 of 20). Not every scene is that easy: on the random-box "town" the node's
@@ -79,7 +79,7 @@ def test_wide_basin_live(ros):
     import torch
 
     from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.node.registration_node import RegistrationNode
+    from deepbbs_ros.node.registration_node import RegistrationNode, node_registration_config
     from deepbbs_ros.sim import simulate_drive
 
     threads = torch.get_num_threads()
@@ -101,7 +101,7 @@ def test_wide_basin_live(ros):
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
             time.sleep(0.05)
-        offline = DeepBBSRegistration(_config(), weights="")
+        offline = DeepBBSRegistration(node_registration_config(_config()), weights="")  # node.deep_passes included
         for k, (yaw, shift, direction) in enumerate(PERTURBATIONS):
             A = pose(shift * np.cos(direction), shift * np.sin(direction), 0.0, np.deg2rad(yaw))  # p' = A p
             src = (src0.astype(np.float64) @ A[:3, :3].T + A[:3, 3]).astype(np.float32)

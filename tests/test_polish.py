@@ -146,6 +146,8 @@ def test_too_few_points_fall_back(pair):
         ("registration.polish_max_trans", -1.0, "registration.polish_max_trans must be >= 0"),
         ("registration.polish_max_rot_deg", -1.0, "registration.polish_max_rot_deg must be >= 0"),
         ("registration.polish_threads", -1, "registration.polish_threads must be >= 0"),
+        ("registration.polish_rot_eps_deg", 0.0, "registration.polish_rot_eps_deg must be > 0"),
+        ("registration.polish_trans_eps", -1e-3, "registration.polish_trans_eps must be > 0"),
     ],
 )
 def test_config_validation(key, value, match):
@@ -207,3 +209,21 @@ def test_precision_stage_lands_on_gicps_fixed_point(pair, street_scene):
     assert res.applied
     rot, trans = _err(res.T_target_source, base)
     assert rot < 1e-3 and trans < 1e-3, (rot, trans)
+
+
+def test_convergence_tolerances_trade_iterations_for_at_most_their_size(pair):
+    """registration.polish_rot_eps_deg / polish_trans_eps reach small_gicp: a looser tolerance stops in no more
+    iterations, within about its own size of the tight fixed point; both land on the ground truth."""
+    src, tgt, T = pair
+    T0 = T @ _offset()
+    tight = polish(src.polish_cloud, tgt.polish_cloud, T0, _cfg(**{"registration.polish_trans_eps": 1e-4,
+                                                                   "registration.polish_rot_eps_deg": 0.01}))
+    loose = polish(src.polish_cloud, tgt.polish_cloud, T0, _cfg(**{"registration.polish_trans_eps": 0.02,
+                                                                   "registration.polish_rot_eps_deg": 0.5}))
+    assert tight.applied and loose.applied
+    assert 1 <= loose.iterations < tight.iterations
+    rot, trans = _err(loose.T_target_source, tight.T_target_source)
+    assert trans <= 0.02 and rot <= 0.5
+    for res in (tight, loose):
+        rot, trans = _err(res.T_target_source, T)
+        assert rot < 0.2 and trans < 0.05

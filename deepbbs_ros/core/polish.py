@@ -228,6 +228,8 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         max_correspondence_distance=cfg.polish_max_corr_dist,
         num_threads=threads_or_all(cfg.polish_threads),
         max_iterations=cfg.polish_max_iters,
+        rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
+        translation_epsilon=cfg.polish_trans_eps,
     )  # fmt: skip
     t2 = time.perf_counter()
     T = np.asarray(res.T_target_source, dtype=np.float64).copy()
