@@ -11,7 +11,7 @@ score is kept. When none passes, the best pose turned by 180 degrees (a road see
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
 good start (consecutive scans, odometry) pays nothing more.
-The target's network state is computed once for every start (the target memo of ``DeepBBSRegistration``).
+The target's network state is computed once for every start (the target memo of ``DeepBBSNetwork``, core/network.py).
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from deepbbs_ros.core.network import Clock, matrix
 
 __all__ = ["yaw_starts", "shift_starts", "rank_starts", "before_precision", "retry"]
 
@@ -62,28 +64,16 @@ def rank_starts(starts: list[np.ndarray], passes: Callable[[np.ndarray], Any],
 
 
 # -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
-def _matrix(R: Any, t: Any, scale: float) -> np.ndarray:
-    from deepbbs_ros.core.registration import _matrix as matrix
-
-    return matrix(R, t, scale)
-
-
-def _clock(reg: Any) -> Any:
-    from deepbbs_ros.core.registration import _Clock
-
-    return _Clock(reg.device)
-
-
 def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
     deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
     deep pass from each other start yaw (in this process; the target's network state computed once), the start
     with the best fitness finished with the remaining passes; it replaces the answer when it fits better."""
     rc, scale = reg.config.registration, reg.model.scale
-    if rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+    if rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return
     rank_dist = 2.0 * rc.verdict_dist
-    T_deep = _matrix(st.R, st.t, scale)
+    T_deep = matrix(st.R, st.t, scale)
     here = reg._score(st, T_deep, rank_dist)
     if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
         return
@@ -91,16 +81,16 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None
     def passes(T: np.ndarray, n: int = 1):
         R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=reg.device)
         t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-        out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
-        return out, _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+        out = reg.network.passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
+        return out, matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
 
     ranked = rank_starts(yaw_starts(st.T_start, rc.global_yaws), passes, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked
     if ranked and ranked[0][0] > here:
         out, T = ranked[0][1], ranked[0][2]
-        if reg._n_deep() > 1:
-            out, T = passes(T, reg._n_deep() - 1)
+        if reg.network.n_deep > 1:
+            out, T = passes(T, reg.network.n_deep - 1)
         st.replaced = (st.R, st.t, st.gamma)
         reg._apply_network(st, out)
         st.iters["deep"] += 1
@@ -113,7 +103,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
     verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
-    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return st
 
     def tensors(out: Any) -> tuple:
@@ -121,7 +111,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
     if st.others is None:  # the deep answer fitted, the precision stage's pose does not: rank the others now
         probe = dataclasses.replace(st, iters=dict(st.iters))
-        with torch.inference_mode(), reg._torch_threads():
+        with torch.inference_mode(), reg.network.torch_threads():
             before_precision(reg, probe, clock, force=True)
         ranked, replaced = probe.others or [], probe.replaced is not None
         others = [(probe.R, probe.t, probe.gamma)] if replaced else []
@@ -147,8 +137,8 @@ def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
     for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
         apply(cand, start)
-        reg._polish(cand, _clock(reg))
-        reg._deskew(cand, _clock(reg))
+        reg._polish(cand, Clock(reg.device))
+        reg._deskew(cand, Clock(reg.device))
         reg._verdict(cand)
         if cand.score > best.score:
             best = cand
@@ -164,13 +154,13 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
     rc, scale = reg.config.registration, reg.model.scale
     T_best = best.T.copy()
     outs = []
-    with torch.inference_mode(), reg._torch_threads():
+    with torch.inference_mode(), reg.network.torch_threads():
         flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
         for T0 in [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift):
             R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=reg.device)
             t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-            out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None)
-            T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+            out = reg.network.passes(st.src, st.tgt, R, t, lambda _stage: None)
+            T = matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])
     best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network)

@@ -10,8 +10,9 @@ weights out (~0.3 ms per round trip).
 ``registration.network_process``: "auto" (default) starts one per :class:`DeepBBSRegistration` on a CPU
 device with 2+ cores and weights read from a checkpoint file (not for a model object handed in, such
 as a training run's, whose weights change); "off" never does. The worker loads the same checkpoint
-with the same configuration and runs :meth:`DeepBBSRegistration.network`, so its results are the
-in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
+with the same configuration into the same :class:`~deepbbs_ros.core.network.DeepBBSNetwork` the
+in-process path runs (this module imports the network only, never the registration), so its results
+are the in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
 itself from then on: nothing is lost. No ROS import.
 """
 
@@ -21,12 +22,12 @@ import logging
 import os
 import threading
 import weakref
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.network import NetworkOutput
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
@@ -40,23 +41,6 @@ RESULT_TIMEOUT_S = 60.0  # one registration's network passes (the first ones war
 class NetworkProcessLost(RegistrationError):
     """The worker died, stopped answering or could not be reached (it is stopped; a late answer must never
     be read as the next request's). Other worker errors are plain :class:`RegistrationError` s."""
-
-
-@dataclass
-class NetworkOutput:
-    """What the network passes give back (scaled units, see ModelConfig.scale).
-
-    R: (3, 3) float32, t: (3,) float32 (scaled) with p_target = R p_source + t; gamma: (N,) float32;
-    temperature: T of the first pass; iterations: passes run; converged: the last increment was below the
-    tolerances; ms: {"embed", "match", "solve"} wall time of the passes where they ran."""
-
-    R: np.ndarray
-    t: np.ndarray
-    gamma: np.ndarray
-    temperature: float
-    iterations: int
-    converged: bool
-    ms: dict[str, float] = field(default_factory=dict)
 
 
 def wanted(setting: str, device_type: str, weights_path: Path | None) -> bool:
@@ -157,7 +141,7 @@ class NetworkProcess:
 
     def prepare_target(self, tgt: np.ndarray) -> None:
         """Let the worker compute the network state of target (M, 3) float32 metres now (no answer): the next
-        request with the same target finds it ready (``DeepBBSRegistration._target_state``). Best effort."""
+        request with the same target finds it ready (``DeepBBSNetwork.target_state``). Best effort."""
         try:
             with self._send_lock:
                 self._conn.send(("target", np.ascontiguousarray(tgt, np.float32)))
@@ -232,11 +216,11 @@ def _worker_main(fd: int) -> int:
     try:
         weights, flat_config = conn.recv()
         from deepbbs_ros.config import Config
-        from deepbbs_ros.core.registration import DeepBBSRegistration
+        from deepbbs_ros.core.network import DeepBBSNetwork
 
         cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
-        reg = DeepBBSRegistration(cfg, weights=weights)
-        reg.warmup()
+        net = DeepBBSNetwork(cfg, weights=weights)
+        net.warmup()
     except (EOFError, OSError):
         return 0
     except Exception as err:  # noqa: BLE001 - reported to the caller as one line
@@ -250,14 +234,14 @@ def _worker_main(fd: int) -> int:
             return 0
         if msg[0] == "target":
             try:
-                reg.prepare_target_np(msg[1])
+                net.prepare_target_np(msg[1])
             except Exception:  # noqa: BLE001 - best effort: the run that follows computes it and reports
                 pass
             continue
         if msg[0] != "run":
             return 0
         try:
-            out = reg.network_np(msg[1], msg[2], msg[3])
+            out = net.network_np(msg[1], msg[2], msg[3])
             conn.send(("ok", out))
         except (EOFError, OSError):
             return 0
