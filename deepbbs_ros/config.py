@@ -174,6 +174,9 @@ class RegistrationConfig:
     global_search: str = "auto"
     global_yaws: int = 4
     global_polish: int = 2
+    # the network process runs the other start yaws' first passes right after the given start's (while this process
+    # builds the GICP clouds), stopped as soon as the answer from the given start fits: the search then costs little
+    global_speculate: bool = True
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
 

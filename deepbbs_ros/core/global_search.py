@@ -23,9 +23,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepbbs_ros.core.network import Clock, matrix
+from deepbbs_ros.core.network import Clock, matrix, worker_share
 
-__all__ = ["yaw_starts", "shift_starts", "rank_starts", "before_precision", "retry"]
+__all__ = ["yaw_starts", "shift_starts", "rank_starts", "rank_outputs", "batch_sizes", "before_precision", "retry"]
+
+SHIFT_STARTS = 17  # _shift_retry: the best pose turned by 180 degrees, and 8 shifted starts around each
 
 
 def yaw_starts(T_start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -55,12 +57,33 @@ def rank_starts(starts: list[np.ndarray], passes: Callable[[np.ndarray], Any],
                 score: Callable[[np.ndarray], float]) -> list[tuple[float, Any, np.ndarray]]:
     """Run ``passes(T_start) -> (output, T_estimate)`` from every start and rank them by ``score(T_estimate)``:
     -> [(score, output, T_estimate)] best first."""
-    ranked = []
-    for T0 in starts:
-        out, T = passes(T0)
-        ranked.append((float(score(T)), out, T))
+    return rank_outputs([passes(T0) for T0 in starts], score)
+
+
+def rank_outputs(outputs: list[tuple[Any, np.ndarray]], score: Callable[[np.ndarray], float]
+                 ) -> list[tuple[float, Any, np.ndarray]]:
+    """[(output, T_estimate)] ranked by ``score(T_estimate)``: -> [(score, output, T_estimate)] best first (a stable
+    sort: ties keep the order of the starts)."""
+    ranked = [(float(score(T)), out, T) for out, T in outputs]
     ranked.sort(key=lambda r: -r[0])
     return ranked
+
+
+def speculative_starts(rc: Any, T_start: np.ndarray) -> np.ndarray | None:
+    """The other start yaws (K-1, 4, 4) the network process runs after the given start's passes, while the caller
+    still builds the GICP clouds (``registration.global_speculate``), or None."""
+    if rc.global_search == "off" or rc.global_yaws < 2 or not rc.global_speculate or not rc.deep:
+        return None
+    return np.stack(yaw_starts(T_start, rc.global_yaws))
+
+
+def batch_sizes(rc: Any) -> tuple[list[int], list[int], list[int]]:
+    """The batch sizes of the search's deep passes (``registration.global_*``) for warming torch up: (in the network
+    process, in the caller while the network process runs its share, in the caller alone)."""
+    if rc.global_search == "off" or rc.global_yaws < 2:
+        return [], [], []
+    counts = [rc.global_yaws - 1] + ([SHIFT_STARTS] if rc.global_shift > 0 else [])
+    return ([worker_share(n) for n in counts], [n - worker_share(n) for n in counts], counts)
 
 
 # -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
@@ -76,21 +99,25 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None
     T_deep = matrix(st.R, st.t, scale)
     here = reg._score(st, T_deep, rank_dist)
     if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
+        reg.drop_speculation(st)  # the network process's passes from the other starts are not needed
         return
 
-    def passes(T: np.ndarray, n: int = 1):
-        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=reg.device)
-        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-        out = reg.network.passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
-        return out, matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+    def passes(starts: list[np.ndarray], n: int) -> list[tuple[Any, np.ndarray]]:
+        # one batch per process: the network process runs a share while this one runs the rest
+        return [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts, n)]
 
-    ranked = rank_starts(yaw_starts(st.T_start, rc.global_yaws), passes, lambda T: reg._score(st, T, rank_dist))
+    starts = yaw_starts(st.T_start, rc.global_yaws)
+    spec, finished = reg.speculated(st)  # already run in the network process (all, some or none)
+    outputs = [(out, matrix(out.R, out.t, scale)) for out in spec] + passes(starts[len(spec):], 1)
+    ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked
     if ranked and ranked[0][0] > here:
         out, T = ranked[0][1], ranked[0][2]
-        if reg.network.n_deep > 1:
-            out, T = passes(T, reg.network.n_deep - 1)
+        if reg.network.n_deep > 1 and finished is not None and spec[finished[0]] is out:  # finished there too
+            out, T = finished[1], matrix(finished[1].R, finished[1].t, scale)
+        elif reg.network.n_deep > 1:
+            out, T = passes([T], reg.network.n_deep - 1)[0]
         st.replaced = (st.R, st.t, st.gamma)
         reg._apply_network(st, out)
         st.iters["deep"] += 1
@@ -154,13 +181,11 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
     rc, scale = reg.config.registration, reg.model.scale
     T_best = best.T.copy()
     outs = []
+    flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
+    starts = [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift)
     with torch.inference_mode(), reg.network.torch_threads():
-        flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
-        for T0 in [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift):
-            R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=reg.device)
-            t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-            out = reg.network.passes(st.src, st.tgt, R, t, lambda _stage: None)
-            T = matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+        for out in reg.network_starts(st, starts):  # a batch in the network process, another here
+            T = matrix(out.R, out.t, scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])
     best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network)

@@ -23,7 +23,7 @@ import time
 import warnings
 import zlib
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -92,9 +92,32 @@ def matrix(R: Any, t: Any, scale: float) -> np.ndarray:
     return T
 
 
+def worker_share(n: int) -> int:
+    """How many of ``n`` starts the network process runs while the caller runs the others (it has the given
+    start's target state already; a batch of k costs a little less than k single passes)."""
+    return (n + 1) // 2
+
+
+def _expand(cache: TargetCache, k: int) -> TargetCache:
+    """A target state of batch 1 broadcast to batch ``k`` (views; the memory's keys/values are (2, B, ...))."""
+    if k == 1:
+        return cache
+    f = cache.f_tgt.expand(k, *cache.f_tgt.shape[1:])
+    if cache.memory_kv is None:
+        return TargetCache(f)
+    kv = [m.expand(m.shape[0], k, *m.shape[2:]) for m in cache.memory_kv]
+    tgt_self = None if cache.tgt_self is None else cache.tgt_self.expand(k, *cache.tgt_self.shape[1:])
+    tgt_q = None if cache.tgt_q is None else cache.tgt_q.expand(k, *cache.tgt_q.shape[1:])
+    return TargetCache(f, kv, tgt_self, tgt_q)
+
+
 def cloud_key(cloud: torch.Tensor) -> tuple:
     """(shape, CRC-32 of the bytes) of a (1, N, 3) tensor: the target memo's key (then compared exactly)."""
     return tuple(cloud.shape), zlib.crc32(cloud.detach().cpu().numpy().tobytes())
+
+
+class _Stopped(Exception):
+    """The caller of :meth:`DeepBBSNetwork.speculate_np` no longer wants the passes."""
 
 
 class DeepBBSNetwork:
@@ -234,6 +257,63 @@ class DeepBBSNetwork:
         return NetworkOutput(R.cpu().numpy(), t.cpu().numpy(), gamma.float().cpu().numpy(), temperature, k + 1,
                              bool(converged))
 
+    def starts(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+               n_passes: int | None = None, lap: Callable[[str], None] | None = None) -> list[NetworkOutput]:
+        """:meth:`passes` from K starts at once: src (1, N, 3), tgt (1, M, 3) scaled, R (K, 3, 3), t (K, 3) scaled.
+
+        The source moved K ways goes through the network as one batch of K against the target's state computed
+        once (broadcast to the batch); a start whose increment is small leaves the batch (as :meth:`passes`
+        stops), so every output equals the one of :meth:`passes` from that start (to float round-off).
+        -> K :class:`NetworkOutput` s in the order of the starts."""
+        rc, scale = self.config.registration, self.model.scale
+        lap = lap or (lambda _stage: None)
+        n_deep = self.n_deep if n_passes is None else n_passes
+        n_starts = int(R.shape[0])
+        tgt_cache = self.target_state(tgt)
+        R, t = R.clone(), t.clone()
+        gamma = src.new_ones(n_starts, src.shape[1])
+        temperature = [0.0] * n_starts
+        iterations, converged = [0] * n_starts, [False] * n_starts
+        active = list(range(n_starts))  # the starts still in the batch
+        knn = None
+        lap("embed")
+        for k in range(n_deep):
+            b = len(active)
+            idx = torch.as_tensor(active, device=self.device)
+            Ra, ta = R[idx], t[idx]
+            moved = apply_transform(src.expand(b, *src.shape[1:]), Ra, ta)
+            f_src, knn = self.model.point_features(moved, knn)
+            phi_src, phi_tgt = self.model.cross_cached(f_src, _expand(tgt_cache, b))
+            temp = self.model.predict_temperature(phi_src, phi_tgt)
+            lap("embed")
+            sb = self.model.match_inference(phi_src, phi_tgt)
+            lap("match")
+            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
+            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(-1).expand(b)
+            dR, dt, _, g = solve_transform_inference(
+                moved, tgt.expand(b, *tgt.shape[1:]), sb, temp_k, use_gamma=rc.use_gamma,
+                spatial_gamma=rc.spatial_gamma,
+            )
+            R[idx] = dR @ Ra
+            t[idx] = (dR @ ta[:, :, None])[:, :, 0] + dt
+            gamma[idx] = g
+            keep = []
+            for j, i in enumerate(active):
+                if k == 0:
+                    temperature[i] = float(temp[j])
+                iterations[i] = k + 1
+                converged[i] = (rotation_angle_deg(dR[j]) < rc.deep_rot_tol_deg
+                                and float(dt[j].norm()) / scale < rc.deep_trans_tol)
+                if not converged[i]:
+                    keep.append(j)
+            lap("solve")
+            if not keep:
+                break
+            active = [active[j] for j in keep]
+            knn = knn[torch.as_tensor(keep, device=knn.device)]
+        return [NetworkOutput(R[i].cpu().numpy(), t[i].cpu().numpy(), gamma[i].float().cpu().numpy(), temperature[i],
+                              iterations[i], bool(converged[i])) for i in range(n_starts)]
+
     # -- the kept target states --------------------------------------------------------------------
     def target_state(self, tgt: torch.Tensor) -> TargetCache:
         """The network's target-only state for tgt (1, M, 3) (scaled), reused when the same points (byte for
@@ -281,10 +361,61 @@ class DeepBBSNetwork:
         out.ms = dict(clock.ms)
         return out
 
-    def warmup(self, rounds: int = 2) -> None:
-        """The deep passes on two random clouds of ``preprocess.num_points`` points ``rounds`` times: torch's
-        CPU kernels pick and cache their primitives on the first calls with a new shape."""
+    def starts_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray,
+                  n_passes: int | None = None) -> list[NetworkOutput]:
+        """:meth:`starts` on preprocessed clouds (N, 3), (M, 3) float32 metres from K starts (K, 4, 4): what the
+        network process runs for the global search; the first output's ``ms`` holds the stage times."""
+        clock = Clock(self.device)
+        src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
+        T = np.asarray(T_starts, dtype=np.float64).reshape(-1, 4, 4)
+        R = torch.as_tensor(T[:, :3, :3], dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:, :3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
+        with torch.inference_mode(), self.torch_threads():
+            outs = self.starts(src, tgt, R, t, n_passes, clock.lap)
+        if outs:
+            outs[0].ms = dict(clock.ms)
+        return outs
+
+    def speculate_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray, stop: Callable[[], bool],
+                     rank_dist: float = 1.0) -> tuple[list[NetworkOutput], tuple[int, NetworkOutput] | None]:
+        """One deep pass from each of the starts (K, 4, 4) in turn (preprocessed clouds, metres) until ``stop()``
+        (checked after every network stage) says the caller does not want them; when all are done, the remaining
+        passes from the start whose estimate fits the sampled target points best (within ``rank_dist`` m: the
+        caller ranks on its denser cloud and uses them when it picks the same start).
+        -> (the first passes' outputs done, in order; (index, finished output) or None)."""
+        from deepbbs_ros.core.verdict import fitness_to_points
+
+        src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
+        outs: list[NetworkOutput] = []
+
+        def lap(_stage: str) -> None:
+            if stop():
+                raise _Stopped
+
+        with torch.inference_mode(), self.torch_threads():
+            try:
+                for T in np.asarray(T_starts, dtype=np.float64).reshape(-1, 4, 4):
+                    if stop():
+                        return outs, None
+                    R, t = self.start_tensors(T)
+                    outs.append(self.passes(src, tgt, R, t, lap, n_passes=1))
+                if self.n_deep < 2 or not outs or stop():
+                    return outs, None
+                fits = [fitness_to_points(source, target, matrix(o.R, o.t, self.model.scale), rank_dist) for o in outs]
+                best = int(np.argmax(fits))
+                R, t = self.start_tensors(matrix(outs[best].R, outs[best].t, self.model.scale))
+                return outs, (best, self.passes(src, tgt, R, t, lap, n_passes=self.n_deep - 1))
+            except _Stopped:
+                return outs, None
+
+    def warmup(self, rounds: int = 2, batches: Sequence[int] = ()) -> None:
+        """The deep passes on two random clouds of ``preprocess.num_points`` points ``rounds`` times, and from
+        as many starts at once as each of ``batches`` says: torch's CPU kernels pick and cache their primitives
+        on the first calls with a new shape."""
         rng = np.random.default_rng(0)
         pts = rng.uniform(-30.0, 30.0, (self.config.preprocess.num_points, 3)).astype(np.float32)
         for _ in range(rounds):
             self.network_np(pts, pts[::-1].copy(), np.eye(4))
+        for k in sorted(set(batches)):
+            if k > 1:
+                self.starts_np(pts, pts[::-1].copy(), np.repeat(np.eye(4)[None], k, axis=0), 1)

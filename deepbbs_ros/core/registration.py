@@ -46,7 +46,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import global_search, verdict
 from deepbbs_ros.core.checkpoint import default_weights_path
 from deepbbs_ros.core.model import DeepBBSNet
-from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize
+from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize, worker_share
 from deepbbs_ros.core.network_process import NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
 from deepbbs_ros.core.points import as_transform, as_xyz
@@ -180,8 +180,10 @@ class DeepBBSRegistration:
         pts = rng.uniform(-30.0, 30.0, (n, 3)).astype(np.float32)
         for _ in range(rounds):
             self.register(pts, pts[::-1].copy(), preprocessed=True)
-            if self.config.registration.global_search != "off" and self._net_state == "running":
-                self.network.network_np(pts, pts[::-1].copy(), np.eye(4))  # the global search's passes run here
+        if self.config.registration.global_search != "off":  # its batches: here (the network process warms its own)
+            away = self._net_state == "running"
+            self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(self.config.registration)[
+                1 if away else 2])
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -349,8 +351,9 @@ class DeepBBSRegistration:
             return
         net = self._network_process()
         if net is not None:
+            others = global_search.speculative_starts(self.config.registration, st.T_start)  # run after, maybe
             try:
-                st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale))
+                st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), speculate=others)
                 return
             except NetworkProcessLost as err:
                 self._network_failed(err)
@@ -382,13 +385,78 @@ class DeepBBSRegistration:
         else:
             clock.lap("network_wait")
             st.network_ms = out.ms
+            if pending.left:  # the worker goes on with the global search's other starts (speculatively)
+                st.spec = pending
         self._apply_network(st, out)
+
+    def speculated(self, st: _State) -> tuple[list[NetworkOutput], tuple[int, NetworkOutput] | None]:
+        """The network process's speculative passes from the global search's other starts (waits for them): (the
+        first passes' outputs, all, some or none when there were none or the worker failed; (index, the remaining
+        passes from that start) or None)."""
+        spec, st.spec = st.spec, None
+        if spec is None:
+            return [], None
+        try:
+            outs, finished = spec.result()
+            return list(outs), finished
+        except NetworkProcessLost as err:
+            self._network_failed(err)
+        except RegistrationError:
+            pass
+        return [], None
+
+    @staticmethod
+    def drop_speculation(st: _State) -> None:
+        """The search is not needed: the network process stops its speculative passes (no wait)."""
+        spec, st.spec = st.spec, None
+        if spec is not None:
+            spec.cancel()
 
     def _apply_network(self, st: _State, out: NetworkOutput) -> None:
         st.R = torch.as_tensor(out.R, dtype=torch.float32, device=self.device)
         st.t = torch.as_tensor(out.t, dtype=torch.float32, device=self.device)
         st.gamma = torch.as_tensor(out.gamma, dtype=torch.float32, device=self.device)
         st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
+
+    def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None) -> list[NetworkOutput]:
+        """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
+        T_target_source guesses) on the pair of ``st`` (the global search): the network process runs its share
+        (``network.worker_share``, the first ones) as one batch while this process runs the others as another;
+        with no network process all here. -> the outputs in the order of the starts."""
+        n = self.network.n_deep if n_passes is None else n_passes
+        net = self._network_process() if starts else None
+        pending, away = None, 0
+        if net is not None and worker_share(len(starts)) > 0:
+            away = worker_share(len(starts))
+            try:
+                pending = net.submit_starts(st.src_np, st.tgt_np, np.stack(starts[:away]), n)
+            except NetworkProcessLost as err:
+                self._network_failed(err)
+                away = 0
+        try:
+            here = self._starts_here(st, starts[away:], n)
+        except BaseException:
+            if pending is not None:
+                with contextlib.suppress(RegistrationError):
+                    pending.result()  # read and dropped: the next request must not get this answer
+            raise
+        if pending is None:
+            return here
+        try:
+            return pending.result() + here
+        except NetworkProcessLost as err:
+            self._network_failed(err)
+        except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
+            pass
+        return self._starts_here(st, starts[:away], n) + here
+
+    def _starts_here(self, st: _State, starts: list[np.ndarray], n: int) -> list[NetworkOutput]:
+        if not starts:
+            return []
+        T = np.stack(starts)
+        R = torch.as_tensor(T[:, :3, :3], dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:, :3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
+        return self.network.starts(st.src, st.tgt, R, t, n)
 
     def _send_target(self, tgt_np: np.ndarray) -> None:
         net = self._network_process()
@@ -644,6 +712,7 @@ class _State:
     others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]
     replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
     pending: Any = None  # a network_process.Pending while the network process works
+    spec: Any = None  # the same, for its speculative passes from the global search's other starts
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 
@@ -660,6 +729,8 @@ def _answer_read(st: _State) -> Iterator[None]:
                 pending.result()
             except RegistrationError:
                 pass
+            pending.cancel()  # speculative passes after it (if any): stopped, read before the next request
+        DeepBBSRegistration.drop_speculation(st)
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:
