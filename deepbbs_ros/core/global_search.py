@@ -69,10 +69,16 @@ def rank_outputs(outputs: list[tuple[Any, np.ndarray]], score: Callable[[np.ndar
     return ranked
 
 
-def speculative_starts(rc: Any, T_start: np.ndarray) -> np.ndarray | None:
+SPECULATE_WINDOW = 8  # registration.global_speculate "auto": speculate when the search ran in one of the last 8
+
+
+def speculative_starts(rc: Any, T_start: np.ndarray, searched: Any = ()) -> np.ndarray | None:
     """The other start yaws (K-1, 4, 4) the network process runs after the given start's passes, while the caller
-    still builds the GICP clouds (``registration.global_speculate``), or None."""
-    if rc.global_search == "off" or rc.global_yaws < 2 or not rc.global_speculate or not rc.deep:
+    still builds the GICP clouds (``registration.global_speculate``; "auto": ``searched``, whether the search ran in
+    each of the last registrations, is empty or holds a True), or None."""
+    if rc.global_search == "off" or rc.global_yaws < 2 or rc.global_speculate == "off" or not rc.deep:
+        return None
+    if rc.global_speculate == "auto" and len(searched) and not any(searched):
         return None
     return np.stack(yaw_starts(T_start, rc.global_yaws))
 

@@ -33,7 +33,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -151,6 +151,7 @@ class DeepBBSRegistration:
         self._net_lock = threading.Lock()
         wants = network_process_wanted(config.registration.network_process, self.device.type, self.weights_path)
         self._net_state = "unstarted" if wants else "off"
+        self._searched: deque[bool] = deque(maxlen=global_search.SPECULATE_WINDOW)  # the search ran, last calls
 
     @property
     def model(self) -> DeepBBSNet:
@@ -180,6 +181,7 @@ class DeepBBSRegistration:
         pts = rng.uniform(-30.0, 30.0, (n, 3)).astype(np.float32)
         for _ in range(rounds):
             self.register(pts, pts[::-1].copy(), preprocessed=True)
+        self._searched.clear()  # random clouds: not a hint of what the real ones need
         if self.config.registration.global_search != "off":  # its batches: here (the network process warms its own)
             away = self._net_state == "running"
             self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(self.config.registration)[
@@ -321,6 +323,7 @@ class DeepBBSRegistration:
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
         self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
         st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
+        self._searched.append(st.starts > 1)
         return self._result(st, clock)
 
     # -- the stages of register() ------------------------------------------------------------------
@@ -351,7 +354,7 @@ class DeepBBSRegistration:
             return
         net = self._network_process()
         if net is not None:
-            others = global_search.speculative_starts(self.config.registration, st.T_start)  # run after, maybe
+            others = global_search.speculative_starts(self.config.registration, st.T_start, self._searched)
             try:
                 st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), speculate=others)
                 return
