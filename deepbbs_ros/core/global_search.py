@@ -11,7 +11,16 @@ score is kept. When none passes, the best pose turned by 180 degrees (a road see
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
 good start (consecutive scans, odometry) pays nothing more.
-The target's network state is computed once for every start (the target memo of ``DeepBBSNetwork``, core/network.py).
+
+Where the deep passes run: with a network process (a CPU, core/network_process.py) the other start yaws' first
+passes run there right after the given start's, while the caller still builds the GICP clouds
+(``registration.global_speculate``: "auto" once the search ran in one of the last 8 registrations), one start at
+a time, stopped within a network stage when the given start's answer fits; the worker also finishes the best of
+them (ranked on the sampled target points), used when the caller's ranking picks the same start. Starts still to
+run (the 180-degree and shifted ones, or all of them without a speculation) go as one batch to the network process
+and another in this process (``DeepBBSRegistration.network_starts``, ``DeepBBSNetwork.starts``: the same numbers as
+single passes). The target's network state is computed once for every start (the target memo of
+``DeepBBSNetwork``, core/network.py).
 """
 
 from __future__ import annotations
@@ -96,8 +105,9 @@ def batch_sizes(rc: Any) -> tuple[list[int], list[int], list[int]]:
 def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
     deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
-    deep pass from each other start yaw (in this process; the target's network state computed once), the start
-    with the best fitness finished with the remaining passes; it replaces the answer when it fits better."""
+    deep pass from each other start yaw (those the network process ran speculatively are taken from it, the rest run
+    as a batch per process; the target's network state computed once), the start with the best fitness finished with
+    the remaining passes; it replaces the answer when it fits better."""
     rc, scale = reg.config.registration, reg.model.scale
     if rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return

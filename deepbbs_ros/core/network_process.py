@@ -5,7 +5,9 @@ is ~18 ms), so a network in another *thread* of the same process stalls on every
 worker process the network runs on its own core while the caller prepares the precision-stage clouds
 (``DeepBBSRegistration.register`` on raw scans), or while the node's input threads preprocess the next
 clouds. The messages are small: two (512, 3) float32 clouds in, a rotation, a translation and the
-weights out (~0.3 ms per round trip).
+weights out (~0.3 ms per round trip). For the global search (core/global_search.py) a request can carry the
+other start yaws: the worker runs them after its answer until a message stops it (``Pending.cancel``), and
+answers K starts at once (``submit_starts``, one batch).
 
 ``registration.network_process``: "auto" (default) starts one per :class:`DeepBBSRegistration` on a CPU
 device with 2+ cores and weights read from a checkpoint file (not for a model object handed in, such
