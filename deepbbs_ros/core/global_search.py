@@ -15,8 +15,8 @@ good start (consecutive scans, odometry) pays nothing more.
 Where the deep passes run: with a network process (a CPU, core/network_process.py) the other start yaws' first
 passes run there right after the given start's, while the caller still builds the GICP clouds
 (``registration.global_speculate``: "auto" once the search ran in one of the last 8 registrations), one start at
-a time, stopped within a network stage when the given start's answer fits; the worker also finishes the best of
-them (ranked on the sampled target points), used when the caller's ranking picks the same start. Starts still to
+a time, stopped within a network stage when the given start's answer fits; it gets the first half of them, and
+the caller runs the others once it knows the search is needed, while the worker is still at it. Starts still to
 run (the 180-degree and shifted ones, or all of them without a speculation) go as one batch to the network process
 and another in this process (``DeepBBSRegistration.network_starts``, ``DeepBBSNetwork.starts``: the same numbers as
 single passes). The target's network state is computed once for every start (the target memo of
@@ -123,16 +123,18 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None
         return [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts, n)]
 
     starts = yaw_starts(st.T_start, rc.global_yaws)
-    spec, finished = reg.speculated(st)  # already run in the network process (all, some or none)
-    outputs = [(out, matrix(out.R, out.t, scale)) for out in spec] + passes(starts[len(spec):], 1)
+    n_spec = st.spec_n if st.spec is not None else 0  # the first ones run in the network process meanwhile
+    mine = [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts[n_spec:], 1, away=False)
+            ] if n_spec else []  # the rest, here, while it works
+    spec = reg.speculated(st)  # what it ran (all, some or none)
+    outputs = ([(out, matrix(out.R, out.t, scale)) for out in spec] + passes(starts[len(spec):n_spec or None], 1)
+               + mine)
     ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked
     if ranked and ranked[0][0] > here:
         out, T = ranked[0][1], ranked[0][2]
-        if reg.network.n_deep > 1 and finished is not None and spec[finished[0]] is out:  # finished there too
-            out, T = finished[1], matrix(finished[1].R, finished[1].t, scale)
-        elif reg.network.n_deep > 1:
+        if reg.network.n_deep > 1:
             out, T = passes([T], reg.network.n_deep - 1)[0]
         st.replaced = (st.R, st.t, st.gamma)
         reg._apply_network(st, out)

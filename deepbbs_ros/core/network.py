@@ -376,15 +376,10 @@ class DeepBBSNetwork:
             outs[0].ms = dict(clock.ms)
         return outs
 
-    def speculate_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray, stop: Callable[[], bool],
-                     rank_dist: float = 1.0) -> tuple[list[NetworkOutput], tuple[int, NetworkOutput] | None]:
+    def speculate_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray,
+                     stop: Callable[[], bool]) -> list[NetworkOutput]:
         """One deep pass from each of the starts (K, 4, 4) in turn (preprocessed clouds, metres) until ``stop()``
-        (checked after every network stage) says the caller does not want them; when all are done, the remaining
-        passes from the start whose estimate fits the sampled target points best (within ``rank_dist`` m: the
-        caller ranks on its denser cloud and uses them when it picks the same start).
-        -> (the first passes' outputs done, in order; (index, finished output) or None)."""
-        from deepbbs_ros.core.verdict import fitness_to_points
-
+        (checked after every network stage) says the caller does not want them: -> the outputs done, in order."""
         src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
         outs: list[NetworkOutput] = []
 
@@ -396,17 +391,11 @@ class DeepBBSNetwork:
             try:
                 for T in np.asarray(T_starts, dtype=np.float64).reshape(-1, 4, 4):
                     if stop():
-                        return outs, None
-                    R, t = self.start_tensors(T)
-                    outs.append(self.passes(src, tgt, R, t, lap, n_passes=1))
-                if self.n_deep < 2 or not outs or stop():
-                    return outs, None
-                fits = [fitness_to_points(source, target, matrix(o.R, o.t, self.model.scale), rank_dist) for o in outs]
-                best = int(np.argmax(fits))
-                R, t = self.start_tensors(matrix(outs[best].R, outs[best].t, self.model.scale))
-                return outs, (best, self.passes(src, tgt, R, t, lap, n_passes=self.n_deep - 1))
+                        break
+                    outs.append(self.passes(src, tgt, *self.start_tensors(T), lap, n_passes=1))
             except _Stopped:
-                return outs, None
+                pass
+        return outs
 
     def warmup(self, rounds: int = 2, batches: Sequence[int] = ()) -> None:
         """The deep passes on two random clouds of ``preprocess.num_points`` points ``rounds`` times, and from

@@ -133,9 +133,8 @@ class NetworkProcess:
         """Start the passes on src (N, 3), tgt (M, 3) float32 metres from T_init (4, 4); returns at once.
         The request holds the worker until :meth:`Pending.result` is read. ``speculate`` (K, 4, 4): once its
         answer is sent, the worker goes on with one pass from each of these starts (the global search's other
-        start yaws) until they are done or another message comes (:meth:`Pending.cancel`), and the remaining passes
-        of the best of them; the second :meth:`Pending.result` is then ``DeepBBSNetwork.speculate_np``'s answer:
-        (the :class:`NetworkOutput` s done, in order (maybe fewer), (index, finished output) or None)."""
+        start yaws) until they are done or another message comes (:meth:`Pending.cancel`); the second
+        :meth:`Pending.result` is then the list of the :class:`NetworkOutput` s done, in order (maybe fewer)."""
         msg = ("run", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
                np.asarray(T_init, np.float64))
         if speculate is None or len(speculate) == 0:
@@ -298,8 +297,7 @@ def _worker_main(fd: int) -> int:
             out = net.network_np(*msg[1:4]) if msg[0] == "run" else net.starts_np(*msg[1:])
             conn.send(("ok", out))
             if msg[0] == "run" and len(msg) > 4:  # the global search's other starts, until another message comes
-                conn.send(("ok", net.speculate_np(msg[1], msg[2], msg[4], stop=lambda: conn.poll(0),
-                                                  rank_dist=2.0 * cfg.registration.verdict_dist)))
+                conn.send(("ok", net.speculate_np(msg[1], msg[2], msg[4], stop=lambda: conn.poll(0))))
         except (EOFError, OSError):
             return 0
         except Exception as err:  # noqa: BLE001 - the caller raises it as a RegistrationError

@@ -355,6 +355,9 @@ class DeepBBSRegistration:
         net = self._network_process()
         if net is not None:
             others = global_search.speculative_starts(self.config.registration, st.T_start, self._searched)
+            if others is not None:  # the network process's share; this process runs the rest once it is needed
+                others = others[: worker_share(len(others))]
+                st.spec_n = len(others)
             try:
                 st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), speculate=others)
                 return
@@ -392,21 +395,19 @@ class DeepBBSRegistration:
                 st.spec = pending
         self._apply_network(st, out)
 
-    def speculated(self, st: _State) -> tuple[list[NetworkOutput], tuple[int, NetworkOutput] | None]:
-        """The network process's speculative passes from the global search's other starts (waits for them): (the
-        first passes' outputs, all, some or none when there were none or the worker failed; (index, the remaining
-        passes from that start) or None)."""
+    def speculated(self, st: _State) -> list[NetworkOutput]:
+        """The outputs of the network process's speculative passes from the global search's other starts (all,
+        some, or none when there were none or the worker failed; waits for them)."""
         spec, st.spec = st.spec, None
         if spec is None:
-            return [], None
+            return []
         try:
-            outs, finished = spec.result()
-            return list(outs), finished
+            return list(spec.result())
         except NetworkProcessLost as err:
             self._network_failed(err)
         except RegistrationError:
             pass
-        return [], None
+        return []
 
     @staticmethod
     def drop_speculation(st: _State) -> None:
@@ -421,13 +422,14 @@ class DeepBBSRegistration:
         st.gamma = torch.as_tensor(out.gamma, dtype=torch.float32, device=self.device)
         st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
 
-    def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None) -> list[NetworkOutput]:
+    def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None, *,
+                       away: bool = True) -> list[NetworkOutput]:
         """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
         T_target_source guesses) on the pair of ``st`` (the global search): the network process runs its share
         (``network.worker_share``, the first ones) as one batch while this process runs the others as another;
-        with no network process all here. -> the outputs in the order of the starts."""
+        with no network process (or ``away`` False) all here. -> the outputs in the order of the starts."""
         n = self.network.n_deep if n_passes is None else n_passes
-        net = self._network_process() if starts else None
+        net = self._network_process() if starts and away else None
         pending, away = None, 0
         if net is not None and worker_share(len(starts)) > 0:
             away = worker_share(len(starts))
@@ -716,6 +718,7 @@ class _State:
     replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
     pending: Any = None  # a network_process.Pending while the network process works
     spec: Any = None  # the same, for its speculative passes from the global search's other starts
+    spec_n: int = 0  # how many of those starts it was given (the first ones)
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 
