@@ -179,6 +179,10 @@ class RegistrationConfig:
     global_search: str = "auto"
     global_yaws: int = 4
     global_polish: int = 2
+    # the network process runs the other start yaws' first passes right after the given start's (while this process
+    # builds the GICP clouds), stopped as soon as the answer from the given start fits: "auto" when the search ran
+    # in one of the last 8 registrations (a stream of good starts pays nothing), "always", or "off"
+    global_speculate: str = "auto"
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
 
@@ -225,6 +229,8 @@ class RegistrationConfig:
                f"must be 'auto', 'always' or 'off', got {self.global_search!r}")
         _check(self.global_yaws >= 1, "registration.global_yaws", "must be >= 1 (1 = the given start only)")
         _check(self.global_polish >= 1, "registration.global_polish", "must be >= 1")
+        _check(self.global_speculate in ("auto", "always", "off"), "registration.global_speculate",
+               f"must be 'auto', 'always' or 'off', got {self.global_speculate!r}")
         _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 

@@ -43,6 +43,81 @@ def test_yaw_starts_cover_the_circle():
     assert [r[0] for r in ranked] == sorted([r[0] for r in ranked], reverse=True)
 
 
+def test_batched_starts_equal_single_passes(street_pair):
+    """K starts through the network as one batch (the target's state computed once and broadcast) give each
+    start's single-pass answer: R, t, gamma to round-off, the same passes run (a start whose increment is small
+    leaves the batch as a single run stops)."""
+    import torch
+
+    from deepbbs_ros.config import ModelConfig
+    from deepbbs_ros.core.model import DeepBBSNet
+    from deepbbs_ros.core.network import DeepBBSNetwork
+
+    torch.manual_seed(0)
+    model = DeepBBSNet(ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)).eval()
+    cfg = Config().replace(**{"registration.max_deep_iters": 4, "registration.deep_rot_tol_deg": 2.0,
+                              "registration.deep_trans_tol": 0.3})
+    net = DeepBBSNetwork(cfg, model=model, device="cpu")
+    src, tgt, _ = street_pair(3, 300, [20.0, 0.0, 0.0], [1.0, -0.5, 0.0])
+    starts = [np.eye(4)] + global_search.yaw_starts(pose(0.5, 0.0, 0.0, 0.1), 4)
+    T = np.stack(starts)
+    with torch.inference_mode():
+        s, t = net.scaled(src), net.scaled(tgt)
+        R0 = torch.as_tensor(T[:, :3, :3], dtype=torch.float32)
+        t0 = torch.as_tensor(T[:, :3, 3] * net.model.scale, dtype=torch.float32)
+        batch = net.starts(s, t, R0, t0)
+        single = [net.passes(s, t, *net.start_tensors(T0), lambda _stage: None) for T0 in starts]
+    assert len(batch) == len(starts)
+    for b, one in zip(batch, single):
+        np.testing.assert_allclose(b.R, one.R, atol=1e-5)
+        np.testing.assert_allclose(b.t / net.model.scale, one.t / net.model.scale, atol=1e-5)
+        np.testing.assert_allclose(b.gamma, one.gamma, atol=1e-5)
+        assert (b.iterations, b.converged) == (one.iterations, one.converged)
+        assert b.temperature == pytest.approx(one.temperature, abs=1e-5)
+    assert len({one.iterations for one in single}) > 1  # some starts left the batch early: that path is checked
+
+
+def test_speculative_starts_in_the_network_process(tmp_path, street_pair):
+    """The network process runs the other start yaws after the given start's passes: cancelled, nothing of it
+    reaches the next request; read, it is what the caller would compute from the same starts."""
+    import torch
+
+    from deepbbs_ros.config import ModelConfig
+    from deepbbs_ros.core.checkpoint import save_checkpoint
+    from deepbbs_ros.core.model import DeepBBSNet
+    from deepbbs_ros.core.network import DeepBBSNetwork
+    from deepbbs_ros.core.network_process import NetworkProcess
+
+    torch.manual_seed(0)
+    cfg = Config()
+    path = save_checkpoint(tmp_path / "m.pt", DeepBBSNet(ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16,
+                                                                     n_heads=2, ff_dims=16)), cfg)
+    src, tgt, _ = street_pair(4, 300, [30.0, 0.0, 0.0], [0.5, 0.0, 0.0])
+    here = DeepBBSNetwork(cfg, weights=path, device="cpu")
+    others = np.stack(global_search.yaw_starts(np.eye(4), 4))
+    proc = NetworkProcess(path, cfg.to_flat())
+    try:
+        first = proc.submit(src, tgt, np.eye(4), speculate=others)
+        out = first.result()
+        outs = first.result()  # all of them: nobody stopped it
+        assert len(outs) == 3
+        want = here.network_np(src, tgt, np.eye(4))
+        np.testing.assert_allclose(out.R, want.R, atol=1e-5)
+        for T0, o in zip(others, outs):
+            R, t = here.start_tensors(T0)
+            with torch.inference_mode():
+                one = here.passes(here.scaled(src), here.scaled(tgt), R, t, lambda _stage: None, n_passes=1)
+            np.testing.assert_allclose(o.R, one.R, atol=1e-5)
+        cancelled = proc.submit(src, tgt, np.eye(4), speculate=others)
+        cancelled.result()
+        cancelled.cancel()  # not wanted: stopped, read before the next request
+        again = proc.submit(src, tgt, np.eye(4)).result()
+        np.testing.assert_allclose(again.R, want.R, atol=1e-5)
+        assert not proc.working
+    finally:
+        proc.close()
+
+
 @pytest.fixture(scope="module")
 def scans():
     if not default_weights_path().is_file():

@@ -358,4 +358,4 @@ def test_a_repeated_target_reuses_its_network_state(tmp_path, rng):
     np.testing.assert_allclose(nxt.gamma, fresh.gamma, atol=1e-7)
     handed = DeepBBSRegistration(cfg, model=reg.model)
     handed.register(source, target, preprocessed=True)
-    assert not handed._target_memo
+    assert not handed.network._target_memo

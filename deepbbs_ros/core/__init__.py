@@ -14,6 +14,7 @@ _EXPORTS = {
     "register_pair": "registration",
     "clear_register_pair_cache": "registration",
     "DeepBBSNet": "model",
+    "DeepBBSNetwork": "network",
     "NetOutput": "model",
     "weighted_procrustes": "procrustes",
     "save_checkpoint": "checkpoint",

@@ -11,7 +11,16 @@ score is kept. When none passes, the best pose turned by 180 degrees (a road see
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
 good start (consecutive scans, odometry) pays nothing more.
-The target's network state is computed once for every start (the target memo of ``DeepBBSRegistration``).
+
+Where the deep passes run: with a network process (a CPU, core/network_process.py) the other start yaws' first
+passes run there right after the given start's, while the caller still builds the GICP clouds
+(``registration.global_speculate``: "auto" once the search ran in one of the last 8 registrations), one start at
+a time, stopped within a network stage when the given start's answer fits; it gets the first half of them, and
+the caller runs the others once it knows the search is needed, while the worker is still at it. Starts still to
+run (the 180-degree and shifted ones, or all of them without a speculation) go as one batch to the network process
+and another in this process (``DeepBBSRegistration.network_starts``, ``DeepBBSNetwork.starts``: the same numbers as
+single passes). The target's network state is computed once for every start (the target memo of
+``DeepBBSNetwork``, core/network.py).
 """
 
 from __future__ import annotations
@@ -23,7 +32,11 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["yaw_starts", "shift_starts", "rank_starts", "before_precision", "retry"]
+from deepbbs_ros.core.network import Clock, matrix, worker_share
+
+__all__ = ["yaw_starts", "shift_starts", "rank_starts", "rank_outputs", "batch_sizes", "before_precision", "retry"]
+
+SHIFT_STARTS = 17  # _shift_retry: the best pose turned by 180 degrees, and 8 shifted starts around each
 
 
 def yaw_starts(T_start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -53,54 +66,76 @@ def rank_starts(starts: list[np.ndarray], passes: Callable[[np.ndarray], Any],
                 score: Callable[[np.ndarray], float]) -> list[tuple[float, Any, np.ndarray]]:
     """Run ``passes(T_start) -> (output, T_estimate)`` from every start and rank them by ``score(T_estimate)``:
     -> [(score, output, T_estimate)] best first."""
-    ranked = []
-    for T0 in starts:
-        out, T = passes(T0)
-        ranked.append((float(score(T)), out, T))
+    return rank_outputs([passes(T0) for T0 in starts], score)
+
+
+def rank_outputs(outputs: list[tuple[Any, np.ndarray]], score: Callable[[np.ndarray], float]
+                 ) -> list[tuple[float, Any, np.ndarray]]:
+    """[(output, T_estimate)] ranked by ``score(T_estimate)``: -> [(score, output, T_estimate)] best first (a stable
+    sort: ties keep the order of the starts)."""
+    ranked = [(float(score(T)), out, T) for out, T in outputs]
     ranked.sort(key=lambda r: -r[0])
     return ranked
 
 
+SPECULATE_WINDOW = 8  # registration.global_speculate "auto": speculate when the search ran in one of the last 8
+
+
+def speculative_starts(rc: Any, T_start: np.ndarray, searched: Any = ()) -> np.ndarray | None:
+    """The other start yaws (K-1, 4, 4) the network process runs after the given start's passes, while the caller
+    still builds the GICP clouds (``registration.global_speculate``; "auto": ``searched``, whether the search ran in
+    each of the last registrations, is empty or holds a True), or None."""
+    if rc.global_search == "off" or rc.global_yaws < 2 or rc.global_speculate == "off" or not rc.deep:
+        return None
+    if rc.global_speculate == "auto" and len(searched) and not any(searched):
+        return None
+    return np.stack(yaw_starts(T_start, rc.global_yaws))
+
+
+def batch_sizes(rc: Any) -> tuple[list[int], list[int], list[int]]:
+    """The batch sizes of the search's deep passes (``registration.global_*``) for warming torch up: (in the network
+    process, in the caller while the network process runs its share, in the caller alone)."""
+    if rc.global_search == "off" or rc.global_yaws < 2:
+        return [], [], []
+    counts = [rc.global_yaws - 1] + ([SHIFT_STARTS] if rc.global_shift > 0 else [])
+    return ([worker_share(n) for n in counts], [n - worker_share(n) for n in counts], counts)
+
+
 # -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
-def _matrix(R: Any, t: Any, scale: float) -> np.ndarray:
-    from deepbbs_ros.core.registration import _matrix as matrix
-
-    return matrix(R, t, scale)
-
-
-def _clock(reg: Any) -> Any:
-    from deepbbs_ros.core.registration import _Clock
-
-    return _Clock(reg.device)
-
-
 def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
     deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
-    deep pass from each other start yaw (in this process; the target's network state computed once), the start
-    with the best fitness finished with the remaining passes; it replaces the answer when it fits better."""
+    deep pass from each other start yaw (those the network process ran speculatively are taken from it, the rest run
+    as a batch per process; the target's network state computed once), the start with the best fitness finished with
+    the remaining passes; it replaces the answer when it fits better."""
     rc, scale = reg.config.registration, reg.model.scale
-    if rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+    if rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return
     rank_dist = 2.0 * rc.verdict_dist
-    T_deep = _matrix(st.R, st.t, scale)
+    T_deep = matrix(st.R, st.t, scale)
     here = reg._score(st, T_deep, rank_dist)
     if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
+        reg.drop_speculation(st)  # the network process's passes from the other starts are not needed
         return
 
-    def passes(T: np.ndarray, n: int = 1):
-        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=reg.device)
-        t = torch.as_tensor(T[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-        out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None, n_passes=n)
-        return out, _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+    def passes(starts: list[np.ndarray], n: int) -> list[tuple[Any, np.ndarray]]:
+        # one batch per process: the network process runs a share while this one runs the rest
+        return [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts, n)]
 
-    ranked = rank_starts(yaw_starts(st.T_start, rc.global_yaws), passes, lambda T: reg._score(st, T, rank_dist))
+    starts = yaw_starts(st.T_start, rc.global_yaws)
+    n_spec = st.spec_n if st.spec is not None else 0  # the first ones run in the network process meanwhile
+    mine = [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts[n_spec:], 1, away=False)
+            ] if n_spec else []  # the rest, here, while it works
+    spec = reg.speculated(st)  # what it ran (all, some or none)
+    outputs = ([(out, matrix(out.R, out.t, scale)) for out in spec] + passes(starts[len(spec):n_spec or None], 1)
+               + mine)
+    ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked
     if ranked and ranked[0][0] > here:
         out, T = ranked[0][1], ranked[0][2]
-        if reg._n_deep() > 1:
-            out, T = passes(T, reg._n_deep() - 1)
+        if reg.network.n_deep > 1:
+            out, T = passes([T], reg.network.n_deep - 1)[0]
         st.replaced = (st.R, st.t, st.gamma)
         reg._apply_network(st, out)
         st.iters["deep"] += 1
@@ -113,7 +148,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
     verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
-    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg._n_deep() or not rc.deep:
+    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return st
 
     def tensors(out: Any) -> tuple:
@@ -121,7 +156,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
     if st.others is None:  # the deep answer fitted, the precision stage's pose does not: rank the others now
         probe = dataclasses.replace(st, iters=dict(st.iters))
-        with torch.inference_mode(), reg._torch_threads():
+        with torch.inference_mode(), reg.network.torch_threads():
             before_precision(reg, probe, clock, force=True)
         ranked, replaced = probe.others or [], probe.replaced is not None
         others = [(probe.R, probe.t, probe.gamma)] if replaced else []
@@ -147,8 +182,8 @@ def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
     for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
         apply(cand, start)
-        reg._polish(cand, _clock(reg))
-        reg._deskew(cand, _clock(reg))
+        reg._polish(cand, Clock(reg.device))
+        reg._deskew(cand, Clock(reg.device))
         reg._verdict(cand)
         if cand.score > best.score:
             best = cand
@@ -164,13 +199,11 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
     rc, scale = reg.config.registration, reg.model.scale
     T_best = best.T.copy()
     outs = []
-    with torch.inference_mode(), reg._torch_threads():
-        flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
-        for T0 in [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift):
-            R = torch.as_tensor(T0[:3, :3], dtype=torch.float32, device=reg.device)
-            t = torch.as_tensor(T0[:3, 3] * scale, dtype=torch.float32, device=reg.device)
-            out = reg._passes(st.src, st.tgt, R, t, lambda _stage: None)
-            T = _matrix(torch.as_tensor(out.R), torch.as_tensor(out.t), scale)
+    flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
+    starts = [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift)
+    with torch.inference_mode(), reg.network.torch_threads():
+        for out in reg.network_starts(st, starts):  # a batch in the network process, another here
+            T = matrix(out.R, out.t, scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])
     best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network)

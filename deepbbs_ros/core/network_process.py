@@ -5,13 +5,16 @@ is ~18 ms), so a network in another *thread* of the same process stalls on every
 worker process the network runs on its own core while the caller prepares the precision-stage clouds
 (``DeepBBSRegistration.register`` on raw scans), or while the node's input threads preprocess the next
 clouds. The messages are small: two (512, 3) float32 clouds in, a rotation, a translation and the
-weights out (~0.3 ms per round trip).
+weights out (~0.3 ms per round trip). For the global search (core/global_search.py) a request can carry the
+other start yaws: the worker runs them after its answer until a message stops it (``Pending.cancel``), and
+answers K starts at once (``submit_starts``, one batch).
 
 ``registration.network_process``: "auto" (default) starts one per :class:`DeepBBSRegistration` on a CPU
 device with 2+ cores and weights read from a checkpoint file (not for a model object handed in, such
 as a training run's, whose weights change); "off" never does. The worker loads the same checkpoint
-with the same configuration and runs :meth:`DeepBBSRegistration.network`, so its results are the
-in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
+with the same configuration into the same :class:`~deepbbs_ros.core.network.DeepBBSNetwork` the
+in-process path runs (this module imports the network only, never the registration), so its results
+are the in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
 itself from then on: nothing is lost. No ROS import.
 """
 
@@ -21,12 +24,12 @@ import logging
 import os
 import threading
 import weakref
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.network import NetworkOutput
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
@@ -40,23 +43,6 @@ RESULT_TIMEOUT_S = 60.0  # one registration's network passes (the first ones war
 class NetworkProcessLost(RegistrationError):
     """The worker died, stopped answering or could not be reached (it is stopped; a late answer must never
     be read as the next request's). Other worker errors are plain :class:`RegistrationError` s."""
-
-
-@dataclass
-class NetworkOutput:
-    """What the network passes give back (scaled units, see ModelConfig.scale).
-
-    R: (3, 3) float32, t: (3,) float32 (scaled) with p_target = R p_source + t; gamma: (N,) float32;
-    temperature: T of the first pass; iterations: passes run; converged: the last increment was below the
-    tolerances; ms: {"embed", "match", "solve"} wall time of the passes where they ran."""
-
-    R: np.ndarray
-    t: np.ndarray
-    gamma: np.ndarray
-    temperature: float
-    iterations: int
-    converged: bool
-    ms: dict[str, float] = field(default_factory=dict)
 
 
 def wanted(setting: str, device_type: str, weights_path: Path | None) -> bool:
@@ -107,6 +93,7 @@ class NetworkProcess:
         self._lock = threading.Lock()  # one request at a time: held from submit() until its answer is read
         self._send_lock = threading.Lock()  # one message at a time on the socket
         self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
+        self._stale: Pending | None = None  # a cancelled request whose answer is still to be read
         try:
             self._conn.send((str(weights), flat_config))
             if not self._conn.poll(START_TIMEOUT_S):
@@ -132,32 +119,59 @@ class NetworkProcess:
 
     @property
     def working(self) -> bool:
-        """A request is running in the worker (submitted, its answer not there yet): it uses a core."""
-        if not self._lock.locked():
+        """A request is running in the worker (submitted, its answer not there yet): it uses a core (not counted
+        once cancelled: it stops within a network stage)."""
+        if not self._lock.locked() or self._stale is not None:
             return False
         try:
             return not self._conn.poll(0)
         except (OSError, ValueError):
             return False
 
-    def submit(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray) -> Pending:
+    def submit(self, src: np.ndarray, tgt: np.ndarray, T_init: np.ndarray,
+               speculate: np.ndarray | None = None) -> Pending:
         """Start the passes on src (N, 3), tgt (M, 3) float32 metres from T_init (4, 4); returns at once.
-        The request holds the worker until :meth:`Pending.result` is read."""
+        The request holds the worker until :meth:`Pending.result` is read. ``speculate`` (K, 4, 4): once its
+        answer is sent, the worker goes on with one pass from each of these starts (the global search's other
+        start yaws) until they are done or another message comes (:meth:`Pending.cancel`); the second
+        :meth:`Pending.result` is then the list of the :class:`NetworkOutput` s done, in order (maybe fewer)."""
+        msg = ("run", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
+               np.asarray(T_init, np.float64))
+        if speculate is None or len(speculate) == 0:
+            return self._request(msg)
+        return self._request((*msg, np.asarray(speculate, np.float64).reshape(-1, 4, 4)), answers=2)
+
+    def _drain(self) -> None:
+        """Read and drop the answer of a cancelled request (it holds the worker until read)."""
+        stale, self._stale = self._stale, None
+        while stale is not None and stale.left:
+            try:
+                stale.result()
+            except RegistrationError:
+                break
+
+    def _request(self, msg: tuple, answers: int = 1) -> Pending:
+        self._drain()
         if not self._lock.acquire(timeout=RESULT_TIMEOUT_S):  # another request's answer was never read
             raise NetworkProcessLost(f"network process: still busy after {RESULT_TIMEOUT_S:.0f} s")
         try:
             with self._send_lock:
-                self._conn.send(("run", np.ascontiguousarray(src, np.float32),
-                                 np.ascontiguousarray(tgt, np.float32), np.asarray(T_init, np.float64)))
+                self._conn.send(msg)
         except (OSError, ValueError) as err:
             self._lock.release()
             self.close()
             raise NetworkProcessLost(f"network process: request failed ({err})") from err
-        return Pending(self)
+        return Pending(self, answers)
+
+    def submit_starts(self, src: np.ndarray, tgt: np.ndarray, T_starts: np.ndarray, n_passes: int) -> Pending:
+        """Start ``n_passes`` deep passes from each of K starts T_starts (K, 4, 4) as one batch
+        (``DeepBBSNetwork.starts_np``); :meth:`Pending.result` is then a list of K :class:`NetworkOutput` s."""
+        return self._request(("starts", np.ascontiguousarray(src, np.float32), np.ascontiguousarray(tgt, np.float32),
+                              np.asarray(T_starts, np.float64).reshape(-1, 4, 4), int(n_passes)))
 
     def prepare_target(self, tgt: np.ndarray) -> None:
         """Let the worker compute the network state of target (M, 3) float32 metres now (no answer): the next
-        request with the same target finds it ready (``DeepBBSRegistration._target_state``). Best effort."""
+        request with the same target finds it ready (``DeepBBSNetwork.target_state``). Best effort."""
         try:
             with self._send_lock:
                 self._conn.send(("target", np.ascontiguousarray(tgt, np.float32)))
@@ -170,30 +184,44 @@ class NetworkProcess:
 
 
 class Pending:
-    """An answer on its way from :class:`NetworkProcess`; :meth:`result` once."""
+    """Answers on their way from :class:`NetworkProcess`; :meth:`result` once per answer (two for a request
+    with ``speculate``); the worker is held until the last is read."""
 
-    def __init__(self, owner: NetworkProcess) -> None:
+    def __init__(self, owner: NetworkProcess, answers: int = 1) -> None:
         self._owner = owner
-        self._done = False
+        self.left = answers  # answers still to be read
 
     def ready(self) -> bool:
         """The answer is there (or the worker is gone): :meth:`result` will not wait."""
         try:
-            return self._done or self._owner._conn.poll(0)
+            return not self.left or self._owner._conn.poll(0)
         except (OSError, ValueError):
             return True
 
-    def result(self, timeout: float = RESULT_TIMEOUT_S) -> NetworkOutput:
-        """The worker's :class:`NetworkOutput`.
+    def cancel(self) -> None:
+        """The answers left are not wanted: the worker stops its speculative passes (any message ends them), and
+        the answer is read and dropped before the next request (no wait here)."""
+        if not self.left:
+            return
+        owner = self._owner
+        try:
+            with owner._send_lock:
+                owner._conn.send(("cancel",))
+        except (OSError, ValueError):
+            pass  # the next request finds out
+        owner._stale = self
+
+    def result(self, timeout: float = RESULT_TIMEOUT_S) -> Any:
+        """The worker's :class:`NetworkOutput` (a list of them for :meth:`NetworkProcess.submit_starts`).
 
         Raises:
             NetworkProcessLost: the worker died or timed out (it is then stopped).
             RegistrationError: the passes raised in the worker (it keeps running).
         """
-        if self._done:
+        if not self.left:
             raise RegistrationError("network process: result already read")
-        self._done = True
         owner = self._owner
+        msg = ("error", "no answer")
         try:
             if not owner._conn.poll(timeout):
                 owner.close()
@@ -203,7 +231,11 @@ class Pending:
             owner.close()
             raise NetworkProcessLost(f"network process died (exit code {owner._proc.poll()})") from err
         finally:
-            owner._lock.release()
+            self.left = self.left - 1 if msg[0] == "ok" else 0  # an error ends the request
+            if not self.left:
+                owner._lock.release()
+                if owner._stale is self:
+                    owner._stale = None
         if msg[0] != "ok":
             raise RegistrationError(f"network process: {msg[1]}")
         return msg[1]
@@ -224,19 +256,22 @@ def _shutdown(conn, proc) -> None:
 
 def _worker_main(fd: int) -> int:
     """The worker: read (weights, flat config), load the checkpoint, warm up, then answer
-    ("run", src, tgt, T_init), and take ("target", tgt) ahead of a run (no answer), until ("stop",) or until
-    the caller is gone (EOF)."""
+    ("run", src, tgt, T_init[, speculate]) (a second answer with the speculative starts' outputs) and ("starts",
+    src, tgt, T_starts, n_passes), and take ("target", tgt) ahead of a run (no answer) and ("cancel",) (no answer),
+    until ("stop",) or until the caller is gone (EOF)."""
     from multiprocessing.connection import Connection
 
     conn = Connection(fd)
     try:
         weights, flat_config = conn.recv()
         from deepbbs_ros.config import Config
-        from deepbbs_ros.core.registration import DeepBBSRegistration
+        from deepbbs_ros.core.network import DeepBBSNetwork
 
         cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
-        reg = DeepBBSRegistration(cfg, weights=weights)
-        reg.warmup()
+        net = DeepBBSNetwork(cfg, weights=weights)
+        from deepbbs_ros.core.global_search import batch_sizes  # the global search's batches (no registration)
+
+        net.warmup(batches=batch_sizes(cfg.registration)[0])
     except (EOFError, OSError):
         return 0
     except Exception as err:  # noqa: BLE001 - reported to the caller as one line
@@ -250,15 +285,19 @@ def _worker_main(fd: int) -> int:
             return 0
         if msg[0] == "target":
             try:
-                reg.prepare_target_np(msg[1])
+                net.prepare_target_np(msg[1])
             except Exception:  # noqa: BLE001 - best effort: the run that follows computes it and reports
                 pass
             continue
-        if msg[0] != "run":
+        if msg[0] == "cancel":  # it came after the speculative passes were done
+            continue
+        if msg[0] not in ("run", "starts"):
             return 0
         try:
-            out = reg.network_np(msg[1], msg[2], msg[3])
+            out = net.network_np(*msg[1:4]) if msg[0] == "run" else net.starts_np(*msg[1:])
             conn.send(("ok", out))
+            if msg[0] == "run" and len(msg) > 4:  # the global search's other starts, until another message comes
+                conn.send(("ok", net.speculate_np(msg[1], msg[2], msg[4], stop=lambda: conn.poll(0))))
         except (EOFError, OSError):
             return 0
         except Exception as err:  # noqa: BLE001 - the caller raises it as a RegistrationError

@@ -6,9 +6,10 @@
     embed       DGCNN + shared transformer on the moved source and target  (core/model.py)
     match       SoftBBS on the feature distances                            (core/softbbs.py)
     solve       soft map, gamma weights, weighted Procrustes                (core/procrustes.py)
-    ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS); on a
-        CPU in a worker process (core/network_process.py) while this one builds the raw scans' GICP
-        clouds (k-d trees, covariances: small_gicp holds the GIL, so a thread would not overlap)
+    ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS): the
+        network's own object (core/network.py), on a CPU in a worker process (core/network_process.py)
+        while this one builds the raw scans' GICP clouds (k-d trees, covariances: small_gicp holds the
+        GIL, so a thread would not overlap)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
@@ -32,10 +33,8 @@ import dataclasses
 import logging
 import threading
 import time
-import warnings
-import zlib
-from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections import OrderedDict, deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,9 +44,10 @@ import torch
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import global_search, verdict
-from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
-from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
-from deepbbs_ros.core.network_process import NetworkOutput, NetworkProcess, NetworkProcessLost
+from deepbbs_ros.core.checkpoint import default_weights_path
+from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize, worker_share
+from deepbbs_ros.core.network_process import NetworkProcess, NetworkProcessLost
 from deepbbs_ros.core.network_process import wanted as network_process_wanted
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import (
@@ -60,8 +60,7 @@ from deepbbs_ros.core.polish import (
 )
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.core.procrustes import apply_transform
-from deepbbs_ros.core.refine import NeighbourSearch, refine, rotation_angle_deg
-from deepbbs_ros.device import resolve_device
+from deepbbs_ros.core.refine import NeighbourSearch, refine
 from deepbbs_ros.errors import ModelError, RegistrationError
 from deepbbs_ros.reprs import short_repr
 
@@ -120,22 +119,6 @@ class RegistrationResult:
     starts: int = 1
 
 
-class _Clock:
-    """Accumulates wall time per stage; synchronises CUDA so GPU stages are timed, not queued."""
-
-    def __init__(self, device: torch.device) -> None:
-        self.cuda = device.type == "cuda"
-        self.ms: dict[str, float] = {}
-        self._t = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        if self.cuda:
-            torch.cuda.synchronize()
-        now = time.perf_counter()
-        self.ms[stage] = self.ms.get(stage, 0.0) + (now - self._t) * 1e3
-        self._t = now
-
-
 class DeepBBSRegistration:
     """DeepBBS++ registration with one configuration and one network.
 
@@ -160,39 +143,31 @@ class DeepBBSRegistration:
         device: str | None = None,
         model: DeepBBSNet | None = None,
     ) -> None:
-        config = dataclasses.replace(config or Config())
-        self.device = resolve_device(device or config.registration.device)
-        self.metadata: dict[str, Any] = {}
-        self.weights_path: Path | None = None
-        if model is None:
-            path = weights if weights is not None else config.registration.weights
-            self.weights_path = Path(path).expanduser() if path else default_weights_path()
-            if not self.weights_path.is_file():
-                raise ModelError(f"model file not found: {self.weights_path} (train one with deepbbs-train)")
-            model, ckpt_config, self.metadata = load_checkpoint(self.weights_path, self.device)
-            config.model = ckpt_config.model
-            trained, used = ckpt_config.preprocess.num_points, config.preprocess.num_points
-            if not 0.5 * trained <= used <= 2 * trained:  # the network is size-agnostic, within reason
-                warnings.warn(
-                    f"{self.weights_path} was trained on {trained} points per cloud, "
-                    f"preprocess.num_points is {used} (more than 2x apart)",
-                    RuntimeWarning,
-                    stacklevel=2,
-                )
-        else:
-            config.model = model.cfg
-        self.model = model.to(self.device)
-        self.config = config
+        # the model, the checkpoint, the kept target states and the deep passes (core/network.py)
+        self.network = DeepBBSNetwork(config, weights=weights, device=device, model=model, stacklevel=3)
+        self.config = config = self.network.config
         # the network process (registration.network_process): "unstarted" -> "running", or "off" / "failed"
         self._net: NetworkProcess | None = None
         self._net_lock = threading.Lock()
         wants = network_process_wanted(config.registration.network_process, self.device.type, self.weights_path)
         self._net_state = "unstarted" if wants else "off"
-        # the last target's network state (_target_state); the model must not change while it is kept (training
-        # hands in a model whose weights do: no memo then)
-        self._target_lock = threading.Lock()
-        self._target_memo: OrderedDict[tuple, tuple[torch.Tensor, TargetCache]] = OrderedDict()
-        self._memo_targets = self.weights_path is not None
+        self._searched: deque[bool] = deque(maxlen=global_search.SPECULATE_WINDOW)  # the search ran, last calls
+
+    @property
+    def model(self) -> DeepBBSNet:
+        return self.network.model
+
+    @property
+    def device(self) -> torch.device:
+        return self.network.device
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        return self.network.metadata
+
+    @property
+    def weights_path(self) -> Path | None:
+        return self.network.weights_path
 
     def warmup(self, rounds: int = 2) -> None:
         """Run the network on two random clouds of ``preprocess.num_points`` points ``rounds`` times.
@@ -206,8 +181,11 @@ class DeepBBSRegistration:
         pts = rng.uniform(-30.0, 30.0, (n, 3)).astype(np.float32)
         for _ in range(rounds):
             self.register(pts, pts[::-1].copy(), preprocessed=True)
-            if self.config.registration.global_search != "off" and self._net_state == "running":
-                self.network_np(pts, pts[::-1].copy(), np.eye(4))  # the global search's passes run in this process
+        self._searched.clear()  # random clouds: not a hint of what the real ones need
+        if self.config.registration.global_search != "off":  # its batches: here (the network process warms its own)
+            away = self._net_state == "running"
+            self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(self.config.registration)[
+                1 if away else 2])
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -270,7 +248,7 @@ class DeepBBSRegistration:
     def defers_precision(self) -> bool:
         """Raw scans' precision-stage k-d trees and covariances are best left to :meth:`register`, which builds
         them while the network process runs the passes (``preprocess(..., defer=True)``; the node's inputs)."""
-        return self._n_deep() > 0 and self._net_state in ("unstarted", "running")
+        return self.network.n_deep > 0 and self._net_state in ("unstarted", "running")
 
     def gicp_threads(self) -> int:
         """small_gicp threads for a call made now: ``registration.polish_threads``, or (0) every core but the
@@ -328,10 +306,10 @@ class DeepBBSRegistration:
             RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
                 or a ``T_init`` that is not a finite (4, 4) matrix; the message names which.
         """
-        clock = _Clock(self.device)
+        clock = Clock(self.device)
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
         clock.lap("preprocess")
-        with torch.inference_mode(), self._torch_threads(), _answer_read(st):
+        with torch.inference_mode(), self.network.torch_threads(), _answer_read(st):
             self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)
             self._precision_clouds(st, clock)  # meanwhile: the raw scans' GICP clouds (k-d trees, covariances)
             self._network_result(st, clock)  # the network process's answer
@@ -345,33 +323,19 @@ class DeepBBSRegistration:
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
         self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
         st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
+        self._searched.append(st.starts > 1)
         return self._result(st, clock)
-
-    @contextlib.contextmanager
-    def _torch_threads(self) -> Iterator[None]:
-        """torch's CPU thread count set to ``registration.threads`` for the network stages and restored
-        after (process-wide in torch: a training run or a script keeps its own setting around the call)."""
-        n = self.config.registration.threads
-        before = torch.get_num_threads()
-        if n <= 0 or self.device.type != "cpu" or n == before:
-            yield
-            return
-        torch.set_num_threads(n)
-        try:
-            yield
-        finally:
-            torch.set_num_threads(before)
 
     # -- the stages of register() ------------------------------------------------------------------
     def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
         """Preprocess (raw scans only), the initial estimate, the scaled clouds on the device."""
         scale = self.model.scale
         tgt_np, tgt_dense, tgt_pre = self._cloud(target, preprocessed, "target")
-        if not preprocessed and not isinstance(source, PreprocessResult) and self._n_deep():
+        if not preprocessed and not isinstance(source, PreprocessResult) and self.network.n_deep:
             self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
         src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
         T = np.eye(4) if T_init is None else as_transform(T_init)
-        src, tgt = self._scaled(src_np), self._scaled(tgt_np)
+        src, tgt = self.network.scaled(src_np), self.network.scaled(tgt_np)
         return _State(
             src_np=src_np, tgt_np=tgt_np, src_dense=src_dense, tgt_dense=tgt_dense, src_pre=src_pre, tgt_pre=tgt_pre,
             src_pc=None if src_pre is None else src_pre.polish_cloud,
@@ -382,22 +346,26 @@ class DeepBBSRegistration:
             gamma=src.new_ones(src.shape[1]), T_start=T,
         )
 
-    def _deep_passes(self, st: _State, clock: _Clock) -> None:
+    def _deep_passes(self, st: _State, clock: Clock) -> None:
         """DeepBBS: network passes on the moved source until the increment is small (or the cap); in the
         network process when there is one (``registration.network_process``: started here, read by
         :meth:`_network_result`)."""
-        if not self._n_deep():
+        if not self.network.n_deep:
             return
         net = self._network_process()
         if net is not None:
+            others = global_search.speculative_starts(self.config.registration, st.T_start, self._searched)
+            if others is not None:  # the network process's share; this process runs the rest once it is needed
+                others = others[: worker_share(len(others))]
+                st.spec_n = len(others)
             try:
-                st.pending = net.submit(st.src_np, st.tgt_np, _matrix(st.R, st.t, self.model.scale))
+                st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), speculate=others)
                 return
             except NetworkProcessLost as err:
                 self._network_failed(err)
-        self._apply_network(st, self._passes(st.src, st.tgt, st.R, st.t, clock.lap))
+        self._apply_network(st, self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap))
 
-    def _precision_clouds(self, st: _State, clock: _Clock) -> None:
+    def _precision_clouds(self, st: _State, clock: Clock) -> None:
         """The k-d trees and covariances of raw scans' precision-stage clouds, deferred by :meth:`_start` (or by
         the node's inputs) while the network process runs (every core but the network's while it works)."""
         done = False
@@ -408,7 +376,7 @@ class DeepBBSRegistration:
         if done:
             clock.lap("preprocess")
 
-    def _network_result(self, st: _State, clock: _Clock) -> None:
+    def _network_result(self, st: _State, clock: Clock) -> None:
         """The network process's :class:`NetworkOutput` into the state; if it failed, the passes run here."""
         if st.pending is None:
             return
@@ -417,13 +385,36 @@ class DeepBBSRegistration:
             out = pending.result()
         except NetworkProcessLost as err:
             self._network_failed(err)
-            out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
+            out = self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap)
         except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
-            out = self._passes(st.src, st.tgt, st.R, st.t, clock.lap)
+            out = self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap)
         else:
             clock.lap("network_wait")
             st.network_ms = out.ms
+            if pending.left:  # the worker goes on with the global search's other starts (speculatively)
+                st.spec = pending
         self._apply_network(st, out)
+
+    def speculated(self, st: _State) -> list[NetworkOutput]:
+        """The outputs of the network process's speculative passes from the global search's other starts (all,
+        some, or none when there were none or the worker failed; waits for them)."""
+        spec, st.spec = st.spec, None
+        if spec is None:
+            return []
+        try:
+            return list(spec.result())
+        except NetworkProcessLost as err:
+            self._network_failed(err)
+        except RegistrationError:
+            pass
+        return []
+
+    @staticmethod
+    def drop_speculation(st: _State) -> None:
+        """The search is not needed: the network process stops its speculative passes (no wait)."""
+        spec, st.spec = st.spec, None
+        if spec is not None:
+            spec.cancel()
 
     def _apply_network(self, st: _State, out: NetworkOutput) -> None:
         st.R = torch.as_tensor(out.R, dtype=torch.float32, device=self.device)
@@ -431,110 +422,51 @@ class DeepBBSRegistration:
         st.gamma = torch.as_tensor(out.gamma, dtype=torch.float32, device=self.device)
         st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
 
-    def _n_deep(self) -> int:
-        rc = self.config.registration
-        return (rc.max_deep_iters if rc.deep_iterations else 1) if rc.deep else 0
+    def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None, *,
+                       away: bool = True) -> list[NetworkOutput]:
+        """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
+        T_target_source guesses) on the pair of ``st`` (the global search): the network process runs its share
+        (``network.worker_share``, the first ones) as one batch while this process runs the others as another;
+        with no network process (or ``away`` False) all here. -> the outputs in the order of the starts."""
+        n = self.network.n_deep if n_passes is None else n_passes
+        net = self._network_process() if starts and away else None
+        pending, away = None, 0
+        if net is not None and worker_share(len(starts)) > 0:
+            away = worker_share(len(starts))
+            try:
+                pending = net.submit_starts(st.src_np, st.tgt_np, np.stack(starts[:away]), n)
+            except NetworkProcessLost as err:
+                self._network_failed(err)
+                away = 0
+        try:
+            here = self._starts_here(st, starts[away:], n)
+        except BaseException:
+            if pending is not None:
+                with contextlib.suppress(RegistrationError):
+                    pending.result()  # read and dropped: the next request must not get this answer
+            raise
+        if pending is None:
+            return here
+        try:
+            return pending.result() + here
+        except NetworkProcessLost as err:
+            self._network_failed(err)
+        except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
+            pass
+        return self._starts_here(st, starts[:away], n) + here
 
-    def _passes(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-                lap: Callable[[str], None], n_passes: int | None = None) -> NetworkOutput:
-        """The deep passes on src (1, N, 3), tgt (1, M, 3) (scaled, on the device) from R (3, 3), t (3,)
-        (scaled); ``lap(stage)`` is called after each stage ("embed", "match", "solve"); ``n_passes``
-        overrides the configured number (the global search ranks its starts after one)."""
-        rc, scale = self.config.registration, self.model.scale
-        n_deep = self._n_deep() if n_passes is None else n_passes
-        # the target does not move: its DGCNN features and the target-only parts of the transformer
-        # (encoder output, self-attention) are computed once, and kept for the next registration against the
-        # same target (a fixed map cloud); the source's kNN graph is rigid-invariant
-        tgt_cache = self._target_state(tgt)
-        src_knn, temperature, gamma, converged, k = None, 0.0, src.new_ones(src.shape[1]), False, -1
-        lap("embed")
-        # from identity, the first pass sees the source as it is: its state as a target comes almost for free
-        # (consecutive pairs, scan-to-scan odometry: this source is the next pair's target)
-        unmoved = self._memo_targets and bool((R == torch.eye(3, device=R.device)).all() and (t == 0).all())
-        for k in range(n_deep):
-            moved = apply_transform(src, R[None], t[None])
-            # embed: DGCNN + transformer on the moved source and the target, temperature head
-            f_src, src_knn = self.model.point_features(moved, src_knn)
-            own = [] if k == 0 and unmoved else None
-            phi_src, phi_tgt = self.model.cross_cached(f_src, tgt_cache, source_cache=own)
-            if own:
-                self._keep_state(src, own[0])
-            temp = self.model.predict_temperature(phi_src, phi_tgt)
-            lap("embed")
-            # match: SoftBBS on the feature distances (B~ directly, no log domain at inference)
-            sb = self.model.match_inference(phi_src, phi_tgt)
-            lap("match")
-            # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
-            temperature = float(temp[0]) if k == 0 else temperature
-            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
-            dR, dt, _, g = solve_transform_inference(
-                moved, tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
-            )
-            R, t, gamma = dR[0] @ R, dR[0] @ t + dt[0], g[0]
-            small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
-            converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
-            lap("solve")
-            if converged:
-                break
-        return NetworkOutput(R.cpu().numpy(), t.cpu().numpy(), gamma.float().cpu().numpy(), temperature, k + 1,
-                             bool(converged))
-
-    def _target_state(self, tgt: torch.Tensor) -> TargetCache:
-        """The network's target-only state for tgt (1, M, 3) (scaled), reused when the same points (byte for
-        byte) come back as a target: a fixed map cloud, or the last source (:meth:`_keep_state`)."""
-        key = _cloud_key(tgt)
-        with self._target_lock:
-            hit = self._target_memo.get(key)
-            if hit is not None:
-                self._target_memo.move_to_end(key)
-        if hit is not None and torch.equal(hit[0], tgt):
-            return hit[1]
-        f_tgt, _ = self.model.point_features(tgt)
-        state = self.model.target_cache(f_tgt)
-        self._keep_state(tgt, state, key)
-        return state
-
-    def _keep_state(self, cloud: torch.Tensor, state: TargetCache, key: tuple | None = None) -> None:
-        """Keep a cloud's network state for when it is a target (the two most recent clouds: a fixed target
-        and the last source both stay; not for a model object handed in, whose weights may change).
-        ``key``: the cloud's :func:`_cloud_key`, when the caller has it."""
-        if not self._memo_targets:
-            return
-        key = _cloud_key(cloud) if key is None else key
-        with self._target_lock:
-            self._target_memo[key] = (cloud.clone(), state)
-            while len(self._target_memo) > 2:
-                self._target_memo.popitem(last=False)
+    def _starts_here(self, st: _State, starts: list[np.ndarray], n: int) -> list[NetworkOutput]:
+        if not starts:
+            return []
+        T = np.stack(starts)
+        R = torch.as_tensor(T[:, :3, :3], dtype=torch.float32, device=self.device)
+        t = torch.as_tensor(T[:, :3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
+        return self.network.starts(st.src, st.tgt, R, t, n)
 
     def _send_target(self, tgt_np: np.ndarray) -> None:
         net = self._network_process()
         if net is not None:
             net.prepare_target(tgt_np)
-
-    def prepare_target_np(self, target: np.ndarray) -> None:
-        """Compute and keep the network state of a preprocessed target (M, 3) float32 metres (what the
-        network process does with a target sent ahead of its registration)."""
-        tgt = self._scaled(self._check(target, "target"))
-        with torch.inference_mode(), self._torch_threads():
-            self._target_state(tgt)
-
-    def network_np(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray) -> NetworkOutput:
-        """The deep passes alone on preprocessed clouds (N, 3), (M, 3) float32 metres from T_init (4, 4):
-        what the network process runs (``core/network_process.py``); ``ms`` holds the stage times."""
-        clock = _Clock(self.device)
-        src, tgt = self._scaled(self._check(source, "source")), self._scaled(self._check(target, "target"))
-        T = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
-        R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
-        t = torch.as_tensor(T[:3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
-        with torch.inference_mode(), self._torch_threads():
-            out = self._passes(src, tgt, R, t, clock.lap)
-        out.ms = dict(clock.ms)
-        return out
-
-    def _scaled(self, points: np.ndarray) -> torch.Tensor:
-        """Checked (N, 3) float32 metres -> (1, N, 3) on the device in the network's scaled units."""
-        return torch.from_numpy(points).to(self.device)[None] * self.model.scale
 
     # -- the network process -------------------------------------------------------------------------
     def _network_process(self) -> NetworkProcess | None:
@@ -657,7 +589,7 @@ class DeepBBSRegistration:
         return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
                               self.gicp_threads())
 
-    def _deskew(self, st: _State, clock: _Clock) -> None:
+    def _deskew(self, st: _State, clock: Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
         stage runs again, from its result, on their ``deskewed_cloud`` s when each velocity agrees with the
         pair's mean motion over the stamp gap (a velocity biased by traffic moving with the sensor does
@@ -687,22 +619,22 @@ class DeepBBSRegistration:
             st.deskew = f"precision stage on the deskewed clouds rejected ({pol.reason}): raw clouds"
             return
         st.T = pol.T_target_source
-        st.T[:3, :3] = _orthonormalize(st.T[:3, :3])
+        st.T[:3, :3] = orthonormalize(st.T[:3, :3])
         st.deskew = "deskewed"
         clock.lap("deskew")
 
-    def _polish(self, st: _State, clock: _Clock) -> None:
+    def _polish(self, st: _State, clock: Clock) -> None:
         """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
         their ``polish_cloud``; rejected results keep the estimate)."""
         rc = self.config.registration
-        st.T = _matrix(st.R, st.t, self.model.scale)
+        st.T = matrix(st.R, st.t, self.model.scale)
         if rc.polish == "none" or st.src_pc is None or st.tgt_pc is None:
             return
         pol = polish(st.src_pc, st.tgt_pc, st.T, rc)
         st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
         if pol.applied:
             st.T = pol.T_target_source
-            st.T[:3, :3] = _orthonormalize(st.T[:3, :3])
+            st.T[:3, :3] = orthonormalize(st.T[:3, :3])
             with torch.inference_mode():
                 Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
                 tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
@@ -726,7 +658,7 @@ class DeepBBSRegistration:
         st.score = self._score(st, st.T)
         st.valid = verdict.is_valid(st.score, self.config.registration.verdict_threshold)
 
-    def _result(self, st: _State, clock: _Clock) -> RegistrationResult:
+    def _result(self, st: _State, clock: Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
         stages += tuple(s for s in ("network_wait", "polish", "deskew", "global") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
@@ -785,6 +717,8 @@ class _State:
     others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]
     replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
     pending: Any = None  # a network_process.Pending while the network process works
+    spec: Any = None  # the same, for its speculative passes from the global search's other starts
+    spec_n: int = 0  # how many of those starts it was given (the first ones)
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 
@@ -801,11 +735,8 @@ def _answer_read(st: _State) -> Iterator[None]:
                 pending.result()
             except RegistrationError:
                 pass
-
-
-def _cloud_key(cloud: torch.Tensor) -> tuple:
-    """(shape, CRC-32 of the bytes) of a (1, N, 3) tensor: the target memo's key (then compared exactly)."""
-    return tuple(cloud.shape), zlib.crc32(cloud.detach().cpu().numpy().tobytes())
+            pending.cancel()  # speculative passes after it (if any): stopped, read before the next request
+        DeepBBSRegistration.drop_speculation(st)
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:
@@ -813,14 +744,6 @@ def _twist(T: np.ndarray, dt: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()]) / dt
-
-
-def _matrix(R: torch.Tensor, t: torch.Tensor, scale: float) -> np.ndarray:
-    """(4, 4) float64 metres from R (3, 3) and t (3,) in scaled units (rotation re-orthonormalised)."""
-    T = np.eye(4)
-    T[:3, :3] = _orthonormalize(R.double().cpu().numpy())
-    T[:3, 3] = t.double().cpu().numpy() / scale
-    return T
 
 
 def _overlap(
@@ -836,13 +759,6 @@ def _overlap(
     src_in_tgt = src @ R.T + t
     tgt_in_src = (tgt - t) @ R
     return src_in_tgt.norm(dim=1) <= radius, tgt_in_src.norm(dim=1) <= radius
-
-
-def _orthonormalize(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation (float64) to a float32-accumulated one."""
-    u, _, vt = np.linalg.svd(R)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
 _PAIR_CACHE: OrderedDict[tuple, tuple[DeepBBSRegistration, threading.Lock]] = OrderedDict()
