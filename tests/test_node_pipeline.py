@@ -513,3 +513,18 @@ def test_node_deep_passes_replace_the_registrations_in_pair_mode_only():
         assert other.registration.max_deep_iters == 3
     with pytest.raises(ConfigError, match="node.deep_passes"):
         Config(node=NodeConfig(deep_passes=-1)).validate()
+
+
+def test_node_polish_max_voxels_caps_the_gicp_clouds_in_pair_mode_only():
+    """node.polish_max_voxels (off by default) becomes registration.polish_max_voxels of the pair-mode node."""
+    from deepbbs_ros.config import Config, NodeConfig
+    from deepbbs_ros.errors import ConfigError
+    from deepbbs_ros.node.registration_node import node_registration_config
+
+    assert node_registration_config(Config()).registration.polish_max_voxels == 0
+    out = node_registration_config(Config(node=NodeConfig(mode="pair", polish_max_voxels=9000)))
+    assert out.registration.polish_max_voxels == 9000 and out.registration.max_deep_iters == 1
+    odo = node_registration_config(Config(node=NodeConfig(mode="odometry", polish_max_voxels=9000)))
+    assert odo.registration.polish_max_voxels == 0
+    with pytest.raises(ConfigError, match="node.polish_max_voxels"):
+        Config(node=NodeConfig(polish_max_voxels=-1)).validate()

@@ -148,6 +148,7 @@ def test_too_few_points_fall_back(pair):
         ("registration.polish_threads", -1, "registration.polish_threads must be >= 0"),
         ("registration.polish_rot_eps_deg", 0.0, "registration.polish_rot_eps_deg must be > 0"),
         ("registration.polish_trans_eps", -1e-3, "registration.polish_trans_eps must be > 0"),
+        ("registration.polish_max_voxels", -1, "registration.polish_max_voxels must be >= 0"),
     ],
 )
 def test_config_validation(key, value, match):
@@ -227,3 +228,18 @@ def test_convergence_tolerances_trade_iterations_for_at_most_their_size(pair):
     for res in (tight, loose):
         rot, trans = _err(res.T_target_source, T)
         assert rot < 0.2 and trans < 0.05
+
+
+def test_a_voxel_cap_puts_a_dense_scan_on_a_coarser_grid_and_gicp_still_lands(street_pair):
+    """registration.polish_max_voxels: a scan with more 0.5 m voxels than the cap gets a coarser grid with at most
+    that many (and not far fewer); GICP on two capped clouds still recovers the known transform."""
+    src, tgt, T = street_pair(7, 40000, [4.0, 0.3, -0.2], [1.2, 0.3, 0.03], road=True)
+    clouds = [np.concatenate(c) for c in (src, tgt)]
+    full = prepare_polish_cloud(clouds[0], 0.5, 20)
+    cap = full.n_points // 2
+    capped = [prepare_polish_cloud(c, 0.5, 20, max_voxels=cap) for c in clouds]
+    assert all(0.6 * cap <= c.n_points <= cap for c in capped), ([c.n_points for c in capped], cap)
+    assert prepare_polish_cloud(clouds[0], 0.5, 20, max_voxels=full.n_points + 1).n_points == full.n_points
+    res = polish(capped[0], capped[1], T @ _offset(), _cfg())
+    rot, trans = _err(res.T_target_source, T)
+    assert res.applied and trans < 0.05 and rot < 0.15, (rot, trans)

@@ -97,7 +97,7 @@ class PolishCloud:
 
 def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, registration_type: str = "GICP",
                          min_range: float = 0.0, max_range: float = float("inf"), threads: int = 0,
-                         defer: bool = False) -> PolishCloud:
+                         defer: bool = False, max_voxels: int = 0) -> PolishCloud:
     """Raw scan -> :class:`PolishCloud`: finite points within [min_range, max_range] m, a ``voxel`` m grid
     (0 = none), a k-d tree, and covariances + normals from ``neighbors`` neighbours (``"GICP"``,
     ``"PLANE_ICP"``) or nothing (``"ICP"``). Shared by the precision stage and the small_gicp baselines.
@@ -107,13 +107,15 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
         threads: small_gicp threads (0 = every core).
         defer: only the voxel grid now; :meth:`PolishCloud.complete` (or :func:`polish`) builds the k-d
             tree and covariances later (``DeepBBSRegistration`` does it while the network process runs).
+        max_voxels: at most this many voxels (0 = no cap): a denser grid's centroids go on a coarser grid,
+            ``voxel * sqrt(n / max_voxels)`` (a scan's voxels fill surfaces: their count goes as 1 / voxel^2).
     """
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
     pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
-    out = _prepared(pts, voxel, neighbors, registration_type, threads, defer)
+    out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped = len(pts)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
@@ -130,13 +132,19 @@ def prepared_cloud(points: np.ndarray, neighbors: int, registration_type: str = 
 
 
 def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: str, threads: int,
-              defer: bool = False) -> PolishCloud:
+              defer: bool = False, max_voxels: int = 0) -> PolishCloud:
     import small_gicp
 
     th = threads_or_all(threads)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     if voxel > 0 and len(pts):
         cloud = small_gicp.voxelgrid_sampling(pts, voxel, num_threads=th)
+        v = voxel
+        for _ in range(3):  # the 1 / voxel^2 law is approximate: at most three coarser grids
+            if not 0 < max_voxels < cloud.size():
+                break
+            v *= max(1.02, float(np.sqrt(cloud.size() / max_voxels)))
+            cloud = small_gicp.voxelgrid_sampling(np.asarray(cloud.points())[:, :3], v, num_threads=th)
     else:
         cloud = small_gicp.PointCloud(pts)
     if defer:

@@ -242,7 +242,8 @@ class DeepBBSRegistration:
         return prepare_polish_cloud(
             as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
             registration_type=SMALL_GICP_TYPE[rc.polish],
-            min_range=pp.min_range, max_range=pp.max_range, threads=self.gicp_threads(), defer=defer)
+            min_range=pp.min_range, max_range=pp.max_range, threads=self.gicp_threads(), defer=defer,
+            max_voxels=rc.polish_max_voxels)
 
     @property
     def defers_precision(self) -> bool:

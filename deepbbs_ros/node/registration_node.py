@@ -191,12 +191,19 @@ def check_weights(cfg: Config) -> Path:
 
 
 def node_registration_config(cfg: Config) -> Config:
-    """The config the node's DeepBBS++ runs with: pair mode's ``node.deep_passes`` network passes (when > 0)
-    in place of ``registration.max_deep_iters``; ``cfg`` itself elsewhere."""
-    n = cfg.node.deep_passes
-    if cfg.node.mode != "pair" or n <= 0 or n == cfg.registration.max_deep_iters:
+    """The config the node's DeepBBS++ runs with: in pair mode ``node.deep_passes`` network passes (when > 0) in
+    place of ``registration.max_deep_iters`` and ``node.polish_max_voxels`` (when > 0) in place of
+    ``registration.polish_max_voxels``; ``cfg`` itself elsewhere."""
+    if cfg.node.mode != "pair":
         return cfg
-    return dataclasses.replace(cfg, registration=dataclasses.replace(cfg.registration, max_deep_iters=n))
+    rc, changes = cfg.registration, {}
+    if cfg.node.deep_passes > 0 and cfg.node.deep_passes != rc.max_deep_iters:
+        changes["max_deep_iters"] = cfg.node.deep_passes
+    if cfg.node.polish_max_voxels > 0 and cfg.node.polish_max_voxels != rc.polish_max_voxels:
+        changes["polish_max_voxels"] = cfg.node.polish_max_voxels
+    if not changes:
+        return cfg
+    return dataclasses.replace(cfg, registration=dataclasses.replace(rc, **changes))
 
 
 def load_registration(cfg: Config) -> tuple[Any, str]:
