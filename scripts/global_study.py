@@ -72,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--good-start", action="store_true")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--config", default=None, help="config YAML for DeepBBS++ (default: the shipped defaults)")
     args = p.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
     out = Path(args.out)
@@ -89,11 +90,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(cases, sets, methods, args, path: Path) -> None:
     from deepbbs_ros.baselines import KissMatcherRegistration, SmallGicpRegistration
-    from deepbbs_ros.config import Config
+    from deepbbs_ros.config import load_config
     from deepbbs_ros.core.registration import DeepBBSRegistration
     from deepbbs_ros.metrics import pair_errors
 
-    cfg = Config()
+    cfg = load_config(args.config)
     regs = {}
     if "deepbbs++" in methods:
         regs["deepbbs++"] = DeepBBSRegistration(cfg, weights=args.weights)
