@@ -39,7 +39,7 @@ def test_yaw_starts_cover_the_circle():
         rel = np.linalg.inv(T0) @ T
         assert np.allclose(rel[:3, 3], 0) and np.degrees(np.arctan2(rel[1, 0], rel[0, 0])) == pytest.approx(
             [90, 180, -90][k - 1])
-    ranked = global_search.rank_starts(starts, lambda T: ("out", T), lambda T: -abs(T[0, 3] - 1.0) - T[1, 0])
+    ranked = global_search.rank_outputs([("out", T) for T in starts], lambda T: -abs(T[0, 3] - 1.0) - T[1, 0])
     assert [r[0] for r in ranked] == sorted([r[0] for r in ranked], reverse=True)
 
 

@@ -258,15 +258,20 @@ def test_resume_rejects_a_different_model(tmp_path):
 
 
 # -- CLI -------------------------------------------------------------------------------------------
-def test_cli_fit_and_errors(tmp_path, capsys):
-    from deepbbs_ros.cli.train import main
-
+def _tiny_cli_run(tmp_path) -> tuple:
+    """(a cache of two 5-frame simulated drives, ``--set`` arguments of the tiny model) for the CLI fit tests."""
     cache = tmp_path / "cache"
     for seed in (1, 2):
         d = synthetic_drive(f"suburban_{seed}", frames=5, seed=seed)
         save_drive(cache / f"{d.name}.npz", [d.frame(i) for i in range(len(d))], d.T_world_lidar, d.stamps_ns,
                    d.meta)
-    sets = [f"--set={k}={json.dumps(v)}" for k, v in TINY.items()]
+    return cache, [f"--set={k}={json.dumps(v)}" for k, v in TINY.items()]
+
+
+def test_cli_fit_and_errors(tmp_path, capsys):
+    from deepbbs_ros.cli.train import main
+
+    cache, sets = _tiny_cli_run(tmp_path)
     assert main(["fit", "--cache", str(cache), "--run", str(tmp_path / "run"), "--max-steps", "1", "--no-progress",
                  "--threads", "1", *sets]) == 0
     assert main(["fit", "--run", str(tmp_path / "run"), "--resume", "--max-steps", "1", "--no-progress"]) == 0
@@ -338,12 +343,7 @@ def test_distributed_fit_two_processes_and_exact_resume(tmp_path):
     alone writes the run; 2 + 2 steps with a resume between == 4 steps straight, every rank's generator too."""
     from deepbbs_ros.core.checkpoint import load_checkpoint
 
-    cache = tmp_path / "cache"
-    for seed in (1, 2):
-        d = synthetic_drive(f"suburban_{seed}", frames=5, seed=seed)
-        save_drive(cache / f"{d.name}.npz", [d.frame(i) for i in range(len(d))], d.T_world_lidar, d.stamps_ns,
-                   d.meta)
-    sets = [f"--set={k}={json.dumps(v)}" for k, v in TINY.items()]
+    cache, sets = _tiny_cli_run(tmp_path)
     _torchrun_fit("--cache", str(cache), "--run-dir", str(tmp_path / "a"), "--max-steps", "4", *sets)
     _torchrun_fit("--cache", str(cache), "--run-dir", str(tmp_path / "b"), "--max-steps", "2", *sets)
     _torchrun_fit("--run-dir", str(tmp_path / "b"), "--resume", "--max-steps", "2")

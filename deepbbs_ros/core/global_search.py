@@ -34,7 +34,7 @@ import torch
 
 from deepbbs_ros.core.network import Clock, matrix, worker_share
 
-__all__ = ["yaw_starts", "shift_starts", "rank_starts", "rank_outputs", "batch_sizes", "before_precision", "retry"]
+__all__ = ["yaw_starts", "shift_starts", "rank_outputs", "batch_sizes", "before_precision", "retry"]
 
 SHIFT_STARTS = 17  # _shift_retry: the best pose turned by 180 degrees, and 8 shifted starts around each
 
@@ -60,13 +60,6 @@ def shift_starts(T: np.ndarray, shift: float) -> list[np.ndarray]:
             S[:2, 3] += (r * dx, r * dy)
             out.append(S)
     return out
-
-
-def rank_starts(starts: list[np.ndarray], passes: Callable[[np.ndarray], Any],
-                score: Callable[[np.ndarray], float]) -> list[tuple[float, Any, np.ndarray]]:
-    """Run ``passes(T_start) -> (output, T_estimate)`` from every start and rank them by ``score(T_estimate)``:
-    -> [(score, output, T_estimate)] best first."""
-    return rank_outputs([passes(T0) for T0 in starts], score)
 
 
 def rank_outputs(outputs: list[tuple[Any, np.ndarray]], score: Callable[[np.ndarray], float]
@@ -118,17 +111,18 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None
         reg.drop_speculation(st)  # the network process's passes from the other starts are not needed
         return
 
+    def posed(outs: list[Any]) -> list[tuple[Any, np.ndarray]]:
+        return [(out, matrix(out.R, out.t, scale)) for out in outs]
+
     def passes(starts: list[np.ndarray], n: int) -> list[tuple[Any, np.ndarray]]:
         # one batch per process: the network process runs a share while this one runs the rest
-        return [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts, n)]
+        return posed(reg.network_starts(st, starts, n))
 
     starts = yaw_starts(st.T_start, rc.global_yaws)
     n_spec = st.spec_n if st.spec is not None else 0  # the first ones run in the network process meanwhile
-    mine = [(out, matrix(out.R, out.t, scale)) for out in reg.network_starts(st, starts[n_spec:], 1, away=False)
-            ] if n_spec else []  # the rest, here, while it works
+    mine = posed(reg.network_starts(st, starts[n_spec:], 1, away=False)) if n_spec else []  # the rest, here, meanwhile
     spec = reg.speculated(st)  # what it ran (all, some or none)
-    outputs = ([(out, matrix(out.R, out.t, scale)) for out in spec] + passes(starts[len(spec):n_spec or None], 1)
-               + mine)
+    outputs = posed(spec) + passes(starts[len(spec):n_spec or None], 1) + mine
     ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked

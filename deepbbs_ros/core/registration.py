@@ -431,16 +431,16 @@ class DeepBBSRegistration:
         with no network process (or ``away`` False) all here. -> the outputs in the order of the starts."""
         n = self.network.n_deep if n_passes is None else n_passes
         net = self._network_process() if starts and away else None
-        pending, away = None, 0
+        pending, n_away = None, 0
         if net is not None and worker_share(len(starts)) > 0:
-            away = worker_share(len(starts))
+            n_away = worker_share(len(starts))
             try:
-                pending = net.submit_starts(st.src_np, st.tgt_np, np.stack(starts[:away]), n)
+                pending = net.submit_starts(st.src_np, st.tgt_np, np.stack(starts[:n_away]), n)
             except NetworkProcessLost as err:
                 self._network_failed(err)
-                away = 0
+                n_away = 0
         try:
-            here = self._starts_here(st, starts[away:], n)
+            here = self._starts_here(st, starts[n_away:], n)
         except BaseException:
             if pending is not None:
                 with contextlib.suppress(RegistrationError):
@@ -454,7 +454,7 @@ class DeepBBSRegistration:
             self._network_failed(err)
         except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
             pass
-        return self._starts_here(st, starts[:away], n) + here
+        return self._starts_here(st, starts[:n_away], n) + here
 
     def _starts_here(self, st: _State, starts: list[np.ndarray], n: int) -> list[NetworkOutput]:
         if not starts:
