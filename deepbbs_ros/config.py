@@ -186,6 +186,10 @@ class RegistrationConfig:
     # builds the GICP clouds), stopped as soon as the answer from the given start fits: "auto" when the search ran
     # in one of the last 8 registrations (a stream of good starts pays nothing), "always", or "off"
     global_speculate: str = "auto"
+    # the search's ranking passes (one from each other start yaw) run on the first global_rank_points of the sampled
+    # points (a farthest-point prefix: the same coverage, sparser); the start kept gets the remaining passes on all of
+    # them (0 = all: rank on the full clouds)
+    global_rank_points: int = 256
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
 
@@ -235,6 +239,8 @@ class RegistrationConfig:
         _check(self.global_polish >= 1, "registration.global_polish", "must be >= 1")
         _check(self.global_speculate in ("auto", "always", "off"), "registration.global_speculate",
                f"must be 'auto', 'always' or 'off', got {self.global_speculate!r}")
+        _check(self.global_rank_points == 0 or self.global_rank_points >= 16, "registration.global_rank_points",
+               "must be 0 (all sampled points) or >= 16")
         _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 

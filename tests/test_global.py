@@ -79,7 +79,8 @@ def test_batched_starts_equal_single_passes(street_pair):
 
 def test_speculative_starts_in_the_network_process(tmp_path, street_pair):
     """The network process runs the other start yaws after the given start's passes: cancelled, nothing of it
-    reaches the next request; read, it is what the caller would compute from the same starts."""
+    reaches the next request; read, it is what the caller would compute from the same starts on the clouds' first
+    ``registration.global_rank_points`` (the ranking passes' farthest-point prefix)."""
     import torch
 
     from deepbbs_ros.config import ModelConfig
@@ -103,11 +104,14 @@ def test_speculative_starts_in_the_network_process(tmp_path, street_pair):
         assert len(outs) == 3
         want = here.network_np(src, tgt, np.eye(4))
         np.testing.assert_allclose(out.R, want.R, atol=1e-5)
+        k = global_search.rank_size(cfg.registration, len(src))
+        assert k == 256 < len(src)  # the default: a prefix of the 300 points
         for T0, o in zip(others, outs):
             R, t = here.start_tensors(T0)
             with torch.inference_mode():
-                one = here.passes(here.scaled(src), here.scaled(tgt), R, t, lambda _stage: None, n_passes=1)
+                one = here.passes(here.scaled(src[:k]), here.scaled(tgt[:k]), R, t, lambda _stage: None, n_passes=1)
             np.testing.assert_allclose(o.R, one.R, atol=1e-5)
+            assert o.gamma.shape == (k,)
         cancelled = proc.submit(src, tgt, np.eye(4), speculate=others)
         cancelled.result()
         cancelled.cancel()  # not wanted: stopped, read before the next request

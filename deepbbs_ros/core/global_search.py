@@ -6,7 +6,11 @@ the cone with margin) cover the whole circle: each runs the deep passes from the
 source's z axis, is ranked by its fitness before the precision stage (:func:`deepbbs_ros.core.verdict.fitness`
 at twice ``registration.verdict_dist``: the deep estimate is good to decimetres), and the
 ``registration.global_polish`` best get the precision stage and the verdict; the result with the best verdict
-score is kept. When none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
+score is kept. The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
+(a prefix of the farthest-point order is a farthest-point sample itself: the same coverage at a quarter of the
+network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is valid, the
+starts are ranked again on all the points and the best finished. When still none passes, the best pose turned by 180
+degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
@@ -34,7 +38,7 @@ import torch
 
 from deepbbs_ros.core.network import Clock, matrix, worker_share
 
-__all__ = ["yaw_starts", "shift_starts", "rank_outputs", "batch_sizes", "before_precision", "retry"]
+__all__ = ["yaw_starts", "shift_starts", "rank_outputs", "rank_size", "batch_sizes", "before_precision", "retry"]
 
 SHIFT_STARTS = 17  # _shift_retry: the best pose turned by 180 degrees, and 8 shifted starts around each
 
@@ -71,6 +75,22 @@ def rank_outputs(outputs: list[tuple[Any, np.ndarray]], score: Callable[[np.ndar
     return ranked
 
 
+def rank_size(rc: Any, n: int) -> int:
+    """How many of a cloud's ``n`` sampled points the search's ranking passes use (``registration.global_rank_points``;
+    0 or more than ``n``: all): the clouds' first ones, a farthest-point prefix."""
+    k = int(rc.global_rank_points)
+    return n if k <= 0 or k >= n else k
+
+
+def full_gamma(out: Any, n: int) -> Any:
+    """A ranking pass's output with its gamma (k,) padded with zeros to the ``n`` sampled points (the points it did
+    not see carry no weight); other outputs as they are."""
+    g = np.asarray(out.gamma)
+    if len(g) >= n:
+        return out
+    return dataclasses.replace(out, gamma=np.concatenate([g, np.zeros(n - len(g), dtype=g.dtype)]))
+
+
 SPECULATE_WINDOW = 8  # registration.global_speculate "auto": speculate when the search ran in one of the last 8
 
 
@@ -95,12 +115,13 @@ def batch_sizes(rc: Any) -> tuple[list[int], list[int], list[int]]:
 
 
 # -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
-def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None:
+def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
     deep answer's fitness (at twice ``verdict_dist``) is below ``verdict_threshold`` (``auto``), or always: one
-    deep pass from each other start yaw (those the network process ran speculatively are taken from it, the rest run
-    as a batch per process; the target's network state computed once), the start with the best fitness finished with
-    the remaining passes; it replaces the answer when it fits better."""
+    deep pass from each other start yaw on the ranking prefix (all the points with ``full``; those the network
+    process ran speculatively are taken from it, the rest run as a batch per process; the target's network state
+    computed once), the start with the best fitness finished with the remaining passes on all the points; it
+    replaces the answer when it fits better (with ``full``, a second ranking after the answer failed: always)."""
     rc, scale = reg.config.registration, reg.model.scale
     if rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
         return
@@ -111,25 +132,29 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False) -> None
         reg.drop_speculation(st)  # the network process's passes from the other starts are not needed
         return
 
-    def posed(outs: list[Any]) -> list[tuple[Any, np.ndarray]]:
-        return [(out, matrix(out.R, out.t, scale)) for out in outs]
+    n_all = len(st.src_np)
+    k = n_all if full else rank_size(rc, min(n_all, len(st.tgt_np)))  # the ranking passes' points: a prefix
 
-    def passes(starts: list[np.ndarray], n: int) -> list[tuple[Any, np.ndarray]]:
+    def posed(outs: list[Any]) -> list[tuple[Any, np.ndarray]]:
+        return [(full_gamma(out, n_all), matrix(out.R, out.t, scale)) for out in outs]
+
+    def passes(starts: list[np.ndarray], n: int, points: int | None = None) -> list[tuple[Any, np.ndarray]]:
         # one batch per process: the network process runs a share while this one runs the rest
-        return posed(reg.network_starts(st, starts, n))
+        return posed(reg.network_starts(st, starts, n, points=points))
 
     starts = yaw_starts(st.T_start, rc.global_yaws)
     n_spec = st.spec_n if st.spec is not None else 0  # the first ones run in the network process meanwhile
-    mine = posed(reg.network_starts(st, starts[n_spec:], 1, away=False)) if n_spec else []  # the rest, here, meanwhile
+    mine = posed(reg.network_starts(st, starts[n_spec:], 1, away=False, points=k)) if n_spec else []  # the rest, here
     spec = reg.speculated(st)  # what it ran (all, some or none)
-    outputs = posed(spec) + passes(starts[len(spec):n_spec or None], 1) + mine
+    outputs = posed(spec) + passes(starts[len(spec):n_spec or None], 1, k) + mine
     ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
     st.others = ranked
-    if ranked and ranked[0][0] > here:
+    if ranked and (ranked[0][0] > here or full):  # full: a second ranking, the answer already failed
         out, T = ranked[0][1], ranked[0][2]
-        if reg.network.n_deep > 1:
-            out, T = passes([T], reg.network.n_deep - 1)[0]
+        rest = reg.network.n_deep - 1 if k >= n_all else max(1, reg.network.n_deep - 1)  # on all the points
+        if rest > 0:
+            out, T = passes([T], rest)[0]
         st.replaced = (st.R, st.t, st.gamma)
         reg._apply_network(st, out)
         st.iters["deep"] += 1
@@ -163,6 +188,13 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
         cand.R, cand.t, cand.gamma = start
 
     best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
+    n = min(len(st.src_np), len(st.tgt_np))
+    if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
+        probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)
+        with torch.inference_mode(), reg.network.torch_threads():
+            before_precision(reg, probe, clock, force=True, full=True)
+        if probe.replaced is not None:
+            best = _finish_best(reg, st, best, [(probe.R, probe.t, probe.gamma)], from_tensors)
     if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
         best = _shift_retry(reg, best, st)
     clock.lap("global")

@@ -6,7 +6,7 @@ network's worker process (``core/network_process.py``) run::
     load        the checkpoint (weights, config's model section, metadata), or a model object handed in
     passes      embed / match / solve repeated on the moved source until the increment is small (DeepBBS)
     starts      the same from K start poses at once, as a batch of K (the global search's start yaws)
-    targets     the target-only network state (DGCNN features, transformer memory) kept for the two most
+    targets     the target-only network state (DGCNN features, transformer memory) kept for the three most
                 recent clouds: a fixed map target, or the last source that becomes the next target
 
 Everything here runs in scaled coordinates (``model.scale`` times metres); the numpy entry points
@@ -331,15 +331,16 @@ class DeepBBSNetwork:
         return state
 
     def keep_state(self, cloud: torch.Tensor, state: TargetCache, key: tuple | None = None) -> None:
-        """Keep a cloud's network state for when it is a target (the two most recent clouds: a fixed target
-        and the last source both stay; not for a model object handed in, whose weights may change).
+        """Keep a cloud's network state for when it is a target (the three most recent clouds: a fixed target,
+        the last source and the global search's ranking prefix of a target all stay; not for a model object handed
+        in, whose weights may change).
         ``key``: the cloud's :func:`cloud_key`, when the caller has it."""
         if not self._memo_targets:
             return
         key = cloud_key(cloud) if key is None else key
         with self._target_lock:
             self._target_memo[key] = (cloud.clone(), state)
-            while len(self._target_memo) > 2:
+            while len(self._target_memo) > 3:
                 self._target_memo.popitem(last=False)
 
     # -- numpy entry points (the network process) ----------------------------------------------------

@@ -269,7 +269,7 @@ def _worker_main(fd: int) -> int:
 
         cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
         net = DeepBBSNetwork(cfg, weights=weights)
-        from deepbbs_ros.core.global_search import batch_sizes  # the global search's batches (no registration)
+        from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
 
         net.warmup(batches=batch_sizes(cfg.registration)[0])
     except (EOFError, OSError):
@@ -297,7 +297,8 @@ def _worker_main(fd: int) -> int:
             out = net.network_np(*msg[1:4]) if msg[0] == "run" else net.starts_np(*msg[1:])
             conn.send(("ok", out))
             if msg[0] == "run" and len(msg) > 4:  # the global search's other starts, until another message comes
-                conn.send(("ok", net.speculate_np(msg[1], msg[2], msg[4], stop=lambda: conn.poll(0))))
+                k = rank_size(cfg.registration, min(len(msg[1]), len(msg[2])))  # the ranking passes' points
+                conn.send(("ok", net.speculate_np(msg[1][:k], msg[2][:k], msg[4], stop=lambda: conn.poll(0))))
         except (EOFError, OSError):
             return 0
         except Exception as err:  # noqa: BLE001 - the caller raises it as a RegistrationError

@@ -424,12 +424,16 @@ class DeepBBSRegistration:
         st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
 
     def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None, *,
-                       away: bool = True) -> list[NetworkOutput]:
+                       away: bool = True, points: int | None = None) -> list[NetworkOutput]:
         """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
-        T_target_source guesses) on the pair of ``st`` (the global search): the network process runs its share
-        (``network.worker_share``, the first ones) as one batch while this process runs the others as another;
-        with no network process (or ``away`` False) all here. -> the outputs in the order of the starts."""
+        T_target_source guesses) on the pair of ``st`` (the global search; ``points``: on the first ones of both
+        clouds only): the network process runs its share (``network.worker_share``, the first ones) as one batch
+        while this process runs the others as another; with no network process (or ``away`` False) all here.
+        -> the outputs in the order of the starts."""
         n = self.network.n_deep if n_passes is None else n_passes
+        if points is not None and points < max(len(st.src_np), len(st.tgt_np)):
+            st = dataclasses.replace(st, src_np=st.src_np[:points], tgt_np=st.tgt_np[:points],
+                                     src=st.src[:, :points], tgt=st.tgt[:, :points])
         net = self._network_process() if starts and away else None
         pending, n_away = None, 0
         if net is not None and worker_share(len(starts)) > 0:
