@@ -398,14 +398,18 @@ class DeepBBSNetwork:
                 pass
         return outs
 
-    def warmup(self, rounds: int = 2, batches: Sequence[int] = ()) -> None:
+    def warmup(self, rounds: int = 2, batches: Sequence[int] = (), rank_points: int = 0) -> None:
         """The deep passes on two random clouds of ``preprocess.num_points`` points ``rounds`` times, and from
-        as many starts at once as each of ``batches`` says: torch's CPU kernels pick and cache their primitives
-        on the first calls with a new shape."""
+        as many starts at once as each of ``batches`` says (also on the first ``rank_points`` of them, the global
+        search's ranking passes, with one start and with each batch, when that is fewer): torch's CPU kernels
+        pick and cache their primitives on the first calls with a new shape."""
         rng = np.random.default_rng(0)
         pts = rng.uniform(-30.0, 30.0, (self.config.preprocess.num_points, 3)).astype(np.float32)
         for _ in range(rounds):
             self.network_np(pts, pts[::-1].copy(), np.eye(4))
-        for k in sorted(set(batches)):
-            if k > 1:
-                self.starts_np(pts, pts[::-1].copy(), np.repeat(np.eye(4)[None], k, axis=0), 1)
+        sizes = [len(pts)] + ([rank_points] if 0 < rank_points < len(pts) else [])
+        for n in sizes:
+            src, tgt = pts[:n], pts[::-1][:n].copy()
+            for k in sorted(set(batches) | ({1} if n < len(pts) else set())):
+                if k > 1 or n < len(pts):
+                    self.starts_np(src, tgt, np.repeat(np.eye(4)[None], k, axis=0), 1)

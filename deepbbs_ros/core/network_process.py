@@ -271,7 +271,8 @@ def _worker_main(fd: int) -> int:
         net = DeepBBSNetwork(cfg, weights=weights)
         from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
 
-        net.warmup(batches=batch_sizes(cfg.registration)[0])
+        net.warmup(batches=batch_sizes(cfg.registration)[0],
+                   rank_points=rank_size(cfg.registration, cfg.preprocess.num_points))
     except (EOFError, OSError):
         return 0
     except Exception as err:  # noqa: BLE001 - reported to the caller as one line

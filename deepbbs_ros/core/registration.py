@@ -184,8 +184,9 @@ class DeepBBSRegistration:
         self._searched.clear()  # random clouds: not a hint of what the real ones need
         if self.config.registration.global_search != "off":  # its batches: here (the network process warms its own)
             away = self._net_state == "running"
-            self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(self.config.registration)[
-                1 if away else 2])
+            rc = self.config.registration
+            self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(rc)[1 if away else 2],
+                                rank_points=global_search.rank_size(rc, n))
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
