@@ -50,12 +50,12 @@ def test_the_network_process_gives_the_in_process_result(setup):
             assert b.iterations == a.iterations and b.polish == a.polish == "ok"
             assert "network_wait" in b.timings_ms and "network_wait" not in a.timings_ms
             assert b.timings_ms["embed"] > 0  # measured in the worker
-        pid = away._net.pid
-        assert pid != os.getpid() and away._net.alive
+        pid = away.runner.worker.pid
+        assert pid != os.getpid() and away.runner.worker.alive
         # raw scans: the target goes ahead, so the worker prepares its state while the source is preprocessed
         sent = []
-        prepare = away._net.prepare_target
-        away._net.prepare_target = lambda tgt: sent.append(tgt.copy()) or prepare(tgt)
+        prepare = away.runner.worker.prepare_target
+        away.runner.worker.prepare_target = lambda tgt: sent.append(tgt.copy()) or prepare(tgt)
         res = away.register(scans[2].points, scans[0].points)
         assert len(sent) == 1 and np.array_equal(sent[0], res.target)
         np.testing.assert_allclose(res.T_target_source, here.register(scans[2].points, scans[0].points)
@@ -63,15 +63,16 @@ def test_the_network_process_gives_the_in_process_result(setup):
         # an error raised by the passes there comes back as one and leaves the worker running
         bad = np.full((5, 3), np.nan, np.float32)
         with pytest.raises(RegistrationError, match="NaN") as info:
-            away._net.submit(bad, bad, np.eye(4)).result()
-        assert not isinstance(info.value, NetworkProcessLost) and away._net.alive and away._net.pid == pid
+            away.runner.worker.submit(bad, bad, np.eye(4)).result()
+        worker = away.runner.worker
+        assert not isinstance(info.value, NetworkProcessLost) and worker.alive and worker.pid == pid
         # preprocessed clouds (the node's and the odometry's path) go there too
         pa, pb = here.preprocess(scans[2].points), away.preprocess(scans[0].points)
         np.testing.assert_allclose(away.register(pa, pb).T_target_source, here.register(pa, pb).T_target_source,
                                    atol=1e-9)
     finally:
         away.close()
-    assert away._net is None
+    assert away.runner.worker is None
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline and _running(pid):
         time.sleep(0.05)
@@ -84,20 +85,20 @@ def test_a_dead_network_process_loses_nothing(setup, caplog):
     cfg, path, scans = setup
     reg = DeepBBSRegistration(cfg, weights=path)
     ref = reg.register(scans[2].points, scans[0].points).T_target_source
-    os.kill(reg._net.pid, signal.SIGKILL)
+    os.kill(reg.runner.worker.pid, signal.SIGKILL)
     deadline = time.monotonic() + 5
-    while time.monotonic() < deadline and reg._net.alive:
+    while time.monotonic() < deadline and reg.runner.worker.alive:
         time.sleep(0.05)
     with caplog.at_level(logging.WARNING, logger="deepbbs_ros.core.registration"):
         res = reg.register(scans[2].points, scans[0].points)
         reg.register(scans[3].points, scans[1].points)
     np.testing.assert_allclose(res.T_target_source, ref, atol=1e-9)
-    assert "network_wait" not in res.timings_ms and reg._net is None
+    assert "network_wait" not in res.timings_ms and reg.runner.worker is None
     warnings = [r for r in caplog.records if "network in this process" in r.getMessage()]
     assert len(warnings) == 1 and "died" in warnings[0].getMessage()
     own = DeepBBSRegistration(cfg, model=reg.model)
     own.register(scans[2].points, scans[0].points)
-    assert own._net is None and own._net_state == "off"
+    assert own.runner.worker is None and own.runner.state == "off"
 
 
 def test_a_stage_that_raises_while_the_network_process_works_leaves_it_usable(setup, monkeypatch):
@@ -117,7 +118,7 @@ def test_a_stage_that_raises_while_the_network_process_works_leaves_it_usable(se
         monkeypatch.undo()
         res = reg.register(scans[3].points, scans[1].points)
         np.testing.assert_allclose(res.T_target_source, ref, atol=1e-9)
-        assert "network_wait" in res.timings_ms and reg._net.alive
+        assert "network_wait" in res.timings_ms and reg.runner.worker.alive
     finally:
         reg.close()
 
@@ -155,7 +156,7 @@ def test_node_inputs_leave_the_covariances_to_register(setup):
         again = away.register(src, tgt)  # the cached clouds serve again as they are
         np.testing.assert_allclose(again.T_target_source, full.T_target_source, atol=1e-9)
         # small_gicp threads: every core while the worker is idle, one fewer while it computes
-        assert not away._net.working and away.gicp_threads() == os.cpu_count()
+        assert not away.runner.worker.working and away.gicp_threads() == os.cpu_count()
         fixed = DeepBBSRegistration(cfg.replace(**{"registration.polish_threads": 1}), weights=path)
         assert fixed.gicp_threads() == 1
     finally:

@@ -127,7 +127,7 @@ def test_wide_basin_live(ros):
         node.destroy_node()
         client.destroy_node()
         torch.set_num_threads(threads)
-    assert node.reg._net is None  # destroy_node stopped it
+    assert node.reg.runner.worker is None  # destroy_node stopped it
 
     def ok(r: float, t: float) -> bool:
         return r <= 1.0 and t <= 0.3

@@ -61,9 +61,9 @@ def _entry_points(reg, scans):
     """name -> call(bad_cloud): every public entry point that takes a raw cloud, with a good partner."""
     from deepbbs_ros.baselines import KissICPOdometry, SmallGicpRegistration
     from deepbbs_ros.core.odometry import DeepBBSOdometry
+    from deepbbs_ros.core.pair import register_pair
     from deepbbs_ros.core.polish import polish, prepare_polish_cloud
     from deepbbs_ros.core.preprocess import preprocess
-    from deepbbs_ros.core.registration import register_pair
 
     src, tgt, _ = scans
     cfg = reg.config

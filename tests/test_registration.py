@@ -9,9 +9,10 @@ from scipy.spatial.transform import Rotation
 
 from deepbbs_ros.config import Config, ModelConfig
 from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.pair import register_pair
 from deepbbs_ros.core.procrustes import weighted_procrustes
 from deepbbs_ros.core.refine import refine
-from deepbbs_ros.core.registration import DeepBBSRegistration, RegistrationResult, register_pair
+from deepbbs_ros.core.registration import DeepBBSRegistration, RegistrationResult
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 TINY = ModelConfig(k=6, dgcnn_widths=[8, 8], emb_dims=16, n_heads=2, ff_dims=16)
@@ -209,7 +210,7 @@ def test_register_pair_keeps_the_loaded_model(tmp_path, rng):
     config or a rewritten file loads again; the cache keeps two."""
     import os
 
-    from deepbbs_ros.core import registration as core_reg
+    from deepbbs_ros.core import pair as core_reg
     from deepbbs_ros.core.checkpoint import save_checkpoint
 
     core_reg.clear_register_pair_cache()

@@ -11,8 +11,8 @@ import importlib
 _EXPORTS = {
     "DeepBBSRegistration": "registration",
     "RegistrationResult": "registration",
-    "register_pair": "registration",
-    "clear_register_pair_cache": "registration",
+    "register_pair": "pair",
+    "clear_register_pair_cache": "pair",
     "DeepBBSNet": "model",
     "DeepBBSNetwork": "network",
     "NetOutput": "model",

@@ -22,7 +22,7 @@ passes run there right after the given start's, while the caller still builds th
 a time, stopped within a network stage when the given start's answer fits; it gets the first half of them, and
 the caller runs the others once it knows the search is needed, while the worker is still at it. Starts still to
 run (the 180-degree and shifted ones, or all of them without a speculation) go as one batch to the network process
-and another in this process (``DeepBBSRegistration.network_starts``, ``DeepBBSNetwork.starts``: the same numbers as
+and another in this process (:func:`network_starts`, ``DeepBBSNetwork.starts``: the same numbers as
 single passes). The target's network state is computed once for every start (the target memo of
 ``DeepBBSNetwork``, core/network.py).
 """
@@ -114,6 +114,19 @@ def batch_sizes(rc: Any) -> tuple[list[int], list[int], list[int]]:
     return ([worker_share(n) for n in counts], [n - worker_share(n) for n in counts], counts)
 
 
+def network_starts(reg: Any, st: Any, starts: list[np.ndarray], n_passes: int | None = None, *, away: bool = True,
+                   points: int | None = None) -> list[Any]:
+    """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
+    T_target_source guesses) on the pair of the registration state ``st`` (``points``: on the first ones of both
+    clouds only, the ranking prefix), split between the network process and this one (``NetworkRunner.starts``;
+    ``away`` False: all here). -> NetworkOutput s in the order of the starts."""
+    src_np, tgt_np, src, tgt = st.src_np, st.tgt_np, st.src, st.tgt
+    if points is not None and points < max(len(src_np), len(tgt_np)):
+        src_np, tgt_np, src, tgt = src_np[:points], tgt_np[:points], src[:, :points], tgt[:, :points]
+    n = reg.network.n_deep if n_passes is None else n_passes
+    return reg.runner.starts(src_np, tgt_np, src, tgt, starts, n, away=away)
+
+
 # -- the stages of DeepBBSRegistration.register (core/registration.py) -----------------------------------------
 def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: bool = False) -> None:
     """The search before the precision stage (``register`` calls it in its torch inference context): when the
@@ -129,7 +142,8 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
     T_deep = matrix(st.R, st.t, scale)
     here = reg._score(st, T_deep, rank_dist)
     if rc.global_search == "auto" and here >= rc.verdict_threshold and not force:
-        reg.drop_speculation(st)  # the network process's passes from the other starts are not needed
+        spec, st.spec = st.spec, None
+        reg.runner.drop(spec)  # the network process's passes from the other starts are not needed
         return
 
     n_all = len(st.src_np)
@@ -140,12 +154,12 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
 
     def passes(starts: list[np.ndarray], n: int, points: int | None = None) -> list[tuple[Any, np.ndarray]]:
         # one batch per process: the network process runs a share while this one runs the rest
-        return posed(reg.network_starts(st, starts, n, points=points))
+        return posed(network_starts(reg, st, starts, n, points=points))
 
     starts = yaw_starts(st.T_start, rc.global_yaws)
     n_spec = st.spec_n if st.spec is not None else 0  # the first ones run in the network process meanwhile
-    mine = posed(reg.network_starts(st, starts[n_spec:], 1, away=False, points=k)) if n_spec else []  # the rest, here
-    spec = reg.speculated(st)  # what it ran (all, some or none)
+    mine = posed(network_starts(reg, st, starts[n_spec:], 1, away=False, points=k)) if n_spec else []  # the rest here
+    spec, st.spec = reg.runner.speculated(st.spec), None  # what it ran (all, some or none)
     outputs = posed(spec) + passes(starts[len(spec):n_spec or None], 1, k) + mine
     ranked = rank_outputs(outputs, lambda T: reg._score(st, T, rank_dist))
     st.starts = rc.global_yaws
@@ -228,7 +242,7 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
     flip = T_best @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the best pose turned by 180 deg (a road seen backwards)
     starts = [flip] + shift_starts(T_best, rc.global_shift) + shift_starts(flip, rc.global_shift)
     with torch.inference_mode(), reg.network.torch_threads():
-        for out in reg.network_starts(st, starts):  # a batch in the network process, another here
+        for out in network_starts(reg, st, starts):  # a batch in the network process, another here
             T = matrix(out.R, out.t, scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])

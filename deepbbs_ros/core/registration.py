@@ -2,14 +2,14 @@
 
 ``DeepBBSRegistration.register`` reads top-down like kiss-icp's ``register_frame``::
 
-    preprocess  the GICP cloud's voxel grid, crop, ground removal, farthest-point sampling (core/preprocess.py)
+    preprocess  the GICP cloud's voxel grid, crop, ground removal, farthest-point sampling (core/scans.py)
     embed       DGCNN + shared transformer on the moved source and target  (core/model.py)
     match       SoftBBS on the feature distances                            (core/softbbs.py)
     solve       soft map, gamma weights, weighted Procrustes                (core/procrustes.py)
     ... embed/match/solve repeated on the moved source until the increment is small (DeepBBS): the
-        network's own object (core/network.py), on a CPU in a worker process (core/network_process.py)
-        while this one builds the raw scans' GICP clouds (k-d trees, covariances: small_gicp holds the
-        GIL, so a thread would not overlap)
+        network's own object (core/network.py), on a CPU in a worker process (core/network_runner.py,
+        core/network_process.py) while this one builds the raw scans' GICP clouds (k-d trees, covariances:
+        small_gicp holds the GIL, so a thread would not overlap)
     refine      SoftBBS on xyz, k nearest targets, to convergence           (core/refine.py)
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
@@ -17,23 +17,21 @@
     verdict     the score of the pose and whether it can be trusted (core/verdict.py)
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
-Defaults (issues 10/11, measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
+Defaults (measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
 centimetres. The refinement, the dense refinement and more deep passes remain options.
 
 Everything after preprocessing runs in scaled coordinates (``model.scale`` times metres, see
 ModelConfig) and translations are scaled back. The result is ``T_target_source``
-(p_target = R p_source + t, docs/CONVENTIONS.md), float64.
+(p_target = R p_source + t, docs/CONVENTIONS.md), float64. ``register_pair`` (one call, the object kept
+between calls) is in core/pair.py.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
-import threading
-import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,27 +42,18 @@ import torch
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import global_search, verdict
-from deepbbs_ros.core.checkpoint import default_weights_path
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize, worker_share
-from deepbbs_ros.core.network_process import NetworkProcess, NetworkProcessLost
-from deepbbs_ros.core.network_process import wanted as network_process_wanted
+from deepbbs_ros.core.network_runner import NetworkRunner
 from deepbbs_ros.core.points import as_transform, as_xyz
-from deepbbs_ros.core.polish import (
-    SMALL_GICP_TYPE,
-    PolishCloud,
-    polish,
-    prepare_polish_cloud,
-    prepared_cloud,
-    threads_or_all,
-)
-from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
+from deepbbs_ros.core.polish import PolishCloud, polish, threads_or_all
+from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine
-from deepbbs_ros.errors import ModelError, RegistrationError
+from deepbbs_ros.core.scans import deskew_prepared, polish_cloud, prepare_scan
 from deepbbs_ros.reprs import short_repr
 
-__all__ = ["RegistrationResult", "DeepBBSRegistration", "clear_register_pair_cache", "register_pair"]
+__all__ = ["RegistrationResult", "DeepBBSRegistration"]
 
 _log = logging.getLogger(__name__)
 
@@ -146,11 +135,8 @@ class DeepBBSRegistration:
         # the model, the checkpoint, the kept target states and the deep passes (core/network.py)
         self.network = DeepBBSNetwork(config, weights=weights, device=device, model=model, stacklevel=3)
         self.config = config = self.network.config
-        # the network process (registration.network_process): "unstarted" -> "running", or "off" / "failed"
-        self._net: NetworkProcess | None = None
-        self._net_lock = threading.Lock()
-        wants = network_process_wanted(config.registration.network_process, self.device.type, self.weights_path)
-        self._net_state = "unstarted" if wants else "off"
+        # where the deep passes run: the network process (registration.network_process) or here (network_runner.py)
+        self.runner = NetworkRunner(self.network, config)
         self._searched: deque[bool] = deque(maxlen=global_search.SPECULATE_WINDOW)  # the search ran, last calls
 
     @property
@@ -183,7 +169,7 @@ class DeepBBSRegistration:
             self.register(pts, pts[::-1].copy(), preprocessed=True)
         self._searched.clear()  # random clouds: not a hint of what the real ones need
         if self.config.registration.global_search != "off":  # its batches: here (the network process warms its own)
-            away = self._net_state == "running"
+            away = self.runner.state == "running"
             rc = self.config.registration
             self.network.warmup(rounds if away else 0, batches=global_search.batch_sizes(rc)[1 if away else 2],
                                 rank_points=global_search.rank_size(rc, n))
@@ -191,66 +177,28 @@ class DeepBBSRegistration:
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                    motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False) -> PreprocessResult:
-        """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
-        precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on. Everything a scan
-        needs is here: a scan preprocessed once serves as source and as target (odometry, the node).
-        With ``preprocess.share_grid`` (default) the network's points are sampled from the precision
-        stage's voxel grid (``registration.polish_voxel``, whole cropped scan) instead of a second grid
-        (``preprocess.voxel_size`` on the non-ground points): one grid per scan, ~5 ms less per HDL-64 scan.
-
-        Per-point ``times`` (N,) s since the stamp (Velodyne ``time``, Ouster ``t``), with
-        ``preprocess.deskew`` on: with a known ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) of
-        the sensor (a stream's last step) the scan is deskewed to its stamp before anything else;
-        without one the raw scan, its times and ``stamp_ns`` are kept for :meth:`deskew_scan` once the
-        scan's velocity is known (``core.deskew.StreamDeskew`` follows a stream of scans). ``defer``: the
-        precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
+        """Raw scan (N, 3) metres (per-point ``times`` (N,) s since ``stamp_ns``, a known ``motion`` of the
+        sensor) -> :class:`PreprocessResult` with its precision-stage cloud (:func:`core.scans.prepare_scan`).
+        Everything a scan needs is here: a scan preprocessed once serves as source and as target (odometry, the
+        node). ``defer``: the precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
         """
-        pp, rc = self.config.preprocess, self.config.registration
-        points = as_xyz(points, "preprocess")  # (N, 3) real numbers, NaN rows dropped by the crop (core/points.py)
-        keep_raw, deskew_ms = None, None
-        if pp.deskew and times is not None:
-            tt = np.asarray(times, dtype=np.float64).reshape(-1)
-            if len(tt) != len(points):
-                raise RegistrationError(f"deskew: {len(tt)} per-point times for {len(points)} points")
-            if np.ptp(tt) > 0 and np.isfinite(tt).all():
-                if motion is not None and abs(motion[1]) > 1e-6:
-                    t0 = time.perf_counter()
-                    points = deskew(points, tt, motion[0], motion[1]).astype(np.float32)
-                    deskew_ms = (time.perf_counter() - t0) * 1e3
-                elif rc.polish != "none" and stamp_ns is not None:
-                    keep_raw = (np.asarray(points, dtype=np.float32), tt, int(stamp_ns))
-        pc = self.polish_cloud(points, defer=defer) if rc.polish != "none" else None
-        if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
-            # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
-            res = preprocess(canonical_order(pc.points()).astype(np.float32), pp, gridded=True)
-            res.n_input, res.n_valid = len(points), pc.n_cropped
-        else:
-            res = preprocess(points, pp)
-        if deskew_ms is not None:
-            res.timings_ms["deskew"] = deskew_ms
-            res.timings_ms["total"] += deskew_ms
-        if keep_raw is not None:
-            res.raw_points, res.times, res.stamp_ns = keep_raw
-        if pc is not None:
-            res.polish_cloud = pc
-            res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
-            res.timings_ms["total"] += res.polish_cloud.prepare_ms
-        return res
+        return prepare_scan(self.config, points, times, stamp_ns, motion, defer=defer, threads=self.gicp_threads())
 
     def polish_cloud(self, points: np.ndarray, *, defer: bool = False) -> PolishCloud:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
-        pp, rc = self.config.preprocess, self.config.registration
-        return prepare_polish_cloud(
-            as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
-            registration_type=SMALL_GICP_TYPE[rc.polish],
-            min_range=pp.min_range, max_range=pp.max_range, threads=self.gicp_threads(), defer=defer,
-            max_voxels=rc.polish_max_voxels)
+        return polish_cloud(self.config, points, defer=defer, threads=self.gicp_threads())
+
+    def deskew_scan(self, pre: PreprocessResult, motion: tuple[np.ndarray, float]) -> PreprocessResult:
+        """A copy of ``pre`` with ``deskewed_cloud``, its precision-stage cloud deskewed with the scan's own
+        velocity ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) (:func:`core.scans.deskew_prepared`;
+        ``core.deskew.StreamDeskew`` estimates it from the previous scan of the stream)."""
+        return deskew_prepared(self.config, pre, motion, threads=self.gicp_threads())
 
     @property
     def defers_precision(self) -> bool:
         """Raw scans' precision-stage k-d trees and covariances are best left to :meth:`register`, which builds
         them while the network process runs the passes (``preprocess(..., defer=True)``; the node's inputs)."""
-        return self.network.n_deep > 0 and self._net_state in ("unstarted", "running")
+        return self.network.n_deep > 0 and self.runner.state in ("unstarted", "running")
 
     def gicp_threads(self) -> int:
         """small_gicp threads for a call made now: ``registration.polish_threads``, or (0) every core but the
@@ -260,7 +208,7 @@ class DeepBBSRegistration:
         if n > 0:
             return n
         cores = threads_or_all(0)
-        return max(1, cores - 1) if self._net is not None and self._net.working else cores
+        return max(1, cores - 1) if self.runner.working else cores
 
     def _cloud(
         self, points: Any, preprocessed: bool, name: str
@@ -334,7 +282,7 @@ class DeepBBSRegistration:
         scale = self.model.scale
         tgt_np, tgt_dense, tgt_pre = self._cloud(target, preprocessed, "target")
         if not preprocessed and not isinstance(source, PreprocessResult) and self.network.n_deep:
-            self._send_target(tgt_np)  # the network process starts on the target while the source is prepared
+            self.runner.send_target(tgt_np)  # the network process starts on the target while the source is prepared
         src_np, src_dense, src_pre = self._cloud(source, preprocessed, "source")
         T = np.eye(4) if T_init is None else as_transform(T_init)
         src, tgt = self.network.scaled(src_np), self.network.scaled(tgt_np)
@@ -354,17 +302,15 @@ class DeepBBSRegistration:
         :meth:`_network_result`)."""
         if not self.network.n_deep:
             return
-        net = self._network_process()
-        if net is not None:
+        others = None
+        if self.runner.process() is not None:
             others = global_search.speculative_starts(self.config.registration, st.T_start, self._searched)
             if others is not None:  # the network process's share; this process runs the rest once it is needed
                 others = others[: worker_share(len(others))]
-                st.spec_n = len(others)
-            try:
-                st.pending = net.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), speculate=others)
-                return
-            except NetworkProcessLost as err:
-                self._network_failed(err)
+        st.pending = self.runner.submit(st.src_np, st.tgt_np, matrix(st.R, st.t, self.model.scale), others)
+        if st.pending is not None:
+            st.spec_n = 0 if others is None else len(others)
+            return
         self._apply_network(st, self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap))
 
     def _precision_clouds(self, st: _State, clock: Clock) -> None:
@@ -383,40 +329,13 @@ class DeepBBSRegistration:
         if st.pending is None:
             return
         pending, st.pending = st.pending, None
-        try:
-            out = pending.result()
-        except NetworkProcessLost as err:
-            self._network_failed(err)
-            out = self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap)
-        except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
-            out = self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap)
-        else:
+        out, away = self.runner.answer(pending, lambda: self.network.passes(st.src, st.tgt, st.R, st.t, clock.lap))
+        if away:
             clock.lap("network_wait")
             st.network_ms = out.ms
             if pending.left:  # the worker goes on with the global search's other starts (speculatively)
                 st.spec = pending
         self._apply_network(st, out)
-
-    def speculated(self, st: _State) -> list[NetworkOutput]:
-        """The outputs of the network process's speculative passes from the global search's other starts (all,
-        some, or none when there were none or the worker failed; waits for them)."""
-        spec, st.spec = st.spec, None
-        if spec is None:
-            return []
-        try:
-            return list(spec.result())
-        except NetworkProcessLost as err:
-            self._network_failed(err)
-        except RegistrationError:
-            pass
-        return []
-
-    @staticmethod
-    def drop_speculation(st: _State) -> None:
-        """The search is not needed: the network process stops its speculative passes (no wait)."""
-        spec, st.spec = st.spec, None
-        if spec is not None:
-            spec.cancel()
 
     def _apply_network(self, st: _State, out: NetworkOutput) -> None:
         st.R = torch.as_tensor(out.R, dtype=torch.float32, device=self.device)
@@ -424,98 +343,14 @@ class DeepBBSRegistration:
         st.gamma = torch.as_tensor(out.gamma, dtype=torch.float32, device=self.device)
         st.temperature, st.iters["deep"], st.converged = out.temperature, out.iterations, out.converged
 
-    def network_starts(self, st: _State, starts: list[np.ndarray], n_passes: int | None = None, *,
-                       away: bool = True, points: int | None = None) -> list[NetworkOutput]:
-        """``n_passes`` deep passes (default: the configured number) from each of ``starts`` ((4, 4) metres
-        T_target_source guesses) on the pair of ``st`` (the global search; ``points``: on the first ones of both
-        clouds only): the network process runs its share (``network.worker_share``, the first ones) as one batch
-        while this process runs the others as another; with no network process (or ``away`` False) all here.
-        -> the outputs in the order of the starts."""
-        n = self.network.n_deep if n_passes is None else n_passes
-        if points is not None and points < max(len(st.src_np), len(st.tgt_np)):
-            st = dataclasses.replace(st, src_np=st.src_np[:points], tgt_np=st.tgt_np[:points],
-                                     src=st.src[:, :points], tgt=st.tgt[:, :points])
-        net = self._network_process() if starts and away else None
-        pending, n_away = None, 0
-        if net is not None and worker_share(len(starts)) > 0:
-            n_away = worker_share(len(starts))
-            try:
-                pending = net.submit_starts(st.src_np, st.tgt_np, np.stack(starts[:n_away]), n)
-            except NetworkProcessLost as err:
-                self._network_failed(err)
-                n_away = 0
-        try:
-            here = self._starts_here(st, starts[n_away:], n)
-        except BaseException:
-            if pending is not None:
-                with contextlib.suppress(RegistrationError):
-                    pending.result()  # read and dropped: the next request must not get this answer
-            raise
-        if pending is None:
-            return here
-        try:
-            return pending.result() + here
-        except NetworkProcessLost as err:
-            self._network_failed(err)
-        except RegistrationError:  # the passes raised there: run them here (the same error, raised here)
-            pass
-        return self._starts_here(st, starts[:n_away], n) + here
-
-    def _starts_here(self, st: _State, starts: list[np.ndarray], n: int) -> list[NetworkOutput]:
-        if not starts:
-            return []
-        T = np.stack(starts)
-        R = torch.as_tensor(T[:, :3, :3], dtype=torch.float32, device=self.device)
-        t = torch.as_tensor(T[:, :3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
-        return self.network.starts(st.src, st.tgt, R, t, n)
-
-    def _send_target(self, tgt_np: np.ndarray) -> None:
-        net = self._network_process()
-        if net is not None:
-            net.prepare_target(tgt_np)
-
-    # -- the network process -------------------------------------------------------------------------
-    def _network_process(self) -> NetworkProcess | None:
-        """The worker running the network (started on first use), or None (``registration.network_process``
-        "off", a GPU, one core, a model object instead of a checkpoint file, or a worker that failed)."""
-        if self._net_state == "running" and self._net is not None and self._net.alive:
-            return self._net
-        if self._net_state != "unstarted":
-            if self._net_state == "running":  # it died between two registrations
-                self._network_failed(NetworkProcessLost("network process died"))
-            return None
-        with self._net_lock:
-            if self._net_state == "unstarted":
-                try:
-                    self._net = NetworkProcess(self.weights_path, self.config.to_flat())
-                    self._net_state = "running"
-                except ModelError as err:
-                    self._network_failed(err)
-        return self._net if self._net_state == "running" else None
-
-    def _network_failed(self, err: Exception) -> None:
-        """Log once, stop the worker and run the network in this process from now on."""
-        if self._net_state != "failed":
-            _log.warning("%s: running the network in this process from now on", err)
-        self._net_state = "failed"
-        if self._net is not None:
-            self._net.close()
-            self._net = None
-
     @property
     def network_process_state(self) -> str:
         """"running (pid N)", "not started yet", "off" or "failed" (see ``registration.network_process``)."""
-        if self._net_state == "running" and self._net is not None:
-            return f"running (pid {self._net.pid})"
-        return {"unstarted": "not started yet"}.get(self._net_state, self._net_state)
+        return self.runner.describe()
 
     def close(self) -> None:
         """Stop the network process, if any (also done when this object is collected or at exit)."""
-        if self._net is not None:
-            self._net.close()
-            self._net = None
-        if self._net_state == "running":
-            self._net_state = "unstarted"
+        self.runner.close()
 
     def _refine(self, st: _State) -> None:
         """DeepBBS++: SoftBBS on xyz over the k nearest targets, until the increment is tiny."""
@@ -567,33 +402,6 @@ class DeepBBSRegistration:
         moved = apply_transform(st.src, R[None], t[None])[0]
         return float((st.search.nearest_distance(moved) / self.model.scale <= self.config.registration.inlier_dist)
                      .float().mean())
-
-    def deskew_scan(self, pre: PreprocessResult, motion: tuple[np.ndarray, float]) -> PreprocessResult:
-        """A copy of ``pre`` (kept raw points and times: ``preprocess(points, times, stamp_ns)``) with
-        ``deskewed_cloud``, its precision-stage cloud deskewed to the stamp with ``motion`` = (``T_a_b``
-        (4, 4), seconds from a to b), the scan's own velocity (``core.deskew.StreamDeskew`` estimates it
-        from the previous scan of the stream). The sampled points stay as measured (the network is trained
-        on raw and compensated sweeps alike)."""
-        if pre.raw_points is None or pre.times is None or pre.polish_cloud is None:
-            return pre
-        t0 = time.perf_counter()
-        cloud = self._deskewed_cloud(pre, motion[0], motion[1])
-        ms = (time.perf_counter() - t0) * 1e3
-        timings = {**pre.timings_ms, "deskew": ms, "total": pre.timings_ms.get("total", 0.0) + ms}
-        return dataclasses.replace(pre, deskewed_cloud=cloud, velocity=motion, deskew="deskewed", timings_ms=timings)
-
-    def _deskewed_cloud(self, pre: PreprocessResult, T: np.ndarray, dt: float) -> PolishCloud:
-        """The precision-stage cloud of ``pre`` deskewed with the twist ``log(T) / dt``: its voxel centroids
-        moved with the times their azimuths were measured at (:class:`SweepTimes`, fitted to the raw scan;
-        covariances and k-d tree rebuilt, about half the cost of a full preparation), or, when the times
-        do not follow the azimuth, the raw scan deskewed point by point and prepared again."""
-        rc = self.config.registration
-        sweep = SweepTimes.fit(pre.raw_points, pre.times)
-        if sweep is None:
-            return self.polish_cloud(deskew(pre.raw_points, pre.times, T, dt).astype(np.float32))
-        c = pre.polish_cloud.points()
-        return prepared_cloud(deskew(c, sweep(c), T, dt), rc.polish_neighbors, SMALL_GICP_TYPE[rc.polish],
-                              self.gicp_threads())
 
     def _deskew(self, st: _State, clock: Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
@@ -735,14 +543,10 @@ def _answer_read(st: _State) -> Iterator[None]:
     try:
         yield
     finally:
-        if st.pending is not None:
-            pending, st.pending = st.pending, None
-            try:
-                pending.result()
-            except RegistrationError:
-                pass
-            pending.cancel()  # speculative passes after it (if any): stopped, read before the next request
-        DeepBBSRegistration.drop_speculation(st)
+        pending, st.pending = st.pending, None
+        NetworkRunner.discard(pending)  # read and dropped; speculative passes after it (if any) stopped
+        spec, st.spec = st.spec, None
+        NetworkRunner.drop(spec)
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:
@@ -765,68 +569,3 @@ def _overlap(
     src_in_tgt = src @ R.T + t
     tgt_in_src = (tgt - t) @ R
     return src_in_tgt.norm(dim=1) <= radius, tgt_in_src.norm(dim=1) <= radius
-
-
-_PAIR_CACHE: OrderedDict[tuple, tuple[DeepBBSRegistration, threading.Lock]] = OrderedDict()
-_PAIR_CACHE_SIZE = 2  # registrations kept by register_pair (each holds a network and maybe its worker process)
-_PAIR_CACHE_LOCK = threading.Lock()
-
-
-def register_pair(
-    source: np.ndarray, target: np.ndarray, config: Config | None = None, **kwargs: Any
-) -> RegistrationResult:
-    """One-shot convenience: ``DeepBBSRegistration(config, weights=, device=, model=).register(...)``.
-
-    ``weights``, ``device`` and ``model`` go to the constructor, everything else to ``register``.
-    The registration object is kept between calls (loading a checkpoint and warming torch up take about
-    2 s): calls with the same checkpoint file (path, size and modification time), device and config reuse
-    it; the two most recent are kept (:func:`clear_register_pair_cache` drops them and stops their network
-    processes). A ``model`` object handed in is used as is and never cached (its weights may change).
-    """
-    ctor = {k: kwargs.pop(k) for k in ("weights", "device", "model") if k in kwargs}
-    if "model" in ctor:
-        return DeepBBSRegistration(config, **ctor).register(source, target, **kwargs)
-    reg, lock = _cached_registration(config or Config(), ctor.get("weights"), ctor.get("device"))
-    with lock:  # one register() at a time per cached object (it may share one network process)
-        return reg.register(source, target, **kwargs)
-
-
-def _cached_registration(config: Config, weights: str | Path | None,
-                         device: str | None) -> tuple[DeepBBSRegistration, threading.Lock]:
-    path = weights if weights is not None else config.registration.weights
-    path = Path(path).expanduser().resolve() if path else default_weights_path()
-    try:
-        st = path.stat()
-        stamp = (st.st_size, st.st_mtime_ns)
-    except OSError:
-        stamp = None  # the constructor raises ModelError naming the file
-    key = (str(path), stamp, device, tuple((k, repr(v)) for k, v in sorted(config.to_flat().items())))
-    with _PAIR_CACHE_LOCK:
-        hit = _PAIR_CACHE.get(key)
-        if hit is not None:
-            _PAIR_CACHE.move_to_end(key)
-            return hit
-    entry = (DeepBBSRegistration(config, weights=path, device=device), threading.Lock())
-    evicted = []
-    with _PAIR_CACHE_LOCK:
-        if key in _PAIR_CACHE:  # another thread built it meanwhile: use that one
-            evicted.append(entry)
-            entry = _PAIR_CACHE[key]
-        else:
-            _PAIR_CACHE[key] = entry
-        while len(_PAIR_CACHE) > _PAIR_CACHE_SIZE:
-            evicted.append(_PAIR_CACHE.popitem(last=False)[1])
-    for reg, lock in evicted:
-        with lock:  # not in the middle of someone's register()
-            reg.close()
-    return entry
-
-
-def clear_register_pair_cache() -> None:
-    """Forget the registrations :func:`register_pair` keeps (and stop their network processes)."""
-    with _PAIR_CACHE_LOCK:
-        entries = list(_PAIR_CACHE.values())
-        _PAIR_CACHE.clear()
-    for reg, lock in entries:
-        with lock:
-            reg.close()
