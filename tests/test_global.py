@@ -77,6 +77,23 @@ def test_batched_starts_equal_single_passes(street_pair):
     assert len({one.iterations for one in single}) > 1  # some starts left the batch early: that path is checked
 
 
+def test_ranking_prefix():
+    """The search's ranking passes see the first ``registration.global_rank_points`` of both clouds (all of
+    them at 0 or when the clouds are smaller); a ranking output's gamma is padded with zeros to the full cloud."""
+    from deepbbs_ros.core.network import NetworkOutput
+    from deepbbs_ros.errors import ConfigError
+
+    rc = Config().registration
+    assert global_search.rank_size(rc, 512) == 256 and global_search.rank_size(rc, 200) == 200
+    assert global_search.rank_size(Config().replace(**{"registration.global_rank_points": 0}).registration, 512) == 512
+    with pytest.raises(ConfigError, match="global_rank_points"):
+        Config().replace(**{"registration.global_rank_points": 8})
+    out = NetworkOutput(np.eye(3, dtype=np.float32), np.zeros(3, np.float32), np.ones(256, np.float32), 1.0, 1, True)
+    full = global_search.full_gamma(out, 512)
+    assert full.gamma.shape == (512,) and full.gamma[:256].all() and not full.gamma[256:].any()
+    assert global_search.full_gamma(full, 512) is full
+
+
 def test_speculative_starts_in_the_network_process(tmp_path, street_pair):
     """The network process runs the other start yaws after the given start's passes: cancelled, nothing of it
     reaches the next request; read, it is what the caller would compute from the same starts on the clouds' first
