@@ -9,7 +9,9 @@ m apart: the source points are moved by a random yaw in [-180, 180] degrees and 
 ``--shift`` m and every method registers the raw pair with no initial guess (its time includes the
 preprocessing of both scans); success = within 1 deg / 0.3 m of the ground truth (the known move undone).
 ``--good-start``: the same pairs unmoved (what consecutive scans and odometry see), to show what the default
-pays there. KISS-Matcher runs on every ``--kiss-every``-th case (about ten times slower). Results go to
+pays there. ``--config-b``: DeepBBS++ with a second configuration as one more method, run before or after the
+first by turns on every case (an A/B on a machine whose speed drifts). KISS-Matcher runs on every
+``--kiss-every``-th case (about ten times slower). Results go to
 ``--out``/global_cases.jsonl (rerunning continues from it); the script prints success per data group and
 pair distance (up to 5 m, 5-15 m), accepted shares (``valid``), and p50 / p95 time per method.
 
@@ -34,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import study_frames  # noqa: E402
 
 METHODS = ("deepbbs++", "deepbbs++local", "gicp", "kiss-matcher", "kiss-matcher+gicp")
+B = "deepbbs++(b)"  # --config-b: DeepBBS++ with a second configuration, interleaved case by case
 
 
 def plan(sets: dict, args, rng: np.random.Generator) -> list[dict]:
@@ -73,8 +76,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--good-start", action="store_true")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--config", default=None, help="config YAML for DeepBBS++ (default: the shipped defaults)")
+    p.add_argument("--config-b", default=None,
+                   help="a second config YAML: DeepBBS++ with it runs as the method deepbbs++(b) on every case, "
+                        "before or after deepbbs++ by turns (an A/B whose halves share the machine's state)")
     args = p.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
+    if args.config_b and B not in methods:
+        methods.insert(methods.index("deepbbs++") + 1 if "deepbbs++" in methods else 0, B)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / ("good_start_cases.jsonl" if args.good_start else "global_cases.jsonl")
@@ -101,6 +109,8 @@ def run(cases, sets, methods, args, path: Path) -> None:
     if "deepbbs++local" in methods:
         regs["deepbbs++local"] = DeepBBSRegistration(cfg.replace(**{"registration.global_search": "off"}),
                                                      weights=args.weights)
+    if B in methods:
+        regs[B] = DeepBBSRegistration(load_config(args.config_b), weights=args.weights)
     for r in regs.values():
         r.warmup()
     base = {m: (SmallGicpRegistration(m, cfg) if m == "gicp" else KissMatcherRegistration(m, cfg))
@@ -113,7 +123,11 @@ def run(cases, sets, methods, args, path: Path) -> None:
             tgt = frames[case["j"]][0]
             T_gt = np.linalg.inv(frames[case["j"]][1]) @ frames[case["i"]][1]
             rec = dict(case)
-            for m in methods:
+            order = list(methods)
+            if B in order and "deepbbs++" in order and case["n"] % 2:  # the A/B pair in turns
+                a, b = order.index("deepbbs++"), order.index(B)
+                order[a], order[b] = order[b], order[a]
+            for m in order:
                 if m.startswith("kiss") and case["n"] % args.kiss_every:
                     continue
                 t0 = time.perf_counter()
@@ -157,7 +171,14 @@ def report(recs: list[dict], methods: list[str]) -> None:
         f"{np.percentile([r[m]['ms'] for r in recs if m in r], 50):8.0f} / "
         f"{np.percentile([r[m]['ms'] for r in recs if m in r], 95):6.0f}" if any(m in r for r in recs) else f"{'-':>18}"
         for m in methods))
-    for m in ("deepbbs++", "deepbbs++local"):
+    pairs = [(r["deepbbs++"], r[B]) for r in recs if "deepbbs++" in r and B in r]
+    if pairs:
+        d = np.array([b["ms"] - a["ms"] for a, b in pairs])
+        both = np.array([a["starts"] > 1 and b["starts"] > 1 for a, b in pairs])
+        print(f"{B} - deepbbs++, case by case: median {np.median(d):+.0f} ms, mean {d.mean():+.0f} ms ({len(d)} "
+              f"cases)" + (f"; where both searched: median {np.median(d[both]):+.0f} ms ({both.sum()})"
+                           if both.any() else ""))
+    for m in ("deepbbs++", B, "deepbbs++local"):
         sel = [r[m] for r in recs if m in r]
         if sel:
             ok = np.array([s["ok"] for s in sel])
