@@ -97,6 +97,10 @@ class _Lost(RegistrationError):
     """The worker died, stopped answering or could not be reached."""
 
 
+class _Expired(RegistrationError):
+    """A scan the worker no longer keeps (more than :data:`MAX_SCANS` held by the node)."""
+
+
 class _RemoteStreamDeskew:
     """``core.deskew.StreamDeskew`` of one input topic, run in the worker (``apply`` / ``reset``)."""
 
@@ -248,17 +252,31 @@ class RegistrationProcess:
         src = source if isinstance(source, ScanHandle) else self.preprocess(source)
         tgt = target if isinstance(target, ScanHandle) else self.preprocess(target)
         T = None if T_init is None else np.asarray(T_init, np.float64)
-        if self._state == "running" and src.local is None and tgt.local is None:
+        for _ in range(3):  # a scan the worker forgot (the node held more than MAX_SCANS) is sent again
+            if not (self._state == "running" and src.local is None and tgt.local is None):
+                break
             t0 = time.perf_counter()
             try:
                 result, net_state, wall_ms = self._call(("register", src.id, tgt.id, T))
                 self._net_state = net_state
                 result.timings_ms["transfer"] = max(0.0, (time.perf_counter() - t0) * 1e3 - wall_ms)
                 return result
+            except _Expired as err:
+                self._again(src if int(str(err)) == src.id else tgt)
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
         return local.register(self._localized(src), self._localized(tgt), T_init=T)
+
+    def kept(self) -> int:
+        """Scans the worker keeps now (after the releases sent with this request); 0 without a worker."""
+        if self._state != "running":
+            return 0
+        try:
+            return int(self._call(("kept",)))
+        except _Lost as err:
+            self._failed(err)
+            return 0
 
     def stream_deskew(self) -> _RemoteStreamDeskew:
         """A ``StreamDeskew`` for one input topic, run in the worker (its ``apply(handle)`` -> a new handle)."""
@@ -297,6 +315,17 @@ class RegistrationProcess:
 
             stream._local = StreamDeskew(local)
         return ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
+
+    def _again(self, h: ScanHandle) -> None:
+        """Preprocess a handle's scan in the worker again, under a new id (its deskew is not redone)."""
+        hid = next(self._ids)
+        try:
+            self._call(("preprocess", hid, h.xyz, h.times, h.stamp_ns, None, True))
+        except _Lost as err:
+            self._failed(err)
+            return
+        h.id = hid
+        weakref.finalize(h, self._released.append, hid)  # (the old id's finalizer releases a forgotten scan)
 
     def _localized(self, h: ScanHandle) -> Any:
         """The handle's PreprocessResult in this process (preprocessed again once, after a fallback)."""
@@ -341,6 +370,8 @@ class RegistrationProcess:
             return value
         if status == "lost":
             raise _Lost(value)
+        if status == "expired":
+            raise _Expired(value)
         if status == "registration_error":
             raise RegistrationError(value)
         raise DeepBBSError(f"registration process: {value}")  # a bug there: the node logs it and goes on
@@ -438,7 +469,7 @@ class _Worker:
             if pre is not None:
                 self.scans.move_to_end(hid)
         if pre is None:
-            raise RegistrationError(f"registration process: scan #{hid} is no longer kept (at most {MAX_SCANS})")
+            raise _Expired(str(hid))
         return pre
 
     def release(self, ids: list[int]) -> None:
@@ -451,7 +482,7 @@ class _Worker:
             q = self.lanes.get(lane)
             if q is None:
                 q = self.lanes[lane] = deque()
-                threading.Thread(target=self._serve, args=(q,), name=f"lane-{lane}", daemon=True).start()
+                threading.Thread(target=self._serve, args=(q, lane), name=f"lane-{lane}", daemon=True).start()
             q.append((rid, msg))
             self.cond.notify_all()
 
@@ -460,7 +491,10 @@ class _Worker:
             self.stopping = True
             self.cond.notify_all()
 
-    def _serve(self, q: deque) -> None:
+    def _serve(self, q: deque, lane: str) -> None:
+        from deepbbs_ros.node.worker import _name_os_thread
+
+        _name_os_thread(lane.removeprefix("deepbbs-"))  # as the node's thread is named (top -H, the benchmark)
         while True:
             with self.cond:
                 self.cond.wait_for(lambda: q or self.stopping)
@@ -469,6 +503,8 @@ class _Worker:
                 rid, msg = q.popleft()
             try:
                 answer = (rid, "ok", self.run(msg))
+            except _Expired as err:
+                answer = (rid, "expired", str(err))
             except RegistrationError as err:
                 answer = (rid, "registration_error", str(err))
             except Exception as err:  # noqa: BLE001 - a bug: one line to the node, which goes on
@@ -505,6 +541,9 @@ class _Worker:
             t0 = time.perf_counter()
             result = self.reg.register(self.get(src_id), self.get(tgt_id), T_init=T_init)
             return result, self.reg.network_process_state, (time.perf_counter() - t0) * 1e3
+        if op == "kept":
+            with self.scans_lock:
+                return len(self.scans)
         raise ValueError(f"unknown request {op!r}")
 
 
