@@ -622,6 +622,8 @@ def _coerce(value: Any, hint: Any, key: str) -> Any:
     if hint is str:
         if isinstance(value, str):
             return value
+        if isinstance(value, bool):  # YAML 1.1 and ROS parameters (-p name:=on / off) read on / off as booleans
+            return "on" if value else "off"
         raise ConfigError(f"config: {key} must be a string, got {value!r}")
     return value
 
