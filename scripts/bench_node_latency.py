@@ -267,9 +267,9 @@ def cpu_snapshot(pid: int) -> dict[str, float]:
         proc = "node" if i == 0 else "child"
         try:
             cmdline = Path(f"/proc/{p}/cmdline").read_text()
-            if "network_process" in cmdline:
+            if "deepbbs_ros.core.network_process" in cmdline:
                 proc = "network process"
-            elif "registration_process" in cmdline:  # node.registration_process: the node's registration
+            elif "deepbbs_ros.node.registration_process" in cmdline:  # node.registration_process
                 proc = "registration process"
         except OSError:
             continue

@@ -142,7 +142,7 @@ class RegistrationProcess:
         import deepbbs_ros
 
         self.config, self.weights = config, str(weights)
-        self.device = "cpu"
+        self.device = "cpu"  # the worker's, once it is ready
         self._log = log or _log.warning
         self._ids = itertools.count(1)
         self._futures: dict[int, Future] = {}
@@ -183,7 +183,7 @@ class RegistrationProcess:
         if msg[0] != "ready":
             self.close()
             raise ModelError(f"registration process: {msg[1]}")
-        self._net_state = msg[1]
+        self._net_state, self.device = msg[1], msg[2]
         self._state = "running"
         self._reader = threading.Thread(target=self._read, name="deepbbs-regproc-reader", daemon=True)
         self._reader.start()
@@ -549,7 +549,7 @@ class _Worker:
 
 def _worker_main(fd: int) -> int:
     """Read (weights, flat config), build and warm up the registration, answer ``("ready", network process
-    state)``, then serve ``(request id, lane, request)`` messages (and ``("release", ids)``,
+    state, device)``, then serve ``(request id, lane, request)`` messages (and ``("release", ids)``,
     ``("reset_stream", key)``) until ``("stop",)`` or until the node is gone (EOF)."""
     from multiprocessing.connection import Connection
 
@@ -566,7 +566,7 @@ def _worker_main(fd: int) -> int:
     except Exception as err:  # noqa: BLE001 - reported to the caller as one line
         conn.send(("error", f"{type(err).__name__}: {err}"))
         return 1
-    conn.send(("ready", reg.network_process_state))
+    conn.send(("ready", reg.network_process_state, str(reg.device)))
     worker = _Worker(conn, reg)
     try:
         while True:
