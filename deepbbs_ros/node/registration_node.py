@@ -46,7 +46,10 @@ local-map odometry works on the raw points and preprocesses only the scans it co
 (:mod:`deepbbs_ros.node.inputs`; at most one message waits per input, older ones are dropped and
 counted), so a pair's latency is mostly its registration. Registration / odometry runs on one worker
 thread behind a "latest" slot (:mod:`deepbbs_ros.node.worker`, :mod:`deepbbs_ros.node.pipeline`): the
-newest pair or scan wins, stale ones are dropped and counted. Bad input
+newest pair or scan wins, stale ones are dropped and counted. In pair mode on a CPU
+(``node.registration_process: auto``) these threads hand the preprocessing and the registration to the
+registration process (:mod:`deepbbs_ros.node.registration_process`), so that this process keeps only rclpy,
+decoding and the hand-off; if that process dies, one line is logged and the node registers itself. Bad input
 (malformed PointCloud2, empty, too few points, NaN-only, missing or changed frames) is logged once per
 kind and period (``node.error_log_period``), nothing is published for it, and the node goes on.
 """
