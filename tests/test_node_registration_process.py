@@ -70,7 +70,7 @@ def proxy():
     rp = RegistrationProcess(node_registration_config(_config()), default_weights_path())
     yield rp
     rp.close()
-    assert rp._proc.poll() is not None  # stopped
+    assert rp._proc.poll() is not None and rp.network_process_state.startswith("stopped")
 
 
 def test_proxy_gives_the_in_process_answer(proxy, street_pair):
@@ -186,4 +186,5 @@ def test_node_answers_through_the_registration_process_and_survives_its_death(ro
         executor.shutdown()
         node.destroy_node()
         client.destroy_node()
-    assert node.reg._local is not None and node.reg._local._net is None  # the fallback's network process stopped
+    assert node.reg._local is not None  # the fallback's registration, whose network process destroy_node stopped:
+    assert not node.reg.network_process_state.startswith("running"), node.reg.network_process_state

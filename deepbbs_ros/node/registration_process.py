@@ -209,7 +209,7 @@ class RegistrationProcess:
         """The network process of the registration (the worker's, as it last said; the fallback's)."""
         if self._local is not None:
             return self._local.network_process_state
-        return self._net_state
+        return self._net_state if self._state == "running" else "stopped (with the registration process)"
 
     @property
     def handles(self) -> int:
