@@ -294,6 +294,11 @@ class NodeConfig:
     # k-d trees, covariances and GICP scale with them. Off by default: capped at 11000 the KITTI 02 pairs' error
     # grew from 3.4 to 4.4 cm (GICP's own: 3.5 cm); a speed option for dense scans where centimetres matter less
     polish_max_voxels: int = 0
+    # pair mode: the registration (preprocessing, the GICP clouds, GICP, the network's own process) runs in a process
+    # of its own, so the node's process keeps rclpy, decoding and the hand-off (node/registration_process.py):
+    # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
+    # keeps the registration in the node's process
+    registration_process: str = "auto"
 
     def validate(self) -> None:
         _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
@@ -318,6 +323,8 @@ class NodeConfig:
         _check(self.deep_passes >= 0, "node.deep_passes", "must be >= 0 (0 = registration.max_deep_iters)")
         _check(self.polish_max_voxels >= 0, "node.polish_max_voxels",
                "must be >= 0 (0 = registration.polish_max_voxels)")
+        _check(self.registration_process in ("auto", "on", "off"), "node.registration_process",
+               f"must be 'auto', 'on' or 'off', got {self.registration_process!r}")
 
 
 @dataclass
@@ -621,6 +628,8 @@ def _coerce(value: Any, hint: Any, key: str) -> Any:
     if hint is str:
         if isinstance(value, str):
             return value
+        if isinstance(value, bool):  # YAML 1.1 and ROS parameters (-p name:=on / off) read on / off as booleans
+            return "on" if value else "off"
         raise ConfigError(f"config: {key} must be a string, got {value!r}")
     return value
 

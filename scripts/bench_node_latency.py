@@ -266,8 +266,11 @@ def cpu_snapshot(pid: int) -> dict[str, float]:
     for i, p in enumerate(_descendants(pid)):
         proc = "node" if i == 0 else "child"
         try:
-            if "network_process" in Path(f"/proc/{p}/cmdline").read_text():
+            cmdline = Path(f"/proc/{p}/cmdline").read_text()
+            if "deepbbs_ros.core.network_process" in cmdline:
                 proc = "network process"
+            elif "deepbbs_ros.node.registration_process" in cmdline:  # node.registration_process
+                proc = "registration process"
         except OSError:
             continue
         for task in Path(f"/proc/{p}/task").glob("*"):

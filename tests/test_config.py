@@ -77,3 +77,11 @@ def test_fast_preset_only_changes_the_speed_keys():
     cfg = Config.from_yaml(ROOT / "config" / "deepbbs_ros_fast.yaml")
     assert cfg.preprocess.num_points == 256 and cfg.registration.max_deep_iters == 1
     assert cfg.replace(**{"preprocess.num_points": 512, "registration.max_deep_iters": 2}) == Config()
+
+
+def test_on_off_read_as_booleans_are_the_words():
+    """ROS parameters and YAML 1.1 read ``on`` / ``off`` as booleans: a string setting takes them as the words."""
+    cfg = Config.from_flat({"node.registration_process": True, "registration.network_process": False})
+    assert (cfg.node.registration_process, cfg.registration.network_process) == ("on", "off")
+    with pytest.raises(ConfigError, match="node.registration_process"):
+        Config.from_flat({"node.registration_process": "maybe"})

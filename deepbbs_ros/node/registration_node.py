@@ -46,7 +46,10 @@ local-map odometry works on the raw points and preprocesses only the scans it co
 (:mod:`deepbbs_ros.node.inputs`; at most one message waits per input, older ones are dropped and
 counted), so a pair's latency is mostly its registration. Registration / odometry runs on one worker
 thread behind a "latest" slot (:mod:`deepbbs_ros.node.worker`, :mod:`deepbbs_ros.node.pipeline`): the
-newest pair or scan wins, stale ones are dropped and counted. Bad input
+newest pair or scan wins, stale ones are dropped and counted. In pair mode on a CPU
+(``node.registration_process: auto``) these threads hand the preprocessing and the registration to the
+registration process (:mod:`deepbbs_ros.node.registration_process`), so that this process keeps only rclpy,
+decoding and the hand-off; if that process dies, one line is logged and the node registers itself. Bad input
 (malformed PointCloud2, empty, too few points, NaN-only, missing or changed frames) is logged once per
 kind and period (``node.error_log_period``), nothing is published for it, and the node goes on.
 """
@@ -206,16 +209,25 @@ def node_registration_config(cfg: Config) -> Config:
     return dataclasses.replace(cfg, registration=dataclasses.replace(rc, **changes))
 
 
-def load_registration(cfg: Config) -> tuple[Any, str]:
-    """(DeepBBSRegistration, weights path) for the node; NodeError naming the parameter on a bad
-    device or a missing checkpoint."""
+def load_registration(cfg: Config, log: Callable[[str], None] | None = None) -> tuple[Any, str]:
+    """(registration, weights path) for the node: a DeepBBSRegistration, or in pair mode with
+    ``node.registration_process`` its proxy (:class:`~deepbbs_ros.node.registration_process.RegistrationProcess`,
+    the registration in a process of its own; ``log`` gets the line said if that process is lost). NodeError
+    naming the parameter on a bad device, a missing checkpoint, or a registration process that does not start."""
     from deepbbs_ros.device import resolve_device
+    from deepbbs_ros.errors import ModelError
+    from deepbbs_ros.node import registration_process
 
     try:
-        resolve_device(cfg.registration.device)
+        device = resolve_device(cfg.registration.device)
     except ConfigError as err:
         raise NodeError(str(err)) from err
     weights = str(check_weights(cfg))
+    if registration_process.wanted(cfg.node.registration_process, cfg.node.mode, device.type):
+        try:
+            return registration_process.RegistrationProcess(node_registration_config(cfg), weights, log), weights
+        except ModelError as err:
+            raise NodeError(f"node.registration_process: {err}") from err
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
     reg = DeepBBSRegistration(node_registration_config(cfg), weights=weights)
@@ -277,7 +289,7 @@ class RegistrationNode(Node):
         # the model: device and weights checked first, with errors naming the parameter
         self._owns_reg = registration is None  # closed with the node (its network process)
         if registration is None:
-            registration, self._weights = load_registration(self.cfg)
+            registration, self._weights = load_registration(self.cfg, lambda text: self.get_logger().error(text))
             t_model = time.perf_counter() - t_start
         else:
             t_model = 0.0
@@ -548,10 +560,13 @@ class RegistrationNode(Node):
         """A per-topic velocity follower + deskew (``core.deskew.StreamDeskew``) where each scan is
         preprocessed on arrival by DeepBBS++ with its precision stage and ``node.pair_deskew`` is on; None
         elsewhere."""
-        if not self._preprocess_on_arrival or not hasattr(self.reg, "deskew_scan"):
+        remote = hasattr(self.reg, "stream_deskew")  # the registration process: the topic's StreamDeskew runs there
+        if not self._preprocess_on_arrival or not (remote or hasattr(self.reg, "deskew_scan")):
             return None
         if not (self.cfg.preprocess.deskew and self.cfg.node.pair_deskew) or self.cfg.registration.polish == "none":
             return None
+        if remote:
+            return self.reg.stream_deskew()
         from deepbbs_ros.core.deskew import StreamDeskew
 
         return StreamDeskew(self.reg)
@@ -733,6 +748,7 @@ class RegistrationNode(Node):
             "mode": self.cfg.node.mode,
             "device": self._device,
             "weights": self._weights,
+            "registration process": getattr(self.reg, "state", "off") if hasattr(self.reg, "stream_deskew") else "off",
             "network process": getattr(self.reg, "network_process_state", "-"),
             "messages received": s["received"],
             "pairs synchronised": s["pairs"],
