@@ -296,9 +296,10 @@ class NodeConfig:
     polish_max_voxels: int = 0
     # pair mode: the registration (preprocessing, the GICP clouds, GICP, the network's own process) runs in a process
     # of its own, so the node's process keeps rclpy, decoding and the hand-off (node/registration_process.py):
-    # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
-    # keeps the registration in the node's process
-    registration_process: str = "auto"
+    # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process (default: on
+    # two cores, quiet, it frees the node's process but the latency stayed within the run-to-run spread while the
+    # three processes cost a little more CPU). Odometry mode keeps the registration in the node's process
+    registration_process: str = "off"
 
     def validate(self) -> None:
         _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")

@@ -1,8 +1,8 @@
 """Wide basin, live: a source turned by up to 45 deg of yaw and moved up to 5 m still registers, and so does
 one turned by 150 or -120 deg and moved 6-8 m (the global search of the default configuration).
 
-The node runs with the shipped weights (pair mode, real rclpy and DDS, one torch thread; on a CPU its
-registration runs in the node's registration process, ``node.registration_process: auto``).
+The node runs with the shipped weights (pair mode, real rclpy and DDS, one torch thread; the registration in
+the node's process, ``node.registration_process`` as shipped).
 Target: frame 0 of a simulated urban HDL-64E drive (``deepbbs_ros.sim``, ~120k points, occlusion,
 noise, dropouts); source: frame 1 of the same drive (an independent scan 0.1 s later) moved by a
 seeded perturbation ``A`` (yaw, horizontal shift), so ``T_target_source' = T_target_source @ inv(A)``.
