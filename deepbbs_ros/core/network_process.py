@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.network import NetworkOutput
+from deepbbs_ros.core.worker_process import handshake, spawn_worker
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
@@ -68,46 +69,16 @@ class NetworkProcess:
     """
 
     def __init__(self, weights: str | Path, flat_config: dict[str, Any]) -> None:
-        import socket
-        import subprocess
-        import sys
-        from multiprocessing.connection import Connection
-
-        import deepbbs_ros
-
-        ours, theirs = socket.socketpair()
-        env = dict(os.environ)
-        root = str(Path(deepbbs_ros.__file__).resolve().parents[1])  # importable from a source checkout too
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
-        try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "deepbbs_ros.core.network_process", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=env,
-                start_new_session=True)
-        except OSError as err:
-            ours.close()
-            raise ModelError(f"network process: cannot start {sys.executable} ({err})") from err
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
+        self._proc, self._conn = spawn_worker("deepbbs_ros.core.network_process", "network process")
         self._lock = threading.Lock()  # one request at a time: held from submit() until its answer is read
         self._send_lock = threading.Lock()  # one message at a time on the socket
         self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
         self._stale: Pending | None = None  # a cancelled request whose answer is still to be read
         try:
-            self._conn.send((str(weights), flat_config))
-            if not self._conn.poll(START_TIMEOUT_S):
-                raise ModelError(f"network process: no answer within {START_TIMEOUT_S:.0f} s of its start")
-            msg = self._conn.recv()
-        except (EOFError, OSError) as err:
-            self.close()
-            raise ModelError(f"network process exited while starting (exit code {self._proc.poll()})") from err
+            handshake(self._conn, self._proc, (str(weights), flat_config), "network process", START_TIMEOUT_S)
         except ModelError:
             self.close()
             raise
-        if msg[0] != "ready":
-            self.close()
-            raise ModelError(f"network process: {msg[1]}")
 
     @property
     def alive(self) -> bool:

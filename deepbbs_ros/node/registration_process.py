@@ -134,12 +134,7 @@ class RegistrationProcess:
     defers_precision = True  # the worker decides (its own DeepBBSRegistration.defers_precision)
 
     def __init__(self, config: Any, weights: str | Path, log: Callable[[str], None] | None = None) -> None:
-        import socket
-        import subprocess
-        import sys
-        from multiprocessing.connection import Connection
-
-        import deepbbs_ros
+        from deepbbs_ros.core.worker_process import handshake, spawn_worker
 
         self.config, self.weights = config, str(weights)
         self.device = "cpu"  # the worker's, once it is ready
@@ -153,36 +148,14 @@ class RegistrationProcess:
         self._local_lock = threading.Lock()
         self._state = "starting"
         self._net_state = "not started yet"  # the worker's network process, as it last said
-        ours, theirs = socket.socketpair()
-        env = dict(os.environ)
-        root = str(Path(deepbbs_ros.__file__).resolve().parents[1])  # importable from a source checkout too
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
-        try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "deepbbs_ros.node.registration_process", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=env,
-                start_new_session=True)
-        except OSError as err:
-            ours.close()
-            raise ModelError(f"registration process: cannot start {sys.executable} ({err})") from err
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
+        self._proc, self._conn = spawn_worker("deepbbs_ros.node.registration_process", "registration process")
         self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
         try:
-            self._conn.send((self.weights, config.to_flat()))
-            if not self._conn.poll(START_TIMEOUT_S):
-                raise ModelError(f"registration process: no answer within {START_TIMEOUT_S:.0f} s of its start")
-            msg = self._conn.recv()
-        except (EOFError, OSError) as err:
-            self.close()
-            raise ModelError(f"registration process exited while starting (exit code {self._proc.poll()})") from err
+            msg = handshake(self._conn, self._proc, (self.weights, config.to_flat()), "registration process",
+                            START_TIMEOUT_S)
         except ModelError:
             self.close()
             raise
-        if msg[0] != "ready":
-            self.close()
-            raise ModelError(f"registration process: {msg[1]}")
         self._net_state, self.device = msg[1], msg[2]
         self._state = "running"
         self._reader = threading.Thread(target=self._read, name="deepbbs-regproc-reader", daemon=True)
