@@ -407,9 +407,10 @@ class DeepBBSNetwork:
         pts = rng.uniform(-30.0, 30.0, (self.config.preprocess.num_points, 3)).astype(np.float32)
         for _ in range(rounds):
             self.network_np(pts, pts[::-1].copy(), np.eye(4))
-        sizes = [len(pts)] + ([rank_points] if 0 < rank_points < len(pts) else [])
-        for n in sizes:
-            src, tgt = pts[:n], pts[::-1][:n].copy()
-            for k in sorted(set(batches) | ({1} if n < len(pts) else set())):
-                if k > 1 or n < len(pts):
-                    self.starts_np(src, tgt, np.repeat(np.eye(4)[None], k, axis=0), 1)
+        for k in sorted(set(batches)):
+            if k > 1:
+                self.starts_np(pts, pts[::-1].copy(), np.repeat(np.eye(4)[None], k, axis=0), 1)
+        if 0 < rank_points < len(pts):  # the ranking prefix: one start (the speculative passes) and each batch
+            for k in sorted({1, *batches}):
+                self.starts_np(pts[:rank_points], pts[::-1][:rank_points].copy(),
+                               np.repeat(np.eye(4)[None], k, axis=0), 1)
