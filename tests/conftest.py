@@ -93,3 +93,31 @@ def street_scene():
 def street_pair():
     """The registration pair builder ``street_pair(seed, n, euler_zyx_deg, trans, road=False)``."""
     return _street_pair
+
+
+@pytest.fixture(scope="session")
+def pair_client():
+    """The live pair-mode harness ``pair_client(node, name)`` (:func:`_pair_client`)."""
+    return _pair_client
+
+
+def _pair_client(node, name: str):
+    """A client node publishing ``source_cloud`` / ``target_cloud`` (depth 5) and collecting ``/<name>/pose``,
+    spun with ``node`` on a 3-thread executor in a daemon thread (real rclpy, DDS): -> (client, poses, pubs,
+    executor); the caller shuts the executor down and destroys both nodes."""
+    import threading
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.executors import MultiThreadedExecutor
+    from sensor_msgs.msg import PointCloud2
+
+    client = rclpy.create_node(f"{name}_client")
+    poses: list = []
+    client.create_subscription(PoseStamped, f"/{name}/pose", poses.append, 20)
+    pubs = {t: client.create_publisher(PointCloud2, t, 5) for t in ("source_cloud", "target_cloud")}
+    executor = MultiThreadedExecutor(num_threads=3)
+    executor.add_node(node)
+    executor.add_node(client)
+    threading.Thread(target=executor.spin, daemon=True).start()
+    return client, poses, pubs, executor

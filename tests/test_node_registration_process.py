@@ -15,7 +15,6 @@ import functools
 import gc
 import os
 import signal
-import threading
 import time
 
 import numpy as np
@@ -26,9 +25,6 @@ from deepbbs_ros.node.dds import apply_default_profile
 apply_default_profile()
 rclpy = pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
@@ -123,7 +119,7 @@ def ros():
     rclpy.try_shutdown()
 
 
-def test_node_answers_through_the_registration_process_and_survives_its_death(ros, street_pair):
+def test_node_answers_through_the_registration_process_and_survives_its_death(ros, street_pair, pair_client):
     from deepbbs_ros.node.registration_node import RegistrationNode
     from deepbbs_ros.node.registration_process import RegistrationProcess
 
@@ -131,15 +127,7 @@ def test_node_answers_through_the_registration_process_and_survives_its_death(ro
     assert isinstance(node.reg, RegistrationProcess) and node.reg.alive
     logs: list[str] = []
     node.reg._log = logs.append  # the node's error log: captured to count the lines
-    client = rclpy.create_node(f"{NAME}_client")
-    poses: list[PoseStamped] = []
-    client.create_subscription(PoseStamped, f"/{NAME}/pose", poses.append, 20)
-    pubs = {t: client.create_publisher(PointCloud2, t, 5) for t in ("source_cloud", "target_cloud")}
-    executor = MultiThreadedExecutor(num_threads=3)
-    executor.add_node(node)
-    executor.add_node(client)
-    spin = threading.Thread(target=executor.spin, daemon=True)
-    spin.start()
+    client, poses, pubs, executor = pair_client(node, NAME)
 
     def send(src, tgt, stamp):
         pubs["target_cloud"].publish(arrays_to_pointcloud2(tgt, stamp_ns=stamp, frame_id="lidar"))

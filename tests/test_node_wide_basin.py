@@ -21,7 +21,6 @@ Frames 0 and 1 of seed 5 are 2.5 cm apart (the car starts): the motion is almost
 from __future__ import annotations
 
 import os
-import threading
 import time
 
 import numpy as np
@@ -32,9 +31,6 @@ from deepbbs_ros.node.dds import apply_default_profile
 apply_default_profile()
 rclpy = pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -75,7 +71,7 @@ def ros():
     rclpy.try_shutdown()
 
 
-def test_wide_basin_live(ros):
+def test_wide_basin_live(ros, pair_client):
     import small_gicp
     import torch
 
@@ -88,15 +84,7 @@ def test_wide_basin_live(ros):
     tgt, src0 = frames[0].points, frames[1].points
     T_tgt_src0 = np.linalg.inv(frames[0].T_world_lidar) @ frames[1].T_world_lidar
     node = RegistrationNode(_config(), node_name=NAME)  # loads the shipped weights itself
-    client = rclpy.create_node(f"{NAME}_client")
-    poses: list[PoseStamped] = []
-    client.create_subscription(PoseStamped, f"/{NAME}/pose", poses.append, 20)
-    pubs = {t: client.create_publisher(PointCloud2, t, 5) for t in ("source_cloud", "target_cloud")}
-    executor = MultiThreadedExecutor(num_threads=3)
-    executor.add_node(node)
-    executor.add_node(client)
-    spin = threading.Thread(target=executor.spin, daemon=True)
-    spin.start()
+    client, poses, pubs, executor = pair_client(node, NAME)
     rows = []
     try:
         deadline = time.monotonic() + 10
