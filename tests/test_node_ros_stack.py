@@ -121,11 +121,14 @@ def test_tf_odom_to_base_from_tf_static(ros, world, invert):
         static.destroy_node()
 
 
-def test_latched_map_target(ros, world):
+@pytest.mark.parametrize("process", ["off", "on"])
+def test_latched_map_target(ros, world, process):
     """node.target_mode: latched: a map (the whole toy street, larger than a scan) published once with transient
     local durability before the node starts; later scans (stamps unrelated to the map's) are each registered
-    against the map cropped around the last answer, and answered in the map frame (their world pose)."""
-    name = "reg_map"
+    against the map cropped around the last answer, and answered in the map frame (their world pose). The same
+    with the registration in a process of its own (node.registration_process: on: the crop is a scan kept
+    there)."""
+    name = f"reg_map_{process}"
     pub_node = rclpy.create_node(f"{name}_map")
     map_pub = pub_node.create_publisher(PointCloud2, "/map/points", LATCHED)
     map_pub.publish(arrays_to_pointcloud2(world.astype(np.float32), stamp_ns=SEC, frame_id="map"))
@@ -134,8 +137,16 @@ def test_latched_map_target(ros, world):
 
     rpy = Rotation.from_matrix(start[:3, :3]).as_euler("ZYX")[::-1]
     cfg = tiny_config(**{"node.target_mode": "latched", "node.map_crop_radius": 40.0,
-                         "node.initial_pose": [*map(float, start[:3, 3]), *map(float, rpy)]})  # fmt: skip
-    h = Harness(cfg, name, cli_args=["--ros-args", "-r", "target_cloud:=/map/points"])
+                         "node.initial_pose": [*map(float, start[:3, 3]), *map(float, rpy)],
+                         "node.registration_process": process})  # fmt: skip
+    proc = None
+    if process == "on":  # the node's own proxy needs a checkpoint file (the shipped one; the stages stay TINY's)
+        from deepbbs_ros.core.checkpoint import default_weights_path
+        from deepbbs_ros.node.registration_node import node_registration_config
+        from deepbbs_ros.node.registration_process import RegistrationProcess
+
+        proc = RegistrationProcess(node_registration_config(cfg), default_weights_path())
+    h = Harness(cfg, name, registration=proc, cli_args=["--ros-args", "-r", "target_cloud:=/map/points"])
     try:
         assert h.wait_for(lambda: h.node._map_target.map is not None, 15.0), "latched map not received"
         T_w = [at(2.0 + 0.9 * k, 0.3 + 0.05 * k, np.deg2rad(1.0 + 1.5 * k)) for k in range(4)]
@@ -148,9 +159,13 @@ def test_latched_map_target(ros, world):
             assert frame == "map" and stamp == (900 + k) * SEC
             _check_pose(T, T_w[k])
         assert h.node.stats()["errors"] == {}
+        if proc is not None:  # answered there: the process is alive and keeps the crop and the scans
+            assert h.node.reg is proc and proc.alive and proc.kept() >= 1, proc.state
     finally:
         h.close()
         pub_node.destroy_node()
+        if proc is not None:
+            proc.close()
 
 
 def test_unpaired_input_is_reported(ros, world):
