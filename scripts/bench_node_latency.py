@@ -32,7 +32,10 @@ scan k-1. ``--mode pair``: two inputs, both stamped alike, ``--stream``:
 CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
 seconds), the share answered, p50 / p99 latency, p99 / p50, the ratio to the anchor of the same run and
 the node's own stage breakdown (from /diagnostics); the last lines judge the DeepBBS++ node against the
-goal (``--goal-*``, ``--busy-*``). DDS stays on loopback in a run-specific domain. Quick check (a minute):
+goal (``--goal-*``, ``--busy-*``). ``--out DIR`` also keeps every run: ``runs.jsonl`` (one line per run and
+node: its summary, the node's stage breakdown and CPU, and every answered pair's latency with its period and
+frames) and ``latency.png`` (each run's latency per period and its distribution, the goal's lines drawn in), to see
+whether a tail is a few stalls or a drift. DDS stays on loopback in a run-specific domain. Quick check (a minute):
 
     python scripts/bench_node_latency.py --seconds 5 --layout both --mode odometry
 
@@ -44,6 +47,8 @@ The real-scan pair-mode goal (about 25 minutes):
 from __future__ import annotations
 
 import argparse
+import array
+import json
 import os
 import subprocess
 import sys
@@ -91,6 +96,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seconds", type=float, default=10.0, help="measured streaming time per run (s)")
     g.add_argument("--warmup", type=float, default=2.0, help="streaming time before the measurement (s)")
     g.add_argument("--rate", type=float, default=10.0, help="scan rate (Hz)")
+    g.add_argument("--repeat-sources", action="store_true",
+                   help="publish a source frame seen before byte for byte (default: each period's source differs from "
+                        "every earlier one in one point by at most 1 cm, as a sensor's scans do: a node that caches "
+                        "by content must not find it again)")
     g.add_argument("--runs", type=int, default=1, help="runs per configuration, a fresh node each")
     g.add_argument("--busy-runs", type=int, default=0,
                    help="further runs per configuration with one CPU-bound background process")
@@ -110,6 +119,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--goal-ratio", type=float, default=1.5, help="p99 / p50, at most")
     g.add_argument("--busy-answered", type=float, default=95.0, help="busy runs: %% answered, at least")
     g.add_argument("--busy-p99", type=float, default=250.0, help="busy runs: p99 latency (ms), at most")
+    p.add_argument("--out", type=Path, help="folder for runs.jsonl (every run, every pair's latency) and latency.png")
     return p
 
 
@@ -226,11 +236,43 @@ def kitti_stream(args, layout: str, stream: str, seq: Path) -> Stream:
     return Stream(out, stream_pairs(len(out), stream), desc)
 
 
+class FreshSources:
+    """Makes a replayed frame a new scan: a real sensor never sends the same cloud twice, and the node keeps its
+    recent clouds' preprocessing by content (a fixed target, or the previous source as the next target: both
+    real). The stream has only a few frames, played back and forth, so without this the node would find a
+    source it saw a few periods earlier in its cache (2 of 3 periods of the fixed stream) and skip its work.
+    :meth:`apply` moves one point of the message (a return more than 2 m away) by ``(k % 1000) * 10 um`` along
+    x, in place: different bytes every period, the same cloud to within 1 cm at one of ~120k points. The frame
+    keeps its last content until it is published again, so when it is the next period's target it is the
+    cloud the node just saw (the cache hit a real stream gets)."""
+
+    def __init__(self) -> None:
+        self._where: dict[int, tuple[int, float]] = {}  # id(msg) -> (byte offset of the point's x, its x)
+
+    def _find(self, msg) -> tuple[int, float]:
+        off = {f.name: f.offset for f in msg.fields}
+        step = msg.point_step
+        n = msg.width * msg.height
+        xyz = np.stack([np.ndarray((n,), dtype="<f4", buffer=msg.data, offset=off[c], strides=(step,)) for c in "xyz"],
+                       axis=1)
+        i = int(np.flatnonzero(np.isfinite(xyz).all(axis=1) & (np.linalg.norm(xyz, axis=1) > 2.0))[0])
+        return i * step + off["x"], float(xyz[i, 0])
+
+    def apply(self, msg, k: int) -> None:
+        key = id(msg)
+        if key not in self._where:
+            self._where[key] = self._find(msg)
+        at, x0 = self._where[key]
+        msg.data[at:at + 4] = array.array("B", np.float32(x0 + (k % 1000) * 1e-5).tobytes())
+
+
 # -- one run ---------------------------------------------------------------------------------------------
 @dataclass
 class RunResult:
     pairs: int = 0
     latencies_ms: list[float] = field(default_factory=list)
+    periods: list[int] = field(default_factory=list)  # the measured period of each answer (0 = the first measured)
+    frames: list[tuple[int, int]] = field(default_factory=list)  # its (source, target) frames (odometry: (k, k))
     diagnostics: dict[str, str] = field(default_factory=dict)
     error: str = ""
     cpu: str = ""  # CPU ms per period per thread group (cpu_line)
@@ -336,12 +378,17 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         s = stamp_to_ns(msg.header.stamp)
         if s in sent:
             res.latencies_ms.append((t - sent.pop(s)) * 1e3)
+            k = (s - STAMP0_NS) // int(SEC / args.rate)
+            res.periods.append(k - n_warm)
+            res.frames.append(tuple(pairs[k % len(pairs)]))
 
     pose_sub = node.create_subscription(PoseStamped, f"/{name}/pose", on_pose, 100)
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     topics = ("/bench/points",) if args.mode == "odometry" else ("/bench/target", "/bench/source")
     pubs = [node.create_publisher(PointCloud2, t, qos_profile_sensor_data) for t in topics]
     msgs, pairs = stream.msgs, stream.pairs
+    n_warm = int(round(args.warmup * args.rate))
+    fresh = FreshSources()
     try:
         deadline = time.monotonic() + args.startup_timeout
         while not (all(p.get_subscription_count() for p in pubs) and pose_sub.get_publisher_count()):
@@ -349,7 +396,6 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
                 res.error = "node exited" if proc.poll() is not None else "node did not come up in time"
                 return res
             rclpy.spin_once(node, timeout_sec=0.1)
-        n_warm = int(round(args.warmup * args.rate))
         n_total = n_warm + int(round(args.seconds * args.rate))
         t0 = time.perf_counter()
         cpu0, cpu_self0 = {}, 0.0
@@ -361,6 +407,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             i_src, i_tgt = pairs[k % len(pairs)]
             src = msgs[i_src]
             src.header.stamp = ns_to_stamp(stamp)
+            if not args.repeat_sources:
+                fresh.apply(src, k)
             if args.mode == "pair":
                 tgt = msgs[i_tgt]
                 tgt.header.stamp = ns_to_stamp(stamp)  # same stamp: the pair is synchronised at once
@@ -411,6 +459,61 @@ def stage_line(d: dict[str, str]) -> str:
              f"misses {d.get('preprocessing cache hits / misses', '?')}, poses the verdict rejected "
              f"{d.get('poses not published (the verdict rejected them)', '?')}")  # fmt: skip
     return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
+
+
+def save_runs(out: Path, layout: str, stream: str, runs: list[tuple[str, bool, dict[str, RunResult]]]) -> list[dict]:
+    """Append each (run, node) of one configuration to ``out``/runs.jsonl; -> the records."""
+    recs = []
+    for label, busy, results in runs:
+        for method, r in results.items():
+            recs.append({
+                "layout": layout, "stream": stream, "run": label, "busy": busy, "method": method,
+                "pairs": r.pairs, "answered": r.answered, "p50_ms": r.pct(50), "p99_ms": r.pct(99),
+                "error": r.error, "cpu": r.cpu, "diagnostics": r.diagnostics,
+                "samples": [{"period": k, "source": f[0], "target": f[1], "latency_ms": round(v, 2)}
+                            for k, v, f in zip(r.periods, r.latencies_ms, r.frames)],
+            })  # fmt: skip
+    with (out / "runs.jsonl").open("a") as f:
+        for rec in recs:
+            f.write(json.dumps(rec, default=float) + "\n")
+    return recs
+
+
+def plot_runs(args, recs: list[dict]) -> Path | str:
+    """``args.out``/latency.png: per configuration (layout, stream), each run's latency per measured period
+    (left) and its sorted latencies (right: the share of pairs answered within a time), the goal's p99 line
+    drawn in; -> the path, or why there is none."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return "none (matplotlib is not installed)"
+    configs = sorted({(r["layout"], r["stream"]) for r in recs})
+    fig, axes = plt.subplots(len(configs), 2, figsize=(13, 3.2 * len(configs)), squeeze=False)
+    for row, (layout, stream) in zip(axes, configs):
+        for r in (r for r in recs if (r["layout"], r["stream"]) == (layout, stream) and r["samples"]):
+            k = [s["period"] for s in r["samples"]]
+            v = np.array([s["latency_ms"] for s in r["samples"]])
+            name = f"{r['method']} {r['run']}"
+            style = "--" if r["method"] == ANCHOR else "-"
+            row[0].plot(k, v, style, lw=0.8, label=name)
+            share = np.arange(1, len(v) + 1) / max(r["pairs"], 1)  # of the pairs published: drops stay below 1
+            row[1].plot(np.sort(v), share, style, lw=1.0, label=f"{name} ({100 * r['answered']:.0f} %)")
+        for ax in row:
+            ax.grid(alpha=0.3)
+        row[0].axhline(args.goal_p99, color="k", lw=0.8, ls=":")
+        row[1].axvline(args.goal_p99, color="k", lw=0.8, ls=":")
+        row[0].set(title=f"{layout}, {stream}: latency per period", xlabel="measured period", ylabel="ms")
+        row[1].set(title=f"{layout}, {stream}: share of pairs answered within", xlabel="ms", ylabel="share",
+                   ylim=(0, 1.02))
+        row[1].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    path = args.out / "latency.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 @dataclass
@@ -492,6 +595,10 @@ def main(argv: list[str] | None = None) -> int:
     streams = ("consecutive", "fixed") if args.stream == "both" else (args.stream,)
     plan = [False] * args.runs + [True] * args.busy_runs
     judged: list[Judged] = []
+    kept: list[dict] = []
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "runs.jsonl").write_text("")  # this command's runs only
     rclpy.init()
     try:
         for layout in layouts:
@@ -516,8 +623,12 @@ def main(argv: list[str] | None = None) -> int:
                         judged.append(Judged(f"{layout} {kind} run {label}", busy, results["deepbbs"]))
                 desc = (sim or kitti_stream(args, layout, kind, seqs[0])).desc
                 report(f"{desc}, {kind} {'pairs' if args.mode == 'pair' else 'scans'}", args, runs)
+                if args.out is not None:
+                    kept += save_runs(args.out, layout, kind, runs)
     finally:
         rclpy.try_shutdown()
+    if args.out is not None and kept:
+        print(f"runs: {args.out / 'runs.jsonl'}; plot: {plot_runs(args, kept)}")
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} CPUs"
           + (": figures disturbed by other work" if load > 0.5 * (os.cpu_count() or 1) else ""))  # fmt: skip
