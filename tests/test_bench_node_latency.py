@@ -64,3 +64,38 @@ def test_stream_pairs(bench):
     assert bench.stream_pairs(10, "fixed") == [(1, 0), (2, 0), (3, 0), (4, 0), (3, 0), (2, 0)]
     assert bench.stream_pairs(10, "same") == [(1, 0)]
     assert bench.stream_pairs(2, "fixed") == [(1, 0)]
+
+
+def test_fresh_sources_make_every_period_a_new_scan(bench, tmp_path):
+    """Each period's source differs from every earlier one (the node's content-keyed cache must not find a replayed
+    frame again) in one point by at most 1 cm; a frame keeps its content until it is published again, so as the
+    next period's target it is the cloud just sent; the node's own decoding and cache key see all of that."""
+    from deepbbs_ros.node.inputs import PreprocessCache
+
+    write_scans([_spinning_scan(i) for i in range(2)], tmp_path / "seq", "kitti")
+    for layout in ("velodyne", "ouster"):
+        msgs = bench.kitti_stream(SimpleNamespace(), layout, "consecutive", tmp_path / "seq").msgs
+        before = decode_cloud(msgs[0], "/bench", 3)[0].copy()
+        fresh, keys = bench.FreshSources(), set()
+        for k in range(6):
+            fresh.apply(msgs[0], k)
+            xyz = decode_cloud(msgs[0], "/bench", 3)[0]
+            moved = np.flatnonzero((xyz != before).any(axis=1))
+            assert len(moved) <= 1 and np.abs(xyz - before).max() <= 0.01
+            keys.add(PreprocessCache.key(xyz))
+            assert PreprocessCache.key(decode_cloud(msgs[0], "/bench", 3)[0]) in keys  # unchanged until applied again
+        assert len(keys) == 6, layout
+
+
+def test_runs_are_kept_and_plotted(bench, tmp_path):
+    """--out: one runs.jsonl line per run and node (every pair's latency, period and frames) and latency.png."""
+    import json
+
+    r = bench.RunResult(pairs=4, latencies_ms=[80.0, 90.0, 85.0], periods=[0, 1, 3], frames=[(1, 0), (2, 1), (2, 3)],
+                        diagnostics={"mode": "pair"}, cpu="CPU ms per period: total 100.0")  # fmt: skip
+    recs = bench.save_runs(tmp_path, "velodyne", "consecutive", [("1 (00)", False, {"deepbbs": r})])
+    line = json.loads((tmp_path / "runs.jsonl").read_text())
+    assert recs == [line] and line["answered"] == 0.75 and line["p50_ms"] == 85.0
+    assert line["samples"][2] == {"period": 3, "source": 2, "target": 3, "latency_ms": 85.0}
+    args = SimpleNamespace(out=tmp_path, goal_p99=150.0)
+    assert bench.plot_runs(args, recs) == tmp_path / "latency.png" and (tmp_path / "latency.png").stat().st_size > 0
