@@ -243,3 +243,27 @@ def test_a_voxel_cap_puts_a_dense_scan_on_a_coarser_grid_and_gicp_still_lands(st
     res = polish(capped[0], capped[1], T @ _offset(), _cfg())
     rot, trans = _err(res.T_target_source, T)
     assert res.applied and trans < 0.05 and rot < 0.15, (rot, trans)
+
+
+@pytest.mark.parametrize("defer", [True, False])
+def test_a_pickled_cloud_is_its_voxel_grid_with_the_rest_deferred(street_pair, defer):
+    """What the node's registration process receives (a PreprocessResult the node's input thread made): its
+    PolishCloud pickles as the voxel grid; the copy builds its k-d tree and covariances when it is used, the same
+    ones, and the precision stage lands on the same pose."""
+    import pickle
+
+    src, tgt, T_gt = street_pair(7, 40000, [4.0, 0.3, -0.2], [1.2, 0.3, 0.03], road=True)
+    clouds = [prepare_polish_cloud(np.concatenate(p), 0.5, 20, defer=defer) for p in (src, tgt)]
+    copies = [pickle.loads(pickle.dumps(PreprocessResult(np.zeros((3, 3), np.float32), None, 0, 0, 0,
+                                                         polish_cloud=c))).polish_cloud for c in clouds]
+    for c, k in zip(clouds, copies):
+        assert k.pending == (20, "GICP", c.spec[2]) and k.tree is None and k.n_points == c.n_points
+        np.testing.assert_array_equal(k.points(), c.points())
+    cfg = Config().registration
+    T0 = T_gt.copy()
+    T0[:3, 3] += (0.3, -0.2, 0.05)
+    a, b = polish(clouds[0], clouds[1], T0, cfg), polish(copies[0], copies[1], T0, cfg)
+    for c, k in zip(clouds, copies):
+        np.testing.assert_array_equal(np.asarray(k.cloud.covs()), np.asarray(c.cloud.covs()))
+    np.testing.assert_allclose(b.T_target_source, a.T_target_source, atol=1e-9)
+    assert a.applied and b.applied

@@ -65,7 +65,23 @@ class PolishCloud:
     # (neighbors, registration_type, threads) while the k-d tree and covariances wait (prepare_polish_cloud(
     # defer=True)): :meth:`complete` builds them; the voxel grid (``points()``) is there already
     pending: tuple[int, str, int] | None = None
+    # (neighbors, registration_type, threads) of its k-d tree and covariances, built or pending: what a copy of this
+    # cloud in another process builds again (pickling keeps the voxel grid only, with the k-d tree and covariances
+    # deferred: small_gicp's objects do not pickle, and building them is the work that process is there for)
+    spec: tuple[int, str, int] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+
+    def __getstate__(self) -> dict:
+        return {"points": self.points(), "n_points": self.n_points, "prepare_ms": self.prepare_ms,
+                "n_cropped": self.n_cropped, "spec": self.spec or self.pending}
+
+    def __setstate__(self, state: dict) -> None:
+        import small_gicp
+
+        self.cloud = small_gicp.PointCloud(np.ascontiguousarray(state["points"], dtype=np.float64))
+        self.tree, self.n_points, self.n_cropped = None, state["n_points"], state["n_cropped"]
+        self.prepare_ms, self.spec, self.pending = state["prepare_ms"], state["spec"], state["spec"]
+        self._lock = threading.Lock()
 
     def complete(self, threads: int | None = None) -> PolishCloud:
         """Build the deferred k-d tree and covariances (``threads`` overrides the preparation's); no-op when
@@ -147,11 +163,11 @@ def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: 
             cloud = small_gicp.voxelgrid_sampling(np.asarray(cloud.points())[:, :3], v, num_threads=th)
     else:
         cloud = small_gicp.PointCloud(pts)
+    spec = (neighbors, registration_type, th)
     if defer:
-        pending = (neighbors, registration_type, th)
-        return PolishCloud(cloud, None, int(cloud.size()), n_cropped=len(pts), pending=pending)
+        return PolishCloud(cloud, None, int(cloud.size()), n_cropped=len(pts), pending=spec, spec=spec)
     tree = _tree_and_covariances(cloud, neighbors, registration_type, th)
-    return PolishCloud(cloud, tree, int(cloud.size()), n_cropped=len(pts))
+    return PolishCloud(cloud, tree, int(cloud.size()), n_cropped=len(pts), spec=spec)
 
 
 def _tree_and_covariances(cloud: Any, neighbors: int, registration_type: str, threads: int) -> Any:

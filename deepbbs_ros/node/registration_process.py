@@ -4,15 +4,18 @@ On a CPU everything GIL-bound of the pair-mode node used to run in the node's on
 the PointCloud2 decoding, each new cloud's preprocessing (small_gicp's voxel grid, ground, FPS), the GICP
 cloud's k-d tree and covariances and GICP itself; small_gicp holds the GIL for the whole of each call, so
 these queue behind each other on one core while the second core is only partly used by the network
-process. With ``node.registration_process`` (auto: on in pair mode on a CPU with 2+ cores, for the node's
-own DeepBBS++) the node's process keeps rclpy, decoding and the hand-off, and this module's worker process
-owns the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` (which keeps its own network process):
-node process + registration process + network process.
+process. With ``node.registration_process`` (auto, the default: on in pair mode on a CPU with 2+ cores, for the
+node's own DeepBBS++) the node's process keeps rclpy, decoding and each new cloud's preprocessing, and this
+module's worker process owns the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` (which keeps its
+own network process): the GICP clouds' k-d trees and covariances, GICP and the verdict. Node process +
+registration process + network process. (Preprocessing in the worker as well left it with 85-115 ms of
+GIL-bound work per 100 ms period on real HDL-64E scans: measured, it answered fewer pairs.)
 
 ::
 
     node process                                 registration process (python -m deepbbs_ros.node.registration_process)
-    input thread k ── preprocess(xyz, times) ──▶ lane "input k": preprocess (deferred GICP cloud) → ScanHandle
+    input thread k: preprocess (deferred GICP cloud)
+                   ── adopt(result) ──────────▶ lane "input k": kept under a handle → ScanHandle
                    ── deskew(handle) ─────────▶  the same lane: that topic's StreamDeskew (node.pair_deskew)
     registration   ── register(src, tgt) ─────▶ lane "registration": DeepBBSRegistration.register → result
     handle freed   ── release (with the next request)  (the scan is forgotten there)
@@ -29,7 +32,8 @@ The worker is started like the network process (``core/network_process.py``: a s
 pair, in its own session, the same checkpoint and config). A RegistrationError there (bad input) comes
 back as a RegistrationError with its one-line message. If the worker dies or stops answering, the proxy
 logs one line, loads the registration in the node's process, and runs every request there from then on
-(a handle of the dead worker is preprocessed again from its points: nothing is lost but time).
+(a handle of the dead worker is preprocessed again from its points: nothing is lost but time). A
+``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish.py).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.scans import prepare_scan
 from deepbbs_ros.errors import DeepBBSError, ModelError, RegistrationError
 
 __all__ = ["RegistrationProcess", "ScanHandle", "wanted"]
@@ -193,10 +198,12 @@ class RegistrationProcess:
     # -- the interface the node uses ----------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                    motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False) -> ScanHandle:
-        """``DeepBBSRegistration.preprocess`` in the worker -> a :class:`ScanHandle` of the result.
+        """``DeepBBSRegistration.preprocess`` (``core.scans.prepare_scan``) in this thread, the result handed to the
+        worker (which builds its GICP cloud's k-d tree and covariances when it registers it) -> a
+        :class:`ScanHandle` of it.
 
         Raises:
-            RegistrationError: the worker's, with its message (bad input).
+            RegistrationError: bad input, with its one-line message.
         """
         if self._state == "running":
             hid = next(self._ids)
@@ -204,7 +211,9 @@ class RegistrationProcess:
                 xyz = np.ascontiguousarray(points)
                 tt = None if times is None else np.ascontiguousarray(times)
                 stamp = None if stamp_ns is None else int(stamp_ns)
-                out = self._call(("preprocess", hid, xyz, tt, stamp, motion, bool(defer)))
+                # preprocessed here (numpy, mostly without the GIL); the GICP cloud's k-d tree and covariances there
+                pre = prepare_scan(self.config, xyz, tt, stamp, motion, defer=True, threads=0)
+                out = self._call(("adopt", hid, pre))
                 return self._handle(hid, xyz, tt, stamp, out)
             except _Lost as err:
                 self._failed(err)
@@ -497,6 +506,10 @@ class _Worker:
         if op == "preprocess":
             _, hid, xyz, times, stamp_ns, motion, defer = msg
             pre = self.reg.preprocess(xyz, times, stamp_ns, motion, defer=defer and self.reg.defers_precision)
+            self.put(hid, pre)
+            return self._reply(pre)
+        if op == "adopt":  # a scan the node preprocessed: its GICP cloud's k-d tree and covariances are built here
+            _, hid, pre = msg
             self.put(hid, pre)
             return self._reply(pre)
         if op == "deskew":
