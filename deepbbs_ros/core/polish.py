@@ -73,7 +73,7 @@ class PolishCloud:
 
     def __getstate__(self) -> dict:
         return {"points": self.points(), "n_points": self.n_points, "prepare_ms": self.prepare_ms,
-                "n_cropped": self.n_cropped, "spec": self.spec or self.pending}
+                "n_cropped": self.n_cropped, "spec": self.spec}
 
     def __setstate__(self, state: dict) -> None:
         import small_gicp

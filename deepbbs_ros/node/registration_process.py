@@ -211,10 +211,7 @@ class RegistrationProcess:
                 xyz = np.ascontiguousarray(points)
                 tt = None if times is None else np.ascontiguousarray(times)
                 stamp = None if stamp_ns is None else int(stamp_ns)
-                # preprocessed here (numpy, mostly without the GIL); the GICP cloud's k-d tree and covariances there
-                pre = prepare_scan(self.config, xyz, tt, stamp, motion, defer=True, threads=0)
-                out = self._call(("adopt", hid, pre))
-                return self._handle(hid, xyz, tt, stamp, out)
+                return self._handle(hid, xyz, tt, stamp, self._adopt(hid, xyz, tt, stamp, motion))
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
@@ -298,11 +295,16 @@ class RegistrationProcess:
             stream._local = StreamDeskew(local)
         return ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
 
+    def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any) -> dict:
+        """Preprocess a scan here (numpy, mostly without the GIL) and hand it to the worker under ``hid`` (the GICP
+        cloud's k-d tree and covariances are built there) -> the worker's reply."""
+        return self._call(("adopt", hid, prepare_scan(self.config, xyz, times, stamp, motion, defer=True, threads=0)))
+
     def _again(self, h: ScanHandle) -> None:
-        """Preprocess a handle's scan in the worker again, under a new id (its deskew is not redone)."""
+        """Preprocess a handle's scan again for the worker, under a new id (its deskew is not redone)."""
         hid = next(self._ids)
         try:
-            self._call(("preprocess", hid, h.xyz, h.times, h.stamp_ns, None, True))
+            self._adopt(hid, h.xyz, h.times, h.stamp_ns, None)
         except _Lost as err:
             self._failed(err)
             return
@@ -503,11 +505,6 @@ class _Worker:
 
     def run(self, msg: tuple) -> Any:
         op = msg[0]
-        if op == "preprocess":
-            _, hid, xyz, times, stamp_ns, motion, defer = msg
-            pre = self.reg.preprocess(xyz, times, stamp_ns, motion, defer=defer and self.reg.defers_precision)
-            self.put(hid, pre)
-            return self._reply(pre)
         if op == "adopt":  # a scan the node preprocessed: its GICP cloud's k-d tree and covariances are built here
             _, hid, pre = msg
             self.put(hid, pre)
