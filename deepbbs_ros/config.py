@@ -173,7 +173,7 @@ class RegistrationConfig:
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
     # the verdict (core/verdict.py): RegistrationResult.score = share of the source's sampled points within
     # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated by
-    # scripts/verdict_study.py on simulated and real pairs)
+    # simulated and real pairs; checked by scripts/benchmarks/registration.py)
     verdict_dist: float = 0.5  # m
     verdict_threshold: float = 0.35
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on

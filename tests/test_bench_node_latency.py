@@ -1,4 +1,4 @@
-"""scripts/bench_node_latency.py's streams: real KITTI-style scans in the driver layouts the node decodes (the
+"""scripts/benchmarks/node_latency.py's streams: real KITTI-style scans in the driver layouts the node decodes (the
 points come back as they were, the time field of 0 as no times) and the per-period pairs of each stream."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_node_latency", ROOT / "scripts" / "bench_node_latency.py")
+    spec = importlib.util.spec_from_file_location("bench_node_latency", ROOT / "scripts" / "benchmarks" / "node_latency.py")
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # its dataclasses look their module up
     try:

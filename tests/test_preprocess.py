@@ -2,7 +2,7 @@
 
 Scans come from a small analytic ray caster (:func:`make_scan`): a spinning multi-beam LiDAR over a
 sloped ground plane with box buildings and cylindrical poles, every return labelled with the surface
-it hit, so ground removal is checked against ground truth. ``scripts/bench_preprocess.py`` reuses it.
+it hit, so ground removal is checked against ground truth.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@
     verdict     the score of the pose and whether it can be trusted (core/verdict.py)
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
-Defaults (measured in scripts/pipeline_study.py): 512 sampled points, 2 deep passes for
+Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
 centimetres. The refinement, the dense refinement and more deep passes remain options.
 

@@ -6,8 +6,8 @@ the target's precision-stage cloud (the whole cropped scan on the ``registration
 included) under ``T_target_source``. A true pair puts the source's walls, poles and trees on the target's;
 two different places (or a wrong pose of the right place) leave most of them in free space. Non-ground
 source points make the ground, which any two roads share, count for nothing. The result is ``valid`` when
-the score reaches ``registration.verdict_threshold`` (calibrated by scripts/verdict_study.py on simulated
-and real pairs; the measured rates are in MODEL.md).
+the score reaches ``registration.verdict_threshold`` (calibrated on simulated
+and real pairs; the measured rates: docs/benchmarks.md, scripts/benchmarks/registration.py).
 
 Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
 arrays) the score is taken against the target's voxelised non-ground points, or its sampled points within

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Benchmark PointCloud2 -> numpy decoding on an Ouster-layout cloud (goal: <= 5 ms for 131,072 points).
+"""PointCloud2 decoding: an Ouster OS1-128 layout cloud (131,072 points) to numpy, against the 5 ms goal.
 
-Builds a 1024 x 128 organised cloud in the ouster-ros layout (point_step 48, padding, t/reflectivity/
-ring/ambient/range fields; ~5 % no-return pixels as zeros, one NaN row), then times
-``pointcloud2_to_xyz`` (and, for reference, xyz + intensity/t/ring and the encoder).
+Figures (``decode.json``, ``decode.png`` under ``--out``): median, min and median CPU time of
+``pointcloud2_to_xyz``, of xyz + intensity/t/ring and of the encoder, on a 1024 x 128 organised cloud in the
+ouster-ros layout (point_step 48, padding, t/reflectivity/ring/ambient/range fields; ~5 % no-return pixels as
+zeros, one NaN row).
 
-    python scripts/bench_adapters.py            # median of 200 runs per case
-    python scripts/bench_adapters.py --runs 500 --flavor rosbags
+    python scripts/benchmarks/decode.py --runs 500 --out results/benchmarks
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402,F401  (puts the checkout first on sys.path)
 import numpy as np  # noqa: E402
 
 from deepbbs_ros.cli.common import cli_entry  # noqa: E402
@@ -59,7 +59,7 @@ def _time_ms(fn, runs: int) -> tuple[float, float, float]:
     return 1e3 * statistics.median(wall), 1e3 * min(wall), 1e3 * statistics.median(cpu)
 
 
-@cli_entry("bench_adapters")
+@cli_entry("decode")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     g = parser.add_argument_group("benchmark")
@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--flavor", choices=("rclpy", "rosbags"), default="rclpy", help="message flavour to decode")
     g.add_argument("--width", type=int, default=1024)
     g.add_argument("--height", type=int, default=128)
+    g.add_argument("--out", default="results/benchmarks", help="folder for decode.json and decode.png")
     args = parser.parse_args(argv)
 
     from msg_adapters.layouts import OUSTER, build_cloud
@@ -98,6 +99,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:<45s} {med:9.3f} {best:9.3f} {cpu:9.3f}  ms")
     if os.getloadavg()[0] > (os.cpu_count() or 1):
         print(f"  note: load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs: wall times are disturbed")
+    out = Path(args.out)
+    _common.write_json(out, "decode.json", {"points": n, "valid_points": len(xyz), "flavor": args.flavor,
+                                            "runs": args.runs, "goal_ms": 5.0,
+                                            "cases": {name: {"median_ms": med, "min_ms": best, "cpu_median_ms": cpu}
+                                                      for name, (med, best, cpu) in rows}})
+    plt = _common.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.barh([r[0] for r in rows], [r[1][0] for r in rows])
+    ax.axvline(5.0, color="k", ls="--", label="goal: decode <= 5 ms")
+    ax.set_xlabel(f"median ms ({n} points, {args.runs} runs)")
+    ax.legend(fontsize=8)
+    _common.save(fig, out, "decode.png")
     return 0
 
 

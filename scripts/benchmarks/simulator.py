@@ -1,12 +1,11 @@
 #!/usr/bin/env python3
-"""Benchmark the LiDAR drive simulator: frames per second per scene and where the time goes.
+"""The LiDAR drive simulator's speed: HDL-64 frames per second per scene type and where the time goes.
 
-    python scripts/bench_sim.py                      # HDL-64, 30 frames per scene, 1 process
-    python scripts/bench_sim.py --workers 2 --frames 60
-    taskset -c 0 python scripts/bench_sim.py --scenes urban   # pinned to one core
+Figures (``simulator.json``, ``simulator.png`` under ``--out``): frames/s per scene type and overall (simulation
+only, no writing), the time a 100-frame drive takes at that rate, points per frame, and the per-frame split
+between building the ray-casting scene, casting and post-processing (noise, intensity, packing).
 
-Reports frames/s (simulation only, no writing), points per frame, and the per-frame split between
-building the ray-casting scene, casting, and post-processing (noise, intensity, packing).
+    python scripts/benchmarks/simulator.py --frames 30 --out results/benchmarks
 """
 
 from __future__ import annotations
@@ -14,6 +13,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,6 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lidar", default="hdl64")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--out", default="results/benchmarks", help="folder for simulator.json and simulator.png")
     args = p.parse_args(argv)
 
     from rich.console import Console
@@ -35,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     for col, unit in [("scene", ""), ("world build", "s"), ("throughput", "frames/s"), ("points", "per frame"),
                       ("scene build", "ms/frame"), ("cast", "ms/frame"), ("post", "ms/frame")]:  # fmt: skip
         table.add_column(f"{col} ({unit})" if unit else col, justify="right")
-    total_frames, total_time = 0, 0.0
+    total_frames, total_time, rows = 0, 0.0, {}
     for scene in args.scenes:
         lid = LidarConfig.preset(args.lidar)
         t0 = time.perf_counter()
@@ -49,9 +53,24 @@ def main(argv: list[str] | None = None) -> int:
         total_frames, total_time = total_frames + args.frames, total_time + dt
         per = {k: 1000 * v / args.frames for k, v in sim.timings_s.items()}  # only filled in-process
         split = [f"{per[k]:.0f}" if args.workers == 1 else "-" for k in ("build", "cast", "post")]
+        rows[scene] = {"world_build_s": t_build, "fps": args.frames / dt, "points_per_frame": npts / args.frames}
+        if args.workers == 1:
+            rows[scene].update({f"{k}_ms_per_frame": per[k] for k in ("build", "cast", "post")})
         table.add_row(scene, f"{t_build:.2f}", f"{args.frames / dt:.2f}", f"{npts / args.frames:.0f}", *split)
     Console(width=130).print(table)
-    print(f"overall: {total_frames / total_time:.2f} frames/s")
+    fps = total_frames / total_time
+    print(f"overall: {fps:.2f} frames/s; a 100-frame drive in {100 / fps:.1f} s")
+    out = Path(args.out)
+    _common.write_json(out, "simulator.json", {"lidar": args.lidar, "frames": args.frames, "workers": args.workers,
+                                               "overall_fps": fps, "seconds_per_100_frames": 100 / fps,
+                                               "scenes": rows})
+    plt = _common.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.bar(list(rows), [r["fps"] for r in rows.values()])
+    ax.axhline(5.0, color="k", ls="--", label="goal: >= 5 frames/s")
+    ax.set_ylabel(f"frames/s ({args.lidar}, {args.workers} process)")
+    ax.legend(fontsize=8)
+    _common.save(fig, out, "simulator.png")
     return 0
 
 

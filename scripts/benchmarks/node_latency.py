@@ -1,6 +1,11 @@
 #!/usr/bin/env python3
 """Latency of the live node against a GICP anchor: real driver layouts streamed at a fixed rate.
 
+Figures (``runs.jsonl`` and ``latency.png`` under ``--out``): per run and node, the share of pairs answered and
+the p50 / p99 latency from publication to PoseStamped of the DeepBBS++ node and, in the same run on the same
+clouds, of the GICP anchor node ``deepbbs_ros.node.gicp_anchor`` (small_gicp GICP), with the ratio of the two,
+the node's stage breakdown and CPU, and a pass / fail line against the goal.
+
 Clouds (``--data``):
 
 * ``sim`` (default): the simulator (:func:`deepbbs_ros.sim.simulate_drive`) drives ``--scans`` frames through
@@ -37,11 +42,12 @@ node: its summary, the node's stage breakdown and CPU, and every answered pair's
 frames) and ``latency.png`` (each run's latency per period and its distribution, the goal's lines drawn in), to see
 whether a tail is a few stalls or a drift. DDS stays on loopback in a run-specific domain. Quick check (a minute):
 
-    python scripts/bench_node_latency.py --seconds 5 --layout both --mode odometry
+    python scripts/benchmarks/node_latency.py --seconds 5 --layout both --mode odometry
 
 The real-scan pair-mode goal (about 25 minutes):
 
-    python scripts/bench_node_latency.py --data kitti --mode pair --stream both --layout both --runs 5 --busy-runs 1
+    python scripts/benchmarks/node_latency.py --data kitti --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --mode pair --stream both \\
+        --layout both --runs 5 --busy-runs 1
 """
 
 from __future__ import annotations
@@ -59,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
 from deepbbs_ros.entry import cli_entry  # noqa: E402
@@ -72,7 +78,6 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
     "gicp": ("deepbbs_ros.node.gicp_anchor", "gicp_anchor"),
 }
 ANCHOR = "gicp"
-KITTI_DEFAULT = ROOT.parent / "shared" / "realdata" / "kitti"
 STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
           "register.network_wait", "register.polish", "register.global", "publish", "total")  # fmt: skip
 
@@ -81,8 +86,8 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     g = p.add_argument_group("clouds")
     g.add_argument("--data", choices=("sim", "kitti"), default="sim", help="simulated or real (KITTI) scans")
-    g.add_argument("--kitti", type=Path, default=KITTI_DEFAULT,
-                   help=f"KITTI sequence folder, or a folder of them (--data kitti; default {KITTI_DEFAULT})")
+    g.add_argument("--kitti", type=Path, nargs="+", default=None,
+                   help="KITTI sequence folders, or folders of them (needed with --data kitti)")
     g.add_argument("--layout", choices=("velodyne", "ouster", "both"), default="both", help="driver layout(s)")
     g.add_argument("--ouster-beams", type=int, choices=(64, 128), default=128, help="simulated OS1-64 or OS1-128")
     g.add_argument("--scans", type=int, default=20, help="distinct simulated frames (played back and forth)")
@@ -569,7 +574,7 @@ def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]])
                     con.print(f"  {label} {method}: {r.cpu}", soft_wrap=True)
 
 
-@cli_entry("bench_node_latency")
+@cli_entry("node_latency")
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -582,7 +587,9 @@ def main(argv: list[str] | None = None) -> int:
         raise DeepBBSError("--runs and --busy-runs must be >= 0, one of them > 0")
     if args.mode == "odometry" and args.stream != "consecutive":
         raise DeepBBSError(f"--stream {args.stream} is a pair-mode stream (odometry mode takes consecutive scans)")
-    seqs = kitti_sequences(args.kitti) if args.data == "kitti" else []
+    if args.data == "kitti" and args.kitti is None:
+        raise DeepBBSError("--data kitti needs --kitti PATH (a KITTI sequence folder, or a folder of them)")
+    seqs = [s for k in args.kitti for s in kitti_sequences(k)] if args.data == "kitti" else []
 
     from deepbbs_ros.cli.common import local_ros_env
     from deepbbs_ros.node.dds import apply_default_profile

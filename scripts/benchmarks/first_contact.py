@@ -1,17 +1,16 @@
 #!/usr/bin/env python3
 """First contact: a cold node in odometry mode, the sample drive played once at its recorded rate.
 
-Each run starts ``deepbbs-node`` (odometry mode, a fresh process) and ``deepbbs-play`` at the same moment (the
-player waits for the node's subscription, which the node makes once it is ready), counts the poses the node
-publishes for the drive's scans and reads the node's ``ready in X s`` line::
+Figures (``first_contact.json``, ``first_contact.png`` under ``--out``): per run, the scans the node answered of
+those played and its start-up time (``ready in X s``: model loading and warm-up; and from the process start,
+imports included). Each run starts ``deepbbs-node`` (odometry mode, a fresh process) and ``deepbbs-play`` at
+the same moment (the player waits for the node's subscription, which the node makes once it is ready).
+``--loop`` plays the drive twice (the second time after a backward time jump: the odometry restarts).
+``--trace`` prints, per run, the node's debug line for each scan (GICP from the prediction, or DeepBBS++ and
+why; its timings), each dropped scan, and the node's closing counts. Runs in its own DDS domain on loopback.
 
-    python scripts/first_contact.py                      # bags/urban_drive_hdl64, 3 runs
-    python scripts/first_contact.py --runs 5 --bag bags/suburban_drive_os64 --loop
-
-``--loop`` plays the drive twice (the second time after a backward time jump: the odometry restarts) and
-counts both plays. ``--trace`` prints, per run, the node's debug line for each scan (the odometry's path: GICP
-from the prediction, or DeepBBS++ and why; its timings in ms), each dropped scan, and the node's closing counts.
-Runs in its own DDS domain on loopback.
+    python scripts/benchmarks/first_contact.py --runs 5 --out results/benchmarks
+    python scripts/benchmarks/first_contact.py --runs 2 --bag bags/suburban_drive_os64 --loop --trace
 """
 
 from __future__ import annotations
@@ -25,7 +24,10 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+
+ROOT = _common.ROOT
 
 
 def one_run(args: argparse.Namespace, domain: int) -> dict:
@@ -78,10 +80,13 @@ def main() -> int:
     p.add_argument("--loop", action="store_true", help="play the drive twice (a backward time jump between)")
     p.add_argument("--trace", action="store_true", help="print each scan's path (GICP / DeepBBS++ and why), "
                    "its timings, the drops and the node's closing counts")
+    p.add_argument("--out", default="results/benchmarks", help="folder for first_contact.json and first_contact.png")
     p.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "77")))
     args = p.parse_args()
+    runs = []
     for k in range(args.runs):
         r = one_run(args, args.domain)
+        runs.append({key: v for key, v in r.items() if key != "trace"})
         print(f"run {k + 1}: answered {r['answered']} of {r['scans']} scans; ready in {r['ready_s']:.1f} s "
               f"(model {r['model_s']:.1f} s, warm-up {r['warmup_s']:.1f} s; {r['launch_s']:.1f} s from the process "
               f"start, imports included); odometry restarts {r['time_jumps']}",
@@ -89,7 +94,22 @@ def main() -> int:
         if args.trace:
             for line in r["trace"]:
                 print("   ", line.split("]: ", 1)[-1], flush=True)
-    return 0
+    out = Path(args.out)
+    _common.write_json(out, "first_contact.json", {"bag": Path(args.bag).name, "loop": args.loop, "runs": runs})
+    plt = _common.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3))
+    x = range(1, len(runs) + 1)
+    ax.bar([i - 0.2 for i in x], [r["launch_s"] for r in runs], 0.4, label="process start -> ready (s)")
+    ax.bar([i + 0.2 for i in x], [r["ready_s"] for r in runs], 0.4, label="ready in (model + warm-up, s)")
+    for i, r in zip(x, runs):
+        ax.annotate(f"{r['answered']}/{r['scans']} answered", (i, max(r["launch_s"], r["ready_s"]) or 0),
+                    ha="center", va="bottom", fontsize=7)
+    ax.set_xlabel("run (a fresh node each)")
+    ax.set_ylabel("s")
+    ax.set_xticks(list(x))
+    ax.legend(fontsize=8)
+    _common.save(fig, out, "first_contact.png")
+    return 0 if all(r["answered"] == r["scans"] for r in runs) else 1
 
 
 if __name__ == "__main__":

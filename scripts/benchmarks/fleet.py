@@ -1,24 +1,16 @@
 #!/usr/bin/env python3
-"""Fleet replay benchmark: N simulated recordings replayed by ``deepbbs-replay --workers W`` (local Ray).
+"""Fleet replay: N simulated recordings replayed by ``deepbbs-replay --workers W`` (local Ray), 1 and 2 workers.
 
-1. Simulates ``--recordings`` short drives (``--frames`` HDL-64 scans each, scenes cycled, seeds from
-   ``--seed``) into ``--cache`` (default ``~/.cache/deepbbs_ros/bench/fleet_<frames>f_w<worlds version>``)
-   unless they are there (rosbag2, mcap);
-2. for every method set (``--methods``, ';'-separated) and every worker count (``--workers``, comma list),
-   runs ``deepbbs-replay <all recordings> --mode odometry --workers W`` in a fresh process;
-3. prints one table: wall time of the command (Ray start-up included) and of the fleet (after Ray is up),
-   the speedup over the first worker count, the mean time of one recording in its worker, and the
-   throughput of the fleet (frames/s) and per CPU (frames/s/CPU), from which a cluster can be sized.
+Figures (``fleet.json``, ``fleet.png`` under ``--out``): for every method set (``--methods``, ';'-separated) and
+worker count (``--workers``), the wall time of the command (Ray's start-up included) and of the fleet (after
+Ray is up), the speedup over the first worker count, the mean time of one recording in its worker and the
+throughput of the fleet (frames/s) and per CPU (frames/s/CPU), from which a cluster can be sized. Recordings:
+``--recordings`` drives of ``--frames`` HDL-64 scans (scenes cycled, seeds from ``--seed``), simulated once into
+``--cache``. A task has ``--cpus-per-task`` 1; ``--network-process`` adds the DeepBBS++ sets with 2 CPUs per
+recording (its network in a process of its own). Extra arguments after ``--`` go to deepbbs-replay.
 
-Example::
-
-    python scripts/bench_fleet.py                                    # 8 recordings, 1 vs 2 workers
-    python scripts/bench_fleet.py --recordings 16 --workers 1,2,4 --methods "gicp;kiss-icp"
-    python scripts/bench_fleet.py --methods "deepbbs++" --network-process  # + 2 CPUs/recording, network apart
-
-A fleet task has ``--cpus-per-task`` CPUs (1): DeepBBS++ runs its network in its own process (what a
-single run does on a CPU, ``registration.network_process: auto``) only with 2 or more; ``--network-process``
-adds that variant (``--cpus-per-task 2``). Extra arguments after ``--`` go to deepbbs-replay.
+    python scripts/benchmarks/fleet.py --out results/benchmarks                  # 8 recordings, 1 vs 2 workers
+    python scripts/benchmarks/fleet.py --recordings 16 --workers 1,2,4 --methods "gicp;kiss-icp"
 """
 
 from __future__ import annotations
@@ -30,6 +22,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
 
 SCENES = ("urban", "suburban", "highway", "open_road")
 
@@ -69,7 +64,7 @@ def run_once(sources: list[Path], methods: str, workers: int, extra: list[str]) 
         wall = time.perf_counter() - t0
         doc_path = Path(tmp) / "latest" / "metrics.json"
         if not doc_path.exists():
-            raise SystemExit(f"bench_fleet: deepbbs-replay failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+            raise SystemExit(f"fleet: deepbbs-replay failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
         doc = json.loads(doc_path.read_text())
     secs = [r["seconds"] for r in doc["recordings"] if r["seconds"]]
     return {"methods": methods, "workers": workers, "rc": proc.returncode, "cmd_wall_s": wall,
@@ -95,7 +90,7 @@ def main() -> int:
                    help="also run every set containing deepbbs++ with 2 CPUs per recording (its network in a "
                    "process of its own)")
     p.add_argument("--cache", help="folder of the simulated recordings")
-    p.add_argument("--json", help="also write the rows to this JSON file")
+    p.add_argument("--out", default="results/benchmarks", help="folder for fleet.json and fleet.png")
     args = p.parse_args(argv)
     workers = [int(w) for w in args.workers.split(",") if w.strip()]
     sources = ensure_recordings(args)
@@ -127,8 +122,23 @@ def main() -> int:
               f"{r['speedup']:>7.2f}x {r['task_s_mean']:>12.2f} {r['fps']:>9.2f} {r['fps_per_cpu']:>13.2f}")
     print("CPUs: --workers (Ray CPUs); command s: the whole deepbbs-replay process (Ray start-up included); "
           "fleet s: after Ray is up; s/recording: one recording in its worker (imports of a fresh worker included)")
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2))
+    out = Path(args.out)
+    _common.write_json(out, "fleet.json", {"recordings": args.recordings, "frames": args.frames, "rows": rows})
+    plt = _common.pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for label in dict.fromkeys(r["label"] for r in rows):
+        rs = [r for r in rows if r["label"] == label]
+        axes[0].plot([r["workers"] for r in rs], [r["fleet_wall_s"] for r in rs], "o-", label=label)
+        axes[1].plot([r["workers"] for r in rs], [r["fps_per_cpu"] for r in rs], "o-", label=label)
+    for ax, lab in ((axes[0], "fleet wall time (s)"), (axes[1], "frames/s per CPU")):
+        ax.set_xlabel("workers (Ray CPUs)")
+        ax.set_ylabel(lab)
+        ax.set_xticks(workers)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[0].set_title(f"{args.recordings} recordings x {args.frames} frames, odometry")
+    _common.save(fig, out, "fleet.png")
     return 0
 
 

@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+"""The summary run_all.sh prints: the figures docs/benchmarks.md states, read back from the benchmarks' JSON files
+in one results folder (``python scripts/benchmarks/_summary.py OUT``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def f(v, fmt=".3f", unit=""):
+    return "-" if v is None else f"{v:{fmt}}{unit}"
+
+
+def load(out: Path, name: str) -> dict | None:
+    path = out / name
+    return json.loads(path.read_text())["figures"] if path.is_file() else None
+
+
+def registration(fig: dict) -> None:
+    print("\n## registration (success %, mean rot deg / trans m of the successes, p50 ms, p50 / GICP's p50)")
+    for proto, groups in fig["protocols"].items():
+        for g in ("real", "sim"):
+            for m, c in (groups.get(g) or {}).items():
+                print(f"  {proto:<13} {g:<4} {m:<18} {f(c['success_pct'], '.1f')} % ({c['cases']}), "
+                      f"{f(c['rot_deg_mean'])} deg / {f(c['trans_m_mean'])} m, p50 {f(c['p50_ms'], '.0f')} ms, "
+                      f"p95 {f(c['p95_ms'], '.0f')} ms, x{f(c['p50_over_gicp'], '.2f')}")
+    v = fig["verdict"]
+    for m in ("deepbbs++", "deepbbs++local"):
+        if m in v:
+            print(f"  verdict, {m}: correct accepted {f(v[m]['correct_accepted_pct'], '.1f')} % ({v[m]['correct']}), "
+                  f"wrong poses rejected {f(v[m]['wrong_rejected_pct'], '.1f')} % ({v[m]['wrong']})")
+    if "different_places" in v:
+        d = v["different_places"]
+        print(f"  verdict, different places rejected {f(d['rejected_pct'], '.1f')} % ({d['pairs']}), "
+              f"highest score {f(d['highest_score'])}, p50 {f(d['p50_ms'], '.0f')} ms")
+
+
+def odometry(fig: dict) -> None:
+    print("\n## odometry (drift %, ATE m, frames/s, frames/s / KISS-ICP's)")
+    for run, r in fig["runs"].items():
+        for m, v in r["methods"].items():
+            print(f"  {run:<28} {m:<10} {f(v['kitti_t_err_pct'])} %, {f(v['ate_rmse_m'])} m, "
+                  f"{f(v['fps'], '.1f')} frames/s, x{f(v['fps_over_kiss_icp'], '.2f')}")
+
+
+def node_latency(out: Path, name: str) -> None:
+    path = out / name / "runs.jsonl"
+    if not path.is_file():
+        return
+    recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    print(f"\n## {name} (per run: answered %, p50 / p99 ms; the GICP anchor node in the same run)")
+    for r in recs:
+        print(f"  {r['layout']:<8} {r['stream']:<11} {r['run']:<8} {'busy ' if r['busy'] else ''}{r['method']:<7} "
+              f"{100 * r['answered']:.0f} %, {f(r['p50_ms'], '.1f')} / {f(r['p99_ms'], '.1f')} ms"
+              + (f" ({r['error']})" if r.get("error") else ""))
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print(__doc__, file=sys.stderr)
+        return 2
+    out = Path(argv[0])
+    fig = load(out, "decode.json")
+    if fig:
+        print("\n## decode (median ms; goal <= 5 ms)")
+        for case, c in fig["cases"].items():
+            print(f"  {case}: {f(c['median_ms'])} ms (CPU {f(c['cpu_median_ms'])} ms)")
+    fig = load(out, "simulator.json")
+    if fig:
+        print(f"\n## simulator: {f(fig['overall_fps'], '.1f')} frames/s, a 100-frame drive in "
+              f"{f(fig['seconds_per_100_frames'], '.1f')} s; per scene: "
+              + ", ".join(f"{k} {f(v['fps'], '.1f')}" for k, v in fig["scenes"].items()))
+    fig = load(out, "registration.json")
+    if fig:
+        registration(fig)
+    fig = load(out, "deskew.json")
+    if fig:
+        print("\n## deskew (all scenes: success %, mean rot deg / trans m on the pairs every variant solves)")
+        for name, v in fig["variants"].items():
+            a = v["all"]
+            print(f"  {name:<14} {f(a['success_pct'], '.1f')} %, {f(a['rot_deg_mean'], '.4f')} / "
+                  f"{f(a['trans_m_mean'], '.4f')} m")
+    fig = load(out, "odometry.json")
+    if fig:
+        odometry(fig)
+    fig = load(out, "busy.json")
+    if fig:
+        print("\n## busy computer (p50 / p95 ms per raw pair, DeepBBS++ and GICP)")
+        for c in fig["cells"]:
+            print(f"  {c['policy']:<8} {c['load']:<5} DeepBBS++ {c['deepbbs_p50_ms']:.0f} / {c['deepbbs_p95_ms']:.0f}, "
+                  f"GICP {c['gicp_p50_ms']:.0f} / {c['gicp_p95_ms']:.0f}, x{c['p50_over_gicp']:.2f}")
+    fig = load(out, "first_contact.json")
+    if fig:
+        print("\n## first contact (answered, ready in s, from the process start s)")
+        for r in fig["runs"]:
+            print(f"  {r['answered']}/{r['scans']}, {f(r['ready_s'], '.1f')} s, {f(r['launch_s'], '.1f')} s")
+    node_latency(out, "node_latency_odometry")
+    node_latency(out, "node_latency_pair")
+    fig = load(out, "fleet.json")
+    if fig:
+        print(f"\n## fleet ({fig['recordings']} recordings x {fig['frames']} frames)")
+        for r in fig["rows"]:
+            print(f"  {r['label']:<18} {r['workers']} worker(s): fleet {r['fleet_wall_s']:.1f} s (command "
+                  f"{r['cmd_wall_s']:.1f} s), x{r['speedup']:.2f}, {r['fps_per_cpu']:.2f} frames/s/CPU")
+    print("\nplots: " + ", ".join(sorted(p.name for p in out.glob("*.png"))))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

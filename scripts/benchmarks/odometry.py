@@ -1,0 +1,186 @@
+#!/usr/bin/env python3
+"""Odometry: the DeepBBS++ odometry against KISS-ICP and chained scan-to-scan GICP, on a simulated drive and on
+real KITTI sequences.
+
+Figures (``odometry.json``, ``odometry.png`` under ``--out``; each run's own ``metrics.json``, trajectories and
+plots under ``--out``/odometry/<run>/latest): KITTI drift (segments of 100 m and longer), ATE RMSE, RPE and
+throughput (frames/s, with its ratio to KISS-ICP's in the same run) of every method on a held-out simulated
+HDL-64E drive of ``--frames`` raw sweeps (simulated once into ``--cache``), the same drive with ``--variants``
+(``drop``: 8 gaps of 3-10 dropped scans; ``wrong-prior``: 10 motion priors off by up to 30 deg / 2 m; KISS-ICP
+is left out of these, a diverged KISS-ICP takes seconds a scan), and every ``--kitti`` sequence as it is.
+
+    python scripts/benchmarks/odometry.py --frames 1000 --kitti PATH/TO/kitti/00 PATH/TO/kitti/02
+    python scripts/benchmarks/odometry.py --frames 300 --variants clean -- --device cuda   # after --: deepbbs-replay
+
+Extra arguments after ``--`` go to every deepbbs-replay run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+
+
+def _cache_dir(args) -> Path:
+    root = Path(args.cache).expanduser() if args.cache else Path.home() / ".cache" / "deepbbs_ros" / "bench"
+    az = "" if args.azimuth_step is None else f"_az{args.azimuth_step:g}"
+    hz = "" if args.rate_hz == 10.0 else f"_{args.rate_hz:g}hz"
+    from deepbbs_ros.sim import WORLDS_VERSION
+
+    return root / f"{args.scene}_{args.seed}_{args.frames}{az}{hz}_w{WORLDS_VERSION}"
+
+
+def ensure_drive(args) -> Path:
+    """Simulate the drive into the cache (mcap rosbag2) unless a complete one is there."""
+    from deepbbs_ros.datasets import open_source, write_scans
+    from deepbbs_ros.sim import LidarConfig, simulate_drive
+
+    path = _cache_dir(args)
+    if path.exists():
+        try:
+            if len(open_source(path)) == args.frames:
+                print(f"using cached drive {path}")
+                return path
+        except Exception as err:  # noqa: BLE001 - any unreadable cache is regenerated
+            print(f"cached drive {path} unreadable ({err}); regenerating")
+        import shutil
+
+        shutil.rmtree(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    kw = {} if args.azimuth_step is None else {"azimuth_step_deg": args.azimuth_step}
+    lidar = LidarConfig.hdl64(**kw)
+    print(f"simulating {args.frames} frames ({args.scene}, seed {args.seed}) into {path}")
+    tmp = path.with_name(path.name + ".partial")
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    scans = simulate_drive(args.scene, args.seed, args.frames, lidar=lidar, rate_hz=args.rate_hz)
+    write_scans(_Sized(scans, args.frames), tmp, "mcap", progress=True)
+    tmp.rename(path)
+    return path
+
+
+class _Sized:
+    """An iterator with a length, so the writer's progress bar shows an ETA."""
+
+    def __init__(self, it, n):
+        self.it, self.n = it, n
+
+    def __iter__(self):
+        return iter(self.it)
+
+    def __len__(self):
+        return self.n
+
+
+VARIANTS = {"clean": [], "drop": ["--drop-frames", "8", "--seed", "1"],
+            "wrong-prior": ["--wrong-prior", "10", "--seed", "1"]}
+
+
+def replay_run(source: Path, out: Path, methods: str, extra: list[str]) -> dict | None:
+    """One ``deepbbs-replay --mode odometry`` run into ``out``; its metrics.json (None if it wrote none)."""
+    from deepbbs_ros.cli.replay import main as replay
+
+    cmd = [str(source), "--mode", "odometry", "--method", methods, "--out", str(out), "--no-bag", *extra]
+    print("$ deepbbs-replay " + " ".join(cmd), flush=True)
+    replay(cmd)
+    path = out / "latest" / "metrics.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def summary(doc: dict) -> dict:
+    M = doc["methods"]
+    kiss = (M.get("kiss-icp") or {}).get("fps")
+    out = {}
+    for name, m in M.items():
+        out[name] = {"frames": m.get("frames"), "kitti_t_err_pct": m.get("kitti_t_err_pct"),
+                     "kitti_r_err_deg_per_100m": m.get("kitti_r_err_deg_per_100m"), "ate_rmse_m": m.get("ate_rmse_m"),
+                     "rpe_trans_m_mean": (m.get("rpe_trans_m") or {}).get("mean"), "fps": m.get("fps"),
+                     "fps_over_kiss_icp": m["fps"] / kiss if kiss and m.get("fps") else None,
+                     "path_length_m": m.get("path_length_m"), "failed_frames": m.get("failed_frames")}
+    return {"complete": doc.get("complete"), "methods": out}
+
+
+def plot(runs: dict, out: Path) -> None:
+    import numpy as np
+
+    plt = _common.pyplot()
+    names = list(runs)
+    methods = sorted({m for r in runs.values() for m in r["methods"]})
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
+    w = 0.8 / max(1, len(methods))
+    for ax, key, label, log in ((axes[0], "ate_rmse_m", "ATE RMSE (m)", True),
+                                (axes[1], "kitti_t_err_pct", "KITTI translation drift (%)", True),
+                                (axes[2], "fps", "throughput (frames/s)", False)):
+        seen = []
+        for k, m in enumerate(methods):
+            v = [(runs[r]["methods"].get(m) or {}).get(key) for r in names]
+            seen += [x for x in v if x]
+            ax.bar(np.arange(len(names)) + k * w, [np.nan if x is None else x for x in v], w, label=m)
+        ax.set_xticks(np.arange(len(names)) + 0.4 - w / 2, names, fontsize=8)
+        ax.set_ylabel(label)
+        if log and seen:
+            ax.set_yscale("log")
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    _common.save(fig, out, "odometry.png")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    passthrough = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, passthrough = argv[:i], argv[i + 1 :]
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=int, default=1000, help="frames of the simulated drive (0: none)")
+    p.add_argument("--scene", default="urban", help="urban, suburban, highway, open_road")
+    p.add_argument("--seed", type=int, default=101, help="held-out seed (not used in training)")
+    p.add_argument("--azimuth-step", type=float, default=None, help="deg; default: the HDL-64 preset (0.18)")
+    p.add_argument("--rate-hz", type=float, default=10.0, help="frame rate; low rates = large inter-frame motion")
+    p.add_argument("--method", default="deepbbs++,kiss-icp,gicp")
+    p.add_argument("--variants", default="clean,drop,wrong-prior", help=f"comma list of {', '.join(VARIANTS)}")
+    p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders, e.g. PATH/TO/kitti/00")
+    p.add_argument("--kitti-frames", type=int, default=None, help="the first frames of each KITTI sequence (all)")
+    p.add_argument("--cache", default=None, help="cache root for simulated drives")
+    p.add_argument("--out", default="results/benchmarks", help="folder for odometry.json, odometry.png, odometry/")
+    p.add_argument("--config", default=None, help="config YAML passed to deepbbs-replay")
+    args = p.parse_args(argv)
+
+    out = Path(args.out)
+    extra = (["--config", args.config] if args.config else []) + passthrough
+    runs: dict = {}
+    if args.frames > 0:
+        drive = ensure_drive(args)
+        for v in [v for v in args.variants.split(",") if v]:
+            methods = args.method if v == "clean" else ",".join(m for m in args.method.split(",") if m != "kiss-icp")
+            doc = replay_run(drive, out / "odometry" / f"sim_{args.scene}_{v}", methods, VARIANTS[v] + extra)
+            if doc:
+                runs[f"sim {args.scene} {args.frames}f {v}"] = summary(doc)
+    for seq in args.kitti:
+        limit = ["--max-frames", str(args.kitti_frames)] if args.kitti_frames else []
+        doc = replay_run(Path(seq), out / "odometry" / f"kitti_{Path(seq).name}", args.method, limit + extra)
+        if doc:
+            runs[f"KITTI {Path(seq).name}"] = summary(doc)
+    if not runs:
+        print("no run wrote metrics", file=sys.stderr)
+        return 1
+    for name, r in runs.items():
+        print(f"\n{name}:")
+        for m, v in r["methods"].items():
+            f = {k: "-" if x is None else f"{x:.3f}" for k, x in v.items()}
+            print(f"  {m:>10}: drift {f['kitti_t_err_pct']} %, ATE {f['ate_rmse_m']} m, {f['fps']} frames/s "
+                  f"(x{f['fps_over_kiss_icp']} KISS-ICP's)")
+    _common.write_json(out, "odometry.json", {"runs": runs})
+    plot(runs, out)
+    return 0 if all(r["complete"] for r in runs.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

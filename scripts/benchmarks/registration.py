@@ -1,0 +1,371 @@
+#!/usr/bin/env python3
+"""Registration of raw scan pairs: accuracy, speed against small_gicp GICP, the verdict, KISS-Matcher.
+
+Figures (``registration.json``, ``registration.png``, ``verdict.png`` under ``--out``): for three protocols, the
+source as recorded ("as they come", no initial guess), the source moved by a random yaw up to 45 deg and up to
+5 m ("45 deg / 5 m") and by any yaw and up to 10 m ("any start"), on real KITTI pairs up to ``--max-dist`` m
+apart (``--kitti``), an optional real reference pair (``--pair``) and held-out simulated drives of every scene
+type: success (within 1 deg / 0.3 m), mean errors of the successes, p50 / p95 time per raw pair (preprocessing
+of both scans included) and its ratio to GICP's p50 in the same run, for the shipped pipeline (``deepbbs++``),
+the paper's DeepBBS++ (deep passes and its spatial-BBS refinement, no GICP: ``registration.refine: true``,
+``registration.polish: none``), the fast preset (``config/deepbbs_ros_fast.yaml``), small_gicp GICP from
+identity (the speed anchor) and, from any start, KISS-Matcher and KISS-Matcher + GICP (every ``--kiss-every``-th
+case). The verdict: the share of correct results it accepts and of wrong poses it rejects (the shipped pipeline
+and, from any start, the same pipeline without its global search, which gives wrong poses), and the share of
+pairs of two different places (KITTI 00 x 02, simulated drives x each other) it rejects.
+
+    python scripts/benchmarks/registration.py --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --out results/benchmarks
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from itertools import islice
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+
+import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
+
+PROTOCOLS = {"as-they-come": (0.0, 0.0), "45deg-5m": (45.0, 5.0), "any-start": (180.0, 10.0)}
+DEEP = {  # method -> config overrides of DeepBBSRegistration (a str: a config file of the repository)
+    "deepbbs++": {},
+    "deepbbs++paper": {"registration.refine": True, "registration.polish": "none"},
+    "deepbbs++fast": "config/deepbbs_ros_fast.yaml",
+    "deepbbs++local": {"registration.global_search": "off"},
+}
+LABELS = {"deepbbs++": "DeepBBS++ (shipped)", "deepbbs++paper": "DeepBBS++ paper (no GICP)",
+          "deepbbs++fast": "DeepBBS++ fast preset", "deepbbs++local": "DeepBBS++ without global search",
+          "gicp": "small_gicp GICP", "kiss-matcher": "KISS-Matcher", "kiss-matcher+gicp": "KISS-Matcher + GICP"}
+ANY_ONLY = ("deepbbs++local", "kiss-matcher", "kiss-matcher+gicp")
+DEFAULT_METHODS = "deepbbs++,deepbbs++paper,deepbbs++fast,deepbbs++local,gicp,kiss-matcher,kiss-matcher+gicp"
+
+
+def yaw_shift(yaw_deg: float, dx: float, dy: float) -> np.ndarray:
+    T = np.eye(4)
+    a = np.radians(yaw_deg)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[:2, 3] = dx, dy
+    return T
+
+
+def frame_sets(args) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """name -> [(raw points (N, 3) float32, T_world_lidar)]: one place per set."""
+    from deepbbs_ros.datasets import open_source
+    from deepbbs_ros.datasets.pcd import read_pcd_points
+
+    sets: dict[str, list] = {}
+    for folder in args.kitti:
+        scans = islice(open_source(folder), args.kitti_scans)
+        sets[f"kitti_{Path(folder).name}"] = [(np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar))
+                                              for s in scans]
+    if args.pair:
+        pcds = sorted(Path(args.pair).glob("*.pcd"))
+        if len(pcds) != 2 or not (Path(args.pair) / "relative.txt").is_file():
+            raise SystemExit(f"--pair {args.pair}: expected two .pcd files (target, source in name order) and "
+                             "relative.txt (T_target_source)")
+        T = np.loadtxt(Path(args.pair) / "relative.txt").reshape(4, 4)
+        sets["pair"] = [(read_pcd_points(pcds[0])[0].astype(np.float32), np.eye(4)),
+                        (read_pcd_points(pcds[1])[0].astype(np.float32), T)]
+    sets.update(sim_sets(args))
+    return sets
+
+
+def sim_sets(args) -> dict[str, list]:
+    """Held-out simulated drives (test seeds 90000 + i, every scene type), sweeps compensated to their stamps,
+    ``--sim-frames`` scans about 2 m apart; cached in ``--cache``."""
+    if args.sim_drives_per_scene <= 0:
+        return {}
+    from deepbbs_ros.sim import SCENES, WORLDS_VERSION
+    from deepbbs_ros.sim.simulator import DriveSimulator
+    from deepbbs_ros.train.cache import TEST_SEED_BASE
+
+    cache = Path(args.cache).expanduser() / (f"registration_sim_{args.sim_drives_per_scene}x{args.sim_frames}"
+                                             f"_w{WORLDS_VERSION}.npz")
+    if cache.is_file():
+        return np.load(cache, allow_pickle=True)["sets"].item()
+    sets: dict[str, list] = {}
+    for d in range(args.sim_drives_per_scene * len(SCENES)):
+        scene, seed = SCENES[d % len(SCENES)], TEST_SEED_BASE + d
+        sim = DriveSimulator(scene, seed, frames=200, compensate=True)
+        picks, last = [], None
+        for k in range(20, 200):
+            p = sim.pose_at(k)[:3, 3]
+            if last is None or np.linalg.norm(p - last) >= 2.0:
+                picks.append(k)
+                last = p
+            if len(picks) == args.sim_frames:
+                break
+        sets[f"sim_{scene}_{seed}"] = [(sim.scan_at(k).points.astype(np.float32), sim.pose_at(k)) for k in picks]
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(cache, sets=np.array(sets, dtype=object))
+    return sets
+
+
+def group(name: str) -> str:
+    return name.split("_")[0]  # kitti, pair, sim
+
+
+def plan(sets: dict, args) -> list[dict]:
+    """True pairs (source i, target j < i, at most --max-dist apart; at most --pairs-per-set per set), each under
+    every protocol with its own random move, and pairs of two different places."""
+    rng = np.random.default_rng(args.seed)
+    cases = []
+    for name, frames in sets.items():
+        pairs = []
+        for i in range(len(frames)):
+            for j in range(i):
+                d = float(np.linalg.norm((np.linalg.inv(frames[j][1]) @ frames[i][1])[:3, 3]))
+                if d <= args.max_dist:
+                    pairs.append((i, j, d))
+        if len(pairs) > args.pairs_per_set:
+            pairs = [pairs[k] for k in sorted(rng.choice(len(pairs), args.pairs_per_set, replace=False))]
+        for proto, (yaw, shift) in PROTOCOLS.items():
+            for i, j, d in pairs:
+                for _ in range(args.pair_trials if name == "pair" and shift else 1):
+                    phi, r = rng.uniform(0, 2 * np.pi), rng.uniform(0, shift)
+                    cases.append({"kind": "true", "protocol": proto, "set": name, "i": i, "j": j, "dist": d,
+                                  "move": [float(rng.uniform(-yaw, yaw)), r * np.cos(phi), r * np.sin(phi)]})
+    names = list(sets)
+    cross = [(a, b) for a in names for b in names if a < b and group(a) == group(b) and group(a) != "pair"]
+    for k in range(args.different if cross else 0):
+        a, b = cross[k % len(cross)]
+        cases.append({"kind": "different", "protocol": "different", "set": a, "i": int(rng.integers(len(sets[a]))),
+                      "tset": b, "j": int(rng.integers(len(sets[b]))), "dist": None, "move": [0.0, 0.0, 0.0]})
+    for n, c in enumerate(cases):
+        c["n"] = n
+    return cases
+
+
+def make_methods(names: list[str], args):
+    from deepbbs_ros.baselines import KissMatcherRegistration, SmallGicpRegistration
+    from deepbbs_ros.config import load_config
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    base = load_config(args.config)
+    regs = {}
+    for m in names:
+        if m in DEEP:
+            over = DEEP[m]
+            cfg = load_config(_common.ROOT / over) if isinstance(over, str) else base.replace(**over)
+            regs[m] = DeepBBSRegistration(cfg, weights=args.weights)
+            regs[m].warmup()
+        elif m == "gicp":
+            regs[m] = SmallGicpRegistration("gicp", base)
+        elif m in ("kiss-matcher", "kiss-matcher+gicp"):
+            regs[m] = KissMatcherRegistration(m, base)
+        else:
+            raise SystemExit(f"unknown method {m!r}; choose from {DEFAULT_METHODS}")
+    return regs
+
+
+def run_case(m: str, reg, src: np.ndarray, tgt: np.ndarray) -> dict:
+    t0 = time.perf_counter()
+    if m in DEEP:
+        res = reg.register(src, tgt)
+        extra = {"valid": bool(res.valid), "score": float(res.score), "starts": int(res.starts)}
+    else:
+        res = reg.align(reg.preprocess(src), reg.preprocess(tgt))
+        extra = {}
+    return {"ms": (time.perf_counter() - t0) * 1e3, "T": res.T_target_source, **extra}
+
+
+def collect(cases, sets, names, args, path: Path) -> list[dict]:
+    from deepbbs_ros.metrics import pair_errors
+
+    done = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+    if len(done) >= len(cases):
+        return done
+    regs = make_methods(names, args)
+    with path.open("a") as fh:
+        for case in cases[len(done):]:
+            P = yaw_shift(*case["move"])
+            src = (sets[case["set"]][case["i"]][0] @ P[:3, :3].T + P[:3, 3]).astype(np.float32)  # the moved source
+            tset = case.get("tset", case["set"])
+            tgt = sets[tset][case["j"]][0]
+            T_gt = np.linalg.inv(sets[tset][case["j"]][1]) @ sets[case["set"]][case["i"]][1]
+            rec = dict(case)
+            for m in names:
+                if case["kind"] == "different" and m != "deepbbs++":
+                    continue
+                if m in ANY_ONLY and case["protocol"] != "any-start":
+                    continue
+                if m.startswith("kiss") and case["n"] % args.kiss_every:
+                    continue
+                r = run_case(m, regs[m], src, tgt)
+                T = r.pop("T")
+                if case["kind"] == "true":
+                    rot, tr = pair_errors(T @ P, T_gt)  # the answer for the moved source, the move undone
+                    r.update(rot=float(rot), trans=float(tr), ok=bool(rot <= 1.0 and tr <= 0.3))
+                rec[m] = r
+            fh.write(json.dumps(rec) + "\n")
+            fh.flush()
+            done.append(rec)
+            print(f"case {case['n'] + 1}/{len(cases)} {case['protocol']} {case['set']}: " + ", ".join(
+                f"{m} {'ok' if rec[m].get('ok', not rec[m].get('valid')) else 'FAIL'} {rec[m]['ms']:.0f} ms"
+                for m in names if m in rec), flush=True)
+    for r in regs.values():
+        if hasattr(r, "close"):
+            r.close()
+    return done
+
+
+def summarise(recs: list[dict], names: list[str]) -> dict:
+    def cell(sel: list[dict], m: str, anchor_p50: float | None) -> dict | None:
+        rs = [r[m] for r in sel if m in r]
+        if not rs:
+            return None
+        ok = [x for x in rs if x["ok"]]
+        ms = np.array([x["ms"] for x in rs])
+        p50 = float(np.median(ms))
+        return {"cases": len(rs), "success_pct": 100.0 * len(ok) / len(rs),
+                "rot_deg_mean": float(np.mean([x["rot"] for x in ok])) if ok else None,
+                "trans_m_mean": float(np.mean([x["trans"] for x in ok])) if ok else None,
+                "p50_ms": p50, "p95_ms": float(np.percentile(ms, 95)),
+                "p50_over_gicp": p50 / anchor_p50 if anchor_p50 else None}
+
+    out: dict = {"protocols": {}}
+    groups = {"real": ("kitti", "pair"), "kitti": ("kitti",), "pair": ("pair",), "sim": ("sim",),
+              "all": ("kitti", "pair", "sim")}
+    for proto in PROTOCOLS:
+        out["protocols"][proto] = {}
+        for g, members in groups.items():
+            sel = [r for r in recs if r["protocol"] == proto and group(r["set"]) in members]
+            gicp = [r["gicp"]["ms"] for r in sel if "gicp" in r]
+            anchor = float(np.median(gicp)) if gicp else None
+            cells = {m: cell(sel, m, anchor) for m in names}
+            cells = {m: c for m, c in cells.items() if c}
+            if cells:
+                out["protocols"][proto][g] = cells
+    true = [r for r in recs if r["kind"] == "true"]
+    verdict: dict = {}
+    for m in ("deepbbs++", "deepbbs++local"):
+        rs = [r[m] for r in true if m in r]
+        if not rs:
+            continue
+        good = [x for x in rs if x["ok"]]
+        wrong = [x for x in rs if not x["ok"]]
+        verdict[m] = {"correct": len(good), "correct_accepted_pct": 100.0 * np.mean([x["valid"] for x in good])
+                      if good else None, "wrong": len(wrong),
+                      "wrong_rejected_pct": 100.0 * np.mean([not x["valid"] for x in wrong]) if wrong else None,
+                      "lowest_correct_score": min((x["score"] for x in good), default=None),
+                      "highest_wrong_score": max((x["score"] for x in wrong), default=None)}
+    diff = [r["deepbbs++"] for r in recs if r["kind"] == "different" and "deepbbs++" in r]
+    if diff:
+        verdict["different_places"] = {"pairs": len(diff),
+                                       "rejected_pct": 100.0 * np.mean([not x["valid"] for x in diff]),
+                                       "highest_score": max(x["score"] for x in diff),
+                                       "p50_ms": float(np.median([x["ms"] for x in diff]))}
+    out["verdict"] = verdict
+    return out
+
+
+def report(fig: dict, names: list[str]) -> None:
+    for proto, groups in fig["protocols"].items():
+        print(f"\n{proto}: success %, mean rot deg / trans m of the successes, p50 / p95 ms, p50 / GICP p50")
+        for g, cells in groups.items():
+            for m, c in cells.items():
+                err = "-" if c["rot_deg_mean"] is None else f"{c['rot_deg_mean']:.3f} / {c['trans_m_mean']:.3f}"
+                ratio = "-" if c["p50_over_gicp"] is None else f"{c['p50_over_gicp']:.2f}"
+                print(f"  {g:>5} {m:>18}: {c['success_pct']:5.1f} % ({c['cases']:3d})  {err:>15}  "
+                      f"{c['p50_ms']:6.0f} / {c['p95_ms']:6.0f} ms  x{ratio}")
+    for k, v in fig["verdict"].items():
+        print(f"verdict, {k}: {v}")
+
+
+def plot(fig: dict, recs: list[dict], names: list[str], out: Path) -> None:
+    plt = _common.pyplot()
+    f, axes = plt.subplots(1, 3, figsize=(16, 4.6))
+    protos = list(PROTOCOLS)
+    w = 0.8 / max(1, len(names))
+    for ax, g in zip(axes[:2], ("real", "sim")):
+        for k, m in enumerate(names):
+            v = [(fig["protocols"][p].get(g, {}).get(m) or {}).get("success_pct", np.nan) for p in protos]
+            ax.bar(np.arange(len(protos)) + k * w, v, w, label=LABELS[m])
+        ax.set_xticks(np.arange(len(protos)) + 0.4 - w / 2, protos)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel("success % (within 1 deg / 0.3 m)")
+        ax.set_title(f"{g} pairs")
+        ax.grid(axis="y", alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    f.legend(handles, labels, loc="upper center", ncol=len(names), fontsize=8, bbox_to_anchor=(0.5, 0.0))
+    ax = axes[2]
+    for k, m in enumerate(names):
+        v = [(fig["protocols"][p].get("all", {}).get(m) or {}).get("p50_ms", np.nan) for p in protos]
+        bars = ax.bar(np.arange(len(protos)) + k * w, v, w, label=LABELS[m])
+        for b, p in zip(bars, protos):
+            c = fig["protocols"][p].get("all", {}).get(m)
+            if c and c["p50_over_gicp"]:
+                ax.annotate(f"{c['p50_over_gicp']:.1f}x", (b.get_x() + b.get_width() / 2, b.get_height()),
+                            ha="center", va="bottom", fontsize=6)
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(protos)) + 0.4 - w / 2, protos)
+    ax.set_ylabel("p50 ms per raw pair (label: x GICP's p50)")
+    ax.set_title("time, all pairs")
+    ax.grid(axis="y", alpha=0.3)
+    _common.save(f, out, "registration.png")
+
+    f, ax = plt.subplots(figsize=(7, 4))
+    bins = np.linspace(0, 1, 51)
+    true = [r for r in recs if r["kind"] == "true"]
+    for label, v in (("correct results", [r[m]["score"] for r in true for m in ("deepbbs++", "deepbbs++local")
+                                          if m in r and r[m]["ok"]]),
+                     ("wrong poses", [r[m]["score"] for r in true for m in ("deepbbs++", "deepbbs++local")
+                                      if m in r and not r[m]["ok"]]),
+                     ("different places", [r["deepbbs++"]["score"] for r in recs
+                                           if r["kind"] == "different" and "deepbbs++" in r])):
+        if v:
+            ax.hist(v, bins, alpha=0.6, label=f"{label} ({len(v)})")
+    from deepbbs_ros.config import Config
+
+    ax.axvline(Config().registration.verdict_threshold, color="k", ls="--", label="registration.verdict_threshold")
+    ax.set_xlabel("result.score (share of sampled source points within 0.5 m of the target)")
+    ax.set_ylabel("registrations")
+    ax.legend(fontsize=8)
+    _common.save(f, out, "verdict.png")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders (velodyne/, poses.txt, "
+                   "calib.txt), e.g. PATH/TO/kitti/00 PATH/TO/kitti/02")
+    p.add_argument("--kitti-scans", type=int, default=10, help="the first scans of each KITTI sequence")
+    p.add_argument("--pair", default=None, help="optional folder with a real pair: two .pcd files (target, source in "
+                   "name order) and relative.txt (the reference T_target_source, 4x4)")
+    p.add_argument("--out", default="results/benchmarks", help="folder for registration.json, the plots and "
+                   "registration_cases.jsonl (a rerun continues from it)")
+    p.add_argument("--methods", default=DEFAULT_METHODS, help=f"comma list of {DEFAULT_METHODS}")
+    p.add_argument("--max-dist", type=float, default=5.0, help="m between the scans of a true pair")
+    p.add_argument("--pairs-per-set", type=int, default=12, help="true pairs drawn per sequence or drive")
+    p.add_argument("--pair-trials", type=int, default=3, help="moves of the --pair pair per moved protocol")
+    p.add_argument("--sim-drives-per-scene", type=int, default=1, help="held-out simulated drives per scene type")
+    p.add_argument("--sim-frames", type=int, default=6, help="scans per simulated drive, about 2 m apart")
+    p.add_argument("--different", type=int, default=8, help="pairs of two different places")
+    p.add_argument("--kiss-every", type=int, default=3, help="KISS-Matcher on every n-th any-start case")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--config", default=None, help="config YAML of the shipped pipeline (default: the defaults)")
+    p.add_argument("--weights", default="", help="checkpoint ('' = the shipped model)")
+    p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the simulated scans")
+    args = p.parse_args(argv)
+    names = [m for m in args.methods.split(",") if m]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sets = frame_sets(args)
+    cases = plan(sets, args)
+    recs = collect(cases, sets, names, args, out / "registration_cases.jsonl")
+    fig = summarise(recs, names)
+    fig["settings"] = {k: v for k, v in vars(args).items()}
+    report(fig, names)
+    _common.write_json(out, "registration.json", fig)
+    plot(fig, recs, names, out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
