@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_node_latency", ROOT / "scripts" / "benchmarks" / "node_latency.py")
+    path = ROOT / "scripts" / "benchmarks" / "node_latency.py"
+    spec = importlib.util.spec_from_file_location("bench_node_latency", path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # its dataclasses look their module up
     try:

@@ -46,8 +46,8 @@ whether a tail is a few stalls or a drift. DDS stays on loopback in a run-specif
 
 The real-scan pair-mode goal (about 25 minutes):
 
-    python scripts/benchmarks/node_latency.py --data kitti --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --mode pair --stream both \\
-        --layout both --runs 5 --busy-runs 1
+    python scripts/benchmarks/node_latency.py --data kitti --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 \\
+        --mode pair --stream both --layout both --runs 5 --busy-runs 1
 """
 
 from __future__ import annotations
