@@ -59,9 +59,8 @@ step node_latency_odometry $PY $B/node_latency.py --mode odometry --layout both 
 step node_latency_pair $PY $B/node_latency.py --data kitti --kitti "${KITTI[@]}" --mode pair --stream both \
   --layout velodyne --runs 2 --seconds 10 --out "$OUT/node_latency_pair"
 step fleet $PY $B/fleet.py --recordings 4 --frames 20 --workers 1,2 --out "$OUT"
-for m in odometry pair; do
-  if [ -f "$OUT/node_latency_$m/latency.png" ]; then cp "$OUT/node_latency_$m/latency.png" "$OUT/node_latency_$m.png"; fi
-done
+cp "$OUT/node_latency_odometry/latency.png" "$OUT/node_latency_odometry.png" 2>/dev/null
+cp "$OUT/node_latency_pair/latency.png" "$OUT/node_latency_pair.png" 2>/dev/null
 
 echo
 printf '%s\n' "${STEPS[@]}"
