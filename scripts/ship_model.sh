@@ -3,7 +3,7 @@
 #   scripts/ship_model.sh [RUN] [DRIVES_PER_SCENE]     (defaults: runs/default, 4)
 # Copies RUN/model_best.pt -> deepbbs_ros/models/deepbbspp_lidar.pt, the validation history and the
 # curves next to it, then evaluates the shipped file on the held-out test seeds (90000 + i) and writes
-# deepbbs_ros/models/deepbbspp_lidar_metrics.{json,md} (paste the .md and the report into MODEL.md).
+# deepbbs_ros/models/deepbbspp_lidar_metrics.{json,md} (MODEL.md cites them).
 set -eu
 cd "$(dirname "$0")/.."
 RUN=${1:-runs/default}

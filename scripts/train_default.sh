@@ -1,5 +1,6 @@
 #!/bin/sh
-# The exact command behind the shipped model deepbbs_ros/models/deepbbspp_lidar.pt (see MODEL.md).
+# The first model (the weights of commit 33e1383), from which scripts/train_worlds.sh fine-tuned the shipped one
+# (MODEL.md). It ran on the simulator's earlier worlds; run today it trains on the current ones.
 # Resumable: run it again after a stop and it continues where the last checkpoint left off
 # (existing cache drives are kept; fit --resume restores model, optimiser, scheduler and RNG states).
 #   nohup scripts/train_default.sh > runs/default/train.log 2>&1 &

@@ -1,6 +1,6 @@
 #!/bin/sh
-# The exact command behind the model trained on the realistic worlds (issue 12; MODEL.md, "Training on
-# the realistic worlds"). Fine-tunes the previous shipped model (commit 33e1383, itself from
+# The exact command behind the shipped model, trained on the realistic worlds (MODEL.md, "Training").
+# Fine-tunes the previous shipped model (commit 33e1383, itself from
 # scripts/train_default.sh) on newly simulated drives of the new worlds.
 # Resumable: run it again after a stop. It continues from runs/worlds/state_latest.pt when that exists,
 # else from the committed state deepbbs_ros/models/train_state/worlds/state_latest.pt (model, optimiser,
