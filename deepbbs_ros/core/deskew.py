@@ -4,7 +4,7 @@ A raw sweep is measured while the sensor moves (per-point times: Velodyne ``time
 the relative transform of two scans what matters is their *differential* distortion: each scan bent by
 its own velocity. One pair alone does not give each scan's velocity, and deskewing both scans with the
 pair's mean motion leaves the difference untouched (measured: no gain on held-out raw pairs, while
-sweeps deskewed with their own velocities are registered several times more precisely; MODEL.md).
+sweeps deskewed with their own velocities are registered several times more precisely; docs/benchmarks.md).
 :class:`StreamDeskew` therefore follows one stream (a topic, a recording): each new scan is aligned to
 the previous one (DeepBBS++ for the first motion of a stream and whenever GICP from the
 constant-velocity prediction strays from it; else GICP alone), the motion over the stamp gap is the

@@ -5,7 +5,7 @@ The same inputs, outputs, modes, threads and drop policy as ``deepbbs-node``
 :class:`deepbbs_ros.baselines.SmallGicpRegistration` ``("gicp", config)`` from identity, scan to scan
 (``eval.baseline_*`` keys: voxel grid, neighbours, correspondence distance, iterations, threads). It
 is the baseline that latency and accuracy figures of the node are reported against, measured on the
-same machine in the same minute (``scripts/bench_node_latency.py``).
+same machine in the same minute (``scripts/benchmarks/node_latency.py``).
 
     python -m deepbbs_ros.node.gicp_anchor [--config YAML] --ros-args -p node.mode:=odometry -r cloud:=/points
 """
