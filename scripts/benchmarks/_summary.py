@@ -25,7 +25,9 @@ def registration(fig: dict) -> None:
             for m, c in (groups.get(g) or {}).items():
                 print(f"  {proto:<13} {g:<4} {m:<18} {f(c['success_pct'], '.1f')} % ({c['cases']}), "
                       f"{f(c['rot_deg_mean'])} deg / {f(c['trans_m_mean'])} m, p50 {f(c['p50_ms'], '.0f')} ms, "
-                      f"p95 {f(c['p95_ms'], '.0f')} ms, x{f(c['p50_over_gicp'], '.2f')}")
+                      f"p95 {f(c['p95_ms'], '.0f')} ms, x{f(c['p50_over_gicp'], '.2f')} GICP's"
+                      + (f", x{f(c['p50_over_kiss_matcher_gicp'], '.2f')} KISS-Matcher + GICP's"
+                         if c.get("p50_over_kiss_matcher_gicp") else ""))
     v = fig["verdict"]
     for m in ("deepbbs++", "deepbbs++local"):
         if m in v:

@@ -241,6 +241,9 @@ def summarise(recs: list[dict], names: list[str]) -> dict:
             anchor = float(np.median(gicp)) if gicp else None
             cells = {m: cell(sel, m, anchor) for m in names}
             cells = {m: c for m, c in cells.items() if c}
+            km = cells.get("kiss-matcher+gicp")
+            for c in cells.values():  # the speed against KISS-Matcher + GICP (its own cases are every n-th one)
+                c["p50_over_kiss_matcher_gicp"] = c["p50_ms"] / km["p50_ms"] if km else None
             if cells:
                 out["protocols"][proto][g] = cells
     true = [r for r in recs if r["kind"] == "true"]
