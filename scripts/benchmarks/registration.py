@@ -138,8 +138,10 @@ def plan(sets: dict, args) -> list[dict]:
         a, b = cross[k % len(cross)]
         cases.append({"kind": "different", "protocol": "different", "set": a, "i": int(rng.integers(len(sets[a]))),
                       "tset": b, "j": int(rng.integers(len(sets[b]))), "dist": None, "move": [0.0, 0.0, 0.0]})
+    seen: dict[str, int] = {}
     for n, c in enumerate(cases):
-        c["n"] = n
+        c["n"], c["k"] = n, seen.get(c["protocol"], 0)  # k: the case's index within its protocol
+        seen[c["protocol"]] = c["k"] + 1
     return cases
 
 
@@ -196,7 +198,7 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
                     continue
                 if m in ANY_ONLY and case["protocol"] != "any-start":
                     continue
-                if m.startswith("kiss") and case["n"] % args.kiss_every:
+                if m.startswith("kiss") and case["k"] % args.kiss_every:
                     continue
                 r = run_case(m, regs[m], src, tgt)
                 T = r.pop("T")
