@@ -150,11 +150,10 @@ class RegistrationConfig:
     # the pair-mode node sets it from node.polish_max_voxels
     polish_max_voxels: int = 0
     polish_max_trans: float = 0.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept); 0 = no limit
-    polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit (a limit cost 6-21 % success, study)
+    polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit
     polish_threads: int = 0  # small_gicp threads; 0 = every core
-    # small_gicp's convergence: stop when an iteration moves the estimate less than both. 5 mm instead of small_gicp's
-    # 1 mm: ~3 iterations instead of ~4 from the network's estimate on real scans, the same errors (KITTI 00/02: the
-    # result stays within a millimetre of GICP's fixed point, whose own error is ~2.6 cm)
+    # small_gicp's convergence: stop when an iteration moves the estimate less than both (small_gicp's own default is
+    # 1 mm: fewer iterations from the network's estimate, the same errors on real scans)
     polish_rot_eps_deg: float = 0.1
     polish_trans_eps: float = 0.005  # m
     deep_iterations: bool = True  # ablation: False = one network pass only
@@ -173,8 +172,8 @@ class RegistrationConfig:
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
     # the verdict (core/verdict.py): RegistrationResult.score = share of the source's sampled points within
-    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated by
-    # scripts/verdict_study.py on simulated and real pairs)
+    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated on
+    # simulated and real pairs)
     verdict_dist: float = 0.5  # m
     verdict_threshold: float = 0.35  # a result is valid when its score reaches this
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
@@ -276,24 +275,22 @@ class NodeConfig:
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
     warmup: bool = True  # run every stage once on a synthetic scan before reporting ready (first scans answered)
     # odometry mode: scans that may wait for the odometry (beyond that the oldest is dropped): a short transient
-    # (the first motion, which asks DeepBBS++: 0.3-0.6 s on two cores; a busy moment) is answered late instead of
-    # leaving a gap; pair mode keeps 1 (newest wins)
+    # (the first motion, which asks DeepBBS++; a busy moment) is answered late instead of leaving a gap; pair mode
+    # keeps 1 (newest wins)
     odometry_backlog: int = 6
     min_points: int = 100  # clouds with fewer valid points are rejected
     diagnostics_period: float = 1.0  # s
     error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind
-    # pair mode with raw sweeps: follow each input's velocity and deskew its clouds (core/deskew.py; 2.4x more
-    # precise on raw held-out pairs) at ~15 ms per cloud plus a second GICP per pair: off by default, because two
-    # 10 Hz HDL-64E inputs then no longer fit two cores (57 % answered vs 96 %). Odometry mode always deskews.
+    # pair mode with raw sweeps: follow each input's velocity and deskew its clouds (core/deskew.py; more precise on
+    # raw sweeps) at the cost of a second GICP per pair: off by default, because two 10 Hz HDL-64E inputs then no
+    # longer fit two CPU cores. Odometry mode always deskews.
     pair_deskew: bool = False
     # pair mode: network passes per registration in the node (replaces registration.max_deep_iters there; 0 = keep
-    # it). The precision stage only needs the basin: on real nearby scans (KITTI, <= 5 m, also from 45 deg / 5 m
-    # off) one pass lands GICP on the same pose as two, and the second costs ~25 ms a pair on the critical path
+    # it). The precision stage only needs the basin: on real nearby scans one pass lands GICP on the same pose as two
     deep_passes: int = 1
     # pair mode: a scan's GICP cloud has at most this many voxels (registration.polish_max_voxels there; 0 = keep
-    # it). A residential KITTI scan has ~14.8k 0.5 m voxels against ~11k for an urban one, and the node process's
-    # k-d trees, covariances and GICP scale with them. Off by default: capped at 11000 the KITTI 02 pairs' error
-    # grew from 3.4 to 4.4 cm (GICP's own: 3.5 cm); a speed option for dense scans where centimetres matter less
+    # it). The k-d trees, covariances and GICP scale with the voxels: a speed option for dense scans where
+    # centimetres matter less (a cap costs precision)
     polish_max_voxels: int = 0
     # pair mode: the registration (the GICP clouds' k-d trees and covariances, GICP, the network's own process) runs in
     # a process of its own, the node's process keeps rclpy, decoding and preprocessing (node/registration_process.py):
