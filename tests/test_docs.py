@@ -123,3 +123,17 @@ def test_readme_is_short_and_its_links_exist():
     assert not missing, missing
     # the site shows the README as its home page, where mkdocs checks its links and their anchors too
     assert (REPO / "docs" / "index.md").read_text().strip() == "<!-- include: README.md -->"
+
+
+def test_a_page_link_out_of_docs_is_rewritten(tmp_path):
+    """A page's link to a top-level file (../MODEL.md) points at the page that shows it; one to a missing file
+    fails the build."""
+    from importlib.util import module_from_spec, spec_from_file_location
+
+    spec = spec_from_file_location("docs_hooks", REPO / "docs" / "hooks.py")
+    hooks = module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    text = "See [the model card](../MODEL.md#limitations), [the defaults](../config/deepbbs_ros.yaml), [x](node.md)."
+    assert hooks._rewrite(text, "docs/page.md", "page.md") == (
+        "See [the model card](model.md#limitations), the defaults (`config/deepbbs_ros.yaml`), [x](node.md).")
+    assert hooks._rewrite("[m](../../MODEL.md)", "docs/sub/page.md", "sub/page.md") == "[m](../model.md)"
