@@ -35,7 +35,8 @@ INSTALL_REQUIRES = [
     "ray>=2.40",  # fleet replay: recordings fanned out as tasks, locally or on a cluster (core only, no extras)
 ]
 
-TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6"]
+# mkdocs: tests/test_docs.py builds the docs site with --strict (broken links, anchors and missing files fail)
+TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6", "mkdocs>=1.6"]
 
 setup(
     name=package_name,

@@ -38,7 +38,7 @@ class PreprocessConfig:
 
     min_range: float = 2.0  # m; returns closer than this (ego vehicle) are dropped
     max_range: float = 80.0  # m; returns farther than this are dropped
-    remove_ground: bool = True
+    remove_ground: bool = True  # remove the ground plane before sampling (the network sees structure, not road)
     ground_method: str = "ransac"  # "ransac" | "seeded_lsq"
     ground_layer: float = 0.5  # m; thickness of the removed layer around the fitted plane
     ground_seed_radius: float = 20.0  # m; only points within this radius seed the plane fit
@@ -81,19 +81,20 @@ class ModelConfig:
     # Defaults are a reduced DGCNN/DCP (paper: k=20, widths 64-64-128-256, emb 512, ff 1024; ~5.7 M
     # parameters): ~0.1 M parameters, so that a pass on 2x1000 points fits the 2-core CPU budget and
     # the model trains on a CPU. The 1000x1000 attention (3 per direction) dominates the pass.
+
     k: int = 16  # neighbours of the DGCNN edge convolutions (on xyz)
-    dgcnn_widths: list[int] = field(default_factory=lambda: [32, 32, 64, 128])
+    dgcnn_widths: list[int] = field(default_factory=lambda: [32, 32, 64, 128])  # widths of the DGCNN layers
     emb_dims: int = 64  # width of the point embedding
-    n_heads: int = 4
+    n_heads: int = 4  # attention heads of the transformer
     n_blocks: int = 1  # transformer encoder/decoder blocks (0 = DGCNN only)
     ff_dims: int = 128  # transformer feed-forward width
-    dropout: float = 0.0
+    dropout: float = 0.0  # transformer dropout while training
     # LiDAR scenes are ~100 m across; the network and temperatures were designed for unit-sized
     # objects. Coordinates are multiplied by ``scale`` on the way in and translations divided by it
     # on the way out (scale = 1/40 maps an 80 m crop radius to 2 units).
     scale: float = 0.025
     temperature_min: float = 0.01  # clamp range of the predicted temperature T (scaled units)
-    temperature_max: float = 1.0
+    temperature_max: float = 1.0  # (scaled units)
     xi: float = 0.4  # alpha = xi * median_j min_i ||phi_pj - phi_pi||
 
     def validate(self) -> None:
@@ -124,20 +125,20 @@ class RegistrationConfig:
 
     device: str = "auto"  # "auto" (CUDA when present), "cpu", "cuda", "cuda:N"
     weights: str = ""  # checkpoint path; "" = the model shipped with the package
-    max_deep_iters: int = 2  # the precision stage needs only the basin: 2 passes (issue 10/11 study)
+    max_deep_iters: int = 2  # network passes per registration; the precision stage needs only the basin
     deep_rot_tol_deg: float = 0.4  # stop deep iterations when the increment is below both
     deep_trans_tol: float = 0.05  # m
     refine: bool = False  # DeepBBS++ SoftBBS refinement in 3D space (the paper's; off: the GICP precision stage wins)
-    refine_max_iters: int = 46
+    refine_max_iters: int = 46  # iterations of the SoftBBS refinement (registration.refine)
     refine_k: int = 16  # nearest target points per source point in the sparse refinement
-    refine_rot_tol_deg: float = 0.005
+    refine_rot_tol_deg: float = 0.005  # the refinement stops when the increment is below both
     refine_trans_tol: float = 0.001  # m
     refine_temperature: float = 1.0  # m; T of gamma's spatial term in the refinement; 0 = paper (1 scaled unit)
     refine_overlap_crop: bool = True  # refine only on points inside both sensors' max_range (unbiased ends)
     refine_alpha_start: float = 4.0  # coarse-to-fine: alpha x this first, halved on convergence to x1 (1 = paper)
     dense_refine: bool = False  # final refinement on preprocess' dense_points (voxelised non-ground)
     dense_refine_k: int = 6  # nearest dense target points per dense source point
-    dense_refine_max_iters: int = 15
+    dense_refine_max_iters: int = 15  # iterations of the dense refinement (registration.dense_refine)
     dense_refine_xi: float = 0.4  # alpha = xi * median nearest-neighbour distance of the dense source
     dense_refine_temperature: float = 1.0  # m; T of gamma's spatial term exp(-D/T) in the dense stage
     polish: str = "gicp"  # precision stage (small_gicp) from the DeepBBS++ estimate: gicp|plane_icp|none
@@ -149,11 +150,10 @@ class RegistrationConfig:
     # the pair-mode node sets it from node.polish_max_voxels
     polish_max_voxels: int = 0
     polish_max_trans: float = 0.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept); 0 = no limit
-    polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit (a limit cost 6-21 % success, study)
+    polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit
     polish_threads: int = 0  # small_gicp threads; 0 = every core
-    # small_gicp's convergence: stop when an iteration moves the estimate less than both. 5 mm instead of small_gicp's
-    # 1 mm: ~3 iterations instead of ~4 from the network's estimate on real scans, the same errors (KITTI 00/02: the
-    # result stays within a millimetre of GICP's fixed point, whose own error is ~2.6 cm)
+    # small_gicp's convergence: stop when an iteration moves the estimate less than both (small_gicp's own default is
+    # 1 mm: fewer iterations from the network's estimate, the same errors on real scans)
     polish_rot_eps_deg: float = 0.1
     polish_trans_eps: float = 0.005  # m
     deep_iterations: bool = True  # ablation: False = one network pass only
@@ -167,21 +167,21 @@ class RegistrationConfig:
     network_process: str = "auto"
     # torch CPU threads while register() runs the network (set and restored around it); 0 = leave torch's setting
     # alone. 1: on 2x512 points a second thread costs more in hand-offs than it gives (OMP_WAIT_POLICY=PASSIVE,
-    # README 'A busy computer'), and it leaves the other cores to small_gicp and the rest of the robot
+    # docs/node.md), and it leaves the other cores to small_gicp and the rest of the robot
     threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
     # the verdict (core/verdict.py): RegistrationResult.score = share of the source's sampled points within
-    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated by
-    # simulated and real pairs; checked by scripts/benchmarks/registration.py)
+    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated on
+    # simulated and real pairs)
     verdict_dist: float = 0.5  # m
-    verdict_threshold: float = 0.35
+    verdict_threshold: float = 0.35  # a result is valid when its score reaches this
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
     # every registration ("always") or never ("off"); global_yaws starts at 360 / global_yaws degree steps (the
     # given start included), the global_polish best of them (ranked by their fitness before it) get the precision stage
     global_search: str = "auto"
-    global_yaws: int = 4
-    global_polish: int = 2
+    global_yaws: int = 4  # start yaws of the search, 360 / global_yaws degrees apart (the given start included)
+    global_polish: int = 2  # the best this many starts (ranked by their fitness) get the precision stage
     # the network process runs the other start yaws' first passes right after the given start's (while this process
     # builds the GICP clouds), stopped as soon as the answer from the given start fits: "auto" when the search ran
     # in one of the last 8 registrations (a stream of good starts pays nothing), "always", or "off"
@@ -253,15 +253,15 @@ class NodeConfig:
     queue_size: int = 10  # approximate-time synchroniser queue per input
     slop: float = 0.05  # s; max stamp difference of a synchronised pair
     qos_reliability: str = "best_effort"  # "best_effort" (sensor data) | "reliable"
-    qos_depth: int = 5
+    qos_depth: int = 5  # history depth of the input subscriptions
     publish_odometry: bool = True  # ~/odometry (nav_msgs/Odometry: pose, twist, covariances)
     # odometry mode: odom_frame -> base_frame on /tf (REP-105); needs tf2_msgs (built by `make venv`, or
     # `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with node.pair_tf
     publish_tf: bool = True
-    pair_tf: bool = False
+    pair_tf: bool = False  # pair mode: broadcast target frame -> source frame on /tf
     invert_tf: bool = False  # broadcast base_frame -> odom_frame instead (another node owns odom's tree)
-    publish_aligned_cloud: bool = False
-    odom_frame: str = "odom"
+    publish_aligned_cloud: bool = False  # ~/aligned_cloud: the source in the target frame (odometry: in odom)
+    odom_frame: str = "odom"  # odometry mode: the fixed frame of ~/odometry and of the TF it broadcasts
     # odometry mode: the published motion is the base's, T_base_sensor looked up on /tf_static (robot_state_publisher);
     # "" = the cloud's frame (no lookup)
     base_frame: str = "base_link"
@@ -275,30 +275,27 @@ class NodeConfig:
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
     warmup: bool = True  # run every stage once on a synthetic scan before reporting ready (first scans answered)
     # odometry mode: scans that may wait for the odometry (beyond that the oldest is dropped): a short transient
-    # (the first motion, which asks DeepBBS++: 0.3-0.6 s on two cores; a busy moment) is answered late instead of
-    # leaving a gap; pair mode keeps 1 (newest wins)
+    # (the first motion, which asks DeepBBS++; a busy moment) is answered late instead of leaving a gap; pair mode
+    # keeps 1 (newest wins)
     odometry_backlog: int = 6
     min_points: int = 100  # clouds with fewer valid points are rejected
     diagnostics_period: float = 1.0  # s
     error_log_period: float = 5.0  # s; rate limit of repeated error messages per kind
-    # pair mode with raw sweeps: follow each input's velocity and deskew its clouds (core/deskew.py; 2.4x more
-    # precise on raw held-out pairs) at ~15 ms per cloud plus a second GICP per pair: off by default, because two
-    # 10 Hz HDL-64E inputs then no longer fit two cores (57 % answered vs 96 %). Odometry mode always deskews.
+    # pair mode with raw sweeps: follow each input's velocity and deskew its clouds (core/deskew.py; more precise on
+    # raw sweeps) at the cost of a second GICP per pair: off by default, because two 10 Hz HDL-64E inputs then no
+    # longer fit two CPU cores. Odometry mode always deskews.
     pair_deskew: bool = False
     # pair mode: network passes per registration in the node (replaces registration.max_deep_iters there; 0 = keep
-    # it). The precision stage only needs the basin: on real nearby scans (KITTI, <= 5 m, also from 45 deg / 5 m
-    # off) one pass lands GICP on the same pose as two, and the second costs ~25 ms a pair on the critical path
+    # it). The precision stage only needs the basin: on real nearby scans one pass lands GICP on the same pose as two
     deep_passes: int = 1
     # pair mode: a scan's GICP cloud has at most this many voxels (registration.polish_max_voxels there; 0 = keep
-    # it). A residential KITTI scan has ~14.8k 0.5 m voxels against ~11k for an urban one, and the node process's
-    # k-d trees, covariances and GICP scale with them. Off by default: capped at 11000 the KITTI 02 pairs' error
-    # grew from 3.4 to 4.4 cm (GICP's own: 3.5 cm); a speed option for dense scans where centimetres matter less
+    # it). The k-d trees, covariances and GICP scale with the voxels: a speed option for dense scans where
+    # centimetres matter less (a cap costs precision)
     polish_max_voxels: int = 0
     # pair mode: the registration (the GICP clouds' k-d trees and covariances, GICP, the network's own process) runs in
     # a process of its own, the node's process keeps rclpy, decoding and preprocessing (node/registration_process.py):
-    # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Real KITTI scans,
-    # every source new, 2 cores, 4 runs per sequence: KITTI 00 p99 117-163 ms against 191-314 off; KITTI 02 82-100 %
-    # answered against 67-82 %. Odometry mode keeps the registration in the node's process
+    # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
+    # keeps the registration in the node's process
     registration_process: str = "auto"
 
     def validate(self) -> None:
@@ -375,13 +372,13 @@ class OdometryConfig:
 class TrainConfig:
     """deepbbs-train: data, augmentation, loss and optimiser."""
 
-    epochs: int = 20
-    steps_per_epoch: int = 150
-    batch_size: int = 8
+    epochs: int = 20  # training epochs
+    steps_per_epoch: int = 150  # optimiser steps per epoch
+    batch_size: int = 8  # pairs per step (per process under torchrun)
     num_points: int = 0  # points per training cloud; 0 = preprocess.num_points (validation always uses that)
-    lr: float = 1e-3
+    lr: float = 1e-3  # Adam learning rate
     lr_step: int = 8  # epochs between learning-rate decays
-    lr_gamma: float = 0.5
+    lr_gamma: float = 0.5  # learning-rate factor at each decay
     grad_clip: float = 1.0  # max gradient norm; 0 disables clipping
     beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
     theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
@@ -394,7 +391,7 @@ class TrainConfig:
     val_every: int = 1  # epochs
     val_pairs: int = 16  # fixed held-out pairs per validation set (plain and with extra yaw)
     checkpoint_minutes: float = 10.0  # also save the latest state this often within an epoch; 0 = epoch ends only
-    seed: int = 0
+    seed: int = 0  # seeds the pair draws, augmentation and initial weights
 
     def validate(self) -> None:
         for name in ("epochs", "steps_per_epoch", "batch_size", "lr_step", "val_every", "val_pairs"):
@@ -419,8 +416,8 @@ class EvalConfig:
     stride: int = 100  # pairs mode: a source frame every `stride` frames
     max_dist: float = 5.0  # m; pairs mode: target = last frame within max_dist of the source
     max_pair_frames: int = 300  # pairs mode: the target is searched at most this many frames ahead
-    success_rot_deg: float = 1.0
-    success_trans: float = 0.3  # m
+    success_rot_deg: float = 1.0  # a pair succeeds within this rotation error ...
+    success_trans: float = 0.3  # m; ... and this translation error
     odom_stride: int = 1  # odometry mode: register every k-th frame against the previous kept one
     odom_init: str = "constant_velocity"  # odometry initial guess: "constant_velocity" | "identity"
     perturb_yaw_deg: float = 0.0  # random initial yaw of the source, uniform in [-x, x] (basin test)
@@ -433,13 +430,13 @@ class EvalConfig:
     baseline_input: str = "dense"
     baseline_voxel_size: float = 0.5  # m
     baseline_max_corr_dist: float = 2.0  # m
-    baseline_max_iters: int = 50
+    baseline_max_iters: int = 50  # ICP / GICP iterations of the baselines
     baseline_neighbors: int = 20  # neighbours for normals / covariances
     kiss_matcher_voxel: float = 0.3  # m; KISS-Matcher's voxel size (its default for outdoor LiDAR)
     kiss_deskew: bool = True  # KISS-ICP motion compensation when scans carry a per-point "time"
     drop_frames: int = 0  # odometry robustness: this many gaps of drop_min..drop_max skipped scans (seeded by seed)
-    drop_min: int = 3
-    drop_max: int = 10
+    drop_min: int = 3  # shortest gap of drop_frames (scans)
+    drop_max: int = 10  # longest gap of drop_frames (scans)
     wrong_prior: int = 0  # odometry robustness: this many frames whose motion prior is off by a random motion
     wrong_prior_yaw_deg: float = 30.0  # ... of up to this yaw
     wrong_prior_trans: float = 2.0  # m ... and up to this horizontal shift

@@ -13,7 +13,7 @@ RUFF_ARGS = [
     "--ignore", "B008,B905",
     "--target-version", "py310",
 ]  # fmt: skip
-PATHS = ["deepbbs_ros", "msg_adapters", "tests", "scripts", "launch", "setup.py"]
+PATHS = ["deepbbs_ros", "msg_adapters", "tests", "scripts", "launch", "docs", "setup.py"]
 
 
 def test_ruff_clean():
