@@ -35,7 +35,7 @@ INSTALL_REQUIRES = [
     "ray>=2.40",  # fleet replay: recordings fanned out as tasks, locally or on a cluster (core only, no extras)
 ]
 
-TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6"]
+TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6", "evo>=1.38"]
 
 setup(
     name=package_name,
