@@ -5,7 +5,9 @@ directories with sqlite3 or mcap storage, bare ``.mcap``), :mod:`.apollo` (Apoll
 ``pcds/`` + ``poses/gt_poses.txt``), :mod:`.kitti` (KITTI odometry ``velodyne/`` + ``poses.txt`` +
 ``calib.txt``), :mod:`.folder` (plain folders of ``.bin``/``.pcd`` scans) and :mod:`.pcd` (PCD
 files). :func:`open_source` picks the reader from the path,
-:func:`write_scans` the writer from a format name. No ROS install is needed (rosbags, mcap).
+:func:`write_scans` the writer from a format name. No ROS install is needed (rosbags, mcap). Every reader
+hands out ground-truth rotations that are rotations (a matrix read from text is projected onto SO(3), a
+quaternion normalised), so the same scans give the same metrics whatever their format.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ truth comes from ``gt_topic`` (``geometry_msgs/msg/PoseStamped``, ``nav_msgs/msg
 ``ground_truth``/``groundtruth``/``gt``; other pose topics (e.g. wheel ``/odom``) are never taken as
 ground truth silently. Ground truth is matched by header stamp (see
 :class:`~deepbbs_ros.datasets.base.PoseTrack`: exact, else interpolated between the two bracketing
-poses within the tolerance, else the nearest within it).
+poses within the tolerance, else the nearest within it). Ground-truth quaternions are normalised on
+reading (:func:`msg_adapters.transforms.quaternion_to_matrix`), so every pose is a rotation to about 1e-16.
 
 Writing uses rosbags' rosbag2 ``Writer`` (format version 9, as ROS 2 Jazzy writes): mcap storage by
 default with zstd chunk compression (rosbags' ``CompressionMode.STORAGE``, which the metadata
@@ -25,6 +26,7 @@ records as no bag-level compression, like rosbag2's own mcap plugin), the mcap f
 by ``mcap.writer.Writer`` with chunk, data-section and summary CRCs (:func:`rosbag2_writer`), or
 sqlite3. Both topics get an explicit offered QoS profile (reliable, volatile, keep-last 10): a
 reliable publisher matches both reliable and best-effort subscribers when the bag is played back.
+:func:`write_rosbag1` writes the same messages as a ROS 1 ``.bag``.
 """
 
 from __future__ import annotations
