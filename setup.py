@@ -35,8 +35,9 @@ INSTALL_REQUIRES = [
     "ray>=2.40",  # fleet replay: recordings fanned out as tasks, locally or on a cluster (core only, no extras)
 ]
 
-# mkdocs: tests/test_docs.py builds the docs site with --strict (broken links, anchors and missing files fail)
-TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6", "mkdocs>=1.6"]
+# mkdocs: tests/test_docs.py builds the docs site with --strict (broken links, anchors and missing files fail);
+# evo: tests/test_metrics_exact.py checks the replay's ATE / APE / RPE against evo's own API
+TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6", "mkdocs>=1.6", "evo>=1.38"]
 
 setup(
     name=package_name,

@@ -4,12 +4,21 @@ Pure numpy maths with no ROS import; the only I/O is the small trajectory reader
 end (plain text that ``evo`` reads). Every transform is a (4, 4) float64 homogeneous matrix acting
 on column vectors, ``p_target = R @ p_source + t``.
 
+Rotations
+    A rotation read from a file is made one once, by its reader (:func:`nearest_rotation`: the SVD
+    projection onto SO(3), det +1; quaternions are normalised), so the same poses give the same figures
+    whatever the file format. The angle of a rotation ``R`` is :func:`rotation_angle`,
+    ``atan2(||vee(R - R^T)|| / 2, (trace(R) - 1) / 2)``: exact to about 1e-16 rad at every angle, where
+    ``arccos((trace - 1) / 2)`` loses all digits below about 1e-8 rad (and about 0.05 deg when ``R`` is
+    1e-6 off orthonormal). It is the angle evo computes (``Rotation.from_matrix(R).magnitude()``).
 Per pair
-    ``rot_err_deg = degrees(arccos(clip((trace(R_gt^T R) - 1) / 2, -1, 1)))``,
-    ``trans_err_m = ||t - t_gt||``; a pair succeeds when both are within the thresholds.
-Per sequence
-    KITTI drift (the devkit's ``calcSequenceErrors``), ATE after SE(3) Umeyama alignment, RPE between
-    consecutive frames.
+    ``rot_err_deg`` = the angle of ``R_gt^T R`` in degrees, ``trans_err_m = ||t - t_gt||``; a pair
+    succeeds when both are within the thresholds.
+Per sequence (each the quantity evo computes on the trajectory files written by :func:`write_tum`)
+    KITTI drift (the devkit's ``calcSequenceErrors``); ATE: position error after SE(3) Umeyama alignment
+    (no scale; ``evo_ape tum gt est -a``); APE rotation: the angle of ``gt_k^-1 est_k``, no alignment
+    (``evo_ape tum gt est --pose_relation angle_deg``); RPE between frames ``k - 1`` and ``k``
+    (``evo_rpe tum gt est [--pose_relation angle_deg]``, evo's defaults ``--delta 1 --delta_unit f``).
 """
 
 from __future__ import annotations
@@ -26,20 +35,79 @@ KITTI_STEP = 10  # frames between segment starts (devkit ``step_size``)
 
 
 # --------------------------------------------------------------------------------------------------
+# rotations
+# --------------------------------------------------------------------------------------------------
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation nearest to ``R`` in the Frobenius norm: ``U diag(1, 1, det(U V^T)) V^T`` of the SVD
+    ``R = U S V^T`` (det +1, so a reflection is never returned).
+
+    A pose file keeps 6-7 significant digits (KITTI) or so, leaving ``R^T R`` about 1e-6 off the
+    identity; readers pass every matrix they read through this once, so that every metric downstream
+    scores a rotation.
+
+    Args:
+        R: (3, 3) or (..., 3, 3) float64 matrices, finite (non-finite ones are returned unchanged).
+    Returns:
+        (..., 3, 3) float64 rotation matrices (``R^T R = I`` to about 1e-16).
+    """
+    R = np.array(R, dtype=np.float64)
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"nearest_rotation: expected (...,3,3) matrices, got shape {R.shape}")
+    finite = np.isfinite(R).all(axis=(-2, -1))
+    if not finite.all():
+        out = R.copy()
+        out[finite] = nearest_rotation(R[finite])
+        return out
+    U, _, Vt = np.linalg.svd(R)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[..., :, 2] *= np.where(d == 0, 1.0, d)[..., None]
+    return U @ Vt
+
+
+def project_pose(T: np.ndarray) -> np.ndarray:
+    """(4, 4) or (..., 4, 4) poses with the rotation block made a rotation (:func:`nearest_rotation`)
+    and the last row ``[0, 0, 0, 1]``; a copy, float64."""
+    T = np.array(T, dtype=np.float64)
+    if T.shape[-2:] != (4, 4):
+        raise ValueError(f"project_pose: expected (...,4,4) poses, got shape {T.shape}")
+    T[..., :3, :3] = nearest_rotation(T[..., :3, :3])
+    T[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
+    return T
+
+
+def rotation_angle(R: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians, in [0, pi]: ``atan2(||vee(R - R^T)|| / 2, (trace(R) - 1) / 2)``.
+
+    Both arguments are exact to about 1e-16 for a rotation (``sin`` and ``cos`` of the angle), so the
+    angle is too, near 0 and near pi alike (``arccos`` of the cosine alone loses everything below about
+    1e-8 rad). The same value as scipy's ``Rotation.from_matrix(R).magnitude()``, which evo uses.
+
+    Args:
+        R: (3, 3) or (..., 3, 3) rotations (also accepts (..., 4, 4) transforms). NaN in, NaN out.
+    Returns:
+        float64 scalar array or (...,) radians.
+    """
+    R = np.asarray(R, dtype=np.float64)[..., :3, :3]
+    s = 0.5 * np.sqrt((R[..., 2, 1] - R[..., 1, 2]) ** 2 + (R[..., 0, 2] - R[..., 2, 0]) ** 2
+                      + (R[..., 1, 0] - R[..., 0, 1]) ** 2)
+    c = 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0)
+    return np.arctan2(s, c)
+
+
+# --------------------------------------------------------------------------------------------------
 # per-pair errors
 # --------------------------------------------------------------------------------------------------
 def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
-    """Geodesic angle between rotations, degrees.
+    """Geodesic angle between rotations, degrees: the angle of ``R_gt^T R_est`` (:func:`rotation_angle`).
 
     Args:
         R_est, R_gt: (3, 3) or (B, 3, 3) rotation matrices (also accepts (…, 4, 4) transforms).
     Returns:
-        float64 scalar array (or (B,)) ``arccos(clip((trace(R_gt^T R_est) - 1) / 2, -1, 1))`` in degrees.
+        float64 scalar array (or (B,)) in degrees, in [0, 180].
     """
     R_est = np.asarray(R_est, dtype=np.float64)[..., :3, :3]
     R_gt = np.asarray(R_gt, dtype=np.float64)[..., :3, :3]
-    tr = np.einsum("...ji,...ji->...", R_gt, R_est)  # trace(R_gt^T R_est)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+    return np.degrees(rotation_angle(np.swapaxes(R_gt, -1, -2) @ R_est))
 
 
 def translation_error_m(t_est: np.ndarray, t_gt: np.ndarray) -> np.ndarray:
@@ -164,7 +232,7 @@ def kitti_segment_errors(
             d_gt = _inv(gt[first]) @ gt[last]
             d_est = _inv(est[first]) @ est[last]
             E = _inv(d_est) @ d_gt
-            r = float(np.arccos(np.clip(0.5 * (np.trace(E[:3, :3]) - 1.0), -1.0, 1.0)))
+            r = float(rotation_angle(E))
             t = float(np.linalg.norm(E[:3, 3]))
             rows.append((first, length, t / length, r / length))
     return np.asarray(rows, dtype=np.float64).reshape(-1, 4)
@@ -223,36 +291,65 @@ def umeyama_alignment(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
     return T, s
 
 
-def ate_rmse(T_world_est: Sequence[np.ndarray] | np.ndarray, T_world_gt: Sequence[np.ndarray] | np.ndarray) -> float:
-    """Absolute trajectory error: RMSE (m) of positions after SE(3) Umeyama alignment (no scale)."""
-    est = _stack(T_world_est, "ate_rmse(est)")
-    gt = _stack(T_world_gt, "ate_rmse(gt)")
+def _pair_of(T_world_est, T_world_gt, name: str) -> tuple[np.ndarray, np.ndarray]:
+    est = _stack(T_world_est, f"{name}(est)")
+    gt = _stack(T_world_gt, f"{name}(gt)")
     if est.shape != gt.shape:
-        raise ValueError(f"ate_rmse: {len(est)} estimated poses but {len(gt)} ground-truth poses")
+        raise ValueError(f"{name}: {len(est)} estimated poses but {len(gt)} ground-truth poses")
+    return est, gt
+
+
+def ate_errors(
+    T_world_est: Sequence[np.ndarray] | np.ndarray, T_world_gt: Sequence[np.ndarray] | np.ndarray
+) -> np.ndarray:
+    """Absolute trajectory error per frame: (N,) metres between the estimated positions, moved by the SE(3)
+    Umeyama alignment onto the ground-truth positions (no scale), and the ground-truth positions.
+
+    evo's APE translation part with ``-a`` (``evo_ape tum gt.tum est.tum -a``): the same per-frame errors.
+    """
+    est, gt = _pair_of(T_world_est, T_world_gt, "ate")
     p_est, p_gt = est[:, :3, 3], gt[:, :3, 3]
     T, _ = umeyama_alignment(p_est, p_gt)
     aligned = p_est @ T[:3, :3].T + T[:3, 3]
-    return float(np.sqrt(np.mean(np.sum((aligned - p_gt) ** 2, axis=1))))
+    return np.linalg.norm(aligned - p_gt, axis=1)
+
+
+def ate_rmse(T_world_est: Sequence[np.ndarray] | np.ndarray, T_world_gt: Sequence[np.ndarray] | np.ndarray) -> float:
+    """Absolute trajectory error: RMSE (m) of :func:`ate_errors` (SE(3) Umeyama alignment, no scale);
+    evo's ``evo_ape tum gt.tum est.tum -a`` rmse."""
+    e = ate_errors(T_world_est, T_world_gt)
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def ape_rotation_deg(T_world_est: Sequence[np.ndarray] | np.ndarray,
+                     T_world_gt: Sequence[np.ndarray] | np.ndarray) -> np.ndarray:
+    """Absolute rotation error per frame without alignment: (N,) degrees, the angle of ``gt_k^-1 est_k``.
+
+    The replay's trajectories start at the first ground-truth pose, so no alignment is needed (an SE(3)
+    alignment fitted to positions alone leaves the rotation about a straight drive's direction free).
+    evo's ``evo_ape tum gt.tum est.tum --pose_relation angle_deg`` (no ``-a``).
+    """
+    est, gt = _pair_of(T_world_est, T_world_gt, "ape_rotation")
+    return np.degrees(rotation_angle(np.swapaxes(gt[:, :3, :3], -1, -2) @ est[:, :3, :3]))
 
 
 def rpe(
     T_world_est: Sequence[np.ndarray] | np.ndarray, T_world_gt: Sequence[np.ndarray] | np.ndarray, delta: int = 1
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Relative pose error between frames ``k - delta`` and ``k``.
+    """Relative pose error between frames ``k - delta`` and ``k`` (``delta`` in frames).
 
-    ``E_k = (gt_{k-d}^-1 gt_k)^-1 (est_{k-d}^-1 est_k)``; returns ((N-d,) trans m, (N-d,) rot deg).
+    ``E_k = (gt_{k-d}^-1 gt_k)^-1 (est_{k-d}^-1 est_k)``; returns ((N-d,) ``||t(E_k)||`` m, (N-d,) angle of
+    ``R(E_k)`` deg). evo's ``evo_rpe tum gt.tum est.tum --delta d --delta_unit f`` (translation_part, and
+    ``--pose_relation angle_deg``), consecutive pairs, no alignment.
     """
-    est = _stack(T_world_est, "rpe(est)")
-    gt = _stack(T_world_gt, "rpe(gt)")
-    if est.shape != gt.shape:
-        raise ValueError(f"rpe: {len(est)} estimated poses but {len(gt)} ground-truth poses")
+    est, gt = _pair_of(T_world_est, T_world_gt, "rpe")
     if len(est) <= delta:
         return np.zeros(0), np.zeros(0)
     d_est = _inv(est[:-delta]) @ est[delta:]
     d_gt = _inv(gt[:-delta]) @ gt[delta:]
     E = _inv(d_gt) @ d_est
     trans = np.linalg.norm(E[:, :3, 3], axis=1)
-    rot = rotation_error_deg(E, np.broadcast_to(np.eye(4), E.shape))
+    rot = np.degrees(rotation_angle(E))
     return trans, rot
 
 
@@ -273,19 +370,26 @@ def _quat_xyzw_to_matrix(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
+def _num(v: float) -> str:
+    """A float64 as the shortest text that reads back as the same float (``repr``: up to 17 digits)."""
+    return repr(float(v))
+
+
 def write_tum(
     path: str | Path, stamps_s: Sequence[float] | np.ndarray, T_world: Sequence[np.ndarray] | np.ndarray
 ) -> None:
-    """Write ``timestamp tx ty tz qx qy qz qw`` per line (seconds, metres; w >= 0).
+    """Write ``timestamp tx ty tz qx qy qz qw`` per line (seconds, metres; unit quaternion, w >= 0).
 
-    ``stamps_s``: (N,) float seconds, or an integer array of nanoseconds (written exactly).
+    Every number is written in full (the shortest text that reads back as the same float64), so evo reads
+    back the poses that were scored. ``stamps_s``: (N,) float seconds, or an integer array of nanoseconds
+    (written exactly).
     """
     P = _stack(T_world, "write_tum") if len(T_world) else np.zeros((0, 4, 4))
     raw = np.asarray(stamps_s).ravel()
     if np.issubdtype(raw.dtype, np.integer):
         stamps = [f"{int(v) // 1_000_000_000}.{int(v) % 1_000_000_000:09d}" for v in raw]
     else:
-        stamps = [f"{v:.9f}" for v in raw.astype(np.float64)]
+        stamps = [_num(v) for v in raw.astype(np.float64)]
     if len(stamps) != P.shape[0]:
         raise ValueError(f"write_tum: {len(stamps)} stamps for {P.shape[0]} poses")
     with open(path, "w") as fh:
@@ -293,11 +397,14 @@ def write_tum(
             q = _matrix_to_quat_xyzw(P[:, :3, :3])
             for s, T, qq in zip(stamps, P, q):
                 x, y, z = T[:3, 3]
-                fh.write(f"{s} {x:.9f} {y:.9f} {z:.9f} {qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}\n")
+                fh.write(" ".join([s, *(_num(v) for v in (x, y, z, *qq))]) + "\n")
 
 
 def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a TUM trajectory; returns ((N,) stamps s, (N, 4, 4) float64). ``#`` lines are comments."""
+    """Read a TUM trajectory; returns ((N,) stamps s, (N, 4, 4) float64). ``#`` lines are comments.
+
+    Quaternions are normalised on reading (the rotation of a quaternion of any norm).
+    """
     stamps, poses = [], []
     path = Path(path)
     try:
@@ -327,15 +434,17 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_kitti(path: str | Path, T_world: Sequence[np.ndarray] | np.ndarray) -> None:
-    """Write the first three rows of every pose, 12 numbers row-major per line."""
+    """Write the first three rows of every pose, 12 numbers row-major per line, each in full (the shortest
+    text that reads back as the same float64)."""
     P = _stack(T_world, "write_kitti") if len(T_world) else np.zeros((0, 4, 4))
     with open(path, "w") as fh:
         for T in P:
-            fh.write(" ".join(f"{v:.9e}" for v in T[:3, :].ravel()) + "\n")
+            fh.write(" ".join(_num(v) for v in T[:3, :].ravel()) + "\n")
 
 
 def read_kitti(path: str | Path) -> np.ndarray:
-    """Read a KITTI pose file; returns (N, 4, 4) float64."""
+    """Read a KITTI pose file; returns (N, 4, 4) float64, each rotation block made a rotation
+    (:func:`nearest_rotation`: a file with 6-7 digits per entry leaves it about 1e-6 off orthonormal)."""
     path = Path(path)
     try:
         lines = path.read_text().splitlines()
@@ -351,7 +460,9 @@ def read_kitti(path: str | Path) -> np.ndarray:
             raise DatasetError(f"{path}:{lineno}: KITTI pose line must hold 12 numbers: {line.strip()!r}") from err
         if len(vals) != 12:
             raise DatasetError(f"{path}:{lineno}: KITTI pose line must hold 12 numbers, got {len(vals)}")
+        if not np.isfinite(vals).all():
+            raise DatasetError(f"{path}:{lineno}: KITTI pose line holds a non-finite number: {line.strip()!r}")
         T = np.eye(4)
         T[:3, :] = np.asarray(vals).reshape(3, 4)
         poses.append(T)
-    return np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    return project_pose(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4))

@@ -79,10 +79,10 @@ PC2 = "sensor_msgs/msg/PointCloud2"
 
 
 # ----------------------------------------------------------------------------------- round trips
-@pytest.mark.parametrize("fmt", ["apollo", "kitti", "mcap", "db3"])
+@pytest.mark.parametrize("fmt", ["apollo", "kitti", "mcap", "db3", "bag"])
 def test_round_trip_every_format(tmp_path, fmt):
     scans = make_scans()
-    out = tmp_path / fmt
+    out = tmp_path / ("drive.bag" if fmt == "bag" else fmt)
     assert write_scans(scans, out, fmt) == len(scans)
     source = open_source(out)
     assert len(source) == len(scans) and source.has_ground_truth
@@ -96,12 +96,22 @@ def test_round_trip_every_format(tmp_path, fmt):
             assert b.stamp_ns == a.stamp_ns - T0_NS
         else:
             assert b.stamp_ns == a.stamp_ns
-        if fmt in ("mcap", "db3"):  # bags keep every field with its dtype
+        if fmt in ("mcap", "db3", "bag"):  # bags keep every field with its dtype
             assert b.fields["ring"].dtype == np.uint16
             np.testing.assert_array_equal(b.fields["ring"], a.fields["ring"])
             np.testing.assert_array_equal(b.fields["time"], a.fields["time"])
             assert b.frame_id == "velodyne64"
     assert [s.index for s in back] == ([1, 2, 3, 4] if fmt == "apollo" else [0, 1, 2, 3])
+
+
+def test_ros1_bag_writer_refuses_other_names_and_layouts(tmp_path):
+    with pytest.raises(BagError, match=r"\*\.bag"):
+        write_scans(make_scans(1), tmp_path / "drive", "bag")
+    with pytest.raises(DatasetError, match="rosbag2 only"):
+        write_scans(make_scans(1), tmp_path / "drive.bag", "bag", driver="velodyne")
+    write_scans(make_scans(1), tmp_path / "drive.bag", "bag")
+    with pytest.raises(BagError, match="exists already"):
+        write_scans(make_scans(1), tmp_path / "drive.bag", "bag")
 
 
 def test_mcap_bag_layout_compression_and_qos(tmp_path):

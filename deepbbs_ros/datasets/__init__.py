@@ -5,7 +5,9 @@ directories with sqlite3 or mcap storage, bare ``.mcap``), :mod:`.apollo` (Apoll
 ``pcds/`` + ``poses/gt_poses.txt``), :mod:`.kitti` (KITTI odometry ``velodyne/`` + ``poses.txt`` +
 ``calib.txt``), :mod:`.folder` (plain folders of ``.bin``/``.pcd`` scans) and :mod:`.pcd` (PCD
 files). :func:`open_source` picks the reader from the path,
-:func:`write_scans` the writer from a format name. No ROS install is needed (rosbags, mcap).
+:func:`write_scans` the writer from a format name. No ROS install is needed (rosbags, mcap). Every reader
+hands out ground-truth rotations that are rotations (a matrix read from text is projected onto SO(3), a
+quaternion normalised), so the same scans give the same metrics whatever their format.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from deepbbs_ros.datasets.base import (
 from deepbbs_ros.datasets.pcd import read_pcd, write_pcd
 from deepbbs_ros.errors import DatasetError
 
-WRITE_FORMATS = ("apollo", "kitti", "mcap", "db3")
+WRITE_FORMATS = ("apollo", "kitti", "mcap", "db3", "bag")
 
 __all__ = [
     "APOLLO_LIDAR_FRAME",
@@ -115,8 +117,9 @@ def write_scans(
     shape: tuple[int, int] = (0, 0),
 ) -> int:
     """Write scans to ``out`` as ``fmt``: ``"apollo"``, ``"kitti"``, ``"mcap"`` (rosbag2 directory,
-    zstd-compressed mcap) or ``"db3"`` (rosbag2 directory, sqlite3). ``out`` must not exist or be empty.
-    ``driver`` / ``shape``: rosbag2 clouds in a driver's field layout (see ``write_rosbag``).
+    zstd-compressed mcap), ``"db3"`` (rosbag2 directory, sqlite3) or ``"bag"`` (a ROS 1 ``.bag`` file,
+    ``write_rosbag1``). ``out`` must not exist or be empty. ``driver`` / ``shape``: rosbag2 clouds in a
+    driver's field layout (see ``write_rosbag``).
 
     Returns:
         the number of scans written.
@@ -136,6 +139,12 @@ def write_scans(
         from deepbbs_ros.datasets.kitti import write_kitti
 
         return write_kitti(scans, out)
+    if fmt == "bag":
+        if driver is not None:
+            raise DatasetError("a driver's cloud layout is written to rosbag2 only (mcap, db3), not to a ROS 1 bag")
+        from deepbbs_ros.datasets.rosbag import write_rosbag1
+
+        return write_rosbag1(scans, out, topic=topic, gt_topic=gt_topic)
     from deepbbs_ros.datasets.rosbag import write_rosbag
 
     return write_rosbag(scans, out, storage="mcap" if fmt == "mcap" else "sqlite3", topic=topic, gt_topic=gt_topic,

@@ -250,7 +250,10 @@ def T_to_xyzquat(T: np.ndarray) -> np.ndarray:
 
 
 def xyzquat_to_T(values: Sequence[float]) -> np.ndarray:
-    """``x y z qx qy qz qw`` -> (4, 4) float64 pose; ValueError on a zero or non-finite quaternion."""
+    """``x y z qx qy qz qw`` -> (4, 4) float64 pose; ValueError on a zero or non-finite quaternion.
+
+    The quaternion is normalised first (a pose file's few digits leave its norm off 1), so the rotation
+    block is a rotation to about 1e-16 whatever the file held."""
     from scipy.spatial.transform import Rotation
 
     v = np.asarray(values, dtype=np.float64)
@@ -259,7 +262,7 @@ def xyzquat_to_T(values: Sequence[float]) -> np.ndarray:
     if np.linalg.norm(v[3:]) < 1e-9:
         raise ValueError("quaternion has zero norm")
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
+    T[:3, :3] = Rotation.from_quat(v[3:] / np.linalg.norm(v[3:])).as_matrix()
     T[:3, 3] = v[:3]
     return T
 

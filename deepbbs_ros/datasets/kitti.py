@@ -11,8 +11,11 @@ Ground truth in the LiDAR frame (as kiss-icp's KITTI loader does)::
 
     T_world_lidar_k = Tr^-1 @ P_k @ Tr
 
-so ``world`` is the LiDAR frame of frame 0 (KITTI's "first camera frame" expressed through ``Tr``;
-``T_world_lidar_0`` is the identity for a real KITTI sequence). The writer inverts it,
+with its rotation block made a rotation once, here (:func:`deepbbs_ros.metrics.nearest_rotation`:
+KITTI's poses keep 6-7 significant digits, leaving ``R^T R`` about 1e-6 off the identity), so the
+poses are the same whatever format the scans are converted to. ``world`` is the LiDAR frame of frame 0
+(KITTI's "first camera frame" expressed through ``Tr``; ``T_world_lidar_0`` is the identity for a real
+KITTI sequence). The writer inverts it,
 ``P_k = Tr @ T_world_lidar_k @ Tr^-1``, with KITTI's own ``Tr`` of sequences 00-02, so a write/read
 round trip returns the same ``T_world_lidar``. Written ``times.txt`` holds stamps relative to the first
 scan (KITTI keeps no absolute time), so absolute stamps are not preserved by this format.
@@ -38,6 +41,7 @@ from deepbbs_ros.datasets.base import (
     stamp_to_str,
 )
 from deepbbs_ros.errors import DatasetError
+from deepbbs_ros.metrics import project_pose
 
 # KITTI odometry sequences 00-02: T_cam0_velo and the cam0 projection, written by the writer.
 KITTI_TR = np.array(
@@ -135,7 +139,7 @@ class KittiSource(ScanSource):
             for r in rows:
                 P = np.eye(4)
                 P[:3, :] = r.reshape(3, 4)
-                self.poses.append(Tr_inv @ P @ Tr)
+                self.poses.append(project_pose(Tr_inv @ P @ Tr))
             if self.pose_error is not None:
                 self.defer(self.pose_error)
         self.stamps_ns: list[int] | None = None

@@ -8,10 +8,12 @@ used, the results bag and the terminal table. Plots live in :mod:`deepbbs_ros.re
         pairs mode:    "pairs", "rot_err_deg" {mean rmse median p95 max}, "trans_err_m" {...},
                        "success_rate", "runtime_ms" {mean p50 p95}, "input"
         odometry mode: "frames", "kitti_t_err_pct", "kitti_r_err_deg_per_100m", "kitti_segments",
-                       "ate_rmse_m", "rpe_trans_m" {...}, "rpe_rot_deg" {...}, "runtime_ms" {...},
-                       "fps", "failed_frames", "input"}}}
+                       "ate_rmse_m", "ate_se3_m" {...}, "ape_rot_deg" {...}, "rpe_trans_m" {...},
+                       "rpe_rot_deg" {...}, "runtime_ms" {...}, "fps", "failed_frames", "input"}},
+     "definitions": {<metric key>: what it is, with the evo command that gives the same figures}}
 
-Numbers that cannot be computed (no ground truth, path shorter than 100 m) are ``null``.
+The odometry figures are evo's on the trajectories in traj/ (:data:`ODOMETRY_DEFINITIONS`). Numbers that
+cannot be computed (no ground truth, path shorter than 100 m) are ``null``.
 """
 
 from __future__ import annotations
@@ -71,6 +73,32 @@ def make_run_dir(out: str | Path) -> Path:
 # --------------------------------------------------------------------------------------------------
 # metrics
 # --------------------------------------------------------------------------------------------------
+#: what each odometry figure of metrics.json is; evo on ``traj/ground_truth.tum`` (gt) and ``traj/<method>.tum``
+#: (est) gives the same figures (its mean, rmse, median and max)
+ODOMETRY_DEFINITIONS = {
+    "ate_rmse_m": "ATE: RMSE of the position errors after SE(3) Umeyama alignment of the estimated positions onto "
+                  "the ground truth (rotation + translation, no scale), m (= ate_se3_m.rmse; evo_ape tum gt est -a)",
+    "ate_se3_m": "the same per-frame position errors after SE(3) Umeyama alignment, m (evo_ape tum gt est -a)",
+    "ape_rot_deg": "absolute rotation error, the angle of gt_k^-1 est_k without alignment (each trajectory starts at "
+                   "the first ground-truth pose), deg (evo_ape tum gt est --pose_relation angle_deg)",
+    "rpe_trans_m": "RPE translation between consecutive frames (delta 1 frame), ||t((gt_{k-1}^-1 gt_k)^-1 "
+                   "(est_{k-1}^-1 est_k))||, m per frame (evo_rpe tum gt est, i.e. --delta 1 --delta_unit f)",
+    "rpe_rot_deg": "RPE rotation between consecutive frames (delta 1 frame), the angle of the same relative error, "
+                   "deg per frame (evo_rpe tum gt est --pose_relation angle_deg)",
+    "kitti_t_err_pct": "KITTI drift: translation error over path segments of 100-800 m starting every 10 frames, "
+                       "% (the KITTI odometry devkit)",
+    "kitti_r_err_deg_per_100m": "KITTI drift: rotation error over the same segments, deg per 100 m",
+    "rotation angle": "atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2), exact at every angle (scipy's "
+                      "Rotation.magnitude, which evo uses); ground-truth rotations are projected onto SO(3) when read",
+}
+#: what each pairs-mode figure is
+PAIR_DEFINITIONS = {
+    "rot_err_deg": "rotation error of a pair, the angle of R_gt^T R_est, deg (ground truth projected onto SO(3) "
+                   "when read; the angle as atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2))",
+    "trans_err_m": "translation error of a pair, ||t_est - t_gt||, m",
+}
+
+
 def pair_metrics(res: PairResults, config: Config) -> dict[str, dict[str, Any]]:
     ev = config.eval
     out = {}
@@ -109,14 +137,16 @@ def odometry_metrics(res: OdometryResults) -> dict[str, dict[str, Any]]:
         if gt is not None and n >= 2:
             drift = metrics.kitti_drift(est, gt)
             rpe_t, rpe_r = metrics.rpe(est, gt)
+            ate = metrics.ate_errors(est, gt)
             m.update(kitti_t_err_pct=drift["t_err_pct"], kitti_r_err_deg_per_100m=drift["r_err_deg_per_100m"],
-                     kitti_segments=drift["segments"], ate_rmse_m=metrics.ate_rmse(est, gt),
+                     kitti_segments=drift["segments"], ate_rmse_m=float(np.sqrt(np.mean(ate**2))),
+                     ate_se3_m=metrics.summarize(ate), ape_rot_deg=metrics.summarize(metrics.ape_rotation_deg(est, gt)),
                      rpe_trans_m=metrics.summarize(rpe_t), rpe_rot_deg=metrics.summarize(rpe_r),
                      path_length_m=float(metrics.trajectory_distances(gt)[-1]))
         else:
             m.update(kitti_t_err_pct=float("nan"), kitti_r_err_deg_per_100m=float("nan"), kitti_segments=0,
-                     ate_rmse_m=float("nan"), rpe_trans_m=nan_summary, rpe_rot_deg=nan_summary,
-                     path_length_m=float("nan"))
+                     ate_rmse_m=float("nan"), ate_se3_m=nan_summary, ape_rot_deg=nan_summary,
+                     rpe_trans_m=nan_summary, rpe_rot_deg=nan_summary, path_length_m=float("nan"))
         m["failed_frames"] = len(res.failed.get(name, []))
         m["input"] = res.inputs.get(name, "")
         out[name] = m
@@ -143,6 +173,7 @@ def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults |
         "protocol": protocol,
         **(extra or {}),
         "methods": method_metrics,
+        "definitions": PAIR_DEFINITIONS if mode == "pairs" else ODOMETRY_DEFINITIONS,
     }
     doc = _clean(doc)
     path.write_text(json.dumps(doc, indent=2) + "\n")
@@ -177,8 +208,9 @@ def write_odometry_csv(path: Path, res: OdometryResults) -> None:
     cols = ["frame", "index", "stamp_ns"]
     for name in res.methods:
         cols += [f"{name}_x", f"{name}_y", f"{name}_z", f"{name}_runtime_ms"]
-        if gt is not None:
-            cols += [f"{name}_rpe_trans_m", f"{name}_rpe_rot_deg", f"{name}_pos_err_m"]
+        if gt is not None:  # RPE from frame k-1 to k (empty at frame 0), ATE after SE(3) alignment, APE unaligned
+            cols += [f"{name}_rpe_trans_m_per_frame", f"{name}_rpe_rot_deg_per_frame", f"{name}_ate_se3_m",
+                     f"{name}_ape_rot_deg"]
     if gt is not None:
         cols += ["gt_x", "gt_y", "gt_z"]
     rpes = {}
@@ -186,7 +218,8 @@ def write_odometry_csv(path: Path, res: OdometryResults) -> None:
         for name in res.methods:
             est = np.stack(res.T_world_est[name][:n])
             t, r = metrics.rpe(est, gt)
-            rpes[name] = (np.concatenate([[0.0], t]), np.concatenate([[0.0], r]))
+            rpes[name] = (np.concatenate([[np.nan], t]), np.concatenate([[np.nan], r]), metrics.ate_errors(est, gt),
+                          metrics.ape_rotation_deg(est, gt))
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
@@ -194,12 +227,11 @@ def write_odometry_csv(path: Path, res: OdometryResults) -> None:
             row = [k, res.indices[k], res.stamps_ns[k]]
             for name in res.methods:
                 T = res.T_world_est[name][k]
-                row += [f"{v:.6f}" for v in T[:3, 3]] + [f"{res.runtime_ms[name][k]:.3f}"]
+                row += [repr(float(v)) for v in T[:3, 3]] + [f"{res.runtime_ms[name][k]:.3f}"]
                 if gt is not None:
-                    row += [f"{rpes[name][0][k]:.6f}", f"{rpes[name][1][k]:.6f}",
-                            f"{np.linalg.norm(T[:3, 3] - gt[k][:3, 3]):.6f}"]
+                    row += [repr(float(e[k])) if np.isfinite(e[k]) else "" for e in rpes[name]]
             if gt is not None:
-                row += [f"{v:.6f}" for v in gt[k][:3, 3]]
+                row += [repr(float(v)) for v in gt[k][:3, 3]]
             w.writerow(row)
 
 
@@ -300,6 +332,11 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return str(v)
 
 
+def _get(m: dict, key: str, stat: str) -> Any:
+    """``m[key][stat]``, None when ``key`` is absent (metrics of an older metrics.json)."""
+    return (m.get(key) or {}).get(stat)
+
+
 def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], list[tuple[str, str, list[str]]]]:
     """(method names, [(metric, unit, [value per method])]) of the comparison table."""
     names = list(method_metrics)
@@ -329,9 +366,10 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
             ("frames", "count", col(lambda m: m["frames"])),
             ("KITTI translation drift", "%", col(lambda m: m["kitti_t_err_pct"])),
             ("KITTI rotation drift", "deg/100 m", col(lambda m: m["kitti_r_err_deg_per_100m"])),
-            ("ATE RMSE", "m", col(lambda m: m["ate_rmse_m"])),
-            ("RPE translation mean", "m/frame", col(lambda m: m["rpe_trans_m"]["mean"], 4)),
-            ("RPE rotation mean", "deg/frame", col(lambda m: m["rpe_rot_deg"]["mean"], 4)),
+            ("ATE RMSE, SE(3)-aligned", "m", col(lambda m: m["ate_rmse_m"])),
+            ("APE rotation RMSE, unaligned", "deg", col(lambda m: _get(m, "ape_rot_deg", "rmse"), 4)),
+            ("RPE transl. mean, 1 frame", "m/frame", col(lambda m: m["rpe_trans_m"]["mean"], 4)),
+            ("RPE rotation mean, 1 frame", "deg/frame", col(lambda m: m["rpe_rot_deg"]["mean"], 4)),
             ("runtime mean", "ms/frame", col(lambda m: m["runtime_ms"]["mean"], 1)),
             ("throughput", "frames/s", col(lambda m: m["fps"], 1)),
         ]
