@@ -318,6 +318,9 @@ def test_bag_played_with_previous_topic_into_pair_mode_matches_ground_truth(ros)
     log = out + err
     assert len(poses) >= (PAIR_FRAMES - 1) // 2, f"only {len(poses)} poses for {PAIR_FRAMES - 1} pairs\n{log[-3000:]}"
     assert "unpaired_input" not in log, log[-3000:]
+    # Ctrl-C: the node's own last line, then nothing (no rosout failure, no traceback), exit code 0
+    assert node.returncode == 0 and "stopping: " in log, log[-3000:]
+    assert "Failed to publish" not in log and "Traceback" not in log, log[-3000:]
     for p in poses:
         T, stamp, frame = pose_stamped_to_matrix(p)
         k = order.index(stamp)
