@@ -19,19 +19,22 @@ The node's pair mode from one recording (each scan against the one before it)::
 ``--previous-topic`` publishes scan k-1 beside scan k, restamped with scan k's stamp (its points and frame
 unchanged), so the two inputs pair by stamp: the published pose is the motion from scan k-1 to scan k.
 
-``--wait S`` waits for a subscriber on every cloud topic; when none appears within S s nothing is played and
-the exit code is 1 (``--wait 0``: start at once).
+``--wait S`` (default 30) waits for a subscriber on every cloud topic (start the node first, or both at once);
+when none appears within S s nothing is played and the exit code is 1 (``--wait 0``: start at once).
 """
 
 from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 import time
 
 from deepbbs_ros.cli.common import cli_entry, local_ros_env
 from deepbbs_ros.errors import ConfigError, NodeError
+
+DEFAULT_WAIT_S = 30.0  # s; deepbbs-node takes 4-12 s to start (torch, the model, the warm-up)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,9 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--rate", type=float, default=1.0, help="speed factor: 1 = real time, 0.5 = half speed")
     g.add_argument("--loop", action="store_true", help="start again at the end (stamps repeat: nodes reset)")
     g.add_argument(
-        "--wait", type=float, default=2.0, metavar="S",
-        help="wait up to S seconds for a subscriber on the cloud topic(s) before starting; none by then is an "
-             "error (exit 1); 0 = start at once (default 2)",
+        "--wait", type=float, default=DEFAULT_WAIT_S, metavar="S",
+        help="wait up to S seconds for a subscriber on the cloud topic(s) before starting (the node takes seconds "
+             f"to start); none by then is an error (exit 1); 0 = start at once (default {DEFAULT_WAIT_S:g})",
     )
     g = p.add_argument_group("transport")
     g.add_argument("--no-shm-profile", action="store_true", help="do not apply the shipped Fast DDS profile")
@@ -124,8 +127,14 @@ def main(argv: list[str] | None = None) -> int:
         pub_clock = None if args.no_clock else node.create_publisher(Clock, "/clock", 10)
 
         if args.wait > 0:
-            deadline = time.monotonic() + args.wait
+            start = time.monotonic()
+            deadline, said = start + args.wait, False
             while not stop.is_set() and any(p.get_subscription_count() == 0 for p in cloud_pubs):
+                if not said and not args.quiet and time.monotonic() - start > 1.0:
+                    topics = ", ".join(p.topic_name for p in cloud_pubs)
+                    print(f"deepbbs-play: waiting up to {args.wait:g} s for a subscriber on {topics} (--wait) ...",
+                          file=sys.stderr, flush=True)
+                    said = True
                 if time.monotonic() >= deadline:
                     missing = [p.topic_name for p in cloud_pubs if p.get_subscription_count() == 0]
                     raise NodeError(
@@ -194,6 +203,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    import sys
-
     sys.exit(main())
