@@ -216,8 +216,8 @@ def unmatched_remaps(rules: Any, mode: str, node_name: str, namespace: str) -> l
         if node and node != node_name:
             continue  # another node's rule
         full = expand(name)
-        if full is None or full in known or full.startswith(private + "/"):
-            continue
+        if full is None or full in known or full.startswith(private + "/") or full == expand(to):
+            continue  # one of the node's names, or a rule that changes nothing (the launch file's defaults)
         leaf = name.rpartition("/")[2]
         hint = ""
         if leaf in other_mode and other_mode[leaf] != mode:
@@ -954,10 +954,12 @@ def run_node(
         if not spinning.is_set():
             print(f"{prog}: stopping once started (again to interrupt now)", file=sys.stderr, flush=True)
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    main_thread = threading.current_thread() is threading.main_thread()  # only there can handlers be set
+    sigs = (signal.SIGINT, signal.SIGTERM) if main_thread else ()
+    previous = {sig: signal.signal(sig, on_signal) for sig in sigs}
     try:
         try:
-            rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
+            rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO if main_thread else None)
         except Exception as err:  # rclpy's RCLError: bad --ros-args (remap rules, parameter syntax)
             first = str(err).split(", at ")[0].replace("failed to initialize rcl: ", "")
             raise NodeError(f"invalid ROS arguments: {first}") from err
