@@ -64,7 +64,7 @@ def test_launch_file_compiles(tmp_path):
         for a in n.names
     }
     # only ROS launch machinery, the standard library and this package
-    assert imported <= {"os", "launch", "launch_ros", "ament_index_python", "deepbbs_ros"}, imported
+    assert imported <= {"os", "sys", "launch", "launch_ros", "ament_index_python", "deepbbs_ros"}, imported
 
 
 def test_launch_starts_the_installed_executable():
@@ -86,7 +86,7 @@ def test_launch_starts_the_installed_executable():
 
 def test_launch_default_params_file_is_the_shipped_yaml():
     tree = _tree()
-    decl = {ast.literal_eval(c.args[0]): c for c in _calls(tree, "DeclareLaunchArgument")}
+    decl = _declared()
     default = _kw(decl["params_file"], "default_value")
     # os.path.join(get_package_share_directory("deepbbs_ros"), "config", "deepbbs_ros.yaml")
     assert isinstance(default, ast.Call) and ast.unparse(default.func) == "os.path.join", ast.unparse(default)
@@ -103,9 +103,13 @@ def test_launch_default_params_file_is_the_shipped_yaml():
     assert '("share/" + package_name + "/config", glob("config/*"))' in (REPO / "setup.py").read_text()
     shipped = REPO / rel
     assert shipped.is_file()
-    # the node's parameters are the first entry; the YAML is keyed by the /** wildcard (any node name)
+    # the node's parameters are the first entry (config_file, KISS-ICP's name, defaulting to params_file); the
+    # YAML is keyed by the /** wildcard (any node name)
     params = _kw(_node_call(), "parameters")
-    assert isinstance(params, ast.List) and ast.unparse(params.elts[0]) == "LaunchConfiguration('params_file')"
+    assert isinstance(params, ast.List) and ast.unparse(params.elts[0]) == "LaunchConfiguration('config_file')"
+    assert _resolve(_declared(), "config_file", {}) == _resolve(_declared(), "params_file", {})
+    assert _resolve(_declared(), "config_file", {"params_file": "/mine.yaml"}) == "/mine.yaml"
+    assert _resolve(_declared(), "config_file", {"config_file": "/kiss.yaml"}) == "/kiss.yaml"
     doc = yaml.safe_load(shipped.read_text())
     assert list(doc) == ["/**"] and "ros__parameters" in doc["/**"]
     # every parameter it sets is one the node declares in odometry mode (pair mode notes odometry.* as unused)
@@ -127,8 +131,7 @@ def test_launch_default_params_file_is_the_shipped_yaml():
 
 
 def test_launch_remaps_the_node_inputs():
-    tree = _tree()
-    declared = {ast.literal_eval(c.args[0]) for c in _calls(tree, "DeclareLaunchArgument")}
+    declared = set(_declared())
     remaps = _kw(_node_call(), "remappings")
     pairs = {ast.literal_eval(t.elts[0]): ast.unparse(t.elts[1]) for t in remaps.elts}
     inputs = (*registration_node.PAIR_INPUTS, registration_node.ODOM_INPUT)
@@ -153,20 +156,100 @@ def test_launch_applies_the_fastdds_profile():
     assert profile_env({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) == {}
 
 
+def _declared() -> dict[str, ast.Call]:
+    decl: dict[str, ast.Call] = {}
+    for c in _calls(_tree(), "DeclareLaunchArgument"):
+        name = c.args[0]
+        if isinstance(name, ast.Constant):
+            decl[name.value] = c
+    # DeclareLaunchArgument(kiss, default_value=LaunchConfiguration(ours)) for kiss, ours in KISS_ICP_ALIASES
+    aliases = [n for n in _tree().body if isinstance(n, ast.Assign)
+               and any(isinstance(t, ast.Name) and t.id == "KISS_ICP_ALIASES" for t in n.targets)]
+    if aliases:
+        for kiss, ours in ast.literal_eval(aliases[0].value).items():
+            decl[kiss] = ast.parse(f"DeclareLaunchArgument({kiss!r}, default_value=LaunchConfiguration({ours!r}))",
+                                   mode="eval").body
+    return decl
+
+
+def _resolve(decl: dict[str, ast.Call], name: str, given: dict[str, str]) -> str:
+    """A launch argument's value as ``ros2 launch ... name:=value`` makes it: ``given``, else its default, a
+    literal or another argument (``LaunchConfiguration('x')``, followed)."""
+    if name in given:
+        return given[name]
+    default = _kw(decl[name], "default_value")
+    if isinstance(default, ast.Call) and ast.unparse(default.func) == "LaunchConfiguration":
+        return _resolve(decl, ast.literal_eval(default.args[0]), given)
+    if isinstance(default, ast.Constant):
+        return str(default.value)
+    return ast.unparse(default)
+
+
+def _node_setting(param: str, given: dict[str, str]) -> str:
+    """The value the launch file gives the node's ``param`` with arguments ``given``."""
+    override = _kw(_node_call(), "parameters").elts[1]
+    value = dict(zip([ast.literal_eval(k) for k in override.keys], override.values))[param]
+    if isinstance(value, ast.Call) and ast.unparse(value.func) == "ParameterValue":
+        value = value.args[0]
+    assert isinstance(value, ast.Call) and ast.unparse(value.func) == "LaunchConfiguration", ast.unparse(value)
+    return _resolve(_declared(), ast.literal_eval(value.args[0]), given)
+
+
 def test_launch_has_the_arguments_kiss_icp_users_expect():
-    tree = _tree()
-    decl = {ast.literal_eval(c.args[0]): c for c in _calls(tree, "DeclareLaunchArgument")}
-    assert {"base_frame", "odom_frame", "publish_tf", "invert_tf", "use_sim_time", "topic", "visualize",
-            "target_mode"} <= set(decl)  # fmt: skip
+    """This file's names and KISS-ICP's current ones (ros/launch/odometry.launch.py: topic, base_frame,
+    lidar_odom_frame, publish_odom_tf, invert_odom_tf, visualize, use_sim_time, bagfile, config_file,
+    position_covariance, orientation_covariance) set the same node settings; KISS-ICP's name wins when both
+    are given; the defaults are the node's own."""
+    decl = _declared()
+    kiss = {"topic", "base_frame", "lidar_odom_frame", "publish_odom_tf", "invert_odom_tf", "visualize",
+            "use_sim_time", "bagfile", "config_file", "position_covariance", "orientation_covariance"}
+    ours = {"odom_frame", "publish_tf", "invert_tf", "target_mode", "mode", "params_file"}
+    assert kiss | ours <= set(decl), sorted(kiss | ours - set(decl))
     assert ast.unparse(_kw(decl["cloud"], "default_value")) == "LaunchConfiguration('topic')"  # topic:= feeds cloud
-    override = ast.unparse(_kw(_node_call(), "parameters").elts[1])
     flat = Config().to_flat()
-    for arg, param in [("base_frame", "node.base_frame"), ("odom_frame", "node.odom_frame"),
-                       ("publish_tf", "node.publish_tf"), ("invert_tf", "node.invert_tf"),
-                       ("target_mode", "node.target_mode")]:  # fmt: skip
-        assert f"'{param}'" in override and f"LaunchConfiguration('{arg}')" in override and param in flat
-        default = ast.literal_eval(_kw(decl[arg], "default_value"))
-        assert str(flat[param]).lower() == default.lower(), (arg, default, flat[param])  # the node's own default
+    for param, our_arg, kiss_arg, value in [
+        ("node.odom_frame", "odom_frame", "lidar_odom_frame", "odom_lidar"),
+        ("node.publish_tf", "publish_tf", "publish_odom_tf", "false"),
+        ("node.invert_tf", "invert_tf", "invert_odom_tf", "true"),
+        ("node.base_frame", "base_frame", "base_frame", ""),
+        ("node.target_mode", "target_mode", "target_mode", "latched"),
+        ("use_sim_time", "use_sim_time", "use_sim_time", "true"),
+        ("node.publish_aligned_cloud", "visualize", "visualize", "true"),
+    ]:
+        if param in flat:  # the node's own default when nothing is given
+            assert _node_setting(param, {}).lower() == str(flat[param]).lower(), (param, _node_setting(param, {}))
+        assert _node_setting(param, {our_arg: value}) == value, (param, our_arg)
+        assert _node_setting(param, {kiss_arg: value}) == value, (param, kiss_arg)
+        assert _node_setting(param, {our_arg: "other", kiss_arg: value}) == value, (param, "KISS-ICP's name wins")
+    # the covariances: accepted, not used, said so in one line when given
+    text = LAUNCH.read_text()
+    assert "LogInfo" in text and "position_covariance" in text and "orientation_covariance" in text
+    for name in ("position_covariance", "orientation_covariance"):
+        assert _resolve(decl, name, {}) == ""
+
+
+def test_launch_bagfile_plays_into_the_node():
+    """bagfile:= starts deepbbs-play on it, only when given: odometry mode on the node's cloud topic; pair mode
+    the scan on source_cloud and the scan before it on target_cloud (--previous-topic), so that they pair."""
+    from deepbbs_ros.cli.play import build_parser
+
+    decl = _declared()
+    assert _resolve(decl, "bagfile", {}) == ""
+    plays = [c for c in _calls(_tree(), "ExecuteProcess") if "bagfile" in ast.unparse(c)]
+    assert len(plays) == 2, [ast.unparse(c) for c in plays]
+    text = LAUNCH.read_text()
+    assert "'-m', 'deepbbs_ros.cli.play'" in ast.unparse(_tree()) and '"--previous-topic"' in text
+    flags = {a for action in build_parser()._actions for a in action.option_strings}
+    for flag in ("--cloud-topic", "--previous-topic", "--wait", "--quiet"):
+        assert flag in flags and f'"{flag}"' in text
+    conditions = sorted(ast.unparse(_kw(c, "condition")) for c in plays)
+    assert conditions == ["IfCondition(_bag_and_mode('odometry'))", "IfCondition(_bag_and_mode('pair'))"]
+    pair = next(c for c in plays if "pair" in ast.unparse(_kw(c, "condition")))
+    cmd = ast.unparse(_kw(pair, "cmd"))
+    assert ("'--cloud-topic', LaunchConfiguration('source_cloud'), '--previous-topic', "
+            "LaunchConfiguration('target_cloud')") in cmd, cmd
+    odom = next(c for c in plays if "odometry" in ast.unparse(_kw(c, "condition")))
+    assert "'--cloud-topic', LaunchConfiguration('cloud')" in ast.unparse(_kw(odom, "cmd"))
 
 
 def test_rviz_config_is_shipped_and_shows_the_outputs():

@@ -79,6 +79,39 @@ def test_the_network_process_gives_the_in_process_result(setup):
     assert not _running(pid)
 
 
+def test_the_first_call_reports_the_network_process_start_on_its_own(setup):
+    """The first register() on a CPU starts the network process (seconds): ``timings_ms["startup"]``, not counted
+    in ``"total"`` (the registration's own stages, as on every later call, which has no "startup"); warmup()
+    pays it before the first real call."""
+    cfg, path, scans = setup
+    reg = DeepBBSRegistration(cfg, weights=path)
+    try:
+        assert reg.runner.state == "unstarted"  # nothing started by the constructor
+        t0 = time.perf_counter()
+        first = reg.register(scans[2].points, scans[0].points)
+        wall_ms = (time.perf_counter() - t0) * 1e3
+        assert reg.runner.state == "running"
+        t = first.timings_ms
+        assert t["startup"] > 0 and t["startup"] + t["total"] <= wall_ms + 1.0, (t, wall_ms)
+        stages = ("preprocess", "embed", "match", "solve", "refine", "network_wait", "polish", "deskew", "global")
+        own = sum(t.get(k, 0.0) for k in stages if k not in ("embed", "match", "solve"))  # those ran in the worker
+        assert t["total"] == pytest.approx(own, abs=1e-6)
+        assert t["total"] < wall_ms - t["startup"] + 1.0
+        second = reg.register(scans[3].points, scans[1].points)
+        assert "startup" not in second.timings_ms
+    finally:
+        reg.close()
+    reg = DeepBBSRegistration(cfg, weights=path)
+    try:
+        reg.warmup(rounds=1)
+        assert reg.runner.state == "running"
+        assert "startup" not in reg.register(scans[2].points, scans[0].points).timings_ms
+    finally:
+        reg.close()
+    here = DeepBBSRegistration(cfg.replace(**{"registration.network_process": "off"}), weights=path)
+    assert "startup" not in here.register(scans[2].points, scans[0].points).timings_ms  # nothing to start
+
+
 def test_a_dead_network_process_loses_nothing(setup, caplog):
     """The worker killed between two registrations: the next one runs the network here, logs it once, and
     gives the same result; so does a model object (never a worker: its weights may change, as in training)."""

@@ -679,3 +679,86 @@ def test_cli_startup_errors(tmp_path, args, match):
     import re
 
     assert re.search(match, res.stderr), res.stderr
+
+
+def _node_process(*ros_args: str, module: str = "deepbbs_ros.node.gicp_anchor") -> subprocess.Popen:
+    """A node in its own process (the GICP anchor by default: run_node and RegistrationNode as deepbbs-node,
+    ready in about a second), its log merged on stdout."""
+    return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def _stop(proc: subprocess.Popen, sig, ready: str = "ready in", timeout: float = 120.0) -> tuple[int, str]:
+    """Wait for the ``ready`` log line, send ``sig``, return (exit code, whole log)."""
+    lines, deadline = [], time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if ready in line:
+                break
+        assert any(ready in line for line in lines), "".join(lines)
+        proc.send_signal(sig)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill() if proc.poll() is None else None
+    return proc.returncode, "".join(lines) + (rest or "")
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_node_process_stops_quietly(sig):
+    """SIGINT / SIGTERM: exit code 0, the node's last line ('stopping: ...' with its counts) logged, and nothing
+    else: no 'Failed to publish log message to rosout' (the context shut down under the logger), no traceback."""
+    import signal
+
+    code, log = _stop(_node_process("-r", "source_cloud:=/quiet/a", "-r", "target_cloud:=/quiet/b"),
+                      getattr(signal, sig))
+    assert code == 0, log
+    assert "stopping: 0 clouds received" in log, log
+    assert "Failed to publish" not in log and "rosout" not in log and "Traceback" not in log, log
+
+
+def test_remap_matching_no_topic_is_a_warning_naming_the_inputs(ros):
+    """rclpy ignores a remap whose name is none of the node's topics; the node says so, before it loads
+    anything, naming its inputs: KISS-ICP's pointcloud_topic in pair mode, a misspelt input, the other mode's."""
+    import signal
+
+    code, log = _stop(_node_process("-r", "pointcloud_topic:=/rmp/points", "-r", "source_clouds:=/rmp/a",
+                                    "-r", "target_cloud:=/rmp/b", "-r", "~/pose:=/rmp/pose",
+                                    "-r", "other_node:cloud:=/rmp/c"), signal.SIGINT)  # fmt: skip
+    assert code == 0, log
+    warnings = [line for line in log.splitlines() if "matches no topic" in line]
+    assert len(warnings) == 2, log  # target_cloud, ~/pose and another node's rule are fine
+    assert ("remap pointcloud_topic:=/rmp/points matches no topic of this node and is ignored: its inputs are "
+            "source_cloud, target_cloud (node.mode=pair); pointcloud_topic (KISS-ICP's input name) is an input of "
+            "node.mode odometry (-p node.mode:=odometry)") in warnings[0], warnings
+    assert "remap source_clouds:=/rmp/a" in warnings[1] and "did you mean source_cloud:=/rmp/a?" in warnings[1]
+    assert log.index("matches no topic") < log.index("ready in")  # said before the start-up's work
+    # the launch file remaps every input, the other mode's to itself by default: no warning for those
+    code, log = _stop(_node_process("-p", "node.mode:=odometry", "-r", "source_cloud:=/rmp/a",
+                                    "-r", "target_cloud:=target_cloud"), signal.SIGINT)
+    assert log.count("matches no topic") == 1, log
+    assert code == 0 and "source_cloud is an input of node.mode pair (-p node.mode:=pair)" in log, log
+    assert "its inputs are cloud (or pointcloud_topic, KISS-ICP's name) (node.mode=odometry)" in log, log
+
+
+def test_pointcloud_topic_is_the_odometry_input_kiss_icp_style(ros):
+    """``-r pointcloud_topic:=/points`` (KISS-ICP's input) feeds odometry mode: the node subscribes the remapped
+    topic (seen on the DDS graph) with no warning."""
+    import signal
+
+    listener = rclpy.create_node("rmp_listener")
+    proc = _node_process("-p", "node.mode:=odometry", "-r", "pointcloud_topic:=/rmp_kiss/points")
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and listener.count_subscribers("/rmp_kiss/points") == 0:
+            rclpy.spin_once(listener, timeout_sec=0.1)
+        assert listener.count_subscribers("/rmp_kiss/points") == 1
+        assert listener.count_subscribers("/cloud") == 0 and listener.count_subscribers("/pointcloud_topic") == 0
+        code, log = _stop(proc, signal.SIGTERM)
+    finally:
+        proc.kill() if proc.poll() is None else None
+        listener.destroy_node()
+    assert code == 0 and "inputs=[/rmp_kiss/points]" in log and "WARN" not in log, log

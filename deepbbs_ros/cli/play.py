@@ -10,17 +10,31 @@ Clouds keep their recorded stamps and frames; ``/clock`` follows the recording's
 ``--rate``) so nodes with ``use_sim_time`` see the recording's clock. Ground truth, when present, is
 published as ``geometry_msgs/PoseStamped`` on ``--gt-topic``. SIGTERM stops it cleanly between two
 messages (exit code 0); Ctrl-C exits with 130.
+
+The node's pair mode from one recording (each scan against the one before it)::
+
+    deepbbs-play bags/urban_drive_hdl64 --cloud-topic /lidar/points --previous-topic /lidar/previous
+    deepbbs-node --ros-args -r source_cloud:=/lidar/points -r target_cloud:=/lidar/previous
+
+``--previous-topic`` publishes scan k-1 beside scan k, restamped with scan k's stamp (its points and frame
+unchanged), so the two inputs pair by stamp: the published pose is the motion from scan k-1 to scan k.
+
+``--wait S`` (default 30) waits for a subscriber on every cloud topic (start the node first, or both at once);
+when none appears within S s nothing is played and the exit code is 1 (``--wait 0``: start at once).
 """
 
 from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 import time
 
 from deepbbs_ros.cli.common import cli_entry, local_ros_env
-from deepbbs_ros.errors import ConfigError
+from deepbbs_ros.errors import ConfigError, NodeError
+
+DEFAULT_WAIT_S = 30.0  # s; deepbbs-node takes 4-12 s to start (torch, the model, the warm-up)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,6 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--frames", type=int, default=0, metavar="N", help="publish at most N frames (0 = all)")
     g = p.add_argument_group("output")
     g.add_argument("--cloud-topic", help="topic to publish clouds on (default: the recording's topic)")
+    g.add_argument(
+        "--previous-topic", metavar="TOPIC",
+        help="also publish the previous scan on TOPIC, restamped with the current scan's stamp (pair mode: "
+             "-r source_cloud:=CLOUD_TOPIC -r target_cloud:=TOPIC)",
+    )
     g.add_argument("--gt-topic", default=None, help="ground-truth PoseStamped topic (default /ground_truth/pose)")
     g.add_argument("--no-gt", action="store_true", help="do not publish ground truth")
     g.add_argument("--no-clock", action="store_true", help="do not publish /clock")
@@ -44,8 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--rate", type=float, default=1.0, help="speed factor: 1 = real time, 0.5 = half speed")
     g.add_argument("--loop", action="store_true", help="start again at the end (stamps repeat: nodes reset)")
     g.add_argument(
-        "--wait", type=float, default=2.0, metavar="S",
-        help="wait up to S seconds for a subscriber on the cloud topic before starting (s)",
+        "--wait", type=float, default=DEFAULT_WAIT_S, metavar="S",
+        help="wait up to S seconds for a subscriber on the cloud topic(s) before starting (the node takes seconds "
+             f"to start); none by then is an error (exit 1); 0 = start at once (default {DEFAULT_WAIT_S:g})",
     )
     g = p.add_argument_group("transport")
     g.add_argument("--no-shm-profile", action="store_true", help="do not apply the shipped Fast DDS profile")
@@ -61,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         raise ConfigError(f"--rate must be > 0, got {args.rate}")
     if args.clock_hz <= 0:
         raise ConfigError(f"--clock-hz must be > 0, got {args.clock_hz}")
+    if args.wait < 0:
+        raise ConfigError(f"--wait must be >= 0, got {args.wait}")
     from deepbbs_ros.datasets import GT_POSE_TOPIC, open_source
     from deepbbs_ros.node.dds import apply_default_profile
 
@@ -81,6 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     from msg_adapters.transforms import matrix_to_pose_stamped, ns_to_stamp
 
     cloud_topic = args.cloud_topic or source.topic
+    if args.previous_topic is not None and args.previous_topic in ("", cloud_topic):
+        raise ConfigError(f"--previous-topic must name a topic other than the cloud topic {cloud_topic}")
     gt_topic = args.gt_topic or GT_POSE_TOPIC
     # SIGTERM (a launch file, systemd, `kill`) stops the loop between two messages; rclpy's own handler would
     # invalidate the context under a publish() and end in an RCLError traceback. Ctrl-C stays KeyboardInterrupt.
@@ -97,12 +121,27 @@ def main(argv: list[str] | None = None) -> int:
             reliability=ReliabilityPolicy.RELIABLE if args.reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
         )
         pub_cloud = node.create_publisher(PointCloud2, cloud_topic, qos)
+        pub_prev = None if args.previous_topic is None else node.create_publisher(PointCloud2, args.previous_topic, qos)
+        cloud_pubs = [pub_cloud] + ([pub_prev] if pub_prev is not None else [])
         pub_gt = None if args.no_gt or not source.has_ground_truth else node.create_publisher(PoseStamped, gt_topic, 10)
         pub_clock = None if args.no_clock else node.create_publisher(Clock, "/clock", 10)
 
-        deadline = time.monotonic() + args.wait
-        while pub_cloud.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        if args.wait > 0:
+            start = time.monotonic()
+            deadline, said = start + args.wait, False
+            while not stop.is_set() and any(p.get_subscription_count() == 0 for p in cloud_pubs):
+                if not said and not args.quiet and time.monotonic() - start > 1.0:
+                    topics = ", ".join(p.topic_name for p in cloud_pubs)
+                    print(f"deepbbs-play: waiting up to {args.wait:g} s for a subscriber on {topics} (--wait) ...",
+                          file=sys.stderr, flush=True)
+                    said = True
+                if time.monotonic() >= deadline:
+                    missing = [p.topic_name for p in cloud_pubs if p.get_subscription_count() == 0]
+                    raise NodeError(
+                        f"no subscriber on {', '.join(missing)} within --wait {args.wait:g} s: nothing played "
+                        "(is the node running, on these topics, with the same ROS_DOMAIN_ID?)"
+                    )
+                time.sleep(0.05)
 
         def clock(ns: int) -> None:
             if pub_clock is not None:
@@ -116,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         while not stop.is_set():
             t0_wall = None
             stamp0 = 0
+            prev_msg = None  # --previous-topic: the scan before, restamped with each new scan's stamp
             for k, scan in enumerate(source):
                 if k < args.start:
                     continue
@@ -136,7 +176,11 @@ def main(argv: list[str] | None = None) -> int:
                 msg = arrays_to_pointcloud2(
                     scan.points, dict(scan.fields), stamp_ns=scan.stamp_ns, frame_id=scan.frame_id
                 )
+                if pub_prev is not None and prev_msg is not None:
+                    prev_msg.header.stamp = ns_to_stamp(scan.stamp_ns)  # published already: reuse the message
+                    pub_prev.publish(prev_msg)
                 pub_cloud.publish(msg)
+                prev_msg = msg
                 if pub_gt is not None and scan.T_world_lidar is not None:
                     from deepbbs_ros.datasets import WORLD_FRAME
 
@@ -148,8 +192,9 @@ def main(argv: list[str] | None = None) -> int:
             bar.reset()
         bar.close()
         time.sleep(0.2)  # let the last messages leave before the participant goes away
-        node.get_logger().info(f"published {sent} frames on {cloud_topic}" + (" (stopped by SIGTERM)" if stop.is_set()
-                                                                             else ""))
+        where = cloud_topic + (f" (and the previous scan on {args.previous_topic})" if pub_prev is not None else "")
+        node.get_logger().info(f"published {sent} frames on {where}" + (" (stopped by SIGTERM)" if stop.is_set()
+                                                                       else ""))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -158,6 +203,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    import sys
-
     sys.exit(main())

@@ -9,11 +9,15 @@ Real rclpy underneath (the same DDS graph as ``ros2``)::
     deepbbs-ros param get /deepbbs_registration node.mode
     deepbbs-ros param set /deepbbs_registration use_sim_time true
     deepbbs-ros reset                                          # calls /deepbbs_registration/reset
+    deepbbs-ros static-tf --z 1.8 --frame-id base_link --child-frame-id velodyne   # on /tf_static until stopped
     deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
     deepbbs-ros build-interfaces                               # tf2_msgs for /tf (no PyPI wheel)
 
 Latency is the receive time minus the message's ``header.stamp``: meaningful when the stamps are
-wall-clock time (a live driver); a recording played with ``deepbbs-play`` keeps its recorded stamps.
+wall-clock time (a live driver). A recording played with ``deepbbs-play`` keeps its recorded stamps (and
+simulated time has its own clock): when the stamps are more than a minute away from the wall clock, no
+latency is printed, only how far away they are. ``topic echo`` / ``hz`` wait for the topic to appear (a node
+takes seconds to start); Ctrl-C or SIGTERM ends them with exit code 0.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from deepbbs_ros.cli.common import cli_entry
 from deepbbs_ros.errors import NodeError
 
 DEFAULT_NODE = "/deepbbs_registration"
+DEFAULT_TIMEOUT = 30.0  # s; deepbbs-node takes 4-8 s to start (torch, the model, the warm-up)
+NOT_WALL_CLOCK_S = 60.0  # s; stamps further than this from the wall clock are a recording's or sim time
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,8 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="The node's topics, parameters and ~/reset from a pip install (no ros2 command needed).",
         epilog="examples:\n" + __doc__.split("\n\n")[2] + "\n\n" + __doc__.split("\n\n")[3],
     )
-    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
-                   help="seconds to wait for a node, service or publisher (default 5)")
+    p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, metavar="S",
+                   help="seconds to wait for a topic, node or service to appear; a node takes seconds to start "
+                        f"(default {DEFAULT_TIMEOUT:g})")
     sub = p.add_subparsers(dest="command", required=True)
 
     topic = sub.add_parser("topic", help="list, echo, hz").add_subparsers(dest="action", required=True)
@@ -66,6 +73,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("reset", help="call the node's ~/reset (odometry restarts at identity)")
     r.add_argument("node", nargs="?", default=DEFAULT_NODE)
+    st = sub.add_parser(
+        "static-tf", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="publish a static transform on /tf_static until stopped (tf2_ros static_transform_publisher's flags)",
+        description="Publish frame-id -> child-frame-id on /tf_static (transient local, reliable: latched for late "
+                    "subscribers) until Ctrl-C / SIGTERM; the flags of tf2_ros static_transform_publisher. Rotation "
+                    "from --roll --pitch --yaw (rad, about the fixed x, y, z axes) or --qx --qy --qz --qw, not both.",
+        epilog="example:\n  deepbbs-ros static-tf --x 0.5 --z 1.8 --yaw 0.1 --frame-id base_link "
+               "--child-frame-id velodyne",
+    )
+    for axis in ("x", "y", "z"):
+        st.add_argument(f"--{axis}", type=float, default=0.0, help=f"translation {axis} (m)")
+    for angle in ("roll", "pitch", "yaw"):
+        st.add_argument(f"--{angle}", type=float, default=None, help=f"{angle} (rad)")
+    for comp in ("qx", "qy", "qz", "qw"):
+        st.add_argument(f"--{comp}", type=float, default=None, help=f"quaternion {comp[1]}")
+    st.add_argument("--frame-id", required=True, help="parent frame")
+    st.add_argument("--child-frame-id", required=True, help="child frame")
     sub.add_parser("dds-profile", help="print the shipped Fast DDS profile path (and the line to export it)")
     b = sub.add_parser("build-interfaces", help="build and install tf2_msgs from its definition (gcc, g++)")
     b.add_argument("--force", action="store_true", help="rebuild even when installed")
@@ -97,16 +121,28 @@ def _with_node(args: argparse.Namespace) -> int:
 
     apply_default_profile()
     import rclpy
+    from rclpy.executors import ExternalShutdownException
 
-    rclpy.init(args=[])
+    static_tf = None
+    if args.command == "static-tf":
+        static_tf = _static_transform(args)  # bad flags: one line before any DDS
+    rclpy.init(args=[])  # rclpy's handlers: SIGINT / SIGTERM shut the context down, which ends the spin below
     node = rclpy.create_node(f"deepbbs_ros_cli_{int(time.time() * 1000) % 100000}")
     try:
+        if static_tf is not None:
+            return _static_tf(node, static_tf)
         if args.command == "topic":
             return _topic(node, args)
         if args.command == "param":
             return _param(node, args)
         return _reset(node, args)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    except Exception:
+        # a signal that lands while rclpy builds its wait set raises RCLError ("context is not valid"):
+        # a clean stop too; anything else with the context still valid is a real error
+        if rclpy.ok():
+            raise
         return 0
     finally:
         node.destroy_node()
@@ -130,9 +166,17 @@ def _spin_until(node: Any, future: Any, timeout: float, what: str) -> Any:
 
 def _client(node: Any, srv_type: Any, name: str, timeout: float) -> Any:
     cli = node.create_client(srv_type, name)
-    if not cli.wait_for_service(timeout_sec=timeout):
-        raise NodeError(f"service {name} not available within {timeout} s (is the node running, same ROS_DOMAIN_ID?)")
+    if not cli.wait_for_service(timeout_sec=min(timeout, 1.0)):
+        _waiting(f"service {name}", timeout)
+        if not cli.wait_for_service(timeout_sec=max(timeout - 1.0, 0.0)):
+            raise NodeError(f"service {name} not available within {timeout:g} s (is the node running, "
+                            "same ROS_DOMAIN_ID?)")
     return cli
+
+
+def _waiting(what: str, timeout: float) -> None:
+    print(f"waiting up to {timeout:g} s for {what} to appear (--timeout; a node takes seconds to start) ...",
+          file=sys.stderr, flush=True)
 
 
 def _reset(node: Any, args: argparse.Namespace) -> int:
@@ -161,7 +205,7 @@ def _param(node: Any, args: argparse.Namespace) -> int:
         res = _spin_until(node, _client(node, GetParameters, f"{target}/get_parameters", args.timeout)
                           .call_async(req), args.timeout, f"{target}/get_parameters")
         if not res.values or res.values[0].type == 0:
-            raise NodeError(f"{target}: parameter {args.name!r} is not set")
+            raise NodeError(f"{target}: parameter {args.name!r} is not set{_did_you_mean(node, target, args)}")
         print(_format_value(parameter_value_to_python(res.values[0])))
         return 0
     import yaml
@@ -185,6 +229,27 @@ def _param(node: Any, args: argparse.Namespace) -> int:
     return 0
 
 
+def _did_you_mean(node: Any, target: str, args: argparse.Namespace) -> str:
+    """``; did you mean node.mode?`` from the node's own parameters (the config schema it declared), with the
+    node's -p check (:func:`~deepbbs_ros.node.registration_node.nearest_parameter`); a config key the node does
+    not declare says so."""
+    from rcl_interfaces.srv import ListParameters
+
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.node.registration_node import nearest_parameter
+
+    try:
+        res = _spin_until(node, _client(node, ListParameters, f"{target}/list_parameters", args.timeout)
+                          .call_async(ListParameters.Request()), args.timeout, f"{target}/list_parameters")
+    except NodeError:
+        return ""
+    names = list(res.result.names)
+    if args.name in Config().to_flat():
+        return " (a config key this node does not declare: see deepbbs-ros param list)"
+    near = nearest_parameter(args.name, names)
+    return f"; did you mean {' or '.join(near)}?" if near else ""
+
+
 def _format_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -204,14 +269,24 @@ def _msg_class(type_name: str) -> Any:
 
 
 def _topic_type(node: Any, topic: str, timeout: float) -> str:
-    deadline = time.monotonic() + timeout
+    """The type of ``topic`` once a publisher of it is discovered, waiting up to ``timeout`` s (saying so on
+    stderr after 1 s: the node may still be starting)."""
+    import rclpy
+
+    start = time.monotonic()
+    said = False
     while True:
         types = dict(node.get_topic_names_and_types())
         if topic in types:
             return types[topic][0]
-        if time.monotonic() > deadline:
-            raise NodeError(f"topic {topic} not found within {timeout} s (deepbbs-ros topic list shows the graph)")
-        time.sleep(0.1)
+        waited = time.monotonic() - start
+        if waited > timeout:
+            raise NodeError(f"topic {topic} not found within {timeout:g} s (deepbbs-ros topic list shows the graph; "
+                            "--timeout S waits longer)")
+        if waited > 1.0 and not said:
+            _waiting(f"topic {topic}", timeout)
+            said = True
+        rclpy.spin_once(node, timeout_sec=0.1)  # a signal shuts the context down: ExternalShutdownException
 
 
 def _topic(node: Any, args: argparse.Namespace) -> int:
@@ -237,17 +312,28 @@ def _topic(node: Any, args: argparse.Namespace) -> int:
         if echo:
             print(str(msg) if args.full else summary(msg), flush=True)
 
+    from rclpy.executors import ExternalShutdownException
+
     node.create_subscription(cls, topic, on_msg, qos)
     start = last_report = time.monotonic()
-    while rclpy.ok():
-        rclpy.spin_once(node, timeout_sec=0.1)
-        now = time.monotonic()
-        if now - last_report >= 1.0:
-            last_report = now
-            print(stats.line(topic), file=sys.stderr if echo else sys.stdout, flush=True)
-        if (args.count and stats.n >= args.count) or (args.duration and now - start >= args.duration):
-            break
-    if not echo or args.count or args.duration:
+    stopped = False
+    try:
+        while rclpy.ok():
+            rclpy.spin_once(node, timeout_sec=0.1)
+            now = time.monotonic()
+            if now - last_report >= 1.0:
+                last_report = now
+                print(stats.line(topic), file=sys.stderr if echo else sys.stdout, flush=True)
+            if (args.count and stats.n >= args.count) or (args.duration and now - start >= args.duration):
+                break
+    except (KeyboardInterrupt, ExternalShutdownException):
+        stopped = True  # Ctrl-C / SIGTERM: the summary below, exit code 0
+    except Exception:
+        if rclpy.ok():  # RCLError from a signal landing in the wait set: stopped too
+            raise
+        stopped = True
+    stopped = stopped or not rclpy.ok()  # the context shut down between two spins
+    if not echo or args.count or args.duration or stopped:
         print(stats.line(topic), file=sys.stderr if echo else sys.stdout, flush=True)
     return 0
 
@@ -260,6 +346,17 @@ class TopicStats:
         self.n = 0
         self._recv: list[int] = []
         self._lat_ms: list[float] = []
+
+    @property
+    def clock_offset_s(self) -> float | None:
+        """Median receive time - stamp (s) when the stamps are not wall-clock time (more than
+        ``NOT_WALL_CLOCK_S`` from it: a recording's stamps, simulated time); None when they are (or none)."""
+        if not self._lat_ms:
+            return None
+        import numpy as np
+
+        offset = float(np.median(self._lat_ms)) * 1e-3
+        return offset if abs(offset) > NOT_WALL_CLOCK_S else None
 
     def add(self, recv_ns: int, stamp_ns: int | None) -> None:
         self.n += 1
@@ -275,7 +372,12 @@ class TopicStats:
 
     def line(self, topic: str) -> str:
         text = f"{topic}: {self.n} messages, {self.rate_hz:.2f} Hz"
-        if self._lat_ms:
+        offset = self.clock_offset_s
+        if offset is not None:
+            side = "behind" if offset > 0 else "ahead of"
+            text += (f", stamps {abs(offset):.1f} s {side} the wall clock (a recording's stamps or sim time): "
+                     "no latency figure")
+        elif self._lat_ms:
             import numpy as np
 
             lat = np.asarray(self._lat_ms)
@@ -330,6 +432,70 @@ def _tf_text(t: Any) -> str:
     tr, q = t.transform.translation, t.transform.rotation
     yaw = np.degrees(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z)))
     return f"{t.header.frame_id} -> {t.child_frame_id} xyz [{tr.x:.3f}, {tr.y:.3f}, {tr.z:.3f}] yaw {yaw:.2f} deg"
+
+
+# -- static-tf ------------------------------------------------------------------------------------
+def _static_transform(args: argparse.Namespace) -> tuple[Any, str, str]:
+    """(``T_parent_child`` (4, 4), parent, child) from static_transform_publisher's flags; NodeError on a
+    mix of roll/pitch/yaw and quaternion, a zero quaternion, or a frame id that is empty, equal or starts with /."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    for key in ("frame_id", "child_frame_id"):
+        frame = getattr(args, key)
+        if not frame or frame.startswith("/") or any(c.isspace() for c in frame):
+            raise NodeError(f"--{key.replace('_', '-')}: invalid frame id {frame!r} (not empty, no leading '/', "
+                            "no spaces)")
+    if args.frame_id == args.child_frame_id:
+        raise NodeError(f"--frame-id and --child-frame-id are the same frame {args.frame_id!r}")
+    rpy = [args.roll, args.pitch, args.yaw]
+    quat = [args.qx, args.qy, args.qz, args.qw]
+    if any(v is not None for v in rpy) and any(v is not None for v in quat):
+        raise NodeError("give the rotation as --roll --pitch --yaw or as --qx --qy --qz --qw, not both")
+    T = np.eye(4)
+    T[:3, 3] = [args.x, args.y, args.z]
+    if any(v is not None for v in quat):
+        q = np.array([0.0 if v is None else v for v in quat[:3]] + [1.0 if quat[3] is None else quat[3]])
+        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+            raise NodeError(f"--qx --qy --qz --qw: not a rotation {q.tolist()}")
+        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+    else:  # tf2's setRPY: roll about x, then pitch about y, then yaw about z (fixed axes)
+        T[:3, :3] = Rotation.from_euler("xyz", [0.0 if v is None else v for v in rpy]).as_matrix()
+    if not np.all(np.isfinite(T)):
+        raise NodeError("the transform has a non-finite value")
+    return T, args.frame_id, args.child_frame_id
+
+
+def _static_tf(node: Any, transform: tuple[Any, str, str]) -> int:
+    """Publish the transform once on ``/tf_static`` (reliable, transient local, as tf2_ros's static broadcaster:
+    late subscribers get it) and keep the publisher until Ctrl-C / SIGTERM (exit code 0)."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError as err:
+        raise NodeError("tf2_msgs is not installed: build it with `deepbbs-ros build-interfaces`") from err
+    from msg_adapters.transforms import matrix_to_transform_stamped
+
+    T, parent, child = transform
+    qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pub = node.create_publisher(TFMessage, "/tf_static", qos)
+    stamp = node.get_clock().now().nanoseconds
+    pub.publish(TFMessage(transforms=[matrix_to_transform_stamped(T, stamp, parent, child)]))
+    t, yaw = T[:3, 3], _yaw_deg(T)
+    print(f"/tf_static: {parent} -> {child} xyz [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] yaw {yaw:.2f} deg "
+          "(latched; Ctrl-C to stop)", flush=True)
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.5)
+    return 0
+
+
+def _yaw_deg(T: Any) -> float:
+    import numpy as np
+
+    return float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
 
 
 if __name__ == "__main__":

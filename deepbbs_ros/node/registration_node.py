@@ -1,11 +1,14 @@
 """The live registration node ``deepbbs_registration`` (console script ``deepbbs-node``).
 
-Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points``):
+Inputs (relative names: remap them the ROS way, ``-r source_cloud:=/lidar/points``; a remap whose name is
+none of the node's topics is logged as a warning naming the inputs, since ROS ignores it):
 
 * ``node.mode: pair`` (default): ``source_cloud`` and ``target_cloud`` (sensor_msgs/PointCloud2),
   paired by approximate time (``node.queue_size`` per input, ``node.slop`` seconds).
-* ``node.mode: odometry``: one input ``cloud``; the scans run through the odometry of ``deepbbs-replay
-  --mode odometry --method deepbbs++`` (:class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the
+* ``node.mode: odometry``: one input ``cloud`` (or ``pointcloud_topic``, KISS-ICP's name, when that one is
+  remapped and ``cloud`` is not: ``-r pointcloud_topic:=/points`` works as with KISS-ICP); the scans run
+  through the odometry of ``deepbbs-replay --mode odometry --method deepbbs++``
+  (:class:`deepbbs_ros.core.odometry.DeepBBSOdometry`, the
   ``odometry`` config section): deskewing with the per-point times (Velodyne ``time``, Ouster ``t``),
   GICP against a local voxel map, and DeepBBS++ (the node's network) consulted on long stamp gaps, fit drops
   and the first motion (:class:`deepbbs_ros.node.pipeline.LocalMapOdometry`). The chained scan-to-scan
@@ -58,6 +61,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import signal
 import sys
 import threading
 import time
@@ -93,6 +97,10 @@ NODE_NAME = "deepbbs_registration"
 ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 PAIR_INPUTS = ("source_cloud", "target_cloud")
 ODOM_INPUT = "cloud"
+KISS_ICP_INPUT = "pointcloud_topic"  # KISS-ICP's input name: taken as the odometry input when remapped
+#: the node's other topics and services (remapping them is legitimate; parameter services are under ``~/``)
+NODE_TOPICS = ("~/pose", "~/transform", "~/odometry", "~/aligned_cloud", "~/reset", "/tf", "/tf_static",
+               "/diagnostics", "/clock", "/rosout", "/parameter_events")
 JUMP_BACK_S = 1.0  # s; odometry mode: a stamp this far before the last one is a time jump (reset)
 
 
@@ -162,6 +170,65 @@ def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any]
     if other_mode:
         notes.append(f"{len(other_mode)} odometry.* parameter(s) not used: {_NOT_NODE['odometry']} (node.mode={mode})")
     return errors, warnings, notes
+
+
+def remap_rules(argv: Any) -> list[tuple[str, str, str]]:
+    """The topic remap rules of ``argv``'s ``--ros-args`` sections: ``(node, from, to)`` for each ``-r`` /
+    ``--remap [node:]from:=to`` (node '' when the rule is for every node); ``__node``, ``__ns`` and other
+    special names are left out."""
+    rules, in_ros, it = [], False, iter(argv or [])
+    for a in it:
+        if a == "--ros-args":
+            in_ros = True
+        elif in_ros and a == "--":
+            in_ros = False
+        elif in_ros and a in ("-r", "--remap"):
+            rule = next(it, "")
+            lhs, sep, to = rule.partition(":=")
+            node, _, name = lhs.rpartition(":")
+            if sep and name and not name.startswith("__"):
+                rules.append((node, name, to))
+    return rules
+
+
+def unmatched_remaps(rules: Any, mode: str, node_name: str, namespace: str) -> list[str]:
+    """Warnings for the remap rules (:func:`remap_rules`) whose name is none of the node's topics (the inputs of
+    ``mode``: ``source_cloud``, ``target_cloud`` or ``cloud`` / ``pointcloud_topic``; :data:`NODE_TOPICS`;
+    anything under ``~/``): rclpy ignores them, so a misspelt or other-mode input would leave the node waiting
+    on its default topic with no word. Each warning names the node's inputs."""
+    import difflib
+
+    from rclpy.expand_topic_name import expand_topic_name
+
+    def expand(name: str) -> str | None:
+        try:
+            return expand_topic_name(name, node_name, namespace)
+        except Exception:  # noqa: BLE001 - an invalid name: rclpy reports it itself
+            return None
+
+    inputs = PAIR_INPUTS if mode == "pair" else (ODOM_INPUT, KISS_ICP_INPUT)
+    names = ", ".join(inputs) if mode == "pair" else f"{ODOM_INPUT} (or {KISS_ICP_INPUT}, KISS-ICP's name)"
+    private = expand("~") or ""
+    known = {expand(n): n for n in (*inputs, *NODE_TOPICS)}
+    other_mode = {ODOM_INPUT: "odometry", KISS_ICP_INPUT: "odometry", **{n: "pair" for n in PAIR_INPUTS}}
+    out = []
+    for node, name, to in rules:
+        if node and node != node_name:
+            continue  # another node's rule
+        full = expand(name)
+        if full is None or full in known or full.startswith(private + "/") or full == expand(to):
+            continue  # one of the node's names, or a rule that changes nothing (the launch file's defaults)
+        leaf = name.rpartition("/")[2]
+        hint = ""
+        if leaf in other_mode and other_mode[leaf] != mode:
+            what = " (KISS-ICP's input name)" if leaf == KISS_ICP_INPUT else ""
+            hint = f"; {leaf}{what} is an input of node.mode {other_mode[leaf]} (-p node.mode:={other_mode[leaf]})"
+        else:
+            near = difflib.get_close_matches(leaf, list(inputs), n=1, cutoff=0.6)
+            hint = f"; did you mean {near[0]}:={to}?" if near else ""
+        out.append(f"remap {name}:={to} matches no topic of this node and is ignored: its inputs are "
+                   f"{names} (node.mode={mode}){hint}")
+    return out
 
 
 def _qos_text(qos: QoSProfile) -> str:
@@ -246,6 +313,8 @@ class RegistrationNode(Node):
         odometry_method: odometry mode's pipeline: ``"local_map"`` (default; DeepBBSOdometry, as
             ``deepbbs-replay --mode odometry --method deepbbs++``) or ``"scan_to_scan"`` (scan k registered
             against scan k-1 with ``registration``, chained; each scan preprocessed on arrival).
+        remaps: the command line's remap rules (:func:`remap_rules`, given by ``run_node``): those that match
+            none of the node's topics are logged as warnings (:attr:`remap_warnings`) before the model loads.
         node_name, node_kwargs: passed to ``rclpy.node.Node``.
 
     Raises:
@@ -260,6 +329,7 @@ class RegistrationNode(Node):
         tf_broadcaster: TfBroadcaster | None = None,
         odometry_method: str = "local_map",
         node_name: str = NODE_NAME,
+        remaps: Any = (),
         **node_kwargs: Any,
     ) -> None:
         t_start = time.perf_counter()
@@ -273,6 +343,16 @@ class RegistrationNode(Node):
         if odometry_method not in ODOMETRY_METHODS:
             raise NodeError(f"odometry_method must be one of {', '.join(ODOMETRY_METHODS)}, got {odometry_method!r}")
         self.odometry_method = odometry_method
+        # inputs: KISS-ICP's pointcloud_topic is the odometry input when it is remapped and cloud is not
+        self.input_names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
+        if ncfg.mode == "odometry" and self._remapped(KISS_ICP_INPUT) and not self._remapped(ODOM_INPUT):
+            self.input_names = (KISS_ICP_INPUT,)
+        self.remap_warnings = unmatched_remaps(remaps, ncfg.mode, self.get_name(), self.get_namespace())
+        if ncfg.mode == "odometry" and self._remapped(KISS_ICP_INPUT) and self._remapped(ODOM_INPUT):
+            self.remap_warnings.append(f"{KISS_ICP_INPUT} and {ODOM_INPUT} are both remapped: the input is "
+                                       f"{ODOM_INPUT}'s topic, the {KISS_ICP_INPUT} remap is ignored")
+        for text in self.remap_warnings:
+            self.get_logger().warning(text)
         self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
         # conditions of the graph, not of a message: an input that never pairs, a target not there yet
         self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), ncfg.error_log_period)
@@ -317,9 +397,8 @@ class RegistrationNode(Node):
             self.outputs = Outputs(self, ncfg, self._qos(), self._errors.log, tf_broadcaster,
                                    extrinsic=self._base_from_sensor)
             self._sub_tf_static = self._subscribe_tf_static()
-            names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
             # one QoS object per subscription: rclpy applies qos_overrides.<topic>.* to it in place
-            subscribe = [self._make_input(i, name, self._qos()) for i, name in enumerate(names)]
+            subscribe = [self._make_input(i, name, self._qos()) for i, name in enumerate(self.input_names)]
         except NodeError:
             self._stop_threads()
             raise
@@ -361,6 +440,13 @@ class RegistrationNode(Node):
         self.get_logger().info(
             f"ready in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up {t_end - t_warm:.1f} s)"
         )
+
+    def _remapped(self, name: str) -> bool:
+        """Whether a remap rule applies to the topic ``name``."""
+        try:
+            return self.resolve_topic_name(name) != self.resolve_topic_name(name, only_expand=True)
+        except Exception:  # noqa: BLE001 - a bad remapped name is reported when the input is made
+            return True
 
     def _qos(self) -> QoSProfile:
         """A new QoS profile from ``node.qos_reliability`` / ``node.qos_depth``."""
@@ -853,30 +939,60 @@ def run_node(
     defaults = Config.from_yaml(args.config) if args.config else Config()
     if not args.no_shm_profile:
         apply_default_profile()
+    # SIGINT / SIGTERM stop the spin and the node is destroyed (its last log line) while the context is still
+    # valid: rclpy's own handlers shut the context down first, and every log line after that printed "Failed to
+    # publish log message to rosout". A signal during start-up stops the node once it is built (a node cut
+    # halfway would leave its threads and processes behind); a second signal interrupts at once.
+    from rclpy.signals import SignalHandlerOptions
+
+    stop, spinning = threading.Event(), threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+        if not spinning.is_set():
+            print(f"{prog}: stopping once started (again to interrupt now)", file=sys.stderr, flush=True)
+
+    main_thread = threading.current_thread() is threading.main_thread()  # only there can handlers be set
+    sigs = (signal.SIGINT, signal.SIGTERM) if main_thread else ()
+    previous = {sig: signal.signal(sig, on_signal) for sig in sigs}
     try:
-        rclpy.init(args=full)
-    except Exception as err:  # rclpy's RCLError: bad --ros-args (remap rules, parameter syntax)
-        first = str(err).split(", at ")[0].replace("failed to initialize rcl: ", "")
-        raise NodeError(f"invalid ROS arguments: {first}") from err
+        try:
+            rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO if main_thread else None)
+        except Exception as err:  # rclpy's RCLError: bad --ros-args (remap rules, parameter syntax)
+            first = str(err).split(", at ")[0].replace("failed to initialize rcl: ", "")
+            raise NodeError(f"invalid ROS arguments: {first}") from err
+        return _spin_node(make_node, defaults, remap_rules(full), stop, spinning)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _spin_node(make_node: Callable[..., Node], defaults: Config, remaps: list, stop: threading.Event,
+               spinning: threading.Event) -> int:
     node = None
     try:
-        node = make_node(defaults)
+        node = make_node(defaults, remaps=remaps) if remaps else make_node(defaults)
         # one thread: every callback only hands off (the inputs and the registration have their own threads), and
         # rclpy's multi-threaded executor cost ~2 ms more CPU per received 2.7 MB cloud (measured, paired runs)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spinning.set()
+        # the signal handler runs between two waits (Python runs handlers in the main thread, outside rcl_wait)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.2)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except DeepBBSError:
         raise
     except Exception:
-        # SIGINT/SIGTERM make rclpy's signal handler shut the context down; if that lands while the
-        # executor is building its wait set, rclpy raises RCLError ("context is not valid") instead
-        # of ExternalShutdownException. That is a clean shutdown, anything else is a real error.
+        # the context shut down by someone else (rclpy.shutdown from a thread) can land while the executor
+        # builds its wait set: RCLError ("context is not valid"). A clean stop; anything else is a real error.
         if rclpy.ok():
             raise
     finally:
+        spinning.clear()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
