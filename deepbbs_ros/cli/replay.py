@@ -27,17 +27,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.cli.common import HelpFormatter, cli_entry, config_default
 
 PROG = "deepbbs-replay"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    d = config_default
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Replay a recording through DeepBBS++ and baselines; write metrics, plots, trajectories "
-        "and a results bag.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        "and a results bag. Options that default to a config key (eval.*) take the value of --config, else "
+        "the built-in one shown.",
+        formatter_class=HelpFormatter,
     )
     p.add_argument("source", metavar="SOURCE", nargs="+",
                    help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/), KITTI folder (velodyne/) "
@@ -50,30 +52,46 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
                    "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
                    "kiss-icp (odometry only), kiss-matcher, kiss-matcher+gicp (global, pairs only)")
-    g.add_argument("--stride", type=int, default=None,
-                   help="pairs: a source frame every N frames (eval.stride); odometry: every N-th frame "
-                   "(eval.odom_stride)")
-    g.add_argument("--max-dist", type=float, default=None, metavar="M", help="pairs: max source-target distance, m")
+    g.add_argument("--stride", type=int, default=None, metavar="N",
+                   help="pairs: a source frame every N frames; odometry: every N-th frame (default: "
+                   f"{d('eval.stride')} in pairs mode, {d('eval.odom_stride')} in odometry)")
+    g.add_argument("--max-dist", type=float, default=None, metavar="M",
+                   help=f"pairs: the target is the last frame within M metres of the source (default: "
+                   f"{d('eval.max_dist', 'm')})")
     g.add_argument("--perturb-yaw", type=float, default=None, metavar="DEG",
-                   help="pairs: random initial yaw in [-DEG, DEG] (basin of convergence)")
+                   help="pairs: random initial yaw in [-DEG, DEG] (basin of convergence) (default: "
+                   f"{d('eval.perturb_yaw_deg')}: none)")
     g.add_argument("--perturb-trans", type=float, default=None, metavar="M",
-                   help="pairs: random horizontal initial offset up to M metres")
-    g.add_argument("--trials", type=int, default=None, help="pairs: perturbed trials per pair")
-    g.add_argument("--seed", type=int, default=None, help="seed of the perturbations, dropped frames, wrong priors")
+                   help=f"pairs: random horizontal initial offset up to M metres (default: {d('eval.perturb_trans')}: "
+                   "none)")
+    g.add_argument("--trials", type=int, default=None, metavar="N",
+                   help=f"pairs: perturbed trials per pair (default: {d('eval.trials')})")
+    g.add_argument("--seed", type=int, default=None,
+                   help=f"seed of the perturbations, dropped frames, wrong priors (default: {d('eval.seed')})")
     g.add_argument("--drop-frames", type=int, default=None, metavar="N",
-                   help="odometry: skip N runs of 3-10 consecutive scans at random points (eval.drop_frames)")
+                   help=f"odometry: skip N runs of 3-10 consecutive scans at random points (default: "
+                   f"{d('eval.drop_frames')})")
     g.add_argument("--wrong-prior", type=int, default=None, metavar="N",
-                   help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (eval.wrong_prior)")
-    g.add_argument("--max-frames", type=int, default=None, help="stop after this many frames (odometry: kept frames)")
-    g.add_argument("--max-pairs", type=int, default=None, help="pairs: stop after this many pairs")
+                   help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (default: "
+                   f"{d('eval.wrong_prior')})")
+    g.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="stop after this many frames (odometry: kept frames) (default: all)")
+    g.add_argument("--max-pairs", type=int, default=None, metavar="N",
+                   help="pairs: stop after this many pairs (default: all)")
     i = p.add_argument_group("input")
     i.add_argument("--topic", default=None, help="PointCloud2 topic (bags; default: the only one)")
-    i.add_argument("--gt-topic", default=None, help="ground-truth pose topic (bags; default: /ground_truth/pose)")
+    i.add_argument("--gt-topic", default=None,
+                   help="ground-truth pose topic (bags; default: /ground_truth/pose, else the only pose topic named "
+                   "*ground_truth* or *gt*); folders read their pose file (Apollo: poses/gt_poses.txt, KITTI: "
+                   "poses.txt + calib.txt)")
     i.add_argument("--gt-tolerance", type=float, default=0.05, metavar="S", help="max scan/pose stamp gap, s")
     m = p.add_argument_group("model and config")
-    m.add_argument("--config", default=None, metavar="YAML", help="config file (plain sections or ROS params)")
-    m.add_argument("--weights", default=None, metavar="PATH", help="DeepBBS++ checkpoint (default: the shipped one)")
-    m.add_argument("--device", default=None, help="auto, cpu, cuda, cuda:N (default: registration.device)")
+    m.add_argument("--config", default=None, metavar="YAML",
+                   help="config file (plain sections or ROS params) (default: none, the built-in values)")
+    m.add_argument("--weights", default=None, metavar="PATH",
+                   help="DeepBBS++ checkpoint (default: registration.weights, else the shipped model)")
+    m.add_argument("--device", default=None,
+                   help=f"auto, cpu, cuda, cuda:N (default: {d('registration.device')})")
     o = p.add_argument_group("output")
     o.add_argument("--out", default="results/replay", metavar="DIR", help="writes DIR/<timestamp>/ and DIR/latest")
     o.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -83,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--workers", type=int, default=None, metavar="N",
                    help="start Ray here with N CPUs, N / --cpus-per-task recordings at a time (default: all cores)")
     f.add_argument("--ray-address", default=None, metavar="ADDR",
-                   help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead")
+                   help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead (default: none, "
+                   "Ray starts here)")
     f.add_argument("--cpus-per-task", type=int, default=1, metavar="N",
                    help="CPUs Ray gives each recording; thread settings of 0 (every core) mean these N, and "
                    "DeepBBS++ runs its network in a process of its own only with N >= 2")
