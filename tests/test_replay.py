@@ -392,3 +392,46 @@ def test_pairs_without_ground_truth_hint_fits_the_format(scans, tmp_path, capsys
     assert len(err) == 1 and "pairs mode needs ground-truth poses and found none: " in err[0] and says in err[0]
     assert ("--gt-topic" in err[0]) == (fmt == "mcap")
     assert "--mode odometry" in err[0]
+
+
+def test_pairs_table_counts_and_verdict_cells(recording, fast_config, tiny_weights, tmp_path, capsys):
+    """--trials 3 on one pair: the table shows 1 pair and 3 registrations (pairs x trials), the verdict counts
+    add up to the registrations; a method without a verdict shows n/a there with its own footnote, not the
+    '-' note that says every registration failed."""
+    from deepbbs_ros.replay.report import table_definitions, table_notes, table_rows
+
+    out = tmp_path / "out"
+    rc = main([str(recording), "--method", _methods("gicp"), "--max-dist", "2.0", "--trials", "3",
+               "--perturb-yaw", "5", "--config", str(fast_config), "--out", str(out), "--quiet", "--no-plots",
+               "--no-bag", *_weights_args(tiny_weights)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(((out / "latest").resolve() / "metrics.json").read_text())
+    mm = doc["methods"]
+    assert mm["gicp"]["pairs"] == 1 and mm["gicp"]["registrations"] == 3
+    names, rows = table_rows("pairs", mm)
+    rows = {metric: dict(zip(names, vals)) for metric, _unit, vals in rows}
+    assert rows["pairs"]["gicp"] == "1" and rows["registrations"]["gicp"] == "3"
+    notes = table_notes("pairs", mm)
+    assert not any("failed" in n for n in notes)
+    assert table_definitions("pairs", mm) == ["success rate, runtime" + (", poses accepted / rejected" if HAVE_CORE
+                                                                         else "") + ": per registration (pairs x trials)"]
+    assert "registrations" in printed and "pairs x trials" in printed
+    if HAVE_CORE:
+        m = mm["deepbbs++"]
+        assert m["registrations"] == 3 and m["accepted"] + m["rejected"] == 3
+        assert rows["poses accepted"]["gicp"] == "n/a" and rows["poses rejected"]["gicp"] == "n/a"
+        assert int(rows["poses accepted"]["deepbbs++"]) + int(rows["poses rejected"]["deepbbs++"]) == 3
+        assert notes == ["n/a: the method gives no verdict on its poses (DeepBBS++ accepts or rejects each)"]
+        assert "n/a: the method gives no verdict" in " ".join(printed.split())
+    # one trial: no registrations row, no per-registration note
+    one = {n: {**m, "registrations": m["pairs"]} for n, m in mm.items()}
+    assert "registrations" not in [r[0] for r in table_rows("pairs", one)[1]] and not table_definitions("pairs", one)
+
+
+def test_odometry_table_says_the_ate_alignment():
+    from deepbbs_ros.replay.report import table_definitions
+
+    with_gt = {"gicp": {"frames": 8, "ate_rmse_m": 0.01}}
+    assert "ATE: after one SE(3) alignment (Umeyama, no scale)" in table_definitions("odometry", with_gt)[0]
+    assert table_definitions("odometry", {"gicp": {"frames": 8, "ate_rmse_m": float("nan")}}) == []
