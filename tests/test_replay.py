@@ -414,8 +414,8 @@ def test_pairs_table_counts_and_verdict_cells(recording, fast_config, tiny_weigh
     assert rows["pairs"]["gicp"] == "1" and rows["registrations"]["gicp"] == "3"
     notes = table_notes("pairs", mm)
     assert not any("failed" in n for n in notes)
-    assert table_definitions("pairs", mm) == ["success rate, runtime" + (", poses accepted / rejected" if HAVE_CORE
-                                                                         else "") + ": per registration (pairs x trials)"]
+    verdict = ", poses accepted / rejected" if HAVE_CORE else ""
+    assert table_definitions("pairs", mm) == [f"success rate, runtime{verdict}: per registration (pairs x trials)"]
     assert "registrations" in printed and "pairs x trials" in printed
     if HAVE_CORE:
         m = mm["deepbbs++"]
