@@ -423,7 +423,8 @@ def table_definitions(mode: str, method_metrics: dict[str, dict]) -> list[str]:
             out.append(f"success rate, runtime{verdict}: per registration (pairs x trials)")
     elif any(m.get("ate_rmse_m") is not None for m in M.values()):
         out.append("ATE: after one SE(3) alignment (Umeyama, no scale) of the whole trajectory onto the ground "
-                   "truth; the plots' position errors are unaligned (start at the first ground-truth pose)")
+                   "truth; APE rotation and the plots' position errors are unaligned (every trajectory starts at "
+                   "the first ground-truth pose)")
     return out
 
 
