@@ -32,6 +32,30 @@ def _check(cond: bool, key: str, msg: str) -> None:
         raise ConfigError(f"config: {key} {msg}")
 
 
+def nearest_keys(name: str, known: Any) -> list[str]:
+    """The known dotted names closest to ``name``: those whose last part equals its last part (flat,
+    KISS-ICP-style names such as ``mode`` or ``voxel_size``), else the closest spelling (``eval.strid`` ->
+    ``eval.stride``), else the key whose last part is spelt closest. Empty when nothing is close."""
+    import difflib
+
+    known = list(known)
+    leaf = name.rpartition(".")[2]
+    same = [k for k in known if k.rpartition(".")[2] == leaf]
+    if same:
+        return same
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    if close:
+        return close
+    leaves = {k.rpartition(".")[2]: k for k in known}
+    return [leaves[m] for m in difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.6)]
+
+
+def did_you_mean(name: str, known: Any) -> str:
+    """``"; did you mean a.b?"`` (or ``"a.b or c.b"``) for :func:`nearest_keys`, ``""`` when none is close."""
+    near = nearest_keys(name, known)
+    return f"; did you mean {' or '.join(near)}?" if near else ""
+
+
 @dataclass
 class PreprocessConfig:
     """Scan preprocessing: crop, ground removal, voxel grid, farthest-point sampling."""
@@ -505,9 +529,11 @@ class Config:
         data = dict(data or {})
         cfg = cls()
         sections = {f.name: f for f in dataclasses.fields(cls)}
+        data = _nest_dotted(data, sections)
         for name, values in data.items():
             if name not in sections:
-                raise ConfigError(f"config: unknown section {name!r} (known: {', '.join(sections)})")
+                hint = did_you_mean(name, list(sections) + list(cls().to_flat()))
+                raise ConfigError(f"config: unknown section {name!r}" + (hint or f" (known: {', '.join(sections)})"))
             if values is None:
                 continue
             if not isinstance(values, dict):
@@ -535,7 +561,7 @@ class Config:
         merged = self.to_flat()
         for key in flat:
             if key not in merged:
-                raise ConfigError(f"config: unknown parameter {key!r}")
+                raise ConfigError(f"config: unknown parameter {key!r}{did_you_mean(key, merged)}")
         merged.update(flat)
         return Config.from_flat(merged)
 
@@ -585,13 +611,40 @@ def _unwrap_ros_params(data: dict[str, Any]) -> dict[str, Any]:
     return data
 
 
+def _nest_dotted(data: dict[str, Any], sections: Any) -> dict[str, Any]:
+    """Dotted top-level keys of a known section (``preprocess.voxel_size: 0.3``, as a ROS 2 parameter file
+    may write them) moved into their section; a key given both ways is an error."""
+    out: dict[str, Any] = {}
+    dotted = []
+    for key, value in data.items():
+        section, sep, name = str(key).partition(".")
+        if sep and name and section in sections:
+            dotted.append((key, section, name, value))
+        else:
+            out[key] = value
+    for key, section, name, value in dotted:
+        inner = out.get(section)
+        if inner is None:
+            inner = out[section] = {}
+        elif not isinstance(inner, dict):
+            continue  # from_dict names the bad section
+        else:
+            inner = out[section] = dict(inner)
+        if name in inner:
+            raise ConfigError(f"config: {key} is given twice (as {key} and under {section}:)")
+        inner[name] = value
+    return out
+
+
 def _build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
     kwargs = {}
     for key, value in values.items():
         if key not in known:
-            raise ConfigError(f"config: unknown parameter {section}.{key} (known: {', '.join(sorted(known))})")
+            hint = did_you_mean(f"{section}.{key}", Config().to_flat())
+            raise ConfigError(f"config: unknown parameter {section}.{key}"
+                              + (hint or f" (known in {section}: {', '.join(sorted(known))})"))
         kwargs[key] = _coerce(value, hints[key], f"{section}.{key}")
     return cls(**kwargs)
 

@@ -85,3 +85,55 @@ def test_on_off_read_as_booleans_are_the_words():
     assert (cfg.node.registration_process, cfg.registration.network_process) == ("on", "off")
     with pytest.raises(ConfigError, match="node.registration_process"):
         Config.from_flat({"node.registration_process": "maybe"})
+
+
+@pytest.mark.parametrize(
+    ("yaml_text", "match"),
+    [  # one line naming the key and the closest valid key(s), not the section's whole key list
+        ("eval:\n  strid: 10\n", r"^config: unknown parameter eval\.strid; did you mean eval\.stride\? \(in "),
+        ("preprocess:\n  voxel: 0.3\n", r"unknown parameter preprocess\.voxel; did you mean preprocess\.voxel_size\?"),
+        ("eval:\n  num_points: 9\n", r"eval\.num_points; did you mean preprocess\.num_points or train\.num_points\?"),
+        ("evl:\n  stride: 10\n", r"unknown section 'evl'; did you mean eval\?"),
+        ("voxel_size: 0.3\n", r"unknown section 'voxel_size'; did you mean preprocess\.voxel_size or "
+                               r"odometry\.voxel_size\?"),
+        ("/**:\n  ros__parameters:\n    node:\n      mod: pair\n",
+         r"unknown parameter node\.mod; did you mean node\.mode\?"),
+    ],
+)
+def test_misspelt_key_names_the_nearest(tmp_path, yaml_text, match):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml_text)
+    with pytest.raises(ConfigError, match=match) as info:
+        load_config(path)
+    text = str(info.value)
+    assert "\n" not in text and "(known" not in text and len(text) < 200 + len(str(path))
+
+
+def test_unknown_key_without_a_near_one_lists_its_section():
+    with pytest.raises(ConfigError, match=r"unknown parameter eval\.zzzzzz \(known in eval: .*stride"):
+        Config.from_dict({"eval": {"zzzzzz": 1}})
+    with pytest.raises(ConfigError, match=r"unknown parameter 'eval\.strid'; did you mean eval\.stride\?"):
+        load_config(None, {"eval.strid": 3})  # --set / CLI overrides
+
+
+def test_dotted_keys_in_a_file(tmp_path):
+    """A ROS 2 parameter file may write dotted names (``preprocess.voxel_size: 0.4``), as ``-p`` does."""
+    path = tmp_path / "p.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    preprocess.voxel_size: 0.4\n"
+                    "    preprocess:\n      num_points: 256\n")
+    cfg = load_config(path)
+    assert cfg.preprocess.voxel_size == 0.4 and cfg.preprocess.num_points == 256
+    path.write_text("preprocess.voxel_size: 0.4\npreprocess:\n  voxel_size: 0.5\n")
+    with pytest.raises(ConfigError, match=r"preprocess\.voxel_size is given twice"):
+        load_config(path)
+
+
+def test_node_and_config_share_the_did_you_mean():
+    from deepbbs_ros.config import nearest_keys
+
+    flat = Config().to_flat()
+    assert nearest_keys("node.mod", flat) == ["node.mode"]
+    assert nearest_keys("base_frame", flat) == ["node.base_frame"]
+    assert nearest_keys("qqqq.zzzz", flat) == []
+    node = pytest.importorskip("deepbbs_ros.node.registration_node")
+    assert node.nearest_parameter is nearest_keys

@@ -307,3 +307,131 @@ def test_short_drive_table_note_and_plots(scans, fast_config, tmp_path, capsys):
     for r in pres.records:  # every registration failed: no finite error to put on a log axis
         r.rot_err_deg = r.trans_err_m = float("nan")
     assert len(P.plot_pairs(tmp_path, pres, 5.0, 2.0)) == 3
+
+
+def test_few_pairs_get_a_hint(scans, fast_config, tmp_path, capsys):
+    """A 10-scan KITTI folder at the default stride (100) gives 1 pair: a warning says why and which
+    --stride gives more, a count that the pair protocol itself confirms."""
+    folder = tmp_path / "kitti10"
+    write_scans(scans[:10], folder, "kitti")
+    out = tmp_path / "out"
+    rc = main([str(folder), "--method", "gicp", "--config", str(fast_config), "--out", str(out), "--quiet",
+               "--no-plots", "--no-bag"])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "1 pair from 10 frames" in err and "eval.stride = 100" in err and "--stride 1 gives 9 pairs" in err
+    doc = json.loads(((out / "latest").resolve() / "metrics.json").read_text())
+    assert doc["methods"]["gicp"]["pairs"] == 1 and any("--stride 1 gives 9 pairs" in w for w in doc["warnings"])
+    assert len(list(iter_pairs(scans[:10], 1, Config().eval.max_dist))) == 9
+    # enough pairs: no hint
+    rc = main([str(folder), "--method", "gicp", "--stride", "1", "--max-pairs", "2", "--config", str(fast_config),
+               "--out", str(out), "--quiet", "--no-plots", "--no-bag"])
+    assert rc == 0 and "pairs mode takes" not in capsys.readouterr().err
+
+
+def test_pair_count_matches_the_protocol_and_hints_fit():
+    """count_pairs (the hint's arithmetic) = iter_pairs on random drives with gaps in the ground truth; a
+    drive whose scans are farther apart than max_dist gets a --max-dist hint."""
+    from deepbbs_ros.cli.replay import count_pairs, pair_count_hint
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        n = int(rng.integers(2, 60))
+        steps = rng.uniform(0.0, 4.0, (n, 3)) * [1, 1, 0]
+        pos = np.cumsum(steps, axis=0)
+        positions = [None if rng.random() < 0.1 else p.tolist() for p in pos]
+        scans = []
+        for i, p in enumerate(positions):
+            T = None
+            if p is not None:
+                T = np.eye(4)
+                T[:3, 3] = p
+            scans.append(Scan(i, i, np.zeros((1, 3)), T_world_lidar=T))
+        for stride in (1, 2, 5, 100):
+            for dist in (1.0, 3.0, 10.0):
+                want = len(list(iter_pairs(scans, stride, dist, 300)))
+                assert count_pairs(positions, stride, dist, 300) == want
+    ev = Config().eval
+    far = [[8.0 * k, 0.0, 0.0] for k in range(30)]  # 8 m between scans, max_dist 5: no source has a target
+    hint = pair_count_hint(far, ev, 0)
+    assert hint.startswith("0 pairs from 30 frames") and "--max-dist 12 (the scans are 8.0 m apart)" in hint
+    assert hint.endswith("gives 10 pairs") and "--stride 3 " in hint
+    assert count_pairs(far, 3, 12.0, 300) == 10
+    near = [[1.0 * k, 0.0, 0.0] for k in range(1000)]
+    assert pair_count_hint(near, Config().eval, 10) is None  # enough pairs
+    assert pair_count_hint(near[:3], Config().eval, 1) == (
+        "1 pair from 3 frames: pairs mode takes a source every eval.stride = 100 frames and as its target the "
+        "last frame within eval.max_dist = 5 m; --stride 1 gives 2 pairs")
+
+
+@pytest.mark.parametrize(
+    ("fmt", "gt_topic", "says"),
+    [
+        ("kitti", None, "add poses.txt to the folder (or ../../poses/nogt.txt"),
+        ("apollo", None, "add poses/gt_poses.txt to the folder: one line per scan, 'index timestamp x y z qx qy"),
+        ("folder", None, "a folder of scans has none: put the scans in a KITTI folder"),
+        ("mcap", "/localization/pose", "give --gt-topic, one of /localization/pose"),
+        ("mcap", "", "the recording has no pose topic (PoseStamped, Odometry, TransformStamped)"),
+    ],
+)
+def test_pairs_without_ground_truth_hint_fits_the_format(scans, tmp_path, capsys, fmt, gt_topic, says):
+    """Pairs mode on a recording without ground truth: one line saying where this format keeps it (a folder's
+    pose file and its format; a bag's pose topics for --gt-topic), never --gt-topic for a folder."""
+    src = tmp_path / "nogt"
+    if fmt == "folder":
+        src.mkdir()
+        for k, scan in enumerate(scans[:3]):
+            rec = np.concatenate([scan.points, np.zeros((len(scan), 1), np.float32)], axis=1).astype("<f4")
+            (src / f"{k:06d}.bin").write_bytes(rec.tobytes())
+    elif gt_topic:
+        write_scans(scans[:3], src, fmt, gt_topic=gt_topic)
+    else:
+        write_scans([Scan(s.index, s.stamp_ns, s.points, frame_id=s.frame_id) for s in scans[:3]], src, fmt)
+    assert main([str(src), "--method", "gicp", "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pairs mode needs ground-truth poses and found none: " in err[0] and says in err[0]
+    assert ("--gt-topic" in err[0]) == (fmt == "mcap")
+    assert "--mode odometry" in err[0]
+
+
+def test_pairs_table_counts_and_verdict_cells(recording, fast_config, tiny_weights, tmp_path, capsys):
+    """--trials 3 on one pair: the table shows 1 pair and 3 registrations (pairs x trials), the verdict counts
+    add up to the registrations; a method without a verdict shows n/a there with its own footnote, not the
+    '-' note that says every registration failed."""
+    from deepbbs_ros.replay.report import table_definitions, table_notes, table_rows
+
+    out = tmp_path / "out"
+    rc = main([str(recording), "--method", _methods("gicp"), "--max-dist", "2.0", "--trials", "3",
+               "--perturb-yaw", "5", "--config", str(fast_config), "--out", str(out), "--quiet", "--no-plots",
+               "--no-bag", *_weights_args(tiny_weights)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(((out / "latest").resolve() / "metrics.json").read_text())
+    mm = doc["methods"]
+    assert mm["gicp"]["pairs"] == 1 and mm["gicp"]["registrations"] == 3
+    names, rows = table_rows("pairs", mm)
+    rows = {metric: dict(zip(names, vals)) for metric, _unit, vals in rows}
+    assert rows["pairs"]["gicp"] == "1" and rows["registrations"]["gicp"] == "3"
+    notes = table_notes("pairs", mm)
+    assert not any("failed" in n for n in notes)
+    verdict = ", poses accepted / rejected" if HAVE_CORE else ""
+    assert table_definitions("pairs", mm) == [f"success rate, runtime{verdict}: per registration (pairs x trials)"]
+    assert "registrations" in printed and "pairs x trials" in printed
+    if HAVE_CORE:
+        m = mm["deepbbs++"]
+        assert m["registrations"] == 3 and m["accepted"] + m["rejected"] == 3
+        assert rows["poses accepted"]["gicp"] == "n/a" and rows["poses rejected"]["gicp"] == "n/a"
+        assert int(rows["poses accepted"]["deepbbs++"]) + int(rows["poses rejected"]["deepbbs++"]) == 3
+        assert notes == ["n/a: the method gives no verdict on its poses (DeepBBS++ accepts or rejects each)"]
+        assert "n/a: the method gives no verdict" in " ".join(printed.split())
+    # one trial: no registrations row, no per-registration note
+    one = {n: {**m, "registrations": m["pairs"]} for n, m in mm.items()}
+    assert "registrations" not in [r[0] for r in table_rows("pairs", one)[1]] and not table_definitions("pairs", one)
+
+
+def test_odometry_table_says_the_ate_alignment():
+    from deepbbs_ros.replay.report import table_definitions
+
+    with_gt = {"gicp": {"frames": 8, "ate_rmse_m": 0.01}}
+    assert "ATE: after one SE(3) alignment (Umeyama, no scale)" in table_definitions("odometry", with_gt)[0]
+    assert table_definitions("odometry", {"gicp": {"frames": 8, "ate_rmse_m": float("nan")}}) == []

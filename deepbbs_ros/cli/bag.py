@@ -20,13 +20,14 @@ import argparse
 import json
 import sys
 
-from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.cli.common import HelpFormatter, cli_entry
 
 FORMATS = ("mcap", "db3", "apollo", "kitti")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="deepbbs-bag", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="deepbbs-bag", description=__doc__.split("\n\n")[0],
+                                     formatter_class=HelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{info,convert}")
 
     def add_source_args(p: argparse.ArgumentParser) -> None:
@@ -45,11 +46,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="convert: keep everything readable (a damaged file or bag chunk costs only itself, a cut "
                        "keeps what is before it), then report the damage (exit code 1)")
 
-    p_info = sub.add_parser("info", help="topics, types, message counts, duration, ground truth")
+    p_info = sub.add_parser("info", help="topics, types, message counts, duration, ground truth",
+                            formatter_class=HelpFormatter)
     add_source_args(p_info)
     p_info.add_argument_group("output").add_argument("--json", action="store_true", help="print JSON")
 
-    p_conv = sub.add_parser("convert", help="convert any readable recording to mcap/db3/apollo/kitti")
+    p_conv = sub.add_parser("convert", help="convert any readable recording to mcap/db3/apollo/kitti",
+                            formatter_class=HelpFormatter)
     add_source_args(p_conv)
     g = p_conv.add_argument_group("output")
     g.add_argument("dst", metavar="DST", help="output directory (must not exist, or be empty)")
@@ -61,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--repack", action="store_true",
                    help="bag to bag: decode and write x y z + fields, unorganised, ground truth as PoseStamped at "
                    "the scan stamps (default: copy the messages as they are)")
-    g.add_argument("--max-frames", type=int, default=None, metavar="N", help="convert only the first N frames")
+    g.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="convert only the first N frames (default: all)")
     return parser
 
 

@@ -27,17 +27,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.cli.common import HelpFormatter, cli_entry, config_default
 
 PROG = "deepbbs-replay"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    d = config_default
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Replay a recording through DeepBBS++ and baselines; write metrics, plots, trajectories "
-        "and a results bag.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        "and a results bag. Options that default to a config key (eval.*) take the value of --config, else "
+        "the built-in one shown.",
+        formatter_class=HelpFormatter,
     )
     p.add_argument("source", metavar="SOURCE", nargs="+",
                    help="ROS 1 .bag, rosbag2 directory, .mcap/.db3, Apollo folder (pcds/), KITTI folder (velodyne/) "
@@ -50,30 +52,46 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
                    "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
                    "kiss-icp (odometry only), kiss-matcher, kiss-matcher+gicp (global, pairs only)")
-    g.add_argument("--stride", type=int, default=None,
-                   help="pairs: a source frame every N frames (eval.stride); odometry: every N-th frame "
-                   "(eval.odom_stride)")
-    g.add_argument("--max-dist", type=float, default=None, metavar="M", help="pairs: max source-target distance, m")
+    g.add_argument("--stride", type=int, default=None, metavar="N",
+                   help="pairs: a source frame every N frames; odometry: every N-th frame (default: "
+                   f"{d('eval.stride')} in pairs mode, {d('eval.odom_stride')} in odometry)")
+    g.add_argument("--max-dist", type=float, default=None, metavar="M",
+                   help=f"pairs: the target is the last frame within M metres of the source (default: "
+                   f"{d('eval.max_dist', 'm')})")
     g.add_argument("--perturb-yaw", type=float, default=None, metavar="DEG",
-                   help="pairs: random initial yaw in [-DEG, DEG] (basin of convergence)")
+                   help="pairs: random initial yaw in [-DEG, DEG] (basin of convergence) (default: "
+                   f"{d('eval.perturb_yaw_deg')}: none)")
     g.add_argument("--perturb-trans", type=float, default=None, metavar="M",
-                   help="pairs: random horizontal initial offset up to M metres")
-    g.add_argument("--trials", type=int, default=None, help="pairs: perturbed trials per pair")
-    g.add_argument("--seed", type=int, default=None, help="seed of the perturbations, dropped frames, wrong priors")
+                   help=f"pairs: random horizontal initial offset up to M metres (default: {d('eval.perturb_trans')}: "
+                   "none)")
+    g.add_argument("--trials", type=int, default=None, metavar="N",
+                   help=f"pairs: perturbed trials per pair (default: {d('eval.trials')})")
+    g.add_argument("--seed", type=int, default=None,
+                   help=f"seed of the perturbations, dropped frames, wrong priors (default: {d('eval.seed')})")
     g.add_argument("--drop-frames", type=int, default=None, metavar="N",
-                   help="odometry: skip N runs of 3-10 consecutive scans at random points (eval.drop_frames)")
+                   help=f"odometry: skip N runs of 3-10 consecutive scans at random points (default: "
+                   f"{d('eval.drop_frames')})")
     g.add_argument("--wrong-prior", type=int, default=None, metavar="N",
-                   help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (eval.wrong_prior)")
-    g.add_argument("--max-frames", type=int, default=None, help="stop after this many frames (odometry: kept frames)")
-    g.add_argument("--max-pairs", type=int, default=None, help="pairs: stop after this many pairs")
+                   help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (default: "
+                   f"{d('eval.wrong_prior')})")
+    g.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="stop after this many frames (odometry: kept frames) (default: all)")
+    g.add_argument("--max-pairs", type=int, default=None, metavar="N",
+                   help="pairs: stop after this many pairs (default: all)")
     i = p.add_argument_group("input")
     i.add_argument("--topic", default=None, help="PointCloud2 topic (bags; default: the only one)")
-    i.add_argument("--gt-topic", default=None, help="ground-truth pose topic (bags; default: /ground_truth/pose)")
+    i.add_argument("--gt-topic", default=None,
+                   help="ground-truth pose topic (bags; default: /ground_truth/pose, else the only pose topic named "
+                   "*ground_truth* or *gt*); folders read their pose file (Apollo: poses/gt_poses.txt, KITTI: "
+                   "poses.txt + calib.txt)")
     i.add_argument("--gt-tolerance", type=float, default=0.05, metavar="S", help="max scan/pose stamp gap, s")
     m = p.add_argument_group("model and config")
-    m.add_argument("--config", default=None, metavar="YAML", help="config file (plain sections or ROS params)")
-    m.add_argument("--weights", default=None, metavar="PATH", help="DeepBBS++ checkpoint (default: the shipped one)")
-    m.add_argument("--device", default=None, help="auto, cpu, cuda, cuda:N (default: registration.device)")
+    m.add_argument("--config", default=None, metavar="YAML",
+                   help="config file (plain sections or ROS params) (default: none, the built-in values)")
+    m.add_argument("--weights", default=None, metavar="PATH",
+                   help="DeepBBS++ checkpoint (default: registration.weights, else the shipped model)")
+    m.add_argument("--device", default=None,
+                   help=f"auto, cpu, cuda, cuda:N (default: {d('registration.device')})")
     o = p.add_argument_group("output")
     o.add_argument("--out", default="results/replay", metavar="DIR", help="writes DIR/<timestamp>/ and DIR/latest")
     o.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -83,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--workers", type=int, default=None, metavar="N",
                    help="start Ray here with N CPUs, N / --cpus-per-task recordings at a time (default: all cores)")
     f.add_argument("--ray-address", default=None, metavar="ADDR",
-                   help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead")
+                   help="join this Ray cluster (HOST:PORT of 'ray start --head', or 'auto') instead (default: none, "
+                   "Ray starts here)")
     f.add_argument("--cpus-per-task", type=int, default=1, metavar="N",
                    help="CPUs Ray gives each recording; thread settings of 0 (every core) mean these N, and "
                    "DeepBBS++ runs its network in a process of its own only with N >= 2")
@@ -148,8 +167,9 @@ def replay_recording(args) -> int:
     source = open_source(args.source, topic=args.topic, gt_topic=args.gt_topic, gt_tolerance_s=args.gt_tolerance,
                          lenient=True)
     if args.mode == "pairs" and not source.has_ground_truth:
-        raise DatasetError(f"{args.source}: pairs mode needs ground-truth poses (none found); "
-                           "use --mode odometry (trajectories and runtime, no errors) or give --gt-topic")
+        raise DatasetError(f"{args.source}: pairs mode needs ground-truth poses and found none: "
+                           f"{ground_truth_hint(source)}; without them --mode odometry measures trajectories and "
+                           "runtime (no errors)")
 
     from deepbbs_ros.replay.methods import build_methods
 
@@ -174,13 +194,14 @@ def run_replay(args, cfg, source, methods) -> int:
     interrupted = False
     if args.mode == "pairs":
         res = PairResults(list(methods))
+        logged = PositionLog(source)
 
         def progress(n):
             bar.update(n)
             bar.set_postfix(pairs=res.pairs, refresh=False)
 
         try:
-            run_pairs(source, methods, cfg, max_pairs=args.max_pairs, progress=progress, results=res)
+            run_pairs(logged, methods, cfg, max_pairs=args.max_pairs, progress=progress, results=res)
         except KeyboardInterrupt:  # outside the loop proper (e.g. while closing the reader)
             res.complete = False
             res.errors.append("interrupted by the user (Ctrl-C)")
@@ -207,6 +228,10 @@ def run_replay(args, cfg, source, methods) -> int:
     else:
         mm = report.odometry_metrics(res)
     warnings = list(getattr(source, "warnings", []))
+    if args.mode == "pairs" and res.complete and not (args.max_pairs and res.pairs >= args.max_pairs):
+        hint = pair_count_hint(logged.positions, cfg.eval, res.pairs)
+        if hint:
+            warnings.append(hint)
     extra = {"weights": str(args.weights or cfg.registration.weights or "shipped default"),
              "device": args.device or cfg.registration.device}
 
@@ -257,6 +282,114 @@ def run_replay(args, cfg, source, methods) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def ground_truth_hint(source) -> str:
+    """Where a recording of ``source``'s format keeps its ground truth, for a source without it: the pose
+    file of a folder (where and in which format), the topics a bag could take with --gt-topic."""
+    path = Path(source.path)
+    fmt = getattr(source, "format", "")
+    if fmt == "kitti":
+        return (f"add poses.txt to the folder (or ../../poses/{path.name}.txt, KITTI's dataset/poses/): KITTI "
+                "odometry format, one line of 12 numbers per scan (the 3x4 row-major pose of camera 0), with "
+                "calib.txt holding its 'Tr:' line (LiDAR to camera 0)")
+    if fmt == "apollo":
+        return ("add poses/gt_poses.txt to the folder: one line per scan, 'index timestamp x y z qx qy qz qw' "
+                "(the LiDAR's pose in the world)")
+    if fmt == "folder":
+        return ("a folder of scans has none: put the scans in a KITTI folder (velodyne/NNNNNN.bin + poses.txt + "
+                "calib.txt) or an Apollo folder (pcds/N.pcd + poses/gt_poses.txt)")
+    from deepbbs_ros.datasets.rosbag import POSE_TYPES
+
+    topics = getattr(getattr(source, "backend", None), "topics", {}) or {}
+    poses = sorted(t for t, (typ, _n) in topics.items() if typ in POSE_TYPES)
+    if poses:
+        return f"give --gt-topic, one of {', '.join(poses)}"
+    kinds = ", ".join(t.rsplit("/", 1)[-1] for t in POSE_TYPES)
+    return f"the recording has no pose topic ({kinds}) to give with --gt-topic"
+
+
+class PositionLog:
+    """Iterates a scan source and keeps each scan's ground-truth position ((3,) float64, or None) in stream
+    order, for :func:`pair_count_hint`."""
+
+    def __init__(self, source) -> None:
+        self.source = source
+        self.positions: list = []
+
+    def __iter__(self):
+        for scan in self.source:
+            T = scan.T_world_lidar
+            self.positions.append(None if T is None else [float(v) for v in T[:3, 3]])
+            yield scan
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+
+#: fewer pairs than this from a whole recording get a hint (a smaller stride or a larger max distance)
+FEW_PAIRS = 10
+
+
+def count_pairs(positions: list, stride: int, max_dist: float, max_gap: int) -> int:
+    """How many pairs :func:`deepbbs_ros.replay.runner.iter_pairs` makes from scans at ``positions`` (stream
+    order; None: no ground truth): a source every ``stride`` scans that has ground truth and whose next scan
+    has ground truth within ``max_dist``."""
+    import numpy as np
+
+    n = len(positions)
+    has = np.array([p is not None for p in positions], dtype=bool)
+    P = np.array([p if p is not None else (np.nan,) * 3 for p in positions], dtype=np.float64).reshape(n, 3)
+    count = 0
+    for i in range(0, n - 1, stride):
+        if has[i] and has[i + 1] and max_gap >= 1 and np.linalg.norm(P[i + 1] - P[i]) <= max_dist:
+            count += 1
+    return count
+
+
+def pair_count_hint(positions: list, ev, pairs: int) -> str | None:
+    """A line saying why a recording gave only ``pairs`` pairs and which --stride / --max-dist give more
+    (counted on the recording's own ground truth), or None when the count is not small or nothing gives more."""
+    import math
+
+    import numpy as np
+
+    n = len(positions)
+    if pairs >= FEW_PAIRS or n < 2:
+        return None
+    why = (f"{pairs} pair{'s' if pairs != 1 else ''} from {n} frames: pairs mode takes a source every "
+           f"eval.stride = {ev.stride} frames and as its target the last frame within eval.max_dist = "
+           f"{ev.max_dist:g} m")
+    candidates = sorted({max(1, n // k) for k in range(1, FEW_PAIRS + 1)} | {1}, reverse=True)
+
+    def best_stride(dist: float) -> tuple[int, int] | None:
+        """The largest stride (up to eval.stride) giving FEW_PAIRS pairs, or as many as stride 1 gives."""
+        most = count_pairs(positions, 1, dist, ev.max_pair_frames)
+        if most <= pairs:
+            return None
+        for stride in candidates:
+            got = count_pairs(positions, stride, dist, ev.max_pair_frames) if stride <= ev.stride else -1
+            if got >= min(FEW_PAIRS, most):
+                return stride, got
+        return None  # pragma: no cover - stride 1 is a candidate
+
+    flags, count = "", pairs
+    found = best_stride(ev.max_dist)
+    if found:
+        flags, count = f"--stride {found[0]}", found[1]
+    if count < FEW_PAIRS:  # scans farther apart than max_dist: sources without a target
+        P = [np.asarray(p) for p in positions if p is not None]
+        steps = [float(np.linalg.norm(b - a)) for a, b in zip(P, P[1:])]
+        step = float(np.median(steps)) if steps else 0.0
+        if step > ev.max_dist:
+            dist = float(math.ceil(1.5 * step))
+            found = best_stride(dist)
+            if found and found[1] > count:
+                stride_flag = f"--stride {found[0]} " if found[0] != ev.stride else ""
+                flags, count = f"{stride_flag}--max-dist {dist:g} (the scans are {step:.1f} m apart)", found[1]
+    if not flags:
+        return None
+    return f"{why}; {flags} gives {count} pairs"
 
 
 def run_fleet(args, sources: list[str]) -> int:

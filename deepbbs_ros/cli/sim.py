@@ -17,7 +17,7 @@ import argparse
 import sys
 import time
 
-from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.cli.common import HelpFormatter, cli_entry
 
 SCENES = ("urban", "suburban", "highway", "open_road")  # = deepbbs_ros.sim.SCENES (kept import-free)
 FORMATS = ("apollo", "kitti", "mcap", "db3")
@@ -25,7 +25,8 @@ PRESETS = ("hdl64", "hdl32", "vlp16", "ouster64")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="deepbbs-sim", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="deepbbs-sim", description=__doc__.split("\n\n")[0],
+                                     formatter_class=HelpFormatter)
     g = parser.add_argument_group("drive")
     g.add_argument("--scene", choices=SCENES, default="urban", help="scene type (default: urban)")
     g.add_argument("--seed", type=int, default=0, help="random seed; same seed -> same drive (default: 0)")
@@ -35,14 +36,17 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--lidar", choices=PRESETS, default="hdl64", help="sensor preset (default: hdl64)")
     g.add_argument(
         "--beams", type=int, default=None, metavar="N",
-        help="keep N of the preset's beams, evenly spread over its field of view (decimation)",
+        help="keep N of the preset's beams, evenly spread over its field of view (decimation) (default: all of them)",
     )
-    g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG", help="azimuth resolution in degrees")
-    g.add_argument("--max-range", type=float, default=None, metavar="M", help="maximum range in metres")
-    g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma in metres")
-    g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability of a lost return")
-    g.add_argument("--mount-height", type=float, default=None, metavar="M", help="sensor height above the road")
-    g.add_argument("--mount-pitch", type=float, default=None, metavar="DEG", help="nose-down sensor tilt")
+    preset = " (default: the --lidar preset's)"
+    g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG",
+                   help="azimuth resolution in degrees" + preset)
+    g.add_argument("--max-range", type=float, default=None, metavar="M", help="maximum range in metres" + preset)
+    g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma in metres" + preset)
+    g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability of a lost return" + preset)
+    g.add_argument("--mount-height", type=float, default=None, metavar="M",
+                   help="sensor height above the road" + preset)
+    g.add_argument("--mount-pitch", type=float, default=None, metavar="DEG", help="nose-down sensor tilt" + preset)
     g.add_argument(
         "--no-motion-distortion", action="store_true",
         help="cast the whole sweep from the pose at the stamp (default: each column from its own pose)",

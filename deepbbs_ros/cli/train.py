@@ -24,7 +24,7 @@ import signal
 import sys
 from pathlib import Path
 
-from deepbbs_ros.cli.common import cli_entry
+from deepbbs_ros.cli.common import HelpFormatter, RawHelpFormatter, cli_entry, config_default
 from deepbbs_ros.errors import ConfigError
 
 
@@ -75,19 +75,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     head, usage = __doc__.split("\n\n", 1)
     p = argparse.ArgumentParser(prog="deepbbs-train", description=head,
-                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=usage)
+                                formatter_class=RawHelpFormatter, epilog=usage)
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp):
         g = sp.add_argument_group("configuration")
-        g.add_argument("--config", help="YAML config (plain sections or a ROS 2 parameter file)")
+        g.add_argument("--config", help="YAML config (plain sections or a ROS 2 parameter file) "
+                       "(default: none, the built-in values)")
         g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="override a config value, e.g. --set train.epochs=10 (repeatable)")
-        g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
+        g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's own choice)")
         g.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     # -- cache ---------------------------------------------------------------------------------
-    c = sub.add_parser("cache", help="simulate drives / read recordings and preprocess them into a cache folder")
+    c = sub.add_parser("cache", help="simulate drives / read recordings and preprocess them into a cache folder",
+                       formatter_class=HelpFormatter)
     common(c)
     c.add_argument("--out", required=True, help="cache folder (drives already there are kept)")
     g = c.add_argument_group("simulated drives")
@@ -108,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-frames", type=int, default=0, help="at most this many scans (0 = all)")
 
     # -- fit -----------------------------------------------------------------------------------
-    f = sub.add_parser("fit", help="train (or resume) a model")
+    f = sub.add_parser("fit", help="train (or resume) a model", formatter_class=HelpFormatter)
     common(f)
     g = f.add_argument_group("data")
     g.add_argument("--cache", action="append", default=[], help="training cache folder(s) (repeatable)")
@@ -121,17 +123,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue from the run folder's state_latest.pt (or STATE); data and config are "
                         "taken from the run's saved command unless given again")
     g.add_argument("--init", help="start from these weights (fine-tuning; 'shipped' = the packaged model); "
-                                  "their model config is used")
-    g.add_argument("--device", help="auto | cpu | cuda | cuda:N (default: registration.device)")
-    g.add_argument("--max-steps", type=int, help="stop after this many more steps")
-    g.add_argument("--until-epoch", type=int, help="stop when this many epochs are done (a phase of a schedule)")
-    g.add_argument("--time-budget-min", type=float, help="stop (after saving) after this many minutes")
+                                  "their model config is used (default: a random start)")
+    g.add_argument("--device", help=f"auto | cpu | cuda | cuda:N (default: {config_default('registration.device')})")
+    g.add_argument("--max-steps", type=int, help="stop after this many more steps (default: no limit)")
+    g.add_argument("--until-epoch", type=int,
+                   help="stop when this many epochs are done (a phase of a schedule) (default: train.epochs)")
+    g.add_argument("--time-budget-min", type=float,
+                   help="stop (after saving) after this many minutes (default: no limit)")
 
     # -- evaluate -------------------------------------------------------------------------------
-    e = sub.add_parser("evaluate", help="accuracy on held-out simulated drives (the model card figures)")
+    e = sub.add_parser("evaluate", help="accuracy on held-out simulated drives (the model card figures)",
+                       formatter_class=HelpFormatter)
     common(e)
     e.add_argument("--weights", default="", help="checkpoint (default: the shipped model)")
-    e.add_argument("--device", help="auto | cpu | cuda | cuda:N")
+    e.add_argument("--device", help=f"auto | cpu | cuda | cuda:N (default: {config_default('registration.device')})")
     e.add_argument("--scenes", default=",".join(SCENES), help="scene types")
     e.add_argument("--drives-per-scene", type=int, default=4, help="held-out drives per scene type")
     e.add_argument("--seed-base", type=int, default=None, help="first seed (default: the test split, 90000)")
@@ -147,7 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--markdown", help="also write the summary tables as Markdown (for MODEL.md) to this file")
 
     # -- report ---------------------------------------------------------------------------------
-    r = sub.add_parser("report", help="Markdown summary of a run: speed, validation history, best checkpoint")
+    r = sub.add_parser("report", help="Markdown summary of a run: speed, validation history, best checkpoint",
+                       formatter_class=HelpFormatter)
     r.add_argument("--run", required=True, help="run folder")
     return p
 

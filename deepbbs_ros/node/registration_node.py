@@ -82,6 +82,7 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.config import nearest_keys as nearest_parameter  # one did-you-mean for node, CLIs and YAML
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
 from deepbbs_ros.node.dds import apply_default_profile
@@ -120,23 +121,6 @@ def node_parameters(cfg: Config, mode: str) -> dict[str, Any]:
     :data:`NODE_SECTIONS`, plus ``odometry.*`` in odometry mode. New keys of these sections are picked up."""
     sections = NODE_SECTIONS + (("odometry",) if mode == "odometry" else ())
     return {k: v for k, v in cfg.to_flat().items() if k.partition(".")[0] in sections}
-
-
-def nearest_parameter(name: str, known: Any) -> list[str]:
-    """The known dotted names closest to ``name``: those whose last part equals its last part (flat,
-    KISS-ICP-style names such as ``mode`` or ``base_frame``), else the closest spellings."""
-    import difflib
-
-    known = list(known)
-    leaf = name.rpartition(".")[2]
-    same = [k for k in known if k.rpartition(".")[2] == leaf]
-    if same:
-        return same
-    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
-    if close:
-        return close
-    leaves = {k.rpartition(".")[2]: k for k in known}
-    return [leaves[m] for m in difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.6)]
 
 
 def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any],

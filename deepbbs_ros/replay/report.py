@@ -337,6 +337,10 @@ def _get(m: dict, key: str, stat: str) -> Any:
     return (m.get(key) or {}).get(stat)
 
 
+#: the verdict cells of a method that gives none (baselines)
+NO_VERDICT = "n/a"
+
+
 def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], list[tuple[str, str, list[str]]]]:
     """(method names, [(metric, unit, [value per method])]) of the comparison table."""
     names = list(method_metrics)
@@ -358,9 +362,14 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
             ("runtime mean", "ms/pair", col(lambda m: m["runtime_ms"]["mean"], 1)),
             ("runtime p95", "ms/pair", col(lambda m: m["runtime_ms"]["p95"], 1)),
         ]
+        if any(M[n].get("registrations", M[n]["pairs"]) != M[n]["pairs"] for n in names):  # --trials N
+            rows.insert(1, ("registrations", "pairs x trials", col(lambda m: m.get("registrations"))))
         if any("accepted" in M[n] for n in names):  # the verdict (DeepBBS++): poses accepted / rejected
-            rows += [("poses accepted", "count", col(lambda m: m.get("accepted"))),
-                     ("poses rejected", "count", col(lambda m: m.get("rejected")))]
+            def verdict(key):  # a method without a verdict: n/a, not '-' (nothing failed)
+                return [_fmt(M[n][key]) if key in M[n] else NO_VERDICT for n in names]
+
+            rows += [("poses accepted", "count", verdict("accepted")),
+                     ("poses rejected", "count", verdict("rejected"))]
     else:
         rows = [
             ("frames", "count", col(lambda m: m["frames"])),
@@ -379,9 +388,11 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
 def table_notes(mode: str, method_metrics: dict[str, dict], has_ground_truth: bool = True) -> list[str]:
     """Footnotes for the ``-`` cells of the comparison table: why a number could not be computed."""
     _names, rows = table_rows(mode, _clean(method_metrics))
-    if not any("-" in vals for _m, _u, vals in rows):
-        return []
     notes = []
+    if any(NO_VERDICT in vals for _m, _u, vals in rows):
+        notes.append(f"{NO_VERDICT}: the method gives no verdict on its poses (DeepBBS++ accepts or rejects each)")
+    if not any("-" in vals for _m, _u, vals in rows):
+        return notes
     if mode == "odometry":
         if not has_ground_truth:
             notes.append("-: needs ground truth (none in this recording): only trajectories and runtime are "
@@ -401,13 +412,29 @@ def table_notes(mode: str, method_metrics: dict[str, dict], has_ground_truth: bo
     return notes
 
 
+def table_definitions(mode: str, method_metrics: dict[str, dict]) -> list[str]:
+    """What some rows count or how they are computed: the verdict counts with several trials per pair, the
+    alignment behind the ATE (the plots' position error is unaligned)."""
+    M = _clean(method_metrics)
+    out = []
+    if mode == "pairs":
+        if any(m.get("registrations", m["pairs"]) != m["pairs"] for m in M.values()):
+            verdict = ", poses accepted / rejected" if any("accepted" in m for m in M.values()) else ""
+            out.append(f"success rate, runtime{verdict}: per registration (pairs x trials)")
+    elif any(m.get("ate_rmse_m") is not None for m in M.values()):
+        out.append("ATE: after one SE(3) alignment (Umeyama, no scale) of the whole trajectory onto the ground "
+                   "truth; APE rotation and the plots' position errors are unaligned (every trajectory starts at "
+                   "the first ground-truth pose)")
+    return out
+
+
 def print_table(mode: str, method_metrics: dict[str, dict], title: str = "", console: Any = None,
                 has_ground_truth: bool = True) -> None:
     from rich.console import Console
     from rich.table import Table
 
     names, rows = table_rows(mode, _clean(method_metrics))
-    notes = table_notes(mode, method_metrics, has_ground_truth)
+    notes = table_notes(mode, method_metrics, has_ground_truth) + table_definitions(mode, method_metrics)
     table = Table(title=title or f"deepbbs-replay ({mode})", caption="\n".join(notes) or None,
                   caption_justify="left")
     table.add_column("metric")
