@@ -40,6 +40,18 @@ def test_convert_apollo_to_mcap_to_kitti_to_db3(tmp_path, capsys):
         np.testing.assert_allclose(b.T_world_lidar, a.T_world_lidar, atol=1e-9)
 
 
+def test_convert_to_a_ros1_bag_and_back(tmp_path, capsys):
+    scans = _scans()
+    write_scans(scans, tmp_path / "apollo", "apollo")
+    assert main(["convert", str(tmp_path / "apollo"), str(tmp_path / "drive.bag"), "--format", "bag"]) == 0
+    assert "wrote 3 frames with ground truth" in capsys.readouterr().out
+    back = list(open_source(tmp_path / "drive.bag"))
+    assert len(back) == 3
+    for a, b in zip(scans, back):
+        np.testing.assert_array_equal(b.points, a.points)
+        np.testing.assert_allclose(b.T_world_lidar, a.T_world_lidar, atol=1e-9)
+
+
 def test_info_lists_topics_counts_duration_and_ground_truth(tmp_path, capsys):
     write_scans(_scans(), tmp_path / "bag", "mcap")
     assert main(["info", str(tmp_path / "bag"), "--json"]) == 0

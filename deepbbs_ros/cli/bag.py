@@ -22,7 +22,7 @@ import sys
 
 from deepbbs_ros.cli.common import HelpFormatter, cli_entry
 
-FORMATS = ("mcap", "db3", "apollo", "kitti")
+FORMATS = ("mcap", "db3", "bag", "apollo", "kitti")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,12 +51,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_source_args(p_info)
     p_info.add_argument_group("output").add_argument("--json", action="store_true", help="print JSON")
 
-    p_conv = sub.add_parser("convert", help="convert any readable recording to mcap/db3/apollo/kitti",
+    p_conv = sub.add_parser("convert", help="convert any readable recording to mcap/db3/bag/apollo/kitti",
                             formatter_class=HelpFormatter)
     add_source_args(p_conv)
     g = p_conv.add_argument_group("output")
-    g.add_argument("dst", metavar="DST", help="output directory (must not exist, or be empty)")
-    g.add_argument("--format", choices=FORMATS, default="mcap", help="output format (default: mcap rosbag2)")
+    g.add_argument("dst", metavar="DST", help="output directory (must not exist, or be empty); a NAME.bag file for "
+                   "--format bag")
+    g.add_argument("--format", choices=FORMATS, default="mcap", help="output format: mcap / db3 (rosbag2), bag (ROS 1), apollo, kitti folders")
     g.add_argument("--out-topic", default=None,
                    help="LiDAR topic in a written bag (default: the source's; Apollo's for folders)")
     g.add_argument("--out-gt-topic", default=None,
