@@ -141,8 +141,11 @@ def load_node_latency(folder: Path, name: str) -> dict | None:
     recs = [json.loads(line) for line in runs.read_text().splitlines() if line.strip()]
     cmd_file = folder / "logs" / f"{name}.command"
     machine_file = folder / "logs" / f"{name}.machine.json"
-    return {"command": cmd_file.read_text().strip() if cmd_file.is_file() else None,
-            "machine": json.loads(machine_file.read_text()) if machine_file.is_file() else None,
+    try:
+        mach = json.loads(machine_file.read_text()) if machine_file.is_file() else None
+    except json.JSONDecodeError:
+        mach = None
+    return {"command": cmd_file.read_text().strip() if cmd_file.is_file() else None, "machine": mach,
             "figures": {"runs": [{k: r.get(k) for k in NODE_KEEP} for r in recs]}}
 
 

@@ -74,7 +74,7 @@ echo
 printf '%s\n' "${STEPS[@]}"
 $PY $B/_summary.py "$OUT"
 echo
-echo "docs/benchmarks.md and the README's Results table: python $B/render_docs.py $OUT --copy"
+echo "docs/benchmarks.md and the README's Results table: $PY $B/render_docs.py $OUT --copy"
 if [ ${#FAILED[@]} -gt 0 ]; then
   echo "failed: ${FAILED[*]}" >&2
   exit 1
