@@ -12,9 +12,13 @@ from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "benchmarks"))
+
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "scripts" / "benchmarks"
 PAGE = REPO / "docs" / "benchmarks.md"
+RENDER = BENCH / "render_docs.py"
+README = REPO / "README.md"
 SCRIPTS = sorted(p for p in BENCH.iterdir() if p.suffix in (".py", ".sh") and not p.name.startswith("_"))
 
 
@@ -34,12 +38,17 @@ def test_benchmark_scripts_named_both_ways():
     assert not [p.name for p in (REPO / "scripts").glob("bench_*.py")], "benchmarks belong in scripts/benchmarks/"
 
 
-def test_every_plot_shown_is_written_by_a_benchmark():
+def test_every_plot_shown_is_committed_and_written_by_a_benchmark():
+    """The page shows a plot only when it is in docs/benchmarks/ (the render's rule), and every plot the renderer
+    can show is one a benchmark writes."""
     shown = re.findall(r"!\[[^\]]*\]\(benchmarks/([\w.-]+\.png)\)", PAGE.read_text())
-    assert shown, "docs/benchmarks.md shows no plot"
-    code = "\n".join(p.read_text() for p in BENCH.iterdir() if p.suffix in (".py", ".sh"))
-    missing = [name for name in shown if name not in code]
-    assert not missing, f"docs/benchmarks.md shows plots no benchmark writes: {missing}"
+    assert sorted(shown) == sorted(p.name for p in (REPO / "docs" / "benchmarks").glob("*.png")), shown
+    import render_docs
+
+    code = "\n".join(p.read_text() for p in BENCH.iterdir() if p.suffix in (".py", ".sh") and p.name != RENDER.name)
+    plots = [png for group in render_docs.PLOTS.values() for png, _ in group]
+    missing = [name for name in plots if name not in code]
+    assert not missing, f"render_docs.py shows plots no benchmark writes: {missing}"
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
@@ -52,16 +61,105 @@ def test_help_runs(script):
 
 
 def test_relative_links_resolve():
-    """Links in the model card, the architecture page and docs/benchmarks.md point at files of the repository
-    (the benchmark plots excepted: they are the output of scripts/benchmarks/run_all.sh)."""
+    """Links in the model card, the architecture page and docs/benchmarks.md point at files of the repository."""
     bad = []
     for page in (REPO / "MODEL.md", REPO / "ARCHITECTURE.md", PAGE):
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
             if re.match(r"[a-z]+:", target) or target.startswith("#"):
                 continue
             path = (page.parent / target.split("#", 1)[0]).resolve()
-            if page == PAGE and target.startswith("benchmarks/") and target.endswith(".png"):
-                continue
             if not path.exists() or REPO not in path.parents:
                 bad.append(f"{page.name}: {target}")
     assert not bad, bad
+
+
+# ------------------------------------------------------------------------------------ the figures are a render
+def _render(*args, cwd=REPO) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, str(RENDER), *map(str, args)], cwd=cwd, capture_output=True, text=True,
+                          timeout=120, env=env)
+
+
+def test_pages_are_the_render_of_the_committed_results():
+    """Every figure of docs/benchmarks.md and of the README's Results table is the render of docs/benchmarks/*.json
+    (none there: every table says not run)."""
+    res = _render("docs/benchmarks", "--check")
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def _tables_outside_markers(text: str) -> list[str]:
+    import render_docs
+
+    rest = render_docs.BLOCK.sub("", text)
+    return [line for line in rest.splitlines() if line.startswith("|")]
+
+
+def test_no_figure_outside_the_markers():
+    """No TBD and no hand-made figure table: outside the bench markers the page has only the table of scripts,
+    the README's Results table is inside them."""
+    page = PAGE.read_text()
+    assert "TBD" not in page
+    outside = _tables_outside_markers(page)
+    assert outside and outside[0].startswith("| benchmark | script |"), outside[:1]
+    assert all("scripts/benchmarks/" in line for line in outside[2:]), outside
+    results = README.read_text().split("## Results", 1)[1].split("\n## ", 1)[0]
+    assert "<!-- bench:readme -->" in results and "TBD" not in results
+    assert not _tables_outside_markers(results)
+    for anchor in ("Registration of raw pairs", "Odometry", "Live node latency", "A fleet of recordings on Ray",
+                   "Machine", "The verdict"):
+        assert f"\n## {anchor}\n" in page, anchor
+
+
+def _doc(figures: dict, command: str) -> dict:
+    return {"command": command, "machine": {"cpus": 2, "platform": "Linux-x", "python": "3.11.7",
+                                            "load_avg_1min": 0.25, "date_utc": "2026-01-01T00:00:00Z"},
+            "figures": figures}
+
+
+def test_render_copy_and_check(tmp_path):
+    """--copy replaces docs/benchmarks/ by a run's results and renders them with the fixed formatting; a benchmark
+    that did not run says so (no older figure stays), a plot is shown only when copied, and --check catches a
+    hand-edited figure."""
+    import json
+    import shutil
+
+    repo = tmp_path / "repo"
+    (repo / "docs" / "benchmarks").mkdir(parents=True)
+    shutil.copy(PAGE, repo / "docs" / "benchmarks.md")
+    shutil.copy(README, repo / "README.md")
+    out = tmp_path / "out"
+    (out / "logs").mkdir(parents=True)
+    (out / "decode.json").write_text(json.dumps(_doc(
+        {"points": 131072, "valid_points": 123686, "runs": 5, "goal_ms": 5.0,
+         "cases": {"decode xyz": {"median_ms": 1.0457849, "cpu_median_ms": 0.97294}}},
+        f"scripts/benchmarks/decode.py --runs 5 --out {out}")))
+    (out / "decode.png").write_bytes(b"png")
+    (out / "node_latency_pair").mkdir()
+    recs = [{"layout": "velodyne", "stream": "consecutive", "run": "1 (00)", "busy": False, "method": m, "pairs": 20,
+             "answered": 1.0, "p50_ms": p50, "p99_ms": p99, "error": "", "cpu": "", "diagnostics": {"x": "1"},
+             "samples": [{"period": 0, "latency_ms": 1.0}]} for m, p50, p99 in (("deepbbs", 64.0, 90.2),
+                                                                                 ("gicp", 80.0, 145.4))]
+    (out / "node_latency_pair" / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    (out / "logs" / "node_latency_pair.command").write_text("scripts/benchmarks/node_latency.py --mode pair\n")
+    docs = repo / "docs" / "benchmarks"
+    (docs / "fleet.json").write_text("{}")  # an older result: gone after the copy
+    res = _render(out, "--copy", "--docs", docs)
+    assert res.returncode == 0, res.stderr
+    assert sorted(p.name for p in docs.iterdir()) == ["decode.json", "decode.png", "node_latency_pair.json"]
+    kept = json.loads((docs / "node_latency_pair.json").read_text())
+    assert kept["command"] == "scripts/benchmarks/node_latency.py --mode pair"
+    assert "samples" not in kept["figures"]["runs"][0] and "diagnostics" not in kept["figures"]["runs"][0]
+    page = (repo / "docs" / "benchmarks.md").read_text()
+    assert "| decode xyz | 1.05 | 0.97 |" in page
+    assert "Measured by `python scripts/benchmarks/decode.py --runs 5 --out PATH/TO/" in page
+    assert "![Median time per case against the goal](benchmarks/decode.png)" in page
+    assert "benchmarks/fleet.png" not in page and "benchmarks/node_latency_pair.png" not in page
+    assert "| consecutive scans, run 1 (00) | 100.0 % (20), 64 / 90 | 100.0 % (20), 80 / 145 | x0.80 | met |" in page
+    fleet = page.split("<!-- bench:fleet -->", 1)[1].split("<!-- /bench -->", 1)[0]
+    assert "| `gicp` |" not in fleet and "not run" in fleet
+    readme = (repo / "README.md").read_text()
+    assert "100.0 % or more" not in readme and "| 100.0 %, 64 / 90 ms | GICP node: 100.0 %, 80 / 145 ms |" in readme
+    assert _render(docs, "--check", "--docs", docs).returncode == 0
+    (repo / "docs" / "benchmarks.md").write_text(page.replace("| decode xyz | 1.05 |", "| decode xyz | 1.04 |"))
+    res = _render(docs, "--check", "--docs", docs)
+    assert res.returncode == 1 and "benchmarks.md" in res.stderr

@@ -42,9 +42,15 @@ step() {  # step NAME COMMAND...: run it, log it, time it
   shift
   echo "== $name: $*"
   local t0=$SECONDS
+  echo "${*:2}" > "$OUT/logs/$name.command"  # the command, as the JSON files record theirs (render_docs.py)
   if "$@" > "$OUT/logs/$name.log" 2>&1; then status=ok; else status="FAILED ($?)"; FAILED+=("$name"); fi
   STEPS+=("$name: $status, $((SECONDS - t0)) s")
   echo "   $status in $((SECONDS - t0)) s (log: $OUT/logs/$name.log)"
+}
+
+machine() {  # machine NAME: the machine entry the JSON files carry, for a benchmark that writes none (runs.jsonl)
+  $PY -c "import json, sys; sys.path.insert(0, '$B'); import _common; print(json.dumps(_common.machine()))" \
+    > "$OUT/logs/$1.machine.json" 2>/dev/null
 }
 
 step decode $PY $B/decode.py --runs 500 --out "$OUT"
@@ -56,8 +62,10 @@ step busy $PY $B/busy.py --kitti "${KITTI[@]}" --rounds 1 --policies passive,def
 step first_contact $PY $B/first_contact.py --runs 3 --out "$OUT"
 step node_latency_odometry $PY $B/node_latency.py --mode odometry --layout both --seconds 10 \
   --out "$OUT/node_latency_odometry"
+machine node_latency_odometry
 step node_latency_pair $PY $B/node_latency.py --data kitti --kitti "${KITTI[@]}" --mode pair --stream both \
   --layout velodyne --runs 2 --seconds 10 --out "$OUT/node_latency_pair"
+machine node_latency_pair
 step fleet $PY $B/fleet.py --recordings 4 --frames 20 --workers 1,2 --out "$OUT"
 cp "$OUT/node_latency_odometry/latency.png" "$OUT/node_latency_odometry.png" 2>/dev/null
 cp "$OUT/node_latency_pair/latency.png" "$OUT/node_latency_pair.png" 2>/dev/null
@@ -65,6 +73,8 @@ cp "$OUT/node_latency_pair/latency.png" "$OUT/node_latency_pair.png" 2>/dev/null
 echo
 printf '%s\n' "${STEPS[@]}"
 $PY $B/_summary.py "$OUT"
+echo
+echo "docs/benchmarks.md and the README's Results table: $PY $B/render_docs.py $OUT --copy"
 if [ ${#FAILED[@]} -gt 0 ]; then
   echo "failed: ${FAILED[*]}" >&2
   exit 1
