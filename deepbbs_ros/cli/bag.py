@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p_conv.add_argument_group("output")
     g.add_argument("dst", metavar="DST", help="output directory (must not exist, or be empty); a NAME.bag file for "
                    "--format bag")
-    g.add_argument("--format", choices=FORMATS, default="mcap", help="output format: mcap / db3 (rosbag2), bag (ROS 1), apollo, kitti folders")
+    g.add_argument("--format", choices=FORMATS, default="mcap",
+                   help="output format: mcap / db3 (rosbag2), bag (ROS 1), apollo, kitti folders")
     g.add_argument("--out-topic", default=None,
                    help="LiDAR topic in a written bag (default: the source's; Apollo's for folders)")
     g.add_argument("--out-gt-topic", default=None,

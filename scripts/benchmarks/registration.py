@@ -244,8 +244,12 @@ def summarise(recs: list[dict], names: list[str]) -> dict:
             cells = {m: cell(sel, m, anchor) for m in names}
             cells = {m: c for m, c in cells.items() if c}
             km = cells.get("kiss-matcher+gicp")
-            for c in cells.values():  # the speed against KISS-Matcher + GICP (its own cases are every n-th one)
-                c["p50_over_kiss_matcher_gicp"] = c["p50_ms"] / km["p50_ms"] if km else None
+            # the speed against KISS-Matcher + GICP on the cases it ran (every n-th one): both p50s over those cases
+            both = [r for r in sel if "kiss-matcher+gicp" in r]
+            km_p50 = float(np.median([r["kiss-matcher+gicp"]["ms"] for r in both])) if km and both else None
+            for m, c in cells.items():
+                same = [r[m]["ms"] for r in both if m in r]
+                c["p50_over_kiss_matcher_gicp"] = float(np.median(same)) / km_p50 if km_p50 and same else None
             if cells:
                 out["protocols"][proto][g] = cells
     true = [r for r in recs if r["kind"] == "true"]

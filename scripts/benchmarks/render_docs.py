@@ -241,8 +241,8 @@ def registration(doc: dict | None, d: Path) -> list[str]:
             rows.append(row)
         out += table(header, rows) + notes.lines() + [""]
         if proto == "any-start" and any(m.startswith("kiss") and (groups.get("all") or {}).get(m) for m in methods):
-            out += [f"KISS-Matcher's times are over its own cases ({every} of this protocol), the others' over "
-                    "all of them.", ""]
+            out += [f"KISS-Matcher runs on {every} of this protocol's cases: its p50 / p95 are over those, the "
+                    "others' over all of them; the last column compares p50s over KISS-Matcher's cases only.", ""]
     a = (((fig.get("protocols") or {}).get("any-start") or {}).get("all") or {}).get("deepbbs++") or {}
     km = a.get("p50_over_kiss_matcher_gicp")
     if not doc:
@@ -250,7 +250,7 @@ def registration(doc: dict | None, d: Path) -> list[str]:
         return out
     times = "- (KISS-Matcher + GICP not in the run)" if km is None else f"{km:.2f}"
     out.append(f"Speed against KISS-Matcher from any start: the shipped DeepBBS++'s p50 is {times} times KISS-Matcher"
-               " + GICP's (all pairs, same run; `p50_over_kiss_matcher_gicp` in `registration.json`).")
+               " + GICP's (the cases KISS-Matcher ran, same run; `p50_over_kiss_matcher_gicp` in `registration.json`).")
     return out
 
 
