@@ -99,15 +99,17 @@ class SmallGicpRegistration:
         method: ``"icp"``, ``"plane-icp"`` or ``"gicp"``.
         config: the package config; uses ``preprocess`` (crop ranges, or the whole DeepBBS++
             preprocessing when ``eval.baseline_input == "deepbbs"``) and the ``eval.baseline_*`` keys.
+        threads: small_gicp threads (0 = every core); None = ``eval.threads`` (an offline run's). The GICP anchor
+            node passes ``registration.polish_threads``, the threads of the DeepBBS++ node's precision stage.
     """
 
-    def __init__(self, method: str, config: Config | None = None) -> None:
+    def __init__(self, method: str, config: Config | None = None, threads: int | None = None) -> None:
         if method not in SMALL_GICP_TYPES:
             raise ConfigError(f"unknown small_gicp method {method!r} (known: {', '.join(SMALL_GICP_TYPES)})")
         self.method = method
         self.registration_type = SMALL_GICP_TYPES[method]
         self.config = config or Config()
-        self.num_threads = threads_or_all(self.config.eval.threads)
+        self.num_threads = threads_or_all(self.config.eval.threads if threads is None else threads)
 
     # -- preprocessing ------------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray) -> PreparedCloud:

@@ -113,7 +113,8 @@ def run(cases, sets, methods, args, path: Path) -> None:
         regs[B] = DeepBBSRegistration(load_config(args.config_b), weights=args.weights)
     for r in regs.values():
         r.warmup()
-    base = {m: (SmallGicpRegistration(m, cfg) if m == "gicp" else KissMatcherRegistration(m, cfg))
+    every = cfg.replace(**{"eval.threads": 0})  # the baselines on every core, as DeepBBS++'s precision stage
+    base = {m: (SmallGicpRegistration(m, every) if m == "gicp" else KissMatcherRegistration(m, every))
             for m in methods if m in ("gicp", "kiss-matcher", "kiss-matcher+gicp")}
     with path.open("a") as fh:
         for case in cases:
