@@ -448,8 +448,8 @@ class EvalConfig:
     # precision stage and odometry (they replace registration.polish_threads, odometry.threads), KISS-ICP, and torch in
     # the network (registration.threads). 1: one recording's figures are the same on any number of cores and in a
     # fleet (small_gicp's and KISS-ICP's parallel sums and voxel grids follow the thread count and the scheduling);
-    # N > 1: faster on a large machine, figures that differ in the last digits between machines and runs; 0 = each
-    # section's own setting (the live node's: small_gicp and KISS-ICP on every core)
+    # N > 1: faster on a large machine, figures that change with N and from run to run; 0 = each section's own
+    # setting (the live node's: small_gicp and KISS-ICP on every core)
     threads: int = 1
     bag_aligned_clouds: int = 5  # pairs whose aligned source cloud goes into the results bag
 
