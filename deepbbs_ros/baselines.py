@@ -19,7 +19,10 @@ compensation), with the same crop ranges; that is the point of the baseline.
 
 from __future__ import annotations
 
+import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,6 +37,27 @@ from deepbbs_ros.reprs import short_repr
 
 #: replay method name -> small_gicp ``registration_type``
 SMALL_GICP_TYPES = {"icp": "ICP", "plane-icp": "PLANE_ICP", "gicp": "GICP"}
+
+
+@contextmanager
+def one_cpu(on: bool = True) -> Iterator[None]:
+    """The calling thread on one of its CPUs while the block runs (Linux; elsewhere, or ``on`` False: nothing).
+
+    KISS-ICP and KISS-Matcher compute with TBB, whose task arena takes its size from the CPUs the thread may use
+    when the library first computes, and keeps it for the life of the process. KISS-ICP's parallel sum groups its
+    terms by that size even on one thread (``max_num_threads``: 1), and KISS-Matcher has no thread setting (its
+    answer varied from run to run on 2 cores). A first call made in this block sizes the arena at one CPU: one
+    thread from then on, and the same sums on any machine. With ``eval.threads`` 1 every call of either runs in
+    this block (so the first one does, whichever it is; a system call each, microseconds)."""
+    if not on or not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    cpus = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cpus)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, cpus)
 
 
 @dataclass
@@ -75,15 +99,17 @@ class SmallGicpRegistration:
         method: ``"icp"``, ``"plane-icp"`` or ``"gicp"``.
         config: the package config; uses ``preprocess`` (crop ranges, or the whole DeepBBS++
             preprocessing when ``eval.baseline_input == "deepbbs"``) and the ``eval.baseline_*`` keys.
+        threads: small_gicp threads (0 = every core); None = ``eval.threads`` (an offline run's). The GICP anchor
+            node passes ``registration.polish_threads``, the threads of the DeepBBS++ node's precision stage.
     """
 
-    def __init__(self, method: str, config: Config | None = None) -> None:
+    def __init__(self, method: str, config: Config | None = None, threads: int | None = None) -> None:
         if method not in SMALL_GICP_TYPES:
             raise ConfigError(f"unknown small_gicp method {method!r} (known: {', '.join(SMALL_GICP_TYPES)})")
         self.method = method
         self.registration_type = SMALL_GICP_TYPES[method]
         self.config = config or Config()
-        self.num_threads = threads_or_all(self.config.eval.threads)
+        self.num_threads = threads_or_all(self.config.eval.threads if threads is None else threads)
 
     # -- preprocessing ------------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray) -> PreparedCloud:
@@ -184,6 +210,7 @@ class KissMatcherRegistration:
         self.method = method
         self.config = config or Config()
         self.gicp = SmallGicpRegistration("gicp", self.config) if method.endswith("+gicp") else None
+        self._one_cpu = self.config.eval.threads == 1  # see one_cpu: KISS-Matcher has no thread setting
 
     def preprocess(self, points: np.ndarray) -> MatcherCloud:
         """Raw scan (N, 3) -> :class:`MatcherCloud` (finite points within the preprocess crop)."""
@@ -209,7 +236,8 @@ class KissMatcherRegistration:
             np.ascontiguousarray(source.points @ P[:3, :3].T.astype(np.float32) + P[:3, 3].astype(np.float32))
         voxel = self.config.eval.kiss_matcher_voxel
         matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size=voxel))
-        sol = matcher.estimate(src, target.points)
+        with one_cpu(self._one_cpu):
+            sol = matcher.estimate(src, target.points)
         T = np.eye(4)
         T[:3, :3] = np.asarray(sol.rotation, dtype=np.float64)
         T[:3, 3] = np.asarray(sol.translation, dtype=np.float64).reshape(3)
@@ -262,6 +290,7 @@ class KissICPOdometry:
 
         self._pre_deskew = self._odom.preprocessor
         self._pre_plain = Preprocessor(pp.max_range, pp.min_range, False, ev.threads)
+        self._one_cpu = ev.threads == 1  # its sums grouped as on one CPU (see one_cpu)
         self._frames = 0
         self._s0 = 0.0
         self._origin_inv = np.eye(4)
@@ -282,7 +311,8 @@ class KissICPOdometry:
         use_times = self.deskew and times is not None and np.ptp(np.asarray(times)[ok]) > 0
         ts = np.asarray(times, dtype=np.float64)[ok] if use_times else np.zeros(pts.shape[0])
         self._odom.preprocessor = self._pre_deskew if use_times else self._pre_plain
-        self._odom.register_frame(pts, ts)
+        with one_cpu(self._one_cpu):
+            self._odom.register_frame(pts, ts)
         T_end = np.asarray(self._odom.last_pose, dtype=np.float64)
         if not use_times:
             T = T_end.copy()

@@ -175,7 +175,7 @@ class RegistrationConfig:
     polish_max_voxels: int = 0
     polish_max_trans: float = 0.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept); 0 = no limit
     polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit
-    polish_threads: int = 0  # small_gicp threads; 0 = every core
+    polish_threads: int = 0  # small_gicp threads; 0 = every core (deepbbs-replay: eval.threads unless that is 0)
     # small_gicp's convergence: stop when an iteration moves the estimate less than both (small_gicp's own default is
     # 1 mm: fewer iterations from the network's estimate, the same errors on real scans)
     polish_rot_eps_deg: float = 0.1
@@ -192,6 +192,7 @@ class RegistrationConfig:
     # torch CPU threads while register() runs the network (set and restored around it); 0 = leave torch's setting
     # alone. 1: on 2x512 points a second thread costs more in hand-offs than it gives (OMP_WAIT_POLICY=PASSIVE,
     # docs/node.md), and it leaves the other cores to small_gicp and the rest of the robot
+    # (deepbbs-replay: eval.threads unless that is 0)
     threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
@@ -372,7 +373,7 @@ class OdometryConfig:
     fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit
     fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
-    threads: int = 0  # small_gicp threads; 0 = every core
+    threads: int = 0  # small_gicp threads; 0 = every core (deepbbs-replay: eval.threads unless that is 0)
 
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
@@ -464,7 +465,13 @@ class EvalConfig:
     wrong_prior: int = 0  # odometry robustness: this many frames whose motion prior is off by a random motion
     wrong_prior_yaw_deg: float = 30.0  # ... of up to this yaw
     wrong_prior_trans: float = 2.0  # m ... and up to this horizontal shift
-    threads: int = 0  # baseline threads; 0 = all cores
+    # threads of every threaded library in an offline run (deepbbs-replay): small_gicp in the baselines, in DeepBBS++'s
+    # precision stage and odometry (they replace registration.polish_threads, odometry.threads), KISS-ICP, and torch in
+    # the network (registration.threads). 1: one recording's figures are the same on any number of cores and in a
+    # fleet (small_gicp's and KISS-ICP's parallel sums and voxel grids follow the thread count and the scheduling);
+    # N > 1: faster on a large machine, figures that change with N and from run to run; 0 = each section's own
+    # setting (the live node's: small_gicp and KISS-ICP on every core)
+    threads: int = 1
     bag_aligned_clouds: int = 5  # pairs whose aligned source cloud goes into the results bag
 
     def validate(self) -> None:
@@ -497,7 +504,7 @@ class EvalConfig:
         _check(self.baseline_max_iters >= 1, "eval.baseline_max_iters", "must be >= 1")
         _check(self.baseline_neighbors >= 5, "eval.baseline_neighbors", "must be >= 5")
         _check(self.kiss_matcher_voxel > 0, "eval.kiss_matcher_voxel", "must be > 0")
-        _check(self.threads >= 0, "eval.threads", "must be >= 0")
+        _check(self.threads >= 0, "eval.threads", "must be >= 0 (0 = each section's own thread setting)")
         _check(self.bag_aligned_clouds >= 0, "eval.bag_aligned_clouds", "must be >= 0")
 
 

@@ -1,5 +1,6 @@
 """deepbbs-replay on a fleet of recordings: a real local Ray (2 CPUs, one for the whole module), real worker
-processes (one of them killed mid-task), real Ctrl-C; every recording's figures equal a single run's."""
+processes (one of them killed mid-task), real Ctrl-C; every recording's figures equal a single run's, with the
+default thread settings, and a run on one CPU equals a run on every core."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import json
 import math
 import os
 import signal
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -98,11 +101,9 @@ def fleet_dir(tmp_path_factory):
     mcap = next((d / "drive_0").glob("*.mcap"))
     (d / "broken").mkdir()
     (d / "broken" / "broken.mcap").write_bytes(mcap.read_bytes()[:3000])  # truncated after its header
-    (d / "fast.yaml").write_text("eval:\n  threads: 1\n  baseline_max_iters: 30\npreprocess:\n  num_points: 256\n"
-                                 # one small_gicp thread: otherwise DeepBBS++ picks its GICP threads by whether
-                                 # its network process has answered yet, and the last digits follow the timing
-                                 "registration:\n  max_deep_iters: 2\n  threads: 1\n  polish_threads: 1\n"
-                                 "odometry:\n  threads: 1\n")
+    # quick, and no thread setting: the defaults (eval.threads) must make the figures independent of the cores
+    (d / "fast.yaml").write_text("eval:\n  baseline_max_iters: 30\npreprocess:\n  num_points: 256\n"
+                                 "registration:\n  max_deep_iters: 2\n")
     return d
 
 
@@ -139,6 +140,16 @@ def _close(a, b, path=""):
 def _single(source, argv, out):
     assert main([str(source), *argv, "--out", str(out), "--quiet", "--no-bag", "--no-plots"]) == 0
     return json.loads(((out / "latest").resolve() / "metrics.json").read_text())
+
+
+def _per_frame(run: Path) -> list[list[str]]:
+    """A run's per-pair or per-frame table (pairs.csv / frames.csv: errors, poses) without its timing columns."""
+    import csv
+
+    path = run / ("pairs.csv" if (run / "pairs.csv").exists() else "frames.csv")
+    rows = list(csv.reader(path.read_text().splitlines()))
+    keep = [i for i, col in enumerate(rows[0]) if not col.endswith("_ms")]
+    return [[row[i] for i in keep] for row in rows]
 
 
 # -- sources and pooling (no Ray) -----------------------------------------------------------------
@@ -186,13 +197,24 @@ def test_pooled_figures_from_per_recording_metrics():
 
 
 def test_fleet_task_share_of_the_machine():
-    """Thread settings of 0 (every core) mean the task's CPUs; DeepBBS++'s network process needs 2 of them."""
+    """An offline run takes every thread setting from eval.threads (1 by default), the same in a fleet task and in a
+    single run; with eval.threads 0, settings of 0 (every core) mean the task's CPUs. DeepBBS++'s network process
+    needs 2 of them."""
     from deepbbs_ros.cli.replay import fleet_overrides
+    from deepbbs_ros.replay.runner import offline_threads
 
-    assert fleet_overrides(Config(), 1) == {"eval.threads": 1, "odometry.threads": 1, "registration.polish_threads": 1,
-                                            "registration.network_process": "off"}
-    assert fleet_overrides(Config(), 2) == {"eval.threads": 2, "odometry.threads": 2, "registration.polish_threads": 2}
-    assert fleet_overrides(Config().replace(**{"eval.threads": 3, "registration.network_process": "off"}), 1) == {
+    used = offline_threads(Config())
+    assert (used.eval.threads, used.registration.polish_threads, used.odometry.threads, used.registration.threads) == (
+        1, 1, 1, 1)
+    assert fleet_overrides(used, 1) == {"registration.network_process": "off"}
+    assert fleet_overrides(used, 2) == {}
+    assert offline_threads(Config().replace(**{"eval.threads": 3})).registration.polish_threads == 3
+    every = offline_threads(Config().replace(**{"eval.threads": 0}))
+    assert every.to_flat() == Config().replace(**{"eval.threads": 0}).to_flat()  # each section's own
+    assert fleet_overrides(every, 1) == {"eval.threads": 1, "odometry.threads": 1, "registration.polish_threads": 1,
+                                         "registration.network_process": "off"}
+    assert fleet_overrides(every, 2) == {"eval.threads": 2, "odometry.threads": 2, "registration.polish_threads": 2}
+    assert fleet_overrides(every.replace(**{"eval.threads": 3, "registration.network_process": "off"}), 1) == {
         "odometry.threads": 1, "registration.polish_threads": 1}
 
 
@@ -223,6 +245,7 @@ def test_fleet_pairs_equal_single_runs_and_failures_are_one_line(local_ray, flee
         mine = json.loads((sub / "metrics.json").read_text())
         single = _single(fleet_dir / name, argv, tmp_path / f"single_{name}")
         _close(mine["methods"], single["methods"])
+        assert _per_frame(sub) == _per_frame((tmp_path / f"single_{name}" / "latest").resolve())
         _close(rows[name]["methods"], single["methods"])
         assert mine["complete"] and mine["frames_read"] == single["frames_read"] == 10
         used = Config.from_yaml(sub / "config_used.yaml")  # the task's share of the machine, recorded
@@ -248,8 +271,12 @@ def test_fleet_odometry_equal_single_runs(local_ray, fleet_dir, tiny_weights, tm
     for name in ("drive_1", "drive_2"):
         single = _single(fleet_dir / name, argv, tmp_path / f"single_{name}")
         _close(json.loads((run / name / "metrics.json").read_text())["methods"], single["methods"])
-        assert (run / name / "traj" / "gicp.tum").read_text() == (
-            (tmp_path / f"single_{name}" / "latest").resolve() / "traj" / "gicp.tum").read_text()
+        there = (tmp_path / f"single_{name}" / "latest").resolve()
+        assert _per_frame(run / name) == _per_frame(there)
+        for method in ("gicp", "kiss_icp", "deepbbs_pp"):
+            assert (run / name / "traj" / f"{method}.tum").read_text() == (there / "traj" / f"{method}.tum").read_text()
+        used = Config.from_yaml(run / name / "config_used.yaml")  # what the figures came from, recorded
+        assert (used.eval.threads, used.registration.polish_threads, used.odometry.threads) == (1, 1, 1)
     assert doc["pooled"]["gicp"]["frames"] == 20 and doc["pooled"]["kiss-icp"]["recordings"] == 2
     assert doc["pooled"]["deepbbs++"]["frames"] == 20
 
@@ -329,3 +356,37 @@ def test_fleet_cli_errors(fleet_dir, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
     assert isinstance(_args(fleet_dir), argparse.Namespace)
+
+
+# -- the figures do not depend on the machine's cores --------------------------------------------------
+def _replay_on(cpus: set[int], argv: list[str], out: Path) -> Path:
+    """deepbbs-replay in a process of its own that may run on ``cpus`` only (its "every core" is these)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(Path(__file__).parents[1]),
+                                                                     os.environ.get("PYTHONPATH", "")) if p)}
+    proc = subprocess.run([sys.executable, "-m", "deepbbs_ros.cli.replay", *argv, "--out", str(out), "--quiet",
+                           "--no-bag", "--no-plots"], env=env, capture_output=True, text=True, timeout=600,
+                          preexec_fn=lambda: os.sched_setaffinity(0, cpus))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return (out / "latest").resolve()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs 2 CPUs to compare a run on one with a run on all")
+@pytest.mark.parametrize("mode, methods", [("odometry", "deepbbs++,gicp,kiss-icp"),
+                                           ("pairs", "deepbbs++,gicp,icp,kiss-matcher")])
+def test_one_cpu_equals_every_core(fleet_dir, tiny_weights, tmp_path, mode, methods):
+    """Default thread settings: a run restricted to one CPU gives the figures of a run on every core, bit for bit
+    (small_gicp, KISS-ICP and KISS-Matcher would otherwise sum in an order that follows the cores)."""
+    argv = [str(fleet_dir / "drive_2"), "--mode", mode, "--method", methods, "--config", str(fleet_dir / "fast.yaml"),
+            "--weights", str(tiny_weights)] + (["--stride", "3", "--max-dist", "2.0"] if mode == "pairs" else [])
+    cpus = os.sched_getaffinity(0)
+    one = _replay_on({min(cpus)}, argv, tmp_path / "one")
+    every = _replay_on(cpus, argv, tmp_path / "every")
+    a, b = (json.loads((run / "metrics.json").read_text())["methods"] for run in (one, every))
+    _close(a, b)
+    assert _per_frame(one) == _per_frame(every)
+    for name in methods.split(","):
+        if mode == "pairs":
+            assert a[name]["registrations"] > 0
+        for key in ("ate_rmse_m",) if mode == "odometry" else ("rot_err_deg", "trans_err_m"):
+            assert a[name][key] == b[name][key], (name, key)  # bit for bit, not only to 1e-9

@@ -195,17 +195,20 @@ def test_precision_stage_lands_on_gicps_fixed_point(pair, street_scene):
     """Started inside the basin, the precision stage returns what the small_gicp GICP baseline returns
     from the truth: the same clouds, the same settings, so the same optimum (issue 11)."""
     from deepbbs_ros.baselines import SmallGicpRegistration
+    from deepbbs_ros.replay.runner import offline_threads
 
     rng = np.random.default_rng(5)
     T = pair[2]
     tgt = np.concatenate(street_scene(rng, 40000, road=True)).astype(np.float32)
     src = ((np.concatenate(street_scene(rng, 40000, road=True)) - T[:3, 3]) @ T[:3, :3]).astype(np.float32)
-    cfg = Config()
+    # the same threads too, as in a replay (offline_threads): small_gicp's voxel grid on several threads splits the
+    # voxels that straddle its blocks of 1024 sorted points into two centroids, another cloud than on one
+    cfg = offline_threads(Config())
     gicp = SmallGicpRegistration("gicp", cfg)
     base = gicp.align(gicp.preprocess(src), gicp.preprocess(tgt), T).T_target_source
     rc, pp = cfg.registration, cfg.preprocess
     clouds = [prepare_polish_cloud(c, rc.polish_voxel, rc.polish_neighbors, min_range=pp.min_range,
-                                   max_range=pp.max_range) for c in (src, tgt)]
+                                   max_range=pp.max_range, threads=rc.polish_threads) for c in (src, tgt)]
     res = polish(clouds[0], clouds[1], T @ _offset(), rc)
     assert res.applied
     rot, trans = _err(res.T_target_source, base)

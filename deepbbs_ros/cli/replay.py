@@ -124,7 +124,9 @@ def _config(args):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
     overrides.update(getattr(args, "fleet_overrides", None) or {})  # a fleet task's share of the machine
-    return load_config(args.config, overrides)
+    from deepbbs_ros.replay.runner import offline_threads
+
+    return offline_threads(load_config(args.config, overrides))  # eval.threads: figures independent of the cores
 
 
 def fleet_overrides(cfg, cpus: int) -> dict:

@@ -45,9 +45,17 @@ SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
 MIN_POLISH_POINTS = 10  # fewer points per cloud (after the voxel grid): no polish
 
 
+def cpu_cores() -> int:
+    """The CPU cores this process may run on (its affinity: ``taskset``, a container's cpuset), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this platform
+        return max(1, os.cpu_count() or 1)
+
+
 def threads_or_all(n: int) -> int:
-    """``n`` threads, or every CPU core for ``n <= 0``."""
-    return n if n > 0 else max(1, os.cpu_count() or 1)
+    """``n`` threads, or every CPU core this process may use for ``n <= 0``."""
+    return n if n > 0 else cpu_cores()
 
 
 @dataclass

@@ -3,7 +3,8 @@
 The same inputs, outputs, modes, threads and drop policy as ``deepbbs-node``
 (:class:`~deepbbs_ros.node.registration_node.RegistrationNode`); only the registration differs:
 :class:`deepbbs_ros.baselines.SmallGicpRegistration` ``("gicp", config)`` from identity, scan to scan
-(``eval.baseline_*`` keys: voxel grid, neighbours, correspondence distance, iterations, threads). It
+(``eval.baseline_*`` keys: voxel grid, neighbours, correspondence distance, iterations; the threads of the
+DeepBBS++ node's precision stage, ``registration.polish_threads``). It
 is the baseline that latency and accuracy figures of the node are reported against, measured on the
 same machine in the same minute (``scripts/benchmarks/node_latency.py``).
 
@@ -50,7 +51,7 @@ class GicpRegistration:
     def __init__(self, config: Config) -> None:
         from deepbbs_ros.baselines import SmallGicpRegistration
 
-        self.gicp = SmallGicpRegistration("gicp", config)
+        self.gicp = SmallGicpRegistration("gicp", config, threads=config.registration.polish_threads)
 
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None,
                    stamp_ns: int | None = None) -> PreparedGicpCloud:

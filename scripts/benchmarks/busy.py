@@ -45,7 +45,7 @@ for seq in seqs:
 cfg = Config()
 reg = DeepBBSRegistration(cfg)
 reg.warmup()
-gicp = SmallGicpRegistration("gicp", cfg)
+gicp = SmallGicpRegistration("gicp", cfg, threads=cfg.registration.polish_threads)  # DeepBBS++'s GICP threads
 out = {"deepbbs++": [], "gicp": []}
 for _ in range(rounds):
     for src, tgt in pairs:

@@ -151,6 +151,9 @@ def make_methods(names: list[str], args):
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
     base = load_config(args.config)
+    # the baselines on every core, as DeepBBS++'s precision stage (registration.polish_threads 0); eval.threads, the
+    # replay's fixed thread count, would run them on one core here
+    every = base.replace(**{"eval.threads": 0})
     regs = {}
     for m in names:
         if m in DEEP:
@@ -159,9 +162,9 @@ def make_methods(names: list[str], args):
             regs[m] = DeepBBSRegistration(cfg, weights=args.weights)
             regs[m].warmup()
         elif m == "gicp":
-            regs[m] = SmallGicpRegistration("gicp", base)
+            regs[m] = SmallGicpRegistration("gicp", every)
         elif m in ("kiss-matcher", "kiss-matcher+gicp"):
-            regs[m] = KissMatcherRegistration(m, base)
+            regs[m] = KissMatcherRegistration(m, every)
         else:
             raise SystemExit(f"unknown method {m!r}; choose from {DEFAULT_METHODS}")
     return regs

@@ -1,0 +1,53 @@
+"""Thread settings: an offline run (deepbbs-replay) computes on a fixed thread count (``eval.threads``, 1), the live
+nodes on every core, and "every core" is the CPUs the process may use (taskset, a container's cpuset). That a replay's
+figures then do not depend on the cores is checked end to end in tests/test_fleet.py."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from deepbbs_ros.baselines import SmallGicpRegistration, one_cpu
+from deepbbs_ros.config import Config
+from deepbbs_ros.core.polish import cpu_cores, threads_or_all
+from deepbbs_ros.replay.runner import OFFLINE_THREAD_KEYS, offline_threads
+
+needs_affinity = pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this platform")
+
+
+def test_an_offline_run_takes_every_thread_count_from_eval_threads():
+    cfg = Config()
+    assert cfg.eval.threads == 1 and cfg.registration.polish_threads == 0 and cfg.odometry.threads == 0
+    used = offline_threads(cfg)
+    assert all(used.to_flat()[key] == 1 for key in OFFLINE_THREAD_KEYS)
+    assert SmallGicpRegistration("gicp", used).num_threads == 1
+    four = offline_threads(cfg.replace(**{"eval.threads": 4}))
+    assert all(four.to_flat()[key] == 4 for key in OFFLINE_THREAD_KEYS)
+    assert offline_threads(cfg.replace(**{"eval.threads": 0})).to_flat() == cfg.replace(**{"eval.threads": 0}).to_flat()
+    assert cfg.to_flat() == Config().to_flat()  # the config given is left as it was
+
+
+def test_the_gicp_anchor_node_keeps_every_core():
+    """The node's GICP anchor computes on the threads of the DeepBBS++ node's precision stage (every core), not on
+    an offline run's one thread: the latency benchmark compares the two nodes."""
+    pytest.importorskip("rclpy")
+    from deepbbs_ros.node.gicp_anchor import GicpRegistration
+
+    assert GicpRegistration(Config()).gicp.num_threads == cpu_cores()
+    assert GicpRegistration(Config().replace(**{"registration.polish_threads": 3})).gicp.num_threads == 3
+
+
+@needs_affinity
+def test_every_core_is_the_cpus_the_process_may_use():
+    cpus = os.sched_getaffinity(0)
+    assert cpu_cores() == len(cpus) and threads_or_all(0) == len(cpus) and threads_or_all(5) == 5
+    with one_cpu():
+        assert os.sched_getaffinity(0) == {min(cpus)}
+        assert cpu_cores() == 1 and threads_or_all(0) == 1
+    assert os.sched_getaffinity(0) == cpus  # restored
+    with one_cpu(False):
+        assert os.sched_getaffinity(0) == cpus
+    with pytest.raises(RuntimeError), one_cpu():
+        raise RuntimeError("restored on an error too")
+    assert os.sched_getaffinity(0) == cpus
