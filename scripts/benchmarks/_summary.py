@@ -106,6 +106,11 @@ def main(argv: list[str]) -> int:
         for r in fig["rows"]:
             print(f"  {r['label']:<18} {r['workers']} worker(s): fleet {r['fleet_wall_s']:.1f} s (command "
                   f"{r['cmd_wall_s']:.1f} s), x{r['speedup']:.2f}, {r['fps_per_cpu']:.2f} frames/s/CPU")
+    fig = load(out, "threads.json")
+    if fig:
+        print("\n## fixed evaluation threads (median ms per frame: 1 thread / every core)")
+        for m, c in fig["methods"].items():
+            print(f"  {m:<10} {c['one_thread_ms']:.1f} / {c['every_core_ms']:.1f} ms, x{c['ratio']:.2f}")
     print("\nplots: " + ", ".join(sorted(p.name for p in out.glob("*.png"))))
     return 0
 

@@ -57,9 +57,10 @@ PLOTS = {
     "decode": [("decode.png", "Median time per case against the goal")],
     "simulator": [("simulator.png", "Frames per second per scene type")],
     "fleet": [("fleet.png", "Fleet wall time and frames/s per CPU against workers")],
+    "threads": [("threads.png", "Median time per frame with one thread and with every core")],
 }
 BENCHMARKS = ["registration", "deskew", "odometry", "node_latency_odometry", "node_latency_pair", "first_contact",
-              "busy", "decode", "simulator", "fleet"]
+              "busy", "decode", "simulator", "fleet", "threads"]
 NODE_LATENCY = ("node_latency_odometry", "node_latency_pair")
 NODE_KEEP = ("layout", "stream", "run", "busy", "method", "pairs", "answered", "p50_ms", "p99_ms", "error", "cpu")
 
@@ -506,6 +507,19 @@ def fleet(doc: dict | None, d: Path) -> list[str]:
             + ["", f"{fig['recordings']} recordings x {fig['frames']} frames."])
 
 
+def threads(doc: dict | None, d: Path) -> list[str]:
+    out = plots("threads", d) + command(doc)
+    header = ["method", "1 thread: ms / frame", "every core: ms / frame", "1 thread / every core"]
+    if doc is None:
+        return out + not_run_table(header, ["deepbbs++", "gicp", "kiss-icp"])
+    fig = doc["figures"]
+    rows = [[f"`{m}`", num(c["one_thread_ms"], 1), num(c["every_core_ms"], 1), ratio(c["ratio"])]
+            for m, c in fig["methods"].items()]
+    frames = {c["frames"] for c in fig["methods"].values()}
+    return out + table(header, rows) + ["", f"Medians over {', '.join(map(str, sorted(frames)))} frames per setting "
+                                            f"({fig['rounds']} passes over the recording, the settings alternating)."]
+
+
 def machine(docs: dict[str, dict | None], d: Path) -> list[str]:
     ran = {n: doc for n, doc in docs.items() if doc is not None}
     if not ran:
@@ -582,6 +596,29 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
         return (f"{min(100 * r['answered'] for r in rs):.1f} % or more, {span('p50_ms')} / {span('p99_ms')} ms "
                 f"({len(rs)} runs)")
 
+    def any_time(m):
+        c = ((reg.get("any-start") or {}).get("all") or {}).get(m)
+        if not docs.get("registration") or c is None:
+            return NOT_RUN
+        r = c.get("p50_over_kiss_matcher_gicp")
+        return f"p50 {ms(c['p50_ms'])} ms" + ("" if m != "deepbbs++" or r is None else
+                                               f" ({ratio(r)} KISS-Matcher + GICP's on its cases)")
+
+    def paper_cell():
+        c = ((reg.get("as-they-come") or {}).get("kitti") or {}).get("deepbbs++paper")
+        if not docs.get("registration") or c is None:
+            return NOT_RUN
+        return f"{pct(c['success_pct'], c['cases'])}, {reg_cell('as-they-come', 'kitti', 'deepbbs++paper', 'error')}"
+
+    def verdict_cell():
+        v = ((docs.get("registration") or {}).get("figures") or {}).get("verdict") or {}
+        a, dp = v.get("deepbbs++"), v.get("different_places")
+        if not docs.get("registration") or a is None:
+            return NOT_RUN
+        acc = pct(a.get("correct_accepted_pct"), a.get("correct"))
+        rej = NOT_RUN if dp is None else pct(dp.get("rejected_pct"), dp.get("pairs"))
+        return f"{acc} / {rej}"
+
     if fl is None:
         fleet_cell = NOT_RUN
     else:
@@ -592,9 +629,17 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
         ["raw scan pairs from any start: success", "real KITTI pairs up to 5 m apart, source moved by any yaw and up "
          "to 10 m, no initial guess; within 1 deg / 0.3 m", reg_cell("any-start", "kitti", "deepbbs++", "success"),
          "GICP: " + reg_cell("any-start", "kitti", "gicp", "success"), link_pairs],
+        ["raw scan pairs from any start: time", "every any-start case, real and simulated; p50 of the whole call, "
+         "both scans' preprocessing included (KISS-Matcher: over the cases it ran)", any_time("deepbbs++"),
+         "KISS-Matcher + GICP: " + any_time("kiss-matcher+gicp"), link_pairs],
         ["precision, pairs as they come", "all pairs (real and held-out simulated); mean rotation / translation "
          "error of the successes", reg_cell("as-they-come", "all", "deepbbs++", "error"),
          "GICP: " + reg_cell("as-they-come", "all", "gicp", "error"), link_pairs],
+        ["the learned part alone", "the paper's DeepBBS++ (deep passes and spatial-BBS refinement, no GICP), real "
+         "KITTI pairs as they come; success and mean errors", paper_cell(),
+         "GICP: " + reg_cell("as-they-come", "kitti", "gicp", "success"), link_pairs],
+        ["the verdict", "correct results accepted / pairs of two different places rejected", verdict_cell(), "-",
+         "[verdict](docs/benchmarks.md#the-verdict)"],
         ["odometry", "held-out simulated urban drive, raw sweeps; KITTI drift % / ATE m", odo_cell("deepbbs++"),
          "KISS-ICP: " + odo_cell("kiss-icp"), "[odometry](docs/benchmarks.md#odometry)"],
         ["live node, 10 Hz clouds from another process", "odometry mode, HDL-64E layout; share answered, p50 / p99 "
@@ -616,7 +661,7 @@ def section(name: str, docs: dict[str, dict | None], d: Path) -> list[str]:
     fn = {"registration": registration, "verdict": verdict, "deskew": deskew, "odometry": odometry,
           "node_latency_odometry": node_latency_odometry, "node_latency_pair": node_latency_pair,
           "first_contact": first_contact, "busy": busy, "decode": decode, "simulator": simulator,
-          "fleet": fleet}.get(name)
+          "fleet": fleet, "threads": threads}.get(name)
     if fn is None:
         raise SystemExit(f"render_docs.py: unknown marker bench:{name}")
     return fn(doc, d)
