@@ -39,21 +39,31 @@ from deepbbs_ros.reprs import short_repr
 SMALL_GICP_TYPES = {"icp": "ICP", "plane-icp": "PLANE_ICP", "gicp": "GICP"}
 
 
+def _current_cpu(cpus: set[int]) -> int:
+    """The CPU this thread last ran on (Linux: /proc/thread-self/stat, field 39), else the first allowed one."""
+    try:
+        with open("/proc/thread-self/stat", "rb") as fh:
+            cpu = int(fh.read().rsplit(b")", 1)[1].split()[36])
+    except (OSError, ValueError, IndexError):
+        return min(cpus)
+    return cpu if cpu in cpus else min(cpus)
+
+
 @contextmanager
 def one_cpu(on: bool = True) -> Iterator[None]:
-    """The calling thread on one of its CPUs while the block runs (Linux; elsewhere, or ``on`` False: nothing).
+    """The calling thread on one CPU while the block runs (Linux; elsewhere, or ``on`` False: nothing).
 
-    KISS-ICP and KISS-Matcher compute with TBB, whose task arena takes its size from the CPUs the thread may use
-    when the library first computes, and keeps it for the life of the process. KISS-ICP's parallel sum groups its
-    terms by that size even on one thread (``max_num_threads``: 1), and KISS-Matcher has no thread setting (its
-    answer varied from run to run on 2 cores). A first call made in this block sizes the arena at one CPU: one
-    thread from then on, and the same sums on any machine. With ``eval.threads`` 1 every call of either runs in
-    this block (so the first one does, whichever it is; a system call each, microseconds)."""
+    KISS-ICP and KISS-Matcher compute with TBB, whose parallel sums group their terms by the number of CPUs the
+    calling thread may use, even on one thread (KISS-ICP's ``max_num_threads``: 1); KISS-Matcher has no thread
+    setting at all (its answer varied from run to run on 2 cores). In this block they see one CPU: one thread and
+    the same sums on any machine. With ``eval.threads`` 1 every call of either runs in this block. The CPU is the
+    one the thread is running on already, so that processes side by side (a fleet's tasks) do not all queue on
+    the same CPU."""
     if not on or not hasattr(os, "sched_setaffinity"):
         yield
         return
     cpus = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(cpus)})
+    os.sched_setaffinity(0, {_current_cpu(cpus)})
     try:
         yield
     finally:

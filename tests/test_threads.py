@@ -43,7 +43,8 @@ def test_every_core_is_the_cpus_the_process_may_use():
     cpus = os.sched_getaffinity(0)
     assert cpu_cores() == len(cpus) and threads_or_all(0) == len(cpus) and threads_or_all(5) == 5
     with one_cpu():
-        assert os.sched_getaffinity(0) == {min(cpus)}
+        one = os.sched_getaffinity(0)
+        assert len(one) == 1 and one <= cpus  # the CPU the thread runs on: a fleet's tasks do not share one
         assert cpu_cores() == 1 and threads_or_all(0) == 1
     assert os.sched_getaffinity(0) == cpus  # restored
     with one_cpu(False):
