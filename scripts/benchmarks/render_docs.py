@@ -161,14 +161,25 @@ def load_all(folder: Path) -> dict[str, dict | None]:
     return docs
 
 
+def scrub(v):
+    """``v`` with every absolute path in its strings shortened as :func:`short_path` does."""
+    if isinstance(v, dict):
+        return {k: scrub(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [scrub(x) for x in v]
+    if isinstance(v, str) and "/" in v:
+        return re.sub(r"(?<![\w.])/[^\s\"',;]+", lambda m: short_path(m.group()), v)
+    return v
+
+
 def copy(results: Path, dest: Path) -> None:
     """Replace ``dest``'s JSON and PNG files by ``results``' figures and the plots the page shows."""
     dest.mkdir(parents=True, exist_ok=True)
     for old in [*dest.glob("*.json"), *dest.glob("*.png")]:
         old.unlink()
     for name, doc in load_all(results).items():
-        if doc is not None:
-            (dest / f"{name}.json").write_text(json.dumps(doc, indent=2) + "\n")
+        if doc is not None:  # paths outside the repository (the user's data) as PATH/TO/<its last two parts>
+            (dest / f"{name}.json").write_text(json.dumps(scrub(doc), indent=2) + "\n")
     for png, _ in (p for group in PLOTS.values() for p in group):
         src = results / png
         if not src.is_file() and png.startswith("node_latency_"):
@@ -593,7 +604,8 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
         def span(key):
             vals = [r[key] for r in rs if r[key] is not None]
             return "-" if not vals else f"{ms(min(vals))}-{ms(max(vals))}"
-        return (f"{min(100 * r['answered'] for r in rs):.1f} % or more, {span('p50_ms')} / {span('p99_ms')} ms "
+        low = min(100 * r["answered"] for r in rs)
+        return (f"{low:.1f} %{'' if low == 100 else ' or more'}, {span('p50_ms')} / {span('p99_ms')} ms "
                 f"({len(rs)} runs)")
 
     def any_time(m):
