@@ -4,7 +4,7 @@
 For each of ``bags/urban_drive_hdl64`` (HDL-64E, Velodyne layout) and ``bags/suburban_drive_os64``
 (Ouster OS1-64 layout), raw sweeps with per-point times:
 
-1. pairs mode (Apollo pair protocol, stride 5, max 5 m): DeepBBS++ vs point-to-point ICP vs GICP
+1. pairs mode (Apollo pair protocol, stride 1, max 5 m): DeepBBS++ vs point-to-point ICP vs GICP
    from identity;
 2. odometry mode on the same drive: DeepBBS++ vs KISS-ICP vs scan-to-scan GICP.
 
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             print("note: DeepBBS++ (core registration or shipped weights) is not available in this checkout; "
                   "running the baselines only")
         lead = "deepbbs++," if deep else ""
-        runs = [("pairs", ["--mode", "pairs", "--method", lead + "icp,gicp", "--stride", "5", "--max-dist", "5"])]
+        runs = [("pairs", ["--mode", "pairs", "--method", lead + "icp,gicp", "--stride", "1", "--max-dist", "5"])]
         if not args.skip_odometry:
             runs.append(("odometry", ["--mode", "odometry", "--method", lead + "kiss-icp,gicp"]))
         rc = 0
