@@ -330,7 +330,7 @@ def ape_rotation_deg(T_world_est: Sequence[np.ndarray] | np.ndarray,
     evo's ``evo_ape tum gt.tum est.tum --pose_relation angle_deg`` (no ``-a``).
     """
     est, gt = _pair_of(T_world_est, T_world_gt, "ape_rotation")
-    return np.degrees(rotation_angle(np.swapaxes(gt[:, :3, :3], -1, -2) @ est[:, :3, :3]))
+    return rotation_error_deg(est, gt)
 
 
 def rpe(

@@ -335,18 +335,22 @@ FEW_PAIRS = 10
 
 def count_pairs(positions: list, stride: int, max_dist: float, max_gap: int) -> int:
     """How many pairs :func:`deepbbs_ros.replay.runner.iter_pairs` makes from scans at ``positions`` (stream
-    order; None: no ground truth): a source every ``stride`` scans that has ground truth and whose next scan
-    has ground truth within ``max_dist``."""
+    order; None: no ground truth): the protocol itself, run on poses that hold only those positions."""
+    from types import SimpleNamespace
+
     import numpy as np
 
-    n = len(positions)
-    has = np.array([p is not None for p in positions], dtype=bool)
-    P = np.array([p if p is not None else (np.nan,) * 3 for p in positions], dtype=np.float64).reshape(n, 3)
-    count = 0
-    for i in range(0, n - 1, stride):
-        if has[i] and has[i + 1] and max_gap >= 1 and np.linalg.norm(P[i + 1] - P[i]) <= max_dist:
-            count += 1
-    return count
+    from deepbbs_ros.replay.runner import iter_pairs
+
+    def pose(p):
+        if p is None:
+            return None
+        T = np.eye(4)
+        T[:3, 3] = p
+        return T
+
+    scans = [SimpleNamespace(T_world_lidar=pose(p)) for p in positions]
+    return sum(1 for _ in iter_pairs(scans, stride, max_dist, max_gap))
 
 
 def pair_count_hint(positions: list, ev, pairs: int) -> str | None:

@@ -231,12 +231,11 @@ def _param(node: Any, args: argparse.Namespace) -> int:
 
 def _did_you_mean(node: Any, target: str, args: argparse.Namespace) -> str:
     """``; did you mean node.mode?`` from the node's own parameters (the config schema it declared), with the
-    node's -p check (:func:`~deepbbs_ros.node.registration_node.nearest_parameter`); a config key the node does
-    not declare says so."""
+    did-you-mean of the node's -p check and of config files (:func:`deepbbs_ros.config.did_you_mean`); a config
+    key the node does not declare says so."""
     from rcl_interfaces.srv import ListParameters
 
-    from deepbbs_ros.config import Config
-    from deepbbs_ros.node.registration_node import nearest_parameter
+    from deepbbs_ros.config import Config, did_you_mean
 
     try:
         res = _spin_until(node, _client(node, ListParameters, f"{target}/list_parameters", args.timeout)
@@ -246,8 +245,7 @@ def _did_you_mean(node: Any, target: str, args: argparse.Namespace) -> str:
     names = list(res.result.names)
     if args.name in Config().to_flat():
         return " (a config key this node does not declare: see deepbbs-ros param list)"
-    near = nearest_parameter(args.name, names)
-    return f"; did you mean {' or '.join(near)}?" if near else ""
+    return did_you_mean(args.name, names)
 
 
 def _format_value(value: Any) -> str:
@@ -441,6 +439,8 @@ def _static_transform(args: argparse.Namespace) -> tuple[Any, str, str]:
     import numpy as np
     from scipy.spatial.transform import Rotation
 
+    from deepbbs_ros.datasets.base import xyzquat_to_T
+
     for key in ("frame_id", "child_frame_id"):
         frame = getattr(args, key)
         if not frame or frame.startswith("/") or any(c.isspace() for c in frame):
@@ -455,10 +455,11 @@ def _static_transform(args: argparse.Namespace) -> tuple[Any, str, str]:
     T = np.eye(4)
     T[:3, 3] = [args.x, args.y, args.z]
     if any(v is not None for v in quat):
-        q = np.array([0.0 if v is None else v for v in quat[:3]] + [1.0 if quat[3] is None else quat[3]])
-        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
-            raise NodeError(f"--qx --qy --qz --qw: not a rotation {q.tolist()}")
-        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        q = [0.0 if v is None else v for v in quat[:3]] + [1.0 if quat[3] is None else quat[3]]
+        try:
+            T[:3, :3] = xyzquat_to_T([0.0, 0.0, 0.0, *q])[:3, :3]  # normalised, as every pose reader's
+        except ValueError:
+            raise NodeError(f"--qx --qy --qz --qw: not a rotation {q}") from None
     else:  # tf2's setRPY: roll about x, then pitch about y, then yaw about z (fixed axes)
         T[:3, :3] = Rotation.from_euler("xyz", [0.0 if v is None else v for v in rpy]).as_matrix()
     if not np.all(np.isfinite(T)):
