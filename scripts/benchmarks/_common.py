@@ -31,6 +31,14 @@ def clean(v):
     return v
 
 
+def split_passthrough(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``argv`` split at ``--``: (the script's own arguments, those passed on to deepbbs-replay)."""
+    if "--" not in argv:
+        return list(argv), []
+    k = argv.index("--")
+    return argv[:k], argv[k + 1:]
+
+
 def machine() -> dict:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     return {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),

@@ -74,11 +74,7 @@ def run_once(sources: list[Path], methods: str, workers: int, extra: list[str]) 
 
 
 def main() -> int:
-    argv = sys.argv[1:]
-    extra = []
-    if "--" in argv:
-        k = argv.index("--")
-        argv, extra = argv[:k], argv[k + 1:]
+    argv, extra = _common.split_passthrough(sys.argv[1:])
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--recordings", type=int, default=8, help="simulated recordings")
     p.add_argument("--frames", type=int, default=20, help="HDL-64 frames per recording (10 Hz)")

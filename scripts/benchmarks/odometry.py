@@ -133,11 +133,7 @@ def plot(runs: dict, out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    passthrough = []
-    if "--" in argv:
-        i = argv.index("--")
-        argv, passthrough = argv[:i], argv[i + 1 :]
+    argv, passthrough = _common.split_passthrough(sys.argv[1:] if argv is None else argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=1000, help="frames of the simulated drive (0: none)")
     p.add_argument("--scene", default="urban", help="urban, suburban, highway, open_road")
