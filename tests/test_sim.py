@@ -356,3 +356,51 @@ def test_cli_writes_a_readable_drive(tmp_path, capsys):
     assert "deepbbs-sim: error: frames must be >= 1" in capsys.readouterr().err
     assert main(["--beams", "65", "--out", str(tmp_path / "y"), "--quiet"]) == 1
     assert "--beams must be in [1, 64]" in capsys.readouterr().err
+
+
+def test_second_drive_through_the_same_world():
+    """Another lane, the opposite direction, another day: the same static world, the same road, other cars."""
+    lid = small_lidar(range_noise=0.0, dropout=0.0)
+    first = DriveSimulator("suburban", 4, lid, frames=40, motion_distortion=False)
+    again = DriveSimulator("suburban", 4, lid, frames=40, motion_distortion=False, world_frames=40)
+    assert np.array_equal(first.scan_at(7).points, again.scan_at(7).points)  # defaults: the same drive
+    back = DriveSimulator("suburban", 4, lid, frames=30, world_frames=40, reverse=True, day=1,
+                          motion_distortion=False)
+    shifted = DriveSimulator("suburban", 4, lid, frames=5, world_frames=40, lane_offset=1.75)
+    route = first.world.route
+    for sim in (back, shifted):  # roads, buildings, trees: identical (parked cars may differ)
+        assert np.array_equal(sim.world.route.xy, route.xy)
+        assert np.array_equal(sim.world.terrain.tile(0, 0)[0], first.world.terrain.tile(0, 0)[0])
+    # the reversed drive starts where the first one ended, in the mirrored lane, facing back
+    P0, P1 = first.pose_at(39), back.pose_at(0)
+    assert np.linalg.norm(P0[:2, 3] - P1[:2, 3]) < 2 * abs(first.world.style.ego_offset) + 1.5
+    assert P0[:2, 0] @ P1[:2, 0] < -0.95
+    d = back.pose_at(29)[:3, 3] - P1[:3, 3]
+    assert d[:2] @ P1[:2, 0] > 5.0  # it moves forward, i.e. back along the route
+    _, i = route._tree.query(P1[:2, 3])
+    _, h, _ = route.sample(route.s[::2][i])
+    left = np.array([-np.sin(h), np.cos(h)])
+    assert (P1[:2, 3] - route.xy[::2][i]) @ left == pytest.approx(-first.world.style.ego_offset, abs=0.3)
+    # the lane offset moves the car sideways by the offset's difference
+    assert np.linalg.norm(shifted.pose_at(0)[:2, 3] - first.pose_at(0)[:2, 3]) == pytest.approx(3.5, abs=0.05)
+    # reversed scans lie on the static surfaces at their ground-truth pose
+    scan = back.scan_at(10)
+    T = scan.T_world_lidar
+    w = scan.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    caster, _ = back._static_caster(10 * back.period)
+    dvec = (w - T[:3, 3]) / np.linalg.norm(w - T[:3, 3], axis=1, keepdims=True)
+    dist, face, _ = caster.cast(w - 0.3 * dvec, dvec, 10.0)
+    assert np.mean((face >= 0) & (np.abs(dist - 0.3) < 2e-3)) > 0.9
+    # another day: some parked cars gone, other traffic; every other mesh unchanged
+    day0 = first.world
+    from deepbbs_ros.sim.scene import World
+
+    day1 = World("suburban", 4, len(route.s) * route.DS, day=1)
+    day1b = World("suburban", 4, len(route.s) * route.DS, day=1)
+    assert not np.array_equal(day1.movers, day0.movers) and np.array_equal(day1.movers, day1b.movers)
+    n0 = sum(len(c[1]) for c in day0.chunks)
+    n1 = sum(len(c[1]) for c in day1.chunks)
+    assert n1 < n0  # cars gone today (each is 24 faces)
+    assert (n0 - n1) % 24 == 0
+    with pytest.raises(SimulationError):
+        DriveSimulator("urban", 1, lid, frames=5, world_frames=0)

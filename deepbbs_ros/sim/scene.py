@@ -370,12 +370,19 @@ class World:
     """Static scene geometry plus moving cars along one route.
 
     scene: one of :data:`SCENES`; seed: int; length: route length to build (m).
+    day: None (default) or an int: "another day" in the same world -- the same roads, buildings,
+    vegetation and street furniture, but other parked cars (some of them gone, the rest repainted and
+    parked a little differently) and other moving traffic. ``day=None`` is the world as always built.
     """
 
-    def __init__(self, scene: str, seed: int, length: float) -> None:
+    def __init__(self, scene: str, seed: int, length: float, day: int | None = None) -> None:
         if scene not in STYLES:
             raise SimulationError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
         self.scene, self.seed = scene, int(seed)
+        self.day = None if day is None else int(day)
+        sid_ = SCENES.index(scene)
+        # the day's own randomness: never drawn from the world's generators, so the rest stays identical
+        self._day_rng = None if day is None else np.random.default_rng([self.seed, sid_, 909, self.day])
         self.style = st = STYLES[scene]
         sid = SCENES.index(scene)
         rng = np.random.default_rng([self.seed, sid, 101])
@@ -410,7 +417,8 @@ class World:
             v, f, a = self._chunks[k].build()
             self.chunks.append((v, f, a, v[:, :2].min(0), v[:, :2].max(0)))
         del self._chunks, self._occ, self._jtree
-        self._movers(np.random.default_rng([self.seed, sid, 404]))
+        mover_seed = [self.seed, sid, 404] if self.day is None else [self.seed, sid, 404, self.day]
+        self._movers(np.random.default_rng(mover_seed))
 
     # ---- placement helpers ------------------------------------------------------------------
     def _add(self, s: float, mesh, albedo) -> None:
@@ -693,7 +701,16 @@ class World:
         if self._on_side_road(xy, 2.0) or not self._free(xy, dims[0] * 0.45, abs(off) - 1.2):
             return
         alb = float(rng.uniform(0.1, 0.7))
-        body, cab = self._car(s, off, yaw_rel + rng.normal(0, 0.03), dims, alb)
+        yaw_rel = yaw_rel + rng.normal(0, 0.03)
+        if self._day_rng is not None:  # another day: the same draws above (the world stays), then the day's
+            if self._day_rng.uniform() < 0.4:
+                return  # gone today (its spot stays reserved, so nothing else moves)
+            alb = float(self._day_rng.uniform(0.1, 0.7))
+            yaw_rel = yaw_rel + self._day_rng.normal(0, 0.03)
+            dims = (float(self._day_rng.uniform(3.9, 5.2)), float(self._day_rng.uniform(1.7, 2.0)),
+                    float(self._day_rng.uniform(1.4, 1.9)))
+            s = s + float(self._day_rng.uniform(-0.5, 0.5))
+        body, cab = self._car(s, off, yaw_rel, dims, alb)
         self._add(s, body, alb)
         self._add(s, cab, 0.15)
 

@@ -46,6 +46,14 @@ class DriveSimulator:
     lidar: sensor model (default :meth:`LidarConfig.hdl64`); frames: number of frames the world is
     built for; motion_distortion, compensate: see the module docstring; rate_hz: spin rate = frame rate.
 
+    A second drive through the same world (e.g. to localize in a map built from a first one): the world
+    depends on ``(scene, seed)`` and its length, so give ``world_frames`` = the first drive's ``frames``.
+    Then ``lane_offset`` (metres left of the route's centreline; None = the scene's ego lane),
+    ``reverse`` (drive back the other way, by default in the mirrored lane, from ``s_start``, which then
+    defaults to where the first drive ended), ``s_start`` (arc length of the start, m) and ``day`` (other
+    parked cars and traffic: :class:`~deepbbs_ros.sim.scene.World`). With all of them left at their
+    defaults the drive is exactly the one it always was.
+
     Building is cheap (a fraction of a second per km of road); ``scan_at(k)`` costs one sweep of
     ray casting. ``pose_at(k)`` gives the ground truth without casting (e.g. to pick training pairs).
     """
@@ -60,6 +68,11 @@ class DriveSimulator:
         motion_distortion: bool = True,
         rate_hz: float = 10.0,
         compensate: bool = False,
+        world_frames: int | None = None,
+        lane_offset: float | None = None,
+        reverse: bool = False,
+        s_start: float | None = None,
+        day: int | None = None,
     ) -> None:
         if scene not in SCENES:
             raise SimulationError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
@@ -73,11 +86,21 @@ class DriveSimulator:
         self.motion_distortion = bool(motion_distortion)
         self.compensate = bool(compensate)
         self.rate_hz = float(rate_hz)
+        self._variant = {"world_frames": world_frames, "lane_offset": lane_offset, "reverse": reverse,
+                         "s_start": s_start, "day": day}  # for iter_frames' worker processes
         self.period = 1.0 / self.rate_hz
+        if world_frames is not None and int(world_frames) < 1:
+            raise SimulationError(f"world_frames must be >= 1, got {world_frames}")
         duration = self.frames * self.period
-        length = S_START + 20.0 * (duration + 2.0) + self.lidar.max_range + ANCHOR_STEP + 150.0
-        self.world = World(scene, self.seed, length)
-        self.trajectory = Trajectory(self.world, self.seed, duration + self.period, s_start=S_START)
+        world_duration = (self.frames if world_frames is None else int(world_frames)) * self.period
+        length = S_START + 20.0 * (world_duration + 2.0) + self.lidar.max_range + ANCHOR_STEP + 150.0
+        self.world = World(scene, self.seed, length, day=day)
+        if reverse and s_start is None:  # where the forward drive of the same world is at its last frame
+            fwd = Trajectory(self.world, self.seed, world_duration + self.period, S_START)
+            s_start = float(np.interp(world_duration - self.period, fwd.t_grid, fwd.s_grid))
+        self.trajectory = Trajectory(self.world, self.seed, duration + self.period,
+                                     s_start=S_START if s_start is None else float(s_start),
+                                     lane_offset=lane_offset, reverse=reverse)
         self.T_base_lidar = np.eye(4)
         self.T_base_lidar[:3, :3] = euler_to_matrix(0.0, np.deg2rad(self.lidar.mount_pitch_deg), 0.0)
         self.T_base_lidar[2, 3] = self.lidar.mount_height
@@ -256,6 +279,7 @@ def iter_frames(sim: DriveSimulator, workers: int = 1) -> Iterator[Scan]:
     kwargs = {
         "scene": sim.scene, "seed": sim.seed, "lidar": sim.lidar, "frames": sim.frames,
         "motion_distortion": sim.motion_distortion, "rate_hz": sim.rate_hz, "compensate": sim.compensate,
+        **sim._variant,
     }  # fmt: skip
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=(kwargs,)) as pool:

@@ -36,15 +36,23 @@ class Trajectory:
     """Time-parametrised ego poses for ``duration`` seconds starting at arc length ``s_start``.
 
     world: the :class:`World` (route, terrain, stops); seed: randomness of speed and vibration.
+    lane_offset: the lane driven, metres left of the centreline in the route's direction (None: the scene's
+    ego lane, or its mirror on the other side when ``reverse``). reverse: drive against the route's direction
+    (towards smaller arc length, from ``s_start``), e.g. the opposite lane of the road another drive took.
     """
 
-    def __init__(self, world: World, seed: int, duration: float, s_start: float = 80.0) -> None:
+    def __init__(self, world: World, seed: int, duration: float, s_start: float = 80.0, *,
+                 lane_offset: float | None = None, reverse: bool = False) -> None:
         self.world = world
         st = world.style
         rng = np.random.default_rng([int(seed), 505])
         route = world.route
         ds = 0.1
-        s = np.arange(s_start, route.length - 1.0, ds)
+        self.reverse = bool(reverse)
+        if self.reverse:
+            s = s_start - np.arange(0.0, s_start - 1.0, ds)
+        else:
+            s = np.arange(s_start, route.length - 1.0, ds)
         _, _, kap = route.sample(s)
         v_cruise = rng.uniform(*st.v_cruise)
         # slow cruise variations (traffic), curve speed limits
@@ -53,7 +61,7 @@ class Trajectory:
         v_lim = np.minimum(v_lim, 20.0)
         stop_idx = []
         for s_stop, dwell in world.stops:
-            i = int(round((s_stop - s_start) / ds))
+            i = int(round((s_start - s_stop if self.reverse else s_stop - s_start) / ds))
             if 0 < i < len(s):
                 v_lim[i] = 0.0
                 stop_idx.append((i, dwell))
@@ -79,7 +87,8 @@ class Trajectory:
         self.s_grid = np.interp(self.t_grid, t_of_s, s)
         self.v_grid = np.gradient(self.s_grid, DT)
         self.a_grid = np.convolve(np.gradient(self.v_grid, DT), np.ones(25) / 25, mode="same")
-        self.ego_offset = st.ego_offset
+        self.ego_offset = (-st.ego_offset if self.reverse else st.ego_offset) if lane_offset is None \
+            else float(lane_offset)
         self.duration = duration
         # vibration: a few small sinusoids per axis (rad)
         self._vib = [(rng.uniform(0.0005, 0.0015), rng.uniform(0.5, 3.0), rng.uniform(0, 6.3)) for _ in range(6)]
@@ -96,6 +105,8 @@ class Trajectory:
         v = np.interp(t, self.t_grid, self.v_grid)
         a = np.interp(t, self.t_grid, self.a_grid)
         _, yaw, kap = route.sample(s)
+        if self.reverse:  # facing back along the route: heading turned round, curvature mirrored
+            yaw, kap = yaw + np.pi, -kap
         xy = route.lateral(s, self.ego_offset)
         z = terrain.height(xy[..., 0], xy[..., 1]) + ROAD_DZ
         gx, gy = terrain.gradient(xy[..., 0], xy[..., 1])
