@@ -38,6 +38,9 @@ INSTALL_REQUIRES = [
 # mkdocs: tests/test_docs.py builds the docs site with --strict (broken links, anchors and missing files fail);
 # evo: tests/test_metrics_exact.py checks the replay's ATE / APE / RPE against evo's own API
 TEST_REQUIRES = ["pytest>=8", "hypothesis>=6.100", "ruff>=0.6", "mkdocs>=1.6", "evo>=1.38"]
+# the localization benchmark's FPFH + RANSAC baseline (scripts/benchmarks/localization.py skips it without them);
+# Open3D's Linux wheel also needs the system's libusb-1.0 (apt: libusb-1.0-0)
+BENCH_REQUIRES = ["open3d>=0.18"]
 
 setup(
     name=package_name,
@@ -64,7 +67,7 @@ setup(
         ("share/" + package_name + "/rviz", glob("rviz/*.rviz")),
     ],
     install_requires=INSTALL_REQUIRES,
-    extras_require={"test": TEST_REQUIRES},
+    extras_require={"test": TEST_REQUIRES, "bench": BENCH_REQUIRES},
     zip_safe=False,
     entry_points={
         "console_scripts": [

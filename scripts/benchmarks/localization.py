@@ -1,0 +1,695 @@
+#!/usr/bin/env python3
+"""Global localization in a prior map: MapLocalizer beside KISS-Matcher and FPFH + RANSAC, same queries, same run.
+
+Data (generated once, cached as npz under ``--cache``; a rerun only measures):
+
+* simulated, every scene type: a map of ``--map-length`` m of road (1 km) built from a first drive's scans at
+  their ground-truth poses (one scan every ``--map-step`` m, cropped to ``--map-range`` m, voxel-downsampled to
+  ``--map-voxel`` m); queries from second drives through the same world that never contributed to the map,
+  spread evenly over it: every other one drives back the other way in the opposite lane, the others in
+  another lane of the same direction, both on other days (other parked cars, other traffic). Sweeps are
+  compensated to their stamps. Highway and suburban drives get ``--repetitive`` extra queries on long
+  straight stretches (away from curves and junctions): the repetitive places, reported apart.
+* real (``--kitti``, ``--pair``): one pooled map of several places, each moved far from the others (``--spacing``
+  m apart, a random yaw, fixed seed): the even scans of each KITTI sequence, and the target of the reference
+  pair; the odd scans and the pair's source are the queries (a query must find its place as well as its pose).
+
+Methods, from no initial guess (each query alone): ``maplocalizer`` (deepbbs_ros.core.localization.MapLocalizer,
+built once per map with the map drive's keyframe poses; its verdict accepts or says why not);
+``kiss-matcher+gicp`` (KISS-Matcher registering the scan against the whole map, then small_gicp GICP against
+the whole map; accepted when KISS-Matcher says its solution is valid); ``fpfh-ransac+gicp`` (Open3D's
+FPFH features and registration_ransac_based_on_feature_matching against the whole map, then GICP; Open3D has
+no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
+query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose).
+
+Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m
+(valid and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts,
+time per query from no guess (the time to a first pose) p50 / p95, the same for the repetitive places, and how
+the time grows with the map (the queries of the first ``--prefixes`` m against maps of those lengths).
+
+    python scripts/benchmarks/localization.py --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --pair PATH/TO/pair \\
+        --cache ~/.cache/deepbbs_ros/bench --out results/benchmarks
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+
+import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
+
+GEN_VERSION = 1  # bumped whenever the generated maps / queries change (cache key)
+ROT_OK_DEG, TRANS_OK_M = 1.0, 0.3
+METHODS = ("maplocalizer", "kiss-matcher+gicp", "fpfh-ransac+gicp")
+LABELS = {"maplocalizer": "MapLocalizer (DeepBBS++)", "kiss-matcher+gicp": "KISS-Matcher + GICP (scan to map)",
+          "fpfh-ransac+gicp": "FPFH + RANSAC (Open3D) + GICP (scan to map)"}
+LANE_SHIFT = {"urban": -3.6, "suburban": -1.5, "highway": 3.6, "open_road": 1.2}  # m, the other lane's offset
+
+
+# ---- data --------------------------------------------------------------------------------------------------------
+@dataclass
+class Query:
+    """One query scan: ``points`` (N, 3) float32 in its sensor frame, ``T_map_scan`` (4, 4) its true pose in the
+    map frame; ``place`` the map place it belongs to (scene or sequence), ``kind`` how it was taken
+    ("reverse", "lane", "kitti-odd", "pair-source"), ``s`` metres along the map drive (nan for real data),
+    ``repetitive`` a label of a repetitive place ("" if none)."""
+
+    points: np.ndarray
+    T_map_scan: np.ndarray
+    place: str
+    kind: str
+    s: float = float("nan")
+    repetitive: str = ""
+
+
+@dataclass
+class MapData:
+    """A prior map and its queries. ``points`` (M, 3) float32 map frame; ``trajectory`` (K, 4, 4) T_map_sensor of
+    the scans the map was built from (keyframes); ``prefixes``: length (m) -> (points, trajectory) of the map
+    built from the first metres of the drive only."""
+
+    name: str
+    points: np.ndarray
+    trajectory: np.ndarray
+    queries: list[Query]
+    prefixes: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    length_m: float = float("nan")
+
+
+def voxel_down(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(N, 3) -> (M, 3) float32, one point per ``voxel`` m cell (kiss_icp's voxel_down_sample)."""
+    from kiss_icp.voxelization import voxel_down_sample
+
+    if len(points) == 0:
+        return np.zeros((0, 3), np.float32)
+    return np.asarray(voxel_down_sample(np.ascontiguousarray(points, dtype=np.float64), float(voxel)), np.float32)
+
+
+def transform(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    return (points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+
+
+def _save(path: Path, data: MapData) -> None:
+    q = data.queries
+    pre = sorted(data.prefixes)
+    np.savez_compressed(
+        path, points=data.points, trajectory=data.trajectory, length_m=data.length_m,
+        q_points=np.concatenate([x.points for x in q]) if q else np.zeros((0, 3), np.float32),
+        q_sizes=np.array([len(x.points) for x in q], np.int64),
+        q_T=np.array([x.T_map_scan for x in q]).reshape(-1, 4, 4),
+        q_place=np.array([x.place for x in q]), q_kind=np.array([x.kind for x in q]),
+        q_s=np.array([x.s for x in q], np.float64), q_rep=np.array([x.repetitive for x in q]),
+        prefix_lengths=np.array(pre, np.int64),
+        **{f"prefix_{L}_points": data.prefixes[L][0] for L in pre},
+        **{f"prefix_{L}_trajectory": data.prefixes[L][1] for L in pre},
+    )  # fmt: skip
+
+
+def _load(path: Path, name: str) -> MapData:
+    z = np.load(path)
+    offs = np.concatenate([[0], np.cumsum(z["q_sizes"])])
+    queries = [Query(z["q_points"][offs[i]:offs[i + 1]], z["q_T"][i], str(z["q_place"][i]), str(z["q_kind"][i]),
+                     float(z["q_s"][i]), str(z["q_rep"][i])) for i in range(len(z["q_sizes"]))]
+    prefixes = {int(L): (z[f"prefix_{L}_points"], z[f"prefix_{L}_trajectory"]) for L in z["prefix_lengths"]}
+    return MapData(name, z["points"], z["trajectory"], queries, prefixes, float(z["length_m"]))
+
+
+def _frame_at(sim, s_target: float) -> int:
+    """The frame of ``sim`` whose stamp is closest to the moment its trajectory passes arc length ``s_target``."""
+    tr = sim.trajectory
+    s = -tr.s_grid if tr.reverse else tr.s_grid
+    i = int(np.searchsorted(s, -s_target if tr.reverse else s_target))
+    t = tr.t_grid[min(i, len(tr.t_grid) - 1)]
+    return int(np.clip(round(t / sim.period), 0, sim.frames - 1))
+
+
+def _straight_stretches(world, lo: float, hi: float, half: float = 60.0) -> np.ndarray:
+    """Arc lengths in [lo, hi] with no curvature and no junction within ``half`` m: long straight stretches."""
+    r = world.route
+    straight = np.abs(r.kappa) < 1e-9
+    ok = np.ones(len(r.s), bool)
+    w = int(half / r.DS)
+    bad = ~straight
+    if bad.any():  # dilate the curved samples by +-half
+        c = np.convolve(bad.astype(np.int64), np.ones(2 * w + 1, np.int64), mode="same")
+        ok &= c == 0
+    for j in world.junctions:
+        ok &= np.abs(r.s - j["s"]) > half
+    for si, _ in world.intersections:
+        ok &= np.abs(r.s - si) > half
+    ok &= (r.s >= lo) & (r.s <= hi)
+    return r.s[ok]
+
+
+def sim_map(scene: str, seed: int, args, log=print, lidar=None) -> MapData:
+    """Build (or load from the cache) the map and the queries of one simulated scene; see the module docstring.
+    ``args``: map_length, map_step, map_range, map_voxel, prefixes, queries, repetitive, cache; ``lidar``: a
+    LidarConfig (default HDL-64)."""
+    from deepbbs_ros.sim import WORLDS_VERSION
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    lid = f"_{lidar.name}{lidar.beams}" if lidar is not None else ""
+    key = (f"loc_sim_{scene}_{seed}{lid}_L{args.map_length:g}_st{args.map_step:g}_r{args.map_range:g}"
+           f"_v{args.map_voxel:g}"
+           f"_q{args.queries}_rep{args.repetitive}_w{WORLDS_VERSION}_g{GEN_VERSION}.npz")
+    path = Path(args.cache).expanduser() / key
+    if path.is_file():
+        return _load(path, scene)
+    t0 = time.perf_counter()
+    world_frames = int(np.ceil(args.map_length / 6.0 * 10)) + 100  # a drive long enough at >= 6 m/s on average
+    sim = DriveSimulator(scene, seed, lidar, frames=world_frames, compensate=True)
+    P = np.array([sim.pose_at(k) for k in range(world_frames)])
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1))])
+    if dist[-1] < args.map_length:
+        raise SystemExit(f"{scene}: the drive covers only {dist[-1]:.0f} m (< --map-length)")
+    last = int(np.searchsorted(dist, args.map_length))
+    keys, prev = [], -1e9
+    for k in range(last + 1):
+        if dist[k] - prev >= args.map_step:
+            keys.append(k)
+            prev = dist[k]
+    bounds = sorted({int(b) for b in args.prefixes if b < args.map_length} | {int(args.map_length)})
+    chunks: dict[int, list[np.ndarray]] = {b: [] for b in bounds}
+    key_bound: list[int] = []
+    for n, k in enumerate(keys):
+        pts = sim.scan_at(k).points
+        r = np.linalg.norm(pts, axis=1)
+        pts = pts[(r > 2.0) & (r < args.map_range)]
+        b = next((b for b in bounds if dist[k] <= b + 1e-6), bounds[-1])  # the last scan may pass the length
+        key_bound.append(b)
+        chunks[b].append(transform(pts, P[k]))
+        if len(chunks[b]) >= 40:  # keep memory bounded
+            chunks[b] = [voxel_down(np.concatenate(chunks[b]), args.map_voxel)]
+        if n % 100 == 0:
+            log(f"  {scene}: map scan {n + 1}/{len(keys)} ({time.perf_counter() - t0:.0f} s)")
+    parts = {b: voxel_down(np.concatenate(chunks[b]), args.map_voxel) for b in bounds}
+    prefixes = {}
+    for b in bounds:
+        pts = voxel_down(np.concatenate([parts[c] for c in bounds if c <= b]), args.map_voxel)
+        prefixes[b] = (pts, P[[k for k, kb in zip(keys, key_bound) if kb <= b]])
+    full_pts, full_traj = prefixes[bounds[-1]]
+    # queries: second drives through the same world on other days, spread over the map's stretch of road
+    s_map = np.interp(np.array([k * sim.period for k in (0, last)]), sim.trajectory.t_grid, sim.trajectory.s_grid)
+    lo, hi = float(s_map[0]) + 20.0, float(s_map[1]) - 20.0
+    ego = sim.world.style.ego_offset
+    drives = {}
+    for frames in range(last + 1, 10, -max(1, last // 10)):
+        try:
+            drives["reverse"] = DriveSimulator(scene, seed, lidar, frames=frames, compensate=True,
+                                               world_frames=world_frames, reverse=True, s_start=float(s_map[1]), day=1)
+            break
+        except Exception:  # the route ends before the drive does: a shorter one
+            continue
+    drives["lane"] = DriveSimulator(scene, seed, lidar, frames=last + 1, compensate=True, world_frames=world_frames,
+                                    lane_offset=ego + LANE_SHIFT[scene], day=2)
+    targets = [(float(s), "reverse" if i % 2 == 0 else "lane", "")
+               for i, s in enumerate(np.linspace(lo, hi, args.queries))]
+    straight = _straight_stretches(sim.world, lo, hi)
+    label = {"highway": "straight highway", "suburban": "suburban street (row of houses)"}.get(scene, "")
+    if label and args.repetitive > 0 and len(straight):
+        picks = np.unique(np.round(np.linspace(0, len(straight) - 1, args.repetitive)).astype(int))
+        targets += [(float(straight[i]), "reverse" if j % 2 == 0 else "lane", label) for j, i in enumerate(picks)]
+    queries = []
+    for s, kind, rep in targets:
+        d = drives[kind]
+        if d.trajectory.reverse and s < d.trajectory.s_grid.min():
+            continue  # the shortened reverse drive does not get there
+        k = _frame_at(d, s)
+        if not rep and label and len(straight) and np.min(np.abs(straight - s)) < 5.0:
+            rep = label  # an evenly spread query that happens to be on a straight stretch
+        queries.append(Query(d.scan_at(k).points.astype(np.float32), d.pose_at(k), scene, kind, s - lo + 20.0, rep))
+    data = MapData(scene, full_pts, full_traj, queries, {b: prefixes[b] for b in bounds[:-1]}, float(dist[last]))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _save(path, data)
+    log(f"  {scene}: map {len(full_pts)} points from {len(keys)} scans over {dist[last]:.0f} m, "
+        f"{len(queries)} queries ({time.perf_counter() - t0:.0f} s, cached in {path})")
+    return data
+
+
+def yaw_move(yaw: float, x: float, y: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    T[:2, 3] = x, y
+    return T
+
+
+def real_map(args) -> MapData | None:
+    """One map pooled from the real places (read from their folders, never copied): even KITTI scans and the
+    pair's target, each place moved ``--spacing`` m from the last with a random yaw; odd scans and the pair's
+    source as queries."""
+    from deepbbs_ros.datasets import open_source
+    from deepbbs_ros.datasets.pcd import read_pcd_points
+
+    places = []  # (name, [(points, T_place_scan, is_map)])
+    for folder in args.kitti:
+        scans = []
+        for i, s in enumerate(open_source(folder)):
+            if i >= args.kitti_scans:
+                break
+            scans.append((np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar, np.float64), i % 2 == 0))
+        places.append((f"kitti_{Path(folder).name}", scans))
+    if args.pair:
+        pcds = sorted(Path(args.pair).glob("*.pcd"))
+        if len(pcds) != 2 or not (Path(args.pair) / "relative.txt").is_file():
+            raise SystemExit(f"--pair {args.pair}: expected two .pcd files (target, source in name order) and "
+                             "relative.txt (T_target_source)")
+        T = np.loadtxt(Path(args.pair) / "relative.txt").reshape(4, 4)
+        places.append(("pair", [(read_pcd_points(pcds[0])[0].astype(np.float32), np.eye(4), True),
+                                (read_pcd_points(pcds[1])[0].astype(np.float32), T, False)]))
+    if not places:
+        return None
+    rng = np.random.default_rng(args.seed)
+    pts, traj, queries = [], [], []
+    for n, (name, scans) in enumerate(places):
+        first = np.linalg.inv(scans[0][1])  # each place starts at its first scan...
+        move = yaw_move(rng.uniform(-np.pi, np.pi), n * args.spacing, 0.0) @ first  # ...moved far away
+        for p, T, is_map in scans:
+            T_map = move @ T
+            if is_map:
+                r = np.linalg.norm(p, axis=1)
+                pts.append(transform(p[(r > 1.0) & (r < args.map_range)], T_map))
+                traj.append(T_map)
+            else:
+                queries.append(Query(p, T_map, name, "pair-source" if name == "pair" else "kitti-odd"))
+    return MapData("real", voxel_down(np.concatenate(pts), args.map_voxel), np.array(traj), queries)
+
+
+# ---- methods -----------------------------------------------------------------------------------------------------
+@dataclass
+class Answer:
+    """What a method said about one query: ``T_map_scan`` (4, 4) or None, ``valid`` (it would publish it),
+    ``reason`` (why not, when it says), ``time_s`` (wall clock of the call), ``timeout``."""
+
+    T_map_scan: np.ndarray | None
+    valid: bool
+    reason: str = ""
+    time_s: float = float("nan")
+    timeout: bool = False
+
+
+class MapLocalizerMethod:
+    """deepbbs_ros.core.localization.MapLocalizer, built once per map (its build time is reported)."""
+
+    name = "maplocalizer"
+
+    def __init__(self, points: np.ndarray, trajectory: np.ndarray | None, config=None) -> None:
+        from deepbbs_ros.core.localization import MapLocalizer
+
+        t0 = time.perf_counter()
+        self.loc = MapLocalizer(points, config, trajectory=trajectory)
+        self.build_s = time.perf_counter() - t0
+
+    def __call__(self, scan: np.ndarray) -> Answer:
+        t0 = time.perf_counter()
+        r = self.loc.localize(scan)
+        dt = time.perf_counter() - t0
+        return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
+
+
+class _ChildMethod:
+    """A baseline run in a forked child per query, killed after ``timeout`` s (a C++ solver cannot be stopped
+    from Python otherwise). The map is prepared once in this process before the fork (copy-on-write)."""
+
+    name = ""
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = float(timeout)
+        self.build_s = 0.0
+
+    def solve(self, scan: np.ndarray) -> tuple[np.ndarray, bool, str]:
+        raise NotImplementedError
+
+    def _child(self, scan: np.ndarray, conn) -> None:
+        try:
+            t0 = time.perf_counter()
+            T, ok, why = self.solve(scan)
+            conn.send((T, ok, why, time.perf_counter() - t0))
+        except Exception as err:  # noqa: BLE001  (a baseline's failure is a "no pose", with its message)
+            conn.send((None, False, f"{type(err).__name__}: {err}", float("nan")))
+        finally:
+            conn.close()
+
+    def __call__(self, scan: np.ndarray) -> Answer:
+        ctx = mp.get_context("fork")
+        rx, tx = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=self._child, args=(scan, tx), daemon=True)
+        t0 = time.perf_counter()
+        proc.start()
+        tx.close()
+        got = rx.poll(self.timeout)
+        if not got:
+            proc.kill()
+            proc.join()
+            return Answer(None, False, f"timeout after {self.timeout:g} s", time.perf_counter() - t0, timeout=True)
+        try:
+            T, ok, why, dt = rx.recv()
+        except EOFError:
+            T, ok, why, dt = None, False, "the child process died", float("nan")
+        proc.join()
+        return Answer(T, bool(ok), why, dt)
+
+
+def _map_gicp(points: np.ndarray, config):
+    """The whole map as small_gicp's GICP target (no range crop), the baseline's voxel and neighbours."""
+    from deepbbs_ros.core.polish import prepare_polish_cloud
+
+    ev = config.eval
+    return prepare_polish_cloud(points, ev.baseline_voxel_size, ev.baseline_neighbors, registration_type="GICP")
+
+
+class KissMatcherMethod(_ChildMethod):
+    """KISS-Matcher registering the scan against the whole map (voxel ``voxel`` m: its outdoor default 0.3 m
+    takes over 30 s per query against a 300 m map here), then GICP (the project's small_gicp baseline) against
+    the whole map; accepted when KISS-Matcher calls its solution valid. KISS-Matcher computes the map's
+    features inside every call (its API takes two clouds), which is part of its time."""
+
+    name = "kiss-matcher+gicp"
+
+    def __init__(self, points: np.ndarray, timeout: float, config=None, voxel: float = 0.5) -> None:
+        from deepbbs_ros.baselines import KissMatcherRegistration, SmallGicpRegistration
+        from deepbbs_ros.config import Config
+
+        super().__init__(timeout)
+        self.config = config or Config()
+        t0 = time.perf_counter()
+        self.km = KissMatcherRegistration("kiss-matcher", self.config)
+        self.voxel = float(voxel)
+        self.gicp = SmallGicpRegistration("gicp", self.config)
+        self.map_points = np.ascontiguousarray(points, np.float32)
+        self.map_gicp = _map_gicp(points, self.config)
+        self.build_s = time.perf_counter() - t0
+
+    def solve(self, scan):
+        import kiss_matcher
+
+        from deepbbs_ros.baselines import PreparedCloud
+
+        src = self.km.preprocess(scan).points  # the preprocess crop, as the scan-to-scan baseline
+        matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size=self.voxel))
+        sol = matcher.estimate(src, self.map_points)
+        T = np.eye(4)
+        T[:3, :3] = np.asarray(sol.rotation, dtype=np.float64)
+        T[:3, 3] = np.asarray(sol.translation, dtype=np.float64).reshape(3)
+        g = self.gicp.align(self.gicp.preprocess(scan), PreparedCloud(self.map_gicp.cloud, self.map_gicp.tree,
+                                                                      self.map_gicp.n_points, 0.0), T)
+        ok = bool(sol.valid)
+        return g.T_target_source, ok, "" if ok else \
+            f"KISS-Matcher: solution not valid ({matcher.get_num_final_inliers()} inliers)"
+
+
+class FpfhRansacMethod(_ChildMethod):
+    """Open3D: FPFH features (voxel ``voxel`` m, normals within 2 voxels, features within 5) of the scan and the
+    whole map (the map's once), registration_ransac_based_on_feature_matching (mutual filter off, edge-length
+    and distance checkers, 1.5 voxels), then GICP against the whole map. No acceptance test of its own."""
+
+    name = "fpfh-ransac+gicp"
+
+    def __init__(self, points: np.ndarray, timeout: float, config=None, voxel: float = 1.0,
+                 iterations: int = 100000) -> None:
+        import open3d as o3d  # noqa: F401  (ImportError / OSError: the caller skips this baseline)
+
+        from deepbbs_ros.baselines import SmallGicpRegistration
+        from deepbbs_ros.config import Config
+
+        super().__init__(timeout)
+        self.config = config or Config()
+        self.voxel, self.iterations = float(voxel), int(iterations)
+        t0 = time.perf_counter()
+        self.map_down, self.map_fpfh = self._features(points)
+        self.gicp = SmallGicpRegistration("gicp", self.config)
+        self.map_gicp = _map_gicp(points, self.config)
+        self.build_s = time.perf_counter() - t0
+
+    def _features(self, points: np.ndarray):
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+        down = pc.voxel_down_sample(self.voxel)
+        down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * self.voxel, max_nn=30))
+        fpfh = reg.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * self.voxel, max_nn=100))
+        return down, fpfh
+
+    def solve(self, scan):
+        import open3d as o3d
+
+        from deepbbs_ros.baselines import PreparedCloud
+        from deepbbs_ros.core.preprocess import crop_range
+
+        reg = o3d.pipelines.registration
+        pp = self.config.preprocess
+        pts = scan[crop_range(scan, pp.min_range, pp.max_range)]
+        down, fpfh = self._features(pts)
+        d = 1.5 * self.voxel
+        res = reg.registration_ransac_based_on_feature_matching(
+            down, self.map_down, fpfh, self.map_fpfh, False, d,
+            reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(d)],
+            reg.RANSACConvergenceCriteria(self.iterations, 0.999))
+        T = np.asarray(res.transformation, np.float64)
+        g = self.gicp.align(self.gicp.preprocess(scan), PreparedCloud(self.map_gicp.cloud, self.map_gicp.tree,
+                                                                      self.map_gicp.n_points, 0.0), T)
+        return g.T_target_source, True, ""  # no acceptance test: every answer is published
+
+
+# ---- evaluation --------------------------------------------------------------------------------------------------
+def judge(ans: Answer, q: Query) -> dict:
+    """One row: errors against the truth and the verdict class (placed / wrong / none)."""
+    from deepbbs_ros.metrics import pair_errors
+
+    row = {"place": q.place, "kind": q.kind, "s": q.s, "repetitive": q.repetitive, "valid": ans.valid,
+           "reason": ans.reason, "time_s": ans.time_s, "timeout": ans.timeout, "rot_err_deg": None,
+           "trans_err_m": None}
+    close = False
+    if ans.T_map_scan is not None and np.all(np.isfinite(ans.T_map_scan)):
+        r, t = pair_errors(ans.T_map_scan[None], q.T_map_scan[None])
+        row["rot_err_deg"], row["trans_err_m"] = float(r[0]), float(t[0])
+        close = bool(r[0] <= ROT_OK_DEG and t[0] <= TRANS_OK_M)
+    row["close"] = close  # the pose is right, published or not
+    row["outcome"] = ("placed" if close else "wrong") if ans.valid else "none"
+    return row
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Shares over ``rows`` (one method, one set of queries): placed, wrong accepted, no pose, ambiguous,
+    timeouts, right but rejected; time per query p50 / p95 (all queries) and of the placed ones."""
+    n = len(rows)
+    if n == 0:
+        return {"queries": 0}
+    out = {"queries": n}
+    for k in ("placed", "wrong", "none"):
+        out[f"{k}_share"] = sum(r["outcome"] == k for r in rows) / n
+    out["wrong_count"] = sum(r["outcome"] == "wrong" for r in rows)
+    out["ambiguous_share"] = sum(r["outcome"] == "none" and r["reason"].startswith("ambiguous") for r in rows) / n
+    out["timeout_count"] = sum(bool(r["timeout"]) for r in rows)
+    out["right_but_rejected_share"] = sum(r["outcome"] == "none" and r["close"] for r in rows) / n
+    t = np.array([r["time_s"] for r in rows if r["time_s"] is not None and np.isfinite(r["time_s"])])
+    if len(t):
+        out["time_s_p50"], out["time_s_p95"], out["time_s_max"] = (float(np.percentile(t, 50)),
+                                                                   float(np.percentile(t, 95)), float(t.max()))
+    tp = np.array([r["time_s"] for r in rows if r["outcome"] == "placed"])
+    if len(tp):
+        out["placed_time_s_p50"], out["placed_time_s_p95"] = float(np.percentile(tp, 50)), float(np.percentile(tp, 95))
+    placed = [r for r in rows if r["outcome"] == "placed"]
+    if placed:
+        out["placed_rot_err_deg_mean"] = float(np.mean([r["rot_err_deg"] for r in placed]))
+        out["placed_trans_err_m_mean"] = float(np.mean([r["trans_err_m"] for r in placed]))
+    return out
+
+
+def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, args, config=None, factories=None):
+    """The method ``name`` prepared for this map, or a string saying why it cannot run here. ``factories``:
+    optional name -> callable(points, trajectory) replacing the built-in methods (tests)."""
+    try:
+        if factories and name in factories:
+            return factories[name](points, trajectory)
+        if name == "maplocalizer":
+            return MapLocalizerMethod(points, trajectory, config)
+        if name == "kiss-matcher+gicp":
+            return KissMatcherMethod(points, args.baseline_timeout, config, voxel=args.km_voxel)
+        if name == "fpfh-ransac+gicp":
+            return FpfhRansacMethod(points, args.baseline_timeout, config, voxel=args.fpfh_voxel)
+    except (ImportError, OSError) as err:
+        return f"skipped: {err}"
+    raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
+
+
+def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print, factories=None) -> dict:
+    """Every method on the queries of one map (baselines on every ``--baseline-every``-th), then the map-size
+    scaling of MapLocalizer: the queries within the shortest prefix against every prefix. The core function
+    of the benchmark (tests/test_bench_localization.py runs it on a tiny map)."""
+    fig: dict = {"map_points": len(data.points), "map_keyframes": len(data.trajectory), "map_length_m": data.length_m,
+                 "queries": len(data.queries), "methods": {}, "rows": {}}
+    for name in methods:
+        idx = list(range(len(data.queries))) if name == "maplocalizer" else \
+            list(range(0, len(data.queries), max(1, args.baseline_every)))
+        m = make_method(name, data.points, data.trajectory, args, config, factories)
+        if isinstance(m, str):
+            fig["methods"][name] = {"note": m}
+            log(f"  {name}: {m}")
+            continue
+        rows = []
+        for n, i in enumerate(idx):
+            q = data.queries[i]
+            row = judge(m(q.points), q)
+            row["query"] = i
+            rows.append(row)
+            err = "" if row["rot_err_deg"] is None else f" {row['rot_err_deg']:.2f} deg {row['trans_err_m']:.2f} m"
+            log(f"  {data.name} {name} {n + 1}/{len(idx)} [{q.kind}{' ' + q.repetitive if q.repetitive else ''}]: "
+                f"{row['outcome']}{err} {row['time_s']:.2f} s {row['reason'][:80]}")
+        s = summarize(rows)
+        s["build_s"] = m.build_s
+        rep = [r for r in rows if r["repetitive"]]
+        if rep:
+            s["repetitive"] = summarize(rep)
+        fig["methods"][name] = s
+        fig["rows"][name] = rows
+    if "maplocalizer" in fig["rows"] and args.baseline_every > 1:  # the baselines' subset, for a like comparison
+        sub = set(range(0, len(data.queries), args.baseline_every))
+        fig["methods"]["maplocalizer"]["baseline_subset"] = summarize(
+            [r for r in fig["rows"]["maplocalizer"] if r["query"] in sub])
+    if data.prefixes and "maplocalizer" in fig["rows"]:
+        shortest = min(data.prefixes)
+        near = [i for i, q in enumerate(data.queries) if q.s <= shortest - 20.0][:args.scaling_queries]
+        scaling = {}
+        sizes = [(L, *data.prefixes[L]) for L in sorted(data.prefixes)] + [(int(round(data.length_m)), data.points,
+                                                                            data.trajectory)]
+        for L, pts, traj in sizes:
+            m = make_method("maplocalizer", pts, traj, args, config, factories)
+            if isinstance(m, str):
+                break
+            rows = [judge(m(data.queries[i].points), data.queries[i]) for i in near]
+            s = summarize(rows)
+            s.update(build_s=m.build_s, map_points=len(pts))
+            scaling[str(L)] = s
+            log(f"  {data.name} scaling {L} m: {len(pts)} points, build {m.build_s:.1f} s, "
+                f"p50 {s.get('time_s_p50', float('nan')):.2f} s, placed {s.get('placed_share', 0):.2f}")
+        fig["scaling"] = {"queries": near, "by_map_length_m": scaling}
+    return fig
+
+
+# ---- report ------------------------------------------------------------------------------------------------------
+def report(figs: dict, methods: list[str]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="Global localization from no guess (placed: valid and within 1 deg / 0.3 m)")
+    for col in ("map", "method", "queries", "placed", "wrong", "no pose", "ambiguous", "timeouts", "p50 s",
+                "p95 s", "build s"):
+        table.add_column(col, justify="right")
+
+    def pct(v):
+        return "-" if v is None else f"{100 * v:.0f} %"
+
+    for mapname, fig in figs.items():
+        for name in methods:
+            s = fig["methods"].get(name, {})
+            if "note" in s:
+                table.add_row(mapname, name, s["note"][:40], *[""] * 8)
+                continue
+            for label, x in ((name, s), (f"{name} (repetitive)", s.get("repetitive"))):
+                if not x or not x.get("queries"):
+                    continue
+                table.add_row(mapname, label, str(x["queries"]), pct(x.get("placed_share")), str(x.get("wrong_count")),
+                              pct(x.get("none_share")), pct(x.get("ambiguous_share")), str(x.get("timeout_count")),
+                              f"{x.get('time_s_p50', float('nan')):.2f}", f"{x.get('time_s_p95', float('nan')):.2f}",
+                              f"{s.get('build_s', float('nan')):.1f}" if x is s else "")
+    Console(width=150).print(table)
+
+
+def aggregate(figs: dict, methods: list[str]) -> dict:
+    """Every map's rows pooled per method (simulated maps only, and everything)."""
+    out = {}
+    for name in methods:
+        for label, maps in (("sim", [k for k in figs if k != "real"]), ("all", list(figs))):
+            rows = [r for k in maps for r in figs[k]["rows"].get(name, [])]
+            if rows:
+                out.setdefault(name, {})[label] = summarize(rows)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"])
+    p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders (velodyne/, poses.txt, "
+                   "calib.txt) pooled into the real map, e.g. PATH/TO/kitti/00 PATH/TO/kitti/02")
+    p.add_argument("--kitti-scans", type=int, default=10, help="the first scans of each KITTI sequence")
+    p.add_argument("--pair", default=None, help="optional folder with a real pair: two .pcd files (target, source in "
+                   "name order) and relative.txt (T_target_source); the target goes into the real map")
+    p.add_argument("--out", default="results/benchmarks", help="folder for localization.json")
+    p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the generated maps and queries")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma list of {','.join(METHODS)}")
+    p.add_argument("--queries", type=int, default=24, help="query scans per simulated scene, spread over the map")
+    p.add_argument("--repetitive", type=int, default=6, help="extra queries on straight stretches (highway, "
+                   "suburban)")
+    p.add_argument("--map-length", type=float, default=1000.0, help="m of road per simulated map")
+    p.add_argument("--map-step", type=float, default=2.5, help="m between the scans the map is built from")
+    p.add_argument("--map-range", type=float, default=50.0, help="m, the map keeps each scan's points this close")
+    p.add_argument("--map-voxel", type=float, default=0.2, help="m, voxel size of the map")
+    p.add_argument("--prefixes", type=float, nargs="*", default=[250.0, 500.0], help="shorter maps (m) for the "
+                   "time-versus-map-size figure")
+    p.add_argument("--scaling-queries", type=int, default=4, help="queries per scene for the map-size figure")
+    p.add_argument("--spacing", type=float, default=300.0, help="m between the real places in the pooled map")
+    p.add_argument("--baseline-every", type=int, default=3, help="the baselines run on every n-th query")
+    p.add_argument("--baseline-timeout", type=float, default=10.0, help="s per query and baseline")
+    p.add_argument("--km-voxel", type=float, default=0.5, help="m, voxel of KISS-Matcher against the map")
+    p.add_argument("--fpfh-voxel", type=float, default=1.0, help="m, voxel of the FPFH + RANSAC baseline")
+    p.add_argument("--seed", type=int, default=1, help="seed of the real places' moves")
+    p.add_argument("--sim-seed", type=int, default=None, help="world seed of the first scene (default: a held-out "
+                   "test seed); the others follow")
+    p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
+    p.add_argument("--generate-only", action="store_true", help="build the cached maps and queries, measure nothing")
+    p.add_argument("--quick", action="store_true", help="a smoke test: one scene, a 300 m map, 4 queries, no real "
+                   "data unless given, baselines on 2 queries")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.scenes, args.map_length, args.queries, args.repetitive = args.scenes[:1], 300.0, 4, 0
+        args.prefixes, args.scaling_queries, args.baseline_every = [150.0], 2, 2
+    methods = [m for m in args.methods.split(",") if m]
+    for m in methods:
+        if m not in METHODS:
+            raise SystemExit(f"unknown method {m!r} (known: {', '.join(METHODS)})")
+    config = None
+    if args.config:
+        from deepbbs_ros.config import load_config
+
+        config = load_config(args.config)
+    from deepbbs_ros.sim import SCENES
+    from deepbbs_ros.train.cache import TEST_SEED_BASE
+
+    base = TEST_SEED_BASE + 500 if args.sim_seed is None else args.sim_seed
+    t_start = time.perf_counter()
+    maps = {}
+    for scene in args.scenes:
+        maps[scene] = sim_map(scene, base + SCENES.index(scene), args)
+    real = real_map(args)
+    if real is not None:
+        maps["real"] = real
+    t_gen = time.perf_counter() - t_start
+    print(f"data ready in {t_gen:.0f} s: " + ", ".join(f"{k} {len(v.points)} pts / {len(v.queries)} queries"
+                                                      for k, v in maps.items()))
+    if args.generate_only:
+        return 0
+    figs = {}
+    for name, data in maps.items():
+        figs[name] = evaluate_map(data, methods, args, config)
+    fig = {"maps": figs, "pooled": aggregate(figs, methods), "labels": LABELS,
+           "tolerance": {"rot_deg": ROT_OK_DEG, "trans_m": TRANS_OK_M},
+           "settings": {k: v for k, v in vars(args).items()},
+           "data_s": t_gen, "measure_s": time.perf_counter() - t_start - t_gen}
+    report(figs, methods)
+    _common.write_json(Path(args.out), "localization.json", fig)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,111 @@
+"""The global-localization benchmark's core (scripts/benchmarks/localization.py) on a tiny simulated map.
+
+A small sensor and an 80 m map keep it to seconds; stand-in methods (the truth, a wrong pose, a refusal) check
+the bookkeeping against known answers; the real methods are the benchmark's business, not this test's.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "benchmarks"))
+import localization as bench  # noqa: E402
+
+from deepbbs_ros.sim import LidarConfig  # noqa: E402
+
+
+def tiny_args(tmp_path, **kw) -> SimpleNamespace:
+    a = dict(map_length=80.0, map_step=4.0, map_range=30.0, map_voxel=0.5, prefixes=[40.0], queries=4, repetitive=2,
+             cache=str(tmp_path), baseline_every=2, baseline_timeout=5.0, scaling_queries=2, km_voxel=0.5,
+             fpfh_voxel=1.0)
+    a.update(kw)
+    return SimpleNamespace(**a)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    args = tiny_args(tmp_path_factory.mktemp("loc"))
+    lid = LidarConfig(beams=16, azimuth_step_deg=2.0, name="test")
+    data = bench.sim_map("suburban", 5, args, log=lambda *_: None, lidar=lid)
+    return args, data, lid
+
+
+def test_map_and_queries_agree_with_the_truth(tiny):
+    args, data, lid = tiny
+    from scipy.spatial import cKDTree
+
+    assert data.length_m >= 80.0 and len(data.trajectory) >= 15 and len(data.queries) >= 4
+    assert {q.kind for q in data.queries} == {"reverse", "lane"}
+    assert 40 in data.prefixes and len(data.prefixes[40][0]) < len(data.points)
+    tree = cKDTree(data.points)
+    for q in data.queries:  # every query, at its true pose, lies on the map built from another drive
+        d, _ = tree.query(bench.transform(q.points, q.T_map_scan))
+        assert np.median(d) < 0.35, (q.kind, q.s, np.median(d))
+        # and it is not a scan of the map drive: another lane, or the other way
+        near = data.trajectory[np.argmin(np.linalg.norm(data.trajectory[:, :3, 3] - q.T_map_scan[:3, 3], axis=1))]
+        assert np.linalg.norm(near[:2, 3] - q.T_map_scan[:2, 3]) > 1.0 or near[:2, 0] @ q.T_map_scan[:2, 0] < 0
+    again = bench.sim_map("suburban", 5, args, log=lambda *_: None, lidar=lid)  # from the cache
+    assert np.array_equal(again.points, data.points) and len(again.queries) == len(data.queries)
+    assert all(np.array_equal(a.T_map_scan, b.T_map_scan) for a, b in zip(again.queries, data.queries))
+
+
+def test_bookkeeping_with_known_answers(tiny):
+    args, data, _ = tiny
+    n = len(data.queries)
+    wrong = np.eye(4)
+    wrong[0, 3] = 5.0
+
+    class Oracle:  # the truth for the first queries, a wrong pose, then refusals
+        build_s = 0.0
+
+        def __init__(self, points, trajectory):
+            self.k = 0
+            self.by_id = {id(q.points): q for q in data.queries}
+
+        def __call__(self, scan):
+            q, self.k = self.by_id[id(scan)], self.k + 1
+            if self.k == 2:
+                return bench.Answer(q.T_map_scan @ wrong, True, "", 0.1)
+            if self.k == 3:
+                return bench.Answer(None, False, "ambiguous: 2 places", 0.2)
+            if self.k == 4:
+                return bench.Answer(q.T_map_scan, False, "no candidate passed", 0.3)
+            return bench.Answer(q.T_map_scan, True, "", 0.05)
+
+    fig = bench.evaluate_map(data, ["maplocalizer", "kiss-matcher+gicp"], args, log=lambda *_: None,
+                             factories={"maplocalizer": Oracle, "kiss-matcher+gicp": Oracle})
+    s = fig["methods"]["maplocalizer"]
+    assert s["queries"] == n and s["wrong_count"] == 1
+    assert s["placed_share"] == pytest.approx((n - 3) / n)
+    assert s["ambiguous_share"] == pytest.approx(1 / n) and s["right_but_rejected_share"] == pytest.approx(1 / n)
+    assert s["placed_time_s_p50"] == pytest.approx(0.05) and s["placed_rot_err_deg_mean"] < 1e-6
+    assert fig["methods"]["kiss-matcher+gicp"]["queries"] == len(range(0, n, 2))
+    assert [r["query"] for r in fig["rows"]["kiss-matcher+gicp"]] == list(range(0, n, 2))
+    assert "baseline_subset" in s and ("repetitive" in s) == any(q.repetitive for q in data.queries)
+    sc = fig["scaling"]["by_map_length_m"]
+    assert list(sc) == ["40", str(int(round(data.length_m)))]
+    assert sc["40"]["map_points"] < sc[list(sc)[-1]]["map_points"]
+    pooled = bench.aggregate({"suburban": fig}, ["maplocalizer"])
+    assert pooled["maplocalizer"]["sim"]["wrong_count"] == 1
+
+
+def test_a_baseline_that_hangs_times_out(tiny):
+    args, data, _ = tiny
+
+    class Hang(bench._ChildMethod):
+        name = "hang"
+
+        def solve(self, scan):
+            import time
+
+            time.sleep(30)
+
+    ans = Hang(0.3)(data.queries[0].points)
+    assert ans.timeout and not ans.valid and ans.T_map_scan is None
+    row = bench.judge(ans, data.queries[0])
+    assert row["outcome"] == "none" and row["timeout"]
