@@ -96,16 +96,12 @@ def test_bookkeeping_with_known_answers(tiny):
 
 def test_a_baseline_that_hangs_times_out(tiny):
     args, data, _ = tiny
-
-    class Hang(bench._ChildMethod):
-        name = "hang"
-
-        def solve(self, scan):
-            import time
-
-            time.sleep(30)
-
-    ans = Hang(0.3)(data.queries[0].points)
-    assert ans.timeout and not ans.valid and ans.T_map_scan is None
+    slow = bench.Isolated("sleeper", bench._Sleeper, data.points[:10], 0.5, seconds=30.0)
+    ans = slow(data.queries[0].points)
+    assert ans.timeout and not ans.valid and ans.T_map_scan is None and slow.proc is None  # killed
     row = bench.judge(ans, data.queries[0])
     assert row["outcome"] == "none" and row["timeout"]
+    quick = bench.Isolated("sleeper", bench._Sleeper, data.points[:10], 5.0, seconds=0.0)
+    ans = quick(data.queries[0].points)
+    assert not ans.timeout and ans.valid and np.allclose(ans.T_map_scan, np.eye(4))
+    quick.close()

@@ -315,47 +315,91 @@ class MapLocalizerMethod:
         return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
 
 
-class _ChildMethod:
-    """A baseline run in a forked child per query, killed after ``timeout`` s (a C++ solver cannot be stopped
-    from Python otherwise). The map is prepared once in this process before the fork (copy-on-write)."""
+class Isolated:
+    """A baseline run in a child process (spawned: a forked child of a process that already ran TBB code can
+    deadlock in KISS-Matcher), one query at a time, killed after ``timeout`` s (a C++ solver cannot be stopped
+    from Python otherwise) and started again for the next query. The child builds ``solver_cls(points,
+    **kwargs)`` (the map's preparation, reported as ``build_s``) and answers ``solver.solve(scan)`` ->
+    (T_map_scan, accepted, reason)."""
 
-    name = ""
-
-    def __init__(self, timeout: float) -> None:
+    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, **kwargs) -> None:
+        self.name, self.solver_cls, self.points, self.kwargs = name, solver_cls, points, kwargs
         self.timeout = float(timeout)
         self.build_s = 0.0
+        self.proc = None
+        self.conn = None
 
-    def solve(self, scan: np.ndarray) -> tuple[np.ndarray, bool, str]:
-        raise NotImplementedError
+    def _start(self) -> None:
+        ctx = mp.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_serve, args=(self.solver_cls, self.points, self.kwargs, child), daemon=True)
+        self.proc.start()
+        child.close()
+        msg = self.conn.recv()  # ("ready", build_s) or ("error", text)
+        if msg[0] != "ready":
+            self.close()
+            raise OSError(msg[1])  # e.g. a missing optional package: the caller skips the baseline
+        self.build_s = max(self.build_s, msg[1])
 
-    def _child(self, scan: np.ndarray, conn) -> None:
-        try:
-            t0 = time.perf_counter()
-            T, ok, why = self.solve(scan)
-            conn.send((T, ok, why, time.perf_counter() - t0))
-        except Exception as err:  # noqa: BLE001  (a baseline's failure is a "no pose", with its message)
-            conn.send((None, False, f"{type(err).__name__}: {err}", float("nan")))
-        finally:
-            conn.close()
+    def close(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.join()
+        self.proc = self.conn = None
 
     def __call__(self, scan: np.ndarray) -> Answer:
-        ctx = mp.get_context("fork")
-        rx, tx = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=self._child, args=(scan, tx), daemon=True)
+        if self.proc is None:
+            self._start()
         t0 = time.perf_counter()
-        proc.start()
-        tx.close()
-        got = rx.poll(self.timeout)
-        if not got:
-            proc.kill()
-            proc.join()
+        self.conn.send(np.ascontiguousarray(scan))
+        if not self.conn.poll(self.timeout):
+            self.close()
             return Answer(None, False, f"timeout after {self.timeout:g} s", time.perf_counter() - t0, timeout=True)
         try:
-            T, ok, why, dt = rx.recv()
+            T, ok, why, dt = self.conn.recv()
         except EOFError:
-            T, ok, why, dt = None, False, "the child process died", float("nan")
-        proc.join()
+            self.close()
+            return Answer(None, False, "the child process died", float("nan"))
         return Answer(T, bool(ok), why, dt)
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001  (interpreter shutdown)
+            pass
+
+
+def _serve(solver_cls, points, kwargs, conn) -> None:
+    """The child of :class:`Isolated`: build the solver, then answer scans until the pipe closes."""
+    try:
+        t0 = time.perf_counter()
+        solver = solver_cls(points, **kwargs)
+        conn.send(("ready", time.perf_counter() - t0))
+    except Exception as err:  # noqa: BLE001
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return
+    while True:
+        try:
+            scan = conn.recv()
+        except (EOFError, OSError):
+            return
+        t0 = time.perf_counter()
+        try:
+            T, ok, why = solver.solve(scan)
+            conn.send((T, ok, why, time.perf_counter() - t0))
+        except Exception as err:  # noqa: BLE001  (a baseline's failure is a "no pose", with its message)
+            conn.send((None, False, f"{type(err).__name__}: {err}", time.perf_counter() - t0))
+
+
+class _Sleeper:
+    """A stand-in solver that takes ``seconds`` per query (tests of the time limit)."""
+
+    def __init__(self, points: np.ndarray, seconds: float = 30.0) -> None:
+        self.seconds = seconds
+
+    def solve(self, scan):
+        time.sleep(self.seconds)
+        return np.eye(4), True, ""
 
 
 def _map_gicp(points: np.ndarray, config):
@@ -366,27 +410,22 @@ def _map_gicp(points: np.ndarray, config):
     return prepare_polish_cloud(points, ev.baseline_voxel_size, ev.baseline_neighbors, registration_type="GICP")
 
 
-class KissMatcherMethod(_ChildMethod):
+class KissMatcherSolver:
     """KISS-Matcher registering the scan against the whole map (voxel ``voxel`` m: its outdoor default 0.3 m
     takes over 30 s per query against a 300 m map here), then GICP (the project's small_gicp baseline) against
     the whole map; accepted when KISS-Matcher calls its solution valid. KISS-Matcher computes the map's
     features inside every call (its API takes two clouds), which is part of its time."""
 
-    name = "kiss-matcher+gicp"
-
-    def __init__(self, points: np.ndarray, timeout: float, config=None, voxel: float = 0.5) -> None:
+    def __init__(self, points: np.ndarray, config=None, voxel: float = 1.0) -> None:
         from deepbbs_ros.baselines import KissMatcherRegistration, SmallGicpRegistration
         from deepbbs_ros.config import Config
 
-        super().__init__(timeout)
         self.config = config or Config()
-        t0 = time.perf_counter()
         self.km = KissMatcherRegistration("kiss-matcher", self.config)
         self.voxel = float(voxel)
         self.gicp = SmallGicpRegistration("gicp", self.config)
         self.map_points = np.ascontiguousarray(points, np.float32)
         self.map_gicp = _map_gicp(points, self.config)
-        self.build_s = time.perf_counter() - t0
 
     def solve(self, scan):
         import kiss_matcher
@@ -406,28 +445,22 @@ class KissMatcherMethod(_ChildMethod):
             f"KISS-Matcher: solution not valid ({matcher.get_num_final_inliers()} inliers)"
 
 
-class FpfhRansacMethod(_ChildMethod):
+class FpfhRansacSolver:
     """Open3D: FPFH features (voxel ``voxel`` m, normals within 2 voxels, features within 5) of the scan and the
     whole map (the map's once), registration_ransac_based_on_feature_matching (mutual filter off, edge-length
     and distance checkers, 1.5 voxels), then GICP against the whole map. No acceptance test of its own."""
 
-    name = "fpfh-ransac+gicp"
-
-    def __init__(self, points: np.ndarray, timeout: float, config=None, voxel: float = 1.0,
-                 iterations: int = 100000) -> None:
+    def __init__(self, points: np.ndarray, config=None, voxel: float = 1.0, iterations: int = 100000) -> None:
         import open3d as o3d  # noqa: F401  (ImportError / OSError: the caller skips this baseline)
 
         from deepbbs_ros.baselines import SmallGicpRegistration
         from deepbbs_ros.config import Config
 
-        super().__init__(timeout)
         self.config = config or Config()
         self.voxel, self.iterations = float(voxel), int(iterations)
-        t0 = time.perf_counter()
         self.map_down, self.map_fpfh = self._features(points)
         self.gicp = SmallGicpRegistration("gicp", self.config)
         self.map_gicp = _map_gicp(points, self.config)
-        self.build_s = time.perf_counter() - t0
 
     def _features(self, points: np.ndarray):
         import open3d as o3d
@@ -515,12 +548,15 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
         if name == "maplocalizer":
             return MapLocalizerMethod(points, trajectory, config)
         if name == "kiss-matcher+gicp":
-            return KissMatcherMethod(points, args.baseline_timeout, config, voxel=args.km_voxel)
-        if name == "fpfh-ransac+gicp":
-            return FpfhRansacMethod(points, args.baseline_timeout, config, voxel=args.fpfh_voxel)
+            m = Isolated(name, KissMatcherSolver, points, args.baseline_timeout, config=config, voxel=args.km_voxel)
+        elif name == "fpfh-ransac+gicp":
+            m = Isolated(name, FpfhRansacSolver, points, args.baseline_timeout, config=config, voxel=args.fpfh_voxel)
+        else:
+            raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
+        m._start()  # build the map's side now (its own time, not a query's)
+        return m
     except (ImportError, OSError) as err:
         return f"skipped: {err}"
-    raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
 
 
 def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print, factories=None) -> dict:
@@ -546,6 +582,8 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
             err = "" if row["rot_err_deg"] is None else f" {row['rot_err_deg']:.2f} deg {row['trans_err_m']:.2f} m"
             log(f"  {data.name} {name} {n + 1}/{len(idx)} [{q.kind}{' ' + q.repetitive if q.repetitive else ''}]: "
                 f"{row['outcome']}{err} {row['time_s']:.2f} s {row['reason'][:80]}")
+        if hasattr(m, "close"):
+            m.close()
         s = summarize(rows)
         s["build_s"] = m.build_s
         rep = [r for r in rows if r["repetitive"]]
@@ -641,7 +679,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--spacing", type=float, default=300.0, help="m between the real places in the pooled map")
     p.add_argument("--baseline-every", type=int, default=3, help="the baselines run on every n-th query")
     p.add_argument("--baseline-timeout", type=float, default=10.0, help="s per query and baseline")
-    p.add_argument("--km-voxel", type=float, default=0.5, help="m, voxel of KISS-Matcher against the map")
+    p.add_argument("--km-voxel", type=float, default=1.0, help="m, voxel of KISS-Matcher against the map")
     p.add_argument("--fpfh-voxel", type=float, default=1.0, help="m, voxel of the FPFH + RANSAC baseline")
     p.add_argument("--seed", type=int, default=1, help="seed of the real places' moves")
     p.add_argument("--sim-seed", type=int, default=None, help="world seed of the first scene (default: a held-out "
