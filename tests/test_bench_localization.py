@@ -22,7 +22,7 @@ from deepbbs_ros.sim import LidarConfig  # noqa: E402
 def tiny_args(tmp_path, **kw) -> SimpleNamespace:
     a = dict(map_length=80.0, map_step=4.0, map_range=30.0, map_voxel=0.5, prefixes=[40.0], queries=4, repetitive=2,
              cache=str(tmp_path), baseline_every=2, baseline_timeout=5.0, scaling_queries=2, km_voxel=0.5,
-             fpfh_voxel=1.0)
+             fpfh_voxel=1.0, grid_places=False)
     a.update(kw)
     return SimpleNamespace(**a)
 

@@ -296,16 +296,30 @@ class Answer:
     timeout: bool = False
 
 
+_REGISTRATION: dict = {}  # one DeepBBSRegistration (model loaded and warmed up once) shared by every map
+
+
 class MapLocalizerMethod:
-    """deepbbs_ros.core.localization.MapLocalizer, built once per map (its build time is reported)."""
+    """deepbbs_ros.core.localization.MapLocalizer, built once per map (``build_s``: the map's part, places and
+    descriptors; the model is loaded and warmed up once per run, before any query, and shared by every map)."""
 
     name = "maplocalizer"
 
     def __init__(self, points: np.ndarray, trajectory: np.ndarray | None, config=None) -> None:
+        from deepbbs_ros.config import Config
         from deepbbs_ros.core.localization import MapLocalizer
+        from deepbbs_ros.core.registration import DeepBBSRegistration
 
+        key = "default" if config is None else id(config)
+        if key not in _REGISTRATION:
+            cfg = config or Config()
+            reg = DeepBBSRegistration(cfg)
+            if hasattr(reg, "warmup"):
+                reg.warmup()
+            _REGISTRATION[key] = (cfg, reg)
+        config, reg = _REGISTRATION[key]
         t0 = time.perf_counter()
-        self.loc = MapLocalizer(points, config, trajectory=trajectory)
+        self.loc = MapLocalizer(points, config, registration=reg, trajectory=trajectory)
         self.build_s = time.perf_counter() - t0
 
     def __call__(self, scan: np.ndarray) -> Answer:
@@ -546,7 +560,7 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
         if factories and name in factories:
             return factories[name](points, trajectory)
         if name == "maplocalizer":
-            return MapLocalizerMethod(points, trajectory, config)
+            return MapLocalizerMethod(points, None if args.grid_places else trajectory, config)
         if name == "kiss-matcher+gicp":
             m = Isolated(name, KissMatcherSolver, points, args.baseline_timeout, config=config, voxel=args.km_voxel)
         elif name == "fpfh-ransac+gicp":
@@ -685,6 +699,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sim-seed", type=int, default=None, help="world seed of the first scene (default: a held-out "
                    "test seed); the others follow")
     p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
+    p.add_argument("--grid-places", action="store_true", help="MapLocalizer without the map drive's trajectory "
+                   "(candidate places on a grid over the map's free space instead of keyframes)")
     p.add_argument("--generate-only", action="store_true", help="build the cached maps and queries, measure nothing")
     p.add_argument("--quick", action="store_true", help="a smoke test: one scene, a 300 m map, 4 queries, no real "
                    "data unless given, baselines on 2 queries")
