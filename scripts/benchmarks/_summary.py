@@ -111,6 +111,17 @@ def main(argv: list[str]) -> int:
         print("\n## fixed evaluation threads (median ms per frame: 1 thread / every core)")
         for m, c in fig["methods"].items():
             print(f"  {m:<10} {c['one_thread_ms']:.1f} / {c['every_core_ms']:.1f} ms, x{c['ratio']:.2f}")
+    fig = load(out, "localization.json")
+    if fig:
+        print("\n## localization from no guess (placed / wrong / no pose of the queries, p50 / p95 s per query)")
+        for mapname, m in fig["maps"].items():
+            for name, c in m["methods"].items():
+                if "note" in c:
+                    print(f"  {mapname:<10} {name:<18} {c['note']}")
+                    continue
+                print(f"  {mapname:<10} {name:<18} {f(c.get('placed_share'), '.0%')} / {c.get('wrong_count')} / "
+                      f"{f(c.get('none_share'), '.0%')} of {c['queries']}, {f(c.get('time_s_p50'), '.2f')} / "
+                      f"{f(c.get('time_s_p95'), '.2f')} s, {c.get('timeout_count', 0)} timeouts")
     print("\nplots: " + ", ".join(sorted(p.name for p in out.glob("*.png"))))
     return 0
 

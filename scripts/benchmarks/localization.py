@@ -6,8 +6,9 @@ Data (generated once, cached as npz under ``--cache``; a rerun only measures):
 * simulated, every scene type: a map of ``--map-length`` m of road (1 km) built from a first drive's scans at
   their ground-truth poses (one scan every ``--map-step`` m, cropped to ``--map-range`` m, voxel-downsampled to
   ``--map-voxel`` m); queries from second drives through the same world that never contributed to the map,
-  spread evenly over it: every other one drives back the other way in the opposite lane, the others in
-  another lane of the same direction, both on other days (other parked cars, other traffic). Sweeps are
+  spread evenly over it, in turn: driving back the other way in the opposite lane ("reverse"), in another lane of
+  the same direction ("lane", 1.2-3.6 m over) and in the map drive's lane 0.4 m off its line ("same-lane"), each on
+  another day (other parked cars, other traffic). Sweeps are
   compensated to their stamps. Highway and suburban drives get ``--repetitive`` extra queries on long
   straight stretches (away from curves and junctions): the repetitive places, reported apart.
 * real (``--kitti``, ``--pair``): one pooled map of several places, each moved far from the others (``--spacing``
@@ -47,12 +48,14 @@ import _common  # noqa: E402  (puts the checkout first on sys.path)
 
 import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
 
-GEN_VERSION = 1  # bumped whenever the generated maps / queries change (cache key)
+GEN_VERSION = 2  # bumped whenever the generated maps / queries change (cache key)
 ROT_OK_DEG, TRANS_OK_M = 1.0, 0.3
 METHODS = ("maplocalizer", "kiss-matcher+gicp", "fpfh-ransac+gicp")
 LABELS = {"maplocalizer": "MapLocalizer (DeepBBS++)", "kiss-matcher+gicp": "KISS-Matcher + GICP (scan to map)",
           "fpfh-ransac+gicp": "FPFH + RANSAC (Open3D) + GICP (scan to map)"}
 LANE_SHIFT = {"urban": -3.6, "suburban": -1.5, "highway": 3.6, "open_road": 1.2}  # m, the other lane's offset
+SAME_LANE_SHIFT = 0.4  # m: "same-lane" queries drive the map drive's lane on a slightly different line
+KINDS = ("reverse", "lane", "same-lane")  # the simulated queries' drives, in turn along the map
 
 
 # ---- data --------------------------------------------------------------------------------------------------------
@@ -115,7 +118,7 @@ def _save(path: Path, data: MapData) -> None:
 
 
 def _load(path: Path, name: str) -> MapData:
-    z = np.load(path)
+    z = dict(np.load(path))  # every array read (and decompressed) once
     offs = np.concatenate([[0], np.cumsum(z["q_sizes"])])
     queries = [Query(z["q_points"][offs[i]:offs[i + 1]], z["q_T"][i], str(z["q_place"][i]), str(z["q_kind"][i]),
                      float(z["q_s"][i]), str(z["q_rep"][i])) for i in range(len(z["q_sizes"]))]
@@ -211,13 +214,15 @@ def sim_map(scene: str, seed: int, args, log=print, lidar=None) -> MapData:
             continue
     drives["lane"] = DriveSimulator(scene, seed, lidar, frames=last + 1, compensate=True, world_frames=world_frames,
                                     lane_offset=ego + LANE_SHIFT[scene], day=2)
-    targets = [(float(s), "reverse" if i % 2 == 0 else "lane", "")
-               for i, s in enumerate(np.linspace(lo, hi, args.queries))]
+    drives["same-lane"] = DriveSimulator(scene, seed, lidar, frames=last + 1, compensate=True,
+                                         world_frames=world_frames, lane_offset=ego + SAME_LANE_SHIFT, day=3)
+    kinds = list(KINDS)
+    targets = [(float(s), kinds[i % len(kinds)], "") for i, s in enumerate(np.linspace(lo, hi, args.queries))]
     straight = _straight_stretches(sim.world, lo, hi)
     label = {"highway": "straight highway", "suburban": "suburban street (row of houses)"}.get(scene, "")
     if label and args.repetitive > 0 and len(straight):
         picks = np.unique(np.round(np.linspace(0, len(straight) - 1, args.repetitive)).astype(int))
-        targets += [(float(straight[i]), "reverse" if j % 2 == 0 else "lane", label) for j, i in enumerate(picks)]
+        targets += [(float(straight[i]), kinds[j % len(kinds)], label) for j, i in enumerate(picks)]
     queries = []
     for s, kind, rep in targets:
         d = drives[kind]
@@ -603,6 +608,9 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
         rep = [r for r in rows if r["repetitive"]]
         if rep:
             s["repetitive"] = summarize(rep)
+        kinds = sorted({r["kind"] for r in rows})
+        if len(kinds) > 1:
+            s["by_kind"] = {k: summarize([r for r in rows if r["kind"] == k]) for k in kinds}
         fig["methods"][name] = s
         fig["rows"][name] = rows
     if "maplocalizer" in fig["rows"] and args.baseline_every > 1:  # the baselines' subset, for a like comparison
@@ -680,7 +688,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="results/benchmarks", help="folder for localization.json")
     p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the generated maps and queries")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma list of {','.join(METHODS)}")
-    p.add_argument("--queries", type=int, default=24, help="query scans per simulated scene, spread over the map")
+    p.add_argument("--queries", type=int, default=30, help="query scans per simulated scene, spread over the map")
     p.add_argument("--repetitive", type=int, default=6, help="extra queries on straight stretches (highway, "
                    "suburban)")
     p.add_argument("--map-length", type=float, default=1000.0, help="m of road per simulated map")
@@ -706,7 +714,7 @@ def main(argv: list[str] | None = None) -> int:
                    "data unless given, baselines on 2 queries")
     args = p.parse_args(argv)
     if args.quick:
-        args.scenes, args.map_length, args.queries, args.repetitive = args.scenes[:1], 300.0, 4, 0
+        args.scenes, args.map_length, args.queries, args.repetitive = args.scenes[:1], 300.0, 6, 0
         args.prefixes, args.scaling_queries, args.baseline_every = [150.0], 2, 2
     methods = [m for m in args.methods.split(",") if m]
     for m in methods:

@@ -66,6 +66,7 @@ machine node_latency_odometry
 step node_latency_pair $PY $B/node_latency.py --data kitti --kitti "${KITTI[@]}" --mode pair --stream both \
   --layout velodyne --runs 2 --seconds 10 --out "$OUT/node_latency_pair"
 machine node_latency_pair
+step localization $PY $B/localization.py --kitti "${KITTI[@]}" "${PAIR[@]}" --out "$OUT"
 step fleet $PY $B/fleet.py --recordings 4 --frames 20 --workers 1,2 --out "$OUT"
 step threads $PY $B/threads.py bags/urban_drive_hdl64 --rounds 3 --out "$OUT"
 cp "$OUT/node_latency_odometry/latency.png" "$OUT/node_latency_odometry.png" 2>/dev/null
