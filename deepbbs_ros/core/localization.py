@@ -223,6 +223,7 @@ class _Crop:
     T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
     pre: Any  # its PreprocessResult (GICP cloud included)
     fine: Any = None  # its PolishCloud on localization.refine_voxel within refine_radius (built when first needed)
+    map_cloud: np.ndarray | None = None  # (M, 3) float32 its GICP cloud in the map frame (LocalizationResult.crop)
 
 
 class MapLocalizer:
@@ -271,6 +272,7 @@ class MapLocalizer:
                                     "trajectory, or lower localization.free_clearance)")
         self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
+        self._track_place = -1  # the place whose crop tracking used last
         self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
             from deepbbs_ros.core.registration import DeepBBSRegistration
@@ -451,8 +453,12 @@ class MapLocalizer:
         xy = self._places[:, :2, 3]
         d = np.linalg.norm(xy - guess[:2, 3], axis=1)
         near = int(np.argmin(d))
-        if d[near] <= max(lc.place_spacing, 0.25 * self.crop_radius):
+        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # a crop serves while the sensor is this close to it
+        if self._track_place >= 0 and d[self._track_place] <= reach:
+            near = self._track_place  # the same crop as the last scan: no new preprocessing, the network's memo
+        if d[near] <= reach:
             crop = self._crop(near)
+            self._track_place = near
         else:  # off the places: a crop at the guess (gravity-aligned)
             T = np.eye(4)
             T[:3, 3] = guess[:3, 3]
@@ -513,7 +519,7 @@ class MapLocalizer:
             ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
                           crop.T_map_place @ reg.T_target_source, place, crop)
             answers.append(ans)
-            if ans.ok and accepted_dist is None:
+            if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
         n = len(answers)
         if not answers:
@@ -659,11 +665,14 @@ def _search(registration: Any, mode: str) -> Iterator[None]:
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:
-    pc = getattr(crop.pre, "polish_cloud", None)
-    if pc is None:
-        return None
-    p = np.asarray(pc.points(), dtype=np.float64)
-    return (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
+    """(M, 3) float32 the crop's GICP cloud in the map frame (kept with the crop)."""
+    if crop.map_cloud is None:
+        pc = getattr(crop.pre, "polish_cloud", None)
+        if pc is None:
+            return None
+        p = np.asarray(pc.points(), dtype=np.float64)[:, :3]
+        crop.map_cloud = (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
+    return crop.map_cloud
 
 
 def _as_cloud(points: Any, name: str) -> np.ndarray:
