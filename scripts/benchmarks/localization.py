@@ -366,11 +366,12 @@ class Isolated:
             self.proc.join()
         self.proc = self.conn = None
 
-    def __call__(self, scan: np.ndarray) -> Answer:
+    def __call__(self, scan: np.ndarray, prior: tuple[np.ndarray, float] | None = None) -> Answer:
+        """``prior``: optional (xy (2,), radius m): register against the map within radius of xy only."""
         if self.proc is None:
             self._start()
         t0 = time.perf_counter()
-        self.conn.send(np.ascontiguousarray(scan))
+        self.conn.send((np.ascontiguousarray(scan), prior))
         if not self.conn.poll(self.timeout):
             self.close()
             return Answer(None, False, f"timeout after {self.timeout:g} s", time.perf_counter() - t0, timeout=True)
@@ -399,12 +400,12 @@ def _serve(solver_cls, points, kwargs, conn) -> None:
         return
     while True:
         try:
-            scan = conn.recv()
+            scan, prior = conn.recv()
         except (EOFError, OSError):
             return
         t0 = time.perf_counter()
         try:
-            T, ok, why = solver.solve(scan)
+            T, ok, why = solver.solve(scan, prior)
             conn.send((T, ok, why, time.perf_counter() - t0))
         except Exception as err:  # noqa: BLE001  (a baseline's failure is a "no pose", with its message)
             conn.send((None, False, f"{type(err).__name__}: {err}", time.perf_counter() - t0))
@@ -416,7 +417,7 @@ class _Sleeper:
     def __init__(self, points: np.ndarray, seconds: float = 30.0) -> None:
         self.seconds = seconds
 
-    def solve(self, scan):
+    def solve(self, scan, prior=None):
         time.sleep(self.seconds)
         return np.eye(4), True, ""
 
@@ -446,14 +447,17 @@ class KissMatcherSolver:
         self.map_points = np.ascontiguousarray(points, np.float32)
         self.map_gicp = _map_gicp(points, self.config)
 
-    def solve(self, scan):
+    def solve(self, scan, prior=None):
         import kiss_matcher
 
         from deepbbs_ros.baselines import PreparedCloud
 
         src = self.km.preprocess(scan).points  # the preprocess crop, as the scan-to-scan baseline
         matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size=self.voxel))
-        sol = matcher.estimate(src, self.map_points)
+        tgt = self.map_points
+        if prior is not None:  # a coarse prior: the map within its radius only
+            tgt = np.ascontiguousarray(tgt[np.linalg.norm(tgt[:, :2] - prior[0], axis=1) <= prior[1]])
+        sol = matcher.estimate(src, tgt)
         T = np.eye(4)
         T[:3, :3] = np.asarray(sol.rotation, dtype=np.float64)
         T[:3, 3] = np.asarray(sol.translation, dtype=np.float64).reshape(3)
@@ -491,7 +495,7 @@ class FpfhRansacSolver:
         fpfh = reg.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * self.voxel, max_nn=100))
         return down, fpfh
 
-    def solve(self, scan):
+    def solve(self, scan, prior=None):
         import open3d as o3d
 
         from deepbbs_ros.baselines import PreparedCloud
@@ -502,8 +506,15 @@ class FpfhRansacSolver:
         pts = scan[crop_range(scan, pp.min_range, pp.max_range)]
         down, fpfh = self._features(pts)
         d = 1.5 * self.voxel
+        tgt, tgt_fpfh = self.map_down, self.map_fpfh
+        if prior is not None:  # a coarse prior: the map within its radius only
+            xy = np.asarray(self.map_down.points)[:, :2]
+            idx = np.flatnonzero(np.linalg.norm(xy - prior[0], axis=1) <= prior[1])
+            tgt = self.map_down.select_by_index(idx.tolist())
+            tgt_fpfh = reg.Feature()
+            tgt_fpfh.data = np.ascontiguousarray(self.map_fpfh.data[:, idx])
         res = reg.registration_ransac_based_on_feature_matching(
-            down, self.map_down, fpfh, self.map_fpfh, False, d,
+            down, tgt, fpfh, tgt_fpfh, False, d,
             reg.TransformationEstimationPointToPoint(False), 3,
             [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(d)],
             reg.RANSACConvergenceCriteria(self.iterations, 0.999))
@@ -558,6 +569,13 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def _prior(q: Query, i: int, radius: float) -> tuple[np.ndarray, float]:
+    """A coarse position prior for query ``i``: within radius / 4 of the truth (fixed seed), with ``radius``."""
+    rng = np.random.default_rng([i, 77])
+    a, r = rng.uniform(0, 2 * np.pi), radius / 4 * np.sqrt(rng.uniform())
+    return q.T_map_scan[:2, 3] + r * np.array([np.cos(a), np.sin(a)]), float(radius)
+
+
 def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, args, config=None, factories=None):
     """The method ``name`` prepared for this map, or a string saying why it cannot run here. ``factories``:
     optional name -> callable(points, trajectory) replacing the built-in methods (tests)."""
@@ -595,7 +613,10 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
         rows = []
         for n, i in enumerate(idx):
             q = data.queries[i]
-            row = judge(m(q.points), q)
+            if name != "maplocalizer" and getattr(args, "baseline_prior", 0.0) > 0:
+                row = judge(m(q.points, prior=_prior(q, i, args.baseline_prior)), q)
+            else:
+                row = judge(m(q.points), q)
             row["query"] = i
             rows.append(row)
             err = "" if row["rot_err_deg"] is None else f" {row['rot_err_deg']:.2f} deg {row['trans_err_m']:.2f} m"
@@ -702,6 +723,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--baseline-every", type=int, default=3, help="the baselines run on every n-th query")
     p.add_argument("--baseline-timeout", type=float, default=10.0, help="s per query and baseline")
     p.add_argument("--km-voxel", type=float, default=1.0, help="m, voxel of KISS-Matcher against the map")
+    p.add_argument("--baseline-prior", type=float, default=0.0, help="m; > 0: the baselines register against the "
+                   "map within this radius of a coarse prior (drawn within a quarter of it from the truth) instead "
+                   "of the whole map; MapLocalizer never gets one")
     p.add_argument("--fpfh-voxel", type=float, default=1.0, help="m, voxel of the FPFH + RANSAC baseline")
     p.add_argument("--seed", type=int, default=1, help="seed of the real places' moves")
     p.add_argument("--sim-seed", type=int, default=None, help="world seed of the first scene (default: a held-out "
