@@ -569,6 +569,13 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def baseline_subset(n: int, every: int) -> list[int]:
+    """Every ``every``-th of ``n`` queries, stepping one further each round of the query kinds, so that the subset
+    holds every kind (plain multiples of 3 would all be one kind of 3)."""
+    every = max(1, int(every))
+    return [i for i in range(n) if (i + i // len(KINDS)) % every == 0]
+
+
 def _prior(q: Query, i: int, radius: float) -> tuple[np.ndarray, float]:
     """A coarse position prior for query ``i``: within radius / 4 of the truth (fixed seed), with ``radius``."""
     rng = np.random.default_rng([i, 77])
@@ -604,7 +611,7 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
                  "queries": len(data.queries), "methods": {}, "rows": {}}
     for name in methods:
         idx = list(range(len(data.queries))) if name == "maplocalizer" else \
-            list(range(0, len(data.queries), max(1, args.baseline_every)))
+            baseline_subset(len(data.queries), args.baseline_every)
         m = make_method(name, data.points, data.trajectory, args, config, factories)
         if isinstance(m, str):
             fig["methods"][name] = {"note": m}
@@ -635,7 +642,7 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
         fig["methods"][name] = s
         fig["rows"][name] = rows
     if "maplocalizer" in fig["rows"] and args.baseline_every > 1:  # the baselines' subset, for a like comparison
-        sub = set(range(0, len(data.queries), args.baseline_every))
+        sub = set(baseline_subset(len(data.queries), args.baseline_every))
         fig["methods"]["maplocalizer"]["baseline_subset"] = summarize(
             [r for r in fig["rows"]["maplocalizer"] if r["query"] in sub])
     if data.prefixes and "maplocalizer" in fig["rows"]:
