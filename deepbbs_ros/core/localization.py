@@ -11,7 +11,7 @@
                 is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
                 localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
-                descriptor's yaw; its verdict (RegistrationResult.valid / score) chooses
+                descriptor's yaw, GICP alone from there when that fails; the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
                 ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
@@ -71,8 +71,8 @@ class LocalizationResult:
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
         path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
             after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "probe", "refine", "total" (those that
-            ran).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "total" (those
+            that ran).
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
@@ -518,6 +518,12 @@ class MapLocalizer:
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
                           crop.T_map_place @ reg.T_target_source, place, crop)
+            if not ans.ok:  # the network's pass went astray: GICP alone from the descriptor's start (good to ~2 m)
+                t = time.perf_counter()
+                alt = self._gicp(src, crop, T_init, place)
+                timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
+                if alt is not None and alt.score > ans.score:
+                    ans = alt
             answers.append(ans)
             if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
@@ -610,6 +616,23 @@ class MapLocalizer:
         pol = polish(fine_src[0], crop.fine, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
         return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
+
+    def _gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int) -> _Answer | None:
+        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score."""
+        from deepbbs_ros.core import verdict
+
+        rc = self.config.registration
+        if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
+            return None
+        for pc in (src.polish_cloud, crop.pre.polish_cloud):
+            if getattr(pc, "pending", None) is not None:
+                pc.complete(threads=self.registration.gicp_threads())
+        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc)
+        if not pol.applied:
+            return None
+        score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
+        return _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
+                       crop.T_map_place @ pol.T_target_source, place, crop)
 
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
         """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
