@@ -102,6 +102,21 @@ def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
     assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
 
 
+def test_two_identical_places_are_ambiguous(localizer, world):
+    """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    shift = np.array([500.0, 0.0, 0.0])
+    twin = trajectory.copy()
+    twin[:, :3, 3] += shift
+    loc = MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
+                       registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
+    res = loc.localize(drive.scan_at(48).points)
+    assert not res.valid and res.reason.startswith("ambiguous: 2 places, 500")
+    assert len(res.alternatives) == 1  # the other copy: (x, y, score)
+
+
 def test_tracker_found_tracking_lost_relocalized(localizer, world):
     from deepbbs_ros.core.localization import MapTracker
 
