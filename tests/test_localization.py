@@ -94,6 +94,7 @@ def test_tracking_from_a_guess(localizer, world):
     res = localizer.localize(drive.scan_at(61).points, guess)
     ok, err = _ok(res.T_map_scan, T_gt)
     assert res.valid and ok and res.mode == "tracking" and res.candidates == 1, (err, res.reason)
+    assert res.path in ("gicp", "deepbbs") and res.crop is not None
 
 
 def test_elsewhere_is_no_pose_with_a_reason(localizer, world):

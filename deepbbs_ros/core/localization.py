@@ -273,6 +273,7 @@ class MapLocalizer:
         self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
         self._track_place = -1  # the place whose crop tracking used last
+        self._guess_crop: _Crop | None = None  # tracking off the places: the crop at an earlier guess
         self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
             from deepbbs_ros.core.registration import DeepBBSRegistration
@@ -459,22 +460,33 @@ class MapLocalizer:
         if d[near] <= reach:
             crop = self._crop(near)
             self._track_place = near
-        else:  # off the places: a crop at the guess (gravity-aligned)
-            T = np.eye(4)
-            T[:3, 3] = guess[:3, 3]
-            near, crop = -1, self._crop(-1, T)
+        else:  # off the places: a crop at the guess (gravity-aligned), kept while the sensor stays near it
+            near, crop = -1, self._guess_crop
+            if crop is None or np.linalg.norm(crop.T_map_place[:2, 3] - guess[:2, 3]) > reach:
+                T = np.eye(4)
+                T[:3, 3] = guess[:3, 3]
+                crop = self._guess_crop = self._crop(-1, T)
         timings["crop"] = (time.perf_counter() - t) * 1e3
+        T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
+        t = time.perf_counter()
+        score, T_map_scan, path = float("nan"), guess, ""
+        if not self._good_start:  # GICP from the guess (the GICP anchor's work) and the verdict
+            ans = self._gicp(src, crop, T_guess, near)
+            timings["gicp"] = (time.perf_counter() - t) * 1e3
+            if ans is not None:
+                score, T_map_scan, path = ans.score, ans.T, "gicp"
+                if ans.ok:
+                    return self._tracked(pts, crop, ans.T, ans.score, path, near, timings)
         t = time.perf_counter()
         with _search(self.registration, "off"):  # a rejection goes to the local search below, not other yaws
-            reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ guess, good_start=True)
+            reg = self._register(src, crop, T_guess, good_start=True)  # register()'s own good start when it has one
         timings["register"] = (time.perf_counter() - t) * 1e3
-        T_map_scan = crop.T_map_place @ reg.T_target_source
-        path = getattr(reg, "path", "") or ("gicp" if self._good_start and reg.starts <= 1 else "deepbbs")
+        path = getattr(reg, "path", "") or "deepbbs"
+        if not (reg.score <= score):  # nan-safe: the better of the two
+            score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
         if self._accepts(reg.valid, reg.score):
-            if lc.refine_tracking:
-                T_map_scan = self._refine(pts, crop, T_map_scan, [], timings)
-            return LocalizationResult(T_map_scan, True, float(reg.score), "tracking", "", candidates=1, path=path,
-                                      crop=_crop_cloud(crop), place=near)
+            return self._tracked(pts, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
+                                 timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
             among = np.flatnonzero(d <= lc.track_search_radius)
             if len(among):
@@ -482,11 +494,17 @@ class MapLocalizer:
                 res.mode, res.path = "tracking", "search"
                 if res.valid:
                     return res
-                res.reason = f"rejected from the guess (score {reg.score:.2f}); local search: {res.reason}"
+                res.reason = f"rejected from the guess (score {score:.2f}); local search: {res.reason}"
                 return res
-        return LocalizationResult(T_map_scan, False, float(reg.score), "tracking",
-                                  f"rejected from the guess (score {reg.score:.2f})", candidates=1, path=path,
-                                  place=near)
+        return LocalizationResult(T_map_scan, False, score, "tracking", f"rejected from the guess (score {score:.2f})",
+                                  candidates=1, path=path, place=near)
+
+    def _tracked(self, pts: np.ndarray, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
+                 timings: dict[str, float]) -> LocalizationResult:
+        if self.config.localization.refine_tracking:
+            T_map_scan = self._refine(pts, crop, T_map_scan, [], timings)
+        return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
+                                  crop=_crop_cloud(crop), place=place)
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
                 timings: dict[str, float]) -> LocalizationResult:
