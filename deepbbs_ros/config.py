@@ -420,8 +420,8 @@ class LocalizationConfig:
     # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
     confident_score: float = 0.8
     # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
-    # a true pose scores ~0.85-0.95 on it, a wrong place up to ~0.4
-    min_score: float = 0.5
+    # a true pose scores ~0.85-0.95 on it in a town (0.6-0.95 on a highway), a wrong place or pose up to ~0.6
+    min_score: float = 0.6
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
