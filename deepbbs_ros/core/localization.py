@@ -18,8 +18,13 @@
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
-With a guess (tracking) the scan is registered on the crop of the place nearest the guess, from the guess; only
-when the verdict rejects it are the places within localization.track_search_radius searched as above.
+With a guess (tracking): GICP of the scan on the crop of the place nearest the guess, from the guess, and the verdict
+(``DeepBBSRegistration.register(..., good_start=True)`` instead when the registration offers it); DeepBBS++ from the
+guess when that is rejected, and the places within localization.track_search_radius (as above) when that is too.
+
+Measured (simulated urban drive, 1.2 km, trajectory places every 4 m: 229 places, 2.1 M map points at 0.2 m; under
+load on 2 shared cores): map build 3.5 s, 39 MB besides the crops' LRU (a crop is a few MB); the build grows with the
+map's points and area, a global search with the places (one FFT row each) plus a fixed number of registrations.
 :class:`MapTracker` is the state machine around it (the node's and the replay's): constant-velocity prediction,
 lost after localization.lost_after rejected scans, then the global search until found again.
 
