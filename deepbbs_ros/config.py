@@ -335,6 +335,11 @@ class NodeConfig:
     # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
     # keeps the registration in the node's process
     registration_process: str = "auto"
+    # pair mode: the last valid answer is the next pair's good start (register(..., good_start=True): GICP alone from
+    # it, the full pipeline only when its stricter verdict rejects); a latched target: the last valid pose. Not for
+    # the first pair, after a rejected pose, ~/reset, or a source stamp more than good_start_max_gap s from the last
+    good_start: bool = True
+    good_start_max_gap: float = 0.5  # s; pair mode: a longer gap since the last answer's source stamp: no good start
 
     def validate(self) -> None:
         _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
@@ -361,6 +366,7 @@ class NodeConfig:
                "must be >= 0 (0 = registration.polish_max_voxels)")
         _check(self.registration_process in ("auto", "on", "off"), "node.registration_process",
                f"must be 'auto', 'on' or 'off', got {self.registration_process!r}")
+        _check(self.good_start_max_gap >= 0, "node.good_start_max_gap", "must be >= 0")
 
 
 @dataclass

@@ -292,8 +292,8 @@ class DeepBBSRegistration:
                 or a ``T_init`` that is not a finite (4, 4) matrix; the message names which.
         """
         clock = Clock(self.device)
-        if good_start and T_init is not None and not preprocessed:
-            first = self._gicp_first(source, target, T_init, clock)  # GICP from the vouched start, stricter verdict
+        if good_start and T_init is not None:
+            first = self._gicp_first(source, target, T_init, preprocessed, clock)  # GICP from the vouched start, stricter verdict
             if first.result is not None:
                 return first.result
             source, target = first.source, first.target  # rejected: the full pipeline on the clouds already built
@@ -318,18 +318,21 @@ class DeepBBSRegistration:
         st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
         self._searched.append(st.starts > 1)
         result = self._result(st, clock)
-        if good_start and T_init is not None and not preprocessed:
+        if good_start and T_init is not None:
             result.good_start = first.reason
         return result
 
     # -- the good-start path -----------------------------------------------------------------------
-    def _gicp_first(self, source: Any, target: Any, T_init: np.ndarray, clock: Clock) -> _GoodStart:
+    def _gicp_first(self, source: Any, target: Any, T_init: np.ndarray, preprocessed: bool,
+                    clock: Clock) -> _GoodStart:
         """``register(..., good_start=True)``: the precision-stage clouds only (raw scans preprocessed with their
         sampling waiting), GICP from ``T_init`` with ``registration.good_start_max_iters``, and the stricter verdict
         on a spread subset of the source's voxels. -> :class:`_GoodStart` with the result when accepted, else why
         not and the clouds built (PreprocessResults) for the full pipeline."""
         rc = self.config.registration
         T0 = as_transform(T_init)
+        if preprocessed and not (isinstance(source, PreprocessResult) and isinstance(target, PreprocessResult)):
+            return _GoodStart(source, target, reason="preprocessed arrays: no precision-stage clouds")
         src = self._lazy_cloud(source, "source")
         tgt = self._lazy_cloud(target, "target")
         if rc.polish == "none" or src.polish_cloud is None or tgt.polish_cloud is None:
