@@ -220,7 +220,7 @@ class RegistrationConfig:
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
     # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
     # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
-    good_start_threshold: float = 0.65  # the good-start verdict: valid when this share of the voxels lands on the target
+    good_start_threshold: float = 0.65  # the good-start verdict: valid when this share of the voxels is on the target
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
     good_start_max_trans: float = 3.0  # m; GICP moving the start further: the start was not good -> the full pipeline

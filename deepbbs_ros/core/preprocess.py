@@ -181,8 +181,8 @@ class PreprocessResult:
         """One readable line (deepbbs_ros/reprs.py); a waiting sampling is shown as such, not run."""
         if self.sampled:
             return short_repr(self)
-        parts = (f"{f.name}=" + ("<not sampled yet>" if f.name in SAMPLED_FIELDS else short_value(getattr(self, f.name)))
-                 for f in fields(self) if f.repr)
+        parts = (f"{f.name}=" + ("<not sampled yet>" if f.name in SAMPLED_FIELDS
+                                 else short_value(getattr(self, f.name))) for f in fields(self) if f.repr)
         return f"{type(self).__name__}({', '.join(parts)})"
 
     @property

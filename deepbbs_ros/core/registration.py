@@ -293,7 +293,7 @@ class DeepBBSRegistration:
         """
         clock = Clock(self.device)
         if good_start and T_init is not None:
-            first = self._gicp_first(source, target, T_init, preprocessed, clock)  # GICP from the vouched start, stricter verdict
+            first = self._gicp_first(source, target, T_init, preprocessed, clock)  # GICP from the start, strict verdict
             if first.result is not None:
                 return first.result
             source, target = first.source, first.target  # rejected: the full pipeline on the clouds already built
@@ -339,7 +339,8 @@ class DeepBBSRegistration:
             return _GoodStart(src, tgt, reason="no precision-stage clouds (registration.polish none)")
         spc, tpc = src.polish_cloud.complete(self.gicp_threads()), tgt.polish_cloud.complete(self.gicp_threads())
         clock.lap("preprocess")
-        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
+        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
+                                  polish_max_trans=rc.good_start_max_trans,
                                   polish_max_rot_deg=rc.good_start_max_rot_deg)
         pol = polish(spc, tpc, T0, cfg)  # GICP from the vouched start (iterations capped: a fallback stays cheap)
         if not pol.applied:

@@ -145,7 +145,8 @@ class PairStart:
         if not self.enabled or last is None:
             return None
         T, src_frame, tgt_frame, stamp = last
-        if (src_frame, tgt_frame) != (source.frame_id, target.frame_id) or abs(source.stamp_ns - stamp) > self.max_gap_ns:
+        frames = (source.frame_id, target.frame_id)
+        if (src_frame, tgt_frame) != frames or abs(source.stamp_ns - stamp) > self.max_gap_ns:
             return None
         return T.copy()
 

@@ -186,7 +186,8 @@ def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults |
 def write_pairs_csv(path: Path, res: PairResults) -> None:
     cols = ["method", "pair", "trial", "src_index", "tgt_index", "src_stamp_ns", "tgt_stamp_ns", "gt_dist_m",
             "rot_err_deg", "trans_err_m", "success", "runtime_ms", "preprocess_ms", "converged", "valid", "score",
-            "path", "init_yaw_deg", "init_trans_m"] + [f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
+            "path", "init_yaw_deg", "init_trans_m"] + [
+            f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
             f"T_gt_{i}{j}" for i in range(3) for j in range(4)] + ["error"]
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
