@@ -345,7 +345,8 @@ class DeepBBSRegistration:
         pol = polish(spc, tpc, T0, cfg)  # GICP from the vouched start (iterations capped: a fallback stays cheap)
         if not pol.applied:
             clock.lap("good_start")
-            return _GoodStart(src, tgt, reason=f"GICP from the start: {pol.reason}")
+            why = pol.reason.replace("polish_max_", "registration.good_start_max_")
+            return _GoodStart(src, tgt, reason=f"GICP from the start: {why}")
         T = pol.T_target_source
         T[:3, :3] = orthonormalize(T[:3, :3])
         pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
