@@ -94,7 +94,8 @@ class RegistrationResult:
             (``registration.polish`` "none", or no dense points).
         deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
             else why the raw clouds were kept; "" when neither scan was deskewed.
-        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
+        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32: the sampled points;
+            on the "gicp" path the spread subsets of the GICP clouds that its verdict scores.
         valid: the verdict: the pose can be trusted (``score >= registration.verdict_threshold``).
         score: the verdict's score (core/verdict.py): share of the sampled source points within
             ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
