@@ -16,7 +16,10 @@ Figures (``good_start.json`` under ``--out``):
   pose: per method (``register(T_init)`` and ``good_start``) the cases, the poses accepted (valid) right and wrong
   (valid but more than 1 deg / 0.3 m off), rejected, the share of wrong poses accepted, the paths that answered and
   (``good_start``) why the GICP-first answer was not taken; for GICP alone from the same starts, how often it is
-  wrong (it has no verdict: the share the good-start path must catch).
+  wrong (it has no verdict: the share the good-start path must catch). ``calibration``: the good-start verdict's
+  score (``registration.good_start_*``: a spread subset of the source's GICP voxels) and today's verdict score (the
+  sampled points) of every converged GICP-first answer, right and wrong: the highest wrong and lowest right score
+  of each, and how many wrong ones reach each threshold.
 
 Timings on a shared machine are noisy: the methods run by turns on every pair, so their ratios are fair. ::
 
@@ -170,8 +173,44 @@ def summarise(rows: dict[str, list[dict]]) -> dict:
     return s
 
 
+def gicp_first_scores(reg, src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, T_gt: np.ndarray) -> dict | None:
+    """The GICP-first attempt of ``register(..., good_start=True)`` redone step by step (core.polish, core.verdict):
+    its answer's good-start verdict score, today's verdict score (sampled points) and whether it is right; None when
+    GICP did not converge within the cap or moved too far."""
+    import dataclasses
+
+    from deepbbs_ros.core import verdict
+    from deepbbs_ros.core.polish import polish
+
+    rc = reg.config.registration
+    a, b = reg.preprocess(src), reg.preprocess(tgt)
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
+                              polish_max_rot_deg=rc.good_start_max_rot_deg)
+    pol = polish(a.polish_cloud, b.polish_cloud, T0, cfg)
+    if not pol.applied:
+        return None
+    T = pol.T_target_source
+    pts = verdict.spread_subset(a.polish_cloud.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+    rot, tr = errors(T, T_gt)
+    return {"voxels": verdict.fitness(pts, b.polish_cloud.tree, T, rc.verdict_dist),
+            "sampled": verdict.fitness(a.points, b.polish_cloud.tree, T, rc.verdict_dist),
+            "right": rot <= 1.0 and tr <= 0.3}
+
+
+def calibration(scores: list[dict], rc) -> dict:
+    out = {"converged": len(scores), "right": sum(s["right"] for s in scores)}
+    for kind, thr in (("voxels", rc.good_start_threshold), ("sampled", rc.verdict_threshold)):
+        wrong = [s[kind] for s in scores if not s["right"]]
+        right = [s[kind] for s in scores if s["right"]]
+        out[kind] = {"threshold": thr, "wrong_max": max(wrong, default=float("nan")),
+                     "right_min": min(right, default=float("nan")), "wrong_accepted": sum(w >= thr for w in wrong),
+                     "right_rejected": sum(r < thr for r in right)}
+    return out
+
+
 def wrong_starts(runner: Runner, sets: dict, args) -> dict:
     out: dict = {}
+    scores: list[dict] = []
     total: dict[str, Counter] = {m: Counter() for m in METHODS}
     for scene, frames in sets.items():
         per: dict[str, Counter] = {m: Counter() for m in METHODS}
@@ -182,6 +221,9 @@ def wrong_starts(runner: Runner, sets: dict, args) -> dict:
                 for sign in (1, -1):
                     T0 = T_gt.copy()
                     T0[:3, 3] += sign * d * T0[:3, 0]  # slid along the road: the sensor's heading (x)
+                    s = gicp_first_scores(runner.reg, src, tgt, T0, T_gt)
+                    if s is not None:
+                        scores.append(s)
                     for m in METHODS:
                         r = runner.run(m, src, tgt, T0)
                         rot, tr = errors(r["T"], T_gt)
@@ -204,6 +246,8 @@ def wrong_starts(runner: Runner, sets: dict, args) -> dict:
             f"{m} {v['accepted_wrong']} wrong / {v['accepted_right']} right / {v['rejected']} rejected of {v['cases']}"
             for m, v in out[scene].items() if m != "gicp"), flush=True)
     out["all"] = {m: finish(c) for m, c in total.items()}
+    out["calibration"] = calibration(scores, runner.reg.config.registration)
+    print(f"calibration: {out['calibration']}", flush=True)
     return out
 
 
