@@ -284,10 +284,8 @@ class MapLocalizer:
 
             registration = DeepBBSRegistration(cfg)
         self.registration = registration
-        try:
-            self._good_start = "good_start" in inspect.signature(registration.register).parameters
-        except (AttributeError, TypeError, ValueError):
-            self._good_start = False
+        self._good_start = _has_parameter(registration, "register", "good_start")  # register()'s GICP-first path
+        self._lazy = _has_parameter(registration, "preprocess", "lazy")
 
     @property
     def nbytes(self) -> int:
@@ -429,7 +427,8 @@ class MapLocalizer:
             if guess.shape != (4, 4) or not np.isfinite(guess).all():
                 raise LocalizationError(f"guess: expected a finite (4, 4) T_map_scan, got shape {guess.shape}")
         try:
-            src = self.registration.preprocess(pts, times, stamp_ns, motion)
+            kw = {"lazy": True} if self._lazy else {}  # the sampling waits for its first read (a good start: never)
+            src = self.registration.preprocess(pts, times, stamp_ns, motion, **kw)
         except DeepBBSError as err:
             raise LocalizationError(f"scan: {err}") from err
         timings["preprocess"] = (time.perf_counter() - t0) * 1e3
@@ -692,6 +691,14 @@ def _search(registration: Any, mode: str) -> Iterator[None]:
         yield
     finally:
         rc.global_search = old
+
+
+def _has_parameter(obj: Any, method: str, name: str) -> bool:
+    """``obj.method`` takes a parameter ``name`` (a feature test on the registration's API)."""
+    try:
+        return name in inspect.signature(getattr(obj, method)).parameters
+    except (AttributeError, TypeError, ValueError):
+        return False
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:
