@@ -446,7 +446,7 @@ class LocalizationConfig:
     candidate_search: str = "off"
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
-    crop_cache: int = 16  # crops whose preprocessing is kept (least recently used dropped; ~6-13 MB each): memory vs speed
+    crop_cache: int = 16  # crops whose preprocessing is kept (least recently used dropped; 6-13 MB each)
     # two valid answers farther apart than this (m) are different places; with scores within ambiguity_margin of each
     # other the answer is "ambiguous" (no pose)
     ambiguity_distance: float = 5.0
