@@ -456,6 +456,9 @@ class LocalizationConfig:
     # m; the chosen pose is probed by GICP from starts this far off in four directions: a pose that stays off with a
     # valid score (a featureless road) is ambiguous; 0 = no probe
     ambiguity_probe: float = 1.5
+    # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
+    # pose with a slightly worse optimum nearby scores a few hundredths less)
+    ambiguity_probe_margin: float = 0.03
     # m; the accepted pose is refined by a second GICP on the same clouds with this correspondence distance (the
     # registration's 2 m leaves 0.2-0.6 m along a road with few features: the far pairs pull); 0 = off
     refine_corr_dist: float = 0.5
@@ -489,6 +492,7 @@ class LocalizationConfig:
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
+        _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
         _check(self.lost_after >= 1, "localization.lost_after", "must be >= 1")

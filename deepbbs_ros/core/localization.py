@@ -576,9 +576,10 @@ class MapLocalizer:
         timings["probe"] = (time.perf_counter() - t) * 1e3
         pool = sorted(answers + probes, key=lambda a: -a.score)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
-        rivals = [a for a in pool[1:] if a.ok and a.score >= best.score - lc.ambiguity_margin
+        rivals = [a for a in pool[1:] if a.ok and a.score >= best.score - (
+                      lc.ambiguity_probe_margin if a.probe else lc.ambiguity_margin)
                   and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
-                      lc.ambiguity_distance if a.place >= 0 and not a.probe else max(0.5, 0.5 * lc.ambiguity_probe))]
+                      max(0.5, 0.5 * lc.ambiguity_probe) if a.probe else lc.ambiguity_distance)]
         alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
                         and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
         if rivals:
