@@ -217,6 +217,14 @@ class RegistrationConfig:
     global_rank_points: int = 256
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
+    # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
+    # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
+    # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
+    good_start_threshold: float = 0.65  # the good-start verdict: valid when this share of the voxels is on the target
+    good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
+    good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
+    good_start_max_trans: float = 3.0  # m; GICP moving the start further: the start was not good -> the full pipeline
+    good_start_max_rot_deg: float = 10.0  # deg; idem for rotation
 
     def validate(self) -> None:
         dev = self.device
@@ -267,6 +275,11 @@ class RegistrationConfig:
         _check(self.global_rank_points == 0 or self.global_rank_points >= 16, "registration.global_rank_points",
                "must be 0 (all sampled points) or >= 16")
         _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
+        _check(0 <= self.good_start_threshold <= 1, "registration.good_start_threshold", "must be in [0, 1]")
+        _check(self.good_start_points >= 16, "registration.good_start_points", "must be >= 16")
+        _check(self.good_start_max_iters >= 1, "registration.good_start_max_iters", "must be >= 1")
+        _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
+        _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 
@@ -322,6 +335,11 @@ class NodeConfig:
     # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
     # keeps the registration in the node's process
     registration_process: str = "auto"
+    # pair mode: the last valid answer is the next pair's good start (register(..., good_start=True): GICP alone from
+    # it, the full pipeline only when its stricter verdict rejects); a latched target: the last valid pose. Not for
+    # the first pair, after a rejected pose, ~/reset, or a source stamp more than good_start_max_gap s from the last
+    good_start: bool = True
+    good_start_max_gap: float = 0.5  # s; pair mode: a longer gap since the last answer's source stamp: no good start
 
     def validate(self) -> None:
         _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
@@ -348,6 +366,7 @@ class NodeConfig:
                "must be >= 0 (0 = registration.polish_max_voxels)")
         _check(self.registration_process in ("auto", "on", "off"), "node.registration_process",
                f"must be 'auto', 'on' or 'off', got {self.registration_process!r}")
+        _check(self.good_start_max_gap >= 0, "node.good_start_max_gap", "must be >= 0")
 
 
 @dataclass
@@ -427,7 +446,7 @@ class LocalizationConfig:
     candidate_search: str = "off"
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
-    crop_cache: int = 64  # crops whose preprocessing is kept (least recently used dropped): memory vs speed
+    crop_cache: int = 16  # crops whose preprocessing is kept (least recently used dropped; 6-13 MB each)
     # two valid answers farther apart than this (m) are different places; with scores within ambiguity_margin of each
     # other the answer is "ambiguous" (no pose)
     ambiguity_distance: float = 5.0
@@ -437,13 +456,13 @@ class LocalizationConfig:
     # m; the chosen pose is probed by GICP from starts this far off in four directions: a pose that stays off with a
     # valid score (a featureless road) is ambiguous; 0 = no probe
     ambiguity_probe: float = 1.5
-    # m; the accepted pose is refined by GICP on finer clouds of this voxel (the scan and the map within refine_radius):
-    # the registration's 0.5 m clouds leave ~0.3 m along a road with few features; 0 = off
-    refine_voxel: float = 0.25
-    refine_radius: float = 80.0  # m; the finer clouds of refine_voxel cover this radius around the sensor
-    # refine tracked poses too (not only those found by a search): more precise on featureless roads, at about twice
-    # the tracking's cost (a second, finer GICP per scan)
-    refine_tracking: bool = False
+    # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
+    # pose with a slightly worse optimum nearby scores a few hundredths less)
+    ambiguity_probe_margin: float = 0.03
+    # m; the accepted pose is refined by a second GICP on the same clouds with this correspondence distance (the
+    # registration's 2 m leaves 0.2-0.6 m along a road with few features: the far pairs pull); 0 = off
+    refine_corr_dist: float = 0.5
+    refine_tracking: bool = True  # refine tracked poses too (not only those found by a search)
     # tracking: a rejected pose from the guess is searched among the places within this radius (m) of the guess
     # before giving up on the scan (0 = no local search)
     track_search_radius: float = 30.0
@@ -473,9 +492,9 @@ class LocalizationConfig:
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
+        _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
-        _check(self.refine_voxel >= 0, "localization.refine_voxel", "must be >= 0 (0 = off)")
-        _check(self.refine_radius > 0, "localization.refine_radius", "must be > 0")
+        _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
         _check(self.lost_after >= 1, "localization.lost_after", "must be >= 1")
         _check(self.max_speed > 0, "localization.max_speed", "must be > 0")
 

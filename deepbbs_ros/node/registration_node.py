@@ -89,7 +89,14 @@ from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
-from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, ScanToScanOdometry, register_clouds
+from deepbbs_ros.node.pipeline import (
+    LocalMapOdometry,
+    MapTarget,
+    PairStart,
+    ScanToScanOdometry,
+    register_clouds,
+    takes_good_start,
+)
 from deepbbs_ros.node.sync import ApproximateTimeSync
 from deepbbs_ros.node.tf_static import StaticTransforms
 from deepbbs_ros.node.worker import LatestSlotWorker
@@ -349,6 +356,8 @@ class RegistrationNode(Node):
         self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
         self._last_pair_t = time.monotonic()
         self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
+        self._pair_start = PairStart(ncfg.good_start_max_gap, False)  # stamped pairs: the last valid answer (below)
+        self._paths = {"gicp": 0, "deepbbs": 0, "search": 0}  # pair mode: which registration path answered
 
         # the model: device and weights checked first, with errors naming the parameter
         self._owns_reg = registration is None  # closed with the node (its network process)
@@ -360,6 +369,8 @@ class RegistrationNode(Node):
             self._weights = str(getattr(registration, "weights", "") or "<injected model>")
         self.reg = registration
         self._device = str(getattr(registration, "device", "cpu"))
+        # a registration that takes a good start (DeepBBS++; not the GICP anchor, which always starts from identity)
+        self._pair_start.enabled = ncfg.good_start and ncfg.mode == "pair" and takes_good_start(registration)
         if ncfg.publish_odometry:  # warm the imports the first odometry message needs
             import scipy.spatial  # noqa: F401
             import scipy.spatial.transform  # noqa: F401
@@ -368,7 +379,8 @@ class RegistrationNode(Node):
         self.sync = ApproximateTimeSync(2, ncfg.queue_size, ncfg.slop, self._on_pair)
         self.odometry = self._make_odometry()
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
-        self._cache = PreprocessCache(arrival_preprocess(self.reg))
+        self._cache = PreprocessCache(arrival_preprocess(self.reg, self._pair_start.enabled or (
+            self._map_target is not None and ncfg.good_start)))
         # preprocessing on arrival only where every scan is registered by the network
         self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry)
 
@@ -651,6 +663,7 @@ class RegistrationNode(Node):
                 self._last_odom_stamp = None
         if self._map_target is not None:
             self._map_target.reset()
+        self._pair_start.reset()
         response.success = True
         response.message = "odometry restarted at identity; synchroniser and frame memory cleared"
         self.get_logger().info(response.message)
@@ -670,7 +683,9 @@ class RegistrationNode(Node):
         timings = {"queue_wait": (t_start - t_ready) * 1e3}
         try:
             if mode == "pair":
-                reg = register_clouds(self.reg, src, tgt)
+                T_start = self._pair_start.start(src, tgt)  # the last valid answer (None: the full pipeline)
+                reg = register_clouds(self.reg, src, tgt, T_init=T_start, good_start=T_start is not None)
+                self._pair_start.update(src, tgt, reg)
                 t0 = time.perf_counter()
                 if getattr(reg.result, "valid", True):
                     self.outputs.pair(src, tgt, reg)
@@ -699,6 +714,9 @@ class RegistrationNode(Node):
             self._counts["processed"] += 1
             if reg is not None:
                 self._last_result = _result_summary(reg.result)
+                path = getattr(reg.result, "path", "") if mode != "odometry" else ""
+                if path in self._paths:
+                    self._paths[path] += 1
         if reg is None:  # the odometry origin: nothing was registered
             if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
                 self.get_logger().debug(f"odometry step {src.stamp_ns} ns: origin; ms: queue_wait "
@@ -753,8 +771,9 @@ class RegistrationNode(Node):
         else:
             for c in clouds[:2]:
                 c.pp = self.reg.preprocess(c.xyz, c.times, c.stamp_ns)
-            register_clouds(self.reg, clouds[1], clouds[0])
+            first = register_clouds(self.reg, clouds[1], clouds[0])
             register_clouds(self.reg, clouds[1], clouds[0])  # the kept target state's path too
+            register_clouds(self.reg, clouds[1], clouds[0], T_init=first.T, good_start=True)  # the good-start path
 
     def _check_unpaired(self) -> None:
         """Pair mode (stamped): an input that has received clouds without a pair for ``node.unpaired_warn_after``
@@ -798,6 +817,7 @@ class RegistrationNode(Node):
         with self._lock:
             out: dict[str, Any] = dict(self._counts)
             out.update(self._last_result)
+            out["paths"] = dict(self._paths)
         out["published"] = self.outputs.published
         out["dropped"] = self.worker.dropped
         out["input_dropped"] = [inp.dropped for inp in self.inputs]
@@ -832,6 +852,9 @@ class RegistrationNode(Node):
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
             "odometry restarts on time jumps": s["time_jumps"],
         }
+        if self.cfg.node.mode == "pair":  # which path answered: GICP from the good start, the deep passes, the search
+            for path, n in s["paths"].items():
+                values[f"paths.{path}"] = n
         if "deepbbs_consulted" in s:
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         for kind, n in sorted(s["errors"].items()):
