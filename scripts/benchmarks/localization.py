@@ -21,7 +21,9 @@ built once per map with the map drive's keyframe poses; its verdict accepts or s
 the whole map; accepted when KISS-Matcher says its solution is valid); ``fpfh-ransac+gicp`` (Open3D's
 FPFH features and registration_ransac_based_on_feature_matching against the whole map, then GICP; Open3D has
 no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
-query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose).
+query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose);
+``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
+``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid).
 
 Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m
 (valid and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts,
@@ -707,7 +709,8 @@ def aggregate(figs: dict, methods: list[str]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"])
+    p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"],
+                   help="simulated scene types, one 1 km map each")
     p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders (velodyne/, poses.txt, "
                    "calib.txt) pooled into the real map, e.g. PATH/TO/kitti/00 PATH/TO/kitti/02")
     p.add_argument("--kitti-scans", type=int, default=10, help="the first scans of each KITTI sequence")
