@@ -225,3 +225,16 @@ def test_localization_results_metrics_outputs_and_interruption(day1, tmp_path):
 
     assert [p.name for p in plot_localization(tmp_path, res, 1.0, 0.3)] == ["localization_xy.png",
                                                                             "errors_over_time.png"]
+
+
+def test_fleet_pools_localization_figures():
+    from deepbbs_ros.replay.fleet import pool_metrics
+
+    one = {"scans": 10, "placed": 9, "correct": 9, "wrong_published": 0, "recoveries": 1,
+           "time_to_first_pose_ms": 400.0, "latency_tracking_ms": {"mean": 50.0}}
+    two = {"scans": 30, "placed": 20, "correct": 18, "wrong_published": 2, "recoveries": 0,
+           "time_to_first_pose_ms": 800.0, "latency_tracking_ms": {"mean": 90.0}}
+    m = pool_metrics("localization", [{"deepbbs++": one}, {"deepbbs++": two}])["deepbbs++"]
+    assert (m["scans"], m["placed"], m["wrong_published"], m["recoveries"]) == (40, 29, 2, 1)
+    assert m["correct_share"] == pytest.approx(27 / 40) and m["time_to_first_pose_ms"]["mean"] == pytest.approx(600)
+    assert m["latency_tracking_ms"]["mean"] == pytest.approx(80.0)
