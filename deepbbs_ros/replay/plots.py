@@ -361,8 +361,8 @@ MODE_COLORS = {"global": "tab:orange", "tracking": "tab:gray", "error": "tab:red
 
 
 def plot_localization(run: Path, res: LocalizationResults, rot_thresh: float, trans_thresh: float) -> list[Path]:
-    """``localization_xy.png`` (top view: the map, the ground truth, the published poses coloured by event, the
-    scans without a pose at their ground truth) and ``errors_over_time.png`` (translation and rotation error of
+    """``localization_xy.png`` (top view: the map, the ground truth, the published poses coloured by event, those
+    outside the tolerance ringed, the scans without a pose at their ground truth) and ``errors_over_time.png`` (translation and rotation error of
     the published poses, the tracker's time per scan by mode)."""
     plt = _plt()
     out: list[Path] = []
@@ -395,8 +395,15 @@ def plot_localization(run: Path, res: LocalizationResults, rot_thresh: float, tr
         ax.plot(est[sel, 0, 3] - origin[0], est[sel, 1, 3] - origin[1], "o", ms=3.5, label=event,
                 color=EVENT_COLORS.get(event, EVENT_OTHER), zorder=4)
     share = f"{len(placed)} of {len(recs)} scans placed"
+    if gt is not None and placed:
+        wrong = np.array([not (r.rot_err_deg <= rot_thresh and r.trans_err_m <= trans_thresh) for r in placed])
+        if wrong.any():
+            ax.plot(est[wrong, 0, 3] - origin[0], est[wrong, 1, 3] - origin[1], "o", mfc="none", mec="tab:red",
+                    mew=1.5, ms=9, label="wrong (outside tolerance)", zorder=6)
+            share += f", {int(wrong.sum())} wrong"
     _xy_axes(ax, origin, xlim, ylim, to_scale, f"Localization in the map (top view): {share}")
-    _figure_legend(fig, ax)
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 4), fontsize=9, frameon=False)
     out.append(run / "localization_xy.png")
     fig.savefig(out[-1], dpi=110)
     plt.close(fig)
