@@ -362,8 +362,8 @@ MODE_COLORS = {"global": "tab:orange", "tracking": "tab:gray", "error": "tab:red
 
 def plot_localization(run: Path, res: LocalizationResults, rot_thresh: float, trans_thresh: float) -> list[Path]:
     """``localization_xy.png`` (top view: the map, the ground truth, the published poses coloured by event, those
-    outside the tolerance ringed, the scans without a pose at their ground truth) and ``errors_over_time.png`` (translation and rotation error of
-    the published poses, the tracker's time per scan by mode)."""
+    outside the tolerance ringed, the scans without a pose at their ground truth) and ``errors_over_time.png``
+    (translation and rotation error of the published poses, the tracker's time per scan by mode)."""
     plt = _plt()
     out: list[Path] = []
     recs = res.records
