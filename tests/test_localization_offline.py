@@ -206,12 +206,18 @@ def test_localization_results_metrics_outputs_and_interruption(day1, tmp_path):
     _, scans = day1
     cfg = Config()
     tracker = _ScriptedTracker(scans, offsets={5: 1.0}, missing={3, 4}, stop_at=10)
-    res = run_localization(scans, tracker, cfg, results=LocalizationResults(map_xyz=np.zeros((5, 3)), map_points=5))
+    res = run_localization(scans, tracker, cfg, results=LocalizationResults(map_xyz=np.zeros((5, 3)), map_points=5,
+                                                                             setup_ms=3.0))
     assert not res.complete and "Ctrl-C" in res.errors[0] and res.frames == 10
     m = report.localization_metrics(res, cfg)["deepbbs++"]
     assert (m["scans"], m["placed"], m["correct"], m["wrong_published"], m["rejected"]) == (10, 8, 7, 1, 2)
     assert m["correct_share"] == pytest.approx(0.7) and m["first_pose_scans"] == 1
     assert m["trans_err_m"]["max"] == pytest.approx(1.0)
+    assert report.table_notes("localization", {"deepbbs++": m}, True) == []  # every cell measured
+    blind = {**m, "correct_share": None, "wrong_published": None, "rot_err_deg": {"p95": None},
+             "trans_err_m": {"p95": None}}
+    assert report.table_notes("localization", {"deepbbs++": blind}, False) == [
+        "-: needs ground truth (none in this recording): placed share, times and latency only"]
     report.write_localization_csv(tmp_path / "scans.csv", res)
     with open(tmp_path / "scans.csv") as fh:
         rows = list(csv.DictReader(fh))
