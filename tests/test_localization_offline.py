@@ -244,3 +244,16 @@ def test_fleet_pools_localization_figures():
     assert (m["scans"], m["placed"], m["wrong_published"], m["recoveries"]) == (40, 29, 2, 1)
     assert m["correct_share"] == pytest.approx(27 / 40) and m["time_to_first_pose_ms"]["mean"] == pytest.approx(600)
     assert m["latency_tracking_ms"]["mean"] == pytest.approx(80.0)
+
+
+def test_bag_map_of_a_cut_recording_keeps_what_was_read(day1, tmp_path, capsys):
+    import shutil
+
+    cut = tmp_path / "cut"
+    shutil.copytree(day1[0], cut)
+    mcap = next(cut.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    assert bag_main(["map", str(cut), str(tmp_path / "cut.pcd"), "--quiet", "--no-plot"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "truncated" in err[0] and "the map of the" in err[0]
+    assert 0 < len(read_map(tmp_path / "cut.pcd").trajectory) < FRAMES
