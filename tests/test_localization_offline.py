@@ -257,3 +257,18 @@ def test_bag_map_of_a_cut_recording_keeps_what_was_read(day1, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "truncated" in err[0] and "the map of the" in err[0]
     assert 0 < len(read_map(tmp_path / "cut.pcd").trajectory) < FRAMES
+
+
+def test_voxel_map_grows_as_one_grid():
+    """Scans added one by one (merged in batches) give the grid of all the points at once: the first point of
+    each voxel."""
+    from deepbbs_ros.core.mapping import VoxelMap, voxel_down_sample
+
+    rng = np.random.default_rng(0)
+    chunks = [rng.uniform(0, 10, (3000, 3)) for _ in range(12)]
+    grid = VoxelMap(0.5, flush_points=4000)
+    for c in chunks:
+        grid.add(c)
+    once = voxel_down_sample(np.concatenate(chunks), 0.5)
+    a, b = grid.points, once
+    np.testing.assert_array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)])

@@ -49,8 +49,9 @@ def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
 class VoxelMap:
     """Points accumulated on a voxel grid: ``add`` world points, ``points`` the grid's (M, 3) float64.
 
-    New points wait in a buffer and are merged (the grid's points first, so theirs stay) once the buffer
-    holds ``flush_points``: memory stays about the map's size plus one buffer."""
+    New points wait in a buffer and are merged (the grid's points first, so theirs stay) once the buffer holds
+    ``flush_points`` or as many points as the grid, whichever is more: each merge costs about the points added
+    since the last one (amortised linear in the scans), memory stays within about twice the map."""
 
     def __init__(self, voxel: float, flush_points: int = 2_000_000) -> None:
         if not voxel > 0:
@@ -65,7 +66,7 @@ class VoxelMap:
         """``points`` (N, 3) in the map frame, metres."""
         self._pending.append(voxel_down_sample(points, self.voxel))  # a scan's own duplicates first: cheaper
         self._pending_n += len(self._pending[-1])
-        if self._pending_n >= self.flush_points:
+        if self._pending_n >= max(self.flush_points, len(self._grid)):
             self._flush()
 
     def _flush(self) -> None:
