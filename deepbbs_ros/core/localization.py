@@ -513,7 +513,7 @@ class MapLocalizer:
             ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
                           crop.T_map_place @ reg.T_target_source, place, crop)
             answers.append(ans)
-            if ans.ok and accepted_dist is None:
+            if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
         n = len(answers)
         if not answers:
