@@ -397,6 +397,77 @@ class OdometryConfig:
 
 
 @dataclass
+class LocalizationConfig:
+    """Global localization in a prior map (core/localization.py): ``MapLocalizer`` finds a scan's pose in the map
+    with no initial guess, ``MapTracker`` tracks it from scan to scan; the node's ``node.target_mode: localization``
+    and ``deepbbs-replay --mode localization``."""
+
+    map_path: str = ""  # node: load the map from this .pcd / .ply file (map frame) instead of the map topic
+    map_voxel: float = 0.2  # m; the map is put on this voxel grid when loaded (0 = as given)
+    # m between candidate places: keyframes of the map's trajectory this far apart, or (without a trajectory) a grid
+    # of this step over the map's free space
+    place_spacing: float = 4.0
+    sensor_height: float = 1.8  # m; grid places (no trajectory): the sensor's assumed height above the ground
+    # grid places: a cell is free space when no map point lies between 0.3 m and sensor_height above its ground within
+    # this radius (m)
+    free_clearance: float = 1.5
+    descriptor_radius: float = 60.0  # m; the place descriptor (Scan Context) covers this radius around a place
+    descriptor_rings: int = 20  # rings of the descriptor (radial bins)
+    descriptor_sectors: int = 60  # sectors of the descriptor (yaw bins; the yaw of a match is good to 360 / this deg)
+    descriptor_cell: float = 1.0  # m; the height grid the descriptors are read from (max height above local ground)
+    # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
+    # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
+    top_k: int = 4
+    descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
+    # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
+    # a true pose scores ~0.85-0.95 on it, a wrong place up to ~0.4
+    min_score: float = 0.5
+    # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
+    # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
+    candidate_search: str = "off"
+    candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
+    crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
+    crop_cache: int = 64  # crops whose preprocessing is kept (least recently used dropped): memory vs speed
+    # two valid answers farther apart than this (m) are different places; with scores within ambiguity_margin of each
+    # other the answer is "ambiguous" (no pose)
+    ambiguity_distance: float = 5.0
+    ambiguity_margin: float = 0.08  # score difference under which two valid answers at different places tie
+    # m; the chosen pose is probed by GICP from starts this far off in four directions: a pose that stays off with a
+    # valid score (a featureless road) is ambiguous; 0 = no probe
+    ambiguity_probe: float = 1.5
+    # tracking: a rejected pose from the guess is searched among the places within this radius (m) of the guess
+    # before giving up on the scan (0 = no local search)
+    track_search_radius: float = 30.0
+    lost_after: int = 2  # MapTracker: this many rejected scans in a row -> lost (the next scans search the whole map)
+    max_speed: float = 40.0  # m/s; MapTracker: a pose implying a faster motion since the last one counts as rejected
+
+    def validate(self) -> None:
+        _check(self.map_voxel >= 0, "localization.map_voxel", "must be >= 0 (0 = as given)")
+        _check(self.place_spacing > 0, "localization.place_spacing", "must be > 0")
+        _check(self.sensor_height > 0, "localization.sensor_height", "must be > 0")
+        _check(self.free_clearance >= 0, "localization.free_clearance", "must be >= 0")
+        _check(self.descriptor_radius > 0, "localization.descriptor_radius", "must be > 0")
+        _check(self.descriptor_rings >= 2, "localization.descriptor_rings", "must be >= 2")
+        _check(self.descriptor_sectors >= 8, "localization.descriptor_sectors", "must be >= 8")
+        _check(0 < self.descriptor_cell <= self.descriptor_radius / 4, "localization.descriptor_cell",
+               "must be > 0 and <= descriptor_radius / 4")
+        _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
+        _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
+        _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
+        _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",
+               f"must be 'off' or 'auto', got {self.candidate_search!r}")
+        _check(self.candidate_separation >= 0, "localization.candidate_separation", "must be >= 0")
+        _check(self.crop_radius >= 0, "localization.crop_radius", "must be >= 0 (0 = preprocess.max_range)")
+        _check(self.crop_cache >= 1, "localization.crop_cache", "must be >= 1")
+        _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
+        _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
+        _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
+        _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
+        _check(self.lost_after >= 1, "localization.lost_after", "must be >= 1")
+        _check(self.max_speed > 0, "localization.max_speed", "must be > 0")
+
+
+@dataclass
 class TrainConfig:
     """deepbbs-train: data, augmentation, loss and optimiser."""
 
@@ -520,6 +591,7 @@ class Config:
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     node: NodeConfig = field(default_factory=NodeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    localization: LocalizationConfig = field(default_factory=LocalizationConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 

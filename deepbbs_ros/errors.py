@@ -44,3 +44,7 @@ class SimulationError(DeepBBSError):
 
 class NodeError(DeepBBSError):
     """The ROS node cannot start or run (bad parameter, bad topic name, unknown device)."""
+
+
+class LocalizationError(DeepBBSError, ValueError):
+    """Localization in a prior map cannot run on the given input (empty map, unreadable map file, a scan too small)."""

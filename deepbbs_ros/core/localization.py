@@ -1,0 +1,744 @@
+"""Global localization in a prior map: a scan's pose in the map with no initial guess, then tracking (no ROS).
+
+``MapLocalizer.localize`` reads top-down::
+
+    places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
+                m, or (no trajectory) a grid of that step over the map's free space
+    describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
+                ring x sector max height above the local ground, localization.descriptor_*), and the same from
+                the scan
+    rank        every place against the scan, every column shift (a circular correlation by FFT; the best shift
+                is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
+    register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
+                localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
+                descriptor's yaw; its verdict (RegistrationResult.valid / score) chooses
+    ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
+                ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
+                ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
+
+With a guess (tracking) the scan is registered on the crop of the place nearest the guess, from the guess; only
+when the verdict rejects it are the places within localization.track_search_radius searched as above.
+:class:`MapTracker` is the state machine around it (the node's and the replay's): constant-velocity prediction,
+lost after localization.lost_after rejected scans, then the global search until found again.
+
+Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
+``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
+origin at the place's sensor position; its crop is expressed in that frame.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.errors import DeepBBSError, LocalizationError
+from deepbbs_ros.reprs import short_repr
+
+__all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "voxel_downsample"]
+
+MIN_MAP_POINTS = 100  # a map with fewer points is refused
+MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
+OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
+GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
+
+
+@dataclass
+class LocalizationResult:
+    """One scan's pose in the map, or why there is none.
+
+    Attributes:
+        T_map_scan: (4, 4) float64, p_map = R p_scan + t; the best estimate even when not valid (then not to be
+            used; identity when there is none).
+        valid: the verdict accepted it and nothing else looked alike (publish only when True).
+        score: the verdict's score of the chosen pose (nan when none).
+        mode: "global" (searched the map) or "tracking" (from a guess / prediction).
+        reason: "" when valid; else one line why no pose.
+        event: set by :class:`MapTracker`: "found", "tracking", "lost", "relocalized", "searching".
+        candidates: candidate places registered (global), 1 when tracking from the guess alone.
+        path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
+            after the guess was rejected).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "probe", "total" (those that ran).
+        crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
+        place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
+        alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
+    """
+
+    __repr__ = short_repr
+
+    T_map_scan: np.ndarray
+    valid: bool
+    score: float
+    mode: str
+    reason: str
+    event: str = ""
+    candidates: int = 0
+    path: str = ""
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    crop: np.ndarray | None = None
+    place: int = -1
+    alternatives: list[tuple[float, float, float]] = field(default_factory=list)
+
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(N, 3) -> (M, 3) float32: the centroid of the points of every occupied ``voxel`` m cube (0: as given)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if voxel <= 0 or len(pts) == 0:
+        return pts.astype(np.float32)
+    key = np.floor(pts / voxel).astype(np.int64)
+    key -= key.min(axis=0)
+    dims = key.max(axis=0) + 1
+    flat = (key[:, 0] * dims[1] + key[:, 1]) * dims[2] + key[:, 2]
+    _, inv, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    out = np.stack([np.bincount(inv, weights=pts[:, j], minlength=len(counts)) for j in range(3)], axis=1)
+    return (out / counts[:, None]).astype(np.float32)
+
+
+# -- the height grid and the descriptor -------------------------------------------------------------------------------
+class _HeightGrid:
+    """A 2D grid (cell ``cell`` m) over points (N, 3): per cell the highest point above the local ground (the lowest
+    point within GROUND_WINDOW cells), 0 where empty; ``ground`` the local ground (nan where nothing lies near).
+    ``origin`` (2,) the corner of cell (0, 0); arrays indexed [ix, iy]."""
+
+    def __init__(self, points: np.ndarray, cell: float, pad: float = 0.0) -> None:
+        from scipy.ndimage import minimum_filter
+
+        xy = points[:, :2].astype(np.float64)
+        self.cell = float(cell)
+        self.origin = xy.min(axis=0) - pad
+        ij = np.floor((xy - self.origin) / cell).astype(np.int64)
+        self.shape = tuple(int(v) for v in (np.ceil((xy.max(axis=0) + pad - self.origin) / cell).astype(int) + 1))
+        flat = ij[:, 0] * self.shape[1] + ij[:, 1]
+        n = self.shape[0] * self.shape[1]
+        z = points[:, 2].astype(np.float32)
+        zmax = np.full(n, -np.inf, np.float32)
+        zmin = np.full(n, np.inf, np.float32)
+        np.maximum.at(zmax, flat, z)
+        np.minimum.at(zmin, flat, z)
+        zmax, zmin = zmax.reshape(self.shape), zmin.reshape(self.shape)
+        ground = minimum_filter(zmin, size=GROUND_WINDOW, mode="constant", cval=np.inf)
+        occupied = np.isfinite(zmax)
+        with np.errstate(invalid="ignore"):
+            self.height = np.where(occupied, zmax - np.where(np.isfinite(ground), ground, zmax), 0.0).astype(np.float32)
+        self.ground = np.where(np.isfinite(ground), ground, np.nan).astype(np.float32)
+        self.zmax, self.occupied = zmax, occupied
+
+    def index(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ix, iy, inside) of map positions xy (..., 2)."""
+        ij = np.floor((np.asarray(xy, np.float64) - self.origin) / self.cell).astype(np.int64)
+        inside = (ij[..., 0] >= 0) & (ij[..., 0] < self.shape[0]) & (ij[..., 1] >= 0) & (ij[..., 1] < self.shape[1])
+        return np.clip(ij[..., 0], 0, self.shape[0] - 1), np.clip(ij[..., 1], 0, self.shape[1] - 1), inside
+
+    def ground_at(self, xy: np.ndarray, fallback: float) -> np.ndarray:
+        """The local ground height (m) at positions xy (K, 2); ``fallback`` where the grid has none."""
+        ix, iy, inside = self.index(xy)
+        g = np.where(inside, self.ground[ix, iy], np.nan)
+        return np.where(np.isfinite(g), g, fallback)
+
+
+class _PolarTemplate:
+    """Which grid cells (offsets from the centre cell) fall in which (ring, sector) bin of a descriptor of ``rings``
+    x ``sectors`` bins out to ``radius`` m (sectors counted counter-clockwise from +x, sector 0 starting at -pi)."""
+
+    def __init__(self, radius: float, rings: int, sectors: int, cell: float) -> None:
+        self.radius, self.rings, self.sectors, self.cell = radius, rings, sectors, cell
+        # sample every bin densely enough that each gets its cells (small inner bins included), then deduplicate
+        dr = min(cell / 2.0, radius / rings / 2.0)
+        r = np.arange(dr / 2.0, radius, dr)
+        pts = []
+        for rr in r:
+            n = max(sectors * 2, int(np.ceil(2 * np.pi * rr / (cell / 2.0))))
+            a = -np.pi + (np.arange(n) + 0.5) * (2 * np.pi / n)
+            pts.append(np.stack([rr * np.cos(a), rr * np.sin(a)], axis=1))
+        p = np.concatenate(pts)
+        ring = np.minimum((np.hypot(p[:, 0], p[:, 1]) / (radius / rings)).astype(np.int64), rings - 1)
+        sector = np.minimum(((np.arctan2(p[:, 1], p[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(np.int64),
+                            sectors - 1)
+        off = np.floor(p / cell + 0.5).astype(np.int64)  # offsets of the cells holding the samples (centre cell 0)
+        key = np.unique(np.stack([ring * sectors + sector, off[:, 0], off[:, 1]], axis=1), axis=0)
+        self.bin, self.dx, self.dy = key[:, 0], key[:, 1], key[:, 2]
+        self.starts = np.flatnonzero(np.r_[True, self.bin[1:] != self.bin[:-1]])
+
+    def describe(self, grid: _HeightGrid, centres: np.ndarray) -> np.ndarray:
+        """(K, rings, sectors) float32 descriptors of the grid around the map positions ``centres`` (K, 2)."""
+        cx, cy, _ = grid.index(centres)
+        out = np.empty((len(centres), self.rings * self.sectors), np.float32)
+        for k in range(len(centres)):
+            ix, iy = cx[k] + self.dx, cy[k] + self.dy
+            ok = (ix >= 0) & (ix < grid.shape[0]) & (iy >= 0) & (iy < grid.shape[1])
+            v = np.where(ok, grid.height[np.clip(ix, 0, grid.shape[0] - 1), np.clip(iy, 0, grid.shape[1] - 1)], 0.0)
+            out[k] = np.maximum.reduceat(v, self.starts)
+        return out.reshape(len(centres), self.rings, self.sectors)
+
+
+def _normalise_columns(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., R, S) -> (columns scaled to unit norm, (..., S) 1.0 where a column is not empty)."""
+    norm = np.linalg.norm(desc, axis=-2, keepdims=True)
+    nonzero = norm > 1e-6
+    return np.where(nonzero, desc / np.where(nonzero, norm, 1.0), 0.0).astype(np.float32), nonzero[..., 0, :]
+
+
+def _match(places: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scan Context distance of the query (R, S) to every place (P, R, S) at every column shift: -> (distance (P,)
+    in [0, 1] (mean cosine distance of the columns both have), shift (P,) int: place column (s + shift) % S
+    matches query column s). Circular correlations by FFT over the sectors."""
+    pn, pmask = _normalise_columns(places)
+    qn, qmask = _normalise_columns(query)
+    S = places.shape[-1]
+    fp = np.fft.rfft(pn, axis=-1)
+    fq = np.fft.rfft(qn, axis=-1)
+    corr = np.fft.irfft((fp * np.conj(fq)[None]).sum(axis=1), n=S, axis=-1)  # (P, S): sum_s <p[:, s+k], q[:, s]>
+    both = np.fft.irfft(np.fft.rfft(pmask.astype(np.float32), axis=-1) * np.conj(np.fft.rfft(qmask.astype(
+        np.float32)))[None], n=S, axis=-1)  # columns non-empty in both
+    either = pmask.sum(axis=-1, keepdims=True) + qmask.sum() - both  # columns non-empty in one of them
+    sim = corr / np.maximum(either, 1.0)  # an empty column facing a full one counts as a mismatch
+    shift = np.argmax(sim, axis=1)
+    return (1.0 - sim[np.arange(len(places)), shift]).astype(np.float64), shift
+
+
+def _rz(yaw: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+@dataclass
+class _Crop:
+    T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
+    pre: Any  # its PreprocessResult (GICP cloud included)
+
+
+class MapLocalizer:
+    """Finds a scan's pose in a prior map (module docstring).
+
+    Args:
+        map_points: (N, 3) metres, map frame (put on ``localization.map_voxel``).
+        config: the whole configuration (defaults if None); ``localization`` is this class's section.
+        registration: the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` to use (built from
+            ``config`` when None: the shipped model).
+        trajectory: optional (K, 4, 4) ``T_map_sensor`` poses of the drive the map was built from: keyframes every
+            ``place_spacing`` m are the candidate places; without it the places are a grid over the map's free
+            space (cells with ground and no obstacle up to ``sensor_height`` within ``free_clearance``).
+
+    Everything per place is built here (``build_ms`` says how long): the height grid, the places, their descriptors.
+    The crops' preprocessing is done when first needed and kept (``localization.crop_cache`` of them).
+
+    Raises:
+        LocalizationError: an empty map, a map that is not (N, 3) finite numbers, too few points, a bad trajectory.
+    """
+
+    def __init__(self, map_points: np.ndarray, config: Config | None = None, *, registration: Any = None,
+                 trajectory: np.ndarray | None = None) -> None:
+        t0 = time.perf_counter()
+        self.config = cfg = config if config is not None else (registration.config if registration is not None
+                                                               else Config())
+        lc = cfg.localization
+        pts = _as_cloud(map_points, "map")
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) < MIN_MAP_POINTS:
+            raise LocalizationError(f"map: {len(pts)} finite points, at least {MIN_MAP_POINTS} are needed")
+        self.points = voxel_downsample(pts, lc.map_voxel)
+        self.crop_radius = lc.crop_radius or cfg.preprocess.max_range
+        self._index = _CellIndex(self.points, cell=10.0)
+        self.grid = _HeightGrid(self.points, lc.descriptor_cell, pad=lc.descriptor_radius)
+        self.template = _PolarTemplate(lc.descriptor_radius, lc.descriptor_rings, lc.descriptor_sectors,
+                                       lc.descriptor_cell)
+        if trajectory is not None:
+            self._places = self._keyframe_places(trajectory)
+        else:
+            self._places = self._grid_places()
+        if len(self._places) == 0:
+            raise LocalizationError("map: no candidate place (no free space with ground under it; give the map's "
+                                    "trajectory, or lower localization.free_clearance)")
+        self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
+        self._crops: OrderedDict[int, _Crop] = OrderedDict()
+        if registration is None:
+            from deepbbs_ros.core.registration import DeepBBSRegistration
+
+            registration = DeepBBSRegistration(cfg)
+        self.registration = registration
+        try:
+            self._good_start = "good_start" in inspect.signature(registration.register).parameters
+        except (AttributeError, TypeError, ValueError):
+            self._good_start = False
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+
+    # -- places -----------------------------------------------------------------------------------------------------
+    @property
+    def places(self) -> np.ndarray:
+        """(P, 4, 4) float64 candidate place poses ``T_map_place`` (gravity-aligned, at the sensor's position)."""
+        return self._places
+
+    def _keyframe_places(self, trajectory: np.ndarray) -> np.ndarray:
+        traj = np.asarray(trajectory, dtype=np.float64)
+        if traj.ndim != 3 or traj.shape[1:] != (4, 4) or len(traj) == 0 or not np.isfinite(traj).all():
+            raise LocalizationError(f"trajectory: expected (K, 4, 4) finite poses, got shape {traj.shape}")
+        xyz = traj[:, :3, 3]
+        keep, last = [0], xyz[0]
+        for k in range(1, len(xyz)):
+            if np.linalg.norm(xyz[k] - last) >= self.config.localization.place_spacing:
+                keep.append(k)
+                last = xyz[k]
+        out = np.repeat(np.eye(4)[None], len(keep), axis=0)
+        out[:, :3, 3] = xyz[keep]
+        return out
+
+    def _grid_places(self) -> np.ndarray:
+        """Places on a ``place_spacing`` grid over free space: cells with ground under them and no obstacle
+        (OBSTACLE_BAND above the local ground) within ``free_clearance``; the sensor ``sensor_height`` above."""
+        from scipy.ndimage import maximum_filter
+
+        lc, g = self.config.localization, self.grid
+        above = np.where(g.occupied, g.zmax - np.nan_to_num(g.ground, nan=np.inf), -np.inf)
+        obstacle = (above > OBSTACLE_BAND[0]) & (above < max(OBSTACLE_BAND[1], lc.sensor_height))
+        # an obstacle cell blocks the cells around it; a cell's own highest point may be a wall's top
+        reach = max(1, int(np.ceil(lc.free_clearance / g.cell)))
+        blocked = maximum_filter(obstacle, size=2 * reach + 1)
+        groundish = g.occupied & (above <= OBSTACLE_BAND[0])
+        step = max(1, int(round(lc.place_spacing / g.cell)))
+        ix, iy = np.meshgrid(np.arange(step // 2, g.shape[0], step), np.arange(step // 2, g.shape[1], step),
+                             indexing="ij")
+        ix, iy = ix.ravel(), iy.ravel()
+        ok = groundish[ix, iy] & ~blocked[ix, iy]
+        ix, iy = ix[ok], iy[ok]
+        xy = g.origin + (np.stack([ix, iy], axis=1) + 0.5) * g.cell
+        out = np.repeat(np.eye(4)[None], len(xy), axis=0)
+        out[:, :2, 3] = xy
+        out[:, 2, 3] = g.ground[ix, iy] + lc.sensor_height
+        return out
+
+    # -- crops ------------------------------------------------------------------------------------------------------
+    def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
+        """(M, 3) float32 map points within ``crop_radius`` (horizontally) of the place, in the place's frame."""
+        c = T_map_place[:3, 3]
+        pts = self._index.within(c[:2], self.crop_radius)
+        return ((pts.astype(np.float64) - c) @ T_map_place[:3, :3]).astype(np.float32)
+
+    def _crop(self, place: int, T_map_place: np.ndarray | None = None) -> _Crop:
+        """The preprocessed crop of place ``place`` (LRU), or (``place`` -1) one at ``T_map_place`` (not kept)."""
+        if place >= 0 and place in self._crops:
+            self._crops.move_to_end(place)
+            return self._crops[place]
+        T = self._places[place] if place >= 0 else T_map_place
+        local = self.crop_points(T)
+        if len(local) < MIN_SCAN_POINTS:
+            raise LocalizationError(f"map: {len(local)} points within {self.crop_radius:.0f} m of "
+                                    f"[{T[0, 3]:.1f}, {T[1, 3]:.1f}]")
+        crop = _Crop(T.copy(), self.registration.preprocess(local))
+        if place >= 0:
+            self._crops[place] = crop
+            while len(self._crops) > self.config.localization.crop_cache:
+                self._crops.popitem(last=False)
+        return crop
+
+    # -- the scan ---------------------------------------------------------------------------------------------------
+    def describe(self, scan: np.ndarray) -> np.ndarray:
+        """(R, S) float32 descriptor of a raw scan (N, 3), sensor frame (its yaw: the columns' order)."""
+        lc = self.config.localization
+        pts = _as_cloud(scan, "scan")
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= lc.descriptor_radius + lc.descriptor_cell]
+        if len(pts) < MIN_SCAN_POINTS:
+            raise LocalizationError(f"scan: {len(pts)} points within {lc.descriptor_radius:.0f} m")
+        grid = _HeightGrid(pts, lc.descriptor_cell, pad=lc.descriptor_radius)
+        return self.template.describe(grid, np.zeros((1, 2)))[0]
+
+    def rank(self, desc: np.ndarray, among: np.ndarray | None = None) -> list[tuple[int, float, float]]:
+        """[(place, descriptor distance, yaw of the scan in the map (rad))] best first, at most ``top_k`` places at
+        least ``candidate_separation`` m apart, among the places ``among`` (indices; None: all)."""
+        lc = self.config.localization
+        idx = np.arange(len(self._places)) if among is None else np.asarray(among, dtype=np.int64)
+        if len(idx) == 0:
+            return []
+        dist, shift = _match(self.descriptors[idx], desc)
+        order = np.argsort(dist, kind="stable")
+        chosen: list[tuple[int, float, float]] = []
+        xy = self._places[:, :2, 3]
+        for o in order:
+            p = int(idx[o])
+            if any(np.linalg.norm(xy[p] - xy[q]) < lc.candidate_separation for q, _, _ in chosen):
+                continue
+            yaw = (int(shift[o]) * 2.0 * np.pi / lc.descriptor_sectors)
+            chosen.append((p, float(dist[o]), yaw))
+            if len(chosen) >= lc.top_k:
+                break
+        return chosen
+
+    # -- localize ---------------------------------------------------------------------------------------------------
+    def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
+                 stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None) -> LocalizationResult:
+        """The pose of ``scan`` in the map.
+
+        Args:
+            scan: (N, 3) metres, sensor frame (raw; NaN rows dropped).
+            guess: None -> global search over the whole map; (4, 4) ``T_map_scan`` -> tracking: registration on the
+                crop nearest the guess, from the guess; when the verdict rejects it, the places within
+                ``track_search_radius`` are searched. Never a wrong pose on purpose: the verdict rejects.
+            times, stamp_ns, motion: per-point times (N,) s since the stamp and the sensor's known motion
+                (``T_prev_cur``, seconds) for deskewing (``DeepBBSRegistration.preprocess``); optional.
+
+        Raises:
+            LocalizationError: a scan that is not (N, 3) numbers, with too few finite points, a bad guess.
+        """
+        t0 = time.perf_counter()
+        timings: dict[str, float] = {}
+        pts = _as_cloud(scan, "scan")
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) < MIN_SCAN_POINTS:
+            raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
+        if guess is not None:
+            guess = np.asarray(guess, dtype=np.float64)
+            if guess.shape != (4, 4) or not np.isfinite(guess).all():
+                raise LocalizationError(f"guess: expected a finite (4, 4) T_map_scan, got shape {guess.shape}")
+        try:
+            src = self.registration.preprocess(pts, times, stamp_ns, motion)
+        except DeepBBSError as err:
+            raise LocalizationError(f"scan: {err}") from err
+        timings["preprocess"] = (time.perf_counter() - t0) * 1e3
+        if guess is not None:
+            res = self._track(pts, src, guess, timings)
+        else:
+            res = self._global(pts, src, None, timings)
+        res.timings_ms = timings
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        return res
+
+    def _sensor_height(self, src: Any) -> float | None:
+        """The scan's sensor height above its ground plane (m), None without one."""
+        g = getattr(src, "ground_plane", None)
+        if g is None or abs(g[2]) < 0.5:
+            return None
+        return float(g[3] / g[2])
+
+    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, good_start: bool = False) -> Any:
+        kw = {"good_start": True} if good_start and self._good_start else {}
+        return self.registration.register(src, crop.pre, T_init=T_place_scan, **kw)
+
+    def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
+        lc = self.config.localization
+        t = time.perf_counter()
+        xy = self._places[:, :2, 3]
+        d = np.linalg.norm(xy - guess[:2, 3], axis=1)
+        near = int(np.argmin(d))
+        if d[near] <= max(lc.place_spacing, 0.25 * self.crop_radius):
+            crop = self._crop(near)
+        else:  # off the places: a crop at the guess (gravity-aligned)
+            T = np.eye(4)
+            T[:3, 3] = guess[:3, 3]
+            near, crop = -1, self._crop(-1, T)
+        timings["crop"] = (time.perf_counter() - t) * 1e3
+        t = time.perf_counter()
+        reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ guess, good_start=True)
+        timings["register"] = (time.perf_counter() - t) * 1e3
+        T_map_scan = crop.T_map_place @ reg.T_target_source
+        path = getattr(reg, "path", "") or ("gicp" if self._good_start and reg.starts <= 1 else "deepbbs")
+        if self._accepts(reg.valid, reg.score):
+            return LocalizationResult(T_map_scan, True, float(reg.score), "tracking", "", candidates=1, path=path,
+                                      crop=_crop_cloud(crop), place=near)
+        if lc.track_search_radius > 0:  # a local search among the places around the guess
+            among = np.flatnonzero(d <= lc.track_search_radius)
+            if len(among):
+                res = self._global(pts, src, among, timings)
+                res.mode, res.path = "tracking", "search"
+                if res.valid:
+                    return res
+                res.reason = f"rejected from the guess (score {reg.score:.2f}); local search: {res.reason}"
+                return res
+        return LocalizationResult(T_map_scan, False, float(reg.score), "tracking",
+                                  f"rejected from the guess (score {reg.score:.2f})", candidates=1, path=path,
+                                  place=near)
+
+    def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
+                timings: dict[str, float]) -> LocalizationResult:
+        lc = self.config.localization
+        t = time.perf_counter()
+        desc = self.describe(pts)
+        timings["describe"] = timings.get("describe", 0.0) + (time.perf_counter() - t) * 1e3
+        t = time.perf_counter()
+        ranked = self.rank(desc, among)
+        timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
+        h_scan = self._sensor_height(src)
+        answers: list[_Answer] = []
+        accepted_dist = None  # descriptor distance of the first accepted candidate
+        for place, dist, yaw in ranked:
+            if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
+                break  # the rest look less alike than the margin: not a rival
+            t = time.perf_counter()
+            crop = self._crop(place)
+            timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
+            T_init = _rz(yaw)
+            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
+                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
+                if np.isfinite(g):
+                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
+            t = time.perf_counter()
+            with _search(self.registration, lc.candidate_search):
+                reg = self._register(src, crop, T_init)
+            timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
+            ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
+                          crop.T_map_place @ reg.T_target_source, place, crop)
+            answers.append(ans)
+            if ans.ok and accepted_dist is None:
+                accepted_dist = dist
+        n = len(answers)
+        if not answers:
+            return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
+        answers.sort(key=lambda a: -a.score)
+        best = answers[0]
+        if not best.ok:  # the best candidate from nearby starts (GICP), then with the registration's global search
+            t = time.perf_counter()
+            answers = sorted(answers + self._probe(src, best), key=lambda a: -a.score)
+            timings["probe"] = (time.perf_counter() - t) * 1e3
+            if not answers[0].ok and lc.candidate_search == "off" and self._searchable:
+                t = time.perf_counter()
+                T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
+                reg = self._register(src, best.crop, T_init)
+                timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
+                answers.append(_Answer(float(reg.score), self._accepts(reg.valid, reg.score),
+                                       best.crop.T_map_place @ reg.T_target_source, best.place, best.crop))
+                answers.sort(key=lambda a: -a.score)
+            best = answers[0]
+        if not best.ok:
+            return LocalizationResult(best.T, False, best.score, "global",
+                                      f"no candidate place passed the verdict (best score {best.score:.2f} < "
+                                      f"{self._threshold:.2f}: scan outside the map?)", candidates=n,
+                                      path="deepbbs", place=best.place)
+        t = time.perf_counter()
+        probes = self._probe(src, best)
+        timings["probe"] = (time.perf_counter() - t) * 1e3
+        pool = sorted(answers + probes, key=lambda a: -a.score)
+        best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
+        rivals = [a for a in pool[1:] if a.ok and a.score >= best.score - lc.ambiguity_margin
+                  and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
+                      lc.ambiguity_distance if a.place >= 0 and not a.probe else max(0.5, 0.5 * lc.ambiguity_probe))]
+        alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
+                        and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
+        if rivals:
+            far = max(float(np.linalg.norm(a.T[:3, 3] - best.T[:3, 3])) for a in rivals)
+            what = "the pose slides along a stretch without features" if all(a.probe for a in rivals) else \
+                f"{len(rivals) + 1} places"
+            return LocalizationResult(best.T, False, best.score, "global",
+                                      f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
+                                      f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
+                                      alternatives=alternatives)
+        return LocalizationResult(best.T, True, best.score, "global", "", candidates=n, path="deepbbs",
+                                  crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives)
+
+    @property
+    def _searchable(self) -> bool:
+        """The registration has a global search of its own to fall back on."""
+        rc = getattr(getattr(self.registration, "config", None), "registration", None)
+        return rc is not None and rc.global_search != "off"
+
+    @property
+    def _threshold(self) -> float:
+        return max(self.config.registration.verdict_threshold, self.config.localization.min_score)
+
+    def _accepts(self, valid: bool, score: float) -> bool:
+        """The registration's verdict and the map's own bar (``localization.min_score``)."""
+        return bool(valid) and np.isfinite(score) and score >= self.config.localization.min_score
+
+    def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
+        """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
+        -> their answers (a pose pinned down brings each back; on a featureless stretch they stay off with as good a
+        score; a better score is a better optimum nearby)."""
+        from deepbbs_ros.core import verdict
+        from deepbbs_ros.core.polish import polish
+
+        lc, rc = self.config.localization, self.config.registration
+        crop = best.crop
+        if lc.ambiguity_probe <= 0 or src.polish_cloud is None or crop.pre.polish_cloud is None:
+            return []
+        src_pc, tgt_pc = src.polish_cloud, crop.pre.polish_cloud
+        for pc in (src_pc, tgt_pc):
+            if getattr(pc, "pending", None) is not None:
+                pc.complete(threads=self.registration.gicp_threads())
+        T = np.linalg.inv(crop.T_map_place) @ best.T
+        out = []
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            S = T.copy()
+            S[:2, 3] += (dx * lc.ambiguity_probe, dy * lc.ambiguity_probe)
+            pol = polish(src_pc, tgt_pc, S, rc)
+            if not pol.applied:
+                continue
+            score = verdict.fitness(src.points, tgt_pc.tree, pol.T_target_source, rc.verdict_dist)
+            valid = verdict.is_valid(score, rc.verdict_threshold)
+            out.append(_Answer(score, self._accepts(valid, score), crop.T_map_place @ pol.T_target_source,
+                               best.place, crop, probe=True))
+        return out
+
+
+@dataclass
+class _Answer:
+    score: float
+    ok: bool  # accepted by the verdict and localization.min_score
+    T: np.ndarray  # T_map_scan
+    place: int
+    crop: _Crop
+    probe: bool = False  # from the GICP probe around the best answer
+
+
+@contextmanager
+def _search(registration: Any, mode: str) -> Iterator[None]:
+    """``registration.global_search`` "off" on ``registration`` for the block when ``mode`` is "off" (restored)."""
+    rc = getattr(getattr(registration, "config", None), "registration", None)
+    if mode != "off" or rc is None or rc.global_search == "off":
+        yield
+        return
+    old, rc.global_search = rc.global_search, "off"
+    try:
+        yield
+    finally:
+        rc.global_search = old
+
+
+def _crop_cloud(crop: _Crop) -> np.ndarray | None:
+    pc = getattr(crop.pre, "polish_cloud", None)
+    if pc is None:
+        return None
+    p = np.asarray(pc.points(), dtype=np.float64)
+    return (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
+
+
+def _as_cloud(points: Any, name: str) -> np.ndarray:
+    """(N, 3) float32 (NaN rows kept) or LocalizationError naming ``name``."""
+    from deepbbs_ros.core.points import as_xyz
+
+    try:
+        return as_xyz(points, name)
+    except DeepBBSError as err:
+        raise LocalizationError(str(err)) from err
+
+
+class _CellIndex:
+    """Map points sorted by their ``cell`` m square (x, y), for fast crops."""
+
+    def __init__(self, points: np.ndarray, cell: float) -> None:
+        self.cell = cell
+        ij = np.floor(points[:, :2] / cell).astype(np.int64)
+        self.lo = ij.min(axis=0)
+        ij -= self.lo
+        self.ny = int(ij[:, 1].max()) + 1
+        self.nx = int(ij[:, 0].max()) + 1
+        key = ij[:, 0] * self.ny + ij[:, 1]
+        order = np.argsort(key, kind="stable")
+        self.points = points[order]
+        key = key[order]
+        self.starts = np.searchsorted(key, np.arange(self.nx * self.ny + 1))
+
+    def within(self, xy: np.ndarray, radius: float) -> np.ndarray:
+        """(M, 3) the points within ``radius`` m of xy (2,), horizontally."""
+        lo = np.floor((np.asarray(xy) - radius) / self.cell).astype(np.int64) - self.lo
+        hi = np.floor((np.asarray(xy) + radius) / self.cell).astype(np.int64) - self.lo
+        lo, hi = np.maximum(lo, 0), np.minimum(hi, [self.nx - 1, self.ny - 1])
+        parts = []
+        for i in range(lo[0], hi[0] + 1):
+            a, b = self.starts[i * self.ny + lo[1]], self.starts[i * self.ny + hi[1] + 1]
+            if b > a:
+                parts.append(self.points[a:b])
+        if not parts:
+            return np.zeros((0, 3), np.float32)
+        p = np.concatenate(parts)
+        d = p[:, :2] - np.asarray(xy, dtype=np.float32)
+        return p[np.einsum("ij,ij->i", d, d) <= radius * radius]
+
+
+class MapTracker:
+    """The state machine shared by the node and the replay (module docstring).
+
+    One scan in -> one :class:`LocalizationResult` out with its ``event``: "found" (first pose), "tracking",
+    "lost" (``lost_after`` rejected scans in a row, or a pose implying more than ``max_speed``), "searching" (no
+    pose yet, or still lost), "relocalized" (found again after being lost). ``state``: "searching" | "tracking" |
+    "lost"; ``recoveries``: times it was lost and found again.
+    """
+
+    def __init__(self, localizer: MapLocalizer, config: Config | None = None) -> None:
+        self.localizer = localizer
+        self.config = config if config is not None else localizer.config
+        self.recoveries = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: the next scan is searched in the whole map (the node's ~/relocalize)."""
+        self.state = "searching"
+        self.rejected = 0
+        self._poses: list[tuple[int, np.ndarray]] = []  # (stamp_ns, T_map_scan) of the last accepted scans
+
+    def predict(self, stamp_ns: int) -> np.ndarray | None:
+        """T_map_scan (4, 4) at ``stamp_ns`` under constant velocity from the last two accepted poses (the last pose
+        with one; None with none)."""
+        if not self._poses:
+            return None
+        s1, T1 = self._poses[-1]
+        if len(self._poses) < 2:
+            return T1.copy()
+        s0, T0 = self._poses[-2]
+        dt0, dt1 = (s1 - s0) * 1e-9, (stamp_ns - s1) * 1e-9
+        if dt0 <= 0 or dt1 < 0 or dt1 > 5.0 * max(dt0, 0.05):
+            return T1.copy()
+        from scipy.spatial.transform import Rotation
+
+        step = np.linalg.inv(T0) @ T1
+        k = dt1 / dt0
+        out = np.eye(4)
+        out[:3, :3] = Rotation.from_rotvec(Rotation.from_matrix(step[:3, :3]).as_rotvec() * k).as_matrix()
+        out[:3, 3] = step[:3, 3] * k
+        return T1 @ out
+
+    def step(self, scan: np.ndarray, stamp_ns: int, times: np.ndarray | None = None) -> LocalizationResult:
+        """Localize one scan (N, 3) (sensor frame, metres) stamped ``stamp_ns`` (per-point ``times`` (N,) s since the
+        stamp, optional). Raises LocalizationError for bad input (the state is unchanged)."""
+        lc = self.config.localization
+        stamp_ns = int(stamp_ns)
+        if self.state == "tracking":
+            guess = self.predict(stamp_ns)
+            motion = None
+            if len(self._poses) >= 2 and times is not None:
+                (s0, T0), (s1, T1) = self._poses[-2:]
+                motion = (np.linalg.inv(T0) @ T1, (s1 - s0) * 1e-9)
+            res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
+            if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
+                res.valid = False
+                res.reason = f"implausible motion (faster than {lc.max_speed:.0f} m/s)"
+            if res.valid:
+                self.rejected = 0
+                self._accept(stamp_ns, res.T_map_scan)
+                res.event = "tracking"
+                return res
+            self.rejected += 1
+            if self.rejected >= lc.lost_after:
+                self.state = "lost"
+                self._poses.clear()
+                res.event = "lost"
+            else:
+                res.event = "tracking"
+            return res
+        res = self.localizer.localize(scan, None, times=times, stamp_ns=stamp_ns)
+        if res.valid:
+            res.event = "relocalized" if self.state == "lost" else "found"
+            if self.state == "lost":
+                self.recoveries += 1
+            self.state, self.rejected = "tracking", 0
+            self._accept(stamp_ns, res.T_map_scan)
+        else:
+            res.event = "searching"
+        return res
+
+    def _plausible(self, T: np.ndarray, stamp_ns: int) -> bool:
+        if not self._poses:
+            return True
+        s1, T1 = self._poses[-1]
+        dt = max((stamp_ns - s1) * 1e-9, 0.05)
+        return float(np.linalg.norm(T[:3, 3] - T1[:3, 3])) <= self.config.localization.max_speed * dt + 1.0
+
+    def _accept(self, stamp_ns: int, T: np.ndarray) -> None:
+        self._poses.append((stamp_ns, T.copy()))
+        del self._poses[:-2]

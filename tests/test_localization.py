@@ -1,0 +1,145 @@
+"""Global localization in a prior map (core/localization.py): a pose with no initial guess, tracking, the verdict's
+"no pose, and why", the tracker's found / lost / relocalized, one-line errors for bad input.
+
+The map: five noiseless simulated HDL-64E scans of an urban drive put together at their ground-truth poses (about
+50 m of road), with the drive's trajectory for the candidate places. Queries are raw-geometry scans of the same drive
+at frames not used for the map (deskewed, so the ground truth at the stamp is the pose of the whole sweep); "another
+world" is a highway drive of another seed. Shipped weights, default configuration (network in this process).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.errors import ConfigError, LocalizationError
+from deepbbs_ros.metrics import pair_errors
+
+MAP_FRAMES = (30, 42, 54, 66, 78, 90)  # the drive starts from rest: about 50 m of road
+
+
+@pytest.fixture(scope="module")
+def world():
+    from deepbbs_ros.core.checkpoint import default_weights_path
+    from deepbbs_ros.core.localization import voxel_downsample
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    if not default_weights_path().is_file():
+        pytest.skip("shipped weights missing")
+    clean = DriveSimulator("urban", 5, frames=100, motion_distortion=False)
+    parts = []
+    for k in MAP_FRAMES:
+        s = clean.scan_at(k)
+        p = s.points[np.linalg.norm(s.points, axis=1) < 60.0]
+        parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
+    map_points = voxel_downsample(np.concatenate(parts), 0.25)
+    trajectory = np.stack([clean.pose_at(k) for k in range(30, 100)])
+    drive = DriveSimulator("urban", 5, frames=100, compensate=True)
+    other = DriveSimulator("highway", 11, frames=12, compensate=True)
+    return map_points, trajectory, drive, other
+
+
+@pytest.fixture(scope="module")
+def localizer(world):
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, _, _ = world
+    cfg = Config().replace(**{"registration.network_process": "off"})
+    loc = MapLocalizer(map_points, cfg, trajectory=trajectory)
+    yield loc
+    loc.registration.close()
+
+
+def _ok(T, T_gt, rot_deg=1.0, trans=0.3):
+    rot, tr = pair_errors(T, T_gt)
+    return rot < rot_deg and tr < trans, (rot, tr)
+
+
+def test_places_and_descriptors(localizer, world):
+    from deepbbs_ros.core.localization import _match
+
+    _, trajectory, _, _ = world
+    P = localizer.places
+    assert P.ndim == 3 and P.shape[1:] == (4, 4) and len(P) >= 8  # ~55 m of road, a place every 4 m
+    steps = np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1)
+    assert steps.min() >= Config().localization.place_spacing - 1e-9
+    assert localizer.descriptors.shape == (len(P), 20, 60)
+    # the descriptor is yaw-invariant up to a column shift: the scan turned by 90 degrees shifts it by 15 sectors
+    _, _, drive, _ = world
+    pts = drive.scan_at(60).points
+    a = localizer.describe(pts)
+    b = localizer.describe(pts @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T)
+    dist, shift = _match(a[None], b)  # a's column (s + shift) matches b's column s: b turned by +90 deg
+    assert dist[0] < 0.1 and int(shift[0]) in (44, 45, 46)
+    assert _match(a[None], a)[0][0] < 1e-5
+
+
+def test_global_pose_without_a_guess(localizer, world):
+    _, _, drive, _ = world
+    for k in (48, 73):  # not in the map
+        res = localizer.localize(drive.scan_at(k).points)
+        ok, err = _ok(res.T_map_scan, drive.pose_at(k))
+        assert res.valid and ok and res.mode == "global" and res.reason == "", (k, err, res.reason)
+        assert res.candidates >= 1 and res.timings_ms["total"] > 0 and res.crop is not None and res.crop.shape[1] == 3
+        assert 0 <= res.place < len(localizer.places)
+
+
+def test_tracking_from_a_guess(localizer, world):
+    from deepbbs_ros.replay.synthetic import pose
+
+    _, _, drive, _ = world
+    T_gt = drive.pose_at(61)
+    guess = T_gt @ pose(0.6, -0.4, 0.0, np.radians(3.0))
+    res = localizer.localize(drive.scan_at(61).points, guess)
+    ok, err = _ok(res.T_map_scan, T_gt)
+    assert res.valid and ok and res.mode == "tracking" and res.candidates == 1, (err, res.reason)
+
+
+def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
+    _, _, _, other = world
+    res = localizer.localize(other.scan_at(3).points)
+    assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
+
+
+def test_tracker_found_tracking_lost_relocalized(localizer, world):
+    from deepbbs_ros.core.localization import MapTracker
+
+    _, _, drive, other = world
+    tracker = MapTracker(localizer)
+    assert tracker.state == "searching" and tracker.recoveries == 0
+    events = []
+    for k in (44, 45, 47):
+        res = tracker.step(drive.scan_at(k).points, drive.stamp_ns(k))
+        events.append(res.event)
+        assert res.valid and _ok(res.T_map_scan, drive.pose_at(k))[0], (k, res.reason)
+    assert events == ["found", "tracking", "tracking"] and tracker.state == "tracking"
+    # carried into another world: lost within two scans, no pose published meanwhile
+    lost = [tracker.step(other.scan_at(k).points, drive.stamp_ns(47 + k)) for k in (1, 2)]
+    assert [r.valid for r in lost] == [False, False] and lost[-1].event == "lost" and tracker.state == "lost"
+    res = tracker.step(drive.scan_at(84).points, drive.stamp_ns(84))
+    assert res.event == "relocalized" and res.valid and tracker.recoveries == 1
+    assert _ok(res.T_map_scan, drive.pose_at(84))[0]
+    tracker.reset()
+    assert tracker.state == "searching"
+
+
+def test_bad_input_is_one_line(localizer):
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    cases = [
+        (lambda: MapLocalizer(np.zeros((0, 3)), registration=localizer.registration), "map"),
+        (lambda: MapLocalizer(np.full((500, 3), np.nan), registration=localizer.registration), "map"),
+        (lambda: MapLocalizer(np.zeros((500, 4)), registration=localizer.registration), "map"),
+        (lambda: localizer.localize(np.zeros((0, 3))), "scan"),
+        (lambda: localizer.localize(np.full((1000, 3), np.nan)), "scan"),
+        (lambda: localizer.localize(np.ones((1000, 3)), guess=np.full((4, 4), np.nan)), "guess"),
+        (lambda: MapLocalizer(localizer.points, registration=localizer.registration, trajectory=np.eye(3)),
+         "trajectory"),
+    ]
+    for call, name in cases:
+        with pytest.raises(LocalizationError) as err:
+            call()
+        assert str(err.value).startswith(name) and "\n" not in str(err.value)
+    with pytest.raises(ConfigError, match="localization.top_k"):
+        Config().replace(**{"localization.top_k": 0})
