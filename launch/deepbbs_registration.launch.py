@@ -11,8 +11,9 @@
 Arguments: ``params_file`` (default: this package's config/deepbbs_ros.yaml), ``mode`` (pair | odometry),
 ``topic`` (the odometry input; ``cloud`` is the same), ``source_cloud``, ``target_cloud``, ``target_mode``
 (stamped | latched: a map published once, transient local | localization: the pose in a prior map with no initial
-pose), ``map_path`` (localization: the map file, .pcd / .ply; '' = the map from ``target_cloud``), ``base_frame`` (odometry: the motion published is
-this frame's, with base <- sensor from /tf_static; '' = the cloud frame), ``odom_frame``, ``publish_tf``,
+pose), ``map_path`` (localization: the map file, .pcd / .ply; '' = the map from ``target_cloud``), ``base_frame``
+(odometry: the motion published is this frame's, with base <- sensor from /tf_static; '' = the cloud frame),
+``odom_frame``, ``publish_tf``,
 ``invert_tf`` (publish base -> odom), ``publish_odometry``, ``use_sim_time``, ``visualize`` (start RViz2 with the
 shipped rviz/deepbbs_ros.rviz: input cloud /points, aligned cloud, trajectory, TF; turns on ~/aligned_cloud),
 ``bagfile`` (play a recording into the node with deepbbs-play: odometry mode on ``topic``; pair mode each scan

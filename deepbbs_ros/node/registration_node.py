@@ -511,7 +511,8 @@ class RegistrationNode(Node):
             raise NodeError(str(err)) from err
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        ours = [p.name for p in params if p.name in node_parameters(self.cfg, self.cfg.node.mode, self.cfg.node.target_mode)]
+        declared = node_parameters(self.cfg, self.cfg.node.mode, self.cfg.node.target_mode)
+        ours = [p.name for p in params if p.name in declared]
         if ours:
             return SetParametersResult(successful=False, reason=f"restart the node to change {', '.join(ours)}")
         return SetParametersResult(successful=True)
