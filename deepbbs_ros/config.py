@@ -404,9 +404,10 @@ class LocalizationConfig:
 
     map_path: str = ""  # node: load the map from this .pcd / .ply file (map frame) instead of the map topic
     map_voxel: float = 0.2  # m; the map is put on this voxel grid when loaded (0 = as given)
-    # m between candidate places: keyframes of the map's trajectory this far apart, or (without a trajectory) a grid
-    # of this step over the map's free space
-    place_spacing: float = 4.0
+    place_spacing: float = 4.0  # m between candidate places: keyframes of the map's trajectory this far apart
+    # m; without a trajectory the candidate places are a grid of this step over the map's free space (where the mapping
+    # sensor passed): finer than place_spacing, since a place may lie beside the path as well as along it
+    grid_spacing: float = 2.5
     sensor_height: float = 1.8  # m; grid places (no trajectory): the sensor's assumed height above the ground
     # grid places: a cell is free space when no map point lies between 0.3 m and sensor_height above its ground within
     # this radius (m)
@@ -444,6 +445,7 @@ class LocalizationConfig:
     def validate(self) -> None:
         _check(self.map_voxel >= 0, "localization.map_voxel", "must be >= 0 (0 = as given)")
         _check(self.place_spacing > 0, "localization.place_spacing", "must be > 0")
+        _check(self.grid_spacing > 0, "localization.grid_spacing", "must be > 0")
         _check(self.sensor_height > 0, "localization.sensor_height", "must be > 0")
         _check(self.free_clearance >= 0, "localization.free_clearance", "must be >= 0")
         _check(self.descriptor_radius > 0, "localization.descriptor_radius", "must be > 0")

@@ -3,7 +3,7 @@
 ``MapLocalizer.localize`` reads top-down::
 
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
-                m, or (no trajectory) a grid of that step over the map's free space
+                m, or (no trajectory) a grid of localization.grid_spacing over the map's free space
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
@@ -48,6 +48,9 @@ MIN_MAP_POINTS = 100  # a map with fewer points is refused
 MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
+# grid places: a cell's ground is "seen from close by" with GROUND_FILL of the points of the best-filled ground cells,
+# and a place needs GROUND_COVERAGE of such cells around it
+GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
 
 
 @dataclass
@@ -120,6 +123,7 @@ class _HeightGrid:
         z = points[:, 2].astype(np.float32)
         zmax = np.full(n, -np.inf, np.float32)
         zmin = np.full(n, np.inf, np.float32)
+        self.count = np.bincount(flat, minlength=n).reshape(self.shape)  # points per cell
         np.maximum.at(zmax, flat, z)
         np.minimum.at(zmin, flat, z)
         zmax, zmin = zmax.reshape(self.shape), zmin.reshape(self.shape)
@@ -170,11 +174,11 @@ class _PolarTemplate:
         """(K, rings, sectors) float32 descriptors of the grid around the map positions ``centres`` (K, 2)."""
         cx, cy, _ = grid.index(centres)
         out = np.empty((len(centres), self.rings * self.sectors), np.float32)
-        for k in range(len(centres)):
-            ix, iy = cx[k] + self.dx, cy[k] + self.dy
-            ok = (ix >= 0) & (ix < grid.shape[0]) & (iy >= 0) & (iy < grid.shape[1])
-            v = np.where(ok, grid.height[np.clip(ix, 0, grid.shape[0] - 1), np.clip(iy, 0, grid.shape[1] - 1)], 0.0)
-            out[k] = np.maximum.reduceat(v, self.starts)
+        padded = np.pad(grid.height, 1)  # index -1 / shape: the zero border (outside the grid)
+        for a in range(0, len(centres), 64):  # batches of places: (64, cells of the template)
+            ix = np.clip(cx[a:a + 64, None] + self.dx[None] + 1, 0, grid.shape[0] + 1)
+            iy = np.clip(cy[a:a + 64, None] + self.dy[None] + 1, 0, grid.shape[1] + 1)
+            out[a:a + 64] = np.maximum.reduceat(padded[ix, iy], self.starts, axis=1)
         return out.reshape(len(centres), self.rings, self.sectors)
 
 
@@ -225,11 +229,13 @@ class MapLocalizer:
         registration: the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` to use (built from
             ``config`` when None: the shipped model).
         trajectory: optional (K, 4, 4) ``T_map_sensor`` poses of the drive the map was built from: keyframes every
-            ``place_spacing`` m are the candidate places; without it the places are a grid over the map's free
-            space (cells with ground and no obstacle up to ``sensor_height`` within ``free_clearance``).
+            ``place_spacing`` m are the candidate places; without it the places are a ``grid_spacing`` grid over the
+            map's free space (cells with ground seen from close by and no obstacle up to ``sensor_height`` within
+            ``free_clearance``).
 
-    Everything per place is built here (``build_ms`` says how long): the height grid, the places, their descriptors.
-    The crops' preprocessing is done when first needed and kept (``localization.crop_cache`` of them).
+    Everything per place is built here (``build_ms`` says how long, ``nbytes`` how much memory it holds): the height
+    grid, the places, their descriptors. The crops' preprocessing is done when first needed and kept
+    (``localization.crop_cache`` of them, ~1-3 MB each).
 
     Raises:
         LocalizationError: an empty map, a map that is not (N, 3) finite numbers, too few points, a bad trajectory.
@@ -245,9 +251,9 @@ class MapLocalizer:
         pts = pts[np.isfinite(pts).all(axis=1)]
         if len(pts) < MIN_MAP_POINTS:
             raise LocalizationError(f"map: {len(pts)} finite points, at least {MIN_MAP_POINTS} are needed")
-        self.points = voxel_downsample(pts, lc.map_voxel)
+        self._index = _CellIndex(voxel_downsample(pts, lc.map_voxel), cell=10.0)
+        self.points = self._index.points  # (N, 3) float32 the map on its voxel grid (sorted by 10 m cells)
         self.crop_radius = lc.crop_radius or cfg.preprocess.max_range
-        self._index = _CellIndex(self.points, cell=10.0)
         self.grid = _HeightGrid(self.points, lc.descriptor_cell, pad=lc.descriptor_radius)
         self.template = _PolarTemplate(lc.descriptor_radius, lc.descriptor_rings, lc.descriptor_sectors,
                                        lc.descriptor_cell)
@@ -260,6 +266,7 @@ class MapLocalizer:
                                     "trajectory, or lower localization.free_clearance)")
         self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
+        self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
             from deepbbs_ros.core.registration import DeepBBSRegistration
 
@@ -269,7 +276,13 @@ class MapLocalizer:
             self._good_start = "good_start" in inspect.signature(registration.register).parameters
         except (AttributeError, TypeError, ValueError):
             self._good_start = False
-        self.build_ms = (time.perf_counter() - t0) * 1e3
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held for the map besides the crops' cache: its points, the height grid, the descriptors."""
+        g = self.grid
+        return int(self.points.nbytes + self._index.starts.nbytes + g.height.nbytes
+                   + g.ground.nbytes + g.zmax.nbytes + g.count.nbytes + g.occupied.nbytes + self.descriptors.nbytes)
 
     # -- places -----------------------------------------------------------------------------------------------------
     @property
@@ -292,23 +305,28 @@ class MapLocalizer:
         return out
 
     def _grid_places(self) -> np.ndarray:
-        """Places on a ``place_spacing`` grid over free space: cells with ground under them and no obstacle
-        (OBSTACLE_BAND above the local ground) within ``free_clearance``; the sensor ``sensor_height`` above."""
-        from scipy.ndimage import maximum_filter
+        """Places over free space, one per ``grid_spacing`` square block: of the block's cells with ground (nothing
+        OBSTACLE_BAND above the local ground) at least ``free_clearance`` from any obstacle, the one farthest from
+        obstacles (the middle of a road, of a yard); the sensor ``sensor_height`` above its ground."""
+        from scipy.ndimage import distance_transform_edt, uniform_filter
 
         lc, g = self.config.localization, self.grid
         above = np.where(g.occupied, g.zmax - np.nan_to_num(g.ground, nan=np.inf), -np.inf)
         obstacle = (above > OBSTACLE_BAND[0]) & (above < max(OBSTACLE_BAND[1], lc.sensor_height))
-        # an obstacle cell blocks the cells around it; a cell's own highest point may be a wall's top
-        reach = max(1, int(np.ceil(lc.free_clearance / g.cell)))
-        blocked = maximum_filter(obstacle, size=2 * reach + 1)
-        groundish = g.occupied & (above <= OBSTACLE_BAND[0])
-        step = max(1, int(round(lc.place_spacing / g.cell)))
-        ix, iy = np.meshgrid(np.arange(step // 2, g.shape[0], step), np.arange(step // 2, g.shape[1], step),
-                             indexing="ij")
-        ix, iy = ix.ravel(), iy.ravel()
-        ok = groundish[ix, iy] & ~blocked[ix, iy]
-        ix, iy = ix[ok], iy[ok]
+        clearance = distance_transform_edt(~obstacle) * g.cell  # m to the nearest obstacle cell
+        free = g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= max(lc.free_clearance, g.cell))
+        # where the mapping sensor passed: its ground is sampled densely (ground seen from afar is not, and a place
+        # there would be described by a map that saw it from elsewhere)
+        full = g.count >= GROUND_FILL * np.percentile(g.count[free], 95) if free.any() else free
+        free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
+        ix, iy = np.nonzero(free)
+        if len(ix) == 0:
+            return np.zeros((0, 4, 4))
+        step = max(1, int(round(lc.grid_spacing / g.cell)))
+        block = (ix // step) * (g.shape[1] // step + 1) + iy // step
+        order = np.lexsort((-clearance[ix, iy], block))  # by block, the clearest cell first
+        first = order[np.r_[True, block[order][1:] != block[order][:-1]]]
+        ix, iy = ix[first], iy[first]
         xy = g.origin + (np.stack([ix, iy], axis=1) + 0.5) * g.cell
         out = np.repeat(np.eye(4)[None], len(xy), axis=0)
         out[:, :2, 3] = xy
@@ -436,7 +454,8 @@ class MapLocalizer:
             near, crop = -1, self._crop(-1, T)
         timings["crop"] = (time.perf_counter() - t) * 1e3
         t = time.perf_counter()
-        reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ guess, good_start=True)
+        with _search(self.registration, "off"):  # a rejection goes to the local search below, not other yaws
+            reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ guess, good_start=True)
         timings["register"] = (time.perf_counter() - t) * 1e3
         T_map_scan = crop.T_map_place @ reg.T_target_source
         path = getattr(reg, "path", "") or ("gicp" if self._good_start and reg.starts <= 1 else "deepbbs")
@@ -497,7 +516,9 @@ class MapLocalizer:
             t = time.perf_counter()
             answers = sorted(answers + self._probe(src, best), key=lambda a: -a.score)
             timings["probe"] = (time.perf_counter() - t) * 1e3
-            if not answers[0].ok and lc.candidate_search == "off" and self._searchable:
+            # a partial fit (the registration's verdict passed, the map's bar not): the right place, a poor pose?
+            if (not answers[0].ok and lc.candidate_search == "off" and self._searchable
+                    and best.score >= self.config.registration.verdict_threshold):
                 t = time.perf_counter()
                 T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
                 reg = self._register(src, best.crop, T_init)
