@@ -298,6 +298,9 @@ class NodeConfig:
     # with no initial pose: the whole map searched, then tracked; lost and found again (~/relocalize)
     target_mode: str = "stamped"
     map_frame: str = "map"  # localization: the frame of the map read from localization.map_path
+    # localization: a background thread prepares the map crop of the place the tracked pose reaches next, so that the
+    # scan that gets there does not wait for it
+    map_prefetch: bool = True
     initial_pose: list[float] = field(default_factory=lambda: [0.0] * 6)  # latched: first start x y z roll pitch yaw
     map_crop_radius: float = 0.0  # m; latched: map points within this of the estimate; 0 = preprocess.max_range
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this

@@ -14,9 +14,11 @@ the map), found again ("relocalized"); a long search says so at most every ``nod
 whole map. :meth:`~NodeLocalization.diagnostics` gives the /diagnostics values (state, placed, rejected,
 recoveries, last reason, time to first pose).
 
-Threads: :meth:`step` runs on the worker thread only; :meth:`set_map` (the map input's thread: the map's places and
+Threads: :meth:`step` runs on the worker thread only; :meth:`build` (the map input's thread: the map's places and
 descriptors are built there, off the worker) and :meth:`relocalize` (the executor thread) only leave a request
-that the next :meth:`step` applies, so neither waits for a registration.
+that the next :meth:`step` applies, so neither waits for a registration. With ``node.map_prefetch`` a thread of its
+own prepares the map crop of the place the tracked pose will reach in :data:`PREFETCH_AHEAD_S` s
+(``MapLocalizer.prefetch``), so that the scan that gets there does not wait for it.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from deepbbs_ros.node.pipeline import Registered
 
 #: the tracker's states, as /diagnostics shows them
 STATES = ("searching", "tracking", "lost")
+PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
 
 
 @dataclass
@@ -100,9 +103,15 @@ class NodeLocalization:
     """
 
     def __init__(self, config: Any, registration: Any) -> None:
+        from deepbbs_ros.node.worker import LatestSlotWorker
+
         self.config = config
         self.registration = registration
         self._lock = threading.Lock()
+        self.prefetched = 0  # map crops prepared ahead of the tracked pose
+        self._prefetch = None
+        if config.node.map_prefetch:
+            self._prefetch = LatestSlotWorker(self._prefetch_crop, name="deepbbs-loc-prefetch")
         self._pending_map: MapData | None = None
         self._pending_localizer: Any = None
         self._relocalize = False
@@ -231,8 +240,22 @@ class NodeLocalization:
                     self._last_search_log = now
                     line = (f"localization searching: no pose for {self._search_scans} scan(s), last: "
                             f"{self.last_reason}")
+        if valid and self._prefetch is not None and hasattr(self.localizer, "prefetch"):
+            ahead = tracker.predict(cloud.stamp_ns + int(PREFETCH_AHEAD_S * 1e9))
+            if ahead is not None:
+                self._prefetch.submit((self.localizer, ahead))
         reg = Registered(T, res, timings)
         return LocalizedScan(res, reg, getattr(res, "crop", None), self.map.frame_id, line)
+
+    def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
+        localizer, T = job
+        if localizer.prefetch(T) >= 0:
+            self.prefetched += 1
+
+    def stop(self) -> None:
+        """Stop the prefetch thread (the crop it prepares, if any, is finished first)."""
+        if self._prefetch is not None:
+            self._prefetch.stop()
 
     # -- /diagnostics ------------------------------------------------------------------------------------------
     @property
@@ -255,6 +278,7 @@ class NodeLocalization:
             "last path": self.last_path or "-",
             "time to first pose (s)": _seconds(self.first_pose_s),
             "last search took (s)": _seconds(self.time_to_first_pose_s),
+            "map crops prepared ahead": self.prefetched,
         }
         if self.map is not None:
             out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"

@@ -931,6 +931,8 @@ class RegistrationNode(Node):
         for inp in self.inputs:
             inp.stop()
         self.worker.stop()
+        if getattr(self, "localization", None) is not None:
+            self.localization.stop()
 
     def destroy_node(self):
         self._stop_threads()
