@@ -217,6 +217,14 @@ class RegistrationConfig:
     global_rank_points: int = 256
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
+    # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
+    # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
+    # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
+    good_start_threshold: float = 0.65  # the good-start verdict: valid when this share of the voxels is on the target
+    good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
+    good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
+    good_start_max_trans: float = 3.0  # m; GICP moving the start further: the start was not good -> the full pipeline
+    good_start_max_rot_deg: float = 10.0  # deg; idem for rotation
 
     def validate(self) -> None:
         dev = self.device
@@ -267,6 +275,11 @@ class RegistrationConfig:
         _check(self.global_rank_points == 0 or self.global_rank_points >= 16, "registration.global_rank_points",
                "must be 0 (all sampled points) or >= 16")
         _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
+        _check(0 <= self.good_start_threshold <= 1, "registration.good_start_threshold", "must be in [0, 1]")
+        _check(self.good_start_points >= 16, "registration.good_start_points", "must be >= 16")
+        _check(self.good_start_max_iters >= 1, "registration.good_start_max_iters", "must be >= 1")
+        _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
+        _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
 
 
@@ -328,6 +341,11 @@ class NodeConfig:
     # auto = on in pair mode on a CPU with 2+ cores; on = in pair mode; off = in the node's process. Odometry mode
     # keeps the registration in the node's process
     registration_process: str = "auto"
+    # pair mode: the last valid answer is the next pair's good start (register(..., good_start=True): GICP alone from
+    # it, the full pipeline only when its stricter verdict rejects); a latched target: the last valid pose. Not for
+    # the first pair, after a rejected pose, ~/reset, or a source stamp more than good_start_max_gap s from the last
+    good_start: bool = True
+    good_start_max_gap: float = 0.5  # s; pair mode: a longer gap since the last answer's source stamp: no good start
 
     def validate(self) -> None:
         _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
@@ -354,6 +372,7 @@ class NodeConfig:
                "must be >= 0 (0 = registration.polish_max_voxels)")
         _check(self.registration_process in ("auto", "on", "off"), "node.registration_process",
                f"must be 'auto', 'on' or 'off', got {self.registration_process!r}")
+        _check(self.good_start_max_gap >= 0, "node.good_start_max_gap", "must be >= 0")
 
 
 @dataclass

@@ -169,11 +169,12 @@ def test_any_start_and_the_verdict(scans, registrations):
     moved = (src @ P[:3, :3].T + P[:3, 3]).astype(np.float32)
     good = registrations["auto"].register(src, tgt)  # a good start: the search does not run
     assert good.valid and good.starts == 1 and good.score >= Config().registration.verdict_threshold
+    assert good.path == "deepbbs" and good.good_start == ""  # the deep passes from the given start answered
     assert max(pair_errors(good.T_target_source, T_gt)) < 0.3
     res = registrations["auto"].register(moved, tgt)  # no initial guess: the global search finds it
     rot, tr = pair_errors(res.T_target_source @ P, T_gt)
     assert rot < 1.0 and tr < 0.3, (rot, tr)
-    assert res.valid and res.starts == 4
+    assert res.valid and res.starts == 4 and res.path == "search"
     local = registrations["off"].register(moved, tgt)  # from the given start only: a wrong pose, rejected
     assert max(pair_errors(local.T_target_source @ P, T_gt)) > 1.0
     assert not local.valid and local.score < res.score

@@ -225,6 +225,40 @@ def test_pair_mode_withholds_a_pose_the_verdict_rejects(ros, world):
         h.close()
 
 
+def test_pair_mode_starts_from_the_last_answer_and_counts_paths(ros, world):
+    """Consecutive scans in pair mode (scan k on source_cloud, scan k-1 on target_cloud): the first pair has no good
+    start (the full pipeline: path deepbbs), the next ones start from the last answer and GICP answers (path gicp),
+    counted on /diagnostics; after ~/reset the next pair runs the full pipeline again."""
+    cfg = tiny_config(**{"registration.polish": "gicp", "node.diagnostics_period": 0.2})
+    h = Harness(cfg, "reg_good_start")
+    try:
+        poses = [at(10.0 + 1.2 * k, 2.0, 0.1 + 0.01 * k) for k in range(5)]
+        scans = [scan(world, P, seed=10 + k) for k, P in enumerate(poses)]
+
+        def pair(k: int) -> None:
+            stamp = 5 * SEC + k * 100_000_000
+            h.send("target_cloud", scans[k - 1], stamp, "lidar")
+            h.send("source_cloud", scans[k], stamp, "lidar")
+            n = len(h.poses)
+            assert h.wait_for(lambda: len(h.poses) > n), h.node.stats()
+            T, _, _ = pose_stamped_to_matrix(h.poses[-1])
+            _check_pose(T, np.linalg.inv(poses[k - 1]) @ poses[k])
+
+        for k in (1, 2, 3):
+            pair(k)
+        assert h.wait_for(lambda: h.diagnostics().get("paths.gicp") == "2"), h.diagnostics()
+        d = h.diagnostics()
+        assert (d["paths.deepbbs"], d["paths.search"]) == ("1", "0"), d
+        assert h.reset.wait_for_service(timeout_sec=5.0)
+        fut = h.reset.call_async(Trigger.Request())
+        assert h.wait_for(fut.done, 10.0) and fut.result().success
+        pair(4)  # ~/reset forgot the start: the full pipeline
+        assert h.wait_for(lambda: h.diagnostics().get("paths.deepbbs") == "2"), h.diagnostics()
+        assert h.node.stats()["paths"] == {"gicp": 2, "deepbbs": 2, "search": 0}
+    finally:
+        h.close()
+
+
 def _raw(width: int, height: int, fields, point_step: int, data: bytes, frame: str = "lidar", stamp_s: int = 1):
     m = PointCloud2()
     m.header.frame_id = frame

@@ -116,8 +116,10 @@ def test_pairs_mode_end_to_end(recording, fast_config, tiny_weights, tmp_path, c
 
     rows = list(csv.DictReader(open(run / "pairs.csv")))
     assert all(r["valid"] == "" for r in rows if r["method"] == "gicp")  # a method without a verdict
+    assert all(r["path"] == "" for r in rows if r["method"] == "gicp")  # nor registration paths
     if HAVE_CORE:  # DeepBBS++'s verdict on every pose: in pairs.csv, counted in metrics.json and the table
         assert {r["valid"] for r in rows if r["method"] == "deepbbs++"} <= {"0", "1"}
+        assert {r["path"] for r in rows if r["method"] == "deepbbs++"} <= {"deepbbs", "search"}  # which path answered
         m = doc["methods"]["deepbbs++"]
         assert m["accepted"] + m["rejected"] == 3 and "accepted" not in doc["methods"]["gicp"]
     for png in ("errors_cdf.png", "errors_hist.png", "errors_over_pairs.png"):

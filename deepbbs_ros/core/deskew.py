@@ -20,7 +20,7 @@ in the previous scan's frame; the deskew twist is ``log(T_prev_cur) / (stamp_cur
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 import time
 from typing import Any
 
@@ -67,8 +67,9 @@ class StreamDeskew:
             return pre  # nothing to deskew, or already done (the same cloud reached two inputs)
         motion = self.velocity(pre)
         if motion is None:
-            return dataclasses.replace(
-                pre, deskew="no velocity yet (first scan of the stream, after a gap or a failure)")
+            out = copy.copy(pre)  # dataclasses.replace would run a waiting sampling (PreprocessResult.sample)
+            out.deskew = "no velocity yet (first scan of the stream, after a gap or a failure)"
+            return out
         return self.reg.deskew_scan(pre, motion)
 
     def velocity(self, pre: PreprocessResult) -> tuple[np.ndarray, float] | None:

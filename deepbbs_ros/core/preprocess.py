@@ -36,8 +36,9 @@ No ROS import here.
 
 from __future__ import annotations
 
+import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -45,7 +46,7 @@ import numpy as np
 from deepbbs_ros.config import PreprocessConfig
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.errors import RegistrationError
-from deepbbs_ros.reprs import short_repr
+from deepbbs_ros.reprs import short_repr, short_value
 
 MIN_POINTS = 3  # fewer valid (or non-ground) points than this cannot be registered
 _FIT_SAMPLES = 4096  # the ground plane is fitted on at most this many points near the sensor
@@ -157,8 +158,6 @@ class PreprocessResult:
             one and both velocities agree with the pair's own motion (``registration._deskew``).
     """
 
-    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
-
     points: np.ndarray
     ground_plane: np.ndarray | None
     n_input: int
@@ -174,6 +173,72 @@ class PreprocessResult:
     deskew: str = ""
     deskewed_cloud: Any = None
     velocity: tuple[np.ndarray, float] | None = None
+    # (cfg, seed, grid (K, 3) float32 in canonical order) while the sampling waits (``prepare_scan(..., lazy=True)``):
+    # the first read of a sampled field (:data:`SAMPLED_FIELDS`) runs it (:meth:`sample`); None once sampled
+    pending_sample: Any = field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """One readable line (deepbbs_ros/reprs.py); a waiting sampling is shown as such, not run."""
+        if self.sampled:
+            return short_repr(self)
+        parts = (f"{f.name}=" + ("<not sampled yet>" if f.name in SAMPLED_FIELDS
+                                 else short_value(getattr(self, f.name))) for f in fields(self) if f.repr)
+        return f"{type(self).__name__}({', '.join(parts)})"
+
+    @property
+    def sampled(self) -> bool:
+        """The network's points are there (not waiting for their first use)."""
+        return self.__dict__.get("pending_sample") is None
+
+    def sample(self) -> PreprocessResult:
+        """Run a waiting sampling (ground removal, FPS on the precision stage's grid) now; no-op when done.
+        Thread-safe (the node's registration thread and an input thread may both need it). Returns self."""
+        if self.sampled:
+            return self
+        with _SAMPLE_LOCK:
+            spec = self.__dict__.get("pending_sample")
+            if spec is None:
+                return self
+            cfg, seed, grid = spec
+            res = preprocess(grid, cfg, seed=seed, gridded=True)
+            d = self.__dict__
+            for name in SAMPLED_FIELDS:
+                d["_" + name] = getattr(res, name)
+            timings = dict(d.get("timings_ms") or {})
+            for k, v in res.timings_ms.items():
+                if k != "total":
+                    timings[k] = v
+            timings["sample"] = res.timings_ms.get("total", 0.0)
+            timings["total"] = timings.get("total", 0.0) + timings["sample"]
+            d["timings_ms"] = timings
+            d["pending_sample"] = None
+        return self
+
+
+#: the fields of a :class:`PreprocessResult` that the (possibly waiting) sampling fills in: reading one runs it
+SAMPLED_FIELDS = ("points", "ground_plane", "n_nonground", "n_voxels", "dense_points")
+_SAMPLE_LOCK = threading.Lock()
+
+
+def _sampled_field(name: str) -> property:
+    key = "_" + name
+
+    def get(self: PreprocessResult) -> Any:
+        if self.__dict__.get("pending_sample") is not None:
+            self.sample()
+        return self.__dict__.get(key)
+
+    def put(self: PreprocessResult, value: Any) -> None:
+        self.__dict__[key] = value
+
+    return property(get, put, doc=f"{name} (sampled on first read when the sampling waits)")
+
+
+# installed after the dataclass is built: the fields keep their place in __init__, repr and replace, and a read
+# of one of them runs a waiting sampling first
+for _name in SAMPLED_FIELDS:
+    setattr(PreprocessResult, _name, _sampled_field(_name))
+del _name
 
 
 # -- step 1: validity and range ------------------------------------------------------------------

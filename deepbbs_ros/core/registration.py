@@ -17,6 +17,13 @@
     verdict     the score of the pose and whether it can be trusted (core/verdict.py)
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
+With ``good_start=True`` (the caller vouches for ``T_init``: consecutive scans, a fixed mounting, a map from the
+last pose) a cheaper path runs first and answers alone when its stricter verdict accepts::
+
+    gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
+                registration.good_start_max_iters, a verdict on a spread subset of the source's voxels
+                (registration.good_start_threshold); rejected -> the stages above on the same clouds
+
 Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
 centimetres. The refinement, the dense refinement and more deep passes remain options.
@@ -30,6 +37,7 @@ between calls) is in core/pair.py.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 from collections import deque
 from collections.abc import Iterator
@@ -91,6 +99,11 @@ class RegistrationResult:
         score: the verdict's score (core/verdict.py): share of the sampled source points within
             ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
         starts: start yaws tried (1: the given start; more when the global search ran, core/global_search.py).
+        path: which path answered: "gicp" (``good_start``: GICP from the given start, accepted by its stricter
+            verdict), "deepbbs" (the deep passes from the given start, then the precision stage) or "search" (the
+            any-start search ran: other start yaws, then shifted starts).
+        good_start: ``good_start`` only: "accepted", or why the GICP-first path was not (then ``path`` is
+            "deepbbs" or "search" and ``timings_ms["good_start"]`` is what the attempt cost); "" otherwise.
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -109,6 +122,8 @@ class RegistrationResult:
     valid: bool = False
     score: float = float("nan")
     starts: int = 1
+    path: str = "deepbbs"
+    good_start: str = ""
 
 
 class DeepBBSRegistration:
@@ -185,13 +200,17 @@ class DeepBBSRegistration:
 
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
-                   motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False) -> PreprocessResult:
+                   motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
+                   lazy: bool = False) -> PreprocessResult:
         """Raw scan (N, 3) metres (per-point ``times`` (N,) s since ``stamp_ns``, a known ``motion`` of the
         sensor) -> :class:`PreprocessResult` with its precision-stage cloud (:func:`core.scans.prepare_scan`).
         Everything a scan needs is here: a scan preprocessed once serves as source and as target (odometry, the
         node). ``defer``: the precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
+        ``lazy``: the network's points (ground removal, FPS) wait for their first read (a good start may never need
+        them; :meth:`PreprocessResult.sample`).
         """
-        return prepare_scan(self.config, points, times, stamp_ns, motion, defer=defer, threads=self.gicp_threads())
+        return prepare_scan(self.config, points, times, stamp_ns, motion, defer=defer, threads=self.gicp_threads(),
+                            lazy=lazy)
 
     def polish_cloud(self, points: np.ndarray, *, defer: bool = False) -> PolishCloud:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
@@ -246,6 +265,7 @@ class DeepBBSRegistration:
         *,
         T_init: np.ndarray | None = None,
         preprocessed: bool = False,
+        good_start: bool = False,
     ) -> RegistrationResult:
         """Estimate ``T_target_source`` (4, 4) float64 moving ``source`` onto ``target``.
 
@@ -260,12 +280,23 @@ class DeepBBSRegistration:
             T_init: (4, 4) initial guess of T_target_source (identity if None).
             preprocessed: skip preprocessing (the clouds are already cropped/sampled; plain arrays carry
                 no dense scan, so the dense refinement and the precision stage are skipped).
+            good_start: the caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map from the
+                last pose): GICP alone from it on the precision-stage clouds, judged by a stricter verdict
+                (``registration.good_start_*``), answers at about GICP's price (``path`` "gicp"); when that verdict
+                rejects, GICP does not converge within ``good_start_max_iters`` or moves the start implausibly far,
+                the full pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
+                ``preprocessed`` arrays, which have no precision-stage clouds) it is the full pipeline.
 
         Raises:
             RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
                 or a ``T_init`` that is not a finite (4, 4) matrix; the message names which.
         """
         clock = Clock(self.device)
+        if good_start and T_init is not None:
+            first = self._gicp_first(source, target, T_init, preprocessed, clock)  # GICP from the start, strict verdict
+            if first.result is not None:
+                return first.result
+            source, target = first.source, first.target  # rejected: the full pipeline on the clouds already built
         if self.network.n_deep and self.runner.state == "unstarted":
             self.runner.process()  # the first call on a CPU: the network process starts (not counted in "total")
             clock.lap("startup")
@@ -286,7 +317,60 @@ class DeepBBSRegistration:
         self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
         st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
         self._searched.append(st.starts > 1)
-        return self._result(st, clock)
+        result = self._result(st, clock)
+        if good_start and T_init is not None:
+            result.good_start = first.reason
+        return result
+
+    # -- the good-start path -----------------------------------------------------------------------
+    def _gicp_first(self, source: Any, target: Any, T_init: np.ndarray, preprocessed: bool,
+                    clock: Clock) -> _GoodStart:
+        """``register(..., good_start=True)``: the precision-stage clouds only (raw scans preprocessed with their
+        sampling waiting), GICP from ``T_init`` with ``registration.good_start_max_iters``, and the stricter verdict
+        on a spread subset of the source's voxels. -> :class:`_GoodStart` with the result when accepted, else why
+        not and the clouds built (PreprocessResults) for the full pipeline."""
+        rc = self.config.registration
+        T0 = as_transform(T_init)
+        if preprocessed and not (isinstance(source, PreprocessResult) and isinstance(target, PreprocessResult)):
+            return _GoodStart(source, target, reason="preprocessed arrays: no precision-stage clouds")
+        src = self._lazy_cloud(source, "source")
+        tgt = self._lazy_cloud(target, "target")
+        if rc.polish == "none" or src.polish_cloud is None or tgt.polish_cloud is None:
+            return _GoodStart(src, tgt, reason="no precision-stage clouds (registration.polish none)")
+        spc, tpc = src.polish_cloud.complete(self.gicp_threads()), tgt.polish_cloud.complete(self.gicp_threads())
+        clock.lap("preprocess")
+        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
+                                  polish_max_trans=rc.good_start_max_trans,
+                                  polish_max_rot_deg=rc.good_start_max_rot_deg)
+        pol = polish(spc, tpc, T0, cfg)  # GICP from the vouched start (iterations capped: a fallback stays cheap)
+        if not pol.applied:
+            clock.lap("good_start")
+            return _GoodStart(src, tgt, reason=f"GICP from the start: {pol.reason}")
+        T = pol.T_target_source
+        T[:3, :3] = orthonormalize(T[:3, :3])
+        pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)  # the stricter verdict (calibrated: voxels)
+        clock.lap("good_start")
+        if not verdict.is_valid(score, rc.good_start_threshold):
+            return _GoodStart(src, tgt, reason=f"verdict {score:.2f} < registration.good_start_threshold "
+                                               f"{rc.good_start_threshold}")
+        self._searched.append(False)
+        inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
+        tgt_pts = verdict.spread_subset(tpc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+        timings = dict(clock.ms)
+        timings["total"] = sum(timings.values())
+        return _GoodStart(src, tgt, "accepted", RegistrationResult(
+            T_target_source=T, converged=bool(pol.converged),
+            iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations)},
+            gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
+            source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", valid=True,
+            score=float(score), starts=1, path="gicp", good_start="accepted"))
+
+    def _lazy_cloud(self, points: Any, name: str) -> PreprocessResult:
+        """A raw scan preprocessed with its sampling waiting (a PreprocessResult as it is)."""
+        if isinstance(points, PreprocessResult):
+            return points
+        return self.preprocess(as_xyz(points, name), lazy=True)
 
     # -- the stages of register() ------------------------------------------------------------------
     def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
@@ -486,7 +570,7 @@ class DeepBBSRegistration:
 
     def _result(self, st: _State, clock: Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
-        stages += tuple(s for s in ("network_wait", "polish", "deskew", "global") if s in clock.ms)
+        stages += tuple(s for s in ("good_start", "network_wait", "polish", "deskew", "global") if s in clock.ms)
         timings = {s: clock.ms.get(s, 0.0) for s in stages}
         timings["total"] = sum(timings.values())  # the wall time of register(), less the start-up
         if "startup" in clock.ms:  # the network process's start (first call): its own figure, not in the total
@@ -508,7 +592,19 @@ class DeepBBSRegistration:
             valid=bool(st.valid),
             score=float(st.score),
             starts=int(st.starts),
+            path="search" if st.starts > 1 else "deepbbs",
         )
+
+
+@dataclass
+class _GoodStart:
+    """The GICP-first attempt of ``register(..., good_start=True)``: the clouds it built (reused by the full
+    pipeline), why it was not accepted ("accepted" when it was) and its result (None when not accepted)."""
+
+    source: Any
+    target: Any
+    reason: str = ""
+    result: RegistrationResult | None = None
 
 
 @dataclass

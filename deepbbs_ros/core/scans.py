@@ -16,7 +16,7 @@ its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in 
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 import time
 
 import numpy as np
@@ -32,7 +32,7 @@ __all__ = ["prepare_scan", "polish_cloud", "deskew_prepared"]
 
 def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                  motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
-                 threads: int = 1) -> PreprocessResult:
+                 threads: int = 1, lazy: bool = False) -> PreprocessResult:
     """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
     precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on.
 
@@ -44,7 +44,10 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
     with a known ``motion`` = (``T_a_b`` (4, 4), seconds from a to b) of the sensor (a stream's last step) the
     scan is deskewed to its stamp before anything else; without one the raw scan, its times and ``stamp_ns``
     are kept for :func:`deskew_prepared` once the scan's velocity is known. ``defer``: the precision-stage
-    cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`); ``threads``: small_gicp's.
+    cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`); ``threads``: small_gicp's. ``lazy`` (with
+    the shared grid): the network's points (ground removal, FPS) wait for their first read
+    (:meth:`PreprocessResult.sample`): a registration from a good start (``register(..., good_start=True)``) needs
+    only the precision-stage cloud, and pays for them only when it falls back to the deep passes.
     """
     pp, rc = config.preprocess, config.registration
     points = as_xyz(points, "preprocess")  # (N, 3) real numbers, NaN rows dropped by the crop (core/points.py)
@@ -63,7 +66,12 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
     pc = polish_cloud(config, points, defer=defer, threads=threads) if rc.polish != "none" else None
     if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
         # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
-        res = preprocess(canonical_order(pc.points()).astype(np.float32), pp, gridded=True)
+        grid = canonical_order(pc.points()).astype(np.float32)
+        if lazy:  # sampled on first read (the same numbers: the same grid, config and seed)
+            res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
+                                   pending_sample=(pp, pp.seed, grid))
+        else:
+            res = preprocess(grid, pp, gridded=True)
         res.n_input, res.n_valid = len(points), pc.n_cropped
     else:
         res = preprocess(points, pp)
@@ -101,7 +109,9 @@ def deskew_prepared(config: Config, pre: PreprocessResult, motion: tuple[np.ndar
     cloud = _deskewed_cloud(config, pre, motion[0], motion[1], threads)
     ms = (time.perf_counter() - t0) * 1e3
     timings = {**pre.timings_ms, "deskew": ms, "total": pre.timings_ms.get("total", 0.0) + ms}
-    return dataclasses.replace(pre, deskewed_cloud=cloud, velocity=motion, deskew="deskewed", timings_ms=timings)
+    out = copy.copy(pre)  # not dataclasses.replace: that would read (and so run) a waiting sampling
+    out.deskewed_cloud, out.velocity, out.deskew, out.timings_ms = cloud, motion, "deskewed", timings
+    return out
 
 
 def _deskewed_cloud(config: Config, pre: PreprocessResult, T: np.ndarray, dt: float, threads: int) -> PolishCloud:

@@ -12,13 +12,17 @@ and real pairs; the measured rates: docs/benchmarks.md, scripts/benchmarks/regis
 Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
 arrays) the score is taken against the target's voxelised non-ground points, or its sampled points within
 ``max(verdict_dist, inlier_dist)``: sparser references, for which the threshold is not calibrated.
+
+The good-start path (``register(..., good_start=True)``) has no sampled points: its verdict takes a spread subset of
+the source's precision-stage voxels (:func:`spread_subset`, ground included, so a stricter threshold:
+``registration.good_start_threshold``) against the same target cloud.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["fitness", "fitness_to_points", "is_valid"]
+__all__ = ["fitness", "fitness_to_points", "is_valid", "spread_subset"]
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -48,3 +52,16 @@ def fitness_to_points(points: np.ndarray, target: np.ndarray, T: np.ndarray, dis
 def is_valid(score: float, threshold: float) -> bool:
     """The decision: the score reaches the threshold (a NaN score is never valid)."""
     return bool(np.isfinite(score) and score >= threshold)
+
+
+def spread_subset(points: np.ndarray, n: int, cell: float) -> np.ndarray:
+    """About ``n`` of ``points`` (N, 3) (voxel centroids, metres), chosen by a hash of their ``cell`` m grid cell:
+    the same subset for the same set of points in any order (small_gicp's threaded voxel grid returns its centroids
+    in a run-dependent order), evenly spread, O(N) with no sort. All of them when N <= n. -> (K, 3) float64."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) <= n:
+        return pts
+    ijk = np.floor(pts / max(cell, 1e-6)).astype(np.int64)
+    h = (ijk[:, 0] * 73856093) ^ (ijk[:, 1] * 19349663) ^ (ijk[:, 2] * 83492791)
+    h = (h * 2654435761) & 0xFFFFF  # mixed, 20 bits
+    return pts[h < int(n / len(pts) * 0x100000)]

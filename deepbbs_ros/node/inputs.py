@@ -133,10 +133,22 @@ def arrival_preprocess(registration: Any) -> Callable[..., Any]:
     """What the inputs call to preprocess a cloud on arrival: ``registration.preprocess``, with DeepBBS++'s
     precision-stage k-d tree and covariances deferred to its ``register`` when it has a network process
     (``defers_precision``): they are built there while the network runs the passes, so the registration starts
-    on a cloud sooner and that small_gicp work (which holds the GIL) runs when the GIL is otherwise idle."""
-    if getattr(registration, "defers_precision", False):
-        return functools.partial(registration.preprocess, defer=True)
-    return registration.preprocess
+    on a cloud sooner and that small_gicp work (which holds the GIL) runs when the GIL is otherwise idle. Its sampled
+    points (ground removal, FPS) wait for their first use (``lazy``): a pair registered from a good start
+    (``register(..., good_start=True)``) never needs them; a fallback samples them where it registers."""
+    kwargs = {"defer": True} if getattr(registration, "defers_precision", False) else {}
+    if _takes(registration.preprocess, "lazy"):  # the network's points wait for their first use (a good start: never)
+        kwargs["lazy"] = True
+    return functools.partial(registration.preprocess, **kwargs) if kwargs else registration.preprocess
+
+
+def _takes(fn: Callable[..., Any], name: str) -> bool:
+    import inspect
+
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 class PreprocessCache:

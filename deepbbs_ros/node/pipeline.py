@@ -51,8 +51,21 @@ class Registered:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-def register_clouds(registration: Any, source: Cloud, target: Cloud, T_init: np.ndarray | None = None) -> Registered:
-    """``registration.register(source.pp, target.pp[, T_init=...])`` -> :class:`Registered`.
+def takes_good_start(registration: Any) -> bool:
+    """Whether ``registration.register`` takes ``good_start`` (DeepBBS++ and its registration process; not the
+    GICP anchor, which always starts from its start)."""
+    import inspect
+
+    try:
+        return "good_start" in inspect.signature(registration.register).parameters
+    except (TypeError, ValueError, AttributeError):
+        return False
+
+
+def register_clouds(registration: Any, source: Cloud, target: Cloud, T_init: np.ndarray | None = None,
+                    good_start: bool = False) -> Registered:
+    """``registration.register(source.pp, target.pp[, T_init=...][, good_start=True])`` -> :class:`Registered`;
+    ``good_start`` (the caller vouches for ``T_init``) is passed only to a registration that takes it.
 
     Raises:
         BadInput: ``registration_failed`` on RegistrationError or a non-finite transform.
@@ -61,6 +74,8 @@ def register_clouds(registration: Any, source: Cloud, target: Cloud, T_init: np.
     try:
         if T_init is None:
             result = registration.register(source.pp, target.pp)
+        elif good_start and takes_good_start(registration):
+            result = registration.register(source.pp, target.pp, T_init=T_init, good_start=True)
         else:
             result = registration.register(source.pp, target.pp, T_init=T_init)
     except RegistrationError as err:
@@ -77,9 +92,12 @@ def register_clouds(registration: Any, source: Cloud, target: Cloud, T_init: np.
 
 def registration_covariance(source: Cloud, target: Cloud, reg: Registered) -> np.ndarray:
     """(6, 6) covariance of ``reg.T`` (x, y, z, rot x, rot y, rot z; left perturbation in the target
-    frame) from the residuals of the registered (preprocessed) points, :mod:`deepbbs_ros.node.covariance`."""
-    src = getattr(source.pp, "points", None)
-    tgt = getattr(target.pp, "points", None)
+    frame) from the residuals of the registered (preprocessed) points, :mod:`deepbbs_ros.node.covariance`: the
+    clouds the result says it registered (DeepBBS++: its sampled points, or on the good-start path the subsets of
+    the GICP clouds its verdict scored), else the preprocessed clouds' points."""
+    src, tgt = _registered_points(reg.result, "source"), _registered_points(reg.result, "target")
+    if src is None or tgt is None:
+        src, tgt = getattr(source.pp, "points", None), getattr(target.pp, "points", None)
     if src is None or tgt is None:  # a registration without sampled points: no residuals to use
         return np.eye(6) * UNKNOWN_TWIST_COV
     q = alignment_quality(
@@ -90,6 +108,55 @@ def registration_covariance(source: Cloud, target: Cloud, reg: Registered) -> np
         converged=bool(getattr(reg.result, "converged", True)),
     )
     return q.covariance
+
+
+def _registered_points(result: Any, name: str) -> np.ndarray | None:
+    """``result.source`` / ``result.target`` when the result carries them ((N >= 3, 3)), else None."""
+    pts = getattr(result, name, None)
+    if isinstance(pts, np.ndarray) and pts.ndim == 2 and pts.shape[1] == 3 and len(pts) >= 3:
+        return pts
+    return None
+
+
+class PairStart:
+    """Pair mode (stamped): the last valid answer as the next pair's good start.
+
+    Consecutive scans (scan k against scan k-1) move about as the last pair did, and two sensors on one vehicle
+    keep their mounting: the last answer ``T_target_source`` is a start DeepBBS++ can vouch for
+    (``register(..., good_start=True)``: GICP alone from it when its stricter verdict accepts, the full pipeline
+    when not). No good start for the first pair, after a pose the verdict rejected, when the frames changed, after
+    ``~/reset``, or when the source stamp is more than ``node.good_start_max_gap`` s from the last answer's.
+    Thread-safe (the registration thread updates it, ``~/reset`` clears it)."""
+
+    def __init__(self, max_gap_s: float, enabled: bool = True) -> None:
+        self.max_gap_ns = int(max_gap_s * 1e9)
+        self.enabled = bool(enabled)
+        self._lock = threading.Lock()
+        self._last: tuple[np.ndarray, str, str, int] | None = None  # (T, source frame, target frame, source stamp)
+
+    def reset(self) -> None:
+        with self._lock:
+            self._last = None
+
+    def start(self, source: Cloud, target: Cloud) -> np.ndarray | None:
+        """The good start for the pair (source, target), or None (no start vouched for: the full pipeline)."""
+        with self._lock:
+            last = self._last
+        if not self.enabled or last is None:
+            return None
+        T, src_frame, tgt_frame, stamp = last
+        frames = (source.frame_id, target.frame_id)
+        if (src_frame, tgt_frame) != frames or abs(source.stamp_ns - stamp) > self.max_gap_ns:
+            return None
+        return T.copy()
+
+    def update(self, source: Cloud, target: Cloud, reg: Registered) -> None:
+        """Keep a valid answer as the next start; a rejected one forgets it."""
+        with self._lock:
+            if getattr(reg.result, "valid", True):
+                self._last = (reg.T.copy(), source.frame_id, target.frame_id, int(source.stamp_ns))
+            else:
+                self._last = None
 
 
 def motion_twist(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -312,7 +379,9 @@ class MapTarget:
     ``node.map_crop_radius``, default ``preprocess.max_range``), expressed in that estimate's frame and
     preprocessed like a scan (kept until the estimate moves ``RECROP_SHARE`` of the radius); the source is
     registered against the crop from the estimate, and the answer ``T_map_source`` is the next estimate.
-    The first estimate is ``node.initial_pose`` (and again after :meth:`reset`).
+    The first estimate is ``node.initial_pose`` (and again after :meth:`reset`). A valid answer is the next source's
+    good start (``register(..., good_start=True)``, ``node.good_start``); the initial pose and the pose before a
+    rejected answer get the full pipeline.
     """
 
     def __init__(self, config: Any) -> None:
@@ -326,6 +395,7 @@ class MapTarget:
         """The next source starts from ``node.initial_pose`` again."""
         with self._lock:
             self.T_map_sensor = pose_from_xyzrpy(self.config.node.initial_pose)
+            self._answered = False  # the estimate is the last valid answer (a good start), not the initial pose
 
     def set_map(self, cloud: Cloud) -> None:
         with self._lock:
@@ -356,6 +426,7 @@ class MapTarget:
         """
         with self._lock:
             map_cloud, T_start, crop = self.map, self.T_map_sensor.copy(), self._crop
+            good = self._answered and self.config.node.good_start
         if map_cloud is None:
             raise BadInput("no_target", "no target (map) received yet")
         radius = self.config.node.map_crop_radius or self.config.preprocess.max_range
@@ -366,13 +437,16 @@ class MapTarget:
             crop = self._crop_at(registration, map_cloud, T_start)
             timings["map_crop"] = (time.perf_counter() - t0) * 1e3
         T_init = np.linalg.inv(crop.T_map_crop) @ T_start
-        reg = register_clouds(registration, source, crop.cloud, T_init=T_init)
+        reg = register_clouds(registration, source, crop.cloud, T_init=T_init, good_start=good)
         T_map_source = crop.T_map_crop @ reg.T
         with self._lock:
             if self.map is map_cloud:
                 self._crop = crop
                 if getattr(reg.result, "valid", True):  # a pose the verdict rejects is not the next start
                     self.T_map_sensor = T_map_source.copy()
+                    self._answered = True
+                else:  # nor a good one: the next source gets the full pipeline from the last valid pose
+                    self._answered = False
         reg.timings_ms.update(timings)
         pts = getattr(crop.cloud.pp, "points", None)
         pts_map = None if pts is None else (np.asarray(pts, np.float64) @ crop.T_map_crop[:3, :3].T

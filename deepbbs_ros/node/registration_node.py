@@ -90,7 +90,7 @@ from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
-from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, ScanToScanOdometry, register_clouds
+from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, PairStart, ScanToScanOdometry, register_clouds
 from deepbbs_ros.node.sync import ApproximateTimeSync
 from deepbbs_ros.node.tf_static import StaticTransforms
 from deepbbs_ros.node.worker import LatestSlotWorker
@@ -365,6 +365,8 @@ class RegistrationNode(Node):
         self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
         self._last_pair_t = time.monotonic()
         self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
+        self._pair_start = PairStart(ncfg.good_start_max_gap, ncfg.good_start)  # stamped pairs: the last valid answer
+        self._paths = {"gicp": 0, "deepbbs": 0, "search": 0}  # pair mode: which registration path answered
 
         # the model: device and weights checked first, with errors naming the parameter
         self._owns_reg = registration is None  # closed with the node (its network process)
@@ -708,6 +710,7 @@ class RegistrationNode(Node):
             self._map_target.reset()
         if self.localization is not None:
             self.localization.relocalize()
+        self._pair_start.reset()
         response.success = True
         response.message = "odometry restarted at identity; synchroniser and frame memory cleared"
         self.get_logger().info(response.message)
@@ -735,7 +738,9 @@ class RegistrationNode(Node):
         timings = {"queue_wait": (t_start - t_ready) * 1e3}
         try:
             if mode == "pair":
-                reg = register_clouds(self.reg, src, tgt)
+                T_start = self._pair_start.start(src, tgt)  # the last valid answer (None: the full pipeline)
+                reg = register_clouds(self.reg, src, tgt, T_init=T_start, good_start=T_start is not None)
+                self._pair_start.update(src, tgt, reg)
                 t0 = time.perf_counter()
                 if getattr(reg.result, "valid", True):
                     self.outputs.pair(src, tgt, reg)
@@ -775,6 +780,9 @@ class RegistrationNode(Node):
             self._counts["processed"] += 1
             if reg is not None:
                 self._last_result = _result_summary(reg.result)
+                path = getattr(reg.result, "path", "") if mode != "odometry" else ""
+                if path in self._paths:
+                    self._paths[path] += 1
         if reg is None:  # the odometry origin: nothing was registered
             if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
                 self.get_logger().debug(f"odometry step {src.stamp_ns} ns: origin; ms: queue_wait "
@@ -829,8 +837,9 @@ class RegistrationNode(Node):
         else:
             for c in clouds[:2]:
                 c.pp = self.reg.preprocess(c.xyz, c.times, c.stamp_ns)
-            register_clouds(self.reg, clouds[1], clouds[0])
+            first = register_clouds(self.reg, clouds[1], clouds[0])
             register_clouds(self.reg, clouds[1], clouds[0])  # the kept target state's path too
+            register_clouds(self.reg, clouds[1], clouds[0], T_init=first.T, good_start=True)  # the good-start path
 
     def _check_unpaired(self) -> None:
         """Pair mode (stamped): an input that has received clouds without a pair for ``node.unpaired_warn_after``
@@ -874,6 +883,7 @@ class RegistrationNode(Node):
         with self._lock:
             out: dict[str, Any] = dict(self._counts)
             out.update(self._last_result)
+            out["paths"] = dict(self._paths)
         out["published"] = self.outputs.published
         out["dropped"] = self.worker.dropped
         out["input_dropped"] = [inp.dropped for inp in self.inputs]
@@ -908,6 +918,9 @@ class RegistrationNode(Node):
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
             "odometry restarts on time jumps": s["time_jumps"],
         }
+        if self.cfg.node.mode == "pair":  # which path answered: GICP from the good start, the deep passes, the search
+            for path, n in s["paths"].items():
+                values[f"paths.{path}"] = n
         if "deepbbs_consulted" in s:
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         if self.localization is not None:

@@ -76,7 +76,8 @@ class ScanHandle:
     """A scan preprocessed in the registration process (what the node keeps as ``Cloud.pp``).
 
     Attributes:
-        points: (M, 3) float32 sampled points (``PreprocessResult.points``; the node's covariances).
+        points: (M, 3) float32 sampled points (``PreprocessResult.points``), None while their sampling waits
+            (``preprocess(..., lazy=True)``).
         timings_ms: the worker's preprocessing timings.
         deskew: the worker's ``PreprocessResult.deskew``.
         local: the ``PreprocessResult`` in the node's process, once the proxy runs there (fallback).
@@ -88,7 +89,7 @@ class ScanHandle:
                  points: np.ndarray | None = None, timings_ms: dict | None = None, deskew: str = "",
                  local: Any = None) -> None:
         self.id, self.xyz, self.times, self.stamp_ns = hid, xyz, times, stamp_ns
-        self.points = points if local is None else local.points
+        self.points = points if local is None else (local.points if getattr(local, "sampled", True) else None)
         self.timings_ms = dict(timings_ms or (local.timings_ms if local is not None else {}))
         self.deskew = deskew if local is None else local.deskew
         self.local = local
@@ -197,10 +198,12 @@ class RegistrationProcess:
 
     # -- the interface the node uses ----------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
-                   motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False) -> ScanHandle:
+                   motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
+                   lazy: bool = False) -> ScanHandle:
         """``DeepBBSRegistration.preprocess`` (``core.scans.prepare_scan``) in this thread, the result handed to the
         worker (which builds its GICP cloud's k-d tree and covariances when it registers it) -> a
-        :class:`ScanHandle` of it.
+        :class:`ScanHandle` of it. ``lazy``: the sampled points wait for their first use, in the worker (a good start
+        never needs them); the handle's ``points`` are then None.
 
         Raises:
             RegistrationError: bad input, with its one-line message.
@@ -211,15 +214,16 @@ class RegistrationProcess:
                 xyz = np.ascontiguousarray(points)
                 tt = None if times is None else np.ascontiguousarray(times)
                 stamp = None if stamp_ns is None else int(stamp_ns)
-                return self._handle(hid, xyz, tt, stamp, self._adopt(hid, xyz, tt, stamp, motion))
+                return self._handle(hid, xyz, tt, stamp, self._adopt(hid, xyz, tt, stamp, motion, lazy))
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
         return ScanHandle(0, points, times, stamp_ns, local=local.preprocess(points, times, stamp_ns, motion,
-                                                                             defer=defer and local.defers_precision))
+                                                                             defer=defer and local.defers_precision,
+                                                                             lazy=lazy))
 
     def register(self, source: Any, target: Any, *, T_init: np.ndarray | None = None,
-                 preprocessed: bool = False) -> Any:
+                 preprocessed: bool = False, good_start: bool = False) -> Any:
         """``DeepBBSRegistration.register`` of two handles (or raw scans, preprocessed first) in the worker; the
         result's ``timings_ms`` gain ``transfer``: the request's time beyond the worker's own.
 
@@ -236,7 +240,7 @@ class RegistrationProcess:
                 break
             t0 = time.perf_counter()
             try:
-                result, net_state, wall_ms = self._call(("register", src.id, tgt.id, T))
+                result, net_state, wall_ms = self._call(("register", src.id, tgt.id, T, good_start))
                 self._net_state = net_state
                 result.timings_ms["transfer"] = max(0.0, (time.perf_counter() - t0) * 1e3 - wall_ms)
                 return result
@@ -245,7 +249,7 @@ class RegistrationProcess:
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
-        return local.register(self._localized(src), self._localized(tgt), T_init=T)
+        return local.register(self._localized(src), self._localized(tgt), T_init=T, good_start=good_start)
 
     def kept(self) -> int:
         """Scans the worker keeps now (after the releases sent with this request); 0 without a worker."""
@@ -295,10 +299,12 @@ class RegistrationProcess:
             stream._local = StreamDeskew(local)
         return ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
 
-    def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any) -> dict:
+    def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any, lazy: bool = False) -> dict:
         """Preprocess a scan here (numpy, mostly without the GIL) and hand it to the worker under ``hid`` (the GICP
-        cloud's k-d tree and covariances are built there) -> the worker's reply."""
-        return self._call(("adopt", hid, prepare_scan(self.config, xyz, times, stamp, motion, defer=True, threads=0)))
+        cloud's k-d tree and covariances are built there; with ``lazy`` the sampling too, when first needed) -> the
+        worker's reply."""
+        pre = prepare_scan(self.config, xyz, times, stamp, motion, defer=True, threads=0, lazy=lazy)
+        return self._call(("adopt", hid, pre))
 
     def _again(self, h: ScanHandle) -> None:
         """Preprocess a handle's scan again for the worker, under a new id (its deskew is not redone)."""
@@ -315,7 +321,7 @@ class RegistrationProcess:
         """The handle's PreprocessResult in this process (preprocessed again once, after a fallback)."""
         if h.local is None:
             local = self._fallback()
-            h.local = local.preprocess(h.xyz, h.times, h.stamp_ns, defer=local.defers_precision)
+            h.local = local.preprocess(h.xyz, h.times, h.stamp_ns, defer=local.defers_precision, lazy=True)
         return h.local
 
     def _call(self, msg: tuple) -> Any:
@@ -500,8 +506,9 @@ class _Worker:
                 return
 
     @staticmethod
-    def _reply(pre: Any) -> dict:
-        return {"points": pre.points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew}
+    def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet
+        points = pre.points if getattr(pre, "sampled", True) else None
+        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew}
 
     def run(self, msg: tuple) -> Any:
         op = msg[0]
@@ -520,9 +527,9 @@ class _Worker:
             self.put(new_id, pre)
             return self._reply(pre)
         if op == "register":
-            _, src_id, tgt_id, T_init = msg
+            _, src_id, tgt_id, T_init, good_start = msg
             t0 = time.perf_counter()
-            result = self.reg.register(self.get(src_id), self.get(tgt_id), T_init=T_init)
+            result = self.reg.register(self.get(src_id), self.get(tgt_id), T_init=T_init, good_start=good_start)
             return result, self.reg.network_process_state, (time.perf_counter() - t0) * 1e3
         if op == "kept":
             with self.scans_lock:

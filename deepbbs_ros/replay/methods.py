@@ -126,6 +126,7 @@ class DeepBBSMethod:
         res = self.reg.register(src, tgt, T_init=T_init, preprocessed=True)
         ms = (time.perf_counter() - t0) * 1e3
         info = {"converged": bool(res.converged), "inlier_ratio": float(res.inlier_ratio), "valid": bool(res.valid),
+                "path": str(getattr(res, "path", "")),
                 "score": float(res.score)}
         if self.polish:
             info["polish"] = res.polish

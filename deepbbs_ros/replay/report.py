@@ -186,7 +186,8 @@ def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults |
 def write_pairs_csv(path: Path, res: PairResults) -> None:
     cols = ["method", "pair", "trial", "src_index", "tgt_index", "src_stamp_ns", "tgt_stamp_ns", "gt_dist_m",
             "rot_err_deg", "trans_err_m", "success", "runtime_ms", "preprocess_ms", "converged", "valid", "score",
-            "init_yaw_deg", "init_trans_m"] + [f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
+            "path", "init_yaw_deg", "init_trans_m"] + [
+            f"T_target_source_{i}{j}" for i in range(3) for j in range(4)] + [
             f"T_gt_{i}{j}" for i in range(3) for j in range(4)] + ["error"]
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -196,7 +197,7 @@ def write_pairs_csv(path: Path, res: PairResults) -> None:
             w.writerow([r.method, r.pair, r.trial, r.src_index, r.tgt_index, r.src_stamp_ns, r.tgt_stamp_ns,
                         f"{r.gt_dist_m:.4f}", f"{r.rot_err_deg:.6g}", f"{r.trans_err_m:.6g}", int(r.success),
                         f"{r.runtime_ms:.3f}", f"{r.preprocess_ms:.3f}", int(r.converged),
-                        "" if r.valid is None else int(r.valid), f"{r.score:.4f}", f"{yaw:.3f}",
+                        "" if r.valid is None else int(r.valid), f"{r.score:.4f}", r.path, f"{yaw:.3f}",
                         f"{np.linalg.norm(r.T_init[:3, 3]):.4f}"]
                        + [f"{v:.9g}" for v in r.T_est[:3, :].ravel()] + [f"{v:.9g}" for v in r.T_gt[:3, :].ravel()]
                        + [r.error])

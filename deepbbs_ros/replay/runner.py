@@ -122,6 +122,7 @@ class PairRecord:
     error: str = ""
     valid: bool | None = None  # the method's verdict on its pose (DeepBBS++); None: the method gives none
     score: float = float("nan")  # the verdict's score
+    path: str = ""  # which registration path answered (DeepBBS++: "gicp", "deepbbs", "search"); "" for the others
 
 
 @dataclass
@@ -214,7 +215,7 @@ def run_pairs(
                         name, res.pairs, t, src.index, tgt.index, src.stamp_ns, tgt.stamp_ns, tgt.frame_id, dist,
                         T_init, T_gt, T_est, float(rot), float(tr), ok, ms_src + ms_tgt + ms, ms_src + ms_tgt,
                         bool(info.get("converged", False)), err, info.get("valid"),
-                        float(info.get("score", float("nan")))))
+                        float(info.get("score", float("nan"))), str(info.get("path", ""))))
                     if keep_cloud and t == 0:
                         res.clouds[-1]["T_est"][name] = T_est
             res.pairs += 1

@@ -43,8 +43,10 @@ stage breakdown (``register.crop``; the anchor's ``map_crop``).
 
 ``--runs N`` repeats every configuration (a fresh node each run); ``--busy-runs M`` adds M runs with one
 CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
-seconds), the share answered, p50 / p99 latency, p99 / p50, the ratio to the anchor of the same run and
-the node's own stage breakdown (from /diagnostics); the last lines judge the DeepBBS++ node against the
+seconds), the share answered, p50 / p99 latency, p99 / p50, the ratios of p50, p99 and CPU per period (the
+node's processes together) to the anchor's of the same run, and the node's own stage breakdown (from
+/diagnostics; in pair mode also which registration path answered: ``gicp`` from the good start, ``deepbbs``,
+``search``); the last lines judge the DeepBBS++ node against the
 goal (``--goal-*``, ``--busy-*``). ``--out DIR`` also keeps every run: ``runs.jsonl`` (one line per run and
 node: its summary, the node's stage breakdown and CPU, and every answered pair's latency with its period and
 frames) and ``latency.png`` (each run's latency per period and its distribution, the goal's lines drawn in), to see
@@ -333,6 +335,7 @@ class RunResult:
     diagnostics: dict[str, str] = field(default_factory=dict)
     error: str = ""
     cpu: str = ""  # CPU ms per period per thread group (cpu_line)
+    cpu_ms: float = float("nan")  # CPU ms per period, every process of the node together (cpu_total)
 
     @property
     def answered(self) -> float:
@@ -382,6 +385,13 @@ def cpu_snapshot(pid: int) -> dict[str, float]:
             key = f"{proc}: {name}"
             out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
     return out
+
+
+def cpu_total(before: dict[str, float], after: dict[str, float], periods: int) -> float:
+    """CPU ms per period of the node and its child processes between two :func:`cpu_snapshot` s (nan: none)."""
+    if not before or not after or periods <= 0:
+        return float("nan")
+    return sum(after.get(k, 0.0) - before.get(k, 0.0) for k in after) * 1e3 / periods
 
 
 def cpu_line(before: dict[str, float], after: dict[str, float], periods: int) -> str:
@@ -495,7 +505,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         while time.perf_counter() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
         periods = n_total - n_warm
-        res.cpu = cpu_line(cpu0, cpu_snapshot(proc.pid), periods)
+        cpu1 = cpu_snapshot(proc.pid)
+        res.cpu, res.cpu_ms = cpu_line(cpu0, cpu1, periods), cpu_total(cpu0, cpu1, periods)
         if res.cpu:
             res.cpu += f"; this publisher {(time.process_time() - cpu_self0) * 1e3 / max(periods, 1):.1f}"
     finally:
@@ -531,6 +542,9 @@ def stage_line(d: dict[str, str]) -> str:
              f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}, preprocessing cache hits / "
              f"misses {d.get('preprocessing cache hits / misses', '?')}, poses the verdict rejected "
              f"{d.get('poses not published (the verdict rejected them)', '?')}")  # fmt: skip
+    paths = [f"{k.removeprefix('paths.')} {v}" for k, v in d.items() if k.startswith("paths.")]
+    if paths:  # pair mode: which registration path answered (GICP from the good start, the deep passes, the search)
+        drops += f"; paths: {', '.join(paths)}"
     return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
 
 
@@ -542,7 +556,7 @@ def save_runs(out: Path, layout: str, stream: str, runs: list[tuple[str, bool, d
             recs.append({
                 "layout": layout, "stream": stream, "run": label, "busy": busy, "method": method,
                 "pairs": r.pairs, "answered": r.answered, "p50_ms": r.pct(50), "p99_ms": r.pct(99),
-                "error": r.error, "cpu": r.cpu, "diagnostics": r.diagnostics,
+                "error": r.error, "cpu": r.cpu, "cpu_ms": r.cpu_ms, "diagnostics": r.diagnostics,
                 "samples": [{"period": k, "source": f[0], "target": f[1], "latency_ms": round(v, 2)}
                             for k, v, f in zip(r.periods, r.latencies_ms, r.frames)],
             })  # fmt: skip
@@ -619,18 +633,20 @@ def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]])
     t = Table(title=f"{title}\n{args.mode} mode, {args.rate:g} Hz, {args.seconds:g} s measured per run (after "
                     f"{args.warmup:g} s warm-up); latency = source published -> PoseStamped received")  # fmt: skip
     for c in ("run", "method", "pairs", "answered", "p50 ms", "p99 ms", "p99 / p50", "p50 / anchor",
-              "p99 / anchor"):  # fmt: skip
+              "p99 / anchor", "CPU ms", "CPU / anchor"):  # fmt: skip
         t.add_column(c, justify="left" if c in ("run", "method") else "right")
     for label, _, results in runs:
         anchor = results.get(ANCHOR)
-        a50, a99 = (anchor.pct(50), anchor.pct(99)) if anchor and not anchor.error else (np.nan, np.nan)
+        ok = anchor and not anchor.error
+        a50, a99, acpu = (anchor.pct(50), anchor.pct(99), anchor.cpu_ms) if ok else (np.nan, np.nan, np.nan)
         for method, r in results.items():
             if r.error:
-                t.add_row(label, method, "-", "failed", "-", "-", "-", "-", "-")
+                t.add_row(label, method, "-", "failed", "-", "-", "-", "-", "-", "-", "-")
                 continue
             t.add_row(label, method + (" (anchor)" if method == ANCHOR else ""), str(r.pairs),
                       f"{100 * r.answered:.0f} %", f"{r.pct(50):.1f}", f"{r.pct(99):.1f}",
-                      _ratio(r.pct(99), r.pct(50)), _ratio(r.pct(50), a50), _ratio(r.pct(99), a99))  # fmt: skip
+                      _ratio(r.pct(99), r.pct(50)), _ratio(r.pct(50), a50), _ratio(r.pct(99), a99),
+                      f"{r.cpu_ms:.1f}", _ratio(r.cpu_ms, acpu))  # fmt: skip
     con.print(t)
     for label, _, results in runs:
         for method, r in results.items():

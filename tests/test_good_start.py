@@ -1,0 +1,119 @@
+"""register(..., good_start=True): GICP alone from a vouched start, a stricter verdict, the full pipeline when it
+rejects; the sampling that waits for its first use (PreprocessResult.sample); the path that answered."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core import verdict
+from deepbbs_ros.core.checkpoint import default_weights_path
+from deepbbs_ros.core.scans import prepare_scan
+from deepbbs_ros.metrics import pair_errors
+
+
+def _toy_scan(seed: int = 0, n: int = 20000) -> np.ndarray:
+    """A road (z = -1.7) with walls and boxes around the sensor: ground and structure."""
+    rng = np.random.default_rng(seed)
+    road = np.c_[rng.uniform(-40, 40, (n // 2, 2)), np.full(n // 2, -1.7)]
+    walls = np.c_[rng.uniform(-40, 40, n // 4), np.where(rng.random(n // 4) < 0.5, -8.0, 8.0),
+                  rng.uniform(-1.7, 4.0, n // 4)]
+    boxes = rng.normal(0, 1, (n - len(road) - len(walls), 3)) * (1.0, 1.0, 0.8) + rng.choice([-20, -5, 12, 30], (
+        n - len(road) - len(walls), 1)) * np.array([1.0, 0.0, 0.0]) + (0.0, 4.0, 0.0)
+    return np.vstack([road, walls, boxes]).astype(np.float32)
+
+
+def test_lazy_sampling_gives_the_eager_numbers():
+    """prepare_scan(lazy=True) samples on the first read of a sampled field: the same points as at once, through a
+    pickle (the node's registration process) too, and a repr does not run it."""
+    cfg, pts = Config(), _toy_scan()
+    eager = prepare_scan(cfg, pts)
+    lazy = prepare_scan(cfg, pts, lazy=True)
+    assert not lazy.sampled and "not sampled yet" in repr(lazy) and not lazy.sampled
+    copied = pickle.loads(pickle.dumps(lazy))
+    for pre in (lazy, copied):
+        np.testing.assert_array_equal(pre.points, eager.points)  # the first read samples
+        assert pre.sampled and pre.n_voxels == eager.n_voxels
+        np.testing.assert_array_equal(pre.dense_points, eager.dense_points)
+        np.testing.assert_allclose(pre.ground_plane, eager.ground_plane)
+        assert "sample" in pre.timings_ms and "fps" in pre.timings_ms
+
+
+def test_spread_subset_is_order_independent():
+    rng = np.random.default_rng(1)
+    pts = np.round(rng.uniform(-50, 50, (5000, 3)) / 0.5) * 0.5 + 0.25  # voxel centroids
+    a = verdict.spread_subset(pts, 512, 0.5)
+    b = verdict.spread_subset(pts[rng.permutation(len(pts))], 512, 0.5)
+    assert 400 < len(a) < 630
+    np.testing.assert_array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)])
+    assert len(verdict.spread_subset(pts[:100], 512, 0.5)) == 100
+
+
+@pytest.fixture(scope="module")
+def drive():
+    """An urban corridor (facades on both sides): scans 20 and 21 and the truth T_20_21."""
+    if not default_weights_path().is_file():
+        pytest.skip("shipped weights missing")
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    sim = DriveSimulator("urban", 5, frames=30)
+    T_gt = np.linalg.inv(sim.pose_at(20)) @ sim.pose_at(21)
+    return sim.scan_at(21).points, sim.scan_at(20).points, T_gt
+
+
+@pytest.fixture(scope="module")
+def reg():
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    r = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off"}))
+    yield r
+    r.close()
+
+
+def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
+    """Consecutive scans from identity and from the truth moved 0.2 m / 1 deg: GICP answers (path "gicp"), within
+    tolerance of the truth, and the scans' sampling (ground removal, FPS) never ran."""
+    from deepbbs_ros.replay.synthetic import pose
+
+    src, tgt, T_gt = drive
+    for T0 in (np.eye(4), T_gt @ pose(0.15, -0.13, 0.0, np.radians(1.0))):
+        s, t = reg.preprocess(src, lazy=True), reg.preprocess(tgt, lazy=True)
+        res = reg.register(s, t, T_init=T0, good_start=True)
+        assert res.path == "gicp" and res.valid and res.good_start == "accepted", res
+        assert res.score >= reg.config.registration.good_start_threshold
+        rot, tr = pair_errors(res.T_target_source, T_gt)
+        assert rot < 0.3 and tr < 0.1, (rot, tr)
+        assert not s.sampled and not t.sampled  # ground removal + FPS not paid
+        assert res.iterations["deep"] == 0 and "good_start" in res.timings_ms
+    plain = reg.register(src, tgt, T_init=np.eye(4))  # without good_start: today's pipeline
+    assert plain.path == "deepbbs" and plain.good_start == "" and plain.iterations["deep"] > 0
+
+
+def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
+    """Starts slid 4 and 8 m along the road (facades repeat along it): the GICP-first path does not answer; the
+    full pipeline does, on the clouds already built, and its answer is right (or not valid)."""
+    src, tgt, T_gt = drive
+    along = T_gt[:3, 3] / np.linalg.norm(T_gt[:3, 3])
+    for d in (4.0, -8.0):
+        T0 = T_gt.copy()
+        T0[:3, 3] += d * along
+        s, t = reg.preprocess(src, lazy=True), reg.preprocess(tgt, lazy=True)
+        res = reg.register(s, t, T_init=T0, good_start=True)
+        assert res.path in ("deepbbs", "search") and res.good_start not in ("", "accepted"), res
+        assert s.sampled and t.sampled  # the fallback sampled the same clouds
+        rot, tr = pair_errors(res.T_target_source, T_gt)
+        assert not res.valid or (rot < 1.0 and tr < 0.3), (d, rot, tr, res.good_start)
+        assert res.timings_ms["good_start"] > 0 and res.timings_ms["total"] >= res.timings_ms["good_start"]
+
+
+def test_good_start_needs_a_start_and_precision_clouds(drive, reg):
+    """No T_init, or preprocessed arrays (no GICP clouds): the full pipeline, as without good_start."""
+    src, tgt, _ = drive
+    res = reg.register(src, tgt, good_start=True)
+    assert res.path == "deepbbs" and res.good_start == ""
+    a, b = reg.preprocess(src).points, reg.preprocess(tgt).points
+    res = reg.register(a, b, T_init=np.eye(4), preprocessed=True, good_start=True)
+    assert res.path == "deepbbs" and res.good_start.startswith("preprocessed arrays")
