@@ -436,7 +436,10 @@ class MapLocalizer:
             if guess.shape != (4, 4) or not np.isfinite(guess).all():
                 raise LocalizationError(f"guess: expected a finite (4, 4) T_map_scan, got shape {guess.shape}")
         try:
-            src = self.registration.preprocess(pts, times, stamp_ns, motion)
+            # tracking on the good-start path needs only the precision-stage cloud: the network's points (ground,
+            # FPS) are sampled when first read (the deep passes or the search after a rejection)
+            lazy = {"lazy": True} if guess is not None and self._good_start else {}
+            src = self.registration.preprocess(pts, times, stamp_ns, motion, **lazy)
         except DeepBBSError as err:
             raise LocalizationError(f"scan: {err}") from err
         timings["preprocess"] = (time.perf_counter() - t0) * 1e3
