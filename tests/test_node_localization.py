@@ -8,6 +8,9 @@ finds it again, with the shipped weights (the global search needs them).
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -22,7 +25,6 @@ rclpy = pytest.importorskip("rclpy")
 import test_node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
 from test_node import Harness, _check_pose  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
@@ -93,7 +95,6 @@ def test_finds_tracks_loses_and_finds_again(ros, drive, tmp_path, capfd):
     _write_map(tmp_path / "map.pcd", points, poses)
     cfg = _config(**{"localization.map_path": str(tmp_path / "map.pcd")})
     h = Harness(cfg, "loc_node", registration=_registration(cfg))
-    relocalize = h.client.create_client(Trigger, "/loc_node/relocalize")
     try:
         assert [i.topic for i in h.node.inputs] == ["/source_cloud"]  # the map is the file's: no map topic
         frames = [(12, 0.0), (13, 0.0), (14, 0.0), (96, KIDNAP_YAW), (97, KIDNAP_YAW), (98, KIDNAP_YAW),
@@ -129,10 +130,17 @@ def test_finds_tracks_loses_and_finds_again(ros, drive, tmp_path, capfd):
         log = capfd.readouterr().err
         assert log.count("localization lost") == 1 and log.count("localization relocalized") == 1, log
         assert log.count("localization found") == 1, log
-        # ~/relocalize: the pose is forgotten, the next scan is searched in the whole map (found, not tracked)
-        assert relocalize.wait_for_service(5.0)
-        fut = relocalize.call_async(Trigger.Request())
-        assert h.wait_for(fut.done, 10.0) and fut.result().success
+        # the map crop of the place the tracked pose reaches in a second is ready before a scan gets there (prepared
+        # in the background, or kept from the search)
+        loc = h.node.localization
+        ahead = loc.tracker.predict(sim.stamp_ns(99) + 1_000_000_000)
+        place = int(np.argmin(np.linalg.norm(loc.localizer.places[:, :2, 3] - ahead[:2, 3], axis=1)))
+        assert h.wait_for(lambda: place in loc.localizer._crops, 10.0), (place, list(loc.localizer._crops))
+        # ~/relocalize (deepbbs-ros relocalize, its own process): the pose is forgotten, the next scan is searched
+        # in the whole map (found, not tracked)
+        cmd = [sys.executable, "-m", "deepbbs_ros.cli.ros", "--timeout", "10", "relocalize", "/loc_node"]
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=dict(os.environ))
+        assert res.returncode == 0 and "/loc_node/relocalize: ok" in res.stdout, res.stdout + res.stderr
         n = len(frames)
         pts, T_true = scan(100, KIDNAP_YAW)
         h.send("source_cloud", pts, sim.stamp_ns(100), "lidar")
@@ -195,3 +203,37 @@ def test_cli_bad_map_file(tmp_path):
     assert "Traceback" not in res.stderr, res.stderr
     errors = [line for line in res.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and "localization.map_path" in errors[0] and "nope.pcd" in errors[0], res.stderr
+
+
+def test_gicp_anchor_tracks_the_same_map(ros, drive):
+    """The GICP anchor node, latched on the same map from the first scan's true pose (node.initial_pose), tracks
+    the next scans from its last answer (GicpRegistration.register with T_init): the baseline of the node's
+    tracking latency."""
+    from scipy.spatial.transform import Rotation
+
+    from deepbbs_ros.node.gicp_anchor import GicpRegistration
+
+    sim, points, _, scan = drive
+    name = "loc_anchor"
+    pub_node = rclpy.create_node(f"{name}_map")
+    map_pub = pub_node.create_publisher(PointCloud2, "/loc_anchor_map/points", LATCHED)
+    map_pub.publish(arrays_to_pointcloud2(points, stamp_ns=1, frame_id="map"))
+    start = sim.pose_at(30)
+    rpy = Rotation.from_matrix(start[:3, :3]).as_euler("ZYX")[::-1]
+    cfg = Config().replace(**{"node.target_mode": "latched", "node.initial_pose": [*map(float, start[:3, 3]),
+                                                                                    *map(float, rpy)]})
+    h = Harness(cfg, name, registration=GicpRegistration(cfg),
+                cli_args=["--ros-args", "-r", "target_cloud:=/loc_anchor_map/points"])
+    try:
+        assert h.wait_for(lambda: h.node._map_target.map is not None, 30.0), "map not received"
+        for i, k in enumerate((31, 32, 33)):
+            h.send("source_cloud", scan(k)[0], sim.stamp_ns(k), "lidar")
+            h.wait_processed(i + 1, timeout=60.0)
+        assert h.wait_for(lambda: len(h.poses) == 3, 5.0), h.node.stats()
+        for k, msg in zip((31, 32, 33), h.poses):
+            T, stamp, frame = pose_stamped_to_matrix(msg)
+            assert frame == "map" and stamp == sim.stamp_ns(k)
+            _check_pose(T, sim.pose_at(k))
+    finally:
+        h.close()
+        pub_node.destroy_node()
