@@ -15,6 +15,8 @@
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
                 ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
+    refine      GICP on finer clouds (localization.refine_voxel within refine_radius) from the accepted pose (a
+                tracked one too with localization.refine_tracking)
 
 With a guess (tracking) the scan is registered on the crop of the place nearest the guess, from the guess; only
 when the verdict rejects it are the places within localization.track_search_radius searched as above.
@@ -39,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.polish import polish
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 from deepbbs_ros.reprs import short_repr
 
@@ -68,7 +71,8 @@ class LocalizationResult:
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
         path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
             after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "probe", "total" (those that ran).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "probe", "refine", "total" (those that
+            ran).
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
@@ -218,6 +222,7 @@ def _rz(yaw: float) -> np.ndarray:
 class _Crop:
     T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
     pre: Any  # its PreprocessResult (GICP cloud included)
+    fine: Any = None  # its PolishCloud on localization.refine_voxel within refine_radius (built when first needed)
 
 
 class MapLocalizer:
@@ -482,6 +487,8 @@ class MapLocalizer:
         T_map_scan = crop.T_map_place @ reg.T_target_source
         path = getattr(reg, "path", "") or ("gicp" if self._good_start and reg.starts <= 1 else "deepbbs")
         if self._accepts(reg.valid, reg.score):
+            if lc.refine_tracking:
+                T_map_scan = self._refine(pts, crop, T_map_scan, [], timings)
             return LocalizationResult(T_map_scan, True, float(reg.score), "tracking", "", candidates=1, path=path,
                                       crop=_crop_cloud(crop), place=near)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
@@ -500,6 +507,7 @@ class MapLocalizer:
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
                 timings: dict[str, float]) -> LocalizationResult:
         lc = self.config.localization
+        fine_src: list[Any] = []
         t = time.perf_counter()
         desc = self.describe(pts)
         timings["describe"] = timings.get("describe", 0.0) + (time.perf_counter() - t) * 1e3
@@ -534,12 +542,11 @@ class MapLocalizer:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         answers.sort(key=lambda a: -a.score)
         best = answers[0]
-        if not best.ok:  # the best candidate from nearby starts (GICP), then with the registration's global search
-            t = time.perf_counter()
-            answers = sorted(answers + self._probe(src, best), key=lambda a: -a.score)
-            timings["probe"] = (time.perf_counter() - t) * 1e3
-            # a partial fit (the registration's verdict passed, the map's bar not): the right place, a poor pose?
-            if (not answers[0].ok and lc.candidate_search == "off" and self._searchable
+        # none accepted, but a partial fit (the registration's verdict passed, the map's bar not): the right place with
+        # a poor pose? Once more with the registration's global search. (Not GICP from starts around a failed pose: on a
+        # highway that lands on a look-alike stretch elsewhere with a passing score.)
+        if not best.ok:
+            if (lc.candidate_search == "off" and self._searchable
                     and best.score >= self.config.registration.verdict_threshold):
                 t = time.perf_counter()
                 T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
@@ -572,7 +579,8 @@ class MapLocalizer:
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
                                       alternatives=alternatives)
-        return LocalizationResult(best.T, True, best.score, "global", "", candidates=n, path="deepbbs",
+        T = self._refine(pts, best.crop, best.T, fine_src, timings)
+        return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives)
 
     @property
@@ -589,12 +597,41 @@ class MapLocalizer:
         """The registration's verdict and the map's own bar (``localization.min_score``)."""
         return bool(valid) and np.isfinite(score) and score >= self.config.localization.min_score
 
+    def _refine(self, pts: np.ndarray, crop: _Crop, T_map_scan: np.ndarray, fine_src: list[Any],
+                timings: dict[str, float]) -> np.ndarray:
+        """T_map_scan refined by GICP on clouds of ``refine_voxel`` (the scan's raw points ``pts`` and the crop's map
+        points within ``refine_radius``; the scan's cloud built once per scan in ``fine_src``); kept when GICP does
+        not converge or moves it more than 1 m / 2 deg."""
+        import dataclasses
+
+        from deepbbs_ros.core.polish import prepare_polish_cloud
+
+        lc, rc = self.config.localization, self.config.registration
+        if lc.refine_voxel <= 0 or rc.polish == "none":
+            return T_map_scan
+        t = time.perf_counter()
+        threads = self.registration.gicp_threads() if hasattr(self.registration, "gicp_threads") else 1
+        kind = "GICP" if rc.polish == "gicp" else "PLANE_ICP"
+        if crop.fine is None:
+            local = self.crop_points(crop.T_map_place)
+            local = local[np.einsum("ij,ij->i", local[:, :2], local[:, :2]) <= lc.refine_radius ** 2]
+            crop.fine = prepare_polish_cloud(local, lc.refine_voxel, rc.polish_neighbors, registration_type=kind,
+                                             threads=threads)
+        if not fine_src:
+            fine_src.append(prepare_polish_cloud(pts, lc.refine_voxel, rc.polish_neighbors, registration_type=kind,
+                                                 min_range=self.config.preprocess.min_range,
+                                                 max_range=lc.refine_radius + 10.0, threads=threads))
+        cfg = dataclasses.replace(rc, polish_max_corr_dist=2.0 * lc.refine_voxel, polish_max_trans=1.0,
+                                  polish_max_rot_deg=2.0)
+        pol = polish(fine_src[0], crop.fine, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
+        timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
+        return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
+
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
         """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
         -> their answers (a pose pinned down brings each back; on a featureless stretch they stay off with as good a
         score; a better score is a better optimum nearby)."""
         from deepbbs_ros.core import verdict
-        from deepbbs_ros.core.polish import polish
 
         lc, rc = self.config.localization, self.config.registration
         crop = best.crop
