@@ -264,6 +264,17 @@ class NodeLocalization:
         tracker = self.tracker
         return "no map" if tracker is None else str(tracker.state)
 
+    def warning(self) -> str:
+        """The /diagnostics status message while there is no pose to publish (WARN), else ""."""
+        state = self.state
+        if state == "no map":
+            return "localization: no map yet"
+        if state == "lost":
+            return f"localization lost: {self.last_reason}"
+        if state == "searching" and self.rejected:
+            return f"localization searching: {self.last_reason}"
+        return ""
+
     def diagnostics(self) -> dict[str, Any]:
         """The values /diagnostics shows under ``localization.*``."""
         tracker = self.tracker

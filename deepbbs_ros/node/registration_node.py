@@ -937,7 +937,7 @@ class RegistrationNode(Node):
         self.outputs.publish_diagnostics(
             f"{self.get_name()}: registration", self._device, values,
             sum(s["errors"].values()) + sum(s["warnings"].values()),
-            self.get_clock().now().to_msg(),
+            self.get_clock().now().to_msg(), self.localization.warning() if self.localization is not None else "",
         )  # fmt: skip
 
     def _stop_threads(self) -> None:
