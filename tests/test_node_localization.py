@@ -237,3 +237,23 @@ def test_gicp_anchor_tracks_the_same_map(ros, drive):
     finally:
         h.close()
         pub_node.destroy_node()
+
+
+def test_map_file_ply_and_pcd_read_alike(tmp_path):
+    """load_map_file: a PLY (binary, as point cloud tools write one) and a PCD of the same points give the same map,
+    in node.map_frame; the trajectory beside the PCD comes along."""
+    import trimesh
+
+    from deepbbs_ros.node.localization import load_map_file
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-50, 50, (500, 3)).astype(np.float32)
+    poses = np.stack([np.eye(4)] * 3)
+    poses[:, 0, 3] = [0.0, 4.0, 8.0]
+    _write_map(tmp_path / "m.pcd", pts, poses)
+    trimesh.PointCloud(pts).export(tmp_path / "other.ply")
+    pcd, ply = load_map_file(tmp_path / "m.pcd", "map"), load_map_file(tmp_path / "other.ply", "world")
+    np.testing.assert_allclose(pcd.points, pts, atol=1e-6)
+    np.testing.assert_allclose(ply.points, pts, atol=1e-6)
+    assert (pcd.frame_id, ply.frame_id) == ("map", "world") and ply.trajectory is None
+    np.testing.assert_allclose(pcd.trajectory, poses, atol=1e-6)
