@@ -90,8 +90,8 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
 }
 ANCHOR = "gicp"
 STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
-          "register.network_wait", "register.polish", "register.global", "register.crop", "register.register",
-          "map_crop", "publish", "total")  # fmt: skip
+          "register.good_start", "register.network_wait", "register.polish", "register.global", "register.crop",
+          "register.register", "map_crop", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
