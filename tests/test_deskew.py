@@ -98,6 +98,10 @@ def test_stream_velocity_and_the_registration_deskew(drives, reg):
     assert res.deskew == "deskewed"
     rot, trans = _err(res.T_target_source, T_gt)
     assert rot < 0.05 and trans < 0.02, (rot, trans)
+    good = reg.register(src, tgt, T_init=res.T_target_source, good_start=True)  # the good-start path deskews too
+    assert good.path == "gicp" and good.deskew == "deskewed"
+    rot, trans = _err(good.T_target_source, T_gt)
+    assert rot < 0.05 and trans < 0.02, (rot, trans)
     assert reg.register(prep(s, False), prep(t, False)).deskew == ""
     assert reg.register(src, prep(t)).deskew == "one scan has no velocity yet: raw clouds"
     still = dataclasses.replace(tgt, velocity=(np.eye(4), 0.1))  # a velocity of 0 m/s at 15 m/s

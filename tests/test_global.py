@@ -205,4 +205,6 @@ def test_odometry_recovers_a_kidnapped_sensor():
         assert rot < 1.0 and tr < 0.3, (k, rot, tr, out.reason)
     jump = steps[5]
     assert jump.deepbbs and jump.won and jump.reason.startswith("fit")
+    assert jump.path in ("deepbbs", "search") and steps[0].path == ""  # DeepBBS++'s answer kept; the origin
+    assert all(s.path == "gicp" for s in steps[1:] if not s.won)  # GICP against the map answered
     assert pair_errors(jump.T_prev_k, np.linalg.inv(sim.pose_at(14)) @ sim.pose_at(15) @ J)[0] < 1.0

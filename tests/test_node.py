@@ -644,6 +644,10 @@ def test_gicp_anchor_node_pair_mode(ros, world):
         _check_pose(T, np.linalg.inv(T_w_tgt) @ T_w_src)
         cov = odometry_covariances(h.odoms[0])[0]
         assert np.all(np.diag(cov) > 0) and h.node.stats()["errors"] == {}
+        h.send("target_cloud", scan(world, T_w_src, seed=2), 7 * SEC + SEC // 10, "lidar")  # the next pair: the
+        h.send("source_cloud", scan(world, T_w_src @ pose(1.0, 0.0, 0.0, 0.0), seed=3), 7 * SEC + SEC // 10, "lidar")
+        assert h.wait_for(lambda: len(h.poses) == 2), h.node.stats()  # anchor still starts from identity
+        assert h.node.stats()["errors"] == {} and h.node.stats()["paths"] == {"gicp": 0, "deepbbs": 0, "search": 0}
     finally:
         h.close()
 

@@ -88,6 +88,21 @@ def test_proxy_gives_the_in_process_answer(proxy, street_pair):
     assert proxy.network_process_state.startswith("running (pid ")  # the worker's own network process
 
 
+def test_proxy_good_start_leaves_the_sampling_to_the_worker(proxy, street_pair):
+    """Handles preprocessed lazily (the node's inputs) carry no sampled points; a good start answers on the GICP path
+    in the worker, a start 3 m off falls back there (sampling there), both right."""
+    src, tgt, T_gt = _pair(street_pair, 2)
+    h_src, h_tgt = proxy.preprocess(src, defer=True, lazy=True), proxy.preprocess(tgt, defer=True, lazy=True)
+    assert h_src.points is None and h_tgt.points is None
+    res = proxy.register(h_src, h_tgt, T_init=T_gt, good_start=True)
+    assert res.path == "gicp" and res.valid and max(pair_errors(res.T_target_source, T_gt)) < 0.3
+    off = T_gt.copy()
+    off[:3, 3] += (0.0, 3.5, 0.0)  # across the street: GICP moves it further than good_start_max_trans allows
+    res = proxy.register(h_src, h_tgt, T_init=off, good_start=True)
+    assert res.path in ("deepbbs", "search") and res.good_start != "accepted", res
+    assert not res.valid or max(pair_errors(res.T_target_source, T_gt)) < 0.5
+
+
 def test_proxy_bad_input_is_one_line(proxy):
     with pytest.raises(RegistrationError, match=r"shape \(5, 4\)"):
         proxy.preprocess(np.zeros((5, 4), np.float32))

@@ -94,6 +94,9 @@ class OdometryStep:
         for the first motion's DeepBBS++), "total".
     points: (M, 3) float64 the scan as it was registered (deskewed, cropped, on the ``voxel_size / 2`` grid),
         sensor frame: what a caller needs to score the step (the node's covariance) without redoing it.
+    path: which path answered: "gicp" (GICP against the local map from the prediction, DeepBBS++ not consulted or
+        not kept), "deepbbs" or "search" (DeepBBS++'s answer kept: its deep passes, or its any-start search);
+        "" at the first scan.
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -106,6 +109,7 @@ class OdometryStep:
     fit: float = float("nan")
     timings_ms: dict[str, float] = field(default_factory=dict)
     points: np.ndarray | None = None
+    path: str = ""
 
 
 def _cloud_points(cloud: Any) -> np.ndarray | None:
@@ -150,6 +154,7 @@ class DeepBBSOdometry:
         self._deltas: deque[np.ndarray] = deque(maxlen=max(1, self.config.odometry.deskew_window))
         self.deepbbs_calls = 0
         self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
+        self._deepbbs_path = "deepbbs"  # the path of DeepBBS++'s last answer (RegistrationResult.path)
 
     @property
     def registration(self) -> Any:
@@ -182,7 +187,7 @@ class DeepBBSOdometry:
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
         reason = self._suspect(scale, gap, fit)
-        won = False
+        won, path = False, "gicp"
         if reason:
             T_prev_k = self._deepbbs(frame)
             if T_prev_k is not None:
@@ -195,7 +200,7 @@ class DeepBBSOdometry:
                 # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
                 better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
                 if better:
-                    pose, fit, won = pose_b, fit_b, True
+                    pose, fit, won, path = pose_b, fit_b, True, self._deepbbs_path
             clock.lap("deepbbs")
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
@@ -210,7 +215,8 @@ class DeepBBSOdometry:
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
-        return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud))
+        return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
+                            path)
 
     # -- stages ------------------------------------------------------------------------------------
     def _new_map(self) -> Any:
@@ -334,6 +340,7 @@ class DeepBBSOdometry:
             return None
         self._cur_pp = cur
         self.deepbbs_calls += 1
+        self._deepbbs_path = getattr(res, "path", "deepbbs")
         if not getattr(res, "valid", True):  # the verdict rejected it (no start registered the two scans)
             self.deepbbs_rejected += 1
             return None

@@ -94,7 +94,8 @@ class RegistrationResult:
             (``registration.polish`` "none", or no dense points).
         deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
             else why the raw clouds were kept; "" when neither scan was deskewed.
-        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32.
+        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32: the sampled points;
+            on the "gicp" path the spread subsets of the GICP clouds that its verdict scores.
         valid: the verdict: the pose can be trusted (``score >= registration.verdict_threshold``).
         score: the verdict's score (core/verdict.py): share of the sampled source points within
             ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
@@ -345,7 +346,8 @@ class DeepBBSRegistration:
         pol = polish(spc, tpc, T0, cfg)  # GICP from the vouched start (iterations capped: a fallback stays cheap)
         if not pol.applied:
             clock.lap("good_start")
-            return _GoodStart(src, tgt, reason=f"GICP from the start: {pol.reason}")
+            why = pol.reason.replace("polish_max_", "registration.good_start_max_")
+            return _GoodStart(src, tgt, reason=f"GICP from the start: {why}")
         T = pol.T_target_source
         T[:3, :3] = orthonormalize(T[:3, :3])
         pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
@@ -356,15 +358,37 @@ class DeepBBSRegistration:
                                                f"{rc.good_start_threshold}")
         self._searched.append(False)
         inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
+        T, deskew, more = self._good_start_deskew(src, tgt, T)  # both scans deskewed (node.pair_deskew): again on them
+        if more:
+            clock.lap("deskew")
         tgt_pts = verdict.spread_subset(tpc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
         timings = dict(clock.ms)
         timings["total"] = sum(timings.values())
         return _GoodStart(src, tgt, "accepted", RegistrationResult(
             T_target_source=T, converged=bool(pol.converged),
-            iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations)},
+            iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
             gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
-            source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", valid=True,
-            score=float(score), starts=1, path="gicp", good_start="accepted"))
+            source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", deskew=deskew,
+            valid=True, score=float(score), starts=1, path="gicp", good_start="accepted"))
+
+    def _good_start_deskew(self, a: PreprocessResult, b: PreprocessResult,
+                           T: np.ndarray) -> tuple[np.ndarray, str, int]:
+        """The deskew stage of the good-start path (as :meth:`_deskew`): GICP again from ``T`` on both scans'
+        ``deskewed_cloud`` s when both have one and their velocities agree with ``T``. -> (T, what happened (the
+        result's ``deskew``), GICP iterations spent)."""
+        if a.deskewed_cloud is None and b.deskewed_cloud is None:
+            return T, "", 0
+        if a.deskewed_cloud is None or b.deskewed_cloud is None:
+            return T, "one scan has no velocity yet: raw clouds", 0
+        off = _velocity_off(a, b, T)
+        if off:
+            return T, off, 0
+        pol = polish(a.deskewed_cloud, b.deskewed_cloud, T, self.config.registration)
+        if not pol.applied:
+            return T, f"precision stage on the deskewed clouds rejected ({pol.reason}): raw clouds", pol.iterations
+        T = pol.T_target_source
+        T[:3, :3] = orthonormalize(T[:3, :3])
+        return T, "deskewed", pol.iterations
 
     def _lazy_cloud(self, points: Any, name: str) -> PreprocessResult:
         """A raw scan preprocessed with its sampling waiting (a PreprocessResult as it is)."""
@@ -514,15 +538,10 @@ class DeepBBSRegistration:
         if st.polish_reason != "ok":
             st.deskew = "precision stage not applied: raw clouds"
             return
-        dt = (a.stamp_ns - b.stamp_ns) * 1e-9
-        if abs(dt) > 1e-3:  # the pair's mean twist vs each scan's own (equal stamps: two sensors, no check)
-            mean = _twist(st.T, dt)
-            for name, pre in (("source", a), ("target", b)):
-                dv, dw = np.linalg.norm((_twist(*pre.velocity) - mean).reshape(2, 3), axis=1)
-                if dv > DESKEW_TOL_SPEED + DESKEW_TOL_REL * np.linalg.norm(mean[:3]) or dw > DESKEW_TOL_TURN:
-                    st.deskew = (f"{name} velocity off the pair's by {dv:.1f} m/s, {np.degrees(dw):.1f} deg/s: "
-                                 "raw clouds")
-                    return
+        off = _velocity_off(a, b, st.T)
+        if off:
+            st.deskew = off
+            return
         pol = polish(a.deskewed_cloud, b.deskewed_cloud, st.T, self.config.registration)
         st.iters["polish"] += pol.iterations
         if not pol.applied:
@@ -657,6 +676,20 @@ def _answer_read(st: _State) -> Iterator[None]:
         NetworkRunner.discard(pending)  # read and dropped; speculative passes after it (if any) stopped
         spec, st.spec = st.spec, None
         NetworkRunner.drop(spec)
+
+
+def _velocity_off(a: PreprocessResult, b: PreprocessResult, T: np.ndarray) -> str:
+    """"" when both scans' own velocities agree with the pair's mean motion ``T`` (4, 4) over their stamp gap (equal
+    stamps: two sensors, no check), else which one is off and by how much."""
+    dt = (a.stamp_ns - b.stamp_ns) * 1e-9
+    if abs(dt) <= 1e-3:
+        return ""
+    mean = _twist(T, dt)
+    for name, pre in (("source", a), ("target", b)):
+        dv, dw = np.linalg.norm((_twist(*pre.velocity) - mean).reshape(2, 3), axis=1)
+        if dv > DESKEW_TOL_SPEED + DESKEW_TOL_REL * np.linalg.norm(mean[:3]) or dw > DESKEW_TOL_TURN:
+            return f"{name} velocity off the pair's by {dv:.1f} m/s, {np.degrees(dw):.1f} deg/s: raw clouds"
+    return ""
 
 
 def _twist(T: np.ndarray, dt: float) -> np.ndarray:

@@ -66,12 +66,11 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
     pc = polish_cloud(config, points, defer=defer, threads=threads) if rc.polish != "none" else None
     if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
         # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
-        grid = canonical_order(pc.points()).astype(np.float32)
-        if lazy:  # sampled on first read (the same numbers: the same grid, config and seed)
+        if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
             res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
-                                   pending_sample=(pp, pp.seed, grid))
+                                   pending_sample=(pp, pp.seed))
         else:
-            res = preprocess(grid, pp, gridded=True)
+            res = preprocess(canonical_order(pc.points()).astype(np.float32), pp, gridded=True)
         res.n_input, res.n_valid = len(points), pc.n_cropped
     else:
         res = preprocess(points, pp)

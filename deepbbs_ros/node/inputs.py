@@ -129,14 +129,17 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     return arr.xyz, times, int(arr.stamp_ns), arr.frame_id
 
 
-def arrival_preprocess(registration: Any) -> Callable[..., Any]:
+def arrival_preprocess(registration: Any, good_start: bool = False) -> Callable[..., Any]:
     """What the inputs call to preprocess a cloud on arrival: ``registration.preprocess``, with DeepBBS++'s
     precision-stage k-d tree and covariances deferred to its ``register`` when it has a network process
     (``defers_precision``): they are built there while the network runs the passes, so the registration starts
     on a cloud sooner and that small_gicp work (which holds the GIL) runs when the GIL is otherwise idle. Its sampled
     points (ground removal, FPS) wait for their first use (``lazy``): a pair registered from a good start
-    (``register(..., good_start=True)``) never needs them; a fallback samples them where it registers."""
-    kwargs = {"defer": True} if getattr(registration, "defers_precision", False) else {}
+    (``register(..., good_start=True)``) never needs them; a fallback samples them where it registers. With
+    ``good_start`` (the node passes good starts: most pairs run GICP alone, with no network to overlap) the k-d tree
+    and covariances are built on arrival, off the registration's path."""
+    defer = getattr(registration, "defers_precision", False) and not good_start
+    kwargs = {"defer": True} if defer else {}
     if _takes(registration.preprocess, "lazy"):  # the network's points wait for their first use (a good start: never)
         kwargs["lazy"] = True
     return functools.partial(registration.preprocess, **kwargs) if kwargs else registration.preprocess

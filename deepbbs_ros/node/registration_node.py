@@ -90,7 +90,14 @@ from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
-from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, PairStart, ScanToScanOdometry, register_clouds
+from deepbbs_ros.node.pipeline import (
+    LocalMapOdometry,
+    MapTarget,
+    PairStart,
+    ScanToScanOdometry,
+    register_clouds,
+    takes_good_start,
+)
 from deepbbs_ros.node.sync import ApproximateTimeSync
 from deepbbs_ros.node.tf_static import StaticTransforms
 from deepbbs_ros.node.worker import LatestSlotWorker
@@ -365,7 +372,7 @@ class RegistrationNode(Node):
         self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
         self._last_pair_t = time.monotonic()
         self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
-        self._pair_start = PairStart(ncfg.good_start_max_gap, ncfg.good_start)  # stamped pairs: the last valid answer
+        self._pair_start = PairStart(ncfg.good_start_max_gap, False)  # stamped pairs: the last valid answer (below)
         self._paths = {"gicp": 0, "deepbbs": 0, "search": 0}  # pair mode: which registration path answered
 
         # the model: device and weights checked first, with errors naming the parameter
@@ -378,6 +385,8 @@ class RegistrationNode(Node):
             self._weights = str(getattr(registration, "weights", "") or "<injected model>")
         self.reg = registration
         self._device = str(getattr(registration, "device", "cpu"))
+        # a registration that takes a good start (DeepBBS++; not the GICP anchor, which always starts from identity)
+        self._pair_start.enabled = ncfg.good_start and ncfg.mode == "pair" and takes_good_start(registration)
         #: node.target_mode localization: the tracker in the prior map (node/localization.py), else None
         self.localization = NodeLocalization(self.cfg, registration) if localization else None
         if map_file is not None:
@@ -390,7 +399,8 @@ class RegistrationNode(Node):
         self.sync = ApproximateTimeSync(2, ncfg.queue_size, ncfg.slop, self._on_pair)
         self.odometry = self._make_odometry()
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
-        self._cache = PreprocessCache(arrival_preprocess(self.reg))
+        self._cache = PreprocessCache(arrival_preprocess(self.reg, self._pair_start.enabled or (
+            self._map_target is not None and ncfg.good_start)))
         # preprocessing on arrival only where every scan is registered by the network (the localizer preprocesses
         # the raw scan itself, with its per-point times)
         self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry) and self.localization is None

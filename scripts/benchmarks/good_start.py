@@ -11,10 +11,15 @@ Figures (``good_start.json`` under ``--out``):
   ``register(T_init, good_start=True)``: p50 / p99 wall ms, p50 / mean CPU ms per pair (this process and its
   children, the network process included: /proc), their ratios to GICP's, the share within 1 deg / 0.3 m and
   which path answered.
-* ``wrong_start``: simulated pairs of every scene with starts slid ``--shifts`` m along the road (forwards and
-  backwards: corridors of repeated facades, highways), where GICP may settle on a wrong pose: per method
-  (``register(T_init)`` and ``good_start``) the cases, the poses accepted (valid) right and wrong (valid but more
-  than 1 deg / 0.3 m off), rejected, the share of wrong poses accepted, and the paths that answered.
+* ``wrong_start``: simulated pairs of every scene (and of the KITTI sequences) with starts slid ``--shifts`` m along
+  the road (forwards and backwards: corridors of repeated facades, highways), where GICP may settle on a wrong
+  pose: per method (``register(T_init)`` and ``good_start``) the cases, the poses accepted (valid) right and wrong
+  (valid but more than 1 deg / 0.3 m off), rejected, the share of wrong poses accepted, the paths that answered and
+  (``good_start``) why the GICP-first answer was not taken; for GICP alone from the same starts, how often it is
+  wrong (it has no verdict: the share the good-start path must catch). ``calibration``: the good-start verdict's
+  score (``registration.good_start_*``: a spread subset of the source's GICP voxels) and today's verdict score (the
+  sampled points) of every converged GICP-first answer, right and wrong: the highest wrong and lowest right score
+  of each, and how many wrong ones reach each threshold.
 
 Timings on a shared machine are noisy: the methods run by turns on every pair, so their ratios are fair. ::
 
@@ -99,12 +104,22 @@ class Runner:
         c0, t0 = cpu_seconds(), time.perf_counter()
         if method == "gicp":
             res = self.gicp.register(src, tgt, T0)
-            valid, path = None, "gicp"
+            valid, path, why = None, "gicp", ""
         else:
             res = self.reg.register(src, tgt, T_init=T0, good_start=method == "good_start")
-            valid, path = bool(res.valid), res.path
+            valid, path, why = bool(res.valid), res.path, reason_kind(res.good_start)
         wall, cpu = (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3
-        return {"T": np.asarray(res.T_target_source), "valid": valid, "path": path, "ms": wall, "cpu_ms": cpu}
+        return {"T": np.asarray(res.T_target_source), "valid": valid, "path": path, "why": why, "ms": wall,
+                "cpu_ms": cpu}
+
+
+def reason_kind(text: str) -> str:
+    """``RegistrationResult.good_start`` in a word: accepted, verdict, not converged, moved, or the text."""
+    for word, kind in (("accepted", "accepted"), ("verdict", "verdict"), ("not converged", "not converged"),
+                       ("moved", "moved"), ("turned", "moved")):
+        if word in text:
+            return kind
+    return text
 
 
 def errors(T: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
@@ -158,12 +173,47 @@ def summarise(rows: dict[str, list[dict]]) -> dict:
     return s
 
 
-def wrong_starts(runner: Runner, args) -> dict:
+def gicp_first_scores(reg, src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, T_gt: np.ndarray) -> dict | None:
+    """The GICP-first attempt of ``register(..., good_start=True)`` redone step by step (core.polish, core.verdict):
+    its answer's good-start verdict score, today's verdict score (sampled points) and whether it is right; None when
+    GICP did not converge within the cap or moved too far."""
+    import dataclasses
+
+    from deepbbs_ros.core import verdict
+    from deepbbs_ros.core.polish import polish
+
+    rc = reg.config.registration
+    a, b = reg.preprocess(src), reg.preprocess(tgt)
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
+                              polish_max_rot_deg=rc.good_start_max_rot_deg)
+    pol = polish(a.polish_cloud, b.polish_cloud, T0, cfg)
+    if not pol.applied:
+        return None
+    T = pol.T_target_source
+    pts = verdict.spread_subset(a.polish_cloud.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+    rot, tr = errors(T, T_gt)
+    return {"voxels": verdict.fitness(pts, b.polish_cloud.tree, T, rc.verdict_dist),
+            "sampled": verdict.fitness(a.points, b.polish_cloud.tree, T, rc.verdict_dist),
+            "right": rot <= 1.0 and tr <= 0.3}
+
+
+def calibration(scores: list[dict], rc) -> dict:
+    out = {"converged": len(scores), "right": sum(s["right"] for s in scores)}
+    for kind, thr in (("voxels", rc.good_start_threshold), ("sampled", rc.verdict_threshold)):
+        wrong = [s[kind] for s in scores if not s["right"]]
+        right = [s[kind] for s in scores if s["right"]]
+        out[kind] = {"threshold": thr, "wrong_max": max(wrong, default=float("nan")),
+                     "right_min": min(right, default=float("nan")), "wrong_accepted": sum(w >= thr for w in wrong),
+                     "right_rejected": sum(r < thr for r in right)}
+    return out
+
+
+def wrong_starts(runner: Runner, sets: dict, args) -> dict:
     out: dict = {}
-    total: dict[str, Counter] = {m: Counter() for m in ("register", "good_start")}
-    for scene in args.scenes:
-        frames = sim_frames(scene, args.seed + 1, args.wrong_pairs + 1, gap=args.wrong_gap)
-        per: dict[str, Counter] = {m: Counter() for m in ("register", "good_start")}
+    scores: list[dict] = []
+    total: dict[str, Counter] = {m: Counter() for m in METHODS}
+    for scene, frames in sets.items():
+        per: dict[str, Counter] = {m: Counter() for m in METHODS}
         for k in range(1, len(frames)):
             (tgt, Pt), (src, Ps) = frames[k - 1], frames[k]
             T_gt = np.linalg.inv(Pt) @ Ps
@@ -171,29 +221,47 @@ def wrong_starts(runner: Runner, args) -> dict:
                 for sign in (1, -1):
                     T0 = T_gt.copy()
                     T0[:3, 3] += sign * d * T0[:3, 0]  # slid along the road: the sensor's heading (x)
-                    for m in ("register", "good_start"):
+                    s = gicp_first_scores(runner.reg, src, tgt, T0, T_gt)
+                    if s is not None:
+                        scores.append(s)
+                    for m in METHODS:
                         r = runner.run(m, src, tgt, T0)
                         rot, tr = errors(r["T"], T_gt)
                         right = rot <= 1.0 and tr <= 0.3
                         c = per[m]
                         c["cases"] += 1
+                        if m == "gicp":  # no verdict: right or wrong
+                            c["right" if right else "wrong"] += 1
+                            continue
                         c["accepted_right" if r["valid"] and right else "accepted_wrong" if r["valid"] else
                           "rejected"] += 1
                         c[f"path_{r['path']}"] += 1
+                        if m == "good_start":
+                            c[f"why_{r['why']}"] += 1
         out[scene] = {m: finish(c) for m, c in per.items()}
         for m in per:
             total[m].update(per[m])
-        print(f"wrong starts {scene}: " + "; ".join(
+        g = out[scene]["gicp"]
+        print(f"wrong starts {scene}: gicp alone {g['wrong']} wrong of {g['cases']}; " + "; ".join(
             f"{m} {v['accepted_wrong']} wrong / {v['accepted_right']} right / {v['rejected']} rejected of {v['cases']}"
-            for m, v in out[scene].items()), flush=True)
+            for m, v in out[scene].items() if m != "gicp"), flush=True)
     out["all"] = {m: finish(c) for m, c in total.items()}
+    out["calibration"] = calibration(scores, runner.reg.config.registration)
+    print(f"calibration: {out['calibration']}", flush=True)
     return out
 
 
 def finish(c: Counter) -> dict:
+    if "right" in c or "wrong" in c:  # GICP alone
+        d = {k: int(c.get(k, 0)) for k in ("cases", "right", "wrong")}
+        d["wrong_share"] = d["wrong"] / d["cases"] if d["cases"] else float("nan")
+        return d
     d = {k: int(c.get(k, 0)) for k in ("cases", "accepted_right", "accepted_wrong", "rejected")}
     d["wrong_accepted_share"] = d["accepted_wrong"] / d["cases"] if d["cases"] else float("nan")
     d["paths"] = {k.removeprefix("path_"): int(v) for k, v in c.items() if k.startswith("path_")}
+    why = {k.removeprefix("why_"): int(v) for k, v in c.items() if k.startswith("why_")}
+    if why:
+        d["good_start"] = why  # why the GICP-first answer was (not) taken
     return d
 
 
@@ -226,12 +294,15 @@ def main(argv: list[str] | None = None) -> int:
     config = Config.from_yaml(args.config) if args.config else Config()
     runner = Runner(config)
     figures: dict = {"noise": {"trans_m": args.noise_trans, "yaw_deg": args.noise_yaw}, "shifts_m": args.shifts}
+    kitti = {f"kitti_{k.name}": kitti_frames(k, args.kitti_scans) for k in args.kitti}
     if args.skip != "timing":
-        sets = {f"kitti_{k.name}": kitti_frames(k, args.kitti_scans) for k in args.kitti}
-        sets.update({f"sim_{s}": sim_frames(s, args.seed, args.pairs + 1) for s in args.scenes})
+        sets = {**kitti, **{f"sim_{s}": sim_frames(s, args.seed, args.pairs + 1) for s in args.scenes}}
         figures["timing"] = timing(runner, sets, args)
     if args.skip != "wrong":
-        figures["wrong_start"] = wrong_starts(runner, args)
+        gap = args.wrong_gap
+        sets = {s: sim_frames(s, args.seed + 1, args.wrong_pairs + 1, gap=gap) for s in args.scenes}
+        sets.update({k: v[::gap][: args.wrong_pairs + 1] for k, v in kitti.items()})
+        figures["wrong_start"] = wrong_starts(runner, sets, args)
     runner.reg.close()
     _common.write_json(args.out, "good_start.json", figures)
     return 0

@@ -556,7 +556,8 @@ def save_runs(out: Path, layout: str, stream: str, runs: list[tuple[str, bool, d
             recs.append({
                 "layout": layout, "stream": stream, "run": label, "busy": busy, "method": method,
                 "pairs": r.pairs, "answered": r.answered, "p50_ms": r.pct(50), "p99_ms": r.pct(99),
-                "error": r.error, "cpu": r.cpu, "cpu_ms": r.cpu_ms, "diagnostics": r.diagnostics,
+                "error": r.error, "cpu": r.cpu,
+                "cpu_ms": round(r.cpu_ms, 2) if np.isfinite(r.cpu_ms) else None, "diagnostics": r.diagnostics,
                 "samples": [{"period": k, "source": f[0], "target": f[1], "latency_ms": round(v, 2)}
                             for k, v, f in zip(r.periods, r.latencies_ms, r.frames)],
             })  # fmt: skip
