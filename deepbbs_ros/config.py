@@ -442,9 +442,11 @@ class LocalizationConfig:
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
+    # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
+    confident_score: float = 0.8
     # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
-    # a true pose scores ~0.85-0.95 on it, a wrong place up to ~0.4
-    min_score: float = 0.5
+    # a true pose scores ~0.85-0.95 on it in a town (0.6-0.95 on a highway), a wrong place or pose up to ~0.6
+    min_score: float = 0.6
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
@@ -454,14 +456,16 @@ class LocalizationConfig:
     # two valid answers farther apart than this (m) are different places; with scores within ambiguity_margin of each
     # other the answer is "ambiguous" (no pose)
     ambiguity_distance: float = 5.0
-    ambiguity_margin: float = 0.08  # score difference under which two valid answers at different places tie
+    # score difference under which two valid answers at different places tie (a wrong place on a highway scored 0.71
+    # against a look-alike's 0.60)
+    ambiguity_margin: float = 0.15
     # m; the chosen pose is probed by GICP from starts this far off in four directions: a pose that stays off with a
     # valid score (a featureless road) is ambiguous; 0 = no probe
     ambiguity_probe: float = 1.5
     # m; the accepted pose is refined by GICP on finer clouds of this voxel (the scan and the map within refine_radius):
     # the registration's 0.5 m clouds leave ~0.3 m along a road with few features; 0 = off
     refine_voxel: float = 0.25
-    refine_radius: float = 40.0  # m; the finer clouds of refine_voxel cover this radius around the sensor
+    refine_radius: float = 80.0  # m; the finer clouds of refine_voxel cover this radius around the sensor
     # refine tracked poses too (not only those found by a search): more precise on featureless roads, at about twice
     # the tracking's cost (a second, finer GICP per scan)
     refine_tracking: bool = False
@@ -485,6 +489,7 @@ class LocalizationConfig:
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
+        _check(0 <= self.confident_score <= 1, "localization.confident_score", "must be in [0, 1]")
         _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",
                f"must be 'off' or 'auto', got {self.candidate_search!r}")
         _check(self.candidate_separation >= 0, "localization.candidate_separation", "must be >= 0")

@@ -94,12 +94,28 @@ def test_tracking_from_a_guess(localizer, world):
     res = localizer.localize(drive.scan_at(61).points, guess)
     ok, err = _ok(res.T_map_scan, T_gt)
     assert res.valid and ok and res.mode == "tracking" and res.candidates == 1, (err, res.reason)
+    assert res.path in ("gicp", "deepbbs") and res.crop is not None
 
 
 def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
     _, _, _, other = world
     res = localizer.localize(other.scan_at(3).points)
     assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
+
+
+def test_two_identical_places_are_ambiguous(localizer, world):
+    """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    shift = np.array([500.0, 0.0, 0.0])
+    twin = trajectory.copy()
+    twin[:, :3, 3] += shift
+    loc = MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
+                       registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
+    res = loc.localize(drive.scan_at(48).points)
+    assert not res.valid and res.reason.startswith("ambiguous: 2 places, 500")
+    assert len(res.alternatives) == 1  # the other copy: (x, y, score)
 
 
 def test_tracker_found_tracking_lost_relocalized(localizer, world):

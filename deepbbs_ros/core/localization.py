@@ -11,7 +11,7 @@
                 is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
                 localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
-                descriptor's yaw; its verdict (RegistrationResult.valid / score) chooses
+                descriptor's yaw, GICP alone from there when that fails; the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
                 ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
@@ -71,8 +71,8 @@ class LocalizationResult:
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
         path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
             after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "probe", "refine", "total" (those that
-            ran).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "total" (those
+            that ran).
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
@@ -223,6 +223,7 @@ class _Crop:
     T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
     pre: Any  # its PreprocessResult (GICP cloud included)
     fine: Any = None  # its PolishCloud on localization.refine_voxel within refine_radius (built when first needed)
+    map_cloud: np.ndarray | None = None  # (M, 3) float32 its GICP cloud in the map frame (LocalizationResult.crop)
 
 
 class MapLocalizer:
@@ -271,6 +272,8 @@ class MapLocalizer:
                                     "trajectory, or lower localization.free_clearance)")
         self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
+        self._track_place = -1  # the place whose crop tracking used last
+        self._guess_crop: _Crop | None = None  # tracking off the places: the crop at an earlier guess
         self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
             from deepbbs_ros.core.registration import DeepBBSRegistration
@@ -473,24 +476,39 @@ class MapLocalizer:
         xy = self._places[:, :2, 3]
         d = np.linalg.norm(xy - guess[:2, 3], axis=1)
         near = int(np.argmin(d))
-        if d[near] <= max(lc.place_spacing, 0.25 * self.crop_radius):
+        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # a crop serves while the sensor is this close to it
+        if self._track_place >= 0 and d[self._track_place] <= reach:
+            near = self._track_place  # the same crop as the last scan: no new preprocessing, the network's memo
+        if d[near] <= reach:
             crop = self._crop(near)
-        else:  # off the places: a crop at the guess (gravity-aligned)
-            T = np.eye(4)
-            T[:3, 3] = guess[:3, 3]
-            near, crop = -1, self._crop(-1, T)
+            self._track_place = near
+        else:  # off the places: a crop at the guess (gravity-aligned), kept while the sensor stays near it
+            near, crop = -1, self._guess_crop
+            if crop is None or np.linalg.norm(crop.T_map_place[:2, 3] - guess[:2, 3]) > reach:
+                T = np.eye(4)
+                T[:3, 3] = guess[:3, 3]
+                crop = self._guess_crop = self._crop(-1, T)
         timings["crop"] = (time.perf_counter() - t) * 1e3
+        T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
+        t = time.perf_counter()
+        score, T_map_scan, path = float("nan"), guess, ""
+        if not self._good_start:  # GICP from the guess (the GICP anchor's work) and the verdict
+            ans = self._gicp(src, crop, T_guess, near)
+            timings["gicp"] = (time.perf_counter() - t) * 1e3
+            if ans is not None:
+                score, T_map_scan, path = ans.score, ans.T, "gicp"
+                if ans.ok:
+                    return self._tracked(pts, crop, ans.T, ans.score, path, near, timings)
         t = time.perf_counter()
         with _search(self.registration, "off"):  # a rejection goes to the local search below, not other yaws
-            reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ guess, good_start=True)
+            reg = self._register(src, crop, T_guess, good_start=True)  # register()'s own good start when it has one
         timings["register"] = (time.perf_counter() - t) * 1e3
-        T_map_scan = crop.T_map_place @ reg.T_target_source
-        path = getattr(reg, "path", "") or ("gicp" if self._good_start and reg.starts <= 1 else "deepbbs")
+        path = getattr(reg, "path", "") or "deepbbs"
+        if not (reg.score <= score):  # nan-safe: the better of the two
+            score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
         if self._accepts(reg.valid, reg.score):
-            if lc.refine_tracking:
-                T_map_scan = self._refine(pts, crop, T_map_scan, [], timings)
-            return LocalizationResult(T_map_scan, True, float(reg.score), "tracking", "", candidates=1, path=path,
-                                      crop=_crop_cloud(crop), place=near)
+            return self._tracked(pts, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
+                                 timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
             among = np.flatnonzero(d <= lc.track_search_radius)
             if len(among):
@@ -498,11 +516,17 @@ class MapLocalizer:
                 res.mode, res.path = "tracking", "search"
                 if res.valid:
                     return res
-                res.reason = f"rejected from the guess (score {reg.score:.2f}); local search: {res.reason}"
+                res.reason = f"rejected from the guess (score {score:.2f}); local search: {res.reason}"
                 return res
-        return LocalizationResult(T_map_scan, False, float(reg.score), "tracking",
-                                  f"rejected from the guess (score {reg.score:.2f})", candidates=1, path=path,
-                                  place=near)
+        return LocalizationResult(T_map_scan, False, score, "tracking", f"rejected from the guess (score {score:.2f})",
+                                  candidates=1, path=path, place=near)
+
+    def _tracked(self, pts: np.ndarray, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
+                 timings: dict[str, float]) -> LocalizationResult:
+        if self.config.localization.refine_tracking:
+            T_map_scan = self._refine(pts, crop, T_map_scan, [], timings)
+        return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
+                                  crop=_crop_cloud(crop), place=place)
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
                 timings: dict[str, float]) -> LocalizationResult:
@@ -534,8 +558,14 @@ class MapLocalizer:
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
                           crop.T_map_place @ reg.T_target_source, place, crop)
+            if not ans.ok:  # the network's pass went astray: GICP alone from the descriptor's start (good to ~2 m)
+                t = time.perf_counter()
+                alt = self._gicp(src, crop, T_init, place)
+                timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
+                if alt is not None and alt.score > ans.score:
+                    ans = alt
             answers.append(ans)
-            if ans.ok and accepted_dist is None:
+            if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
         n = len(answers)
         if not answers:
@@ -627,6 +657,23 @@ class MapLocalizer:
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
         return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
 
+    def _gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int) -> _Answer | None:
+        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score."""
+        from deepbbs_ros.core import verdict
+
+        rc = self.config.registration
+        if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
+            return None
+        for pc in (src.polish_cloud, crop.pre.polish_cloud):
+            if getattr(pc, "pending", None) is not None:
+                pc.complete(threads=self.registration.gicp_threads())
+        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc)
+        if not pol.applied:
+            return None
+        score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
+        return _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
+                       crop.T_map_place @ pol.T_target_source, place, crop)
+
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
         """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
         -> their answers (a pose pinned down brings each back; on a featureless stretch they stay off with as good a
@@ -681,11 +728,14 @@ def _search(registration: Any, mode: str) -> Iterator[None]:
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:
-    pc = getattr(crop.pre, "polish_cloud", None)
-    if pc is None:
-        return None
-    p = np.asarray(pc.points(), dtype=np.float64)
-    return (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
+    """(M, 3) float32 the crop's GICP cloud in the map frame (kept with the crop)."""
+    if crop.map_cloud is None:
+        pc = getattr(crop.pre, "polish_cloud", None)
+        if pc is None:
+            return None
+        p = np.asarray(pc.points(), dtype=np.float64)[:, :3]
+        crop.map_cloud = (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
+    return crop.map_cloud
 
 
 def _as_cloud(points: Any, name: str) -> np.ndarray:
