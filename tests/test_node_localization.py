@@ -130,12 +130,14 @@ def test_finds_tracks_loses_and_finds_again(ros, drive, tmp_path, capfd):
         log = capfd.readouterr().err
         assert log.count("localization lost") == 1 and log.count("localization relocalized") == 1, log
         assert log.count("localization found") == 1, log
-        # the map crop of the place the tracked pose reaches in a second is ready before a scan gets there (prepared
-        # in the background, or kept from the search)
-        loc = h.node.localization
+        # the map crop the tracking will use a second later is ready before a scan gets there: the crop tracked now
+        # still reaches that pose, or the place nearest it was prepared in the background (or kept from the search)
+        loc, m = h.node.localization, h.node.localization.localizer
         ahead = loc.tracker.predict(sim.stamp_ns(99) + 1_000_000_000)
-        place = int(np.argmin(np.linalg.norm(loc.localizer.places[:, :2, 3] - ahead[:2, 3], axis=1)))
-        assert h.wait_for(lambda: place in loc.localizer._crops, 10.0), (place, list(loc.localizer._crops))
+        d = np.linalg.norm(m.places[:, :2, 3] - ahead[:2, 3], axis=1)
+        reach = max(cfg.localization.place_spacing, 0.25 * m.crop_radius)
+        ready = lambda: (m._track_place >= 0 and d[m._track_place] <= reach) or int(np.argmin(d)) in m._crops  # noqa: E731
+        assert h.wait_for(ready, 10.0), (m._track_place, int(np.argmin(d)), list(m._crops))
         # ~/relocalize (deepbbs-ros relocalize, its own process): the pose is forgotten, the next scan is searched
         # in the whole map (found, not tracked)
         cmd = [sys.executable, "-m", "deepbbs_ros.cli.ros", "--timeout", "10", "relocalize", "/loc_node"]
@@ -257,3 +259,22 @@ def test_map_file_ply_and_pcd_read_alike(tmp_path):
     np.testing.assert_allclose(ply.points, pts, atol=1e-6)
     assert (pcd.frame_id, ply.frame_id) == ("map", "world") and ply.trajectory is None
     np.testing.assert_allclose(pcd.trajectory, poses, atol=1e-6)
+
+
+def test_prefetch_prepares_the_crop_tracking_reaches_next(drive):
+    """MapLocalizer.prefetch (the node's background thread): nothing while the crop tracked now still reaches the
+    pose; past it, the crop of the place nearest the pose, which the next tracked scan there then finds kept."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    sim, points, poses, scan = drive
+    cfg = _config()
+    m = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
+    res = m.localize(scan(100)[0], sim.pose_at(100))
+    assert res.valid and m._track_place >= 0
+    assert m.prefetch(sim.pose_at(101)) == -1  # a metre on: the same crop serves
+    far = sim.pose_at(130)  # ~35 m on: beyond the tracked crop's reach
+    place = m.prefetch(far)
+    assert place >= 0 and place in m._crops and m.prefetch(far) == -1  # prepared once, kept
+    res = m.localize(scan(130)[0], far)
+    assert res.valid and res.place == place and res.timings_ms["crop"] < 50.0, res.timings_ms
+    _check_pose(res.T_map_scan, sim.pose_at(130))
