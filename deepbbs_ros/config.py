@@ -452,7 +452,7 @@ class LocalizationConfig:
     candidate_search: str = "off"
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
-    crop_cache: int = 64  # crops whose preprocessing is kept (least recently used dropped): memory vs speed
+    crop_cache: int = 16  # crops whose preprocessing is kept (least recently used dropped; 6-13 MB each)
     # two valid answers farther apart than this (m) are different places; with scores within ambiguity_margin of each
     # other the answer is "ambiguous" (no pose)
     ambiguity_distance: float = 5.0
@@ -462,13 +462,13 @@ class LocalizationConfig:
     # m; the chosen pose is probed by GICP from starts this far off in four directions: a pose that stays off with a
     # valid score (a featureless road) is ambiguous; 0 = no probe
     ambiguity_probe: float = 1.5
-    # m; the accepted pose is refined by GICP on finer clouds of this voxel (the scan and the map within refine_radius):
-    # the registration's 0.5 m clouds leave ~0.3 m along a road with few features; 0 = off
-    refine_voxel: float = 0.25
-    refine_radius: float = 80.0  # m; the finer clouds of refine_voxel cover this radius around the sensor
-    # refine tracked poses too (not only those found by a search): more precise on featureless roads, at about twice
-    # the tracking's cost (a second, finer GICP per scan)
-    refine_tracking: bool = False
+    # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
+    # pose with a slightly worse optimum nearby scores a few hundredths less)
+    ambiguity_probe_margin: float = 0.03
+    # m; the accepted pose is refined by a second GICP on the same clouds with this correspondence distance (the
+    # registration's 2 m leaves 0.2-0.6 m along a road with few features: the far pairs pull); 0 = off
+    refine_corr_dist: float = 0.5
+    refine_tracking: bool = True  # refine tracked poses too (not only those found by a search)
     # tracking: a rejected pose from the guess is searched among the places within this radius (m) of the guess
     # before giving up on the scan (0 = no local search)
     track_search_radius: float = 30.0
@@ -498,9 +498,9 @@ class LocalizationConfig:
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
+        _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
-        _check(self.refine_voxel >= 0, "localization.refine_voxel", "must be >= 0 (0 = off)")
-        _check(self.refine_radius > 0, "localization.refine_radius", "must be > 0")
+        _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
         _check(self.lost_after >= 1, "localization.lost_after", "must be >= 1")
         _check(self.max_speed > 0, "localization.max_speed", "must be > 0")
 
