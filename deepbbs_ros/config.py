@@ -306,8 +306,14 @@ class NodeConfig:
     tf_timeout: float = 1.0  # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity
     # pair mode: "stamped" pairs source and target by stamp (slop); "latched" takes the target topic as a map /
     # reference cloud (transient_local, reliable): the latest target serves every source, cropped around the
-    # current estimate, the answer is the scan's pose in the target frame, the last answer the next start
+    # current estimate, the answer is the scan's pose in the target frame, the last answer the next start;
+    # "localization": each source's pose in a prior map (localization.map_path, else the latched target topic)
+    # with no initial pose: the whole map searched, then tracked; lost and found again (~/relocalize)
     target_mode: str = "stamped"
+    map_frame: str = "map"  # localization: the frame of the map read from localization.map_path
+    # localization: a background thread prepares the map crop of the place the tracked pose reaches next, so that the
+    # scan that gets there does not wait for it
+    map_prefetch: bool = True
     initial_pose: list[float] = field(default_factory=lambda: [0.0] * 6)  # latched: first start x y z roll pitch yaw
     map_crop_radius: float = 0.0  # m; latched: map points within this of the estimate; 0 = preprocess.max_range
     unpaired_warn_after: float = 3.0  # s; an input that never pairs is reported (log, /diagnostics) after this
@@ -355,8 +361,8 @@ class NodeConfig:
         _check(self.diagnostics_period > 0, "node.diagnostics_period", "must be > 0")
         _check(self.error_log_period >= 0, "node.error_log_period", "must be >= 0")
         _check(self.tf_timeout >= 0, "node.tf_timeout", "must be >= 0")
-        _check(self.target_mode in ("stamped", "latched"), "node.target_mode",
-               f"must be 'stamped' or 'latched', got {self.target_mode!r}")
+        _check(self.target_mode in ("stamped", "latched", "localization"), "node.target_mode",
+               f"must be 'stamped', 'latched' or 'localization', got {self.target_mode!r}")
         _check(len(self.initial_pose) == 6, "node.initial_pose", "must be [x, y, z, roll, pitch, yaw]")
         _check(self.map_crop_radius >= 0, "node.map_crop_radius", "must be >= 0 (0 = preprocess.max_range)")
         _check(self.unpaired_warn_after > 0, "node.unpaired_warn_after", "must be > 0")

@@ -5,11 +5,15 @@
     ros2 launch deepbbs_ros deepbbs_registration.launch.py \
         source_cloud:=/lidar/points target_cloud:=/map/points target_mode:=latched
     ros2 launch deepbbs_ros deepbbs_registration.launch.py mode:=odometry bagfile:=bags/urban_drive_hdl64
+    ros2 launch deepbbs_ros deepbbs_registration.launch.py source_cloud:=/points target_mode:=localization \
+        map_path:=/maps/town.pcd
 
 Arguments: ``params_file`` (default: this package's config/deepbbs_ros.yaml), ``mode`` (pair | odometry),
 ``topic`` (the odometry input; ``cloud`` is the same), ``source_cloud``, ``target_cloud``, ``target_mode``
-(stamped | latched: a map published once, transient local), ``base_frame`` (odometry: the motion published is
-this frame's, with base <- sensor from /tf_static; '' = the cloud frame), ``odom_frame``, ``publish_tf``,
+(stamped | latched: a map published once, transient local | localization: the pose in a prior map with no initial
+pose), ``map_path`` (localization: the map file, .pcd / .ply; '' = the map from ``target_cloud``), ``base_frame``
+(odometry: the motion published is this frame's, with base <- sensor from /tf_static; '' = the cloud frame),
+``odom_frame``, ``publish_tf``,
 ``invert_tf`` (publish base -> odom), ``publish_odometry``, ``use_sim_time``, ``visualize`` (start RViz2 with the
 shipped rviz/deepbbs_ros.rviz: input cloud /points, aligned cloud, trajectory, TF; turns on ~/aligned_cloud),
 ``bagfile`` (play a recording into the node with deepbbs-play: odometry mode on ``topic``; pair mode each scan
@@ -70,7 +74,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("source_cloud", default_value="source_cloud", description="source PointCloud2 topic"),
         DeclareLaunchArgument("target_cloud", default_value="target_cloud", description="target PointCloud2 topic"),
         DeclareLaunchArgument("target_mode", default_value="stamped",
-                              description="pair mode: stamped (pairs by stamp) | latched (a map / reference cloud)"),
+                              description="pair mode: stamped (pairs by stamp) | latched (a map / reference cloud) | "
+                                          "localization (the pose in a prior map, no initial pose)"),
+        DeclareLaunchArgument("map_path", default_value="",
+                              description="localization: the map file (.pcd / .ply, map frame); '' = target_cloud"),
         DeclareLaunchArgument("base_frame", default_value="base_link",
                               description="odometry: frame whose motion is published ('' = the cloud frame)"),
         DeclareLaunchArgument("odom_frame", default_value="odom", description="odometry frame"),
@@ -100,6 +107,7 @@ def generate_launch_description() -> LaunchDescription:
             {
                 "node.mode": LaunchConfiguration("mode"),
                 "node.target_mode": LaunchConfiguration("target_mode"),
+                "localization.map_path": ParameterValue(LaunchConfiguration("map_path"), value_type=str),
                 "node.base_frame": ParameterValue(LaunchConfiguration("base_frame"), value_type=str),
                 "node.odom_frame": ParameterValue(LaunchConfiguration("lidar_odom_frame"), value_type=str),
                 "node.publish_tf": ParameterValue(LaunchConfiguration("publish_odom_tf"), value_type=bool),

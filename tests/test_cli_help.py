@@ -68,7 +68,8 @@ def test_replay_help_states_the_config_defaults():
 
     text = " ".join(build_parser().format_help().split())
     ev = Config().eval
-    assert f"eval.stride = {ev.stride} in pairs mode, eval.odom_stride = {ev.odom_stride} in odometry)" in text
+    assert (f"eval.stride = {ev.stride} in pairs mode, eval.odom_stride = {ev.odom_stride} in odometry and "
+            "localization)") in text
     assert f"eval.max_dist = {ev.max_dist:g} m)" in text and f"eval.trials = {ev.trials})" in text
     assert "(default: registration.device = auto)" in text
     assert "(default: results/replay)" in text and "(default: 0.05)" in text

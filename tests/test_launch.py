@@ -112,7 +112,8 @@ def test_launch_default_params_file_is_the_shipped_yaml():
     assert _resolve(_declared(), "config_file", {"config_file": "/kiss.yaml"}) == "/kiss.yaml"
     doc = yaml.safe_load(shipped.read_text())
     assert list(doc) == ["/**"] and "ros__parameters" in doc["/**"]
-    # every parameter it sets is one the node declares in odometry mode (pair mode notes odometry.* as unused)
+    # every parameter it sets is one the node declares in odometry mode or localization (other modes note them as
+    # unused)
     flat: dict[str, object] = {}
 
     def walk(d: dict, prefix: str = "") -> None:
@@ -123,7 +124,9 @@ def test_launch_default_params_file_is_the_shipped_yaml():
                 flat[f"{prefix}{k}"] = v
 
     walk(doc["/**"]["ros__parameters"])
-    unknown = sorted(set(flat) - set(registration_node.node_parameters(Config(), "odometry")))
+    declared = {**registration_node.node_parameters(Config(), "odometry"),
+                **registration_node.node_parameters(Config(), "pair", "localization")}
+    unknown = sorted(set(flat) - set(declared))
     assert not unknown, f"{shipped.name} sets parameters the node does not declare: {unknown}"
     # the override dict sets node.mode and use_sim_time from launch arguments
     override = ast.unparse(params.elts[1])
@@ -213,6 +216,7 @@ def test_launch_has_the_arguments_kiss_icp_users_expect():
         ("node.invert_tf", "invert_tf", "invert_odom_tf", "true"),
         ("node.base_frame", "base_frame", "base_frame", ""),
         ("node.target_mode", "target_mode", "target_mode", "latched"),
+        ("localization.map_path", "map_path", "map_path", "/maps/town.pcd"),
         ("use_sim_time", "use_sim_time", "use_sim_time", "true"),
         ("node.publish_aligned_cloud", "visualize", "visualize", "true"),
     ]:

@@ -1,4 +1,5 @@
-"""deepbbs-replay: evaluate DeepBBS++ and baselines on a recording (pairs protocol or odometry).
+"""deepbbs-replay: evaluate DeepBBS++ and baselines on a recording (pairs protocol, odometry, or localization
+in a prior map).
 
 Examples::
 
@@ -6,11 +7,13 @@ Examples::
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp,gicp --out results/replay
     deepbbs-replay apollo/session --perturb-yaw 45 --trials 3 --seed 1
     deepbbs-replay drive.mcap --mode odometry --method deepbbs++,kiss-icp --drop-frames 5 --seed 3
+    deepbbs-bag map day1.mcap site.pcd                                          # a prior map (+ site.tum)
+    deepbbs-replay day2.mcap --mode localization --map site.pcd                 # day 2 placed in it
     deepbbs-replay 'fleet/*.mcap' --mode odometry --method gicp,kiss-icp --workers 8     # a fleet, local Ray
     deepbbs-replay drives.txt --ray-address head-node:6379                              # a fleet, Ray cluster
 
-Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv or frames.csv,
-traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
+Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv, frames.csv or scans.csv
+(localization), traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
 1 error (or a recording fault mid-way: results so far are written, marked incomplete), 130 Ctrl-C
 (results so far are written, marked incomplete).
 
@@ -30,15 +33,16 @@ from pathlib import Path
 from deepbbs_ros.cli.common import HelpFormatter, cli_entry, config_default
 
 PROG = "deepbbs-replay"
+MODES = ("pairs", "odometry", "localization")
 
 
 def build_parser() -> argparse.ArgumentParser:
     d = config_default
     p = argparse.ArgumentParser(
         prog=PROG,
-        description="Replay a recording through DeepBBS++ and baselines; write metrics, plots, trajectories "
-        "and a results bag. Options that default to a config key (eval.*) take the value of --config, else "
-        "the built-in one shown.",
+        description="Replay a recording through DeepBBS++ and baselines (or localize it in a prior map); write "
+        "metrics, plots, trajectories and a results bag. Options that default to a config key (eval.*) take the "
+        "value of --config, else the built-in one shown.",
         formatter_class=HelpFormatter,
     )
     p.add_argument("source", metavar="SOURCE", nargs="+",
@@ -46,15 +50,20 @@ def build_parser() -> argparse.ArgumentParser:
                    "or a folder of .bin/.pcd scans (name order, no ground truth: odometry trajectories and runtime); "
                    "several, a quoted glob or a .txt list (one per line) make a fleet run")
     g = p.add_argument_group("what to run")
-    g.add_argument("--mode", choices=("pairs", "odometry"), default="pairs",
-                   help="pairs: Apollo pair protocol; odometry: a trajectory per method")
+    g.add_argument("--mode", choices=MODES, default="pairs",
+                   help="pairs: Apollo pair protocol; odometry: a trajectory per method; localization: every scan "
+                   "placed in the prior map given with --map, with no initial pose (DeepBBS++ only)")
+    g.add_argument("--map", default=None, metavar="MAP",
+                   help="localization: the prior map, a .pcd or .ply point cloud in the map frame (the recording's "
+                   "ground truth, if any, in the same frame), e.g. from 'deepbbs-bag map'; MAP with the .tum suffix "
+                   "beside it, when present, is the drive it was built from (its poses become the candidate places)")
     g.add_argument("--method", default="deepbbs++",
                    help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
                    "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
                    "kiss-icp (odometry only), kiss-matcher, kiss-matcher+gicp (global, pairs only)")
     g.add_argument("--stride", type=int, default=None, metavar="N",
-                   help="pairs: a source frame every N frames; odometry: every N-th frame (default: "
-                   f"{d('eval.stride')} in pairs mode, {d('eval.odom_stride')} in odometry)")
+                   help="pairs: a source frame every N frames; odometry, localization: every N-th frame (default: "
+                   f"{d('eval.stride')} in pairs mode, {d('eval.odom_stride')} in odometry and localization)")
     g.add_argument("--max-dist", type=float, default=None, metavar="M",
                    help=f"pairs: the target is the last frame within M metres of the source (default: "
                    f"{d('eval.max_dist', 'm')})")
@@ -75,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="odometry: at N random frames the motion prior is off by up to 30 deg / 2 m (default: "
                    f"{d('eval.wrong_prior')})")
     g.add_argument("--max-frames", type=int, default=None, metavar="N",
-                   help="stop after this many frames (odometry: kept frames) (default: all)")
+                   help="stop after this many frames (odometry, localization: kept frames) (default: all)")
     g.add_argument("--max-pairs", type=int, default=None, metavar="N",
                    help="pairs: stop after this many pairs (default: all)")
     i = p.add_argument_group("input")
@@ -157,12 +166,17 @@ def replay_recording(args) -> int:
     from deepbbs_ros.errors import ConfigError, DatasetError
 
     cfg = _config(args)
+    check_localization_args(args)
     from deepbbs_ros.replay.methods import parse_methods
 
-    names = parse_methods(args.method, args.mode)
+    names = parse_methods(args.method, "odometry" if args.mode == "localization" else args.mode)
     for flag in ("max_frames", "max_pairs"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1")
+    if args.mode == "localization":
+        from deepbbs_ros.datasets.maps import read_map
+
+        prior = read_map(args.map)  # a bad map is one line before the recording is opened
 
     from deepbbs_ros.datasets import open_source
 
@@ -173,24 +187,65 @@ def replay_recording(args) -> int:
                            f"{ground_truth_hint(source)}; without them --mode odometry measures trajectories and "
                            "runtime (no errors)")
 
+    if args.mode == "localization":
+        tracker, res = build_tracker(prior, cfg, weights=args.weights, device=args.device, quiet=args.quiet)
+        return run_replay(args, cfg, source, {"deepbbs++": tracker}, results=res)
     from deepbbs_ros.replay.methods import build_methods
 
     methods = build_methods(names, cfg, weights=args.weights, device=args.device, mode=args.mode)
     return run_replay(args, cfg, source, methods)
 
 
-def run_replay(args, cfg, source, methods) -> int:
+def check_localization_args(args) -> None:
+    """--map goes with --mode localization (and the other way round), which runs DeepBBS++ only."""
+    from deepbbs_ros.errors import ConfigError
+
+    if args.mode == "localization":
+        if not args.map:
+            raise ConfigError("--mode localization needs the prior map: --map MAP (.pcd or .ply; 'deepbbs-bag map' "
+                              "builds one from a recording)")
+        if args.method.replace(" ", "") != "deepbbs++":
+            raise ConfigError(f"--mode localization runs DeepBBS++'s map tracker only, not --method {args.method}")
+    elif getattr(args, "map", None):
+        raise ConfigError(f"--map is the prior map of --mode localization (this run is --mode {args.mode})")
+
+
+def build_tracker(prior, cfg, *, weights=None, device=None, quiet=False):
+    """The map tracker over ``prior`` (a :class:`~deepbbs_ros.datasets.maps.PriorMap`) and the results it fills:
+    (MapTracker, LocalizationResults with the map, its places and the set-up time)."""
+    import time
+
+    from deepbbs_ros.core.localization import MapLocalizer, MapTracker
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.replay.runner import LocalizationResults
+
+    reg = DeepBBSRegistration(cfg, weights=weights, device=device)
+    reg.warmup()  # first-call kernel set-up out of the timed scans
+    t0 = time.perf_counter()
+    localizer = MapLocalizer(prior.points, cfg, registration=reg, trajectory=prior.trajectory)
+    setup_ms = (time.perf_counter() - t0) * 1e3
+    places = getattr(localizer, "places", None)
+    if not quiet:
+        where = (f"{len(prior.trajectory)} trajectory poses" if prior.trajectory is not None
+                 else "no trajectory beside it")
+        print(f"map {prior.path}: {len(prior.points)} points, {where}; "
+              f"{0 if places is None else len(places)} candidate places ({setup_ms / 1e3:.1f} s)", file=sys.stderr)
+    res = LocalizationResults(setup_ms=setup_ms, map_points=len(prior.points), places=places, map_xyz=prior.points)
+    return MapTracker(localizer, cfg), res
+
+
+def run_replay(args, cfg, source, methods, results=None) -> int:
     """Run the loop with a progress bar, then write every output (also after Ctrl-C / a reader fault)."""
     from tqdm import tqdm
 
     from deepbbs_ros.errors import DatasetError
     from deepbbs_ros.replay import report
-    from deepbbs_ros.replay.runner import OdometryResults, PairResults, run_odometry, run_pairs
+    from deepbbs_ros.replay.runner import OdometryResults, PairResults, run_localization, run_odometry, run_pairs
 
     run = report.make_run_dir(args.out)
     cfg.to_yaml(run / "config_used.yaml")
     total = len(source)
-    if args.max_frames and args.mode == "odometry":
+    if args.max_frames and args.mode != "pairs":
         total = min(total, args.max_frames * cfg.eval.odom_stride)
     bar = tqdm(total=total, unit="frames", desc=f"replay {args.mode}", disable=args.quiet, dynamic_ncols=True)
     interrupted = False
@@ -205,6 +260,14 @@ def run_replay(args, cfg, source, methods) -> int:
         try:
             run_pairs(logged, methods, cfg, max_pairs=args.max_pairs, progress=progress, results=res)
         except KeyboardInterrupt:  # outside the loop proper (e.g. while closing the reader)
+            res.complete = False
+            res.errors.append("interrupted by the user (Ctrl-C)")
+    elif args.mode == "localization":
+        res = results
+        try:
+            run_localization(source, methods["deepbbs++"], cfg, max_frames=args.max_frames, progress=bar.update,
+                             results=res)
+        except KeyboardInterrupt:
             res.complete = False
             res.errors.append("interrupted by the user (Ctrl-C)")
     else:
@@ -227,6 +290,8 @@ def run_replay(args, cfg, source, methods) -> int:
 
     if args.mode == "pairs":
         mm = report.pair_metrics(res, cfg)
+    elif args.mode == "localization":
+        mm = report.localization_metrics(res, cfg)
     else:
         mm = report.odometry_metrics(res)
     warnings = list(getattr(source, "warnings", []))
@@ -236,6 +301,12 @@ def run_replay(args, cfg, source, methods) -> int:
             warnings.append(hint)
     extra = {"weights": str(args.weights or cfg.registration.weights or "shipped default"),
              "device": args.device or cfg.registration.device}
+    if args.mode == "localization":
+        from deepbbs_ros.datasets.maps import trajectory_path
+
+        tum = trajectory_path(args.map)
+        extra["map"] = {"path": str(args.map), "points": res.map_points,
+                        "trajectory": str(tum) if tum.is_file() else None}
 
     def write_json():
         report.write_metrics_json(run / "metrics.json", source=str(args.source), mode=args.mode, res=res, config=cfg,
@@ -244,6 +315,9 @@ def run_replay(args, cfg, source, methods) -> int:
     write_json()
     if args.mode == "pairs":
         report.write_pairs_csv(run / "pairs.csv", res)
+    elif args.mode == "localization":
+        report.write_localization_csv(run / "scans.csv", res)
+        report.write_localization_trajectories(run, res)
     else:
         report.write_odometry_csv(run / "frames.csv", res)
         report.write_trajectories(run, res)
@@ -255,6 +329,8 @@ def run_replay(args, cfg, source, methods) -> int:
         try:
             if args.mode == "pairs":
                 plots = P.plot_pairs(run, res, cfg.eval.success_rot_deg, cfg.eval.success_trans)
+            elif args.mode == "localization":
+                plots = P.plot_localization(run, res, cfg.eval.success_rot_deg, cfg.eval.success_trans)
             else:
                 plots = P.plot_odometry(run, res)
         except Exception as err:  # noqa: BLE001 - a plot must not cost the results already computed
@@ -426,7 +502,8 @@ def run_fleet(args, sources: list[str]) -> int:
             raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1")
     # workers may run elsewhere: absolute paths for every file the single run opens
     sources = [os.path.abspath(s) for s in sources]
-    for flag in ("config", "weights"):
+    check_localization_args(args)
+    for flag in ("config", "weights", "map"):
         if getattr(args, flag) and Path(getattr(args, flag)).exists():
             setattr(args, flag, os.path.abspath(getattr(args, flag)))
     workers = None if args.ray_address else (args.workers or max(

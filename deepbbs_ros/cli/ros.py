@@ -9,6 +9,7 @@ Real rclpy underneath (the same DDS graph as ``ros2``)::
     deepbbs-ros param get /deepbbs_registration node.mode
     deepbbs-ros param set /deepbbs_registration use_sim_time true
     deepbbs-ros reset                                          # calls /deepbbs_registration/reset
+    deepbbs-ros relocalize                                     # localization: search the whole map again
     deepbbs-ros static-tf --z 1.8 --frame-id base_link --child-frame-id velodyne   # on /tf_static until stopped
     deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
     deepbbs-ros build-interfaces                               # tf2_msgs for /tf (no PyPI wheel)
@@ -39,7 +40,8 @@ NOT_WALL_CLOCK_S = 60.0  # s; stamps further than this from the wall clock are a
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="deepbbs-ros", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="The node's topics, parameters and ~/reset from a pip install (no ros2 command needed).",
+        description="The node's topics, parameters, ~/reset and ~/relocalize from a pip install (no ros2 command "
+                    "needed).",
         epilog="examples:\n" + __doc__.split("\n\n")[2] + "\n\n" + __doc__.split("\n\n")[3],
     )
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, metavar="S",
@@ -72,6 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
     ps.add_argument("value")
 
     r = sub.add_parser("reset", help="call the node's ~/reset (odometry restarts at identity)")
+    r.add_argument("node", nargs="?", default=DEFAULT_NODE)
+    r = sub.add_parser("relocalize", help="call the node's ~/relocalize (node.target_mode localization: forget the "
+                                          "pose, search the whole map on the next scan)")
     r.add_argument("node", nargs="?", default=DEFAULT_NODE)
     st = sub.add_parser(
         "static-tf", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -182,7 +187,7 @@ def _waiting(what: str, timeout: float) -> None:
 def _reset(node: Any, args: argparse.Namespace) -> int:
     from std_srvs.srv import Trigger
 
-    name = _node_name(args.node) + "/reset"
+    name = _node_name(args.node) + ("/relocalize" if args.command == "relocalize" else "/reset")
     res = _spin_until(node, _client(node, Trigger, name, args.timeout).call_async(Trigger.Request()),
                       args.timeout, name)  # fmt: skip
     print(f"{name}: {'ok' if res.success else 'failed'}: {res.message}")

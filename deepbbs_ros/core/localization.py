@@ -401,6 +401,27 @@ class MapLocalizer:
         return chosen
 
     # -- localize ---------------------------------------------------------------------------------------------------
+    def prefetch(self, T_map_scan: np.ndarray) -> int:
+        """Prepare and keep the crop that tracking a scan at ``T_map_scan`` (4, 4) would register on (the place
+        nearest it, once the crop tracked now no longer reaches it), so that the scan that reaches a new place does
+        not wait for its crop. Meant for a background thread while :meth:`localize` tracks on another (the node: with
+        the pose predicted a second ahead); a kept crop is only added, never evicted, here. Returns the place
+        prepared, -1 when the tracked crop still serves, the crop is kept already, or the pose is off the places."""
+        lc = self.config.localization
+        T = np.asarray(T_map_scan, dtype=np.float64)
+        d = np.linalg.norm(self._places[:, :2, 3] - T[:2, 3], axis=1)
+        near = int(np.argmin(d))
+        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # as _track: a crop serves while this close
+        current = self._track_place
+        if (current >= 0 and d[current] <= reach) or d[near] > reach or near in self._crops:
+            return -1
+        local = self.crop_points(self._places[near])
+        if len(local) < MIN_SCAN_POINTS:
+            return -1
+        crop = _Crop(self._places[near].copy(), self.registration.preprocess(local))
+        self._crops.setdefault(near, crop)  # one dict operation: safe beside the tracking thread's own
+        return near
+
     def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
                  stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None) -> LocalizationResult:
         """The pose of ``scan`` in the map.

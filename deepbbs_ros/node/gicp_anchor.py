@@ -4,7 +4,8 @@ The same inputs, outputs, modes, threads and drop policy as ``deepbbs-node``
 (:class:`~deepbbs_ros.node.registration_node.RegistrationNode`); only the registration differs:
 :class:`deepbbs_ros.baselines.SmallGicpRegistration` ``("gicp", config)`` from identity, scan to scan
 (``eval.baseline_*`` keys: voxel grid, neighbours, correspondence distance, iterations; the threads of the
-DeepBBS++ node's precision stage, ``registration.polish_threads``). It
+DeepBBS++ node's precision stage, ``registration.polish_threads``); with a latched map (``node.target_mode:
+latched``, ``node.initial_pose``) each scan is registered on the map's crop from the last answer. It
 is the baseline that latency and accuracy figures of the node are reported against, measured on the
 same machine in the same minute (``scripts/benchmarks/node_latency.py``).
 
@@ -59,9 +60,12 @@ class GicpRegistration:
         Per-point times are not used: the anchor is small_gicp as it comes (no deskew)."""
         return PreparedGicpCloud(self.gicp.preprocess(points))
 
-    def register(self, source: PreparedGicpCloud, target: PreparedGicpCloud) -> Any:
-        """``T_target_source`` from identity (a :class:`deepbbs_ros.baselines.BaselineResult`)."""
-        return self.gicp.align(source.prepared, target.prepared)
+    def register(self, source: PreparedGicpCloud, target: PreparedGicpCloud,
+                 T_init: np.ndarray | None = None) -> Any:
+        """``T_target_source`` (a :class:`deepbbs_ros.baselines.BaselineResult`) from ``T_init`` (4, 4)
+        ``T_target_source`` (identity when None): a latched map (``node.target_mode: latched``) is tracked from
+        the last answer, as the node's localization tracks its map."""
+        return self.gicp.align(source.prepared, target.prepared, T_init)
 
 
 def make_anchor_node(config: Config, **node_kwargs: Any) -> RegistrationNode:

@@ -154,11 +154,15 @@ class Outputs:
         self.aligned.publish(arrays_to_pointcloud2(xyz, stamp_ns=src.stamp_ns, frame_id=frame))
 
     # -- diagnostics ---------------------------------------------------------------------------------
-    def publish_diagnostics(self, name: str, hardware_id: str, values: dict[str, Any], n_errors: int, stamp) -> None:
-        """One DiagnosticStatus (OK, or WARN once any error was counted) with ``values`` as key/values."""
+    def publish_diagnostics(self, name: str, hardware_id: str, values: dict[str, Any], n_errors: int, stamp,
+                            warning: str = "") -> None:
+        """One DiagnosticStatus (OK; WARN once any error was counted, or with a ``warning``: its message) with
+        ``values`` as key/values."""
         level, message = DiagnosticStatus.OK, "running"
         if n_errors:
             level, message = DiagnosticStatus.WARN, f"{n_errors} bad inputs / errors so far"
+        if warning:
+            level, message = DiagnosticStatus.WARN, warning
         status = DiagnosticStatus(
             level=level,
             name=name,

@@ -88,6 +88,7 @@ from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
 from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
+from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
 from deepbbs_ros.node.pipeline import (
     LocalMapOdometry,
@@ -107,26 +108,33 @@ PAIR_INPUTS = ("source_cloud", "target_cloud")
 ODOM_INPUT = "cloud"
 KISS_ICP_INPUT = "pointcloud_topic"  # KISS-ICP's input name: taken as the odometry input when remapped
 #: the node's other topics and services (remapping them is legitimate; parameter services are under ``~/``)
-NODE_TOPICS = ("~/pose", "~/transform", "~/odometry", "~/aligned_cloud", "~/reset", "/tf", "/tf_static",
-               "/diagnostics", "/clock", "/rosout", "/parameter_events")
+NODE_TOPICS = ("~/pose", "~/transform", "~/odometry", "~/aligned_cloud", "~/reset", "~/relocalize", "/tf",
+               "/tf_static", "/diagnostics", "/clock", "/rosout", "/parameter_events")
 JUMP_BACK_S = 1.0  # s; odometry mode: a stamp this far before the last one is a time jump (reset)
 
 
-#: the config sections the node reads (declared as ROS parameters); ``odometry`` too in odometry mode. ``model``
-#: comes from the checkpoint, ``train`` / ``eval`` belong to deepbbs-train / deepbbs-replay.
+#: the config sections the node reads (declared as ROS parameters); ``odometry`` too in odometry mode,
+#: ``localization`` with ``node.target_mode: localization``. ``model`` comes from the checkpoint, ``train`` /
+#: ``eval`` belong to deepbbs-train / deepbbs-replay.
 NODE_SECTIONS = ("preprocess", "registration", "node")
+#: sections of one mode only: in the other modes a params file's keys of them are one note, not warnings
+MODE_SECTIONS = {"odometry": "used in node.mode odometry only",
+                 "localization": "used in node.target_mode localization only"}
 _NOT_NODE = {
     "model": "the model section comes from the checkpoint (registration.weights)",
     "train": "a deepbbs-train setting",
     "eval": "a deepbbs-replay setting",
-    "odometry": "used in node.mode odometry only",
+    **MODE_SECTIONS,
 }
 
 
-def node_parameters(cfg: Config, mode: str) -> dict[str, Any]:
+def node_parameters(cfg: Config, mode: str, target_mode: str = "stamped") -> dict[str, Any]:
     """The parameters the node declares (dotted name -> value of ``cfg``) for ``mode``: every key of
-    :data:`NODE_SECTIONS`, plus ``odometry.*`` in odometry mode. New keys of these sections are picked up."""
+    :data:`NODE_SECTIONS`, plus ``odometry.*`` in odometry mode and ``localization.*`` in pair mode with
+    ``target_mode`` localization. New keys of these sections are picked up."""
     sections = NODE_SECTIONS + (("odometry",) if mode == "odometry" else ())
+    if mode == "pair" and target_mode == "localization":
+        sections += ("localization",)
     return {k: v for k, v in cfg.to_flat().items() if k.partition(".")[0] in sections}
 
 
@@ -136,19 +144,20 @@ def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any]
 
     A name in a declared section that is not a config key (``node.mod``) is an error; a config key of a
     section the node does not use (``train.lr``) and any other unknown name (flat names such as ``mode``)
-    are warnings naming the nearest declared parameter; ``odometry.*`` in pair mode (a params file for
-    both modes) is one note. Flat names are not taken as aliases: ``voxel_size`` could be
-    ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
+    are warnings naming the nearest declared parameter; ``odometry.*`` / ``localization.*`` in another mode (a
+    params file for every mode) is one note per section. Flat names are not taken as aliases: ``voxel_size`` could
+    be ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
     sections = {k.partition(".")[0] for k in used}
-    errors, warnings, other_mode = [], [], []
+    errors, warnings = [], []
+    other_mode: dict[str, list[str]] = {}
     for name in sorted(names):
         if name in used:
             continue
         section = name.partition(".")[0]
         near = nearest_parameter(name, used)
         hint = f"; did you mean {' or '.join(near)}?" if near else ""
-        if name in flat and section == "odometry":  # a params file for both modes: one line for them all
-            other_mode.append(name)
+        if name in flat and section in MODE_SECTIONS:  # a params file for every mode: one line per section
+            other_mode.setdefault(section, []).append(name)
         elif name in flat:
             why = _NOT_NODE.get(section, "not a node parameter")
             warnings.append(f"parameter {name} is ignored: {why}")
@@ -157,9 +166,8 @@ def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any]
         else:
             warnings.append(f"unknown parameter {name} is ignored (the node's parameters are dotted, "
                             f"e.g. node.mode){hint}")
-    notes = []
-    if other_mode:
-        notes.append(f"{len(other_mode)} odometry.* parameter(s) not used: {_NOT_NODE['odometry']} (node.mode={mode})")
+    notes = [f"{len(keys)} {section}.* parameter(s) not used: {MODE_SECTIONS[section]} (node.mode={mode})"
+             for section, keys in other_mode.items()]
     return errors, warnings, notes
 
 
@@ -254,8 +262,9 @@ def check_weights(cfg: Config) -> Path:
 def node_registration_config(cfg: Config) -> Config:
     """The config the node's DeepBBS++ runs with: in pair mode ``node.deep_passes`` network passes (when > 0) in
     place of ``registration.max_deep_iters`` and ``node.polish_max_voxels`` (when > 0) in place of
-    ``registration.polish_max_voxels``; ``cfg`` itself elsewhere."""
-    if cfg.node.mode != "pair":
+    ``registration.polish_max_voxels``; ``cfg`` itself elsewhere (and with ``node.target_mode: localization``: the
+    global search is that of ``deepbbs-replay --mode localization``)."""
+    if cfg.node.mode != "pair" or cfg.node.target_mode == "localization":
         return cfg
     rc, changes = cfg.registration, {}
     if cfg.node.deep_passes > 0 and cfg.node.deep_passes != rc.max_deep_iters:
@@ -281,7 +290,8 @@ def load_registration(cfg: Config, log: Callable[[str], None] | None = None) -> 
     except ConfigError as err:
         raise NodeError(str(err)) from err
     weights = str(check_weights(cfg))
-    if registration_process.wanted(cfg.node.registration_process, cfg.node.mode, device.type):
+    localization = cfg.node.mode == "pair" and cfg.node.target_mode == "localization"  # the localizer's: in-process
+    if not localization and registration_process.wanted(cfg.node.registration_process, cfg.node.mode, device.type):
         try:
             return registration_process.RegistrationProcess(node_registration_config(cfg), weights, log), weights
         except ModelError as err:
@@ -329,6 +339,7 @@ class RegistrationNode(Node):
         ncfg = self.cfg.node
         _validate_frame("node.odom_frame", ncfg.odom_frame)
         _validate_frame("node.base_frame", ncfg.base_frame)
+        _validate_frame("node.map_frame", ncfg.map_frame)
         if not ncfg.odom_frame:
             raise NodeError("node.odom_frame: must not be empty")
         if odometry_method not in ODOMETRY_METHODS:
@@ -336,6 +347,11 @@ class RegistrationNode(Node):
         self.odometry_method = odometry_method
         # inputs: KISS-ICP's pointcloud_topic is the odometry input when it is remapped and cloud is not
         self.input_names = PAIR_INPUTS if ncfg.mode == "pair" else (ODOM_INPUT,)
+        localization = ncfg.mode == "pair" and ncfg.target_mode == "localization"
+        map_file = None
+        if localization and self.cfg.localization.map_path:  # read (and refused) before the model loads
+            map_file = load_map_file(self.cfg.localization.map_path, ncfg.map_frame)
+            self.input_names = PAIR_INPUTS[:1]  # the map is the file's: no map topic
         if ncfg.mode == "odometry" and self._remapped(KISS_ICP_INPUT) and not self._remapped(ODOM_INPUT):
             self.input_names = (KISS_ICP_INPUT,)
         self.remap_warnings = unmatched_remaps(remaps, ncfg.mode, self.get_name(), self.get_namespace())
@@ -371,6 +387,10 @@ class RegistrationNode(Node):
         self._device = str(getattr(registration, "device", "cpu"))
         # a registration that takes a good start (DeepBBS++; not the GICP anchor, which always starts from identity)
         self._pair_start.enabled = ncfg.good_start and ncfg.mode == "pair" and takes_good_start(registration)
+        #: node.target_mode localization: the tracker in the prior map (node/localization.py), else None
+        self.localization = NodeLocalization(self.cfg, registration) if localization else None
+        if map_file is not None:
+            self.get_logger().info(self.localization.build(map_file))
         if ncfg.publish_odometry:  # warm the imports the first odometry message needs
             import scipy.spatial  # noqa: F401
             import scipy.spatial.transform  # noqa: F401
@@ -381,8 +401,9 @@ class RegistrationNode(Node):
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(arrival_preprocess(self.reg, self._pair_start.enabled or (
             self._map_target is not None and ncfg.good_start)))
-        # preprocessing on arrival only where every scan is registered by the network
-        self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry)
+        # preprocessing on arrival only where every scan is registered by the network (the localizer preprocesses
+        # the raw scan itself, with its per-point times)
+        self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry) and self.localization is None
 
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         self.inputs: list[CloudInput] = []
@@ -402,6 +423,8 @@ class RegistrationNode(Node):
             self._stop_threads()
             raise NodeError(f"cannot create topics: {err}".replace("\n", " ")) from err
         self.srv_reset = self.create_service(Trigger, "~/reset", self._on_reset)
+        if self.localization is not None:
+            self.srv_relocalize = self.create_service(Trigger, "~/relocalize", self._on_relocalize)
         # diagnostics on the steady (wall) clock: with use_sim_time a ROS-time timer stops with /clock (a bag
         # that ended would leave the counters frozen); the messages still carry the node's time
         self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics,
@@ -432,6 +455,8 @@ class RegistrationNode(Node):
             f"weights={self._weights} qos=[{qos_text}] slop={ncfg.slop}s "
             f"queue={ncfg.queue_size}" + (f" odometry={self.odometry_method}" if self.odometry else "")
             + (f" target=latched ({self.inputs[1].topic})" if self._map_target is not None else "")
+            + (f" target=localization (map {map_file.source if map_file else self.inputs[1].topic})"
+               if self.localization is not None else "")
         )
         self.get_logger().info(
             f"ready in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up {t_end - t_warm:.1f} s)"
@@ -478,7 +503,8 @@ class RegistrationNode(Node):
         flat = defaults.to_flat()
         overrides = getattr(self, "_parameter_overrides", {}) or {}
         mode = overrides["node.mode"].value if "node.mode" in overrides else defaults.node.mode
-        used = node_parameters(defaults, mode)
+        target = overrides["node.target_mode"].value if "node.target_mode" in overrides else defaults.node.target_mode
+        used = node_parameters(defaults, mode, target)
         ignore = [n for n in overrides if n not in used and (self.has_parameter(n) or n.startswith("qos_overrides."))]
         errors, warnings, notes = check_parameter_names([n for n in overrides if n not in ignore], used, flat, mode)
         if errors:
@@ -497,7 +523,8 @@ class RegistrationNode(Node):
             raise NodeError(str(err)) from err
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        ours = [p.name for p in params if p.name in node_parameters(self.cfg, self.cfg.node.mode)]
+        declared = node_parameters(self.cfg, self.cfg.node.mode, self.cfg.node.target_mode)
+        ours = [p.name for p in params if p.name in declared]
         if ours:
             return SetParametersResult(successful=False, reason=f"restart the node to change {', '.join(ours)}")
         return SetParametersResult(successful=True)
@@ -505,17 +532,21 @@ class RegistrationNode(Node):
     # -- inputs (executor thread, then one thread per input) -----------------------------------------
     def _make_input(self, index: int, name: str, qos: QoSProfile):
         pair = self.cfg.node.mode == "pair"
-        latched = self._map_target is not None and name == "target_cloud"
+        latched = (self._map_target is not None or self.localization is not None) and name == "target_cloud"
 
         def on_cloud(cloud: Cloud) -> None:  # on the input's thread, once the cloud is preprocessed
             self._stages.add(cloud.timings_ms)
             with self._lock:
                 self._arrivals[index] = (time.monotonic(), cloud.stamp_ns)
-            if latched:
+            if latched and self.localization is not None:
+                self._on_localization_map(index, cloud)
+            elif latched:
                 self._map_target.set_map(cloud)
                 self.get_logger().info(
                     f"target (map) from {self.inputs[index].topic}: {len(cloud.xyz)} points in {cloud.frame_id!r}"
                 )
+            elif self.localization is not None:
+                self._on_localize_source(cloud)
             elif self._map_target is not None:
                 self._on_map_source(cloud)
             elif pair:
@@ -633,6 +664,30 @@ class RegistrationNode(Node):
             self._last_pair_t = time.monotonic()
         self.worker.submit(("map", cloud, map_cloud))
 
+    def _on_localization_map(self, index: int, cloud: Cloud) -> None:
+        """Localization: a map on the latched topic; its places and descriptors are built here (the map input's
+        thread), the next scan searches it."""
+        from deepbbs_ros.node.localization import MapData
+
+        try:
+            line = self.localization.build(MapData(cloud.xyz, cloud.frame_id, self.inputs[index].topic))
+        except NodeError as err:
+            self._on_bad("bad_map", str(err))
+            return
+        self.get_logger().info(line)
+
+    def _on_localize_source(self, cloud: Cloud) -> None:
+        """Localization: every scan goes to the tracker (newest wins), once there is a map."""
+        if not self.localization.has_map:
+            topic = self.inputs[1].topic if len(self.inputs) > 1 else "the map topic"
+            self._warnings.log("no_target", f"{self.inputs[0].topic}: scan at {cloud.stamp_ns} ns dropped: no map on "
+                               f"{topic} yet (latched: transient_local, reliable), and localization.map_path is empty")
+            return
+        with self._lock:
+            self._counts["pairs"] += 1
+            self._last_pair_t = time.monotonic()
+        self.worker.submit(("localize", cloud, None))
+
     def _on_scan(self, cloud: Cloud) -> None:
         with self._lock:
             self._counts["pairs"] += 1
@@ -663,10 +718,20 @@ class RegistrationNode(Node):
                 self._last_odom_stamp = None
         if self._map_target is not None:
             self._map_target.reset()
+        if self.localization is not None:
+            self.localization.relocalize()
         self._pair_start.reset()
         response.success = True
         response.message = "odometry restarted at identity; synchroniser and frame memory cleared"
         self.get_logger().info(response.message)
+        return response
+
+    def _on_relocalize(self, request, response):
+        """``~/relocalize``: forget the pose; the next scan searches the whole map."""
+        self.localization.relocalize()
+        response.success = True
+        response.message = "pose forgotten: the next scan searches the whole map"
+        self.get_logger().info(f"~/relocalize: {response.message}")
         return response
 
     def _on_thread_error(self, job, exc: BaseException) -> None:
@@ -691,6 +756,17 @@ class RegistrationNode(Node):
                     self.outputs.pair(src, tgt, reg)
                 else:  # the verdict: a pose that cannot be trusted is not published (counted, logged rate-limited)
                     self._untrusted(reg.result)
+            elif mode == "localize":
+                loc = self.localization.step(src)
+                reg = loc.registered
+                if loc.line:
+                    self.get_logger().info(loc.line)
+                t0 = time.perf_counter()
+                if loc.result.valid:  # a rejected scan is counted (there and as not trusted), never published
+                    self.outputs.localized(src, loc.frame_id, reg, loc.crop)
+                else:
+                    with self._lock:
+                        self._counts["untrusted"] += 1
             elif mode == "map":
                 reg, tgt_points = self._map_target.register(self.reg, src)
                 t0 = time.perf_counter()
@@ -778,7 +854,7 @@ class RegistrationNode(Node):
     def _check_unpaired(self) -> None:
         """Pair mode (stamped): an input that has received clouds without a pair for ``node.unpaired_warn_after``
         s is reported (log and /diagnostics), naming the topics and the stamp gap."""
-        if self.cfg.node.mode != "pair" or self._map_target is not None:
+        if self.cfg.node.mode != "pair" or self._map_target is not None or self.localization is not None:
             return
         now = time.monotonic()
         wait = self.cfg.node.unpaired_warn_after
@@ -857,6 +933,8 @@ class RegistrationNode(Node):
                 values[f"paths.{path}"] = n
         if "deepbbs_consulted" in s:
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
+        if self.localization is not None:
+            values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
         for kind, n in sorted(s["warnings"].items()):
@@ -869,13 +947,15 @@ class RegistrationNode(Node):
         self.outputs.publish_diagnostics(
             f"{self.get_name()}: registration", self._device, values,
             sum(s["errors"].values()) + sum(s["warnings"].values()),
-            self.get_clock().now().to_msg(),
+            self.get_clock().now().to_msg(), self.localization.warning() if self.localization is not None else "",
         )  # fmt: skip
 
     def _stop_threads(self) -> None:
         for inp in self.inputs:
             inp.stop()
         self.worker.stop()
+        if getattr(self, "localization", None) is not None:
+            self.localization.stop()
 
     def destroy_node(self):
         self._stop_threads()
@@ -885,6 +965,10 @@ class RegistrationNode(Node):
                 f"rejected {s['rejected']}, not trusted {s['untrusted']}")
         if "deepbbs_consulted" in s:
             line += f"; odometry: DeepBBS++ consulted {s['deepbbs_consulted']}, won {s['deepbbs_won']}"
+        if self.localization is not None:
+            d = self.localization.diagnostics()
+            line += (f"; localization: {d['placed']} placed, {d['rejected']} rejected, {d['recoveries']} "
+                     f"recoveries, state {d['state']}")
         self.get_logger().info(line)
         if self._owns_reg and hasattr(self.reg, "close"):
             self.reg.close()

@@ -171,7 +171,9 @@ def pool_metrics(mode: str, per_recording: list[dict[str, dict[str, Any]]]) -> d
     weighted by registrations (a failed registration is a miss, as in one recording). Odometry: KITTI drift
     weighted by segments (the mean over every segment of the fleet), ATE RMSE over every frame of the
     fleet (each recording aligned on its own), RPE and runtime weighted by registered frames (frames - 1),
-    fps = 1000 / pooled mean runtime. Percentiles need the individual values and are not pooled.
+    fps = 1000 / pooled mean runtime. Localization: counts summed, shares over every scan of the fleet, the mean
+    time to first pose over the recordings, tracking latency weighted by scans. Percentiles need the individual
+    values and are not pooled.
     """
     names: list[str] = []
     for mm in per_recording:
@@ -194,6 +196,25 @@ def pool_metrics(mode: str, per_recording: list[dict[str, dict[str, Any]]]) -> d
                 "rot_err_deg": err("rot_err_deg"), "trans_err_m": err("trans_err_m"),
                 "success_rate": _wmean([_num(m.get("success_rate")) for m in ms], reg),
                 "runtime_ms": {"mean": _wmean([_num(m["runtime_ms"]["mean"]) for m in ms], scored)},
+            }
+        elif mode == "localization":
+            scans = [float(m.get("scans", 0) or 0) for m in ms]
+            total = sum(scans)
+
+            def count(key, m_list=ms):
+                vals = [m.get(key) for m in m_list]
+                return None if any(v is None for v in vals) else int(sum(vals))
+
+            placed, correct = count("placed"), count("correct")
+            out[name] = {
+                "recordings": len(ms), "scans": int(total), "placed": placed, "correct": correct,
+                "placed_share": placed / total if total and placed is not None else None,
+                "correct_share": correct / total if total and correct is not None else None,
+                "wrong_published": count("wrong_published"), "recoveries": count("recoveries"),
+                "time_to_first_pose_ms": {"mean": _wmean([_num(m.get("time_to_first_pose_ms")) for m in ms],
+                                                         [1.0] * len(ms))},
+                "latency_tracking_ms": {"mean": _wmean([_num(_get(m, "latency_tracking_ms.mean")) for m in ms],
+                                                       scans)},
             }
         else:
             frames = [float(m.get("frames", 0) or 0) for m in ms]
@@ -388,8 +409,9 @@ def write_summary(run_dir: Path, res: FleetResult, extra: dict[str, Any] | None 
     })
     (run_dir / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
     methods = list(doc["pooled"])
-    keys = (("success_rate", "rot_err_deg.mean", "trans_err_m.mean", "runtime_ms.mean") if res.mode == "pairs" else
-            ("kitti_t_err_pct", "ate_rmse_m", "rpe_trans_m.mean", "fps"))
+    keys = {"pairs": ("success_rate", "rot_err_deg.mean", "trans_err_m.mean", "runtime_ms.mean"),
+            "localization": ("correct_share", "wrong_published", "time_to_first_pose_ms", "latency_tracking_ms.p50")
+            }.get(res.mode, ("kitti_t_err_pct", "ate_rmse_m", "rpe_trans_m.mean", "fps"))
     with open(run_dir / "recordings.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["recording", "source", "status", "frames_read", "seconds"]
@@ -427,9 +449,13 @@ def print_summary(doc: dict[str, Any], console: Any = None) -> None:
     t = Table(title=f"deepbbs-replay fleet {mode}: {doc['recordings_ok']}/{doc['recordings_total']} recordings{flag}")
     for col in ("recording", "status", "frames", "s"):
         t.add_column(col, justify="left" if col in ("recording", "status") else "right")
-    cells = ((("success %", lambda m: None if m.get("success_rate") is None else 100 * m["success_rate"], 1),
-              ("rot deg", lambda m: _get(m, "rot_err_deg.mean"), 3)) if mode == "pairs" else
-             (("drift %", lambda m: m.get("kitti_t_err_pct"), 3), ("ATE m", lambda m: m.get("ate_rmse_m"), 3)))
+    cells = {"pairs": (("success %", lambda m: None if m.get("success_rate") is None else 100 * m["success_rate"], 1),
+                       ("rot deg", lambda m: _get(m, "rot_err_deg.mean"), 3)),
+             "localization": (("correct %", lambda m: None if m.get("correct_share") is None
+                               else 100 * m["correct_share"], 1),
+                              ("wrong", lambda m: m.get("wrong_published"), 0))
+             }.get(mode, (("drift %", lambda m: m.get("kitti_t_err_pct"), 3),
+                          ("ATE m", lambda m: m.get("ate_rmse_m"), 3)))
     for m in methods:
         for label, _, _ in cells:
             t.add_column(f"{m} {label}", justify="right")
@@ -454,6 +480,12 @@ def print_summary(doc: dict[str, Any], console: Any = None) -> None:
              ("translation error max", "m", "trans_err_m.max", 3),
              ("success rate", "%", "success_rate", 1), ("runtime mean", "ms/pair", "runtime_ms.mean", 1)]
             if mode == "pairs" else
+            [("recordings", "count", "recordings", 0), ("scans", "count", "scans", 0),
+             ("placed (pose published)", "%", "placed_share", 1), ("placed within tolerance", "%", "correct_share", 1),
+             ("wrong poses published", "count", "wrong_published", 0), ("recoveries", "count", "recoveries", 0),
+             ("time to first pose mean", "ms", "time_to_first_pose_ms.mean", 1),
+             ("latency tracking mean", "ms/scan", "latency_tracking_ms.mean", 1)]
+            if mode == "localization" else
             [("recordings", "count", "recordings", 0), ("frames", "count", "frames", 0),
              ("KITTI translation drift", "%", "kitti_t_err_pct", 3),
              ("KITTI rotation drift", "deg/100 m", "kitti_r_err_deg_per_100m", 3),
@@ -464,7 +496,7 @@ def print_summary(doc: dict[str, Any], console: Any = None) -> None:
         vals = []
         for m in methods:
             v = _get(pooled[m], key)
-            if key == "success_rate" and v is not None:
+            if key in ("success_rate", "placed_share", "correct_share") and v is not None:
                 v = 100 * v
             vals.append(_fmt(v, digits) if digits else _fmt(v))
         p.add_row(label, unit, *vals)

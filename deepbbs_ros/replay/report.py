@@ -9,7 +9,12 @@ used, the results bag and the terminal table. Plots live in :mod:`deepbbs_ros.re
                        "success_rate", "runtime_ms" {mean p50 p95}, "input"
         odometry mode: "frames", "kitti_t_err_pct", "kitti_r_err_deg_per_100m", "kitti_segments",
                        "ate_rmse_m", "ate_se3_m" {...}, "ape_rot_deg" {...}, "rpe_trans_m" {...},
-                       "rpe_rot_deg" {...}, "runtime_ms" {...}, "fps", "failed_frames", "input"}},
+                       "rpe_rot_deg" {...}, "runtime_ms" {...}, "fps", "failed_frames", "input"
+        localization mode (method "deepbbs++"): "scans", "placed", "placed_share", "correct",
+                       "correct_share", "wrong_published", "rejected", "events" {...}, "time_to_first_pose_ms",
+                       "first_pose_scans", "time_to_first_pose_s", "lost", "recoveries", "rot_err_deg" {...},
+                       "trans_err_m" {...}, "latency_global_ms" {mean p50 p95}, "latency_tracking_ms" {...},
+                       "latency_ms" {...}, "setup_ms", "map_points", "places"}},
      "definitions": {<metric key>: what it is, with the evo command that gives the same figures}}
 
 The odometry figures are evo's on the trajectories in traj/ (:data:`ODOMETRY_DEFINITIONS`). Numbers that
@@ -30,7 +35,7 @@ import numpy as np
 from deepbbs_ros import __version__, metrics
 from deepbbs_ros.config import Config
 from deepbbs_ros.replay.methods import topic_name
-from deepbbs_ros.replay.runner import OdometryResults, PairResults
+from deepbbs_ros.replay.runner import LocalizationResults, OdometryResults, PairResults
 
 
 def _clean(obj: Any) -> Any:
@@ -153,15 +158,87 @@ def odometry_metrics(res: OdometryResults) -> dict[str, dict[str, Any]]:
     return out
 
 
-def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults | OdometryResults,
-                       config: Config, method_metrics: dict, extra: dict | None = None) -> dict:
+#: what each localization figure of metrics.json is (``eval.success_rot_deg`` / ``success_trans`` the tolerance)
+LOCALIZATION_DEFINITIONS = {
+    "placed_share": "share of the scans given a pose the verdict accepted (a published pose)",
+    "correct_share": "share of the scans given a published pose within eval.success_rot_deg and eval.success_trans "
+                     "of the ground truth (the recording's ground truth is taken to be in the map frame)",
+    "wrong_published": "published poses (accepted by the verdict) outside that tolerance: wrong poses a robot "
+                       "would have used",
+    "rejected": "scans without a published pose (searching, ambiguous, rejected by the verdict, lost)",
+    "time_to_first_pose_ms": "the tracker's compute time from the first scan until its first published pose "
+                             "(every scan before it included), ms; first_pose_scans: how many scans that took",
+    "time_to_first_pose_s": "recording time from the first scan's stamp to the first published pose's, s",
+    "lost": "times the tracker declared itself lost; recoveries: times it was lost and found again",
+    "rot_err_deg": "rotation error of the published poses, the angle of R_gt^T R_est, deg",
+    "trans_err_m": "translation error of the published poses, ||t_est - t_gt||, m",
+    "latency_global_ms": "the tracker's time per scan when it searched the map (mode global), ms",
+    "latency_tracking_ms": "the tracker's time per scan when it tracked from its prediction (mode tracking), ms",
+    "setup_ms": "building the localizer for the map (candidate places, descriptors), ms",
+}
+
+
+def localization_metrics(res: LocalizationResults, config: Config) -> dict[str, dict[str, Any]]:
+    """The figures of one localization run (see :data:`LOCALIZATION_DEFINITIONS`), under the method name
+    ``deepbbs++``."""
     ev = config.eval
-    protocol = ({"stride": ev.stride, "max_dist_m": ev.max_dist, "max_pair_frames": ev.max_pair_frames,
-                 "perturb_yaw_deg": ev.perturb_yaw_deg, "perturb_trans_m": ev.perturb_trans, "trials": ev.trials,
-                 "seed": ev.seed, "success_rot_deg": ev.success_rot_deg, "success_trans_m": ev.success_trans}
-                if mode == "pairs" else
-                {"stride": ev.odom_stride, "init": ev.odom_init, "kitti_lengths_m": list(metrics.KITTI_LENGTHS),
-                 "kitti_step_frames": metrics.KITTI_STEP})
+    recs = res.records
+    n = len(recs)
+    valid = np.array([r.valid for r in recs], dtype=bool)
+    rot = np.array([r.rot_err_deg for r in recs], dtype=np.float64)
+    tr = np.array([r.trans_err_m for r in recs], dtype=np.float64)
+    ms = np.array([r.time_ms for r in recs], dtype=np.float64)
+    gt = res.has_ground_truth
+    ok = valid & (rot <= ev.success_rot_deg) & (tr <= ev.success_trans)
+    events: dict[str, int] = {}
+    for r in recs:
+        events[r.event] = events.get(r.event, 0) + 1
+    first = int(np.argmax(valid)) if valid.any() else None
+    share = (lambda k: k / n) if n else (lambda k: float("nan"))
+    m: dict[str, Any] = {
+        "scans": n,
+        "placed": int(valid.sum()),
+        "placed_share": share(int(valid.sum())),
+        "correct": int(ok.sum()) if gt else None,
+        "correct_share": share(int(ok.sum())) if gt else None,
+        "wrong_published": int((valid & ~ok).sum()) if gt else None,
+        "rejected": int((~valid).sum()),
+        "events": events,
+        "first_pose_scans": None if first is None else first + 1,
+        "time_to_first_pose_ms": None if first is None else float(np.nansum(ms[: first + 1])),
+        "time_to_first_pose_s": None if first is None else (recs[first].stamp_ns - recs[0].stamp_ns) * 1e-9,
+        "lost": events.get("lost", 0),
+        "recoveries": res.recoveries,
+        "rot_err_deg": metrics.summarize(rot[valid]),
+        "trans_err_m": metrics.summarize(tr[valid]),
+        "latency_global_ms": metrics.runtime_summary([r.time_ms for r in recs if r.mode == "global"]),
+        "latency_tracking_ms": metrics.runtime_summary([r.time_ms for r in recs if r.mode == "tracking"]),
+        "latency_ms": metrics.runtime_summary(ms),
+        "setup_ms": res.setup_ms,
+        "map_points": res.map_points,
+        "places": 0 if res.places is None else len(res.places),
+        "input": "the raw scan against the prior map (MapTracker: global search, then tracking)",
+    }
+    return {"deepbbs++": m}
+
+
+def write_metrics_json(path: Path, *, source: str, mode: str,
+                       res: PairResults | OdometryResults | LocalizationResults, config: Config, method_metrics: dict,
+                       extra: dict | None = None) -> dict:
+    ev = config.eval
+    if mode == "pairs":
+        protocol = {"stride": ev.stride, "max_dist_m": ev.max_dist, "max_pair_frames": ev.max_pair_frames,
+                    "perturb_yaw_deg": ev.perturb_yaw_deg, "perturb_trans_m": ev.perturb_trans, "trials": ev.trials,
+                    "seed": ev.seed, "success_rot_deg": ev.success_rot_deg, "success_trans_m": ev.success_trans}
+        definitions = PAIR_DEFINITIONS
+    elif mode == "localization":
+        protocol = {"stride": ev.odom_stride, "initial_pose": "none (global search)",
+                    "success_rot_deg": ev.success_rot_deg, "success_trans_m": ev.success_trans}
+        definitions = LOCALIZATION_DEFINITIONS
+    else:
+        protocol = {"stride": ev.odom_stride, "init": ev.odom_init, "kitti_lengths_m": list(metrics.KITTI_LENGTHS),
+                    "kitti_step_frames": metrics.KITTI_STEP}
+        definitions = ODOMETRY_DEFINITIONS
     doc = {
         "version": __version__,
         "source": source,
@@ -173,7 +250,7 @@ def write_metrics_json(path: Path, *, source: str, mode: str, res: PairResults |
         "protocol": protocol,
         **(extra or {}),
         "methods": method_metrics,
-        "definitions": PAIR_DEFINITIONS if mode == "pairs" else ODOMETRY_DEFINITIONS,
+        "definitions": definitions,
     }
     doc = _clean(doc)
     path.write_text(json.dumps(doc, indent=2) + "\n")
@@ -236,6 +313,48 @@ def write_odometry_csv(path: Path, res: OdometryResults) -> None:
             w.writerow(row)
 
 
+def _yaw_deg(T: np.ndarray) -> float:
+    return float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
+
+
+def write_localization_csv(path: Path, res: LocalizationResults) -> None:
+    """One row per scan: what the tracker said (event, valid, score, mode, path, candidates, time), its pose
+    (x y z yaw in the map frame, empty when no pose was published), the errors against the ground truth and the
+    ground truth (empty without it), and the reason when no pose."""
+    cols = ["scan", "index", "stamp_ns", "event", "valid", "score", "mode", "path", "candidates", "time_ms",
+            "rot_err_deg", "trans_err_m", "x", "y", "z", "yaw_deg", "gt_x", "gt_y", "gt_z", "gt_yaw_deg", "reason"]
+
+    def num(v: float, fmt: str = "{:.6g}") -> str:
+        return fmt.format(v) if np.isfinite(v) else ""
+
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for k, r in enumerate(res.records):
+            pose = ([repr(float(v)) for v in r.T_map_est[:3, 3]] + [f"{_yaw_deg(r.T_map_est):.4f}"]
+                    if np.isfinite(r.T_map_est).all() else [""] * 4)
+            gt = ([repr(float(v)) for v in r.T_map_gt[:3, 3]] + [f"{_yaw_deg(r.T_map_gt):.4f}"]
+                  if r.T_map_gt is not None else [""] * 4)
+            w.writerow([k, r.index, r.stamp_ns, r.event, int(r.valid), num(r.score, "{:.4f}"), r.mode, r.path,
+                        r.candidates, f"{r.time_ms:.3f}", num(r.rot_err_deg), num(r.trans_err_m), *pose, *gt,
+                        r.reason])
+
+
+def write_localization_trajectories(run: Path, res: LocalizationResults) -> list[Path]:
+    """``traj/localization.tum`` (the published poses only, map frame) and ``traj/ground_truth.tum`` (every scan)."""
+    d = run / "traj"
+    d.mkdir(exist_ok=True)
+    placed = [r for r in res.records if r.valid]
+    written = [d / "localization.tum"]
+    metrics.write_tum(written[0], np.asarray([r.stamp_ns for r in placed], dtype=np.int64),
+                      [r.T_map_est for r in placed])
+    if res.has_ground_truth:
+        written.append(d / "ground_truth.tum")
+        metrics.write_tum(written[-1], np.asarray([r.stamp_ns for r in res.records], dtype=np.int64),
+                          [r.T_map_gt for r in res.records])
+    return written
+
+
 def write_trajectories(run: Path, res: OdometryResults) -> list[Path]:
     """``traj/<method>.tum|.kitti`` and ``traj/ground_truth.tum|.kitti`` (poses of the sensor in the world)."""
     n = res.frames
@@ -257,7 +376,12 @@ def write_trajectories(run: Path, res: OdometryResults) -> list[Path]:
 # --------------------------------------------------------------------------------------------------
 # results bag (rosbag2, mcap)
 # --------------------------------------------------------------------------------------------------
-def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_frame: str = "world") -> dict[str, int]:
+#: the results bag of a localization run holds the map with at most this many points (a regular subsample)
+BAG_MAP_POINTS = 1_000_000
+
+
+def write_results_bag(path: Path, res: PairResults | OdometryResults | LocalizationResults, *,
+                      world_frame: str = "world", map_frame: str = "map") -> dict[str, int]:
     """Write the estimates as a rosbag2 (mcap storage) that Foxglove opens.
 
     Pairs mode: ``/deepbbs_replay/<method>/pose`` PoseStamped (``T_target_source``, frame = target frame,
@@ -265,6 +389,9 @@ def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_f
     ``/deepbbs_replay/target_cloud`` and ``/deepbbs_replay/<method>/aligned_cloud`` (source points moved
     into the target frame by the estimate). Odometry mode: ``/deepbbs_replay/<method>/odometry`` and
     ``/deepbbs_replay/ground_truth/odometry`` nav_msgs/Odometry (``world_frame`` -> sensor frame).
+    Localization mode: ``/deepbbs_replay/localization/pose`` PoseStamped (``T_map_scan`` in ``map_frame``, the
+    published poses only), ``/deepbbs_replay/ground_truth/pose`` and the map once (``/deepbbs_replay/map``
+    PointCloud2, at the first scan's stamp, at most :data:`BAG_MAP_POINTS` points).
     Returns the message count per topic.
     """
     from rosbags.typesys import Stores, get_typestore
@@ -300,6 +427,19 @@ def write_results_bag(path: Path, res: PairResults | OdometryResults, *, world_f
                 xyz = (c["source"].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
                 add(c["stamp_ns"], f"/deepbbs_replay/{topic_name(name)}/aligned_cloud", "sensor_msgs/msg/PointCloud2",
                     arrays_to_pointcloud2(xyz, stamp_ns=c["stamp_ns"], frame_id=c["frame_id"], flavor="rosbags"))
+    elif isinstance(res, LocalizationResults):
+        if res.map_xyz is not None and res.records:
+            xyz = np.asarray(res.map_xyz)[:: max(1, -(-len(res.map_xyz) // BAG_MAP_POINTS))].astype(np.float32)
+            stamp = res.records[0].stamp_ns
+            add(stamp, "/deepbbs_replay/map", "sensor_msgs/msg/PointCloud2",
+                arrays_to_pointcloud2(xyz, stamp_ns=stamp, frame_id=map_frame, flavor="rosbags"))
+        for r in res.records:
+            if r.valid and np.isfinite(r.T_map_est).all():
+                add(r.stamp_ns, "/deepbbs_replay/localization/pose", "geometry_msgs/msg/PoseStamped",
+                    matrix_to_pose_stamped(r.T_map_est, r.stamp_ns, map_frame, flavor="rosbags"))
+            if r.T_map_gt is not None:
+                add(r.stamp_ns, "/deepbbs_replay/ground_truth/pose", "geometry_msgs/msg/PoseStamped",
+                    matrix_to_pose_stamped(r.T_map_gt, r.stamp_ns, map_frame, flavor="rosbags"))
     else:
         n = res.frames
         child = res.frame_id or "lidar"
@@ -371,6 +511,29 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
 
             rows += [("poses accepted", "count", verdict("accepted")),
                      ("poses rejected", "count", verdict("rejected"))]
+    elif mode == "localization":
+        def pct(key):
+            return lambda m: None if m.get(key) is None else 100 * m[key]
+
+        rows = [
+            ("scans", "count", col(lambda m: m["scans"])),
+            ("placed (pose published)", "%", col(pct("placed_share"), 1)),
+            ("placed within tolerance", "%", col(pct("correct_share"), 1)),
+            ("wrong poses published", "count", col(lambda m: m["wrong_published"])),
+            ("no pose (rejected, searching)", "count", col(lambda m: m["rejected"])),
+            ("time to first pose (compute)", "ms", col(lambda m: m["time_to_first_pose_ms"], 1)),
+            ("scans to first pose", "count", col(lambda m: m["first_pose_scans"])),
+            ("lost / recoveries", "count", [f"{_fmt(M[n]['lost'])} / {_fmt(M[n]['recoveries'])}" for n in names]),
+            ("rotation error p95 (placed)", "deg", col(lambda m: m["rot_err_deg"]["p95"], 4)),
+            ("translation error p95 (placed)", "m", col(lambda m: m["trans_err_m"]["p95"], 4)),
+            ("latency global p50 / p95", "ms/scan",
+             [f"{_fmt(_get(M[n], 'latency_global_ms', 'p50'), 1)} / {_fmt(_get(M[n], 'latency_global_ms', 'p95'), 1)}"
+              for n in names]),
+            ("latency tracking p50 / p95", "ms/scan",
+             [f"{_fmt(_get(M[n], 'latency_tracking_ms', 'p50'), 1)} / "
+              f"{_fmt(_get(M[n], 'latency_tracking_ms', 'p95'), 1)}" for n in names]),
+            ("map set-up", "ms", col(lambda m: m["setup_ms"], 0)),
+        ]
     else:
         rows = [
             ("frames", "count", col(lambda m: m["frames"])),
@@ -386,12 +549,27 @@ def table_rows(mode: str, method_metrics: dict[str, dict]) -> tuple[list[str], l
     return names, rows
 
 
+#: the rows of the localization table that need ground truth
+LOCALIZATION_TRUTH_ROWS = ("placed within tolerance", "wrong poses published", "rotation error p95 (placed)",
+                           "translation error p95 (placed)")
+
+
 def table_notes(mode: str, method_metrics: dict[str, dict], has_ground_truth: bool = True) -> list[str]:
     """Footnotes for the ``-`` cells of the comparison table: why a number could not be computed."""
     _names, rows = table_rows(mode, _clean(method_metrics))
     notes = []
     if any(NO_VERDICT in vals for _m, _u, vals in rows):
         notes.append(f"{NO_VERDICT}: the method gives no verdict on its poses (DeepBBS++ accepts or rejects each)")
+    if mode == "localization":  # cells "a / b" hold two figures
+        def empty(metric_rows):
+            return any(c == "-" for _m, _u, vals in metric_rows for v in vals for c in v.split(" / "))
+
+        truth_rows = [r for r in rows if r[0] in LOCALIZATION_TRUTH_ROWS]
+        if empty(truth_rows) and not has_ground_truth:
+            notes.append("-: needs ground truth (none in this recording): placed share, times and latency only")
+        if empty([r for r in rows if r not in truth_rows]) or (empty(truth_rows) and has_ground_truth):
+            notes.append("-: nothing to measure (no published pose, or no scan searched / tracked)")
+        return notes
     if not any("-" in vals for _m, _u, vals in rows):
         return notes
     if mode == "odometry":
@@ -422,6 +600,9 @@ def table_definitions(mode: str, method_metrics: dict[str, dict]) -> list[str]:
         if any(m.get("registrations", m["pairs"]) != m["pairs"] for m in M.values()):
             verdict = ", poses accepted / rejected" if any("accepted" in m for m in M.values()) else ""
             out.append(f"success rate, runtime{verdict}: per registration (pairs x trials)")
+    elif mode == "localization":
+        out.append("within tolerance: published within eval.success_rot_deg / success_trans of the ground truth; "
+                   "wrong: published outside them; time to first pose: compute time until the first published pose")
     elif any(m.get("ate_rmse_m") is not None for m in M.values()):
         out.append("ATE: after one SE(3) alignment (Umeyama, no scale) of the whole trajectory onto the ground "
                    "truth; APE rotation and the plots' position errors are unaligned (every trajectory starts at "

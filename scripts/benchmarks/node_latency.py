@@ -33,6 +33,14 @@ scan k-1. ``--mode pair``: two inputs, both stamped alike, ``--stream``:
   (frames 1 to 4 and back);
 * ``same``: the same pair every period.
 
+``--mode localization``: one input, consecutive scans, and a prior map of the same drive (``--data sim``: the frames
+without motion distortion at their ground-truth poses, every ``--map-every``-th, voxelised, written as a PCD with
+its trajectory beside it): deepbbs-node runs ``node.target_mode: localization`` on the map file (no initial pose: the
+whole map is searched, within the warm-up, then the scans are tracked); the anchor runs ``node.target_mode:
+latched`` on the same map, published once on a latched topic, from ``node.initial_pose`` = the first scan's true
+pose, each scan registered by GICP on the map's crop from the last answer. The node's map crop refresh is in its
+stage breakdown (``register.crop``; the anchor's ``map_crop``).
+
 ``--runs N`` repeats every configuration (a fresh node each run); ``--busy-runs M`` adds M runs with one
 CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
 seconds), the share answered, p50 / p99 latency, p99 / p50, the ratios of p50, p99 and CPU per period (the
@@ -64,6 +72,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -81,8 +90,8 @@ METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
 }
 ANCHOR = "gicp"
 STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
-          "register.good_start", "register.network_wait", "register.polish", "register.global", "publish",
-          "total")  # fmt: skip
+          "register.good_start", "register.network_wait", "register.polish", "register.global", "register.crop",
+          "register.register", "map_crop", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -97,7 +106,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--scene", default="urban", help="simulator scene")
     g.add_argument("--seed", type=int, default=5, help="simulator seed")
     g = p.add_argument_group("stream")
-    g.add_argument("--mode", choices=("pair", "odometry"), default="odometry", help="node mode")
+    g.add_argument("--mode", choices=("pair", "odometry", "localization"), default="odometry",
+                   help="node mode; localization: tracking in a prior map of the drive (the anchor: a latched map)")
+    g.add_argument("--map-every", type=int, default=2, help="localization: every k-th frame goes into the map")
+    g.add_argument("--map-voxel", type=float, default=0.2, help="localization: the map's voxel grid (m)")
     g.add_argument("--stream", choices=("consecutive", "fixed", "same", "both"), default="consecutive",
                    help="pair mode: consecutive scans; a fixed target (frame 0) for frames 1-4; the same pair every "
                         "period; both = consecutive and fixed")
@@ -139,6 +151,9 @@ class Stream:
     msgs: list
     pairs: list[tuple[int, int]]
     desc: str
+    map_path: str = ""  # --mode localization: the map file (PCD, trajectory beside it)
+    map_msg: Any = None  # ... the same map as a PointCloud2 in the map frame (the anchor's latched target)
+    initial_pose: list[float] = field(default_factory=list)  # ... the first published scan's x y z roll pitch yaw
 
 
 def _lidar(layout: str, ouster_beams: int):
@@ -192,7 +207,43 @@ def sim_stream(args, layout: str, stream: str) -> Stream:
             for s in scans]  # fmt: skip
     desc = _describe(msgs, np.mean([len(s.points) for s in scans]), f"simulated {lidar.name}", layout)
     print(f"  simulated {len(scans)} frames of {desc} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return Stream(msgs, stream_pairs(len(msgs), stream), desc)
+    out = Stream(msgs, stream_pairs(len(msgs), stream), desc)
+    if args.mode == "localization":
+        add_map(args, out, lidar, [s.T_world_lidar for s in scans])
+    return out
+
+
+def add_map(args, stream: Stream, lidar, poses: list[np.ndarray]) -> None:
+    """--mode localization: the drive's map (every ``--map-every``-th frame without motion distortion at its true
+    pose, on a ``--map-voxel`` grid) as a PCD with its trajectory (under ``--out`` or a temporary folder) and as a
+    PointCloud2 in ``map``; the anchor's initial pose = the first published scan's."""
+    from scipy.spatial.transform import Rotation
+
+    from deepbbs_ros.core.localization import voxel_downsample
+    from deepbbs_ros.datasets.maps import write_map
+    from deepbbs_ros.sim.simulator import DriveSimulator
+    from msg_adapters.pointcloud2 import arrays_to_pointcloud2
+
+    t0 = time.perf_counter()
+    sim = DriveSimulator(args.scene, args.seed, lidar, frames=args.scans, motion_distortion=False)
+    keys = list(range(0, args.scans, max(1, args.map_every)))
+    parts = []
+    for k in keys:
+        P = sim.pose_at(k)
+        parts.append(sim.scan_at(k).points @ P[:3, :3].T + P[:3, 3])
+    points = voxel_downsample(np.concatenate(parts), args.map_voxel)
+    folder = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="deepbbs_map_"))
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"map_{args.scene}_{args.seed}_{args.scans}.pcd"
+    write_map(path, points, np.stack([sim.pose_at(k) for k in keys]), np.array([sim.stamp_ns(k) for k in keys]))
+    stream.map_path = str(path)
+    stream.map_msg = arrays_to_pointcloud2(points, stamp_ns=STAMP0_NS, frame_id="map")
+    first = poses[stream.pairs[0][0]]
+    rpy = Rotation.from_matrix(first[:3, :3]).as_euler("ZYX")[::-1]
+    stream.initial_pose = [*map(float, first[:3, 3]), *map(float, rpy)]
+    stream.desc += f"; map {len(points)} points from {len(keys)} frames"
+    print(f"  map of {len(points)} points ({len(keys)} frames) in {time.perf_counter() - t0:.1f} s: {path}",
+          file=sys.stderr)
 
 
 def kitti_sequences(path: Path) -> list[Path]:
@@ -371,9 +422,22 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
     cmd = [sys.executable, "-m", module]
     if args.config:
         cmd += ["--config", args.config]
-    cmd += ["--ros-args", "-r", f"__node:={name}", "-p", f"node.mode:={args.mode}",
+    localization = args.mode == "localization"
+    cmd += ["--ros-args", "-r", f"__node:={name}", "-p", f"node.mode:={'pair' if localization else args.mode}",
             "-p", "node.diagnostics_period:=1.0", "-r", "cloud:=/bench/points",
             "-r", "source_cloud:=/bench/source", "-r", "target_cloud:=/bench/target"]  # fmt: skip
+    map_pub = None
+    if localization and method == ANCHOR:  # the anchor tracks the same map, latched, from the first true pose
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        map_node = rclpy.create_node(f"bench_map_{method}")
+        map_pub = map_node.create_publisher(PointCloud2, "/bench/target", latched)
+        map_pub.publish(stream.map_msg)
+        cmd += ["-p", "node.target_mode:=latched", "-p", f"node.initial_pose:={stream.initial_pose}"]
+    elif localization:
+        cmd += ["-p", "node.target_mode:=localization", "-p", f"localization.map_path:={stream.map_path}"]
     if method == "deepbbs":
         cmd += ["-p", f"registration.device:={args.device}"]
         if args.threads is not None:
@@ -400,7 +464,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
 
     pose_sub = node.create_subscription(PoseStamped, f"/{name}/pose", on_pose, 100)
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    topics = ("/bench/points",) if args.mode == "odometry" else ("/bench/target", "/bench/source")
+    topics = {"odometry": ("/bench/points",), "localization": ("/bench/source",)}.get(
+        args.mode, ("/bench/target", "/bench/source"))
     pubs = [node.create_publisher(PointCloud2, t, qos_profile_sensor_data) for t in topics]
     msgs, pairs = stream.msgs, stream.pairs
     n_warm = int(round(args.warmup * args.rate))
@@ -451,6 +516,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         except subprocess.TimeoutExpired:
             proc.kill()
         node.destroy_node()
+        if map_pub is not None:
+            map_node.destroy_node()
         if res.error:
             log.seek(0)
             res.error += ": " + log.read().strip()[-3000:]
@@ -603,10 +670,12 @@ def main(argv: list[str] | None = None) -> int:
         raise DeepBBSError("--seconds and --rate must be > 0, --warmup >= 0")
     if args.runs < 0 or args.busy_runs < 0 or args.runs + args.busy_runs == 0:
         raise DeepBBSError("--runs and --busy-runs must be >= 0, one of them > 0")
-    if args.mode == "odometry" and args.stream != "consecutive":
+    if args.mode in ("odometry", "localization") and args.stream != "consecutive":
         raise DeepBBSError(f"--stream {args.stream} is a pair-mode stream (odometry mode takes consecutive scans)")
     if args.data == "kitti" and args.kitti is None:
         raise DeepBBSError("--data kitti needs --kitti PATH (a KITTI sequence folder, or a folder of them)")
+    if args.mode == "localization" and args.data != "sim":
+        raise DeepBBSError("--mode localization builds its map from the simulated drive: use --data sim")
     seqs = [s for k in args.kitti for s in kitti_sequences(k)] if args.data == "kitti" else []
 
     from deepbbs_ros.cli.common import local_ros_env

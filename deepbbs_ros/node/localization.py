@@ -1,0 +1,309 @@
+"""``node.target_mode: localization``: the live node's pose in a prior map (no ROS import).
+
+The map comes from ``localization.map_path`` (a ``.pcd`` / ``.ply`` file in the map frame, with the trajectory
+it was built from beside it when there is one, :func:`load_map_file`) or from the latched map topic
+(``target_cloud``, as ``node.target_mode: latched``). :class:`NodeLocalization` owns the
+:class:`~deepbbs_ros.core.localization.MapTracker` over it and runs one :meth:`~NodeLocalization.step` per scan on
+the registration worker thread: no initial pose (the whole map is searched), then tracking from the
+constant-velocity prediction; the tracker's verdict decides, and only a valid pose is handed on to be published.
+
+State changes are one log line each (:attr:`LocalizedScan.line`): the first pose ("found"), the pose lost (the
+tracker's ``localization.lost_after`` rejected scans in a row, or an implausible motion: a kidnap, a drive out of
+the map), found again ("relocalized"); a long search says so at most every ``node.error_log_period`` s.
+:meth:`~NodeLocalization.relocalize` (the node's ``~/relocalize``) forgets the pose: the next scan searches the
+whole map. :meth:`~NodeLocalization.diagnostics` gives the /diagnostics values (state, placed, rejected,
+recoveries, last reason, time to first pose).
+
+Threads: :meth:`step` runs on the worker thread only; :meth:`build` (the map input's thread: the map's places and
+descriptors are built there, off the worker) and :meth:`relocalize` (the executor thread) only leave a request
+that the next :meth:`step` applies, so neither waits for a registration. With ``node.map_prefetch`` a thread of its
+own prepares the map crop of the place the tracked pose will reach in :data:`PREFETCH_AHEAD_S` s
+(``MapLocalizer.prefetch``), so that the scan that gets there does not wait for it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.errors import DeepBBSError, NodeError
+from deepbbs_ros.node.inputs import BadInput, Cloud
+from deepbbs_ros.node.pipeline import Registered
+
+#: the tracker's states, as /diagnostics shows them
+STATES = ("searching", "tracking", "lost")
+PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
+
+
+@dataclass
+class MapData:
+    """A prior map for the node.
+
+    Attributes:
+        points: (N, 3) float32 metres, map frame.
+        frame_id: the map frame (``node.map_frame`` for a file, the message's frame for the topic).
+        source: where it came from (a path or a topic), for log lines.
+        trajectory: (K, 4, 4) float64 ``T_map_sensor`` of the drive the map was built from, or None.
+    """
+
+    points: np.ndarray
+    frame_id: str
+    source: str
+    trajectory: np.ndarray | None = None
+
+
+def load_map_file(path: str | Path, frame_id: str) -> MapData:
+    """Read the map file ``path`` (``.pcd`` / ``.ply``, map frame; the trajectory beside it, ``.tum``, when present).
+
+    Raises:
+        NodeError: one line naming ``localization.map_path`` and what is wrong (missing, another format,
+            unreadable or damaged, no finite point).
+    """
+    from deepbbs_ros.datasets.maps import read_map
+
+    try:
+        prior = read_map(Path(path).expanduser())
+    except DeepBBSError as err:
+        raise NodeError(f"localization.map_path: {err}") from err
+    except OSError as err:  # a directory, no permission: the system's reason
+        raise NodeError(f"localization.map_path: cannot read {path}: {err.strerror or err}") from err
+    return MapData(np.ascontiguousarray(prior.points, dtype=np.float32), frame_id, str(path), prior.trajectory)
+
+
+@dataclass
+class LocalizedScan:
+    """One scan through the tracker.
+
+    Attributes:
+        result: the tracker's :class:`~deepbbs_ros.core.localization.LocalizationResult` (``.valid``: publish).
+        registered: ``T`` = ``T_map_scan`` and the result, in the shape the outputs take.
+        crop: (M, 3) map points the answer was registered on (map frame), or None.
+        frame_id: the map frame.
+        line: a state change to log (found, lost, relocalized, still searching), else None.
+    """
+
+    result: Any
+    registered: Registered
+    crop: np.ndarray | None
+    frame_id: str
+    line: str | None = None
+
+
+class NodeLocalization:
+    """The tracker of ``node.target_mode: localization`` and its counters (module docstring).
+
+    Args:
+        config: the node's config (``localization`` section; ``node.error_log_period`` for the search reminder).
+        registration: the node's DeepBBS++ (``DeepBBSRegistration``, in this process) shared by the localizer.
+    """
+
+    def __init__(self, config: Any, registration: Any) -> None:
+        from deepbbs_ros.node.worker import LatestSlotWorker
+
+        self.config = config
+        self.registration = registration
+        self._lock = threading.Lock()
+        self.prefetched = 0  # map crops prepared ahead of the tracked pose
+        self._prefetch = None
+        if config.node.map_prefetch:
+            self._prefetch = LatestSlotWorker(self._prefetch_crop, name="deepbbs-loc-prefetch")
+        self._pending_map: MapData | None = None
+        self._pending_localizer: Any = None
+        self._relocalize = False
+        self.map: MapData | None = None
+        self.tracker: Any = None
+        self.localizer: Any = None
+        self.map_build_s = float("nan")
+        # counters (read by diagnostics() from the executor thread)
+        self.placed = 0  # scans with a valid pose (published)
+        self.rejected = 0  # scans the verdict (or the tracker) rejected: counted, never published
+        self.events: dict[str, int] = {}
+        self.last_reason = ""
+        self.last_event = ""
+        self.last_score = float("nan")
+        self.last_path = ""
+        self.time_to_first_pose_s = float("nan")  # the last search: first scan received -> pose published
+        self.first_pose_s = float("nan")  # since the node started (or the map arrived): first pose
+        self._search_t0: float | None = None  # perf_counter of the first scan of the running search
+        self._search_scans = 0
+        self._last_search_log = 0.0
+
+    # -- the map -----------------------------------------------------------------------------------------------
+    def build(self, data: MapData) -> str:
+        """Build the localizer over ``data`` (places, descriptors: seconds on a big map) and queue it for the next
+        scan (the tracker starts searching). Returns the log line. Raises NodeError on a map the localizer refuses."""
+        from deepbbs_ros.core.localization import MapLocalizer
+
+        t0 = time.perf_counter()
+        try:
+            localizer = MapLocalizer(data.points, self.config, registration=self.registration,
+                                     trajectory=data.trajectory)
+        except DeepBBSError as err:
+            raise NodeError(f"map from {data.source}: {err}") from err
+        build_s = time.perf_counter() - t0
+        with self._lock:
+            self._pending_map = data
+            self._pending_localizer = localizer
+            self.map_build_s = build_s
+        places = len(localizer.places)
+        how = "keyframes of its trajectory" if data.trajectory is not None else "a grid over its free space"
+        return (f"map from {data.source}: {len(data.points)} points in {data.frame_id!r}, {places} candidate places "
+                f"({how}), built in {build_s:.1f} s")
+
+    @property
+    def has_map(self) -> bool:
+        with self._lock:
+            return self.tracker is not None or self._pending_map is not None
+
+    def relocalize(self) -> None:
+        """Forget the pose: the next scan searches the whole map (applied by the next :meth:`step`)."""
+        with self._lock:
+            self._relocalize = True
+
+    def _take_requests(self) -> None:
+        from deepbbs_ros.core.localization import MapTracker
+
+        with self._lock:
+            data, self._pending_map = self._pending_map, None
+            localizer, self._pending_localizer = self._pending_localizer, None
+            relocalize, self._relocalize = self._relocalize, False
+        if data is not None:
+            self.map, self.localizer = data, localizer
+            self.tracker = MapTracker(localizer, self.config)
+            self._search_t0 = None
+            self.first_pose_s = float("nan")
+        elif relocalize and self.tracker is not None:
+            self.tracker.reset()
+            self._search_t0 = None
+
+    # -- one scan ----------------------------------------------------------------------------------------------
+    def step(self, cloud: Cloud) -> LocalizedScan:
+        """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread.
+
+        Raises:
+            BadInput: ``no_target`` before a map, ``localization_failed`` for a scan the localizer refuses
+                (too few points; the tracker's state is unchanged).
+        """
+        from deepbbs_ros.errors import LocalizationError
+
+        self._take_requests()
+        tracker = self.tracker
+        if tracker is None:
+            raise BadInput("no_target", "no map yet (localization.map_path is empty and nothing arrived on the map "
+                                        "topic, latched: transient_local, reliable)")
+        state_before = tracker.state
+        if state_before != "tracking" and self._search_t0 is None:
+            self._search_t0, self._search_scans = cloud.t_recv, 0
+        t0 = time.perf_counter()
+        try:
+            res = tracker.step(cloud.xyz, cloud.stamp_ns, cloud.times)
+        except LocalizationError as err:
+            raise BadInput("localization_failed", str(err)) from err
+        timings = {"register": (time.perf_counter() - t0) * 1e3}
+        for k, v in (res.timings_ms or {}).items():
+            if k != "total":
+                timings[f"register.{k}"] = float(v)
+        T = np.asarray(res.T_map_scan, dtype=np.float64)
+        valid = bool(res.valid) and T.shape == (4, 4) and bool(np.all(np.isfinite(T)))
+        res.valid = valid
+        self.events[res.event] = self.events.get(res.event, 0) + 1
+        self.last_event, self.last_score, self.last_path = res.event, float(res.score), res.path
+        line = None
+        if valid:
+            self.placed += 1
+            self.last_reason = ""
+            if self._search_t0 is not None:  # a search ended: found / relocalized
+                took = time.perf_counter() - self._search_t0
+                self.time_to_first_pose_s = took
+                if np.isnan(self.first_pose_s):
+                    self.first_pose_s = took
+                line = (f"localization {'relocalized' if res.event == 'relocalized' else 'found'}: "
+                        f"{_pose_text(T)} in {self.map.frame_id!r} after {self._search_scans + 1} scan(s), "
+                        f"{took:.2f} s (score {res.score:.2f}, {res.candidates} candidate place(s))")
+                self._search_t0 = None
+        else:
+            self.rejected += 1
+            self.last_reason = res.reason or "rejected"
+            if res.event == "lost":
+                self._search_t0, self._search_scans = time.perf_counter(), 0
+                line = (f"localization lost at scan {cloud.stamp_ns} ns: {self.last_reason}; searching the whole "
+                        "map from the next scan (no pose is published meanwhile)")
+            elif tracker.state != "tracking":
+                self._search_scans += 1
+                now = time.monotonic()
+                if now - self._last_search_log >= max(self.config.node.error_log_period, 1e-9):
+                    self._last_search_log = now
+                    line = (f"localization searching: no pose for {self._search_scans} scan(s), last: "
+                            f"{self.last_reason}")
+        if valid and self._prefetch is not None and hasattr(self.localizer, "prefetch"):
+            ahead = tracker.predict(cloud.stamp_ns + int(PREFETCH_AHEAD_S * 1e9))
+            if ahead is not None:
+                self._prefetch.submit((self.localizer, ahead))
+        reg = Registered(T, res, timings)
+        return LocalizedScan(res, reg, getattr(res, "crop", None), self.map.frame_id, line)
+
+    def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
+        localizer, T = job
+        if localizer.prefetch(T) >= 0:
+            self.prefetched += 1
+
+    def stop(self) -> None:
+        """Stop the prefetch thread (the crop it prepares, if any, is finished first)."""
+        if self._prefetch is not None:
+            self._prefetch.stop()
+
+    # -- /diagnostics ------------------------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        """``"no map"``, or the tracker's state: ``searching`` | ``tracking`` | ``lost``."""
+        tracker = self.tracker
+        return "no map" if tracker is None else str(tracker.state)
+
+    def warning(self) -> str:
+        """The /diagnostics status message while there is no pose to publish (WARN), else ""."""
+        state = self.state
+        if state == "no map":
+            return "localization: no map yet"
+        if state == "lost":
+            return f"localization lost: {self.last_reason}"
+        if state == "searching" and self.rejected:
+            return f"localization searching: {self.last_reason}"
+        return ""
+
+    def diagnostics(self) -> dict[str, Any]:
+        """The values /diagnostics shows under ``localization.*``."""
+        tracker = self.tracker
+        out: dict[str, Any] = {
+            "state": self.state,
+            "placed": self.placed,
+            "rejected": self.rejected,
+            "recoveries": getattr(tracker, "recoveries", 0),
+            "last event": self.last_event or "-",
+            "last reason": self.last_reason or "-",
+            "last score": f"{self.last_score:.3f}",
+            "last path": self.last_path or "-",
+            "time to first pose (s)": _seconds(self.first_pose_s),
+            "last search took (s)": _seconds(self.time_to_first_pose_s),
+            "map crops prepared ahead": self.prefetched,
+        }
+        if self.map is not None:
+            out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"
+            out["map places"] = len(self.localizer.places) if self.localizer is not None else 0
+            out["map build (s)"] = _seconds(self.map_build_s)
+        return out
+
+
+def _seconds(value: float) -> str:
+    return "-" if not np.isfinite(value) else f"{value:.2f}"
+
+
+def _pose_text(T: np.ndarray) -> str:
+    """``x 12.30 y -4.10 z 1.90 m, yaw 35.0 deg``."""
+    yaw = np.degrees(np.arctan2(T[1, 0], T[0, 0]))
+    x, y, z = T[:3, 3]
+    return f"x {x:.2f} y {y:.2f} z {z:.2f} m, yaw {yaw:.1f} deg"
