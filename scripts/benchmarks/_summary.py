@@ -56,7 +56,35 @@ def node_latency(out: Path, name: str) -> None:
     for r in recs:
         print(f"  {r['layout']:<8} {r['stream']:<11} {r['run']:<8} {'busy ' if r['busy'] else ''}{r['method']:<7} "
               f"{100 * r['answered']:.0f} %, {f(r['p50_ms'], '.1f')} / {f(r['p99_ms'], '.1f')} ms"
+              + (f", CPU {f(r['cpu_ms'], '.1f')} ms per period" if r.get("cpu_ms") is not None else "")
+              + (f", paths {paths(r)}" if paths(r) else "")
               + (f" ({r['error']})" if r.get("error") else ""))
+
+
+def paths(r: dict) -> str:
+    """pair and localization modes: which registration path answered (gicp / deepbbs / search), from /diagnostics."""
+    p = {k.removeprefix("paths."): v for k, v in (r.get("diagnostics") or {}).items() if k.startswith("paths.")}
+    return "" if not any(v not in ("0", 0) for v in p.values()) else ", ".join(f"{k} {v}" for k, v in p.items())
+
+
+def good_start(fig: dict) -> None:
+    print("\n## good start (raw pairs given a start: p50 / p99 ms, CPU mean ms, x GICP's; goal <= 1.1x)")
+    for name, ms_ in (fig.get("timing") or {}).items():
+        for m, c in ms_.items():
+            print(f"  {name:<14} {m:<10} {f(c['p50_ms'], '.0f')} / {f(c['p99_ms'], '.0f')} ms, CPU "
+                  f"{f(c['cpu_mean_ms'], '.0f')} ms (x{f(c.get('p50_vs_gicp'), '.2f')} / "
+                  f"x{f(c.get('p99_vs_gicp'), '.2f')}"
+                  f" / x{f(c.get('cpu_mean_vs_gicp'), '.2f')}), paths {c.get('paths')}")
+    wrong = fig.get("wrong_start") or {}
+    for name, ms_ in wrong.items():
+        if name == "calibration":
+            continue
+        g, r, gs = (ms_.get(m) or {} for m in ("gicp", "register", "good_start"))
+        print(f"  wrong starts {name:<10} GICP alone {g.get('wrong')} wrong of {g.get('cases')}; register(T_init) "
+              f"{r.get('accepted_wrong')} wrong accepted, good_start {gs.get('accepted_wrong')} (GICP first: "
+              f"{(gs.get('paths') or {}).get('gicp', 0)})")
+    if wrong.get("calibration"):
+        print(f"  calibration {wrong['calibration']}")
 
 
 def main(argv: list[str]) -> int:
@@ -77,6 +105,9 @@ def main(argv: list[str]) -> int:
     fig = load(out, "registration.json")
     if fig:
         registration(fig)
+    fig = load(out, "good_start.json")
+    if fig:
+        good_start(fig)
     fig = load(out, "deskew.json")
     if fig:
         print("\n## deskew (all scenes: success %, mean rot deg / trans m on the pairs every variant solves)")
@@ -100,6 +131,7 @@ def main(argv: list[str]) -> int:
             print(f"  {r['answered']}/{r['scans']}, {f(r['ready_s'], '.1f')} s, {f(r['launch_s'], '.1f')} s")
     node_latency(out, "node_latency_odometry")
     node_latency(out, "node_latency_pair")
+    node_latency(out, "node_latency_localization")
     fig = load(out, "fleet.json")
     if fig:
         print(f"\n## fleet ({fig['recordings']} recordings x {fig['frames']} frames)")
@@ -122,6 +154,19 @@ def main(argv: list[str]) -> int:
                 print(f"  {mapname:<10} {name:<18} {f(c.get('placed_share'), '.0%')} / {c.get('wrong_count')} / "
                       f"{f(c.get('none_share'), '.0%')} of {c['queries']}, {f(c.get('time_s_p50'), '.2f')} / "
                       f"{f(c.get('time_s_p95'), '.2f')} s, {c.get('timeout_count', 0)} timeouts")
+                for kind, k in ((c.get("by_kind") or {}) if name == "maplocalizer" else {}).items():
+                    print(f"  {'':<10}   {kind:<16} {f(k.get('placed_share'), '.0%')} / {k.get('wrong_count')} / "
+                          f"{f(k.get('none_share'), '.0%')} of {k['queries']}")
+                rep = c.get("repetitive") if name == "maplocalizer" else None
+                if rep:
+                    print(f"  {'':<10}   {'repetitive':<16} {f(rep.get('placed_share'), '.0%')} / "
+                          f"{rep.get('wrong_count')} / {f(rep.get('none_share'), '.0%')} of {rep['queries']}")
+        for name, p in fig.get("pooled", {}).items():
+            a = p.get("all") or {}
+            print(f"  pooled     {name:<18} {f(a.get('placed_share'), '.0%')} / {a.get('wrong_count')} / "
+                  f"{f(a.get('none_share'), '.0%')} of {a.get('queries')}, {f(a.get('time_s_p50'), '.2f')} / "
+                  f"{f(a.get('time_s_p95'), '.2f')} s"
+                  + (" (goal: >= 99 % placed, 0 wrong, p50 <= 1 s, p95 <= 3 s)" if name == "maplocalizer" else ""))
     print("\nplots: " + ", ".join(sorted(p.name for p in out.glob("*.png"))))
     return 0
 

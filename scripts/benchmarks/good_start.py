@@ -21,6 +21,8 @@ Figures (``good_start.json`` under ``--out``):
   sampled points) of every converged GICP-first answer, right and wrong: the highest wrong and lowest right score
   of each, and how many wrong ones reach each threshold.
 
+``good_start.png`` beside it: the ratios to GICP's per set and the wrong poses per scene.
+
 Timings on a shared machine are noisy: the methods run by turns on every pair, so their ratios are fair. ::
 
     python scripts/benchmarks/good_start.py --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --out results/benchmarks
@@ -265,6 +267,44 @@ def finish(c: Counter) -> dict:
     return d
 
 
+def plot(figures: dict, out: Path) -> Path | None:
+    """``out``/good_start.png: per data set the p50, p99 and mean CPU of ``register(T_init)`` and of the good start
+    as ratios to GICP's (left, the 1.1 goal drawn in), and per scene the wrong poses: GICP alone's, and those each
+    method accepted (right)."""
+    timing_, wrong = figures.get("timing") or {}, figures.get("wrong_start") or {}
+    if not timing_ and not wrong:
+        return None
+    plt = _common.pyplot()
+    f, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
+    sets = list(timing_)
+    bars = [(m, key, label) for m in ("register", "good_start")
+            for key, label in (("p50_vs_gicp", "p50"), ("p99_vs_gicp", "p99"), ("cpu_mean_vs_gicp", "CPU"))]
+    width = 0.8 / len(bars)
+    for j, (m, key, label) in enumerate(bars):
+        x = np.arange(len(sets)) + (j - (len(bars) - 1) / 2) * width
+        a.bar(x, [(timing_[s].get(m) or {}).get(key) or np.nan for s in sets], width * 0.95,
+              color=f"C{j % 3}", alpha=0.45 if m == "register" else 1.0,
+              label=f"{'register(T_init)' if m == 'register' else 'good_start=True'} {label}")
+    a.axhline(1.0, color="k", lw=0.6)
+    a.axhline(1.1, color="k", lw=0.8, ls=":")
+    a.set_xticks(np.arange(len(sets)), [s.replace("sim_", "") for s in sets], fontsize=8)
+    a.set_ylabel("x small_gicp GICP's")
+    a.set_title("time and CPU per raw pair against GICP (goal 1.1)")
+    a.legend(fontsize=6, ncol=2)
+    scenes = [s for s in wrong if s not in ("all", "calibration")]
+    for j, (m, key, label) in enumerate((("gicp", "wrong", "GICP alone: wrong"),
+                                         ("register", "accepted_wrong", "register(T_init): wrong accepted"),
+                                         ("good_start", "accepted_wrong", "good_start=True: wrong accepted"))):
+        x = np.arange(len(scenes)) + (j - 1) * 0.27
+        b.bar(x, [(wrong[s].get(m) or {}).get(key) or 0 for s in scenes], 0.26, color=f"C{j + 3}", label=label)
+    b.set_xticks(np.arange(len(scenes)), scenes, fontsize=8)
+    b.set_ylabel(f"poses, of {max(((wrong[s].get('gicp') or {}).get('cases') or 0) for s in scenes or [None])} "
+                 "starts per scene" if scenes else "poses")
+    b.set_title(f"starts slid along the road ({', '.join(f'{d:g}' for d in figures.get('shifts_m', []))} m)")
+    b.legend(fontsize=7)
+    return _common.save(f, out, "good_start.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     from deepbbs_ros.sim.scene import SCENES
 
@@ -305,6 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         figures["wrong_start"] = wrong_starts(runner, sets, args)
     runner.reg.close()
     _common.write_json(args.out, "good_start.json", figures)
+    plot(figures, args.out)
     return 0
 
 

@@ -25,10 +25,11 @@ query, each in a child process with a ``--baseline-timeout`` s limit (a timeout 
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
 ``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid).
 
-Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m
-(valid and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts,
-time per query from no guess (the time to a first pose) p50 / p95, the same for the repetitive places, and how
-the time grows with the map (the queries of the first ``--prefixes`` m against maps of those lengths).
+Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m (valid
+and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts, time per
+query from no guess (the time to a first pose) p50 / p95, the same for the repetitive places, and how the time
+grows with the map (the queries of the first ``--prefixes`` m against maps of those lengths). ``localization.png``
+beside it: placed / wrong / no pose and the time p50 / p95 per map and method.
 
     python scripts/benchmarks/localization.py --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --pair PATH/TO/pair \\
         --cache ~/.cache/deepbbs_ros/bench --out results/benchmarks
@@ -707,6 +708,43 @@ def aggregate(figs: dict, methods: list[str]) -> dict:
     return out
 
 
+def plot(fig: dict, out: Path) -> Path:
+    """``out``/localization.png: per map and method the shares placed, wrong and with no pose (left) and the time
+    to a first pose p50 / p95 (right), from ``fig`` (the figures of localization.json)."""
+    plt = _common.pyplot()
+    maps = list(fig["maps"])
+    methods = [m for m in METHODS if any(m in fig["maps"][k]["methods"] for k in maps)]
+    f, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
+    width = 0.8 / max(len(methods), 1)
+    colors = {"placed": "tab:green", "wrong": "tab:red", "none": "0.75"}
+    for j, name in enumerate(methods):
+        x = np.arange(len(maps)) + (j - (len(methods) - 1) / 2) * width
+        s = [fig["maps"][k]["methods"].get(name) or {} for k in maps]
+        placed, wrong, none = (np.array([100 * (c.get(key) or 0.0) for c in s])
+                               for key in ("placed_share", "wrong_share", "none_share"))
+        for bottom, h, key in ((0, placed, "placed"), (placed, wrong, "wrong"), (placed + wrong, none, "none")):
+            a.bar(x, h, width * 0.95, bottom=bottom, color=colors[key], edgecolor="k", lw=0.3,
+                  label={"placed": "placed", "wrong": "wrong pose", "none": "no pose"}[key] if j == 0 else None)
+        for xi in x:
+            a.text(xi, 101, str(j + 1), ha="center", va="bottom", fontsize=7)
+        p50 = [c.get("time_s_p50") or np.nan for c in s]
+        p95 = [c.get("time_s_p95") or np.nan for c in s]
+        b.bar(x, p95, width * 0.95, color=f"C{j}", alpha=0.35)
+        b.bar(x, p50, width * 0.95, color=f"C{j}", label=f"{j + 1}: {LABELS.get(name, name)}")
+    for ax in (a, b):
+        ax.set_xticks(np.arange(len(maps)), maps)
+    a.set_ylabel("% of the queries")
+    a.set_ylim(0, 110)
+    a.set_title("placed (1 deg / 0.3 m), wrong, no pose (bars: methods 1, 2, 3)")
+    a.legend(fontsize=7, loc="lower left")
+    b.axhline(1.0, color="k", lw=0.8, ls=":")
+    b.axhline(3.0, color="k", lw=0.8, ls="--")
+    b.set_ylabel("s per query from no guess")
+    b.set_title("time to a first pose: p50 (dark), p95 (light); goal lines 1 s, 3 s")
+    b.legend(fontsize=7, loc="upper left")
+    return _common.save(f, out, "localization.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"],
@@ -784,6 +822,7 @@ def main(argv: list[str] | None = None) -> int:
            "data_s": t_gen, "measure_s": time.perf_counter() - t_start - t_gen}
     report(figs, methods)
     _common.write_json(Path(args.out), "localization.json", fig)
+    plot(fig, Path(args.out))
     return 0
 
 

@@ -58,11 +58,21 @@ PLOTS = {
     "simulator": [("simulator.png", "Frames per second per scene type")],
     "fleet": [("fleet.png", "Fleet wall time and frames/s per CPU against workers")],
     "threads": [("threads.png", "Median time per frame with one thread and with every core")],
+    "good_start": [("good_start.png", "p50, p99 and CPU against GICP's per data set; wrong poses per scene")],
+    "localization": [("localization.png", "Placed, wrong and no pose per map and method; time to a first pose")],
+    "node_latency_localization": [("node_latency_localization.png", "Localization mode: latency per period and "
+                                                                    "share answered within a time")],
 }
-BENCHMARKS = ["registration", "deskew", "odometry", "node_latency_odometry", "node_latency_pair", "first_contact",
-              "busy", "decode", "simulator", "fleet", "threads"]
-NODE_LATENCY = ("node_latency_odometry", "node_latency_pair")
-NODE_KEEP = ("layout", "stream", "run", "busy", "method", "pairs", "answered", "p50_ms", "p99_ms", "error", "cpu")
+BENCHMARKS = ["registration", "good_start", "deskew", "odometry", "localization", "node_latency_odometry",
+              "node_latency_pair", "node_latency_localization", "first_contact", "busy", "decode", "simulator", "fleet",
+              "threads"]
+NODE_LATENCY = ("node_latency_odometry", "node_latency_pair", "node_latency_localization")
+NODE_KEEP = ("layout", "stream", "run", "busy", "method", "pairs", "answered", "p50_ms", "p99_ms", "error", "cpu",
+             "cpu_ms")
+# the goals docs/benchmarks.md states: the good start (ratios to GICP's), localization, the node in a prior map
+GOAL_GOOD_START = 1.1
+GOAL_LOC_PLACED_PCT, GOAL_LOC_P50_S, GOAL_LOC_P95_S = 99.0, 1.0, 3.0
+GOAL_NODE_LOC_RATIO = 1.2
 
 
 # ---------------------------------------------------------------------------------------------------- formatting
@@ -147,7 +157,18 @@ def load_node_latency(folder: Path, name: str) -> dict | None:
     except json.JSONDecodeError:
         mach = None
     return {"command": cmd_file.read_text().strip() if cmd_file.is_file() else None, "machine": mach,
-            "figures": {"runs": [{k: r.get(k) for k in NODE_KEEP} for r in recs]}}
+            "figures": {"runs": [node_keep(r) for r in recs]}}
+
+
+def node_keep(r: dict) -> dict:
+    """A runs.jsonl record without its samples and diagnostics; the registration paths that answered (pair and
+    localization modes: ``paths.gicp``, ``paths.deepbbs``, ``paths.search`` of the diagnostics) as ``paths``."""
+    out = {k: r.get(k) for k in NODE_KEEP if k in r or k != "cpu_ms"}
+    paths = {k.removeprefix("paths."): int(v) for k, v in (r.get("diagnostics") or {}).items()
+             if k.startswith("paths.") and str(v).isdigit()}
+    if paths and any(paths.values()):
+        out["paths"] = paths
+    return out
 
 
 def load_all(folder: Path) -> dict[str, dict | None]:
@@ -298,6 +319,211 @@ def verdict(doc: dict | None, d: Path) -> list[str]:
     return out + table(header, rows) + notes.lines()
 
 
+# ---- the good start
+GS_METHODS = [("gicp", "small_gicp GICP"), ("register", "`register(T_init)`"),
+              ("good_start", "`register(T_init, good_start=True)`")]
+
+
+def set_label(name: str) -> str:
+    """good_start.json's data set key as words: kitti_00 -> KITTI 00 (real), sim_urban -> simulated urban."""
+    if name.startswith("kitti_"):
+        return f"KITTI {name.removeprefix('kitti_')} (real)"
+    return "simulated " + name.removeprefix("sim_").replace("_", " ") if name.startswith("sim_") else name
+
+
+def gs_cell(c: dict | None, anchor: bool) -> str:
+    if not c:
+        return NOT_RUN
+    times = f"{ms(c.get('p50_ms'))} / {ms(c.get('p99_ms'))}; CPU {ms(c.get('cpu_mean_ms'))}"
+    if anchor:
+        return times
+    rel = f"{ratio(c.get('p50_vs_gicp'))} / {ratio(c.get('p99_vs_gicp'))}; {ratio(c.get('cpu_mean_vs_gicp'))}"
+    return f"{times} ({rel})"
+
+
+def gs_goal(c: dict | None) -> str:
+    if not c or c.get("p50_vs_gicp") is None:
+        return "-"
+    missed = [w for k, w in (("p50_vs_gicp", "p50"), ("p99_vs_gicp", "p99"), ("cpu_mean_vs_gicp", "CPU"))
+              if c.get(k) is not None and c[k] > GOAL_GOOD_START]
+    return "met" if not missed else f"missed: {', '.join(missed)} > {GOAL_GOOD_START:g} x GICP's"
+
+
+def good_start(doc: dict | None, d: Path) -> list[str]:
+    out = plots("good_start", d) + command(doc)
+    header = ["raw pairs given a start", "pairs", "GICP: p50 / p99 ms; CPU ms",
+              "`register(T_init)` (x GICP's)", "`good_start=True` (x GICP's)", "answered by GICP first", "goal"]
+    wheader = ["starts slid along the road", "starts", "GICP alone: wrong", "`register(T_init)`: wrong accepted",
+               "`good_start=True`: wrong accepted", "answered by GICP first", "goal"]
+    fig = (doc or {}).get("figures") or {}
+    tim, wrong = fig.get("timing"), fig.get("wrong_start")
+    if tim is None:
+        out += not_run_table(header, ["KITTI 00 (real)", "KITTI 02 (real)", "simulated scenes"]) + [""]
+    else:
+        rows = []
+        for name, ms_ in tim.items():
+            g, gs = ms_.get("gicp"), ms_.get("good_start")
+            n = next((c["pairs"] for c in ms_.values() if c), None)
+            first = "-" if not gs else pct(100 * (gs.get("paths") or {}).get("gicp", 0) / gs["pairs"])
+            rows.append([set_label(name), str(n), gs_cell(g, True), gs_cell(ms_.get("register"), False),
+                         gs_cell(gs, False), first, gs_goal(gs)])
+        noise = fig.get("noise") or {}
+        out += table(header, rows) + [
+            "", f"Consecutive scans, each pair twice: from identity and from the truth moved by "
+                f"{num(noise.get('trans_m'), 1)} m and {num(noise.get('yaw_deg'), 1)} deg. CPU: the mean per pair "
+                "(this process and its children, read in ticks of 10 ms), the ratios in brackets p50 / p99; CPU.", ""]
+    if wrong is None:
+        out += not_run_table(wheader, ["every scene", "all"])
+    else:
+        rows = []
+        for name, ms_ in wrong.items():
+            if name == "calibration":
+                continue
+            g, r, gs = (ms_.get(m) or {} for m in ("gicp", "register", "good_start"))
+
+            def acc(c):
+                return "-" if not c else f"{c.get('accepted_wrong')} (rejected {c.get('rejected')})"
+            first = "-" if not gs.get("cases") else pct(100 * (gs.get("paths") or {}).get("gicp", 0) / gs["cases"])
+            ok = "-" if not gs or not r else ("met" if gs.get("accepted_wrong", 0) <= r.get("accepted_wrong", 0)
+                                              else "missed: more wrong poses than `register(T_init)`")
+            label = "all" if name == "all" else set_label(name) if name.startswith("kitti_") else name.replace("_", " ")
+            gw = "-" if not g else f"{g.get('wrong')} ({pct(100 * (g.get('wrong_share') or 0))})"
+            rows.append([label, str(g.get("cases", r.get("cases", "-"))), gw, acc(r), acc(gs), first, ok])
+        shifts = ", ".join(f"{v:g}" for v in fig.get("shifts_m") or [])
+        out += table(wheader, rows) + ["", f"Each pair's true pose slid {shifts} m forwards and backwards along the "
+                                           "sensor's heading (GICP alone: the share and count of wrong poses; it has "
+                                           "no verdict)."]
+        cal = wrong.get("calibration")
+        if cal:
+            out += ["", calibration_line(cal)]
+    return out
+
+
+def calibration_line(cal: dict) -> str:
+    v, s = cal.get("voxels") or {}, cal.get("sampled") or {}
+    n, right = cal.get("converged"), cal.get("right")
+    wrong = None if n is None or right is None else n - right
+    return (f"The good-start verdict, on the {n} GICP-first answers that converged ({right} right, {wrong} wrong): "
+            f"its score (a spread subset of the source's GICP voxels) accepts at {num(v.get('threshold'), 3)}; "
+            f"highest wrong {num(v.get('wrong_max'), 3)}, lowest right {num(v.get('right_min'), 3)}, "
+            f"{v.get('wrong_accepted', '-')} wrong accepted, {v.get('right_rejected', '-')} right rejected. "
+            f"The full verdict's score (sampled points, threshold {num(s.get('threshold'), 3)}): highest wrong "
+            f"{num(s.get('wrong_max'), 3)}, lowest right {num(s.get('right_min'), 3)}.")
+
+
+# ---- localization in a prior map
+LOC_LABELS = {"maplocalizer": "DeepBBS++ (MapLocalizer)", "kiss-matcher+gicp": "KISS-Matcher + GICP",
+              "fpfh-ransac+gicp": "FPFH + RANSAC + GICP"}
+LOC_KINDS = {"same-lane": "same lane", "lane": "another lane", "reverse": "the other way"}
+
+
+def map_label(name: str) -> str:
+    return "real (KITTI and the reference pair, pooled)" if name == "real" else f"simulated {name.replace('_', ' ')}"
+
+
+def loc_share(c: dict, key: str) -> str:
+    return pct(None if c.get(key) is None else 100 * c[key])
+
+
+def loc_time(c: dict) -> str:
+    s50, s95 = c.get("time_s_p50"), c.get("time_s_p95")
+    return f"{ms(None if s50 is None else 1e3 * s50)} / {ms(None if s95 is None else 1e3 * s95)}"
+
+
+def loc_goal(c: dict) -> str:
+    if not c or c.get("placed_share") is None:
+        return "-"
+    missed = [w for ok, w in ((100 * c["placed_share"] >= GOAL_LOC_PLACED_PCT, f"placed < {GOAL_LOC_PLACED_PCT:g} %"),
+                              (not c.get("wrong_count"), "wrong poses"),
+                              ((c.get("time_s_p50") or 0) <= GOAL_LOC_P50_S, f"p50 > {GOAL_LOC_P50_S:g} s"),
+                              ((c.get("time_s_p95") or 0) <= GOAL_LOC_P95_S, f"p95 > {GOAL_LOC_P95_S:g} s"))
+              if not ok]
+    return "met" if not missed else "missed: " + ", ".join(missed)
+
+
+def loc_row(label: str, c: dict | None, notes: Notes, with_goal: bool) -> list[str]:
+    if not c:
+        return [label] + [NOT_RUN] * (6 if with_goal else 5)
+    if "note" in c:
+        return [label] + ["-" + notes.mark(c["note"])] * (6 if with_goal else 5)
+    row = [label, pct(100 * c["placed_share"], c.get("queries")) if c.get("placed_share") is not None else "-",
+           str(c.get("wrong_count", "-")), loc_share(c, "none_share"), loc_time(c)]
+    timeouts = c.get("timeout_count")
+    row[3] += notes.mark(f"{timeouts} timeout(s) among them") if timeouts else ""
+    return row + [loc_goal(c)] if with_goal else row + [ms(1e3 * c["build_s"]) if c.get("build_s") else "-"]
+
+
+def localization(doc: dict | None, d: Path) -> list[str]:
+    out = plots("localization", d) + command(doc)
+    header = ["map", "placed (queries)", "wrong accepted", "no pose", "first pose p50 / p95 ms", "goal"]
+    bheader = ["map, method", "placed (queries)", "wrong accepted", "no pose", "first pose p50 / p95 ms",
+               "map build ms"]
+    kheader = ["query drives", "simulated urban", "simulated suburban", "simulated highway", "simulated open road"]
+    sheader = ["map", "map length: first pose p50 ms (map points)"]
+    fig = (doc or {}).get("figures")
+    if fig is None:
+        maps = ["simulated urban", "simulated suburban", "simulated highway", "simulated open road", "real (pooled)"]
+        return (out + ["DeepBBS++ (MapLocalizer), every query:", ""] + not_run_table(header, maps) + [""]
+                + ["Beside the baselines, on the same queries (every third):", ""]
+                + not_run_table(bheader, [f"{m}, {v}" for m in maps[:1] for v in LOC_LABELS.values()]) + [""]
+                + ["MapLocalizer by kind of query:", ""] + not_run_table(kheader, [*LOC_KINDS.values(),
+                                                                                  "repetitive places"]) + [""]
+                + ["Time against the map's size:", ""] + not_run_table(sheader, maps[:4]))
+    maps, pooled = fig.get("maps") or {}, fig.get("pooled") or {}
+    notes = Notes()
+    rows = [loc_row(map_label(k), (m.get("methods") or {}).get("maplocalizer"), notes, True) for k, m in maps.items()]
+    ml = pooled.get("maplocalizer") or {}
+    if ml.get("sim"):
+        rows.append(loc_row("all simulated maps", ml["sim"], notes, True))
+    if ml.get("all") and "real" in maps:
+        rows.append(loc_row("all maps", ml["all"], notes, True))
+    out += ["DeepBBS++ (MapLocalizer), every query:", ""] + table(header, rows) + notes.lines() + [""]
+    every = (fig.get("settings") or {}).get("baseline_every")
+    nth = {1: "every query", 2: "every second query", 3: "every third query"}.get(every, f"every {every}th query")
+    notes = Notes()
+    rows = []
+    for k, m in maps.items():
+        ms_ = m.get("methods") or {}
+        for name, label in LOC_LABELS.items():
+            c = ms_.get(name)
+            if name == "maplocalizer" and c and c.get("baseline_subset"):
+                c = {**c["baseline_subset"], "build_s": c.get("build_s")}
+            if c is None and name not in ms_:
+                continue
+            rows.append(loc_row(f"{map_label(k).split(' (')[0]}, {label}", c, notes, False))
+    out += [f"Beside the baselines, on the same queries ({nth}; each baseline registers the scan against the "
+            "whole map):", ""] + table(bheader, rows) + notes.lines() + [""]
+    sims = [k for k in maps if k != "real"]
+    kheader = ["query drives", *(map_label(k) for k in sims)]
+    rows = []
+    for kind, label in LOC_KINDS.items():
+        cells = []
+        for k in sims:
+            c = (((maps[k].get("methods") or {}).get("maplocalizer") or {}).get("by_kind") or {}).get(kind)
+            cells.append("-" if not c else f"{pct(100 * c['placed_share'], c['queries'])}, wrong {c['wrong_count']}")
+        rows.append([label, *cells])
+    cells = []
+    for k in sims:
+        c = ((maps[k].get("methods") or {}).get("maplocalizer") or {}).get("repetitive")
+        cells.append("-" if not c else f"{pct(100 * c['placed_share'], c['queries'])}, wrong {c['wrong_count']}")
+    rows.append(["repetitive places (long straight stretches)", *cells])
+    out += ["MapLocalizer by kind of query (placed, and wrong poses accepted):", ""] + table(kheader, rows) + [""]
+    lengths = sorted({int(L) for k in sims for L in ((maps[k].get("scaling") or {}).get("by_map_length_m") or {})})
+    if lengths:
+        cols = sorted({round(L, -1) for L in lengths})
+        sheader = ["map", *(f"{c} m" for c in cols)]
+        rows = []
+        for k in sims:
+            by = (maps[k].get("scaling") or {}).get("by_map_length_m") or {}
+            at = {round(int(L), -1): c for L, c in by.items()}
+            rows.append([map_label(k), *("-" if at.get(c) is None else
+                                         f"{ms(1e3 * at[c]['time_s_p50'])} ({at[c]['map_points']})" for c in cols)])
+        n = len(((maps[sims[0]].get("scaling") or {}).get("queries")) or [])
+        out += [f"Time against the map's size: the first {n} queries of each map against maps of the first metres "
+                "of its drive (first pose p50 ms, the map's points in brackets):", ""] + table(sheader, rows)
+    return out
+
+
 DESKEW = [("stream deskew", "stream deskew (default)"), ("raw", "raw"), ("pair deskew", "pair deskew"),
           ("compensated", "compensated (ceiling)"), ("gicp raw", "GICP from identity, raw")]
 
@@ -420,11 +646,63 @@ def node_latency_pair(doc: dict | None, d: Path) -> list[str]:
     notes = Notes()
     rows = []
     kinds = {"consecutive": "consecutive scans", "fixed": "fixed target"}
-    for (layout, stream, run, busy), rs in node_rows(doc["figures"]["runs"]).items():
+    runs = doc["figures"]["runs"]
+    with_cpu = any(r.get("cpu_ms") is not None for r in runs)
+    with_paths = any(r.get("paths") for r in runs)
+    if with_cpu:
+        header.insert(4, "CPU ms per pair (x anchor's)")
+    if with_paths:
+        header.insert(-1, "DeepBBS++ paths: GICP from the good start / deep / search")
+    for (layout, stream, run, busy), rs in node_rows(runs).items():
         label = f"{kinds.get(stream, stream)}, run {run}" + ("" if layout == "velodyne" else f", {layout}") + (
             ", busy" if busy else "")
-        rows.append([label, node_cell(rs.get("deepbbs"), notes), node_cell(rs.get("gicp"), notes), node_ratio(rs),
-                     goal(rs.get("deepbbs"))])
+        row = [label, node_cell(rs.get("deepbbs"), notes), node_cell(rs.get("gicp"), notes), node_ratio(rs)]
+        if with_cpu:
+            row.append(node_cpu(rs))
+        if with_paths:
+            row.append(node_paths(rs.get("deepbbs")))
+        rows.append(row + [goal(rs.get("deepbbs"))])
+    return out + table(header, rows) + notes.lines()
+
+
+def node_cpu(rs: dict) -> str:
+    """The DeepBBS++ node's CPU ms per period (every process of it) and its ratio to the anchor's."""
+    a, b = (rs.get(m) or {} for m in ("deepbbs", "gicp"))
+    if a.get("cpu_ms") is None:
+        return "-"
+    return f"{ms(a['cpu_ms'])}" + (f" ({ratio(a['cpu_ms'] / b['cpu_ms'])})" if b.get("cpu_ms") else "")
+
+
+def node_paths(r: dict | None) -> str:
+    p = (r or {}).get("paths") or {}
+    return "-" if not p else " / ".join(str(p.get(k, 0)) for k in ("gicp", "deepbbs", "search"))
+
+
+def node_latency_localization(doc: dict | None, d: Path) -> list[str]:
+    out = plots("node_latency_localization", d) + command(doc)
+    header = ["localization mode", "DeepBBS++ node: answered (scans), p50 / p99 ms", "GICP anchor node (latched map)",
+              "p50 / p99 / CPU per scan (x anchor's)", "DeepBBS++ paths: GICP first / deep / search", "goal"]
+    if doc is None:
+        return out + not_run_table(header, ["HDL-64E layout"])
+    notes = Notes()
+    rows = []
+    for (layout, _stream, run, busy), rs in node_rows(doc["figures"]["runs"]).items():
+        label = LAYOUTS.get(layout, layout) + f", run {run}" + (", busy" if busy else "")
+        a, b = rs.get("deepbbs") or {}, rs.get("gicp") or {}
+        rats = {k: "-" if a.get(k) is None or not b.get(k) else ratio(a[k] / b[k])
+                for k in ("p50_ms", "p99_ms", "cpu_ms")}
+        cpu = "-" if a.get("cpu_ms") is None else f"{ms(a['cpu_ms'])} ms"
+        if not a or not b:
+            verdict_ = "-"
+        else:
+            missed = [f"{what} > {GOAL_NODE_LOC_RATIO:g} x the anchor's" for what, k in
+                      (("p50", "p50_ms"), ("p99", "p99_ms"), ("CPU", "cpu_ms"))
+                      if a.get(k) is not None and b.get(k) and a[k] > GOAL_NODE_LOC_RATIO * b[k]]
+            if 100 * (a.get("answered") or 0) < GOAL_ANSWERED_PCT:
+                missed.append(f"answered < {GOAL_ANSWERED_PCT:g} %")
+            verdict_ = "met" if not missed else "missed: " + ", ".join(missed)
+        rows.append([label, node_cell(rs.get("deepbbs"), notes), node_cell(rs.get("gicp"), notes),
+                     f"{rats['p50_ms']} / {rats['p99_ms']} / {rats['cpu_ms']} ({cpu})", node_paths(a), verdict_])
     return out + table(header, rows) + notes.lines()
 
 
@@ -631,6 +909,25 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
         rej = NOT_RUN if dp is None else pct(dp.get("rejected_pct"), dp.get("pairs"))
         return f"{acc} / {rej}"
 
+    gs_fig = (docs.get("good_start") or {}).get("figures") or {}
+
+    def good_start_cell(m):
+        tim, wrong = gs_fig.get("timing"), (gs_fig.get("wrong_start") or {}).get("all") or {}
+        if not tim:
+            return NOT_RUN
+        worst = [max(((t.get(m) or {}).get(k) or 0) for t in tim.values())
+                 for k in ("p50_vs_gicp", "p99_vs_gicp", "cpu_mean_vs_gicp")]
+        w = wrong.get(m)
+        return " / ".join(ratio(v) for v in worst) + ("" if not w else f"; {w['accepted_wrong']} wrong")
+
+    loc_pooled = ((docs.get("localization") or {}).get("figures") or {}).get("pooled") or {}
+
+    def loc_cell(m):
+        c = (loc_pooled.get(m) or {}).get("all")
+        if not docs.get("localization") or not c:
+            return NOT_RUN
+        return f"{pct(100 * c['placed_share'], c['queries'])}, {c['wrong_count']} wrong, {loc_time(c)} ms"
+
     if fl is None:
         fleet_cell = NOT_RUN
     else:
@@ -652,6 +949,14 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
          "GICP: " + reg_cell("as-they-come", "kitti", "gicp", "success"), link_pairs],
         ["the verdict", "correct results accepted / pairs of two different places rejected", verdict_cell(), "-",
          "[verdict](docs/benchmarks.md#the-verdict)"],
+        ["registration from a good start", "raw pairs given a start, real and simulated: p50 / p99 / CPU per pair "
+         "x GICP's (worst data set); wrong poses accepted from starts slid 2-10 m", good_start_cell("good_start"),
+         "`register(T_init)`: " + good_start_cell("register"),
+         "[good start](docs/benchmarks.md#registration-from-a-good-start)"],
+        ["global localization in a prior map", "no initial guess, 1 km simulated maps and real scans; placed within 1 "
+         "deg / 0.3 m, wrong poses, p50 / p95 to the first pose", loc_cell("maplocalizer"),
+         "KISS-Matcher + GICP: " + loc_cell("kiss-matcher+gicp"),
+         "[localization](docs/benchmarks.md#global-localization-in-a-prior-map)"],
         ["odometry", "held-out simulated urban drive, raw sweeps; KITTI drift % / ATE m", odo_cell("deepbbs++"),
          "KISS-ICP: " + odo_cell("kiss-icp"), "[odometry](docs/benchmarks.md#odometry)"],
         ["live node, 10 Hz clouds from another process", "odometry mode, HDL-64E layout; share answered, p50 / p99 "
@@ -660,6 +965,9 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
         ["live node, pair mode", "KITTI scans, every source a new scan; share answered, p50 / p99 latency",
          node("node_latency_pair", "deepbbs", False), "GICP node: " + node("node_latency_pair", "gicp", False),
          link_live],
+        ["live node, localization mode", "tracking in a prior map of a simulated drive; share answered, p50 / p99",
+         node("node_latency_localization", "deepbbs", False),
+         "GICP node, latched map: " + node("node_latency_localization", "gicp", False), link_live],
         ["fleet replay on Ray", "simulated recordings, 1 and 2 workers; speedup", fleet_cell, "-",
          "[fleet](docs/benchmarks.md#a-fleet-of-recordings-on-ray)"],
     ]
@@ -673,7 +981,8 @@ def section(name: str, docs: dict[str, dict | None], d: Path) -> list[str]:
     fn = {"registration": registration, "verdict": verdict, "deskew": deskew, "odometry": odometry,
           "node_latency_odometry": node_latency_odometry, "node_latency_pair": node_latency_pair,
           "first_contact": first_contact, "busy": busy, "decode": decode, "simulator": simulator,
-          "fleet": fleet, "threads": threads}.get(name)
+          "fleet": fleet, "threads": threads, "good_start": good_start, "localization": localization,
+          "node_latency_localization": node_latency_localization}.get(name)
     if fn is None:
         raise SystemExit(f"render_docs.py: unknown marker bench:{name}")
     return fn(doc, d)
