@@ -163,3 +163,51 @@ def test_render_copy_and_check(tmp_path):
     (repo / "docs" / "benchmarks.md").write_text(page.replace("| decode xyz | 1.05 |", "| decode xyz | 1.04 |"))
     res = _render(docs, "--check", "--docs", docs)
     assert res.returncode == 1 and "benchmarks.md" in res.stderr
+
+
+def test_render_good_start_localization_and_node_localization(tmp_path):
+    """The three newer sections render their figures: the good start against GICP with its goal, localization per
+    map with its goal, and the node in localization mode against the anchor (p50 / p99 / CPU ratios, paths)."""
+    import json
+    import shutil
+
+    repo = tmp_path / "repo"
+    (repo / "docs" / "benchmarks").mkdir(parents=True)
+    shutil.copy(PAGE, repo / "docs" / "benchmarks.md")
+    shutil.copy(README, repo / "README.md")
+    out = tmp_path / "out"
+    out.mkdir()
+    c = {"pairs": 4, "p50_ms": 100.0, "p99_ms": 120.0, "cpu_p50_ms": 50.0, "cpu_mean_ms": 50.0, "paths": {"gicp": 4}}
+    timing = {"kitti_00": {"gicp": {**c, "p50_vs_gicp": 1.0, "p99_vs_gicp": 1.0, "cpu_mean_vs_gicp": 1.0},
+                           "good_start": {**c, "p50_ms": 105.0, "p50_vs_gicp": 1.05, "p99_vs_gicp": 1.2,
+                                          "cpu_mean_vs_gicp": 0.9}}}
+    w = {"cases": 10, "accepted_right": 10, "accepted_wrong": 0, "rejected": 0, "paths": {"deepbbs": 10}}
+    wrong = {k: {"gicp": {"cases": 10, "right": 8, "wrong": 2, "wrong_share": 0.2}, "register": w, "good_start": w}
+             for k in ("urban", "all")}
+    (out / "good_start.json").write_text(json.dumps(_doc({"noise": {"trans_m": 0.2, "yaw_deg": 1.0},
+                                                          "shifts_m": [2.0], "timing": timing, "wrong_start": wrong},
+                                                         "scripts/benchmarks/good_start.py")))
+    s = {"queries": 10, "placed_share": 1.0, "wrong_share": 0.0, "none_share": 0.0, "wrong_count": 0,
+         "time_s_p50": 0.5, "time_s_p95": 0.9}
+    (out / "localization.json").write_text(json.dumps(_doc(
+        {"maps": {"urban": {"methods": {"maplocalizer": {**s, "build_s": 0.5}}}}, "pooled": {},
+         "settings": {"baseline_every": 3}}, "scripts/benchmarks/localization.py")))
+    (out / "node_latency_localization").mkdir()
+    recs = [{"layout": "velodyne", "stream": "consecutive", "run": "1", "busy": False, "method": m, "pairs": 100,
+             "answered": 1.0, "p50_ms": p50, "p99_ms": p99, "error": "", "cpu": "", "cpu_ms": cpu,
+             "diagnostics": {"paths.gicp": g, "paths.deepbbs": "1", "paths.search": "0"}}
+            for m, p50, p99, cpu, g in (("deepbbs", 50.0, 100.0, 60.0, "99"), ("gicp", 40.0, 200.0, 50.0, "0"))]
+    (out / "node_latency_localization" / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    docs = repo / "docs" / "benchmarks"
+    res = _render(out, "--copy", "--docs", docs)
+    assert res.returncode == 0, res.stderr
+    page = (repo / "docs" / "benchmarks.md").read_text()
+    assert "| KITTI 00 (real) | 4 | 100 / 120; CPU 50 | not run | 105 / 120; CPU 50 (x1.05 / x1.20; x0.90) | " \
+           "100.0 % | missed: p99 > 1.1 x GICP's |" in page
+    assert "| urban | 10 | 2 (20.0 %) | 0 (rejected 0) | 0 (rejected 0) | 0.0 % | met |" in page
+    assert "| simulated urban | 100.0 % (10) | 0 | 0.0 % | 500 / 900 | met |" in page
+    assert "| HDL-64E layout, run 1 | 100.0 % (100), 50 / 100 | 100.0 % (100), 40 / 200 | x1.25 / x0.50 / x1.20 " \
+           "(60 ms) | 99 / 1 / 0 | missed: p50 > 1.2 x the anchor's |" in page
+    readme = (repo / "README.md").read_text()
+    assert "| x1.05 / x1.20 / x0.90; 0 wrong |" in readme
+    assert _render(docs, "--check", "--docs", docs).returncode == 0
