@@ -1,7 +1,7 @@
 """Load: both inputs at 20 Hz with 120k-point clouds for 60 s into the node running as a subprocess.
 
-Checks: bounded synchroniser queues, RSS growth of the node process <= 50 MB after warm-up, stale clouds
-and pairs dropped and counted (registration is slower than 20 Hz on 2 shared cores), and every published
+Checks: bounded synchroniser queues, RSS growth of the node process <= 50 MB after warm-up, every pair
+registered or, when the registration falls behind, stale clouds and pairs dropped and counted, and every published
 pose correct for its stamps. The node loads a tiny random checkpoint and runs the refinement only
 (``registration.deep: false``) on small motions: what is tested is the node under load, not the
 network. This test takes ~75 s on purpose (the issue asks for >= 60 s).
@@ -142,9 +142,11 @@ def test_load_20hz_120k_for_60s(tmp_path):
     print(f"sent {k} pairs, processed {processed}, pairs dropped {dropped}, clouds dropped {dropped_clouds}, "
           f"poses {len(poses)}, rss {rss}")
     assert k >= DURATION_S * RATE_HZ * 0.95
-    # slower than 20 Hz: stale clouds (waiting for preprocessing) or pairs (waiting for registration) were
-    # dropped and counted; the input threads preprocess at most one pair ahead of the registration
-    assert dropped + sum(dropped_clouds) > 0, values
+    # it kept up with 20 Hz, or what it could not register was dropped and counted: stale clouds (waiting for
+    # preprocessing) or pairs (waiting for registration); the input threads preprocess at most one pair ahead of
+    # the registration (since the inputs leave the sampling to its first use this node keeps up on 2 cores; the
+    # drop policy under a slower registration: test_node.py's busy-node test)
+    assert processed >= 0.95 * k or dropped + sum(dropped_clouds) > 0, values
     assert processed >= 10 and len(poses) >= 10
     assert all(int(n) <= 5 for n in values["sync queue lengths"].split(","))  # bounded per input
     assert rss["end"] - rss["warm"] <= 50.0, rss
