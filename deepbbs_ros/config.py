@@ -472,6 +472,10 @@ class LocalizationConfig:
     # tracking: a rejected pose from the guess is searched among the places within this radius (m) of the guess
     # before giving up on the scan (0 = no local search)
     track_search_radius: float = 30.0
+    # tracking: a scan whose GICP score from the prediction is below this share of the recent scans' (median) is
+    # rejected at once, with no DeepBBS++ retry and no local search (a kidnap, the map's end: the global search
+    # decides); 0 = never
+    track_drop: float = 0.5
     lost_after: int = 2  # MapTracker: this many rejected scans in a row -> lost (the next scans search the whole map)
     max_speed: float = 40.0  # m/s; MapTracker: a pose implying a faster motion since the last one counts as rejected
 
@@ -501,6 +505,7 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
+        _check(0 <= self.track_drop <= 1, "localization.track_drop", "must be in [0, 1]")
         _check(self.lost_after >= 1, "localization.lost_after", "must be >= 1")
         _check(self.max_speed > 0, "localization.max_speed", "must be > 0")
 

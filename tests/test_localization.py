@@ -95,6 +95,10 @@ def test_tracking_from_a_guess(localizer, world):
     ok, err = _ok(res.T_map_scan, T_gt)
     assert res.valid and ok and res.mode == "tracking" and res.candidates == 1, (err, res.reason)
     assert res.path in ("gicp", "deepbbs") and res.crop is not None
+    # the scan prepared beforehand (the node: on arrival) tracks alike, without preparing it again
+    prepared = localizer.prepare(drive.scan_at(61).points)
+    again = localizer.localize(prepared, guess)
+    assert again.valid and _ok(again.T_map_scan, T_gt)[0] and again.timings_ms["preprocess"] == prepared.preprocess_ms
 
 
 def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
@@ -123,16 +127,24 @@ def test_tracker_found_tracking_lost_relocalized(localizer, world):
 
     _, _, drive, other = world
     tracker = MapTracker(localizer)
-    assert tracker.state == "searching" and tracker.recoveries == 0
+    assert tracker.state == "searching" and tracker.recoveries == 0 and tracker.motion() is None
     events = []
     for k in (44, 45, 47):
         res = tracker.step(drive.scan_at(k).points, drive.stamp_ns(k))
         events.append(res.event)
         assert res.valid and _ok(res.T_map_scan, drive.pose_at(k))[0], (k, res.reason)
     assert events == ["found", "tracking", "tracking"] and tracker.state == "tracking"
+    T_step, dt = tracker.motion()  # the last step, 45 -> 47, as the ground truth has it
+    assert abs(dt - (drive.stamp_ns(47) - drive.stamp_ns(45)) * 1e-9) < 1e-9
+    truth = np.linalg.inv(drive.pose_at(45)) @ drive.pose_at(47)
+    assert np.linalg.norm(T_step[:3, 3] - truth[:3, 3]) < 0.3
     # carried into another world: lost within two scans, no pose published meanwhile
     lost = [tracker.step(other.scan_at(k).points, drive.stamp_ns(47 + k)) for k in (1, 2)]
     assert [r.valid for r in lost] == [False, False] and lost[-1].event == "lost" and tracker.state == "lost"
+    # ... and cheaply: a GICP score from the prediction far below the recent ones skips the DeepBBS++ retry and the
+    # local search (the global search decides once lost)
+    for r in lost:
+        assert "far below the recent" in r.reason and "register" not in r.timings_ms and r.candidates == 1, r.reason
     res = tracker.step(drive.scan_at(84).points, drive.stamp_ns(84))
     assert res.event == "relocalized" and res.valid and tracker.recoveries == 1
     assert _ok(res.T_map_scan, drive.pose_at(84))[0]

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import inspect
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -50,7 +50,7 @@ from deepbbs_ros.core.polish import polish
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 from deepbbs_ros.reprs import short_repr
 
-__all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "voxel_downsample"]
+__all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "voxel_downsample"]
 
 MIN_MAP_POINTS = 100  # a map with fewer points is refused
 MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
@@ -224,6 +224,15 @@ def _rz(yaw: float) -> np.ndarray:
 
 
 @dataclass
+class PreparedScan:
+    """A scan made ready for :meth:`MapLocalizer.localize` by :meth:`MapLocalizer.prepare` (e.g. on arrival)."""
+
+    points: np.ndarray  # (N, 3) float32 the scan's finite points, sensor frame, metres
+    pre: Any  # its PreprocessResult (GICP cloud with k-d tree and covariances; sampling lazy)
+    preprocess_ms: float  # what preparing it took
+
+
+@dataclass
 class _Crop:
     T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
     pre: Any  # its PreprocessResult (GICP cloud included)
@@ -277,6 +286,7 @@ class MapLocalizer:
         self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
         self._track_place = -1  # the place whose crop tracking used last
+        self._track_scores: deque[float] = deque(maxlen=10)  # GICP scores of the last scans tracked from a guess
         self._guess_crop: _Crop | None = None  # tracking off the places: the crop at an earlier guess
         self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
@@ -427,7 +437,8 @@ class MapLocalizer:
         """The pose of ``scan`` in the map.
 
         Args:
-            scan: (N, 3) metres, sensor frame (raw; NaN rows dropped).
+            scan: (N, 3) metres, sensor frame (raw; NaN rows dropped), or its :class:`PreparedScan` (:meth:`prepare`;
+                then ``times``, ``stamp_ns``, ``motion`` are not used).
             guess: None -> global search over the whole map; (4, 4) ``T_map_scan`` -> tracking: registration on the
                 crop nearest the guess, from the guess; when the verdict rejects it, the places within
                 ``track_search_radius`` are searched. Never a wrong pose on purpose: the verdict rejects.
@@ -439,20 +450,13 @@ class MapLocalizer:
         """
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
-        pts = _as_cloud(scan, "scan")
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        if len(pts) < MIN_SCAN_POINTS:
-            raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
         if guess is not None:
             guess = np.asarray(guess, dtype=np.float64)
             if guess.shape != (4, 4) or not np.isfinite(guess).all():
                 raise LocalizationError(f"guess: expected a finite (4, 4) T_map_scan, got shape {guess.shape}")
-        try:
-            kw = {"lazy": True} if self._lazy else {}  # the sampling waits for its first read (a good start: never)
-            src = self.registration.preprocess(pts, times, stamp_ns, motion, **kw)
-        except DeepBBSError as err:
-            raise LocalizationError(f"scan: {err}") from err
-        timings["preprocess"] = (time.perf_counter() - t0) * 1e3
+        prepared = scan if isinstance(scan, PreparedScan) else self.prepare(scan, times, stamp_ns, motion)
+        pts, src = prepared.points, prepared.pre
+        timings["preprocess"] = prepared.preprocess_ms if prepared is scan else (time.perf_counter() - t0) * 1e3
         if guess is not None:
             res = self._track(pts, src, guess, timings)
         else:
@@ -460,6 +464,28 @@ class MapLocalizer:
         res.timings_ms = timings
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return res
+
+    def prepare(self, scan: Any, times: np.ndarray | None = None, stamp_ns: int | None = None,
+                motion: tuple[np.ndarray, float] | None = None) -> PreparedScan:
+        """The scan's part of :meth:`localize`: a raw scan (N, 3) (sensor frame, NaN rows dropped; ``times``,
+        ``stamp_ns``, ``motion`` as there) -> its :class:`PreparedScan` (GICP cloud with k-d tree and covariances, the
+        network's sampling waiting for a first read). The node does it on the scan's input thread, on arrival, with the
+        motion :meth:`MapTracker.motion` knows then; :meth:`localize` takes the result in place of the scan.
+
+        Raises:
+            LocalizationError: a scan that is not (N, 3) numbers, with too few finite points.
+        """
+        t0 = time.perf_counter()
+        pts = _as_cloud(scan, "scan")
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) < MIN_SCAN_POINTS:
+            raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
+        try:
+            kw = {"lazy": True} if self._lazy else {}  # the sampling waits for its first read (tracking: never)
+            src = self.registration.preprocess(pts, times, stamp_ns, motion, **kw)
+        except DeepBBSError as err:
+            raise LocalizationError(f"scan: {err}") from err
+        return PreparedScan(pts, src, (time.perf_counter() - t0) * 1e3)
 
     def _sensor_height(self, src: Any) -> float | None:
         """The scan's sensor height above its ground plane (m), None without one."""
@@ -493,17 +519,26 @@ class MapLocalizer:
         timings["crop"] = (time.perf_counter() - t) * 1e3
         T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
         t = time.perf_counter()
-        score, T_map_scan, path = float("nan"), guess, ""
-        if not self._good_start:  # GICP from the guess (the GICP anchor's work) and the verdict
-            ans = self._gicp(src, crop, T_guess, near)
-            timings["gicp"] = (time.perf_counter() - t) * 1e3
-            if ans is not None:
-                score, T_map_scan, path = ans.score, ans.T, "gicp"
-                if ans.ok:
-                    return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+        # GICP from the guess (the GICP anchor's work) and the verdict on a spread subset of the scan's voxels, as
+        # register(..., good_start=True) does, but here: its score decides whether the scan is worth a retry
+        ans, at_guess = self._track_gicp(src, crop, T_guess, near)
+        timings["gicp"] = (time.perf_counter() - t) * 1e3
+        score, T_map_scan, path = at_guess, guess, "gicp"
+        if ans is not None:
+            score, T_map_scan = ans.score, ans.T
+            if ans.ok:
+                self._track_scores.append(ans.score)
+                return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+        recent = float(np.median(self._track_scores)) if len(self._track_scores) >= 2 else float("nan")
+        if np.isfinite(score) and score < lc.track_drop * recent:  # nan-safe: no recent scores, no shortcut
+            # far below the recent scans' scores: not a poor fit but another place (a kidnap, the map's end); the
+            # DeepBBS++ retry and the local search would cost seconds to say so: the global search decides
+            return LocalizationResult(T_map_scan, False, score, "tracking",
+                                      f"rejected from the guess: score {score:.2f} far below the recent "
+                                      f"{recent:.2f} (no local search)", candidates=1, path=path, place=near)
         t = time.perf_counter()
         with _search(self.registration, "off"):  # a rejection goes to the local search below, not other yaws
-            reg = self._register(src, crop, T_guess, good_start=True)  # register()'s own good start when it has one
+            reg = self._register(src, crop, T_guess)  # DeepBBS++ from the guess (its GICP-first path was ours)
         timings["register"] = (time.perf_counter() - t) * 1e3
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
@@ -662,6 +697,34 @@ class MapLocalizer:
         return _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
                        crop.T_map_place @ pol.T_target_source, place, crop)
 
+    def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
+                    place: int) -> tuple[_Answer | None, float]:
+        """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
+        (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
+        (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
+        Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
+        GICP did not apply, the score at the guess itself when it did not, else nan)."""
+        import dataclasses
+
+        from deepbbs_ros.core import verdict
+
+        rc = self.config.registration
+        if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
+            return None, float("nan")
+        th = self.registration.gicp_threads()
+        spc, tpc = src.polish_cloud.complete(threads=th), crop.pre.polish_cloud.complete(threads=th)
+        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
+                                  polish_max_trans=rc.good_start_max_trans,
+                                  polish_max_rot_deg=rc.good_start_max_rot_deg)
+        pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+        pol = polish(spc, tpc, T_place_scan, cfg)
+        if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
+            return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
+        T = pol.T_target_source
+        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
+        ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
+        return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
+
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
         """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
         -> their answers (a pose pinned down brings each back; on a featureless stretch they stay off with as good a
@@ -819,17 +882,15 @@ class MapTracker:
         out[:3, 3] = step[:3, 3] * k
         return T1 @ out
 
-    def step(self, scan: np.ndarray, stamp_ns: int, times: np.ndarray | None = None) -> LocalizationResult:
-        """Localize one scan (N, 3) (sensor frame, metres) stamped ``stamp_ns`` (per-point ``times`` (N,) s since the
-        stamp, optional). Raises LocalizationError for bad input (the state is unchanged)."""
+    def step(self, scan: Any, stamp_ns: int, times: np.ndarray | None = None) -> LocalizationResult:
+        """Localize one scan (N, 3) (sensor frame, metres; or its :class:`PreparedScan`, deskewed already) stamped
+        ``stamp_ns`` (per-point ``times`` (N,) s since the stamp, optional). Raises LocalizationError for bad input
+        (the state is unchanged)."""
         lc = self.config.localization
         stamp_ns = int(stamp_ns)
         if self.state == "tracking":
             guess = self.predict(stamp_ns)
-            motion = None
-            if len(self._poses) >= 2 and times is not None:
-                (s0, T0), (s1, T1) = self._poses[-2:]
-                motion = (np.linalg.inv(T0) @ T1, (s1 - s0) * 1e-9)
+            motion = self.motion() if times is not None else None
             res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False
@@ -857,6 +918,15 @@ class MapTracker:
         else:
             res.event = "searching"
         return res
+
+    def motion(self) -> tuple[np.ndarray, float] | None:
+        """The sensor's last motion (``T_prev_cur`` (4, 4), seconds) between the last two accepted poses while
+        tracking (deskewing a scan: :meth:`MapLocalizer.prepare`), else None. Safe to call from another thread."""
+        poses = self._poses[-2:]  # one read: the list may be appended to meanwhile
+        if self.state != "tracking" or len(poses) < 2:
+            return None
+        (s0, T0), (s1, T1) = poses
+        return np.linalg.inv(T0) @ T1, (s1 - s0) * 1e-9
 
     def _plausible(self, T: np.ndarray, stamp_ns: int) -> bool:
         if not self._poses:

@@ -182,6 +182,28 @@ class NodeLocalization:
             self._search_t0 = None
 
     # -- one scan ----------------------------------------------------------------------------------------------
+    def prepare(self, cloud: Cloud) -> None:
+        """On the scan's input thread, on arrival (as the other modes' inputs preprocess): its GICP cloud
+        (``MapLocalizer.prepare``, deskewed with the motion the tracker knows now) into ``cloud.pp``, so that
+        :meth:`step` only registers it. A scan the localizer refuses is left as it is (:meth:`step` says why)."""
+        from deepbbs_ros.core.localization import PreparedScan
+
+        localizer, tracker = self.localizer, self.tracker
+        if localizer is None or tracker is None or not hasattr(localizer, "prepare"):
+            return
+        with self._lock:
+            if self._pending_localizer is not None or self._relocalize:
+                return  # a new map or a reset waits for step(): prepared there
+        motion = tracker.motion() if cloud.times is not None and hasattr(tracker, "motion") else None
+        t0 = time.perf_counter()
+        try:
+            pre = localizer.prepare(cloud.xyz, cloud.times, cloud.stamp_ns, motion)
+        except DeepBBSError:
+            return
+        if isinstance(pre, PreparedScan):
+            cloud.pp = (localizer, pre)
+            cloud.timings_ms["preprocess"] = (time.perf_counter() - t0) * 1e3
+
     def step(self, cloud: Cloud) -> LocalizedScan:
         """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread.
 
@@ -201,7 +223,9 @@ class NodeLocalization:
             self._search_t0, self._search_scans = cloud.t_recv, 0
         t0 = time.perf_counter()
         try:
-            res = tracker.step(cloud.xyz, cloud.stamp_ns, cloud.times)
+            pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None
+            scan = pp[1] if pp is not None and pp[0] is self.localizer else cloud.xyz  # prepared for this map
+            res = tracker.step(scan, cloud.stamp_ns, cloud.times)
         except LocalizationError as err:
             raise BadInput("localization_failed", str(err)) from err
         timings = {"register": (time.perf_counter() - t0) * 1e3}

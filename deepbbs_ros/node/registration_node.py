@@ -686,6 +686,8 @@ class RegistrationNode(Node):
         with self._lock:
             self._counts["pairs"] += 1
             self._last_pair_t = time.monotonic()
+        self.localization.prepare(cloud)  # its GICP cloud on this input thread, on arrival (as the other modes)
+        cloud.t_ready = time.perf_counter()
         self.worker.submit(("localize", cloud, None))
 
     def _on_scan(self, cloud: Cloud) -> None:
