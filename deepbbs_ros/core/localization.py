@@ -477,7 +477,9 @@ class MapLocalizer:
         """
         t0 = time.perf_counter()
         pts = _as_cloud(scan, "scan")
-        pts = pts[np.isfinite(pts).all(axis=1)]
+        finite = np.isfinite(pts).all(axis=1)
+        if not finite.all():  # a copy only when there is something to drop (the node's scans are finite already)
+            pts = pts[finite]
         if len(pts) < MIN_SCAN_POINTS:
             raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
         try:
