@@ -130,6 +130,10 @@ def test_finds_tracks_loses_and_finds_again(ros, drive, tmp_path, capfd):
         log = capfd.readouterr().err
         assert log.count("localization lost") == 1 and log.count("localization relocalized") == 1, log
         assert log.count("localization found") == 1, log
+        # the kidnap is rejected cheaply (its GICP score far below the tracked ones: no retry, no local search)
+        assert "no local search" in log, log
+        # the scans were prepared on arrival (their input thread), the worker only registers them
+        assert h.node.localization.prepared >= 3 and d["localization.scans prepared on arrival"] != "0", d
         # the map crop the tracking will use a second later is ready before a scan gets there: the crop tracked now
         # still reaches that pose, or the place nearest it was prepared in the background (or kept from the search)
         loc, m = h.node.localization, h.node.localization.localizer

@@ -138,7 +138,7 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
 
     t0 = time.perf_counter()
     pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
-    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64)
+    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped = len(pts)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3

@@ -109,6 +109,7 @@ class NodeLocalization:
         self.registration = registration
         self._lock = threading.Lock()
         self.prefetched = 0  # map crops prepared ahead of the tracked pose
+        self.prepared = 0  # scans whose GICP cloud was prepared on arrival (input thread), not on the worker
         self._prefetch = None
         if config.node.map_prefetch:
             self._prefetch = LatestSlotWorker(self._prefetch_crop, name="deepbbs-loc-prefetch")
@@ -225,6 +226,7 @@ class NodeLocalization:
         try:
             pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None
             scan = pp[1] if pp is not None and pp[0] is self.localizer else cloud.xyz  # prepared for this map
+            self.prepared += scan is not cloud.xyz
             res = tracker.step(scan, cloud.stamp_ns, cloud.times)
         except LocalizationError as err:
             raise BadInput("localization_failed", str(err)) from err
@@ -314,6 +316,7 @@ class NodeLocalization:
             "time to first pose (s)": _seconds(self.first_pose_s),
             "last search took (s)": _seconds(self.time_to_first_pose_s),
             "map crops prepared ahead": self.prefetched,
+            "scans prepared on arrival": self.prepared,
         }
         if self.map is not None:
             out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"
