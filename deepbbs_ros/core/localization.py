@@ -440,8 +440,10 @@ class MapLocalizer:
             scan: (N, 3) metres, sensor frame (raw; NaN rows dropped), or its :class:`PreparedScan` (:meth:`prepare`;
                 then ``times``, ``stamp_ns``, ``motion`` are not used).
             guess: None -> global search over the whole map; (4, 4) ``T_map_scan`` -> tracking: registration on the
-                crop nearest the guess, from the guess; when the verdict rejects it, the places within
-                ``track_search_radius`` are searched. Never a wrong pose on purpose: the verdict rejects.
+                crop nearest the guess, from the guess (GICP, the verdict); when the verdict rejects it, DeepBBS++
+                from the guess, then the places within ``track_search_radius`` are searched, unless its score is
+                below ``track_drop`` times the recent tracked scans' (a kidnap: rejected at once, a GICP's price).
+                Never a wrong pose on purpose: the verdict rejects.
             times, stamp_ns, motion: per-point times (N,) s since the stamp and the sensor's known motion
                 (``T_prev_cur``, seconds) for deskewing (``DeepBBSRegistration.preprocess``); optional.
 
@@ -723,6 +725,7 @@ class MapLocalizer:
         if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
             return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
         T = pol.T_target_source
+        T[:3, :3] = _orthonormal(T[:3, :3])  # as register()'s good start
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
         ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
         return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
@@ -778,6 +781,13 @@ def _search(registration: Any, mode: str) -> Iterator[None]:
         yield
     finally:
         rc.global_search = old
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) nearest R (SVD), as the registration's answers are."""
+    U, _, Vt = np.linalg.svd(R)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
+    return U @ D @ Vt
 
 
 def _has_parameter(obj: Any, method: str, name: str) -> bool:
