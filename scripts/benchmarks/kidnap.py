@@ -1,0 +1,104 @@
+#!/usr/bin/env python3
+"""What a kidnap costs the localization tracker (``MapTracker``, in this process): wall time of the scans rejected
+after it and of the scan that finds the pose again.
+
+A map of a simulated urban drive (every 2nd frame, noiseless, at its true poses, with its trajectory), tracked over
+``--track`` scans, then the sensor is kidnapped for two scans, either into another world (``other``: a highway drive
+of another seed) or elsewhere in the same map (``same``: 40 frames ahead, turned 115 deg), then back on the drive.
+``--reps`` kidnaps per kind. Figures (``kidnap.json`` under ``--out``): per kind, the seconds of each rejected scan
+and of each relocalization, scans until lost, wrong poses published (any valid pose more than 1 deg / 0.3 m off, or
+any valid pose in another world: must be 0). Timings on a shared machine are noisy. ::
+
+    python scripts/benchmarks/kidnap.py --out results/benchmarks
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+
+KIDNAP_YAW = np.radians(115.0)
+
+
+def run(kind: str, reps: int, track: int) -> dict:
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.localization import MapLocalizer, MapTracker, voxel_downsample
+    from deepbbs_ros.metrics import pair_errors
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    clean = DriveSimulator("urban", 5, frames=100, motion_distortion=False)
+    parts = []
+    for k in range(30, 100, 2):
+        s = clean.scan_at(k)
+        p = s.points[np.linalg.norm(s.points, axis=1) < 60.0]
+        parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
+    trajectory = np.stack([clean.pose_at(k) for k in range(30, 100)])
+    loc = MapLocalizer(voxel_downsample(np.concatenate(parts), 0.2),
+                       Config().replace(**{"registration.network_process": "off"}), trajectory=trajectory)
+    drive = DriveSimulator("urban", 5, frames=100, compensate=True)
+    other = DriveSimulator("highway", 11, frames=12, compensate=True)
+    c, s = np.cos(KIDNAP_YAW), np.sin(KIDNAP_YAW)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], np.float32)
+    rejected, relocalized, lost_after, wrong = [], [], [], 0
+    for rep in range(reps):
+        start = 31 + (rep * 7) % max(1, 48 - track)
+        tracker = MapTracker(loc)
+        seq = [("drive", k) for k in range(start, start + track)]
+        end = start + track
+        seq += [("kidnap", end), ("kidnap", end + 1)] + [("drive", k) for k in range(end + 2, end + 5)]
+        lost_at = None
+        for i, (what, k) in enumerate(seq):
+            if what == "drive":
+                scan = drive.scan_at(k).points
+            elif kind == "other":
+                scan = other.scan_at(1 + k - end).points
+            else:
+                scan = drive.scan_at(min(k + 40, 99)).points @ turn.T
+            t0 = time.perf_counter()
+            res = tracker.step(scan, drive.stamp_ns(start + i))
+            dt = time.perf_counter() - t0
+            if res.valid and (what == "kidnap" or not np.all(np.array(pair_errors(
+                    res.T_map_scan, drive.pose_at(k))) < (1.0, 0.3))):
+                wrong += 1
+            if what == "kidnap":
+                rejected.append(dt)
+                if res.event == "lost" and lost_at is None:
+                    lost_at = k - end + 1
+            elif res.event == "relocalized":
+                relocalized.append(dt)
+        lost_after.append(lost_at)
+    return {"rejected_scan_s": rejected, "rejected_scan_p50_s": float(np.median(rejected)),
+            "relocalize_s": relocalized,
+            "relocalize_p50_s": float(np.median(relocalized)) if relocalized else None,
+            "lost_after_scans": lost_after, "wrong_poses": wrong, "kidnaps": reps}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=Path("results/benchmarks"), help="folder for kidnap.json")
+    ap.add_argument("--reps", type=int, default=2, help="kidnaps per kind")
+    ap.add_argument("--track", type=int, default=12, help="scans tracked before each kidnap")
+    ap.add_argument("--kinds", nargs="+", choices=("other", "same"), default=["other", "same"],
+                    help="where the sensor is carried: another world, or elsewhere in the map")
+    args = ap.parse_args(argv)
+    figures = {}
+    for kind in args.kinds:
+        figures[kind] = run(kind, args.reps, args.track)
+        f = figures[kind]
+        print(f"{kind}: rejected scan p50 {f['rejected_scan_p50_s']:.2f} s, relocalized p50 "
+              f"{f['relocalize_p50_s'] or float('nan'):.2f} s, lost after {f['lost_after_scans']} scans, "
+              f"wrong poses {f['wrong_poses']}")
+    _common.write_json(args.out, "kidnap.json", figures)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
