@@ -271,6 +271,7 @@ class MapLocalizer:
             self._places = self._keyframe_places(trajectory)
         else:
             self._places = self._grid_places()
+            self.keyframes = 0
         if len(self._places) == 0:
             raise LocalizationError("map: no candidate place (no free space with ground under it; give the map's "
                                     "trajectory, or lower localization.free_clearance)")
@@ -312,6 +313,7 @@ class MapLocalizer:
                 last = xyz[k]
         out = np.repeat(np.eye(4)[None], len(keep), axis=0)
         out[:, :3, 3] = xyz[keep]
+        self.keyframes = len(out)  # the first places: the keyframes; then the lattice beside the drive
         lc = self.config.localization
         if lc.place_band <= 0:
             return out
