@@ -3,7 +3,9 @@
 ``MapLocalizer.localize`` reads top-down::
 
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
-                m, or (no trajectory) a grid of localization.grid_spacing over the map's free space
+                m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
+                (other lanes, the other way), or (no trajectory) a grid of localization.grid_spacing over the map's
+                free space
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
@@ -239,9 +241,10 @@ class MapLocalizer:
         registration: the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` to use (built from
             ``config`` when None: the shipped model).
         trajectory: optional (K, 4, 4) ``T_map_sensor`` poses of the drive the map was built from: keyframes every
-            ``place_spacing`` m are the candidate places; without it the places are a ``grid_spacing`` grid over the
-            map's free space (cells with ground seen from close by and no obstacle up to ``sensor_height`` within
-            ``free_clearance``).
+            ``place_spacing`` m are the candidate places (``keyframes`` of them, first), with a ``place_band_step``
+            lattice up to ``place_band`` m to either side of the drive; without it the places are a ``grid_spacing``
+            grid over the map's free space (cells with ground seen from close by and no obstacle up to
+            ``sensor_height`` within ``free_clearance``).
 
     Everything per place is built here (``build_ms`` says how long, ``nbytes`` how much memory it holds): the height
     grid, the places, their descriptors. The crops' preprocessing is done when first needed and kept
