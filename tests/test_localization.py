@@ -62,8 +62,9 @@ def test_places_and_descriptors(localizer, world):
     _, trajectory, _, _ = world
     P = localizer.places
     assert P.ndim == 3 and P.shape[1:] == (4, 4) and len(P) >= 8  # ~55 m of road, a place every 4 m
-    steps = np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1)
-    assert steps.min() >= Config().localization.place_spacing - 1e-9
+    K = localizer.keyframes
+    steps = np.linalg.norm(np.diff(P[:K, :3, 3], axis=0), axis=1)
+    assert K >= 8 and steps.min() >= Config().localization.place_spacing - 1e-9
     assert localizer.descriptors.shape == (len(P), 20, 60)
     # the descriptor is yaw-invariant up to a column shift: the scan turned by 90 degrees shifts it by 15 sectors
     _, _, drive, _ = world
@@ -73,6 +74,34 @@ def test_places_and_descriptors(localizer, world):
     dist, shift = _match(a[None], b)  # a's column (s + shift) matches b's column s: b turned by +90 deg
     assert dist[0] < 0.1 and int(shift[0]) in (44, 45, 46)
     assert _match(a[None], a)[0][0] < 1e-5
+
+
+def test_places_beside_the_drive(localizer, world):
+    """Lattice places cover the road beside the map drive (the other lane), on free ground, a half step apart."""
+    from scipy.spatial import cKDTree
+
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    _, trajectory, _, _ = world
+    lc = Config().localization
+    P, K = localizer.places, localizer.keyframes
+    lattice = P[K:, :2, 3]
+    assert len(lattice) > 4 * K
+    off, _ = cKDTree(trajectory[:, :2, 3]).query(lattice)
+    assert off.max() <= lc.place_band + lc.place_band_step and off.max() > 0.5 * lc.place_band
+    d, _ = cKDTree(P[:, :2, 3]).query(P[:, :2, 3], k=2)
+    assert d[:, 1].min() >= 0.5 * lc.place_band_step - 1e-6
+    # a drive in the other lane, the other way: a place within 1.5 m of every pose, ranked first for a scan there
+    other = DriveSimulator("urban", 5, frames=100, world_frames=100, lane_offset=-3.6, reverse=True)
+    hits = 0
+    for k in range(20, 90, 10):
+        T = other.pose_at(k)
+        if np.linalg.norm(trajectory[:, :2, 3] - T[:2, 3], axis=1).min() > 6.0:
+            continue  # not beside the mapped stretch
+        assert np.linalg.norm(P[:, :2, 3] - T[:2, 3], axis=1).min() < 1.5
+        ranked = localizer.rank(localizer.describe(other.scan_at(k).points))
+        hits += np.linalg.norm(P[ranked[0][0], :2, 3] - T[:2, 3]) < 8.0
+    assert hits >= 3
 
 
 def test_global_pose_without_a_guess(localizer, world):
