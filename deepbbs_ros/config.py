@@ -454,6 +454,12 @@ class LocalizationConfig:
     # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
     # a true pose scores ~0.85-0.95 on it in a town (0.6-0.95 on a highway), a wrong place or pose up to ~0.6
     min_score: float = 0.6
+    # a global answer under min_score (but valid by registration.verdict_threshold) is still accepted when it is sharp:
+    # of the scan points within sharp_dist of the map (those the map covers), this share lies within
+    # registration.verdict_dist; right poses seen from another carriageway scored >= 0.9, wrong ones <= 0.87; it must
+    # then beat every other answer (any score) by ambiguity_margin and survive the probe. 0 = off
+    sharp_score: float = 0.88
+    sharp_dist: float = 1.0  # m; the scan points with the map this close count as covered (the sharp_score's base)
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
@@ -501,6 +507,8 @@ class LocalizationConfig:
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
+        _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")
+        _check(self.sharp_dist > 0, "localization.sharp_dist", "must be > 0")
         _check(0 <= self.confident_score <= 1, "localization.confident_score", "must be in [0, 1]")
         _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",
                f"must be 'off' or 'auto', got {self.candidate_search!r}")

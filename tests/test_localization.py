@@ -114,6 +114,23 @@ def test_global_pose_without_a_guess(localizer, world):
         assert 0 <= res.place < len(localizer.places)
 
 
+def test_sharp_pose_under_min_score(localizer, world):
+    """No answer reaches localization.min_score (raised to 0.99 here): the right pose is still accepted when it is
+    sharp (the scan points the map covers fit closely), and not with the sharp test off."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    scan, T_gt = drive.scan_at(48).points, drive.pose_at(48)
+    for sharp, want in ((0.88, True), (0.0, False)):
+        cfg = localizer.config.replace(**{"localization.min_score": 0.99, "localization.sharp_score": sharp})
+        loc = MapLocalizer(map_points, cfg, registration=localizer.registration, trajectory=trajectory)
+        res = loc.localize(scan)
+        assert res.valid == want, (sharp, res.score, res.reason)
+        if want:
+            ok, err = _ok(res.T_map_scan, T_gt)
+            assert ok and res.score < 0.99, (err, res.score)
+
+
 def test_tracking_from_a_guess(localizer, world):
     from deepbbs_ros.replay.synthetic import pose
 

@@ -17,6 +17,9 @@
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
                 ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
+    sharp       when none reaches localization.min_score, the best is still accepted when it is sharp (of the scan
+                points within sharp_dist of the map, a share >= sharp_score within verdict_dist: the right pose
+                seen from another carriageway) and beats every other answer, accepted or not, by ambiguity_margin
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
@@ -648,7 +651,11 @@ class MapLocalizer:
                                        best.crop.T_map_place @ reg.T_target_source, best.place, best.crop))
                 answers.sort(key=lambda a: -a.score)
             best = answers[0]
-        if not best.ok:
+        # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
+        # the other side) is accepted all the same, against every answer as a rival (not only the accepted ones)
+        sharp = (not best.ok and lc.sharp_score > 0 and best.score >= self.config.registration.verdict_threshold
+                 and self._sharpness(src, best) >= lc.sharp_score)
+        if not best.ok and not sharp:
             return LocalizationResult(best.T, False, best.score, "global",
                                       f"no candidate place passed the verdict (best score {best.score:.2f} < "
                                       f"{self._threshold:.2f}: scan outside the map?)", candidates=n,
@@ -658,7 +665,12 @@ class MapLocalizer:
         timings["probe"] = (time.perf_counter() - t) * 1e3
         pool = sorted(answers + probes, key=lambda a: -a.score)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
-        rivals = [a for a in pool[1:] if a.ok and a.score >= best.score - (
+        if sharp and self._sharpness(src, best) < lc.sharp_score:
+            return LocalizationResult(best.T, False, best.score, "global",
+                                      f"no candidate place passed the verdict (best score {best.score:.2f} < "
+                                      f"{self._threshold:.2f}, not sharp)", candidates=n, path="deepbbs",
+                                      place=best.place)
+        rivals = [a for a in pool[1:] if (a.ok or sharp) and a.score >= best.score - (
                       lc.ambiguity_probe_margin if a.probe else lc.ambiguity_margin)
                   and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
                       max(0.5, 0.5 * lc.ambiguity_probe) if a.probe else lc.ambiguity_distance)]
@@ -689,6 +701,23 @@ class MapLocalizer:
     def _accepts(self, valid: bool, score: float) -> bool:
         """The registration's verdict and the map's own bar (``localization.min_score``)."""
         return bool(valid) and np.isfinite(score) and score >= self.config.localization.min_score
+
+    def _sharpness(self, src: Any, ans: _Answer) -> float:
+        """Of the scan's verdict points within ``localization.sharp_dist`` of the answer's crop, the share within
+        ``registration.verdict_dist`` (0 when none or no crop cloud): a fit that is close wherever the map covers
+        the scan, whatever the share the map covers (another carriageway sees another side of the road)."""
+        tgt = ans.crop.pre.polish_cloud
+        if tgt is None or len(src.points) == 0:
+            return 0.0
+        if getattr(tgt, "pending", None) is not None:
+            tgt.complete(threads=self.registration.gicp_threads())
+        T = np.linalg.inv(ans.crop.T_map_place) @ ans.T
+        pts = np.asarray(src.points, np.float64) @ T[:3, :3].T + T[:3, 3]
+        _, sq = tgt.tree.batch_nearest_neighbor_search(pts, num_threads=1)
+        sq = np.asarray(sq, np.float64)
+        covered = int(np.sum(sq <= self.config.localization.sharp_dist ** 2))
+        close = int(np.sum(sq <= self.config.registration.verdict_dist ** 2))
+        return close / covered if covered else 0.0
 
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
