@@ -456,9 +456,9 @@ class LocalizationConfig:
     min_score: float = 0.6
     # a global answer under min_score (but valid by registration.verdict_threshold) is still accepted when it is sharp:
     # of the scan points within sharp_dist of the map (those the map covers), this share lies within
-    # registration.verdict_dist; right poses seen from another carriageway scored >= 0.9, wrong ones <= 0.87; it must
+    # registration.verdict_dist; right poses under min_score scored 0.905-0.97, wrong candidates up to 0.872; it must
     # then beat every other answer (any score) by ambiguity_margin and survive the probe. 0 = off
-    sharp_score: float = 0.88
+    sharp_score: float = 0.9
     sharp_dist: float = 1.0  # m; the scan points with the map this close count as covered (the sharp_score's base)
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)

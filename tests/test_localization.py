@@ -121,7 +121,7 @@ def test_sharp_pose_under_min_score(localizer, world):
 
     map_points, trajectory, drive, _ = world
     scan, T_gt = drive.scan_at(48).points, drive.pose_at(48)
-    for sharp, want in ((0.88, True), (0.0, False)):
+    for sharp, want in ((0.9, True), (0.0, False)):
         cfg = localizer.config.replace(**{"localization.min_score": 0.99, "localization.sharp_score": sharp})
         loc = MapLocalizer(map_points, cfg, registration=localizer.registration, trajectory=trajectory)
         res = loc.localize(scan)
