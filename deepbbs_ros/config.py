@@ -427,6 +427,11 @@ class LocalizationConfig:
     map_path: str = ""  # node: load the map from this .pcd / .ply file (map frame) instead of the map topic
     map_voxel: float = 0.2  # m; the map is put on this voxel grid when loaded (0 = as given)
     place_spacing: float = 4.0  # m between candidate places: keyframes of the map's trajectory this far apart
+    # m; with a trajectory, candidate places are also put on a lattice up to this far to either side of the drive
+    # (where the map has free ground): a query driven in another lane or the other way; 0 = keyframes only
+    place_band: float = 14.0
+    place_band_step: float = 1.75  # m, the lattice's step along and across the drive
+    offset_clearance: float = 1.0  # m; a lattice place (place_band) needs ground and no obstacle within this radius
     # m; without a trajectory the candidate places are a grid of this step over the map's free space (where the mapping
     # sensor passed): finer than place_spacing, since a place may lie beside the path as well as along it
     grid_spacing: float = 2.5
@@ -436,6 +441,8 @@ class LocalizationConfig:
     free_clearance: float = 1.5
     descriptor_radius: float = 60.0  # m; the place descriptor (Scan Context) covers this radius around a place
     descriptor_rings: int = 20  # rings of the descriptor (radial bins)
+    # innermost rings left out of the ranking (near-range cells differ most between lanes and directions)
+    descriptor_skip_rings: int = 2
     descriptor_sectors: int = 60  # sectors of the descriptor (yaw bins; the yaw of a match is good to 360 / this deg)
     descriptor_cell: float = 1.0  # m; the height grid the descriptors are read from (max height above local ground)
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
@@ -447,6 +454,12 @@ class LocalizationConfig:
     # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
     # a true pose scores ~0.85-0.95 on it in a town (0.6-0.95 on a highway), a wrong place or pose up to ~0.6
     min_score: float = 0.6
+    # a global answer under min_score (but valid by registration.verdict_threshold) is still accepted when it is sharp:
+    # of the scan points within sharp_dist of the map (those the map covers), this share lies within
+    # registration.verdict_dist; right poses under min_score scored 0.905-0.97, wrong candidates up to 0.872; it must
+    # then beat every other answer (any score) by ambiguity_margin and survive the probe. 0 = off
+    sharp_score: float = 0.9
+    sharp_dist: float = 1.0  # m; the scan points with the map this close count as covered (the sharp_score's base)
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
@@ -482,17 +495,24 @@ class LocalizationConfig:
     def validate(self) -> None:
         _check(self.map_voxel >= 0, "localization.map_voxel", "must be >= 0 (0 = as given)")
         _check(self.place_spacing > 0, "localization.place_spacing", "must be > 0")
+        _check(self.place_band >= 0, "localization.place_band", "must be >= 0 (0 = keyframes only)")
+        _check(self.place_band_step > 0, "localization.place_band_step", "must be > 0")
+        _check(self.offset_clearance >= 0, "localization.offset_clearance", "must be >= 0")
         _check(self.grid_spacing > 0, "localization.grid_spacing", "must be > 0")
         _check(self.sensor_height > 0, "localization.sensor_height", "must be > 0")
         _check(self.free_clearance >= 0, "localization.free_clearance", "must be >= 0")
         _check(self.descriptor_radius > 0, "localization.descriptor_radius", "must be > 0")
         _check(self.descriptor_rings >= 2, "localization.descriptor_rings", "must be >= 2")
+        _check(0 <= self.descriptor_skip_rings < self.descriptor_rings, "localization.descriptor_skip_rings",
+               "must be in [0, descriptor_rings)")
         _check(self.descriptor_sectors >= 8, "localization.descriptor_sectors", "must be >= 8")
         _check(0 < self.descriptor_cell <= self.descriptor_radius / 4, "localization.descriptor_cell",
                "must be > 0 and <= descriptor_radius / 4")
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
+        _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")
+        _check(self.sharp_dist > 0, "localization.sharp_dist", "must be > 0")
         _check(0 <= self.confident_score <= 1, "localization.confident_score", "must be in [0, 1]")
         _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",
                f"must be 'off' or 'auto', got {self.candidate_search!r}")

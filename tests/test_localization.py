@@ -62,8 +62,9 @@ def test_places_and_descriptors(localizer, world):
     _, trajectory, _, _ = world
     P = localizer.places
     assert P.ndim == 3 and P.shape[1:] == (4, 4) and len(P) >= 8  # ~55 m of road, a place every 4 m
-    steps = np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1)
-    assert steps.min() >= Config().localization.place_spacing - 1e-9
+    K = localizer.keyframes
+    steps = np.linalg.norm(np.diff(P[:K, :3, 3], axis=0), axis=1)
+    assert K >= 8 and steps.min() >= Config().localization.place_spacing - 1e-9
     assert localizer.descriptors.shape == (len(P), 20, 60)
     # the descriptor is yaw-invariant up to a column shift: the scan turned by 90 degrees shifts it by 15 sectors
     _, _, drive, _ = world
@@ -75,6 +76,34 @@ def test_places_and_descriptors(localizer, world):
     assert _match(a[None], a)[0][0] < 1e-5
 
 
+def test_places_beside_the_drive(localizer, world):
+    """Lattice places cover the road beside the map drive (the other lane), on free ground, a half step apart."""
+    from scipy.spatial import cKDTree
+
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    _, trajectory, _, _ = world
+    lc = Config().localization
+    P, K = localizer.places, localizer.keyframes
+    lattice = P[K:, :2, 3]
+    assert len(lattice) > 4 * K
+    off, _ = cKDTree(trajectory[:, :2, 3]).query(lattice)
+    assert off.max() <= lc.place_band + lc.place_band_step and off.max() > 0.5 * lc.place_band
+    d, _ = cKDTree(P[:, :2, 3]).query(P[:, :2, 3], k=2)
+    assert d[:, 1].min() >= 0.5 * lc.place_band_step - 1e-6
+    # a drive in the other lane, the other way: a place within 1.5 m of every pose, ranked first for a scan there
+    other = DriveSimulator("urban", 5, frames=100, world_frames=100, lane_offset=-3.6, reverse=True)
+    hits = 0
+    for k in range(20, 90, 10):
+        T = other.pose_at(k)
+        if np.linalg.norm(trajectory[:, :2, 3] - T[:2, 3], axis=1).min() > 6.0:
+            continue  # not beside the mapped stretch
+        assert np.linalg.norm(P[:, :2, 3] - T[:2, 3], axis=1).min() < 1.5
+        ranked = localizer.rank(localizer.describe(other.scan_at(k).points))
+        hits += np.linalg.norm(P[ranked[0][0], :2, 3] - T[:2, 3]) < 8.0
+    assert hits >= 3
+
+
 def test_global_pose_without_a_guess(localizer, world):
     _, _, drive, _ = world
     for k in (48, 73):  # not in the map
@@ -83,6 +112,23 @@ def test_global_pose_without_a_guess(localizer, world):
         assert res.valid and ok and res.mode == "global" and res.reason == "", (k, err, res.reason)
         assert res.candidates >= 1 and res.timings_ms["total"] > 0 and res.crop is not None and res.crop.shape[1] == 3
         assert 0 <= res.place < len(localizer.places)
+
+
+def test_sharp_pose_under_min_score(localizer, world):
+    """No answer reaches localization.min_score (raised to 0.99 here): the right pose is still accepted when it is
+    sharp (the scan points the map covers fit closely), and not with the sharp test off."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    scan, T_gt = drive.scan_at(48).points, drive.pose_at(48)
+    for sharp, want in ((0.9, True), (0.0, False)):
+        cfg = localizer.config.replace(**{"localization.min_score": 0.99, "localization.sharp_score": sharp})
+        loc = MapLocalizer(map_points, cfg, registration=localizer.registration, trajectory=trajectory)
+        res = loc.localize(scan)
+        assert res.valid == want, (sharp, res.score, res.reason)
+        if want:
+            ok, err = _ok(res.T_map_scan, T_gt)
+            assert ok and res.score < 0.99, (err, res.score)
 
 
 def test_tracking_from_a_guess(localizer, world):

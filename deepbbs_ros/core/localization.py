@@ -3,7 +3,9 @@
 ``MapLocalizer.localize`` reads top-down::
 
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
-                m, or (no trajectory) a grid of localization.grid_spacing over the map's free space
+                m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
+                (other lanes, the other way), or (no trajectory) a grid of localization.grid_spacing over the map's
+                free space
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
@@ -15,6 +17,9 @@
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
                 ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
+    sharp       when none reaches localization.min_score, the best is still accepted when it is sharp (of the scan
+                points within sharp_dist of the map, a share >= sharp_score within verdict_dist: the right pose
+                seen from another carriageway) and beats every other answer, accepted or not, by ambiguity_margin
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
@@ -248,9 +253,10 @@ class MapLocalizer:
         registration: the :class:`~deepbbs_ros.core.registration.DeepBBSRegistration` to use (built from
             ``config`` when None: the shipped model).
         trajectory: optional (K, 4, 4) ``T_map_sensor`` poses of the drive the map was built from: keyframes every
-            ``place_spacing`` m are the candidate places; without it the places are a ``grid_spacing`` grid over the
-            map's free space (cells with ground seen from close by and no obstacle up to ``sensor_height`` within
-            ``free_clearance``).
+            ``place_spacing`` m are the candidate places (``keyframes`` of them, first), with a ``place_band_step``
+            lattice up to ``place_band`` m to either side of the drive; without it the places are a ``grid_spacing``
+            grid over the map's free space (cells with ground seen from close by and no obstacle up to
+            ``sensor_height`` within ``free_clearance``).
 
     Everything per place is built here (``build_ms`` says how long, ``nbytes`` how much memory it holds): the height
     grid, the places, their descriptors. The crops' preprocessing is done when first needed and kept
@@ -280,6 +286,7 @@ class MapLocalizer:
             self._places = self._keyframe_places(trajectory)
         else:
             self._places = self._grid_places()
+            self.keyframes = 0
         if len(self._places) == 0:
             raise LocalizationError("map: no candidate place (no free space with ground under it; give the map's "
                                     "trajectory, or lower localization.free_clearance)")
@@ -322,7 +329,63 @@ class MapLocalizer:
                 last = xyz[k]
         out = np.repeat(np.eye(4)[None], len(keep), axis=0)
         out[:, :3, 3] = xyz[keep]
+        self.keyframes = len(out)  # the first places: the keyframes; then the lattice beside the drive
+        lc = self.config.localization
+        if lc.place_band <= 0:
+            return out
+        return np.concatenate([out, self._band_places(traj, out[:, :2, 3])])
+
+    def _band_places(self, traj: np.ndarray, taken: np.ndarray) -> np.ndarray:
+        """(B, 4, 4) places on a ``place_band_step`` m lattice along and across the drive, up to ``place_band`` m to
+        either side of it (the other lanes, the other direction), where the map has free ground; none within half a
+        step of another or of the places ``taken`` (K, 2). The Scan Context distance grows fast with the distance
+        from the place (a place 3.5 m off ranks far below look-alikes 100s of m away), hence the fine lattice."""
+        lc = self.config.localization
+        step = lc.place_band_step
+        xyz = traj[:, :3, 3]
+        keep, last = [0], xyz[0]
+        for k in range(1, len(xyz)):
+            if np.linalg.norm(xyz[k] - last) >= step:
+                keep.append(k)
+                last = xyz[k]
+        nxt = np.minimum(np.arange(len(xyz)) + 1, len(xyz) - 1)
+        prv = np.maximum(np.arange(len(xyz)) - 1, 0)
+        head = (xyz[nxt] - xyz[prv])[keep, :2]  # the direction of travel at the samples
+        norm = np.linalg.norm(head, axis=1, keepdims=True)
+        head = np.where(norm > 1e-6, head / np.maximum(norm, 1e-6), traj[keep][:, :2, 0])
+        side = np.stack([-head[:, 1], head[:, 0]], axis=1)  # left of the heading
+        n = int(np.floor(lc.place_band / step + 1e-9))
+        offsets = step * np.r_[np.arange(-n, 0), np.arange(0, n + 1)]
+        xy = (xyz[keep, None, :2] + offsets[None, :, None] * side[:, None]).reshape(-1, 2)
+        z_own = np.repeat(xyz[keep, 2] - self.grid.ground_at(xyz[keep, :2], np.nan), len(offsets))  # sensor height
+        ix, iy, inside = self.grid.index(xy)
+        ok = inside & self._free_space(lc.offset_clearance)[ix, iy]
+        xy, z_own = xy[ok], z_own[ok]
+        # one place per half-step cell, none next to a place taken already
+        key = np.floor(xy / (0.5 * step)).astype(np.int64)
+        _, first = np.unique(key, axis=0, return_index=True)
+        first = np.sort(first)
+        xy, z_own = xy[first], z_own[first]
+        if len(taken):
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(taken).query(xy)
+            xy, z_own = xy[d >= 0.5 * step], z_own[d >= 0.5 * step]
+        out = np.repeat(np.eye(4)[None], len(xy), axis=0)
+        out[:, :2, 3] = xy
+        g = self.grid.ground_at(xy, np.nan)
+        out[:, 2, 3] = np.where(np.isfinite(g) & np.isfinite(z_own), g + z_own, lc.sensor_height)  # as high as own
         return out
+
+    def _free_space(self, clearance_m: float) -> np.ndarray:
+        """(shape of the grid) bool: cells with ground and no obstacle (OBSTACLE_BAND) within ``clearance_m``."""
+        from scipy.ndimage import distance_transform_edt
+
+        lc, g = self.config.localization, self.grid
+        above = np.where(g.occupied, g.zmax - np.nan_to_num(g.ground, nan=np.inf), -np.inf)
+        obstacle = (above > OBSTACLE_BAND[0]) & (above < max(OBSTACLE_BAND[1], lc.sensor_height))
+        clearance = distance_transform_edt(~obstacle) * g.cell  # m to the nearest obstacle cell
+        return g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= clearance_m)
 
     def _grid_places(self) -> np.ndarray:
         """Places over free space, one per ``grid_spacing`` square block: of the block's cells with ground (nothing
@@ -396,7 +459,8 @@ class MapLocalizer:
         idx = np.arange(len(self._places)) if among is None else np.asarray(among, dtype=np.int64)
         if len(idx) == 0:
             return []
-        dist, shift = _match(self.descriptors[idx], desc)
+        skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
+        dist, shift = _match(self.descriptors[idx][:, skip:], desc[skip:])
         order = np.argsort(dist, kind="stable")
         chosen: list[tuple[int, float, float]] = []
         xy = self._places[:, :2, 3]
@@ -626,7 +690,11 @@ class MapLocalizer:
                                        best.crop.T_map_place @ reg.T_target_source, best.place, best.crop))
                 answers.sort(key=lambda a: -a.score)
             best = answers[0]
-        if not best.ok:
+        # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
+        # the other side) is accepted all the same, against every answer as a rival (not only the accepted ones)
+        sharp = (not best.ok and lc.sharp_score > 0 and best.score >= self.config.registration.verdict_threshold
+                 and self._sharpness(src, best) >= lc.sharp_score)
+        if not best.ok and not sharp:
             return LocalizationResult(best.T, False, best.score, "global",
                                       f"no candidate place passed the verdict (best score {best.score:.2f} < "
                                       f"{self._threshold:.2f}: scan outside the map?)", candidates=n,
@@ -636,7 +704,12 @@ class MapLocalizer:
         timings["probe"] = (time.perf_counter() - t) * 1e3
         pool = sorted(answers + probes, key=lambda a: -a.score)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
-        rivals = [a for a in pool[1:] if a.ok and a.score >= best.score - (
+        if sharp and self._sharpness(src, best) < lc.sharp_score:
+            return LocalizationResult(best.T, False, best.score, "global",
+                                      f"no candidate place passed the verdict (best score {best.score:.2f} < "
+                                      f"{self._threshold:.2f}, not sharp)", candidates=n, path="deepbbs",
+                                      place=best.place)
+        rivals = [a for a in pool[1:] if (a.ok or sharp) and a.score >= best.score - (
                       lc.ambiguity_probe_margin if a.probe else lc.ambiguity_margin)
                   and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
                       max(0.5, 0.5 * lc.ambiguity_probe) if a.probe else lc.ambiguity_distance)]
@@ -667,6 +740,23 @@ class MapLocalizer:
     def _accepts(self, valid: bool, score: float) -> bool:
         """The registration's verdict and the map's own bar (``localization.min_score``)."""
         return bool(valid) and np.isfinite(score) and score >= self.config.localization.min_score
+
+    def _sharpness(self, src: Any, ans: _Answer) -> float:
+        """Of the scan's verdict points within ``localization.sharp_dist`` of the answer's crop, the share within
+        ``registration.verdict_dist`` (0 when none or no crop cloud): a fit that is close wherever the map covers
+        the scan, whatever the share the map covers (another carriageway sees another side of the road)."""
+        tgt = ans.crop.pre.polish_cloud
+        if tgt is None or len(src.points) == 0:
+            return 0.0
+        if getattr(tgt, "pending", None) is not None:
+            tgt.complete(threads=self.registration.gicp_threads())
+        T = np.linalg.inv(ans.crop.T_map_place) @ ans.T
+        pts = np.asarray(src.points, np.float64) @ T[:3, :3].T + T[:3, 3]
+        _, sq = tgt.tree.batch_nearest_neighbor_search(pts, num_threads=1)
+        sq = np.asarray(sq, np.float64)
+        covered = int(np.sum(sq <= self.config.localization.sharp_dist ** 2))
+        close = int(np.sum(sq <= self.config.registration.verdict_dist ** 2))
+        return close / covered if covered else 0.0
 
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
