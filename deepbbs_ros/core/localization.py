@@ -543,9 +543,8 @@ class MapLocalizer:
         """
         t0 = time.perf_counter()
         pts = _as_cloud(scan, "scan")
-        finite = np.isfinite(pts).all(axis=1)
-        if not finite.all():  # a copy only when there is something to drop (the node's scans are finite already)
-            pts = pts[finite]
+        if not np.isfinite(pts).all():  # a copy only when there is something to drop (the node's scans are finite)
+            pts = pts[np.isfinite(pts).all(axis=1)]
         if len(pts) < MIN_SCAN_POINTS:
             raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
         try:
