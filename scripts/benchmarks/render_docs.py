@@ -517,10 +517,14 @@ def localization(doc: dict | None, d: Path) -> list[str]:
             by = (maps[k].get("scaling") or {}).get("by_map_length_m") or {}
             at = {round(int(L), -1): c for L, c in by.items()}
             rows.append([map_label(k), *("-" if at.get(c) is None else
-                                         f"{ms(1e3 * at[c]['time_s_p50'])} ({at[c]['map_points']})" for c in cols)])
+                                         f"{ms(1e3 * at[c]['time_s_p50'])} ({at[c]['map_points']}), placed "
+                                         f"{round(at[c]['placed_share'] * at[c]['queries'])} / {at[c]['queries']}, "
+                                         f"wrong {at[c].get('wrong_count', 0)}" for c in cols)])
         n = len(((maps[sims[0]].get("scaling") or {}).get("queries")) or [])
         out += [f"Time against the map's size: the first {n} queries of each map against maps of the first metres "
-                "of its drive (first pose p50 ms, the map's points in brackets):", ""] + table(sheader, rows)
+                "of its drive (first pose p50 ms, the map's points in brackets; queries placed and wrong poses "
+                "accepted):", ""]
+        out += table(sheader, rows)
     return out
 
 

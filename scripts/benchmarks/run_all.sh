@@ -71,7 +71,7 @@ machine node_latency_odometry
 step node_latency_pair $PY $B/node_latency.py --data kitti --kitti "${KITTI[@]}" --mode pair --stream both \
   --layout velodyne --runs 2 --seconds 10 --out "$OUT/node_latency_pair"
 machine node_latency_pair
-step node_latency_localization $PY $B/node_latency.py --mode localization --layout velodyne --scans 100 --runs 2 \
+step node_latency_localization $PY $B/node_latency.py --mode localization --layout velodyne --scans 200 --runs 2 \
   --seconds 10 --out "$OUT/node_latency_localization"
 machine node_latency_localization
 step localization $PY $B/localization.py --kitti "${KITTI[@]}" "${PAIR[@]}" --cache "$CACHE" --out "$OUT"
