@@ -40,7 +40,6 @@ origin at the place's sensor position; its crop is expressed in that frame.
 
 from __future__ import annotations
 
-import inspect
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterator
@@ -305,8 +304,6 @@ class MapLocalizer:
 
             registration = DeepBBSRegistration(cfg)
         self.registration = registration
-        self._good_start = _has_parameter(registration, "register", "good_start")  # register()'s GICP-first path
-        self._lazy = _has_parameter(registration, "preprocess", "lazy")
 
     @property
     def nbytes(self) -> int:
@@ -552,8 +549,8 @@ class MapLocalizer:
         if len(pts) < MIN_SCAN_POINTS:
             raise LocalizationError(f"scan: {len(pts)} finite points, at least {MIN_SCAN_POINTS} are needed")
         try:
-            kw = {"lazy": True} if self._lazy else {}  # the sampling waits for its first read (tracking: never)
-            src = self.registration.preprocess(pts, times, stamp_ns, motion, **kw)
+            # the sampling waits for its first read (tracking: never)
+            src = self.registration.preprocess(pts, times, stamp_ns, motion, lazy=True)
         except DeepBBSError as err:
             raise LocalizationError(f"scan: {err}") from err
         return PreparedScan(pts, src, (time.perf_counter() - t0) * 1e3)
@@ -565,9 +562,8 @@ class MapLocalizer:
             return None
         return float(g[3] / g[2])
 
-    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, good_start: bool = False) -> Any:
-        kw = {"good_start": True} if good_start and self._good_start else {}
-        return self.registration.register(src, crop.pre, T_init=T_place_scan, **kw)
+    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray) -> Any:
+        return self.registration.register(src, crop.pre, T_init=T_place_scan)
 
     def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
         lc = self.config.localization
@@ -801,24 +797,19 @@ class MapLocalizer:
         (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
         GICP did not apply, the score at the guess itself when it did not, else nan)."""
-        import dataclasses
-
         from deepbbs_ros.core import verdict
+        from deepbbs_ros.core.registration import good_start_gicp, good_start_points
 
         rc = self.config.registration
         if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
             return None, float("nan")
         th = self.registration.gicp_threads()
         spc, tpc = src.polish_cloud.complete(threads=th), crop.pre.polish_cloud.complete(threads=th)
-        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
-                                  polish_max_trans=rc.good_start_max_trans,
-                                  polish_max_rot_deg=rc.good_start_max_rot_deg)
-        pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
-        pol = polish(spc, tpc, T_place_scan, cfg)
+        pts = good_start_points(spc, rc)
+        pol = good_start_gicp(spc, tpc, T_place_scan, rc)  # as register()'s good start
         if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
             return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
         T = pol.T_target_source
-        T[:3, :3] = _orthonormal(T[:3, :3])  # as register()'s good start
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
         ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
         return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
@@ -874,21 +865,6 @@ def _search(registration: Any, mode: str) -> Iterator[None]:
         yield
     finally:
         rc.global_search = old
-
-
-def _orthonormal(R: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3) nearest R (SVD), as the registration's answers are."""
-    U, _, Vt = np.linalg.svd(R)
-    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
-    return U @ D @ Vt
-
-
-def _has_parameter(obj: Any, method: str, name: str) -> bool:
-    """``obj.method`` takes a parameter ``name`` (a feature test on the registration's API)."""
-    try:
-        return name in inspect.signature(getattr(obj, method)).parameters
-    except (AttributeError, TypeError, ValueError):
-        return False
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:

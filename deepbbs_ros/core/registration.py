@@ -340,17 +340,13 @@ class DeepBBSRegistration:
             return _GoodStart(src, tgt, reason="no precision-stage clouds (registration.polish none)")
         spc, tpc = src.polish_cloud.complete(self.gicp_threads()), tgt.polish_cloud.complete(self.gicp_threads())
         clock.lap("preprocess")
-        cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
-                                  polish_max_trans=rc.good_start_max_trans,
-                                  polish_max_rot_deg=rc.good_start_max_rot_deg)
-        pol = polish(spc, tpc, T0, cfg)  # GICP from the vouched start (iterations capped: a fallback stays cheap)
+        pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
         if not pol.applied:
             clock.lap("good_start")
             why = pol.reason.replace("polish_max_", "registration.good_start_max_")
             return _GoodStart(src, tgt, reason=f"GICP from the start: {why}")
         T = pol.T_target_source
-        T[:3, :3] = orthonormalize(T[:3, :3])
-        pts = verdict.spread_subset(spc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+        pts = good_start_points(spc, rc)
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)  # the stricter verdict (calibrated: voxels)
         clock.lap("good_start")
         if not verdict.is_valid(score, rc.good_start_threshold):
@@ -361,7 +357,7 @@ class DeepBBSRegistration:
         T, deskew, more = self._good_start_deskew(src, tgt, T)  # both scans deskewed (node.pair_deskew): again on them
         if more:
             clock.lap("deskew")
-        tgt_pts = verdict.spread_subset(tpc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+        tgt_pts = good_start_points(tpc, rc)
         timings = dict(clock.ms)
         timings["total"] = sum(timings.values())
         return _GoodStart(src, tgt, "accepted", RegistrationResult(
@@ -613,6 +609,24 @@ class DeepBBSRegistration:
             starts=int(st.starts),
             path="search" if st.starts > 1 else "deepbbs",
         )
+
+
+def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
+    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``
+    in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation orthonormalised when applied
+    (``register(..., good_start=True)`` and the localization's tracking)."""
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
+                              polish_max_rot_deg=rc.good_start_max_rot_deg)
+    pol = polish(src_pc, tgt_pc, T_init, cfg)
+    if pol.applied:
+        pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
+    return pol
+
+
+def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
+    """The points the good start's stricter verdict scores: a spread, order-independent subset of the cloud's GICP
+    voxels (``registration.good_start_points``; :func:`core.verdict.spread_subset`)."""
+    return verdict.spread_subset(pc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
 
 
 @dataclass

@@ -39,6 +39,22 @@ def split_passthrough(argv: list[str]) -> tuple[list[str], list[str]]:
     return argv[:k], argv[k + 1:]
 
 
+def read_reference_pair(folder: str | Path) -> tuple:
+    """A real reference pair (``--pair``): two ``.pcd`` files (target, source in name order) and ``relative.txt``
+    (their reference ``T_target_source``, 4x4) -> (target (N, 3) float32, source (M, 3) float32, T (4, 4))."""
+    import numpy as np
+
+    from deepbbs_ros.datasets.pcd import read_pcd_points
+
+    folder = Path(folder)
+    pcds = sorted(folder.glob("*.pcd"))
+    if len(pcds) != 2 or not (folder / "relative.txt").is_file():
+        raise SystemExit(f"--pair {folder}: expected two .pcd files (target, source in name order) and "
+                         "relative.txt (T_target_source)")
+    T = np.loadtxt(folder / "relative.txt").reshape(4, 4)
+    return (read_pcd_points(pcds[0])[0].astype(np.float32), read_pcd_points(pcds[1])[0].astype(np.float32), T)
+
+
 def cpu_model() -> str:
     """The CPU's model name (/proc/cpuinfo on Linux, else platform.processor()); "" when unknown."""
     try:

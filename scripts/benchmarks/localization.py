@@ -255,7 +255,6 @@ def real_map(args) -> MapData | None:
     pair's target, each place moved ``--spacing`` m from the last with a random yaw; odd scans and the pair's
     source as queries."""
     from deepbbs_ros.datasets import open_source
-    from deepbbs_ros.datasets.pcd import read_pcd_points
 
     places = []  # (name, [(points, T_place_scan, is_map)])
     for folder in args.kitti:
@@ -266,13 +265,8 @@ def real_map(args) -> MapData | None:
             scans.append((np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar, np.float64), i % 2 == 0))
         places.append((f"kitti_{Path(folder).name}", scans))
     if args.pair:
-        pcds = sorted(Path(args.pair).glob("*.pcd"))
-        if len(pcds) != 2 or not (Path(args.pair) / "relative.txt").is_file():
-            raise SystemExit(f"--pair {args.pair}: expected two .pcd files (target, source in name order) and "
-                             "relative.txt (T_target_source)")
-        T = np.loadtxt(Path(args.pair) / "relative.txt").reshape(4, 4)
-        places.append(("pair", [(read_pcd_points(pcds[0])[0].astype(np.float32), np.eye(4), True),
-                                (read_pcd_points(pcds[1])[0].astype(np.float32), T, False)]))
+        target, source, T = _common.read_reference_pair(args.pair)
+        places.append(("pair", [(target, np.eye(4), True), (source, T, False)]))
     if not places:
         return None
     rng = np.random.default_rng(args.seed)

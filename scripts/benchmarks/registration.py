@@ -58,7 +58,6 @@ def yaw_shift(yaw_deg: float, dx: float, dy: float) -> np.ndarray:
 def frame_sets(args) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
     """name -> [(raw points (N, 3) float32, T_world_lidar)]: one place per set."""
     from deepbbs_ros.datasets import open_source
-    from deepbbs_ros.datasets.pcd import read_pcd_points
 
     sets: dict[str, list] = {}
     for folder in args.kitti:
@@ -66,13 +65,8 @@ def frame_sets(args) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
         sets[f"kitti_{Path(folder).name}"] = [(np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar))
                                               for s in scans]
     if args.pair:
-        pcds = sorted(Path(args.pair).glob("*.pcd"))
-        if len(pcds) != 2 or not (Path(args.pair) / "relative.txt").is_file():
-            raise SystemExit(f"--pair {args.pair}: expected two .pcd files (target, source in name order) and "
-                             "relative.txt (T_target_source)")
-        T = np.loadtxt(Path(args.pair) / "relative.txt").reshape(4, 4)
-        sets["pair"] = [(read_pcd_points(pcds[0])[0].astype(np.float32), np.eye(4)),
-                        (read_pcd_points(pcds[1])[0].astype(np.float32), T)]
+        target, source, T = _common.read_reference_pair(args.pair)
+        sets["pair"] = [(target, np.eye(4)), (source, T)]
     sets.update(sim_sets(args))
     return sets
 
