@@ -478,6 +478,13 @@ class LocalizationConfig:
     # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
     # pose with a slightly worse optimum nearby scores a few hundredths less)
     ambiguity_probe_margin: float = 0.03
+    # m; the chosen pose is also probed from starts this far to either side of its heading (the next lane: GICP from a
+    # place a lane off can settle in the wrong lane with a passing score; the right lane then wins); 0 = none
+    lane_probe: float = 3.5
+    # a rival answer at another place ties only when it is also about as sharp (localization.sharp_score's measure):
+    # at most this much less sharp than the chosen pose (right poses measured 0.87-0.97, look-alike places on a
+    # highway up to 0.87 with their score within ambiguity_margin of the right pose's); 1 = score alone
+    ambiguity_sharp_margin: float = 0.04
     # m; the accepted pose is refined by a second GICP on the same clouds with this correspondence distance (the
     # registration's 2 m leaves 0.2-0.6 m along a road with few features: the far pairs pull); 0 = off
     refine_corr_dist: float = 0.5
@@ -523,6 +530,8 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
+        _check(self.lane_probe >= 0, "localization.lane_probe", "must be >= 0 (0 = no lane probe)")
+        _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
         _check(0 <= self.track_drop <= 1, "localization.track_drop", "must be in [0, 1]")

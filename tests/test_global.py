@@ -180,6 +180,14 @@ def test_any_start_and_the_verdict(scans, registrations):
     assert not local.valid and local.score < res.score
     lost = registrations["auto"].register(elsewhere, tgt)  # another place: a pose, but not a valid one
     assert not lost.valid and lost.starts == 4 + 17  # the yaw starts, then the turned and shifted ones: none valid
+    # the search switched off for one call (callers sharing a registration on several threads): the configuration
+    # is not touched, and the next call searches again
+    once = registrations["auto"].register(moved, tgt, yaw_search=False)
+    assert once.starts == 1 and not once.valid
+    assert np.allclose(once.T_target_source, local.T_target_source, atol=1e-4)  # as with global_search "off"
+    assert registrations["auto"].config.registration.global_search == "auto"
+    again = registrations["auto"].register(moved, tgt)
+    assert again.valid and again.starts == 4
 
 
 def test_odometry_recovers_a_kidnapped_sensor():

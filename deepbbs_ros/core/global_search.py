@@ -136,7 +136,8 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
     computed once), the start with the best fitness finished with the remaining passes on all the points; it
     replaces the answer when it fits better (with ``full``, a second ranking after the answer failed: always)."""
     rc, scale = reg.config.registration, reg.model.scale
-    if rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
+    if (rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep
+            or not rc.deep):
         return
     rank_dist = 2.0 * rc.verdict_dist
     T_deep = matrix(st.R, st.t, scale)
@@ -181,7 +182,8 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
     verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
-    if st.valid or rc.global_search == "off" or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep:
+    if (st.valid or rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep
+            or not rc.deep):
         return st
 
     def tensors(out: Any) -> tuple:

@@ -13,10 +13,12 @@
                 is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
                 localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
-                descriptor's yaw, GICP alone from there when that fails; the verdict (valid / score) chooses
+                descriptor's yaw, GICP alone from there when that fails (accepted only when sharp, below); the
+                verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
-                ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
-                ambiguity_probe m off: a pose that slides (a featureless road) is ambiguous too
+                ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
+                is also probed by GICP from starts ambiguity_probe m off and lane_probe m to either side: a pose that
+                slides (a featureless road) is ambiguous too, a better optimum nearby (the next lane) replaces it
     sharp       when none reaches localization.min_score, the best is still accepted when it is sharp (of the scan
                 points within sharp_dist of the map, a share >= sharp_score within verdict_dist: the right pose
                 seen from another carriageway) and beats every other answer, accepted or not, by ambiguity_margin
@@ -42,8 +44,6 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict, deque
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -562,8 +562,9 @@ class MapLocalizer:
             return None
         return float(g[3] / g[2])
 
-    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray) -> Any:
-        return self.registration.register(src, crop.pre, T_init=T_place_scan)
+    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, yaw_search: bool = True) -> Any:
+        """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only."""
+        return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search)
 
     def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
         lc = self.config.localization
@@ -604,8 +605,9 @@ class MapLocalizer:
                                       f"rejected from the guess: score {score:.2f} far below the recent "
                                       f"{recent:.2f} (no local search)", candidates=1, path=path, place=near)
         t = time.perf_counter()
-        with _search(self.registration, "off"):  # a rejection goes to the local search below, not other yaws
-            reg = self._register(src, crop, T_guess)  # DeepBBS++ from the guess (its GICP-first path was ours)
+        # DeepBBS++ from the guess (its GICP-first path was ours); a rejection goes to the local search below, not to
+        # other yaws
+        reg = self._register(src, crop, T_guess, yaw_search=False)
         timings["register"] = (time.perf_counter() - t) * 1e3
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
@@ -656,16 +658,21 @@ class MapLocalizer:
                 if np.isfinite(g):
                     T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
             t = time.perf_counter()
-            with _search(self.registration, lc.candidate_search):
-                reg = self._register(src, crop, T_init)
+            reg = self._register(src, crop, T_init, yaw_search=lc.candidate_search != "off")
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
                           crop.T_map_place @ reg.T_target_source, place, crop)
-            if not ans.ok:  # the network's pass went astray: GICP alone from the descriptor's start (good to ~2 m)
+            if not ans.ok or ans.score < lc.confident_score:
+                # the network's pass went astray (or settled on a poor optimum: a lane off): GICP alone from the
+                # descriptor's start (good to ~2 m), the better of the two kept
                 t = time.perf_counter()
                 alt = self._gicp(src, crop, T_init, place)
+                if alt is not None and alt.ok and self._sharpness(src, alt) < lc.sharp_score:
+                    # GICP alone from a rough start settles on look-alike stretches with a passing score (a highway
+                    # 27 m along, 0.65): without the network's agreement, only a sharp fit counts
+                    alt.ok = False
                 timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
-                if alt is not None and alt.score > ans.score:
+                if alt is not None and alt.score > ans.score and (alt.ok or not ans.ok):
                     ans = alt
             answers.append(ans)
             if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
@@ -694,10 +701,11 @@ class MapLocalizer:
         sharp = (not best.ok and lc.sharp_score > 0 and best.score >= self.config.registration.verdict_threshold
                  and self._sharpness(src, best) >= lc.sharp_score)
         if not best.ok and not sharp:
-            return LocalizationResult(best.T, False, best.score, "global",
-                                      f"no candidate place passed the verdict (best score {best.score:.2f} < "
-                                      f"{self._threshold:.2f}: scan outside the map?)", candidates=n,
-                                      path="deepbbs", place=best.place)
+            why = (f"best score {best.score:.2f} < {self._threshold:.2f}: scan outside the map?"
+                   if best.score < self._threshold or not best.gicp else
+                   f"best score {best.score:.2f} by GICP alone, not sharp: a look-alike stretch?")
+            return LocalizationResult(best.T, False, best.score, "global", f"no candidate place passed the verdict "
+                                      f"({why})", candidates=n, path="deepbbs", place=best.place)
         t = time.perf_counter()
         probes = self._probe(src, best)
         timings["probe"] = (time.perf_counter() - t) * 1e3
@@ -712,6 +720,11 @@ class MapLocalizer:
                       lc.ambiguity_probe_margin if a.probe else lc.ambiguity_margin)
                   and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
                       max(0.5, 0.5 * lc.ambiguity_probe) if a.probe else lc.ambiguity_distance)]
+        if lc.ambiguity_sharp_margin < 1 and any(not a.probe for a in rivals):
+            # another place ties only when it fits about as closely where the map covers the scan: a look-alike
+            # stretch of a highway scores near the right pose but fits looser
+            bar = self._sharpness(src, best) - lc.ambiguity_sharp_margin
+            rivals = [a for a in rivals if a.probe or self._sharpness(src, a) >= bar]
         alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
                         and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
         if rivals:
@@ -788,7 +801,7 @@ class MapLocalizer:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
         return _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
-                       crop.T_map_place @ pol.T_target_source, place, crop)
+                       crop.T_map_place @ pol.T_target_source, place, crop, gicp=True)
 
     def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
                     place: int) -> tuple[_Answer | None, float]:
@@ -815,9 +828,10 @@ class MapLocalizer:
         return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
 
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
-        """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map:
-        -> their answers (a pose pinned down brings each back; on a featureless stretch they stay off with as good a
-        score; a better score is a better optimum nearby)."""
+        """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map
+        and ``lane_probe`` m to either side of its heading: -> their answers (a pose pinned down brings each back; on
+        a featureless stretch they stay off with as good a score; a better score is a better optimum nearby: the
+        next lane)."""
         from deepbbs_ros.core import verdict
 
         lc, rc = self.config.localization, self.config.registration
@@ -829,10 +843,14 @@ class MapLocalizer:
             if getattr(pc, "pending", None) is not None:
                 pc.complete(threads=self.registration.gicp_threads())
         T = np.linalg.inv(crop.T_map_place) @ best.T
+        starts = [np.array([dx, dy], np.float64) * lc.ambiguity_probe for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+        head = T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)  # the sensor's heading, horizontal
+        if lc.lane_probe > 0:  # the lanes either side of the heading
+            starts += [side * lc.lane_probe * np.array([-head[1], head[0]]) for side in (1.0, -1.0)]
         out = []
-        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        for off in starts:
             S = T.copy()
-            S[:2, 3] += (dx * lc.ambiguity_probe, dy * lc.ambiguity_probe)
+            S[:2, 3] += off
             pol = polish(src_pc, tgt_pc, S, rc)
             if not pol.applied:
                 continue
@@ -851,20 +869,7 @@ class _Answer:
     place: int
     crop: _Crop
     probe: bool = False  # from the GICP probe around the best answer
-
-
-@contextmanager
-def _search(registration: Any, mode: str) -> Iterator[None]:
-    """``registration.global_search`` "off" on ``registration`` for the block when ``mode`` is "off" (restored)."""
-    rc = getattr(getattr(registration, "config", None), "registration", None)
-    if mode != "off" or rc is None or rc.global_search == "off":
-        yield
-        return
-    old, rc.global_search = rc.global_search, "off"
-    try:
-        yield
-    finally:
-        rc.global_search = old
+    gicp: bool = False  # from GICP alone (the network's answer failed or scored low)
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:

@@ -267,6 +267,7 @@ class DeepBBSRegistration:
         T_init: np.ndarray | None = None,
         preprocessed: bool = False,
         good_start: bool = False,
+        yaw_search: bool = True,
     ) -> RegistrationResult:
         """Estimate ``T_target_source`` (4, 4) float64 moving ``source`` onto ``target``.
 
@@ -287,6 +288,9 @@ class DeepBBSRegistration:
                 rejects, GICP does not converge within ``good_start_max_iters`` or moves the start implausibly far,
                 the full pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
                 ``preprocessed`` arrays, which have no precision-stage clouds) it is the full pipeline.
+            yaw_search: False: no other start yaws for this call (``registration.global_search`` as "off"), the
+                given start only; per call, so that callers sharing one registration on several threads do not
+                change its configuration.
 
         Raises:
             RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
@@ -302,6 +306,7 @@ class DeepBBSRegistration:
             self.runner.process()  # the first call on a CPU: the network process starts (not counted in "total")
             clock.lap("startup")
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
+        st.yaw_search = yaw_search
         clock.lap("preprocess")
         with torch.inference_mode(), self.network.torch_threads(), _answer_read(st):
             self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)
@@ -419,7 +424,7 @@ class DeepBBSRegistration:
         if not self.network.n_deep:
             return
         others = None
-        if self.runner.process() is not None:
+        if self.runner.process() is not None and st.yaw_search:
             others = global_search.speculative_starts(self.config.registration, st.T_start, self._searched)
             if others is not None:  # the network process's share; this process runs the rest once it is needed
                 others = others[: worker_share(len(others))]
@@ -676,6 +681,7 @@ class _State:
     pending: Any = None  # a network_process.Pending while the network process works
     spec: Any = None  # the same, for its speculative passes from the global search's other starts
     spec_n: int = 0  # how many of those starts it was given (the first ones)
+    yaw_search: bool = True  # register(yaw_search=False): the global search does not run for this call
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 

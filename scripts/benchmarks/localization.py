@@ -51,7 +51,7 @@ import _common  # noqa: E402  (puts the checkout first on sys.path)
 
 import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
 
-GEN_VERSION = 2  # bumped whenever the generated maps / queries change (cache key)
+GEN_VERSION = 3  # bumped whenever the generated maps / queries change (cache key)
 ROT_OK_DEG, TRANS_OK_M = 1.0, 0.3
 METHODS = ("maplocalizer", "kiss-matcher+gicp", "fpfh-ransac+gicp")
 LABELS = {"maplocalizer": "MapLocalizer (DeepBBS++)", "kiss-matcher+gicp": "KISS-Matcher + GICP (scan to map)",
@@ -224,8 +224,13 @@ def sim_map(scene: str, seed: int, args, log=print, lidar=None) -> MapData:
     straight = _straight_stretches(sim.world, lo, hi)
     label = {"highway": "straight highway", "suburban": "suburban street (row of houses)"}.get(scene, "")
     if label and args.repetitive > 0 and len(straight):
-        picks = np.unique(np.round(np.linspace(0, len(straight) - 1, args.repetitive)).astype(int))
-        targets += [(float(straight[i]), kinds[j % len(kinds)], label) for j, i in enumerate(picks)]
+        # spread inside the straight stretches (not at their ends, where an evenly spread query may be already), and
+        # none where a query of the same kind is already (the same scan twice would count twice)
+        picks = np.unique(np.round(np.linspace(0, len(straight) - 1, args.repetitive + 2)[1:-1]).astype(int))
+        for j, i in enumerate(picks):
+            s, kind = float(straight[i]), kinds[j % len(kinds)]
+            if all(k != kind or abs(s - t) >= 5.0 for t, k, _ in targets):
+                targets.append((s, kind, label))
     queries = []
     for s, kind, rep in targets:
         d = drives[kind]
