@@ -22,7 +22,7 @@ from deepbbs_ros.sim import LidarConfig  # noqa: E402
 def tiny_args(tmp_path, **kw) -> SimpleNamespace:
     a = dict(map_length=80.0, map_step=4.0, map_range=30.0, map_voxel=0.5, prefixes=[40.0], queries=6, repetitive=2,
              cache=str(tmp_path), baseline_every=2, baseline_timeout=5.0, scaling_queries=2, km_voxel=0.5,
-             fpfh_voxel=1.0, grid_places=False)
+             fpfh_voxel=1.0, grid_places=False, boot_scans=1, boot_step=1.0)
     a.update(kw)
     return SimpleNamespace(**a)
 
@@ -53,6 +53,15 @@ def test_map_and_queries_agree_with_the_truth(tiny):
     again = bench.sim_map("suburban", 5, args, log=lambda *_: None, lidar=lid)  # from the cache
     assert np.array_equal(again.points, data.points) and len(again.queries) == len(data.queries)
     assert all(np.array_equal(a.T_map_scan, b.T_map_scan) for a, b in zip(again.queries, data.queries))
+    # the boot protocol's next scan: the same drive a second later, on the map too
+    assert any(q.follow for q in data.queries)
+    for q, a in zip(data.queries, again.queries):
+        assert len(q.follow) == len(a.follow) <= 1
+        for (dt, pts, T), (_, pts2, T2) in zip(q.follow, a.follow):
+            assert dt == 1.0 and np.array_equal(pts, pts2) and np.array_equal(T, T2)
+            assert np.linalg.norm(T[:3, 3] - q.T_map_scan[:3, 3]) > 1.0  # it moved on
+            d, _ = tree.query(bench.transform(pts, T))
+            assert np.median(d) < 0.35
 
 
 def test_bookkeeping_with_known_answers(tiny):
@@ -67,6 +76,7 @@ def test_bookkeeping_with_known_answers(tiny):
         def __init__(self, points, trajectory):
             self.k = 0
             self.by_id = {id(q.points): q for q in data.queries}
+            self.by_id.update({id(f[1]): SimpleNamespace(T_map_scan=f[2]) for q in data.queries for f in q.follow})
 
         def __call__(self, scan):
             q, self.k = self.by_id[id(scan)], self.k + 1
@@ -96,6 +106,20 @@ def test_bookkeeping_with_known_answers(tiny):
     assert sc["40"]["map_points"] < sc[list(sc)[-1]]["map_points"]
     pooled = bench.aggregate({"suburban": fig}, ["maplocalizer"])
     assert pooled["maplocalizer"]["sim"]["wrong_count"] == 1
+    # the boot protocol: the two refused queries go on with their next scan (the truth now, 1 s after the query, once
+    # the search before it has ended); the wrong pose stands, published
+    boot = fig["boot_rows"]["maplocalizer"]
+    refused = [r for r in fig["rows"]["maplocalizer"] if r["outcome"] == "none"]
+    for r in refused:
+        b = next(x for x in boot if x["query"] == r["query"])
+        if data.queries[r["query"]].follow:
+            assert b["outcome"] == "placed" and b["scans"] == 2
+            assert b["time_s"] == pytest.approx(max(1.0, r["time_s"]) + 0.05)
+        else:
+            assert b["outcome"] == "none" and b["scans"] == 1
+    booted = sum(bool(data.queries[r["query"]].follow) for r in refused)
+    assert s["boot"]["wrong_count"] == 1 and s["boot"]["placed_share"] == pytest.approx((n - 3 + booted) / n)
+    assert pooled["maplocalizer"]["sim_boot"]["placed_share"] == s["boot"]["placed_share"]
 
 
 def test_a_baseline_that_hangs_times_out(tiny):

@@ -453,6 +453,11 @@ def loc_row(label: str, c: dict | None, notes: Notes, with_goal: bool) -> list[s
     return row + [loc_goal(c)] if with_goal else row + [ms(1e3 * c["build_s"]) if c.get("build_s") else "-"]
 
 
+BOOT_INTRO = ("From boot, the node's case: a query that gets no pose goes on with its drive's next scans (one "
+              "every {step:g} s, up to {n}), each searched once it has arrived and the search before it has ended; "
+              "the first pose published counts, its time from the query scan's arrival:")
+
+
 def localization(doc: dict | None, d: Path) -> list[str]:
     out = plots("localization", d) + command(doc)
     header = ["map", "placed (queries)", "wrong accepted", "no pose", "first pose p50 / p95 ms", "goal"]
@@ -464,6 +469,7 @@ def localization(doc: dict | None, d: Path) -> list[str]:
     if fig is None:
         maps = ["simulated urban", "simulated suburban", "simulated highway", "simulated open road", "real (pooled)"]
         return (out + ["DeepBBS++ (MapLocalizer), every query:", ""] + not_run_table(header, maps) + [""]
+                + [BOOT_INTRO.format(step=1.0, n=2), ""] + not_run_table(header, maps[:4]) + [""]
                 + ["Beside the baselines, on the same queries (every third):", ""]
                 + not_run_table(bheader, [f"{m}, {v}" for m in maps[:1] for v in LOC_LABELS.values()]) + [""]
                 + ["MapLocalizer by kind of query:", ""] + not_run_table(kheader, [*LOC_KINDS.values(),
@@ -478,6 +484,16 @@ def localization(doc: dict | None, d: Path) -> list[str]:
     if ml.get("all") and "real" in maps:
         rows.append(loc_row("all maps", ml["all"], notes, True))
     out += ["DeepBBS++ (MapLocalizer), every query:", ""] + table(header, rows) + notes.lines() + [""]
+    notes = Notes()
+    rows = [loc_row(map_label(k), ((m.get("methods") or {}).get("maplocalizer") or {}).get("boot"), notes, True)
+            for k, m in maps.items() if k != "real"]
+    if ml.get("sim_boot"):
+        rows.append(loc_row("all simulated maps", ml["sim_boot"], notes, True))
+    if any(r[1] != NOT_RUN for r in rows):
+        step = (fig.get("settings") or {}).get("boot_step", 1.0)
+        n = (fig.get("settings") or {}).get("boot_scans", 2)
+        out += [BOOT_INTRO.format(step=step, n=n), ""] + table(header, rows)
+        out += notes.lines() + [""]
     every = (fig.get("settings") or {}).get("baseline_every")
     nth = {1: "every query", 2: "every second query", 3: "every third query"}.get(every, f"every {every}th query")
     notes = Notes()
