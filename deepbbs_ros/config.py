@@ -463,6 +463,9 @@ class LocalizationConfig:
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
+    # the best this many candidates are registered from the opposite yaw too when the descriptor's yaw fails there (a
+    # street looks alike both ways: a drive the other way matched a place 180 deg off); 0 = never
+    flip_starts: int = 4
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
     crop_cache: int = 16  # crops whose preprocessing is kept (least recently used dropped; 6-13 MB each)
@@ -530,6 +533,7 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
+        _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
         _check(self.lane_probe >= 0, "localization.lane_probe", "must be >= 0 (0 = no lane probe)")
         _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")

@@ -13,8 +13,8 @@
                 is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
                 localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
-                descriptor's yaw, GICP alone from there when that fails (accepted only when sharp, below); the
-                verdict (valid / score) chooses
+                descriptor's yaw, GICP alone from there when that fails (accepted only when sharp, below), then
+                DeepBBS++ from the opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and lane_probe m to either side: a pose that
@@ -646,7 +646,7 @@ class MapLocalizer:
         h_scan = self._sensor_height(src)
         answers: list[_Answer] = []
         accepted_dist = None  # descriptor distance of the first accepted candidate
-        for place, dist, yaw in ranked:
+        for rank_i, (place, dist, yaw) in enumerate(ranked):
             if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
                 break  # the rest look less alike than the margin: not a rival
             t = time.perf_counter()
@@ -674,6 +674,16 @@ class MapLocalizer:
                 timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
                 if alt is not None and alt.score > ans.score and (alt.ok or not ans.ok):
                     ans = alt
+            if not ans.ok and rank_i < lc.flip_starts:  # a street looks alike both ways: the opposite yaw too
+                T_flip = T_init.copy()
+                T_flip[:3, :3] = _rz(yaw + np.pi)[:3, :3]
+                t = time.perf_counter()
+                reg = self._register(src, crop, T_flip, yaw_search=lc.candidate_search != "off")
+                timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
+                flip = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
+                               crop.T_map_place @ reg.T_target_source, place, crop)
+                if flip.score > ans.score:
+                    ans = flip
             answers.append(ans)
             if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
