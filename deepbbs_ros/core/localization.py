@@ -566,6 +566,15 @@ class MapLocalizer:
         """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only."""
         return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search)
 
+    def _deep(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int, timings: dict[str, float],
+              yaw_search: bool = True) -> _Answer:
+        """:meth:`_register` as a global search's answer (map frame, the map's bar), timed into ``register``."""
+        t = time.perf_counter()
+        reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search)
+        timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
+        return _Answer(float(reg.score), self._accepts(reg.valid, reg.score), crop.T_map_place @ reg.T_target_source,
+                       place, crop)
+
     def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
         lc = self.config.localization
         t = time.perf_counter()
@@ -657,31 +666,19 @@ class MapLocalizer:
                 g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
                 if np.isfinite(g):
                     T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
-            t = time.perf_counter()
-            reg = self._register(src, crop, T_init, yaw_search=lc.candidate_search != "off")
-            timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-            ans = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
-                          crop.T_map_place @ reg.T_target_source, place, crop)
+            ans = self._deep(src, crop, T_init, place, timings, yaw_search=lc.candidate_search != "off")
             if not ans.ok or ans.score < lc.confident_score:
                 # the network's pass went astray (or settled on a poor optimum: a lane off): GICP alone from the
                 # descriptor's start (good to ~2 m), the better of the two kept
                 t = time.perf_counter()
                 alt = self._gicp(src, crop, T_init, place)
-                if alt is not None and alt.ok and self._sharpness(src, alt) < lc.sharp_score:
-                    # GICP alone from a rough start settles on look-alike stretches with a passing score (a highway
-                    # 27 m along, 0.65): without the network's agreement, only a sharp fit counts
-                    alt.ok = False
                 timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
                 if alt is not None and alt.score > ans.score and (alt.ok or not ans.ok):
                     ans = alt
             if not ans.ok and rank_i < lc.flip_starts:  # a street looks alike both ways: the opposite yaw too
                 T_flip = T_init.copy()
                 T_flip[:3, :3] = _rz(yaw + np.pi)[:3, :3]
-                t = time.perf_counter()
-                reg = self._register(src, crop, T_flip, yaw_search=lc.candidate_search != "off")
-                timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-                flip = _Answer(float(reg.score), self._accepts(reg.valid, reg.score),
-                               crop.T_map_place @ reg.T_target_source, place, crop)
+                flip = self._deep(src, crop, T_flip, place, timings, yaw_search=lc.candidate_search != "off")
                 if flip.score > ans.score:
                     ans = flip
             answers.append(ans)
@@ -698,12 +695,8 @@ class MapLocalizer:
         if not best.ok:
             if (lc.candidate_search == "off" and self._searchable
                     and best.score >= self.config.registration.verdict_threshold):
-                t = time.perf_counter()
                 T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
-                reg = self._register(src, best.crop, T_init)
-                timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-                answers.append(_Answer(float(reg.score), self._accepts(reg.valid, reg.score),
-                                       best.crop.T_map_place @ reg.T_target_source, best.place, best.crop))
+                answers.append(self._deep(src, best.crop, T_init, best.place, timings))
                 answers.sort(key=lambda a: -a.score)
             best = answers[0]
         # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
@@ -766,7 +759,13 @@ class MapLocalizer:
     def _sharpness(self, src: Any, ans: _Answer) -> float:
         """Of the scan's verdict points within ``localization.sharp_dist`` of the answer's crop, the share within
         ``registration.verdict_dist`` (0 when none or no crop cloud): a fit that is close wherever the map covers
-        the scan, whatever the share the map covers (another carriageway sees another side of the road)."""
+        the scan, whatever the share the map covers (another carriageway sees another side of the road). Measured once
+        per answer (kept in ``ans.sharp``)."""
+        if ans.sharp is None:
+            ans.sharp = self._measure_sharpness(src, ans)
+        return ans.sharp
+
+    def _measure_sharpness(self, src: Any, ans: _Answer) -> float:
         tgt = ans.crop.pre.polish_cloud
         if tgt is None or len(src.points) == 0:
             return 0.0
@@ -797,7 +796,9 @@ class MapLocalizer:
         return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
 
     def _gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int) -> _Answer | None:
-        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score."""
+        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score;
+        accepted only when also sharp (``sharp_score``): GICP alone from a rough start settles on look-alike stretches
+        with a passing score (a highway 27 m along, 0.65), without the network's agreement only a sharp fit counts."""
         from deepbbs_ros.core import verdict
 
         rc = self.config.registration
@@ -810,8 +811,10 @@ class MapLocalizer:
         if not pol.applied:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
-        return _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
-                       crop.T_map_place @ pol.T_target_source, place, crop, gicp=True)
+        ans = _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
+                      crop.T_map_place @ pol.T_target_source, place, crop, gicp=True)
+        ans.ok = ans.ok and self._sharpness(src, ans) >= self.config.localization.sharp_score
+        return ans
 
     def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
                     place: int) -> tuple[_Answer | None, float]:
@@ -880,6 +883,7 @@ class _Answer:
     crop: _Crop
     probe: bool = False  # from the GICP probe around the best answer
     gicp: bool = False  # from GICP alone (the network's answer failed or scored low)
+    sharp: float | None = None  # MapLocalizer._sharpness, once measured
 
 
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:

@@ -138,8 +138,8 @@ def _load(path: Path, name: str) -> MapData:
     queries = [Query(z["q_points"][offs[i]:offs[i + 1]], z["q_T"][i], str(z["q_place"][i]), str(z["q_kind"][i]),
                      float(z["q_s"][i]), str(z["q_rep"][i])) for i in range(len(z["q_sizes"]))]
     prefixes = {int(L): (z[f"prefix_{L}_points"], z[f"prefix_{L}_trajectory"]) for L in z["prefix_lengths"]}
-    foffs = np.concatenate([[0], np.cumsum(z.get("f_sizes", np.zeros(0, np.int64)))])
-    for j, i in enumerate(z.get("f_of", ())):
+    foffs = np.concatenate([[0], np.cumsum(z["f_sizes"])])
+    for j, i in enumerate(z["f_of"]):
         queries[int(i)].follow.append((float(z["f_dt"][j]), z["f_points"][foffs[j]:foffs[j + 1]], z["f_T"][j]))
     return MapData(name, z["points"], z["trajectory"], queries, prefixes, float(z["length_m"]))
 
