@@ -463,8 +463,9 @@ class LocalizationConfig:
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
-    # the best this many candidates are registered from the opposite yaw too when the descriptor's yaw fails there (a
-    # street looks alike both ways: a drive the other way matched a place 180 deg off); 0 = never
+    # when no candidate is accepted, the best this many are registered again from the opposite yaw where the
+    # descriptor's yaw failed (a street looks alike both ways: a drive the other way matched a place 180 deg off);
+    # 0 = never
     flip_starts: int = 4
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
@@ -481,9 +482,10 @@ class LocalizationConfig:
     # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
     # pose with a slightly worse optimum nearby scores a few hundredths less)
     ambiguity_probe_margin: float = 0.03
-    # m; the chosen pose is also probed from starts this far to either side of its heading (the next lane: GICP from a
-    # place a lane off can settle in the wrong lane with a passing score; the right lane then wins); 0 = none
-    lane_probe: float = 3.5
+    # m; the chosen pose is also probed from starts this far ahead, behind and to either side of its heading (GICP from
+    # a place a lane off, or a facade's repeat along the street, can settle there with a passing score; the right
+    # pose then wins); 0 = none
+    far_probe: float = 3.5
     # a rival answer at another place ties only when it is also about as sharp (localization.sharp_score's measure):
     # at most this much less sharp than the chosen pose (right poses measured 0.87-0.97, look-alike places on a
     # highway up to 0.87 with their score within ambiguity_margin of the right pose's); 1 = score alone
@@ -534,7 +536,7 @@ class LocalizationConfig:
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
-        _check(self.lane_probe >= 0, "localization.lane_probe", "must be >= 0 (0 = no lane probe)")
+        _check(self.far_probe >= 0, "localization.far_probe", "must be >= 0 (0 = no far probe)")
         _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")

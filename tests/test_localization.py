@@ -131,6 +131,32 @@ def test_sharp_pose_under_min_score(localizer, world):
             assert ok and res.score < 0.99, (err, res.score)
 
 
+def test_far_probe_finds_a_pose_slid_along_the_street(localizer, world):
+    """A pose slid 4.5 m along the heading (a facade's repeat can fit there too): among the probes, GICP from
+    localization.far_probe (3.5 m) ahead, behind and to either side, one finds the right pose with a better score;
+    far_probe 0 leaves the four ambiguity probes alone."""
+    from deepbbs_ros.core import verdict
+    from deepbbs_ros.core.localization import MapLocalizer, _Answer
+
+    map_points, trajectory, drive, _ = world
+    T_gt = drive.pose_at(48)
+    slid = T_gt.copy()
+    slid[:3, 3] += 4.5 * T_gt[:3, 0]  # ahead, along the sensor's x axis
+    for far, n_starts in ((3.5, 8), (0.0, 4)):
+        cfg = localizer.config.replace(**{"localization.far_probe": far})
+        loc = MapLocalizer(map_points, cfg, registration=localizer.registration, trajectory=trajectory)
+        src = loc.prepare(drive.scan_at(48).points).pre
+        place = int(np.argmin(np.linalg.norm(loc.places[:, :2, 3] - slid[:2, 3], axis=1)))
+        crop = loc._crop(place)
+        at_slid = verdict.fitness(src.points, crop.pre.polish_cloud.tree, np.linalg.inv(crop.T_map_place) @ slid,
+                                  cfg.registration.verdict_dist)
+        probes = loc._probe(src, _Answer(at_slid, True, slid, place, crop))
+        assert len(probes) <= n_starts
+        if far:
+            right = [a.score for a in probes if _ok(a.T, T_gt)[0]]
+            assert right and max(right) > at_slid + 0.1, (right, at_slid)
+
+
 def test_tracking_from_a_guess(localizer, world):
     from deepbbs_ros.replay.synthetic import pose
 
