@@ -744,12 +744,13 @@ class MapLocalizer:
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float]) -> None:
-        """No place accepted and no sharp answer (``answers``, changed in place, sorted best first): the ``failed`` starts
-        (answer index, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray), then from the
-        opposite yaw on the best ``flip_starts`` places (a street looks alike both ways); still none: the best once
-        more with the registration's global search (the right place with a poor pose? Not GICP from starts around a
-        failed pose: on a highway that lands on a look-alike stretch elsewhere with a passing score). Not when a
-        place was accepted: on the benchmark's queries these retries changed no outcome there, at 0.4 s a query."""
+        """No place accepted and no sharp answer (``answers``, changed in place, sorted best first): the
+        ``failed`` starts (answer index, rank, T_place_scan, yaw) again with GICP alone (the network's pass went
+        astray), then from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways); still
+        none: the best once more with the registration's global search (the right place with a poor pose? Not GICP
+        from starts around a failed pose: on a highway that lands on a look-alike stretch elsewhere with a passing
+        score). Not when a place was accepted: on the benchmark's queries these retries changed no outcome there,
+        at 0.4 s a query."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
         for k, rank_i, T_init, yaw in failed:
