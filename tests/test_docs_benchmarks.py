@@ -211,3 +211,16 @@ def test_render_good_start_localization_and_node_localization(tmp_path):
     readme = (repo / "README.md").read_text()
     assert "| x1.05 / x1.20 / x0.90; 0 wrong |" in readme
     assert _render(docs, "--check", "--docs", docs).returncode == 0
+
+
+def test_paths_outside_the_repository_are_shortened():
+    """A recorded command's paths outside the repository (the user's data), absolute or relative, read PATH/TO/...;
+    the repository's own stay as they are."""
+    import render_docs
+
+    assert render_docs.short_path("../data/kitti/00") == "PATH/TO/kitti/00"
+    assert render_docs.short_path("/mnt/data/kitti/02") == "PATH/TO/kitti/02"
+    assert render_docs.short_path(str(REPO / "bags" / "x.mcap")) == "bags/x.mcap"
+    assert render_docs.short_path("scripts/benchmarks/localization.py") == "scripts/benchmarks/localization.py"
+    assert render_docs.scrub({"command": "x.py --kitti ../data/kitti/00 --out /tmp/run/out"}) == {
+        "command": "x.py --kitti PATH/TO/kitti/00 --out PATH/TO/run/out"}

@@ -748,19 +748,26 @@ class MapLocalizer:
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[_Answer, int, np.ndarray, float]],
                timings: dict[str, float]) -> None:
         """No place accepted and no sharp answer (``answers``, changed in place, sorted best first): the
-        ``failed`` starts (answer, rank, T_place_scan, yaw) again with GICP alone (the network's pass went
-        astray), then from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways); still
-        none: the best once more with the registration's global search (the right place with a poor pose? Not GICP
-        from starts around a failed pose: on a highway that lands on a look-alike stretch elsewhere with a passing
-        score). Not when a place was accepted: on the benchmark's queries these retries changed no outcome there,
-        at 0.4 s a query."""
+        ``failed`` starts (answer, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray);
+        still none accepted or sharp: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street
+        looks alike both ways); still none: the best once more with the registration's global search (the right place
+        with a poor pose? Not GICP from starts around a failed pose: on a highway that lands on a look-alike stretch
+        elsewhere with a passing score). Not when a place was accepted: on the benchmark's queries these retries
+        changed no outcome there, at 0.4 s a query."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-        for old, rank_i, T_init, yaw in failed:
-            a = self._better_gicp(src, old.crop, T_init, old.place, old, timings)
-            if not a.ok and rank_i < lc.flip_starts:
-                a = self._flipped(src, a, T_init, yaw, timings, search)
-            answers[next(i for i, b in enumerate(answers) if b is old)] = a
+
+        def swap(old: _Answer, new: _Answer) -> None:
+            answers[next(i for i, b in enumerate(answers) if b is old)] = new
+
+        for k, (old, rank_i, T_init, yaw) in enumerate(failed):
+            failed[k] = (self._better_gicp(src, old.crop, T_init, old.place, old, timings), rank_i, T_init, yaw)
+            swap(old, failed[k][0])
+        if not any(a.ok for a in answers) and not self._sharp(
+                src, self._refined(src, max(answers, key=lambda a: a.score), timings)):
+            for old, rank_i, T_init, yaw in failed:
+                if not old.ok and rank_i < lc.flip_starts:
+                    swap(old, self._flipped(src, old, T_init, yaw, timings, search))
         answers.sort(key=lambda a: -a.score)
         best = answers[0]
         if (not best.ok and not self._sharp(src, best) and not search and self._searchable

@@ -118,10 +118,14 @@ def not_run_table(header: list[str], labels: list[str]) -> list[str]:
 
 
 def short_path(token: str) -> str:
-    """A path in a recorded command: relative to the repository, or PATH/TO/<its last two parts> outside it."""
-    if not token.startswith("/"):
+    """A path in a recorded command: relative to the repository, or PATH/TO/<its last two parts> outside it (an
+    absolute one, or a relative one leading out of the repository: ``../data/kitti/00``)."""
+    if token.startswith("../"):
+        path = (ROOT / token).resolve()  # the benchmarks run from the repository's root
+    elif token.startswith("/"):
+        path = Path(token)
+    else:
         return token
-    path = Path(token)
     if path == ROOT or ROOT in path.parents:
         return str(path.relative_to(ROOT))
     return "PATH/TO/" + "/".join(path.parts[-2:])
@@ -183,13 +187,14 @@ def load_all(folder: Path) -> dict[str, dict | None]:
 
 
 def scrub(v):
-    """``v`` with every absolute path in its strings shortened as :func:`short_path` does."""
+    """``v`` with every absolute path (and relative one out of the repository) in its strings shortened as
+    :func:`short_path` does."""
     if isinstance(v, dict):
         return {k: scrub(x) for k, x in v.items()}
     if isinstance(v, list):
         return [scrub(x) for x in v]
     if isinstance(v, str) and "/" in v:
-        return re.sub(r"(?<![\w.])/[^\s\"',;]+", lambda m: short_path(m.group()), v)
+        return re.sub(r"(?<![\w.])(?:/|\.\./)[^\s\"',;]+", lambda m: short_path(m.group()), v)
     return v
 
 
