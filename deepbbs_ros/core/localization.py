@@ -236,19 +236,6 @@ def _match(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     return (1.0 - sim[np.arange(len(sim)), shift]).astype(np.float64), shift
 
 
-def _along(xyz: np.ndarray, step: float) -> np.ndarray:
-    """(K, 3) positions along a path -> (M, 3) points every ``step`` m of its length (linear between them; the
-    path's end too when it is more than half a step past the last; a path with no length: its first point)."""
-    seg = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
-    s = np.r_[0.0, np.cumsum(seg)]
-    if s[-1] <= 0:
-        return xyz[:1].copy()
-    at = np.arange(0.0, s[-1], step)
-    if s[-1] - at[-1] > 0.5 * step:
-        at = np.r_[at, s[-1]]
-    return np.stack([np.interp(at, s, xyz[:, i]) for i in range(3)], axis=1)
-
-
 def _rz(yaw: float) -> np.ndarray:
     T = np.eye(4)
     c, s = np.cos(yaw), np.sin(yaw)
@@ -371,17 +358,22 @@ class MapLocalizer:
         from the place (a place 3.5 m off ranks far below look-alikes 100s of m away), hence the fine lattice."""
         lc = self.config.localization
         step = lc.place_band_step
-        xyz = _along(traj[:, :3, 3], step)  # the drive every step m (a trajectory of sparse keyframes filled in)
+        xyz = traj[:, :3, 3]
+        keep, last = [0], xyz[0]
+        for k in range(1, len(xyz)):
+            if np.linalg.norm(xyz[k] - last) >= step:
+                keep.append(k)
+                last = xyz[k]
         nxt = np.minimum(np.arange(len(xyz)) + 1, len(xyz) - 1)
         prv = np.maximum(np.arange(len(xyz)) - 1, 0)
-        head = (xyz[nxt] - xyz[prv])[:, :2]  # the direction of travel at the samples
+        head = (xyz[nxt] - xyz[prv])[keep, :2]  # the direction of travel at the samples
         norm = np.linalg.norm(head, axis=1, keepdims=True)
-        head = np.where(norm > 1e-6, head / np.maximum(norm, 1e-6), traj[0, :2, 0])  # no travel: the first heading
+        head = np.where(norm > 1e-6, head / np.maximum(norm, 1e-6), traj[keep][:, :2, 0])
         side = np.stack([-head[:, 1], head[:, 0]], axis=1)  # left of the heading
         n = int(np.floor(lc.place_band / step + 1e-9))
         offsets = step * np.r_[np.arange(-n, 0), np.arange(0, n + 1)]
-        xy = (xyz[:, None, :2] + offsets[None, :, None] * side[:, None]).reshape(-1, 2)
-        z_own = np.repeat(xyz[:, 2] - self.grid.ground_at(xyz[:, :2], np.nan), len(offsets))  # sensor height
+        xy = (xyz[keep, None, :2] + offsets[None, :, None] * side[:, None]).reshape(-1, 2)
+        z_own = np.repeat(xyz[keep, 2] - self.grid.ground_at(xyz[keep, :2], np.nan), len(offsets))  # sensor height
         ix, iy, inside = self.grid.index(xy)
         ok = inside & self._free_space(lc.offset_clearance)[ix, iy]
         xy, z_own = xy[ok], z_own[ok]
