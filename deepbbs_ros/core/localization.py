@@ -671,7 +671,7 @@ class MapLocalizer:
         h_scan = self._sensor_height(src)
         answers: list[_Answer] = []
         accepted_dist = None  # descriptor distance of the first accepted candidate
-        failed: list[tuple[_Answer, int, np.ndarray, float]] = []  # (answer, rank, T_init, yaw) of failed starts
+        failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         search = lc.candidate_search != "off"
         for rank_i, (place, dist, yaw) in enumerate(ranked):
             if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
@@ -690,19 +690,17 @@ class MapLocalizer:
                 # (good to ~2 m), the better of the two kept
                 ans = self._better_gicp(src, crop, T_init, place, ans, timings)
             if not ans.ok:
-                failed.append((ans, rank_i, T_init, yaw))
+                failed.append((len(answers), rank_i, T_init, yaw))
             answers.append(ans)
             if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
                 accepted_dist = dist
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
-        answers.sort(key=lambda a: -a.score)
-        answers[0] = self._refined(src, answers[0], timings)
-        if not any(a.ok for a in answers) and not self._sharp(src, answers[0]):
+        if not any(a.ok for a in answers) and not self._sharp(src, self._refined(src, answers, timings)):
             self._retry(src, answers, failed, timings)  # no place accepted: the failed starts again
-            answers[0] = self._refined(src, answers[0], timings)
-        best = answers[0]
+        answers.sort(key=lambda a: -a.score)
+        best = self._refined(src, answers, timings)
         # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
         # the other side) is accepted all the same, against every answer as a rival (not only the accepted ones)
         sharp = not best.ok and self._sharp(src, best)
@@ -745,10 +743,10 @@ class MapLocalizer:
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives)
 
-    def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[_Answer, int, np.ndarray, float]],
+    def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float]) -> None:
-        """No place accepted and no sharp answer (``answers``, changed in place, sorted best first): the
-        ``failed`` starts (answer, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray);
+        """No place accepted and no sharp answer (``answers``, replaced and added to in place): the ``failed``
+        starts (index in ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray);
         still none accepted or sharp: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street
         looks alike both ways); still none: the best once more with the registration's global search (the right place
         with a poor pose? Not GICP from starts around a failed pose: on a highway that lands on a look-alike stretch
@@ -756,39 +754,33 @@ class MapLocalizer:
         changed no outcome there, at 0.4 s a query."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-
-        def swap(old: _Answer, new: _Answer) -> None:
-            answers[next(i for i, b in enumerate(answers) if b is old)] = new
-
-        for k, (old, rank_i, T_init, yaw) in enumerate(failed):
-            failed[k] = (self._better_gicp(src, old.crop, T_init, old.place, old, timings), rank_i, T_init, yaw)
-            swap(old, failed[k][0])
-        if not any(a.ok for a in answers) and not self._sharp(
-                src, self._refined(src, max(answers, key=lambda a: a.score), timings)):
-            for old, rank_i, T_init, yaw in failed:
-                if not old.ok and rank_i < lc.flip_starts:
-                    swap(old, self._flipped(src, old, T_init, yaw, timings, search))
-        answers.sort(key=lambda a: -a.score)
-        best = answers[0]
+        for k, _, T_init, _ in failed:
+            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+        if not any(a.ok for a in answers) and not self._sharp(src, self._refined(src, answers, timings)):
+            for k, rank_i, T_init, yaw in failed:
+                if not answers[k].ok and rank_i < lc.flip_starts:
+                    answers[k] = self._flipped(src, answers[k], T_init, yaw, timings, search)
+        best = max(answers, key=lambda a: a.score)
         if (not best.ok and not self._sharp(src, best) and not search and self._searchable
                 and best.score >= self.config.registration.verdict_threshold):
             T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
             answers.append(self._deep(src, best.crop, T_init, best.place, timings))
-            answers.sort(key=lambda a: -a.score)
 
-    def _refined(self, src: Any, ans: _Answer, timings: dict[str, float]) -> _Answer:
-        """An answer under the map's bar but valid by the registration's verdict, refined (:meth:`_refine`) and
-        scored again, in place, when that fits better: its sharpness (:meth:`_sharp`) is judged on the refined pose
-        (a highway scan taken the other way: 0.44 m along the road, sharpness 0.88; refined 0.01 m, 0.93). Still not
-        accepted by its score alone (``localization.min_score`` is calibrated on the registration's answers)."""
+    def _refined(self, src: Any, answers: list[_Answer], timings: dict[str, float]) -> _Answer:
+        """The best of ``answers`` (the first of the highest score); when it is under the map's bar but valid by the
+        registration's verdict, refined (:meth:`_refine`) and scored again, in place, when that fits better: its
+        sharpness (:meth:`_sharp`) is judged on the refined pose (a highway scan taken the other way: 0.44 m along the
+        road, sharpness 0.88; refined 0.01 m, 0.93). Still not accepted by its score alone (``localization.min_score``
+        is calibrated on the registration's answers)."""
         from deepbbs_ros.core import verdict
 
         rc = self.config.registration
+        ans = max(answers, key=lambda a: a.score)
         if ans.ok or ans.refined or not ans.score >= rc.verdict_threshold or self.config.localization.sharp_score <= 0:
             return ans
         ans.refined = True
         T = self._refine(src, ans.crop, ans.T, timings)
-        if T is ans.T or ans.crop.pre.polish_cloud is None:
+        if T is ans.T:  # not refined (no GICP clouds, not converged, moved too far)
             return ans
         score = verdict.fitness(src.points, ans.crop.pre.polish_cloud.tree, np.linalg.inv(ans.crop.T_map_place) @ T,
                                 rc.verdict_dist)
