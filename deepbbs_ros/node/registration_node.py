@@ -738,7 +738,9 @@ class RegistrationNode(Node):
 
     def _on_thread_error(self, job, exc: BaseException) -> None:
         text = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-        self._errors.log("internal_error", f"unexpected {text}; the node continues")
+        frames = traceback.extract_tb(exc.__traceback__)
+        where = f" (in {Path(frames[-1].filename).name}:{frames[-1].lineno}, {frames[-1].name})" if frames else ""
+        self._errors.log("internal_error", f"unexpected {text}{where}; the node continues")
         self.get_logger().debug("".join(traceback.format_exception(exc)))
 
     # -- registration worker ------------------------------------------------------------------------
