@@ -445,6 +445,10 @@ class LocalizationConfig:
     descriptor_skip_rings: int = 2
     descriptor_sectors: int = 60  # sectors of the descriptor (yaw bins; the yaw of a match is good to 360 / this deg)
     descriptor_cell: float = 1.0  # m; the height grid the descriptors are read from (max height above local ground)
+    # m; the scan is also described about the points this far ahead, behind and to either side of the sensor (a
+    # 3 x 3 grid), each matched against every place: a place up to about this far from the scan ranks as if the scan
+    # stood on it (the lattice is coarse along the drive). 0 = only about the sensor
+    descriptor_shift: float = 0.9
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
@@ -484,7 +488,8 @@ class LocalizationConfig:
     ambiguity_probe_margin: float = 0.03
     # m; the chosen pose is also probed from starts this far ahead, behind and to either side of its heading (GICP from
     # a place a lane off, or a facade's repeat along the street, can settle there with a passing score; the right
-    # pose then wins); 0 = none
+    # pose then wins); when no place is accepted, the best answer from this far ahead and behind (a pose slid along
+    # the road); 0 = none
     far_probe: float = 3.5
     # a rival answer at another place ties only when it is also about as sharp (localization.sharp_score's measure):
     # at most this much less sharp than the chosen pose (right poses measured 0.87-0.97, look-alike places on a
@@ -520,6 +525,8 @@ class LocalizationConfig:
         _check(self.descriptor_sectors >= 8, "localization.descriptor_sectors", "must be >= 8")
         _check(0 < self.descriptor_cell <= self.descriptor_radius / 4, "localization.descriptor_cell",
                "must be > 0 and <= descriptor_radius / 4")
+        _check(0 <= self.descriptor_shift <= self.descriptor_radius / 4, "localization.descriptor_shift",
+               "must be >= 0 and <= descriptor_radius / 4")
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")

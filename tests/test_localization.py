@@ -76,6 +76,37 @@ def test_places_and_descriptors(localizer, world):
     assert _match(a[None], a)[0][0] < 1e-5
 
 
+def test_scan_described_about_points_around_its_sensor(localizer, world):
+    """The scan described about a point c of its own frame (``describe(scan, centres)``) is the map's description
+    at T_map_scan @ c, turned by the scan's yaw; and ``rank`` puts that point of the scan on the place it returns."""
+    from deepbbs_ros.core.localization import _match
+
+    _, _, drive, _ = world
+    lc = Config().localization
+    k = 60
+    T = drive.pose_at(k)
+    scan = drive.scan_at(k).points
+    centres = localizer.description_centres
+    assert centres.shape == (9, 2) and np.allclose(centres[0], 0.0) and np.abs(centres).max() == lc.descriptor_shift
+    descs = localizer.describe(scan, centres)
+    skip = lc.descriptor_skip_rings
+    assert descs.shape == (9, 20, 60) and np.array_equal(descs[0], localizer.describe(scan))
+    yaw = np.arctan2(T[1, 0], T[0, 0])
+    for c, d in zip(centres[1:], descs[1:], strict=True):
+        at = T[:2, :2] @ c + T[:2, 3]  # the centre in the map
+        there = localizer.template.describe(localizer.grid, np.stack([at, T[:2, 3] - (at - T[:2, 3])]))[:, skip:]
+        dist, shift = _match(there, d[skip:])
+        assert dist[0] < dist[1]  # nearer the map's description at its own point than at the mirrored one
+        turn = np.degrees(shift[0] * 2 * np.pi / lc.descriptor_sectors - yaw) % 360
+        assert min(turn, 360 - turn) <= 360 / lc.descriptor_sectors + 1e-6  # the column shift is the scan's yaw
+    # rank: the best place, less the rotated centre, is near the sensor
+    place, _, yaw_r, c = localizer.rank(descs, None, centres)[0]
+    R = np.array([[np.cos(yaw_r), -np.sin(yaw_r)], [np.sin(yaw_r), np.cos(yaw_r)]])
+    assert np.linalg.norm(localizer.places[place, :2, 3] - R @ c - T[:2, 3]) < lc.place_spacing
+    with pytest.raises(LocalizationError, match="descriptors for"):
+        localizer.rank(descs, None, centres[:3])
+
+
 def test_places_beside_the_drive(localizer, world):
     """Lattice places cover the road beside the map drive (the other lane), on free ground, a half step apart."""
     from scipy.spatial import cKDTree
@@ -155,6 +186,29 @@ def test_far_probe_finds_a_pose_slid_along_the_street(localizer, world):
         if far:
             right = [a.score for a in probes if _ok(a.T, T_gt)[0]]
             assert right and max(right) > at_slid + 0.1, (right, at_slid)
+
+
+def test_a_failed_pose_slid_along_the_street_is_found_again(localizer, world):
+    """No answer accepted, the best one slid 2.7 m along the heading (a highway scan taken the other way): GICP alone
+    from far_probe m ahead and behind it (``_slid``) brings one back to the right pose, accepted as sharp."""
+    from deepbbs_ros.core import verdict
+    from deepbbs_ros.core.localization import _Answer
+
+    _, _, drive, _ = world
+    cfg = localizer.config
+    T_gt = drive.pose_at(48)
+    slid = T_gt.copy()
+    slid[:3, 3] -= 2.7 * T_gt[:3, 0]  # behind, along the sensor's x axis
+    src = localizer.prepare(drive.scan_at(48).points).pre
+    place = int(np.argmin(np.linalg.norm(localizer.places[:, :2, 3] - slid[:2, 3], axis=1)))
+    crop = localizer._crop(place)
+    at_slid = verdict.fitness(src.points, crop.pre.polish_cloud.tree, np.linalg.inv(crop.T_map_place) @ slid,
+                              cfg.registration.verdict_dist)
+    timings: dict[str, float] = {}
+    out = localizer._slid(src, _Answer(at_slid, False, slid, place, crop), timings)
+    assert 1 <= len(out) <= 2 and all(a.gicp for a in out) and timings["gicp"] > 0  # (a GICP may not apply)
+    right = [a for a in out if _ok(a.T, T_gt)[0]]
+    assert right and right[0].ok and right[0].score > at_slid + 0.1, ([a.score for a in out], at_slid)
 
 
 def test_tracking_from_a_guess(localizer, world):

@@ -10,7 +10,9 @@
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
     rank        every place against the scan, every column shift (a circular correlation by FFT; the best shift
-                is the scan's yaw); the localization.top_k best places at least candidate_separation m apart
+                is the scan's yaw), the scan also described about points localization.descriptor_shift m ahead,
+                behind and to either side (a place between the lattice's rows); the localization.top_k best places
+                at least candidate_separation m apart, each from its best-matching point of the scan
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
                 localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
                 descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
@@ -223,17 +225,27 @@ def _match(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     """Scan Context distance of the query (R, S) to every place (P, R, S) (or their :func:`_spectra`) at every
     column shift: -> (distance (P,) in [0, 1] (mean cosine distance of the columns both have), shift (P,) int: place
     column (s + shift) % S matches query column s). Circular correlations by FFT over the sectors."""
+    dist, shift = _match_many(places, query[None])
+    return dist[0], shift[0]
+
+
+def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
+                query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_match` of K queries (K, R, S) at once: -> (distance (K, P), shift (K, P))."""
     fp, fpmask, psum = _spectra(places) if isinstance(places, np.ndarray) else places
-    qn, qmask = _normalise_columns(query)
+    qn, qmask = _normalise_columns(query)  # (K, R, S), (K, S)
     S = query.shape[-1]
-    fq = np.fft.rfft(qn, axis=-1)
-    corr = np.fft.irfft((fp * np.conj(fq)[None]).sum(axis=1), n=S, axis=-1)  # (P, S): sum_s <p[:, s+k], q[:, s]>
-    both = np.fft.irfft(fpmask * np.conj(np.fft.rfft(qmask.astype(np.float32)))[None], n=S,
-                        axis=-1)  # columns non-empty in both
-    either = psum + qmask.sum() - both  # columns non-empty in one of them
+    fq = np.conj(np.fft.rfft(qn, axis=-1))  # (K, R, F)
+    # one query at a time, not one matrix product: numpy's BLAS threads contend with the network's on 2 cores
+    prod = np.stack([(fp * f[None]).sum(axis=1) for f in fq])  # (K, P, F)
+    corr = np.fft.irfft(prod, n=S, axis=-1)  # (K, P, S): sum_s <p[:, s+k], q[:, s]>
+    both = np.fft.irfft(fpmask[None] * np.conj(np.fft.rfft(qmask.astype(np.float32), axis=-1))[:, None], n=S,
+                        axis=-1)  # (K, P, S) columns non-empty in both
+    either = psum[None] + qmask.sum(axis=-1)[:, None, None] - both  # columns non-empty in one of them
     sim = corr / np.maximum(either, 1.0)  # an empty column facing a full one counts as a mismatch
-    shift = np.argmax(sim, axis=1)
-    return (1.0 - sim[np.arange(len(sim)), shift]).astype(np.float64), shift
+    shift = np.argmax(sim, axis=-1)
+    best = np.take_along_axis(sim, shift[..., None], axis=-1)[..., 0]
+    return (1.0 - best).astype(np.float64), shift
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -457,36 +469,70 @@ class MapLocalizer:
         return crop
 
     # -- the scan ---------------------------------------------------------------------------------------------------
-    def describe(self, scan: np.ndarray) -> np.ndarray:
-        """(R, S) float32 descriptor of a raw scan (N, 3), sensor frame (its yaw: the columns' order)."""
+    def describe(self, scan: np.ndarray, centres: np.ndarray | None = None) -> np.ndarray:
+        """(R, S) float32 descriptor of a raw scan (N, 3), sensor frame (its yaw: the columns' order), about the
+        sensor; with ``centres`` (K, 2) (m, sensor frame): (K, R, S), one about each (about the sensor: the same)."""
         lc = self.config.localization
         pts = _as_cloud(scan, "scan")
         pts = pts[np.isfinite(pts).all(axis=1)]
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= lc.descriptor_radius + lc.descriptor_cell]
-        if len(pts) < MIN_SCAN_POINTS:
-            raise LocalizationError(f"scan: {len(pts)} points within {lc.descriptor_radius:.0f} m")
-        grid = _HeightGrid(pts, lc.descriptor_cell, pad=lc.descriptor_radius)
-        return self.template.describe(grid, np.zeros((1, 2)))[0]
+        r = np.hypot(pts[:, 0], pts[:, 1])
+        own = pts[r <= lc.descriptor_radius + lc.descriptor_cell]
+        if len(own) < MIN_SCAN_POINTS:
+            raise LocalizationError(f"scan: {len(own)} points within {lc.descriptor_radius:.0f} m")
+        at_sensor = self.template.describe(_HeightGrid(own, lc.descriptor_cell, pad=lc.descriptor_radius),
+                                           np.zeros((1, 2)))
+        if centres is None:
+            return at_sensor[0]
+        cs = np.asarray(centres, np.float64).reshape(-1, 2)
+        reach = float(np.hypot(cs[:, 0], cs[:, 1]).max(initial=0.0))
+        out = np.empty((len(cs), *at_sensor.shape[1:]), np.float32)
+        sensor = np.all(cs == 0.0, axis=1)
+        out[sensor] = at_sensor[0]
+        if not sensor.all():  # the points as far around each centre (a grid of its own: the cells fall elsewhere)
+            wide = pts[r <= lc.descriptor_radius + lc.descriptor_cell + reach]
+            grid = _HeightGrid(wide, lc.descriptor_cell, pad=lc.descriptor_radius + reach)
+            out[~sensor] = self.template.describe(grid, cs[~sensor])
+        return out
 
-    def rank(self, desc: np.ndarray, among: np.ndarray | None = None) -> list[tuple[int, float, float]]:
-        """[(place, descriptor distance, yaw of the scan in the map (rad))] best first, at most ``top_k`` places at
-        least ``candidate_separation`` m apart, among the places ``among`` (indices; None: all)."""
+    @property
+    def description_centres(self) -> np.ndarray:
+        """(K, 2) the points of the scan's frame (m) :meth:`_global` describes a scan about: the sensor first, then
+        ``localization.descriptor_shift`` m ahead, behind and to either side (a 3 x 3 grid; the sensor alone at 0)."""
+        s = self.config.localization.descriptor_shift
+        if s <= 0:
+            return np.zeros((1, 2))
+        g = np.array([0.0, -s, s])
+        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+
+    def rank(self, desc: np.ndarray, among: np.ndarray | None = None,
+             centres: np.ndarray | None = None) -> list[tuple[int, float, float, np.ndarray]]:
+        """[(place, descriptor distance, yaw of the scan in the map (rad), the point of the scan's frame (2,) that
+        stands on the place)] best first, at most ``top_k`` places at least ``candidate_separation`` m apart, among the
+        places ``among`` (indices; None: all). ``desc``: (R, S) about the sensor, or (K, R, S) about ``centres``
+        (K, 2) (:meth:`describe`): each place keeps its best match over them (the first of equals)."""
         lc = self.config.localization
         idx = np.arange(len(self._places)) if among is None else np.asarray(among, dtype=np.int64)
         if len(idx) == 0:
             return []
+        descs = desc[None] if desc.ndim == 2 else desc
+        cs = np.zeros((1, 2)) if centres is None else np.asarray(centres, np.float64).reshape(-1, 2)
+        if len(cs) != len(descs):
+            raise LocalizationError(f"rank: {len(descs)} descriptors for {len(cs)} centres")
         skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
         spectra = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
-        dist, shift = _match(spectra, desc[skip:])
+        dists, shifts = _match_many(spectra, descs[:, skip:])  # (K, P)
+        which = np.argmin(dists, axis=0)  # the first of equals: the sensor's own first
+        cols = np.arange(dists.shape[1])
+        dist, shift = dists[which, cols], shifts[which, cols]
         order = np.argsort(dist, kind="stable")
-        chosen: list[tuple[int, float, float]] = []
+        chosen: list[tuple[int, float, float, np.ndarray]] = []
         xy = self._places[:, :2, 3]
         for o in order:
             p = int(idx[o])
-            if any(np.linalg.norm(xy[p] - xy[q]) < lc.candidate_separation for q, _, _ in chosen):
+            if any(np.linalg.norm(xy[p] - xy[q]) < lc.candidate_separation for q, *_ in chosen):
                 continue
             yaw = (int(shift[o]) * 2.0 * np.pi / lc.descriptor_sectors)
-            chosen.append((p, float(dist[o]), yaw))
+            chosen.append((p, float(dist[o]), yaw, cs[which[o]].copy()))
             if len(chosen) >= lc.top_k:
                 break
         return chosen
@@ -663,23 +709,25 @@ class MapLocalizer:
                 timings: dict[str, float]) -> LocalizationResult:
         lc = self.config.localization
         t = time.perf_counter()
-        desc = self.describe(pts)
+        centres = self.description_centres
+        desc = self.describe(pts, centres)
         timings["describe"] = timings.get("describe", 0.0) + (time.perf_counter() - t) * 1e3
         t = time.perf_counter()
-        ranked = self.rank(desc, among)
+        ranked = self.rank(desc, among, centres)
         timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
         h_scan = self._sensor_height(src)
         answers: list[_Answer] = []
         accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         search = lc.candidate_search != "off"
-        for rank_i, (place, dist, yaw) in enumerate(ranked):
+        for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
             if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
                 break  # the rest look less alike than the margin: not a rival
             t = time.perf_counter()
             crop = self._crop(place)
             timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
             T_init = _rz(yaw)
+            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
             if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
                 g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
                 if np.isfinite(g):
@@ -749,9 +797,10 @@ class MapLocalizer:
         starts (index in ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray);
         still none accepted or sharp: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street
         looks alike both ways); still none: the best once more with the registration's global search (the right place
-        with a poor pose? Not GICP from starts around a failed pose: on a highway that lands on a look-alike stretch
-        elsewhere with a passing score). Not when a place was accepted: on the benchmark's queries these retries
-        changed no outcome there, at 0.4 s a query."""
+        with a poor pose?); still none: GICP alone from far_probe m ahead of and behind the best pose and the
+        best-ranked place's (:meth:`_slid`: a pose slid along the road; only a sharp answer from there is accepted, as
+        GICP alone from a rough start lands on look-alike stretches with passing scores). Not when a place was
+        accepted: on the benchmark's queries these retries changed no outcome there, at 0.4 s a query."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
         for k, _, T_init, _ in failed:
@@ -765,6 +814,28 @@ class MapLocalizer:
                 and best.score >= self.config.registration.verdict_threshold):
             T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
             answers.append(self._deep(src, best.crop, T_init, best.place, timings))
+        best = max(answers, key=lambda a: a.score)
+        if not any(a.ok for a in answers) and not self._sharp(src, best) and lc.far_probe > 0:
+            # the best fit, and the best-ranked place (the right place whose pose slid away from it scores low)
+            for ans in [best] if answers[0] is best else [best, answers[0]]:
+                answers.extend(self._slid(src, ans, timings))
+
+    def _slid(self, src: Any, best: _Answer, timings: dict[str, float]) -> list[_Answer]:
+        """GICP alone from ``far_probe`` m ahead of and behind the best answer's pose, along its heading: -> their
+        answers (accepted only when sharp, as GICP alone always is). The right place with its pose slid along a highway
+        (2.7 m, score 0.33) comes back to the true pose from the start 3.5 m back."""
+        T = np.linalg.inv(best.crop.T_map_place) @ best.T
+        head = T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)
+        out = []
+        t = time.perf_counter()
+        for side in (1.0, -1.0):
+            S = T.copy()
+            S[:2, 3] += side * self.config.localization.far_probe * head
+            alt = self._gicp(src, best.crop, S, best.place)
+            if alt is not None:
+                out.append(alt)
+        timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
+        return out
 
     def _refined(self, src: Any, answers: list[_Answer], timings: dict[str, float]) -> _Answer:
         """The best of ``answers`` (the first of the highest score); when it is under the map's bar but valid by the
@@ -808,6 +879,7 @@ class MapLocalizer:
         """DeepBBS++ from T_init turned to the opposite yaw beside ``ans``: the better of the two."""
         T_flip = T_init.copy()
         T_flip[:3, :3] = _rz(yaw + np.pi)[:3, :3]
+        T_flip[:2, 3] = -T_init[:2, 3]  # the same point of the scan on the place
         flip = self._deep(src, ans.crop, T_flip, ans.place, timings, yaw_search=search)
         return flip if flip.score > ans.score else ans
 
