@@ -464,6 +464,13 @@ class LocalizationConfig:
     # then beat every other answer (any score) by ambiguity_margin and survive the probe. 0 = off
     sharp_score: float = 0.9
     sharp_dist: float = 1.0  # m; the scan points with the map this close count as covered (the sharp_score's base)
+    # a global answer under min_score and not sharp is still accepted when the answers of two candidate places agree on
+    # it (within 1 deg / 0.3 m: two starts, one basin), it is at least agree_sharp sharp, and every answer more than
+    # ambiguity_distance away scores at least agree_margin lower (a map that covers part of the scan: real KITTI
+    # scans on a map of 50 m scans score 0.59, sharpness 0.87-0.89, every other place under 0.26); it must then
+    # survive the rivals' check and the probe. 0 = off
+    agree_margin: float = 0.2
+    agree_sharp: float = 0.85  # see agree_margin
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
@@ -531,6 +538,8 @@ class LocalizationConfig:
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
         _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")
+        _check(0 <= self.agree_margin <= 1, "localization.agree_margin", "must be in [0, 1] (0 = off)")
+        _check(0 <= self.agree_sharp <= 1, "localization.agree_sharp", "must be in [0, 1]")
         _check(self.sharp_dist > 0, "localization.sharp_dist", "must be > 0")
         _check(0 <= self.confident_score <= 1, "localization.confident_score", "must be in [0, 1]")
         _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",

@@ -211,6 +211,36 @@ def test_a_failed_pose_slid_along_the_street_is_found_again(localizer, world):
     assert right and right[0].ok and right[0].score > at_slid + 0.1, ([a.score for a in out], at_slid)
 
 
+def test_two_places_agreeing_on_a_pose_under_min_score(localizer, world):
+    """An answer under min_score (a map that covers part of the scan) counts when two candidate places' answers agree
+    on it, it is sharp enough and nothing elsewhere comes within agree_margin; not with one place, a close rival far
+    away, or agree_margin 0."""
+    from deepbbs_ros.core.localization import MapLocalizer, _Answer
+
+    map_points, trajectory, drive, _ = world
+    T_gt = drive.pose_at(60)
+    src = localizer.prepare(drive.scan_at(60).points).pre
+    d = np.linalg.norm(localizer.places[:, :2, 3] - T_gt[:2, 3], axis=1)
+    p0, p1 = (int(i) for i in np.argsort(d)[:2])
+    c0, c1 = localizer._crop(p0), localizer._crop(p1)
+    far = T_gt.copy()
+    far[:3, 3] += 20.0 * T_gt[:3, 0]
+    lc = localizer.config.localization
+
+    def answers(second_place: int, far_score: float) -> list:
+        return [_Answer(0.5, False, T_gt, p0, c0), _Answer(0.5, False, T_gt, second_place, c1 if second_place == p1
+                                                            else c0), _Answer(far_score, False, far, p0, c0)]
+
+    best = answers(p1, 0.2)[0]
+    assert localizer._sharpness(src, best) >= lc.agree_sharp
+    assert localizer._agreed(src, answers(p1, 0.5 - lc.agree_margin - 0.01), best)
+    assert not localizer._agreed(src, answers(p0, 0.2), best)  # one place only
+    assert not localizer._agreed(src, answers(p1, 0.5 - lc.agree_margin + 0.01), best)  # a rival far away
+    off = MapLocalizer(map_points, localizer.config.replace(**{"localization.agree_margin": 0.0}),
+                       registration=localizer.registration, trajectory=trajectory)
+    assert not off._agreed(src, answers(p1, 0.2), best)
+
+
 def test_tracking_from_a_guess(localizer, world):
     from deepbbs_ros.replay.synthetic import pose
 

@@ -25,8 +25,9 @@
                 lane, the next repeat of a facade) replaces it
     sharp       when none reaches localization.min_score, the best (refined as below) is still accepted when it
                 is sharp (of the scan points within sharp_dist of the map, a share >= sharp_score within
-                verdict_dist: the right pose seen from another carriageway) and beats every other answer, accepted
-                or not, by ambiguity_margin
+                verdict_dist: the right pose seen from another carriageway), or when two candidate places' answers
+                agree on it, it is agree_sharp sharp and nothing elsewhere comes within agree_margin (a map that
+                covers part of the scan); and it beats every other answer, accepted or not, by ambiguity_margin
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
@@ -745,13 +746,17 @@ class MapLocalizer:
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
-        if not any(a.ok for a in answers) and not self._sharp(src, self._refined(src, answers, timings)):
+        top = self._refined(src, answers, timings)
+        if not any(a.ok for a in answers) and not self._sharp(src, top) and not self._agreed(src, answers, top):
             self._retry(src, answers, failed, timings)  # no place accepted: the failed starts again
         answers.sort(key=lambda a: -a.score)
         best = self._refined(src, answers, timings)
         # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
         # the other side) is accepted all the same, against every answer as a rival (not only the accepted ones)
         sharp = not best.ok and self._sharp(src, best)
+        agreed = not best.ok and not sharp and self._agreed(src, answers, best)
+        bar = lc.agree_sharp if agreed else lc.sharp_score  # the sharpness the pose must keep after the probe
+        sharp = sharp or agreed
         if not best.ok and not sharp:
             why = (f"best score {best.score:.2f} < {self._threshold:.2f}: scan outside the map?"
                    if best.score < self._threshold or not best.gicp else
@@ -763,7 +768,7 @@ class MapLocalizer:
         timings["probe"] = (time.perf_counter() - t) * 1e3
         pool = sorted(answers + probes, key=lambda a: -a.score)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
-        if sharp and self._sharpness(src, best) < lc.sharp_score:
+        if sharp and self._sharpness(src, best) < bar:
             return LocalizationResult(best.T, False, best.score, "global",
                                       f"no candidate place passed the verdict (best score {best.score:.2f} < "
                                       f"{self._threshold:.2f}, not sharp)", candidates=n, path="deepbbs",
@@ -858,6 +863,25 @@ class MapLocalizer:
         if score >= ans.score:
             ans.T, ans.score, ans.sharp = T, score, None
         return ans
+
+    def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
+        """An answer under min_score, not sharp, accepted all the same (``agree_margin``): valid by the registration's
+        verdict, the answers of at least two candidate places within 1 deg / 0.3 m of it, at least ``agree_sharp``
+        sharp, and every answer more than ``ambiguity_distance`` away at least ``agree_margin`` lower."""
+        from deepbbs_ros.metrics import pair_errors
+
+        lc = self.config.localization
+        if lc.agree_margin <= 0 or not best.score >= self.config.registration.verdict_threshold:
+            return False
+        near = [a for a in answers if not a.probe]
+        rot, trans = pair_errors(np.stack([a.T for a in near]), np.repeat(best.T[None], len(near), axis=0))
+        places = {a.place for a, r, t in zip(near, rot, trans, strict=True) if r <= 1.0 and t <= 0.3}
+        if len(places) < 2:
+            return False
+        far = [a.score for a in answers if np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
+        if far and max(far) > best.score - lc.agree_margin:
+            return False
+        return self._sharpness(src, best) >= lc.agree_sharp
 
     def _sharp(self, src: Any, ans: _Answer) -> bool:
         """An answer under min_score accepted all the same (``sharp_score``): valid by the registration's verdict and
