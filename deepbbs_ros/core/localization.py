@@ -249,6 +249,11 @@ def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     return (1.0 - best).astype(np.float64), shift
 
 
+def _heading(T: np.ndarray) -> np.ndarray:
+    """(2,) the unit horizontal heading (x axis) of a pose T (4, 4)."""
+    return T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)
+
+
 def _rz(yaw: float) -> np.ndarray:
     T = np.eye(4)
     c, s = np.cos(yaw), np.sin(yaw)
@@ -830,7 +835,7 @@ class MapLocalizer:
         answers (accepted only when sharp, as GICP alone always is). The right place with its pose slid along a highway
         (2.7 m, score 0.33) comes back to the true pose from the start 3.5 m back."""
         T = np.linalg.inv(best.crop.T_map_place) @ best.T
-        head = T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)
+        head = _heading(T)
         out = []
         t = time.perf_counter()
         for side in (1.0, -1.0):
@@ -1022,7 +1027,7 @@ class MapLocalizer:
                 pc.complete(threads=self.registration.gicp_threads())
         T = np.linalg.inv(crop.T_map_place) @ best.T
         starts = [np.array([dx, dy], np.float64) * lc.ambiguity_probe for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
-        head = T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)  # the sensor's heading, horizontal
+        head = _heading(T)
         if lc.far_probe > 0:  # the lanes either side of the heading, and as far along it
             starts += [side * lc.far_probe * d for d in (np.array([-head[1], head[0]]), head) for side in (1.0, -1.0)]
         out = []
