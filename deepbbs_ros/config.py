@@ -176,6 +176,9 @@ class RegistrationConfig:
     polish_max_trans: float = 0.0  # m; a polish moving the estimate further is rejected (DeepBBS++ kept); 0 = no limit
     polish_max_rot_deg: float = 0.0  # deg; idem for rotation; 0 = no limit
     polish_threads: int = 0  # small_gicp threads; 0 = every core (deepbbs-replay: eval.threads unless that is 0)
+    # small_gicp's GICP solve on one thread (trees and covariances keep polish_threads): its sums in one order, so the
+    # same pose to the last bit on any machine; about twice the solve's time on 2 cores
+    exact_gicp: bool = False
     # small_gicp's convergence: stop when an iteration moves the estimate less than both (small_gicp's own default is
     # 1 mm: fewer iterations from the network's estimate, the same errors on real scans)
     polish_rot_eps_deg: float = 0.1

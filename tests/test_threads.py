@@ -6,11 +6,17 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from deepbbs_ros.baselines import SmallGicpRegistration, one_cpu
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.polish import cpu_cores, threads_or_all
+from deepbbs_ros.core.polish import (
+    cpu_cores,
+    polish,
+    prepare_polish_cloud,
+    threads_or_all,
+)
 from deepbbs_ros.replay.runner import OFFLINE_THREAD_KEYS, offline_threads
 
 needs_affinity = pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this platform")
@@ -52,3 +58,33 @@ def test_every_core_is_the_cpus_the_process_may_use():
     with pytest.raises(RuntimeError), one_cpu():
         raise RuntimeError("restored on an error too")
     assert os.sched_getaffinity(0) == cpus
+
+
+def test_a_gicp_cloud_is_the_same_on_any_number_of_threads(street_pair):
+    """The precision stage's voxel grid, k-d tree and covariances do not depend on the thread count (small_gicp's
+    parallel voxel grid would cut voxels at its blocks' edges and write them in the order its threads finish)."""
+    (ng, ground), _, _ = street_pair(3, 30000, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], road=True)
+    pts = np.concatenate([ng, ground])
+    one, two = (prepare_polish_cloud(pts, 0.5, 20, threads=n) for n in (1, 2))
+    assert one.n_points == two.n_points
+    np.testing.assert_array_equal(one.points(), two.points())
+    np.testing.assert_array_equal(np.asarray(one.cloud.covs()), np.asarray(two.cloud.covs()))
+
+
+def test_exact_gicp_gives_the_one_thread_pose_to_the_last_bit(street_pair):
+    """``registration.exact_gicp``: the GICP solve on one thread whatever ``polish_threads`` (its sums in index order),
+    so a pose is the same on any machine; the clouds keep their threads."""
+    src, tgt, T = street_pair(5, 30000, [4.0, 0.3, -0.2], [1.2, 0.3, 0.03], road=True)
+    clouds = [prepare_polish_cloud(np.concatenate(c), 0.5, 20, threads=2) for c in (src, tgt)]
+    T0 = T.copy()
+    T0[:3, 3] += [0.5, -0.4, 0.1]
+
+    def solve(**flat):
+        cfg = Config().replace(**{"registration.polish_max_trans": 0.0, **flat}).registration
+        return polish(clouds[0], clouds[1], T0, cfg)
+
+    ref = solve(**{"registration.polish_threads": 1})
+    assert ref.applied and np.linalg.norm(ref.T_target_source[:3, 3] - T[:3, 3]) < 0.1  # it solves the pair
+    for _ in range(3):
+        exact = solve(**{"registration.polish_threads": 2, "registration.exact_gicp": True})
+        np.testing.assert_array_equal(exact.T_target_source, ref.T_target_source)

@@ -162,13 +162,16 @@ def _prepared(pts: np.ndarray, voxel: float, neighbors: int, registration_type: 
     th = threads_or_all(threads)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     if voxel > 0 and len(pts):
-        cloud = small_gicp.voxelgrid_sampling(pts, voxel, num_threads=th)
+        # the voxel grid on one thread whatever ``threads``: on more, small_gicp cuts the sorted points into blocks
+        # of 1024 and writes them in the order the threads finish (a voxel across two blocks becomes two centroids,
+        # another cloud on every run); k-d trees and covariances are the same on any number of threads
+        cloud = small_gicp.voxelgrid_sampling(pts, voxel, num_threads=1)
         v = voxel
         for _ in range(3):  # the 1 / voxel^2 law is approximate: at most three coarser grids
             if not 0 < max_voxels < cloud.size():
                 break
             v *= max(1.02, float(np.sqrt(cloud.size() / max_voxels)))
-            cloud = small_gicp.voxelgrid_sampling(np.asarray(cloud.points())[:, :3], v, num_threads=th)
+            cloud = small_gicp.voxelgrid_sampling(np.asarray(cloud.points())[:, :3], v, num_threads=1)
     else:
         cloud = small_gicp.PointCloud(pts)
     spec = (neighbors, registration_type, th)
@@ -258,7 +261,7 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         init_T_target_source=T_init,
         registration_type=reg_type,
         max_correspondence_distance=cfg.polish_max_corr_dist,
-        num_threads=threads_or_all(cfg.polish_threads),
+        num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
         max_iterations=cfg.polish_max_iters,
         rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
         translation_epsilon=cfg.polish_trans_eps,

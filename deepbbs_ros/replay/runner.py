@@ -33,13 +33,14 @@ OFFLINE_THREAD_KEYS = ("registration.polish_threads", "odometry.threads", "regis
 def offline_threads(config: Config) -> Config:
     """The config an offline run uses: every thread setting ``eval.threads`` (when > 0; 0 leaves each section's).
 
-    small_gicp sums its GICP terms in per-thread partial sums over an OpenMP ``schedule(guided)`` loop and, on
-    more than one thread, builds its voxel grid in blocks of 1024 sorted points written in the order the threads
-    finish (a voxel across two blocks becomes two centroids: another cloud); KISS-ICP sums with TBB's
-    ``parallel_reduce``, grouped by the CPUs it may use. With one thread each sum runs in index order (KISS-ICP and
-    KISS-Matcher on one CPU, :func:`deepbbs_ros.baselines.one_cpu`), so one thread (the default) gives the same
-    figures, bit for bit, on any number of cores and in a Ray task (1 CPU, Ray's ``OMP_NUM_THREADS=1``) as in a
-    single run on every core. The results folder's config_used.yaml records the settings applied."""
+    small_gicp sums its GICP terms in per-thread partial sums over an OpenMP ``schedule(guided)`` loop (one
+    thread whatever the count with ``registration.exact_gicp``) and writes odometry's voxel grid
+    (``preprocess_points``) in the order its threads finish (the precision stage's grid is built on one thread,
+    core/polish.py); KISS-ICP sums with TBB's ``parallel_reduce``, grouped by the CPUs it may use. With one thread
+    each sum runs in index order (KISS-ICP and KISS-Matcher on one CPU, :func:`deepbbs_ros.baselines.one_cpu`), so
+    one thread (the default) gives the same figures, bit for bit, on any number of cores and in a Ray task (1 CPU,
+    Ray's ``OMP_NUM_THREADS=1``) as in a single run on every core. The results folder's config_used.yaml records
+    the settings applied."""
     n = config.eval.threads
     if n <= 0:
         return config

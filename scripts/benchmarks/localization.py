@@ -23,7 +23,10 @@ FPFH features and registration_ransac_based_on_feature_matching against the whol
 no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
 query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose);
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
-``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid).
+``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every answer is
+the same on any machine and in every run: MapLocalizer solves GICP on one thread (``registration.exact_gicp``; its
+k-d trees and covariances, the same on any number of threads, use every core), the baselines' child processes
+run on one CPU and Open3D's RANSAC is seeded (``--inexact`` lifts all three).
 
 Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m (valid
 and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts, time per
@@ -62,6 +65,7 @@ LABELS = {"maplocalizer": "MapLocalizer (DeepBBS++)", "kiss-matcher+gicp": "KISS
           "fpfh-ransac+gicp": "FPFH + RANSAC (Open3D) + GICP (scan to map)"}
 LANE_SHIFT = {"urban": -3.6, "suburban": -1.5, "highway": 3.6, "open_road": 1.2}  # m, the other lane's offset
 SAME_LANE_SHIFT = 0.4  # m: "same-lane" queries drive the map drive's lane on a slightly different line
+RANSAC_SEED = 1  # Open3D's random generator, seeded before every RANSAC
 KINDS = ("reverse", "lane", "same-lane")  # the simulated queries' drives, in turn along the map
 
 
@@ -365,8 +369,10 @@ class Isolated:
     **kwargs)`` (the map's preparation, reported as ``build_s``) and answers ``solver.solve(scan)`` ->
     (T_map_scan, accepted, reason)."""
 
-    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, **kwargs) -> None:
+    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, one_cpu: bool = True,
+                 **kwargs) -> None:
         self.name, self.solver_cls, self.points, self.kwargs = name, solver_cls, points, kwargs
+        self.one_cpu = one_cpu
         self.timeout = float(timeout)
         self.build_s = 0.0
         self.proc = None
@@ -375,7 +381,8 @@ class Isolated:
     def _start(self) -> None:
         ctx = mp.get_context("spawn")
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_serve, args=(self.solver_cls, self.points, self.kwargs, child), daemon=True)
+        self.proc = ctx.Process(target=_serve, args=(self.solver_cls, self.points, self.kwargs, child, self.one_cpu),
+                                daemon=True)
         self.proc.start()
         child.close()
         msg = self.conn.recv()  # ("ready", build_s) or ("error", text)
@@ -413,8 +420,16 @@ class Isolated:
             pass
 
 
-def _serve(solver_cls, points, kwargs, conn) -> None:
-    """The child of :class:`Isolated`: build the solver, then answer scans until the pipe closes."""
+def _serve(solver_cls, points, kwargs, conn, one_cpu: bool = True) -> None:
+    """The child of :class:`Isolated`: build the solver, then answer scans until the pipe closes; on one CPU when
+    ``one_cpu`` (before any library starts its threads: the same answers on any machine, as deepbbs-replay's)."""
+    from deepbbs_ros.baselines import one_cpu as on_one_cpu
+
+    with on_one_cpu(one_cpu):  # the threads the solver starts inherit it
+        _answer(solver_cls, points, kwargs, conn)
+
+
+def _answer(solver_cls, points, kwargs, conn) -> None:
     try:
         t0 = time.perf_counter()
         solver = solver_cls(points, **kwargs)
@@ -537,6 +552,7 @@ class FpfhRansacSolver:
             tgt = self.map_down.select_by_index(idx.tolist())
             tgt_fpfh = reg.Feature()
             tgt_fpfh.data = np.ascontiguousarray(self.map_fpfh.data[:, idx])
+        o3d.utility.random.seed(RANSAC_SEED)  # each query's draws the same on every run
         res = reg.registration_ransac_based_on_feature_matching(
             down, tgt, fpfh, tgt_fpfh, False, d,
             reg.TransformationEstimationPointToPoint(False), 3,
@@ -637,12 +653,15 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
     try:
         if factories and name in factories:
             return factories[name](points, trajectory)
+        exact = not getattr(args, "inexact", False)
         if name == "maplocalizer":
             return MapLocalizerMethod(points, None if args.grid_places else trajectory, config)
         if name == "kiss-matcher+gicp":
-            m = Isolated(name, KissMatcherSolver, points, args.baseline_timeout, config=config, voxel=args.km_voxel)
+            m = Isolated(name, KissMatcherSolver, points, args.baseline_timeout, exact, config=config,
+                         voxel=args.km_voxel)
         elif name == "fpfh-ransac+gicp":
-            m = Isolated(name, FpfhRansacSolver, points, args.baseline_timeout, config=config, voxel=args.fpfh_voxel)
+            m = Isolated(name, FpfhRansacSolver, points, args.baseline_timeout, exact, config=config,
+                         voxel=args.fpfh_voxel)
         else:
             raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
         m._start()  # build the map's side now (its own time, not a query's)
@@ -837,6 +856,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
     p.add_argument("--grid-places", action="store_true", help="MapLocalizer without the map drive's trajectory "
                    "(candidate places on a grid over the map's free space instead of keyframes)")
+    p.add_argument("--inexact", action="store_true", help="small_gicp's GICP solve on every core and the baselines "
+                   "on every core: a little faster, but answers that can change from run to run (default: "
+                   "registration.exact_gicp and the baselines on one CPU, the same answers on any machine)")
     p.add_argument("--generate-only", action="store_true", help="build the cached maps and queries, measure nothing")
     p.add_argument("--quick", action="store_true", help="a smoke test: one scene, a 300 m map, 4 queries, no real "
                    "data unless given, baselines on 2 queries")
@@ -848,11 +870,10 @@ def main(argv: list[str] | None = None) -> int:
     for m in methods:
         if m not in METHODS:
             raise SystemExit(f"unknown method {m!r} (known: {', '.join(METHODS)})")
-    config = None
-    if args.config:
-        from deepbbs_ros.config import load_config
+    from deepbbs_ros.config import Config, load_config
 
-        config = load_config(args.config)
+    config = load_config(args.config) if args.config else Config()
+    config = config.replace(**{"registration.exact_gicp": not args.inexact})
     from deepbbs_ros.sim import SCENES
     from deepbbs_ros.train.cache import TEST_SEED_BASE
 
