@@ -6,6 +6,7 @@ the bookkeeping against known answers; the real methods are the benchmark's busi
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -133,3 +134,23 @@ def test_a_baseline_that_hangs_times_out(tiny):
     ans = quick(data.queries[0].points)
     assert not ans.timeout and ans.valid and np.allclose(ans.T_map_scan, np.eye(4))
     quick.close()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs CPU affinity and 2 CPUs")
+def test_a_baseline_answers_on_one_cpu_and_is_timed_on_every_core(tiny):
+    """The baselines' answers come from a child on one CPU (the same on any machine), their time from a child on
+    every core; the every-core call's time limit decides a timeout."""
+    args, data, _ = tiny
+    both = bench.ExactTimed("sleeper", bench._Sleeper, data.points[:10], 5.0, seconds=0.0)
+    try:
+        both._start()
+        ans = both(data.queries[0].points)
+        assert ans.valid and not ans.timeout and ans.reason == "1 cpus" and np.allclose(ans.T_map_scan, np.eye(4))
+        assert both.timed(data.queries[0].points).reason == f"{len(os.sched_getaffinity(0))} cpus"
+    finally:
+        both.close()
+    slow = bench.ExactTimed("sleeper", bench._Sleeper, data.points[:10], 0.5, seconds=30.0)
+    ans = slow(data.queries[0].points)
+    assert ans.timeout and not ans.valid and slow.timed.proc is None and slow.exact.proc is None  # never asked
+    slow.close()

@@ -206,7 +206,9 @@ def _cmd_fit(args) -> int:
     # torchrun: join the process group first (the device of this rank decides gloo or NCCL)
     args.device = distributed.init_from_env(args.device or _config(args).registration.device)
     try:
-        return _fit(args, main_rank=distributed.world()[0] == 0)
+        code = _fit(args, main_rank=distributed.world()[0] == 0)
+        distributed.barrier()  # leave the group together: rank 0 may still be writing the run when the others end
+        return code
     finally:
         distributed.destroy()
 

@@ -370,6 +370,7 @@ class RegistrationNode(Node):
         self._last_result: dict[str, float] = {}
         self._last_odom_stamp: int | None = None  # odometry mode: a stamp far before it is a time jump (reset)
         self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
+        self._gap_seen: float | None = None  # the last pair's time when a check last found the inputs' stamps apart
         self._last_pair_t = time.monotonic()
         self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
         self._pair_start = PairStart(ncfg.good_start_max_gap, False)  # stamped pairs: the last valid answer (below)
@@ -874,6 +875,11 @@ class RegistrationNode(Node):
             missing = [names[i] for i in range(len(self.inputs)) if i not in arrivals]
             self._warnings.log("unpaired_input", f"no pair for {now - last_pair:.1f} s: {', '.join(missing)} has "
                              f"received nothing while {', '.join(names[i] for i in recent)} receives clouds")
+            return
+        if self._gap_seen != last_pair:
+            # reported from the second check on: at the first one the partner may still be on its input's thread
+            # (one input has scan k, the other still k - 1 while scan k's is decoded: a pair a moment later)
+            self._gap_seen = last_pair
             return
         (_, s0), (_, s1) = arrivals[0], arrivals[1]
         gap = (s0 - s1) * 1e-9

@@ -63,6 +63,14 @@ def destroy() -> None:
         dist.destroy_process_group()
 
 
+def barrier() -> None:
+    """Wait until every process gets here (nothing in a single process)."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier()
+
+
 def world() -> tuple[int, int]:
     """(rank, world size): (0, 1) in a single process."""
     import torch.distributed as dist

@@ -25,8 +25,9 @@ query, each in a child process with a ``--baseline-timeout`` s limit (a timeout 
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
 ``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every answer is
 the same on any machine and in every run: MapLocalizer solves GICP on one thread (``registration.exact_gicp``; its
-k-d trees and covariances, the same on any number of threads, use every core), the baselines' child processes
-run on one CPU and Open3D's RANSAC is seeded (``--inexact`` lifts all three).
+k-d trees and covariances, the same on any number of threads, use every core); a baseline answers from a child
+process on one CPU (Open3D's RANSAC seeded) and is timed by a second child on every core, as a user runs it
+(:class:`ExactTimed`). ``--inexact``: MapLocalizer's GICP and the baselines on every core, one child each.
 
 Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m (valid
 and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts, time per
@@ -369,7 +370,7 @@ class Isolated:
     **kwargs)`` (the map's preparation, reported as ``build_s``) and answers ``solver.solve(scan)`` ->
     (T_map_scan, accepted, reason)."""
 
-    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, one_cpu: bool = True,
+    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, one_cpu: bool = False,
                  **kwargs) -> None:
         self.name, self.solver_cls, self.points, self.kwargs = name, solver_cls, points, kwargs
         self.one_cpu = one_cpu
@@ -420,7 +421,37 @@ class Isolated:
             pass
 
 
-def _serve(solver_cls, points, kwargs, conn, one_cpu: bool = True) -> None:
+class ExactTimed:
+    """A baseline's answer from a child on one CPU (its answers the same on any machine: TBB's and OpenMP's sums
+    follow the CPUs), its time from a second child on every core (as a user runs it). The query times out when the
+    every-core call does; the one-CPU call has twice the time."""
+
+    def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, **kwargs) -> None:
+        self.name = name
+        self.exact = Isolated(name, solver_cls, points, 2.0 * timeout, True, **kwargs)
+        self.timed = Isolated(name, solver_cls, points, timeout, False, **kwargs)
+
+    @property
+    def build_s(self) -> float:
+        return self.timed.build_s
+
+    def _start(self) -> None:
+        self.exact._start()
+        self.timed._start()
+
+    def close(self) -> None:
+        self.exact.close()
+        self.timed.close()
+
+    def __call__(self, scan: np.ndarray, prior: tuple[np.ndarray, float] | None = None) -> Answer:
+        timed = self.timed(scan, prior)
+        if timed.timeout:
+            return timed
+        a = self.exact(scan, prior)
+        return Answer(a.T_map_scan, a.valid, a.reason, timed.time_s, a.timeout)
+
+
+def _serve(solver_cls, points, kwargs, conn, one_cpu: bool = False) -> None:
     """The child of :class:`Isolated`: build the solver, then answer scans until the pipe closes; on one CPU when
     ``one_cpu`` (before any library starts its threads: the same answers on any machine, as deepbbs-replay's)."""
     from deepbbs_ros.baselines import one_cpu as on_one_cpu
@@ -458,7 +489,10 @@ class _Sleeper:
 
     def solve(self, scan, prior=None):
         time.sleep(self.seconds)
-        return np.eye(4), True, ""
+        import os
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
+        return np.eye(4), True, f"{cpus} cpus"
 
 
 def _map_gicp(points: np.ndarray, config):
@@ -656,12 +690,11 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
         exact = not getattr(args, "inexact", False)
         if name == "maplocalizer":
             return MapLocalizerMethod(points, None if args.grid_places else trajectory, config)
+        kind = ExactTimed if exact else Isolated
         if name == "kiss-matcher+gicp":
-            m = Isolated(name, KissMatcherSolver, points, args.baseline_timeout, exact, config=config,
-                         voxel=args.km_voxel)
+            m = kind(name, KissMatcherSolver, points, args.baseline_timeout, config=config, voxel=args.km_voxel)
         elif name == "fpfh-ransac+gicp":
-            m = Isolated(name, FpfhRansacSolver, points, args.baseline_timeout, exact, config=config,
-                         voxel=args.fpfh_voxel)
+            m = kind(name, FpfhRansacSolver, points, args.baseline_timeout, config=config, voxel=args.fpfh_voxel)
         else:
             raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
         m._start()  # build the map's side now (its own time, not a query's)
