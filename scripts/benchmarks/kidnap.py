@@ -41,8 +41,8 @@ def run(kind: str, reps: int, track: int) -> dict:
         p = s.points[np.linalg.norm(s.points, axis=1) < 60.0]
         parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
     trajectory = np.stack([clean.pose_at(k) for k in range(30, 100)])
-    loc = MapLocalizer(voxel_downsample(np.concatenate(parts), 0.2),
-                       Config().replace(**{"registration.network_process": "off", "registration.exact_gicp": True}), trajectory=trajectory)
+    cfg = Config().replace(**{"registration.network_process": "off", "registration.exact_gicp": True})
+    loc = MapLocalizer(voxel_downsample(np.concatenate(parts), 0.2), cfg, trajectory=trajectory)
     drive = DriveSimulator("urban", 5, frames=100, compensate=True)
     other = DriveSimulator("highway", 11, frames=12, compensate=True)
     c, s = np.cos(KIDNAP_YAW), np.sin(KIDNAP_YAW)
