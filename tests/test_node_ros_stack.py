@@ -189,6 +189,29 @@ def test_unpaired_input_is_reported(ros, world):
         h.close()
 
 
+def test_a_stamp_gap_seen_once_before_a_pair_is_not_reported(ros):
+    """A check that finds the inputs one scan apart before the first pair (scan k waits on one input's thread while
+    the other has it) stays silent; the same gap at the next check with still no pair is reported."""
+    cfg = tiny_config(**{"node.unpaired_warn_after": 1.0, "node.diagnostics_period": 60.0})
+    h = Harness(cfg, "reg_gap_once")
+    try:
+        node = h.node
+        now = time.monotonic()
+        with node._lock:
+            node._arrivals = {0: (now, 100 * SEC), 1: (now, 101 * SEC)}
+            node._last_pair_t = now - 5.0
+        node._check_unpaired()
+        assert node.stats()["warnings"].get("unpaired_input", 0) == 0
+        node._check_unpaired()
+        assert node.stats()["warnings"].get("unpaired_input", 0) == 1
+        with node._lock:
+            node._last_pair_t = time.monotonic() - 2.0  # a pair since: the next gap is a first sighting again
+        node._check_unpaired()
+        assert node.stats()["warnings"].get("unpaired_input", 0) == 1
+    finally:
+        h.close()
+
+
 def test_time_jump_restarts_odometry(ros, world):
     """A backward time jump in odometry mode (the bag played again) restarts the odometry at identity, once,
     instead of rejecting every later scan."""
