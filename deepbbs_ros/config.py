@@ -496,6 +496,9 @@ class LocalizationConfig:
     # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
     # pose with a slightly worse optimum nearby scores a few hundredths less)
     ambiguity_probe_margin: float = 0.03
+    # m; the probe's GICP runs on the scan's GICP cloud put on this coarser grid (it asks whether a start comes back,
+    # not where to the centimetre: about half the probe's time; its poses are refined on the whole cloud); 0 = as is
+    probe_voxel: float = 1.0
     # m; the chosen pose is also probed from starts this far ahead, behind and to either side of its heading (GICP from
     # a place a lane off, or a facade's repeat along the street, can settle there with a passing score; the right
     # pose then wins); when no place is accepted, the best answer from this far ahead and behind (a pose slid along
@@ -554,6 +557,7 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
+        _check(self.probe_voxel >= 0, "localization.probe_voxel", "must be >= 0 (0 = the scan's own GICP cloud)")
         _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
         _check(self.far_probe >= 0, "localization.far_probe", "must be >= 0 (0 = no far probe)")
         _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")

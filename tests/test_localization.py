@@ -188,6 +188,28 @@ def test_far_probe_finds_a_pose_slid_along_the_street(localizer, world):
             assert right and max(right) > at_slid + 0.1, (right, at_slid)
 
 
+def test_the_probe_registers_the_scan_on_a_coarser_grid(localizer, world):
+    """``localization.probe_voxel``: the probe's GICP source is the scan's GICP cloud on a 1 m grid (fewer points,
+    the same place); 0, or a grid leaving too few voxels, keeps the scan's own cloud."""
+    from deepbbs_ros.core import localization as L
+
+    _, _, drive, _ = world
+    pc = localizer.prepare(drive.scan_at(48).points).pre.polish_cloud.complete()
+    coarse = localizer._probe_cloud(pc)
+    assert localizer.config.localization.probe_voxel == 1.0
+    assert L.MIN_PROBE_POINTS <= coarse.n_points < pc.n_points / 2
+    from scipy.spatial import cKDTree
+
+    near, _ = cKDTree(pc.points()).query(coarse.points())
+    assert near.max() < np.sqrt(3.0)  # each coarse voxel's centroid lies among the scan's own voxels
+    loc0 = L.MapLocalizer.__new__(L.MapLocalizer)
+    loc0.registration = localizer.registration
+    loc0.config = localizer.config.replace(**{"localization.probe_voxel": 0.0})
+    assert loc0._probe_cloud(pc) is pc
+    loc0.config = localizer.config.replace(**{"localization.probe_voxel": 40.0})  # a handful of voxels
+    assert loc0._probe_cloud(pc) is pc
+
+
 def test_a_failed_pose_slid_along_the_street_is_found_again(localizer, world):
     """No answer accepted, the best one slid 2.7 m along the heading (a highway scan taken the other way): GICP alone
     from far_probe m ahead and behind it (``_slid``) brings one back to the right pose, accepted as sharp."""

@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.polish import polish
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 from deepbbs_ros.reprs import short_repr
 
@@ -64,6 +64,7 @@ __all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "
 
 MIN_MAP_POINTS = 100  # a map with fewer points is refused
 MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
+MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
 # grid places: a cell's ground is "seen from close by" with GROUND_FILL of the points of the best-filled ground cells,
@@ -1025,6 +1026,7 @@ class MapLocalizer:
         for pc in (src_pc, tgt_pc):
             if getattr(pc, "pending", None) is not None:
                 pc.complete(threads=self.registration.gicp_threads())
+        src_pc = self._probe_cloud(src_pc)
         T = np.linalg.inv(crop.T_map_place) @ best.T
         starts = [np.array([dx, dy], np.float64) * lc.ambiguity_probe for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
         head = _heading(T)
@@ -1042,6 +1044,20 @@ class MapLocalizer:
             out.append(_Answer(score, self._accepts(valid, score), crop.T_map_place @ pol.T_target_source,
                                best.place, crop, probe=True))
         return out
+
+
+    def _probe_cloud(self, pc: Any) -> Any:
+        """The scan's GICP cloud for the probe: its voxel centroids on a ``localization.probe_voxel`` m grid (a probe
+        asks whether a start comes back, not where to the centimetre; the pose it finds is refined on the whole cloud),
+        or the cloud itself (``probe_voxel`` 0, or fewer than MIN_PROBE_POINTS voxels on that grid)."""
+        v = self.config.localization.probe_voxel
+        if v <= 0:
+            return pc
+        rc = self.config.registration
+        coarse = prepare_polish_cloud(pc.points(), v, rc.polish_neighbors,
+                                      registration_type=SMALL_GICP_TYPE.get(rc.polish, "GICP"),
+                                      threads=self.registration.gicp_threads())
+        return coarse if coarse.n_points >= MIN_PROBE_POINTS else pc
 
 
 @dataclass
