@@ -1045,7 +1045,6 @@ class MapLocalizer:
                                best.place, crop, probe=True))
         return out
 
-
     def _probe_cloud(self, pc: Any) -> Any:
         """The scan's GICP cloud for the probe: its voxel centroids on a ``localization.probe_voxel`` m grid (a probe
         asks whether a start comes back, not where to the centimetre; the pose it finds is refined on the whole cloud),
