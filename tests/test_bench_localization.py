@@ -136,6 +136,18 @@ def test_a_baseline_that_hangs_times_out(tiny):
     quick.close()
 
 
+def test_a_baseline_that_raises_answers_no_pose_with_the_error_and_keeps_its_child(tiny):
+    args, data, _ = tiny
+    broken = bench.Isolated("sleeper", bench._Sleeper, data.points[:10], 5.0, seconds="not a number")
+    try:
+        ans = broken(data.queries[0].points)
+        assert not ans.valid and not ans.timeout and ans.T_map_scan is None
+        assert ans.reason.startswith("TypeError") and broken.proc is not None  # the child answers the next query
+        assert bench.judge(ans, data.queries[0])["outcome"] == "none"
+    finally:
+        broken.close()
+
+
 @pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
                     reason="needs CPU affinity and 2 CPUs")
 def test_a_baseline_answers_on_one_cpu_and_is_timed_on_every_core(tiny):
@@ -144,7 +156,7 @@ def test_a_baseline_answers_on_one_cpu_and_is_timed_on_every_core(tiny):
     args, data, _ = tiny
     both = bench.ExactTimed("sleeper", bench._Sleeper, data.points[:10], 5.0, seconds=0.0)
     try:
-        both._start()
+        both.start()
         ans = both(data.queries[0].points)
         assert ans.valid and not ans.timeout and ans.reason == "1 cpus" and np.allclose(ans.T_map_scan, np.eye(4))
         assert both.timed(data.queries[0].points).reason == f"{len(os.sched_getaffinity(0))} cpus"

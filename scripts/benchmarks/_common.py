@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark scripts: the --out folder, the JSON figures file, plots without a display."""
+"""Shared helpers of the benchmark scripts: the --out folder, the JSON figures file, plots without a display, solvers
+in child processes (a time limit, one CPU) and calls timed as configured but answered by an exact twin."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ import os
 import platform
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
@@ -99,3 +102,133 @@ def save(fig, out: Path, name: str) -> Path:
     fig.savefig(path, dpi=110, bbox_inches="tight")
     print(f"plot: {path}")
     return path
+
+
+@dataclass
+class Reply:
+    """What a solver in a child process said: ``value`` (what its ``solve`` returned; None with ``error``),
+    ``seconds`` (the call's time in the child; up to the limit on a timeout, NaN when the child died), ``error``
+    (a timeout, a dead child or the solver's exception, in words; "" when it answered) and ``timeout``."""
+
+    value: Any
+    seconds: float
+    error: str = ""
+    timeout: bool = False
+
+
+class Isolated:
+    """A solver in a child process, one request at a time. The child (spawned: a forked child of a process that
+    already ran TBB code can deadlock in KISS-Matcher) builds ``solver_cls(*args, **kwargs)`` (its time:
+    ``build_s``) and answers ``solver.solve(*request)``. A request that takes over ``timeout`` s (None: no limit)
+    kills the child (a C++ solver cannot be stopped from Python otherwise); the next request starts another. With
+    ``one_cpu`` the child runs on one CPU from its start, so that every thread pool it starts has one thread and
+    its answers are the same on any machine (a pool started in this process on every core keeps its threads)."""
+
+    def __init__(self, solver_cls, *args, timeout: float | None = None, one_cpu: bool = False, **kwargs) -> None:
+        self.solver_cls, self.args, self.kwargs = solver_cls, args, kwargs
+        self.timeout = None if timeout is None else float(timeout)
+        self.one_cpu = one_cpu
+        self.build_s = 0.0
+        self.proc = None
+        self.conn = None
+
+    def start(self) -> None:
+        """Start the child and build the solver; OSError with the child's message when it cannot (e.g. a missing
+        optional package)."""
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_serve, args=(self.solver_cls, self.args, self.kwargs, child, self.one_cpu),
+                                daemon=True)
+        self.proc.start()
+        child.close()
+        msg = self.conn.recv()  # ("ready", build_s) or ("error", text)
+        if msg[0] != "ready":
+            self.close()
+            raise OSError(msg[1])
+        self.build_s = max(self.build_s, msg[1])
+
+    def ask(self, *request) -> Reply:
+        if self.proc is None:
+            self.start()
+        t0 = time.perf_counter()
+        self.conn.send(request)
+        if not self.conn.poll(self.timeout):
+            self.close()
+            return Reply(None, time.perf_counter() - t0, f"timeout after {self.timeout:g} s", timeout=True)
+        try:
+            status, value, seconds = self.conn.recv()
+        except EOFError:
+            self.close()
+            return Reply(None, float("nan"), "the child process died")
+        return Reply(value, seconds) if status == "ok" else Reply(None, seconds, value)
+
+    def close(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.join()
+        self.proc = self.conn = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001  (interpreter shutdown)
+            pass
+
+
+def _serve(solver_cls, args, kwargs, conn, one_cpu: bool) -> None:
+    """The child of :class:`Isolated`: build the solver, then answer requests until the pipe closes; on one CPU
+    when ``one_cpu`` (before any library starts its threads; the threads it starts inherit it)."""
+    from deepbbs_ros.baselines import one_cpu as on_one_cpu
+
+    with on_one_cpu(one_cpu):
+        try:
+            t0 = time.perf_counter()
+            solver = solver_cls(*args, **kwargs)
+            conn.send(("ready", time.perf_counter() - t0))
+        except Exception as err:  # noqa: BLE001  (reported in the parent)
+            conn.send(("error", f"{type(err).__name__}: {err}"))
+            return
+        while True:
+            try:
+                request = conn.recv()
+            except (EOFError, OSError):
+                return
+            t0 = time.perf_counter()
+            try:
+                conn.send(("ok", solver.solve(*request), time.perf_counter() - t0))
+            except Exception as err:  # noqa: BLE001  (a solver's failure is an answer, with its message)
+                conn.send(("error", f"{type(err).__name__}: {err}", time.perf_counter() - t0))
+
+
+def cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and every process below it (Linux /proc; elsewhere this
+    process only)."""
+    if not Path("/proc/self/task").is_dir():
+        return time.process_time()
+    tick = os.sysconf("SC_CLK_TCK")
+    total, todo, seen = 0.0, [os.getpid()], set()
+    while todo:
+        p = todo.pop()
+        if p in seen:
+            continue
+        seen.add(p)
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                f = (task / "stat").read_text().rsplit(")", 1)[1].split()
+                total += (int(f[11]) + int(f[12])) / tick
+                todo += [int(c) for c in (task / "children").read_text().split()]
+            except (OSError, ValueError):
+                continue
+    return total
+
+
+def timed_then_answered(call: Callable[[Any], Any], timed: Any, answering: Any = None) -> tuple[Any, float, float]:
+    """``call(timed)`` timed as a user runs it (wall ms, CPU ms of this process), then, when ``answering`` is
+    given, ``call(answering)`` (a twin whose answer is the same on any machine: small_gicp's solve on one thread, a
+    child on one CPU) gives the answer: -> (the answer, wall ms, CPU ms)."""
+    c0, t0 = cpu_seconds(), time.perf_counter()
+    out = call(timed)
+    wall, cpu = (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3
+    return (call(answering) if answering is not None else out), wall, cpu

@@ -34,9 +34,7 @@ call is timed as configured (small_gicp on every core) and a second call, with G
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import time
 from collections import Counter
 from itertools import islice
 from pathlib import Path
@@ -47,28 +45,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
 
 METHODS = ("gicp", "register", "good_start")
-
-
-def cpu_seconds() -> float:
-    """CPU seconds (user + system) of this process and every process below it (Linux /proc; elsewhere this
-    process only)."""
-    if not Path("/proc/self/task").is_dir():
-        return time.process_time()
-    tick = os.sysconf("SC_CLK_TCK")
-    total, todo, seen = 0.0, [os.getpid()], set()
-    while todo:
-        p = todo.pop()
-        if p in seen:
-            continue
-        seen.add(p)
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            try:
-                f = (task / "stat").read_text().rsplit(")", 1)[1].split()
-                total += (int(f[11]) + int(f[12])) / tick
-                todo += [int(c) for c in (task / "children").read_text().split()]
-            except (OSError, ValueError):
-                continue
-    return total
 
 
 def pose_xy_yaw(x: float, y: float, yaw_deg: float) -> np.ndarray:
@@ -121,11 +97,9 @@ class Runner:
                 "why": reason_kind(res.good_start)}
 
     def run(self, method: str, src: np.ndarray, tgt: np.ndarray, T0: np.ndarray) -> dict:
-        c0, t0 = cpu_seconds(), time.perf_counter()
-        out = self._call(self.gicp, self.reg, method, src, tgt, T0)
-        wall, cpu = (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3
-        if self.answering[1] is not self.reg:
-            out = self._call(*self.answering, method, src, tgt, T0)
+        exact = self.answering if self.answering[1] is not self.reg else None
+        out, wall, cpu = _common.timed_then_answered(lambda regs: self._call(*regs, method, src, tgt, T0),
+                                                     (self.gicp, self.reg), exact)
         return {**out, "ms": wall, "cpu_ms": cpu}
 
     def close(self) -> None:

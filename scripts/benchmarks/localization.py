@@ -46,7 +46,6 @@ beside it: placed / wrong / no pose and the time p50 / p95 per map and method.
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
 import sys
 import time
 from dataclasses import dataclass, field
@@ -363,62 +362,23 @@ class MapLocalizerMethod:
         return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
 
 
-class Isolated:
-    """A baseline run in a child process (spawned: a forked child of a process that already ran TBB code can
-    deadlock in KISS-Matcher), one query at a time, killed after ``timeout`` s (a C++ solver cannot be stopped
-    from Python otherwise) and started again for the next query. The child builds ``solver_cls(points,
-    **kwargs)`` (the map's preparation, reported as ``build_s``) and answers ``solver.solve(scan)`` ->
-    (T_map_scan, accepted, reason)."""
+class Isolated(_common.Isolated):
+    """A baseline in a child process (:class:`_common.Isolated`), one query at a time, ``timeout`` s each: the child
+    builds ``solver_cls(points, **kwargs)`` (the map's preparation, ``build_s``) and answers
+    ``solver.solve(scan, prior)`` -> (T_map_scan, accepted, reason)."""
 
     def __init__(self, name: str, solver_cls, points: np.ndarray, timeout: float, one_cpu: bool = False,
                  **kwargs) -> None:
-        self.name, self.solver_cls, self.points, self.kwargs = name, solver_cls, points, kwargs
-        self.one_cpu = one_cpu
-        self.timeout = float(timeout)
-        self.build_s = 0.0
-        self.proc = None
-        self.conn = None
-
-    def _start(self) -> None:
-        ctx = mp.get_context("spawn")
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_serve, args=(self.solver_cls, self.points, self.kwargs, child, self.one_cpu),
-                                daemon=True)
-        self.proc.start()
-        child.close()
-        msg = self.conn.recv()  # ("ready", build_s) or ("error", text)
-        if msg[0] != "ready":
-            self.close()
-            raise OSError(msg[1])  # e.g. a missing optional package: the caller skips the baseline
-        self.build_s = max(self.build_s, msg[1])
-
-    def close(self) -> None:
-        if self.proc is not None:
-            self.proc.kill()
-            self.proc.join()
-        self.proc = self.conn = None
+        super().__init__(solver_cls, points, timeout=timeout, one_cpu=one_cpu, **kwargs)
+        self.name = name
 
     def __call__(self, scan: np.ndarray, prior: tuple[np.ndarray, float] | None = None) -> Answer:
         """``prior``: optional (xy (2,), radius m): register against the map within radius of xy only."""
-        if self.proc is None:
-            self._start()
-        t0 = time.perf_counter()
-        self.conn.send((np.ascontiguousarray(scan), prior))
-        if not self.conn.poll(self.timeout):
-            self.close()
-            return Answer(None, False, f"timeout after {self.timeout:g} s", time.perf_counter() - t0, timeout=True)
-        try:
-            T, ok, why, dt = self.conn.recv()
-        except EOFError:
-            self.close()
-            return Answer(None, False, "the child process died", float("nan"))
-        return Answer(T, bool(ok), why, dt)
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001  (interpreter shutdown)
-            pass
+        r = self.ask(np.ascontiguousarray(scan), prior)
+        if r.error:  # a timeout, a dead child or the solver's exception: no pose, with its message
+            return Answer(None, False, r.error, r.seconds, r.timeout)
+        T, ok, why = r.value
+        return Answer(T, bool(ok), why, r.seconds)
 
 
 class ExactTimed:
@@ -435,9 +395,9 @@ class ExactTimed:
     def build_s(self) -> float:
         return self.timed.build_s
 
-    def _start(self) -> None:
-        self.exact._start()
-        self.timed._start()
+    def start(self) -> None:
+        self.exact.start()
+        self.timed.start()
 
     def close(self) -> None:
         self.exact.close()
@@ -449,36 +409,6 @@ class ExactTimed:
             return timed
         a = self.exact(scan, prior)
         return Answer(a.T_map_scan, a.valid, a.reason, timed.time_s, a.timeout)
-
-
-def _serve(solver_cls, points, kwargs, conn, one_cpu: bool = False) -> None:
-    """The child of :class:`Isolated`: build the solver, then answer scans until the pipe closes; on one CPU when
-    ``one_cpu`` (before any library starts its threads: the same answers on any machine, as deepbbs-replay's)."""
-    from deepbbs_ros.baselines import one_cpu as on_one_cpu
-
-    with on_one_cpu(one_cpu):  # the threads the solver starts inherit it
-        _answer(solver_cls, points, kwargs, conn)
-
-
-def _answer(solver_cls, points, kwargs, conn) -> None:
-    try:
-        t0 = time.perf_counter()
-        solver = solver_cls(points, **kwargs)
-        conn.send(("ready", time.perf_counter() - t0))
-    except Exception as err:  # noqa: BLE001
-        conn.send(("error", f"{type(err).__name__}: {err}"))
-        return
-    while True:
-        try:
-            scan, prior = conn.recv()
-        except (EOFError, OSError):
-            return
-        t0 = time.perf_counter()
-        try:
-            T, ok, why = solver.solve(scan, prior)
-            conn.send((T, ok, why, time.perf_counter() - t0))
-        except Exception as err:  # noqa: BLE001  (a baseline's failure is a "no pose", with its message)
-            conn.send((None, False, f"{type(err).__name__}: {err}", time.perf_counter() - t0))
 
 
 class _Sleeper:
@@ -697,7 +627,7 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
             m = kind(name, FpfhRansacSolver, points, args.baseline_timeout, config=config, voxel=args.fpfh_voxel)
         else:
             raise SystemExit(f"unknown method {name!r} (known: {', '.join(METHODS)})")
-        m._start()  # build the map's side now (its own time, not a query's)
+        m.start()  # build the map's side now (its own time, not a query's)
         return m
     except (ImportError, OSError) as err:
         return f"skipped: {err}"

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from itertools import islice
 from pathlib import Path
 
@@ -142,52 +141,25 @@ def plan(sets: dict, args) -> list[dict]:
     return cases
 
 
-class OneCpuMatcher:
-    """KISS-Matcher (or KISS-Matcher + GICP) in a child process on one CPU from its start, so that its thread pool
-    has one thread: its answers the same on any machine (in this process the pool, once started on every core,
-    keeps its threads). ``register(src, tgt)`` -> its ``T_target_source`` (4, 4)."""
+class MatcherSolver:
+    """KISS-Matcher (or KISS-Matcher + GICP) as a solver of :class:`_common.Isolated`: ``solve(src, tgt)`` -> its
+    ``T_target_source`` (4, 4). In a child on one CPU from its start its thread pool has one thread, so that its
+    answers are the same on any machine."""
 
     def __init__(self, method: str, config) -> None:
-        import multiprocessing as mp
+        from deepbbs_ros.baselines import KissMatcherRegistration
 
-        self.conn, child = mp.get_context("spawn").Pipe()
-        self.proc = mp.get_context("spawn").Process(target=_matcher_child, args=(method, config, child), daemon=True)
-        self.proc.start()
-        child.close()
+        self.reg = KissMatcherRegistration(method, config)
 
-    def register(self, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
-        self.conn.send((src, tgt))
-        status, value = self.conn.recv()
-        if status != "ok":
-            raise RuntimeError(value)
-        return value
-
-    def close(self) -> None:
-        self.proc.kill()
-        self.proc.join()
-
-
-def _matcher_child(method: str, config, conn) -> None:
-    from deepbbs_ros.baselines import KissMatcherRegistration, one_cpu
-
-    with one_cpu():
-        reg = KissMatcherRegistration(method, config)
-        while True:
-            try:
-                src, tgt = conn.recv()
-            except (EOFError, OSError):
-                return
-            try:
-                conn.send(("ok", reg.align(reg.preprocess(src), reg.preprocess(tgt)).T_target_source))
-            except Exception as err:  # noqa: BLE001  (reported in the parent)
-                conn.send(("error", f"{type(err).__name__}: {err}"))
+    def solve(self, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+        return self.reg.align(self.reg.preprocess(src), self.reg.preprocess(tgt)).T_target_source
 
 
 def make_methods(names: list[str], args) -> dict:
     """method -> (the registration timed, the registration whose answer counts or None: the timed one's). By default
     the answers are exact (the same on any machine) and the times are those of every core, as a user runs each
     method: DeepBBS++ answers with ``registration.exact_gicp``, GICP with one thread and KISS-Matcher from a child
-    on one CPU (:class:`OneCpuMatcher`); ``--inexact``: one call on every core answers and is timed."""
+    on one CPU (:class:`MatcherSolver`); ``--inexact``: one call on every core answers and is timed."""
     from deepbbs_ros.baselines import KissMatcherRegistration, SmallGicpRegistration
     from deepbbs_ros.config import load_config
     from deepbbs_ros.core.registration import DeepBBSRegistration
@@ -212,15 +184,19 @@ def make_methods(names: list[str], args) -> dict:
             regs[m] = (SmallGicpRegistration("gicp", every),
                        SmallGicpRegistration("gicp", base.replace(**{"eval.threads": 1})) if exact else None)
         elif m in ("kiss-matcher", "kiss-matcher+gicp"):
-            regs[m] = (KissMatcherRegistration(m, every), OneCpuMatcher(m, every) if exact else None)
+            regs[m] = (KissMatcherRegistration(m, every),
+                      _common.Isolated(MatcherSolver, m, every, one_cpu=True) if exact else None)
         else:
             raise SystemExit(f"unknown method {m!r}; choose from {DEFAULT_METHODS}")
     return regs
 
 
 def _register(m: str, reg, src: np.ndarray, tgt: np.ndarray):
-    if isinstance(reg, OneCpuMatcher):
-        return reg.register(src, tgt), {}
+    if isinstance(reg, _common.Isolated):
+        reply = reg.ask(src, tgt)
+        if reply.error:
+            raise RuntimeError(reply.error)
+        return reply.value, {}
     if m in DEEP:
         res = reg.register(src, tgt)
         return res.T_target_source, {"valid": bool(res.valid), "score": float(res.score), "starts": int(res.starts)}
@@ -229,12 +205,7 @@ def _register(m: str, reg, src: np.ndarray, tgt: np.ndarray):
 
 def run_case(m: str, regs, src: np.ndarray, tgt: np.ndarray) -> dict:
     """One method on one pair: the timed registration's wall time, the answering one's pose (and verdict)."""
-    timed, answering = regs
-    t0 = time.perf_counter()
-    T, extra = _register(m, timed, src, tgt)
-    ms = (time.perf_counter() - t0) * 1e3
-    if answering is not None:
-        T, extra = _register(m, answering, src, tgt)
+    (T, extra), ms, _ = _common.timed_then_answered(lambda reg: _register(m, reg, src, tgt), *regs)
     return {"ms": ms, "T": T, **extra}
 
 
