@@ -118,6 +118,13 @@ def main(argv: list[str]) -> int:
     fig = load(out, "odometry.json")
     if fig:
         odometry(fig)
+    fig = load(out, "kidnap.json")
+    if fig:
+        print("\n## kidnap (lost after scans, wrong poses, rejected scan p50 s (x tracked), relocalized p50 s)")
+        for kind, c in fig.items():
+            print(f"  {kind:<6} lost after {c['lost_after_scans']}, wrong {c['wrong_poses']}, rejected "
+                  f"{f(c['rejected_scan_p50_s'])} s (x{f(c.get('rejected_over_tracked'), '.2f')}), relocalized "
+                  f"{f(c['relocalize_p50_s'])} s after {c.get('relocalized_after_scans')} scans back")
     fig = load(out, "busy.json")
     if fig:
         print("\n## busy computer (p50 / p95 ms per raw pair, DeepBBS++ and GICP)")

@@ -64,8 +64,8 @@ PLOTS = {
                                                                     "share answered within a time")],
 }
 BENCHMARKS = ["registration", "good_start", "deskew", "odometry", "localization", "node_latency_odometry",
-              "node_latency_pair", "node_latency_localization", "first_contact", "busy", "decode", "simulator", "fleet",
-              "threads"]
+              "node_latency_pair", "node_latency_localization", "kidnap", "first_contact", "busy", "decode",
+              "simulator", "fleet", "threads"]
 NODE_LATENCY = ("node_latency_odometry", "node_latency_pair", "node_latency_localization")
 NODE_KEEP = ("layout", "stream", "run", "busy", "method", "pairs", "answered", "p50_ms", "p99_ms", "error", "cpu",
              "cpu_ms")
@@ -731,6 +731,43 @@ def node_latency_localization(doc: dict | None, d: Path) -> list[str]:
     return out + table(header, rows) + notes.lines()
 
 
+KIDNAPS = {"other": "into another world (a highway drive)", "same": "elsewhere in the same map"}
+
+
+def scans(v: list | None) -> str:
+    """A count of scans per kidnap: its range over the kidnaps, "-" for a kidnap without one."""
+    if not v:
+        return "-"
+    known = [x for x in v if x is not None]
+    if not known:
+        return "never"
+    lo, hi = min(known), max(known)
+    text = f"{lo}" if lo == hi else f"{lo}-{hi}"
+    return text + (f" ({len(v) - len(known)} never)" if len(known) < len(v) else "")
+
+
+def kidnap(doc: dict | None, d: Path) -> list[str]:
+    out = plots("kidnap", d) + command(doc)
+    header = ["the sensor carried", "kidnaps", "lost after (scans)", "wrong poses", "rejected scan p50 ms "
+              "(x a tracked scan's)", "found again after (scans back)", "relocalization p50 ms"]
+    if doc is None:
+        return out + not_run_table(header, list(KIDNAPS.values()))
+    rows, dist = [], []
+    for kind, c in doc["figures"].items():
+        rej, trk, rel = (c.get(k) for k in ("rejected_scan_p50_s", "tracked_scan_p50_s", "relocalize_p50_s"))
+        rows.append([KIDNAPS.get(kind, kind), str(c["kidnaps"]), scans(c.get("lost_after_scans")),
+                     str(c["wrong_poses"]), f"{ms(None if rej is None else 1e3 * rej)} "
+                     f"({ratio(c.get('rejected_over_tracked'))})", scans(c.get("relocalized_after_scans")),
+                     ms(None if rel is None else 1e3 * rel)])
+        dist += c.get("kidnap_distance_m") or []
+    trk = [c.get("tracked_scan_p50_s") for c in doc["figures"].values() if c.get("tracked_scan_p50_s")]
+    tail = ([f"A tracked scan: p50 {ms(1e3 * min(trk))}-{ms(1e3 * max(trk))} ms in the same runs."] if trk else [])
+    if dist:
+        tail.append(f"Elsewhere in the same map: {num(min(dist), 0)}-{num(max(dist), 0)} m from the last tracked "
+                    "pose, turned 115 deg.")
+    return out + table(header, rows) + ([""] + tail if tail else [])
+
+
 def first_contact(doc: dict | None, d: Path) -> list[str]:
     out = plots("first_contact", d) + command(doc)
     labels = ["scans answered", "ready in (model + warm-up)", "from the process start, imports included"]
@@ -1007,7 +1044,7 @@ def section(name: str, docs: dict[str, dict | None], d: Path) -> list[str]:
           "node_latency_odometry": node_latency_odometry, "node_latency_pair": node_latency_pair,
           "first_contact": first_contact, "busy": busy, "decode": decode, "simulator": simulator,
           "fleet": fleet, "threads": threads, "good_start": good_start, "localization": localization,
-          "node_latency_localization": node_latency_localization}.get(name)
+          "node_latency_localization": node_latency_localization, "kidnap": kidnap}.get(name)
     if fn is None:
         raise SystemExit(f"render_docs.py: unknown marker bench:{name}")
     return fn(doc, d)

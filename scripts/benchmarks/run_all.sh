@@ -75,6 +75,7 @@ step node_latency_localization $PY $B/node_latency.py --mode localization --layo
   --seconds 10 --out "$OUT/node_latency_localization"
 machine node_latency_localization
 step localization $PY $B/localization.py --kitti "${KITTI[@]}" "${PAIR[@]}" --cache "$CACHE" --out "$OUT"
+step kidnap $PY $B/kidnap.py --out "$OUT"
 step fleet $PY $B/fleet.py --recordings 4 --frames 20 --workers 1,2 --out "$OUT"
 step threads $PY $B/threads.py bags/urban_drive_hdl64 --rounds 3 --out "$OUT"
 cp "$OUT/node_latency_odometry/latency.png" "$OUT/node_latency_odometry.png" 2>/dev/null
