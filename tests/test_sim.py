@@ -358,6 +358,26 @@ def test_cli_writes_a_readable_drive(tmp_path, capsys):
     assert "--beams must be in [1, 64]" in capsys.readouterr().err
 
 
+def test_moving_cars_keep_out_of_the_ego_vehicle():
+    """A drive in a lane the moving cars use (the other way) never has its sensor inside one: a car whose body would
+    overlap the ego vehicle is left out; one alongside in the next lane, or ahead, is not."""
+    from deepbbs_ros.sim.scene import EGO_HALF_SIZE, World
+
+    world = World("suburban", 4, 400.0, day=1)
+    row = world.movers[(world.movers[:, 0] > 100) & (world.movers[:, 0] < 300)][0]
+    s0, off, length = float(row[0]), float(row[1]), float(row[4])
+    xy = world.route.lateral(s0, off)
+    _, h, _ = world.route.sample(s0)
+    ahead, left = np.array([np.cos(h), np.sin(h)]), np.array([-np.sin(h), np.cos(h)])
+    faces = len(world.moving_mesh(0.0, xy, 200.0)[1])
+    assert faces > 0
+    assert len(world.moving_mesh(0.0, xy, 200.0, ego_xy=xy)[1]) == faces - 24  # that car's body and cab gone
+    inside = xy + (length / 2 + EGO_HALF_SIZE[0] - 0.2) * ahead  # the ego's tail over its nose
+    assert len(world.moving_mesh(0.0, xy, 200.0, ego_xy=inside)[1]) == faces - 24
+    for ego in (xy + 3.5 * left, xy + (length / 2 + EGO_HALF_SIZE[0] + 0.5) * ahead):  # the next lane; just ahead of it
+        assert len(world.moving_mesh(0.0, xy, 200.0, ego_xy=ego)[1]) == faces
+
+
 def test_second_drive_through_the_same_world():
     """Another lane, the opposite direction, another day: the same static world, the same road, other cars."""
     lid = small_lidar(range_noise=0.0, dropout=0.0)

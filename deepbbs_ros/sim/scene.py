@@ -18,7 +18,8 @@ A :class:`World` is fully determined by ``(scene, seed, length)``:
   tree lines, woods, poles, lamp posts, signs, sign boards, traffic lights, parked cars, fences
   and noise walls with posts, guard rails in stretches with breaks, median barriers, and on
   highways sign gantries and overpasses (deck, parapets, piers, abutments),
-* moving cars on the other lanes (constant speed along the route).
+* moving cars on the other lanes (constant speed along the route; a drive in one of their lanes, e.g. the
+  other way, never has one overlapping its own vehicle).
 
 Geometry is grouped in 50 m chunks of route length and 40 m terrain tiles, so a simulator only
 builds the part near the sensor (:meth:`World.static_mesh`), which keeps long drives cheap.
@@ -42,6 +43,7 @@ CHUNK = 50.0  # m of route length per geometry chunk
 TILE = 40.0  # m, terrain tile edge
 TILE_RES = 2.0  # m, terrain grid spacing
 ROAD_DZ = 0.03  # m, road surface above the terrain
+EGO_HALF_SIZE = (2.5, 1.0)  # m, half the ego vehicle's length and width about its sensor: moving cars keep out
 CURB_DZ = 0.18  # m, sidewalk above the terrain
 
 ALB_ROAD, ALB_MARK, ALB_WALK, ALB_VERGE, ALB_CURB = 0.10, 0.75, 0.35, 0.25, 0.40
@@ -1083,8 +1085,10 @@ class World:
                     nv += len(v)
         return np.concatenate(vs), np.concatenate(fs), np.concatenate(as_)
 
-    def moving_mesh(self, t: float, center_xy: np.ndarray, radius: float):
-        """Moving cars at time ``t`` (s) within ``radius`` of ``center_xy``: vertices, faces, albedo."""
+    def moving_mesh(self, t: float, center_xy: np.ndarray, radius: float, ego_xy: np.ndarray | None = None):
+        """Moving cars at time ``t`` (s) within ``radius`` of ``center_xy``: vertices, faces, albedo. With ``ego_xy``
+        (2,), the ego vehicle's position: none whose body would overlap the ego's (EGO_HALF_SIZE about it; a drive in
+        a lane the moving cars use, e.g. the other way, would otherwise put its sensor inside one)."""
         b = MeshBuilder()
         if len(self.movers):
             m = self.movers
@@ -1093,6 +1097,12 @@ class World:
             if ok.any():
                 xy = self.route.lateral(s[ok], m[ok, 1])
                 near = np.linalg.norm(xy - np.asarray(center_xy)[:2], axis=1) < radius
+                if ego_xy is not None and near.any():
+                    _, h, _ = self.route.sample(s[ok])
+                    d = np.asarray(ego_xy, np.float64)[:2] - xy
+                    along = np.abs(d[:, 0] * np.cos(h) + d[:, 1] * np.sin(h))
+                    across = np.abs(-d[:, 0] * np.sin(h) + d[:, 1] * np.cos(h))
+                    near &= ~((along < m[ok, 4] / 2 + EGO_HALF_SIZE[0]) & (across < m[ok, 5] / 2 + EGO_HALF_SIZE[1]))
                 for row, si in zip(m[ok][near], s[ok][near]):
                     yaw_rel = 0.0 if row[2] > 0 else np.pi
                     body, cab = self._car(float(si), float(row[1]), yaw_rel, tuple(row[4:7]), float(row[7]))

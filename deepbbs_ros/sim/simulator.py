@@ -203,7 +203,8 @@ class DriveSimulator:
             T_cols = np.broadcast_to(self.T_world_lidar(t0), (ncol, 4, 4))
         T0 = T_cols[0].copy()
         dynamic = None
-        mv, mf, ma = self.world.moving_mesh(t0 + 0.5 * self.period, T0[:2, 3], lid.max_range + 30.0)
+        mv, mf, ma = self.world.moving_mesh(t0 + 0.5 * self.period, T0[:2, 3], lid.max_range + 30.0,
+                                             ego_xy=self.T_world_lidar(t0 + 0.5 * self.period)[:2, 3])
         if len(mf):  # moving cars, frozen at mid-sweep; only rays whose azimuth can reach them
             sel = self._rays_towards(mv, T_cols[0], T_cols[-1], nb)
             dynamic = (RayCaster(mv, mf, caster.origin), ma, sel)

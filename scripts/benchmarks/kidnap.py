@@ -5,12 +5,12 @@ the scan that finds the pose again, beside a tracked scan's in the same run.
 
 A map of a simulated urban drive (every 2nd frame, noiseless, at its true poses, with its trajectory), tracked over
 ``--track`` scans, then the sensor is kidnapped for two scans, either into another world (``other``: a highway drive
-of another seed) or elsewhere in the same map (``same``: ``JUMP`` frames ahead, about 170 m, turned 115 deg), then back on the drive.
-``--reps`` kidnaps per kind. Figures (``kidnap.json`` under ``--out``): per kind, the seconds of each tracked scan
-before the kidnap, of each rejected scan and of each relocalization, scans until lost, scans back on the drive until
-relocalized, the kidnap's distance, wrong poses published (any valid pose more than 1 deg / 0.3 m off, or any valid
-pose in another world: must be 0). GICP solves on one thread (``registration.exact_gicp``): every figure but the
-times is the same on any machine. ::
+of another seed) or elsewhere in the same map (``same``: ``JUMP`` frames ahead, about 170 m, turned 115 deg), then
+back on the drive. ``--reps`` kidnaps per kind. Figures (``kidnap.json`` under ``--out``): per kind, the seconds of
+each tracked scan before the kidnap, of each rejected scan and of each relocalization, scans until lost, scans back
+on the drive until relocalized, the kidnap's distance, wrong poses published (any valid pose more than 1 deg / 0.3 m
+off, or any valid pose in another world: must be 0). GICP solves on one thread (``registration.exact_gicp``): every
+figure but the times is the same on any machine. ::
 
     python scripts/benchmarks/kidnap.py --out results/benchmarks
 """
@@ -60,7 +60,8 @@ def run(kind: str, reps: int, track: int) -> dict:
         seq += [("kidnap", end), ("kidnap", end + 1)] + [("drive", k) for k in range(end + 2, end + 5)]
         lost_at = found_at = None
         if kind == "same":
-            moved.append(float(np.linalg.norm(drive.pose_at(min(end + JUMP, FRAMES - 1))[:3, 3] - drive.pose_at(end)[:3, 3])))
+            there = drive.pose_at(min(end + JUMP, FRAMES - 1))
+            moved.append(float(np.linalg.norm(there[:3, 3] - drive.pose_at(end)[:3, 3])))
         for i, (what, k) in enumerate(seq):
             if what == "drive":
                 scan = drive.scan_at(k).points
