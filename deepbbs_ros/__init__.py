@@ -17,6 +17,13 @@ __version__ = "0.1.0"
 # or small_gicp import), so it is set here, before either. A user's own OMP_WAIT_POLICY wins.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# numpy's, OpenBLAS's and torch's kernels chosen by the CPU (AVX-512 here, AVX2 there) round differently: the AVX2
+# ones on every x86-64 CPU that has them, so that answers are the same to the last digit on any computer. Read when
+# each library loads, so also set here (deepbbs_ros.cpu_kernels; DEEPBBS_CPU_KERNELS=native opts out).
+from deepbbs_ros import cpu_kernels as _cpu_kernels  # noqa: E402
+
+_cpu_kernels.pin()
+
 from deepbbs_ros.errors import (  # noqa: E402
     BagError,
     ConfigError,

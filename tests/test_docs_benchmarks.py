@@ -224,3 +224,4 @@ def test_paths_outside_the_repository_are_shortened():
     assert render_docs.short_path("scripts/benchmarks/localization.py") == "scripts/benchmarks/localization.py"
     assert render_docs.scrub({"command": "x.py --kitti ../data/kitti/00 --out /tmp/run/out"}) == {
         "command": "x.py --kitti PATH/TO/kitti/00 --out PATH/TO/run/out"}
+    assert render_docs.scrub({"cache": "~/.cache/deepbbs_ros/bench"}) == {"cache": "PATH/TO/deepbbs_ros/bench"}

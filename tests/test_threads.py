@@ -88,3 +88,49 @@ def test_exact_gicp_gives_the_one_thread_pose_to_the_last_bit(street_pair):
     for _ in range(3):
         exact = solve(**{"registration.polish_threads": 2, "registration.exact_gicp": True})
         np.testing.assert_array_equal(exact.T_target_source, ref.T_target_source)
+
+
+def test_pin_chooses_the_avx2_kernels_and_keeps_the_users_own(monkeypatch):
+    """deepbbs_ros.cpu_kernels.pin: the AVX2 kernels of OpenBLAS, torch and numpy on an x86-64 CPU with AVX2 (the
+    same sums on any such computer); a setting the user made wins; DEEPBBS_CPU_KERNELS=native sets nothing."""
+    from deepbbs_ros import cpu_kernels
+
+    monkeypatch.setattr(cpu_kernels, "_has_avx2", lambda: True)
+    monkeypatch.setattr(cpu_kernels.platform, "machine", lambda: "x86_64")
+    env = {"OPENBLAS_CORETYPE": "Zen"}
+    assert cpu_kernels.pin(env).startswith("avx2")
+    assert env["OPENBLAS_CORETYPE"] == "Zen" and env["ATEN_CPU_CAPABILITY"] == "avx2"
+    assert env["NPY_DISABLE_CPU_FEATURES"] in cpu_kernels.NUMPY_ABOVE_AVX2.values()
+    assert "except numpy" in cpu_kernels.state()  # this process imported numpy long ago: it keeps its own kernels
+    env = {"DEEPBBS_CPU_KERNELS": "native"}
+    assert cpu_kernels.pin(env) == "native (DEEPBBS_CPU_KERNELS=native)" and set(env) == {"DEEPBBS_CPU_KERNELS"}
+    monkeypatch.setattr(cpu_kernels, "_has_avx2", lambda: False)
+    env = {}
+    assert cpu_kernels.pin(env) == "native (no AVX2 found)" and env == {}
+    monkeypatch.setattr(cpu_kernels.platform, "machine", lambda: "aarch64")
+    assert cpu_kernels.pin({}) == "native (aarch64 CPU)"
+
+
+def test_a_process_that_imports_deepbbs_ros_first_runs_numpy_and_torch_on_avx2_kernels():
+    """In a fresh process ``import deepbbs_ros`` comes before numpy and torch load: numpy dispatches nothing above
+    AVX2 and torch runs its AVX2 kernels; numpy imported first keeps its own, and the state says so."""
+    import subprocess
+    import sys
+
+    from deepbbs_ros import cpu_kernels
+
+    if not cpu_kernels._has_avx2():
+        pytest.skip("this CPU has no AVX2: the kernels stay the CPU's own")
+    env = {k: v for k, v in os.environ.items()
+           if k not in (*cpu_kernels.ENV, "NPY_DISABLE_CPU_FEATURES", "DEEPBBS_CPU_KERNELS")}
+    code = ("import deepbbs_ros, numpy, torch\n"
+            "from numpy._core._multiarray_umath import __cpu_features__ as f\n"
+            "from deepbbs_ros import cpu_kernels\n"
+            "import os\n"
+            "above = [k for k in os.environ['NPY_DISABLE_CPU_FEATURES'].split() if f.get(k)]\n"
+            "print(cpu_kernels.state(), torch.backends.cpu.get_cpu_capability(), above)\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["avx2", "AVX2", "[]"], out
+    late = subprocess.run([sys.executable, "-c", "import numpy, deepbbs_ros.cpu_kernels as c; print(c.state())"],
+                          env=env, capture_output=True, text=True, check=True).stdout
+    assert late.strip() == "avx2 except numpy (imported before deepbbs_ros)"

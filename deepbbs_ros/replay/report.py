@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros import __version__, metrics
+from deepbbs_ros import __version__, cpu_kernels, metrics
 from deepbbs_ros.config import Config
 from deepbbs_ros.replay.methods import topic_name
 from deepbbs_ros.replay.runner import LocalizationResults, OdometryResults, PairResults
@@ -241,6 +241,7 @@ def write_metrics_json(path: Path, *, source: str, mode: str,
         definitions = ODOMETRY_DEFINITIONS
     doc = {
         "version": __version__,
+        "cpu_kernels": cpu_kernels.state(),  # the same figures on any x86-64 computer with AVX2 when "avx2"
         "source": source,
         "mode": mode,
         "complete": bool(res.complete),

@@ -17,6 +17,14 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
+from deepbbs_ros import cpu_kernels  # noqa: E402  (pins the CPU kernels of numpy, OpenBLAS and torch)
+
+if (cpu_kernels.state().startswith("avx2 except") and Path(sys.argv[0]).resolve().parent == Path(__file__).parent
+        and not os.environ.get("DEEPBBS_BENCH_REEXEC")):
+    # a benchmark script imported numpy before this module: start it again with the pins in its environment
+    os.environ["DEEPBBS_BENCH_REEXEC"] = "1"
+    os.execv(sys.executable, [sys.executable, *sys.argv])
+
 
 def clean(v):
     """JSON-safe: NaN/inf -> None, numpy scalars -> Python numbers, tuples -> lists."""
@@ -72,7 +80,7 @@ def cpu_model() -> str:
 def machine() -> dict:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     return {"cpus": os.cpu_count(), "cpu_model": cpu_model(), "platform": platform.platform(),
-            "python": platform.python_version(), "load_avg_1min": load,
+            "python": platform.python_version(), "cpu_kernels": cpu_kernels.state(), "load_avg_1min": load,
             "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
 
 

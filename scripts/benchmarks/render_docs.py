@@ -119,11 +119,11 @@ def not_run_table(header: list[str], labels: list[str]) -> list[str]:
 
 def short_path(token: str) -> str:
     """A path in a recorded command: relative to the repository, or PATH/TO/<its last two parts> outside it (an
-    absolute one, or a relative one leading out of the repository: ``../data/kitti/00``)."""
+    absolute one, one in the home folder, or a relative one leading out of the repository: ``../data/kitti/00``)."""
     if token.startswith("../"):
         path = (ROOT / token).resolve()  # the benchmarks run from the repository's root
-    elif token.startswith("/"):
-        path = Path(token)
+    elif token.startswith(("/", "~/")):
+        path = Path(token).expanduser()
     else:
         return token
     if path == ROOT or ROOT in path.parents:
@@ -194,7 +194,7 @@ def scrub(v):
     if isinstance(v, list):
         return [scrub(x) for x in v]
     if isinstance(v, str) and "/" in v:
-        return re.sub(r"(?<![\w.])(?:/|\.\./)[^\s\"',;]+", lambda m: short_path(m.group()), v)
+        return re.sub(r"(?<![\w.~])(?:~?/|\.\./)[^\s\"',;]+", lambda m: short_path(m.group()), v)
     return v
 
 
