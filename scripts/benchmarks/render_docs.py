@@ -878,15 +878,19 @@ def machine(docs: dict[str, dict | None], d: Path) -> list[str]:
     ms_ = {n: doc.get("machine") or {} for n, doc in ran.items()}
     out = []
     common = {}
-    for k in ("cpus", "platform", "python"):
-        vals = {m.get(k) for m in ms_.values() if m.get(k) is not None}
-        if len(vals) == 1:
+    keys = ("cpus", "cpu_model", "platform", "python", "cpu_kernels")
+    for k in keys:
+        vals = {m.get(k) for m in ms_.values()}
+        if len(vals) == 1 and None not in vals:
             common[k] = vals.pop()
     if common:
-        out += [f"{common.get('cpus', '-')} CPUs, {common.get('platform', '-')}, Python {common.get('python', '-')}.",
-                ""]
-    header = ["benchmark", "results written (UTC)", "load average (1 min)"] + [k for k in ("cpus", "platform", "python")
-                                                                       if k not in common]
+        model = f" ({common['cpu_model']})" if "cpu_model" in common else ""
+        kernels = {"avx2": "; numpy, OpenBLAS and torch on their AVX2 kernels"}.get(common.get("cpu_kernels"), "")
+        out += [f"{common.get('cpus', '-')} CPUs{model}, {common.get('platform', '-')}, Python "
+                f"{common.get('python', '-')}{kernels}.", ""]
+    own = [k for k in keys if k not in common]  # differing between the benchmarks: a column each
+    labels = {"cpus": "CPUs", "cpu_model": "CPU", "platform": "platform", "python": "Python", "cpu_kernels": "kernels"}
+    header = ["benchmark", "results written (UTC)", "load average (1 min)"] + [labels[k] for k in own]
     rows = []
     for n in BENCHMARKS:
         m = ms_.get(n)
@@ -894,7 +898,7 @@ def machine(docs: dict[str, dict | None], d: Path) -> list[str]:
             rows.append([n, NOT_RUN, NOT_RUN] + [NOT_RUN] * (len(header) - 3))
             continue
         rows.append([n, m.get("date_utc") or "-", num(m.get("load_avg_1min"), 2)]
-                    + [str(m.get(k, "-")) for k in header[3:]])
+                    + [str(m.get(k, "-")) for k in own])
     return out + table(header, rows)
 
 
@@ -990,6 +994,17 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
             return NOT_RUN
         return f"{pct(100 * c['placed_share'], c['queries'])}, {c['wrong_count']} wrong, {loc_time(c)} ms"
 
+    def kidnap_cell():
+        kd = (docs.get("kidnap") or {}).get("figures")
+        if not kd:
+            return NOT_RUN
+        lost = [x for c in kd.values() for x in c.get("lost_after_scans") or [None]]
+        back = [x for c in kd.values() for x in c.get("relocalized_after_scans") or [None]]
+        rel = [c["relocalize_p50_s"] for c in kd.values() if c.get("relocalize_p50_s") is not None]
+        return (f"lost after {scans(lost)} scans, {sum(c['wrong_poses'] for c in kd.values())} wrong, found again "
+                f"after {scans(back)} scan{'s' if max((x or 0) for x in back) > 1 else ''} back"
+                + (f" (relocalization p50 {ms(1e3 * max(rel))} ms)" if rel else ""))
+
     if fl is None:
         fleet_cell = NOT_RUN
     else:
@@ -1019,6 +1034,9 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
          "deg / 0.3 m, wrong poses, p50 / p95 to the first pose", loc_cell("maplocalizer"),
          "KISS-Matcher + GICP: " + loc_cell("kiss-matcher+gicp"),
          "[localization](docs/benchmarks.md#global-localization-in-a-prior-map)"],
+        ["losing the pose and finding it again", "tracking a simulated drive, the sensor carried 170 m along the map "
+         "or into another world for two scans; scans to declare it lost, wrong poses, scans back until found",
+         kidnap_cell(), "-", "[kidnap](docs/benchmarks.md#losing-the-pose-and-finding-it-again)"],
         ["odometry", "held-out simulated urban drive, raw sweeps; KITTI drift % / ATE m", odo_cell("deepbbs++"),
          "KISS-ICP: " + odo_cell("kiss-icp"), "[odometry](docs/benchmarks.md#odometry)"],
         ["live node, 10 Hz clouds from another process", "odometry mode, HDL-64E layout; share answered, p50 / p99 "
