@@ -17,9 +17,12 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
-from deepbbs_ros import cpu_kernels  # noqa: E402  (pins the CPU kernels of numpy, OpenBLAS and torch)
+# importing deepbbs_ros sets what the libraries read when they load: OMP_WAIT_POLICY=PASSIVE (before torch and
+# small_gicp) and the CPU kernels of numpy, OpenBLAS and torch (deepbbs_ros.cpu_kernels), as the CLIs do
+from deepbbs_ros import cpu_kernels  # noqa: E402
 
-if (cpu_kernels.state().startswith("avx2 except") and Path(sys.argv[0]).resolve().parent == Path(__file__).parent
+HERE = Path(__file__).resolve().parent
+if (cpu_kernels.state().startswith("avx2 except") and Path(sys.argv[0]).resolve().parent == HERE
         and not os.environ.get("DEEPBBS_BENCH_REEXEC")):
     # a benchmark script imported numpy before this module: start it again with the pins in its environment
     os.environ["DEEPBBS_BENCH_REEXEC"] = "1"

@@ -21,8 +21,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
 
-import deepbbs_ros  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY=PASSIVE before torch loads, as the CLIs do)
-
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -10,7 +10,7 @@ back on the drive. ``--reps`` kidnaps per kind. Figures (``kidnap.json`` under `
 each tracked scan before the kidnap, of each rejected scan and of each relocalization, scans until lost, scans back
 on the drive until relocalized, the kidnap's distance, wrong poses published (any valid pose more than 1 deg / 0.3 m
 off, or any valid pose in another world: must be 0). GICP solves on one thread (``registration.exact_gicp``): every
-figure but the times is the same on any machine. ::
+figure but the times is the same on any x86-64 computer with AVX2. ::
 
     python scripts/benchmarks/kidnap.py --out results/benchmarks
 """

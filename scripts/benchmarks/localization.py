@@ -56,8 +56,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
 
-import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
-
 GEN_VERSION = 4  # bumped whenever the generated maps / queries change (cache key)
 ROT_OK_DEG, TRANS_OK_M = 1.0, 0.3
 METHODS = ("maplocalizer", "kiss-matcher+gicp", "fpfh-ransac+gicp")

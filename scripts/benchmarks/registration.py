@@ -33,8 +33,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
 
-import deepbbs_ros  # noqa: E402,F401  (before torch: OMP_WAIT_POLICY=PASSIVE, as the CLIs do)
-
 PROTOCOLS = {"as-they-come": (0.0, 0.0), "45deg-5m": (45.0, 5.0), "any-start": (180.0, 10.0)}
 DEEP = {  # method -> config overrides of DeepBBSRegistration (a str: a config file of the repository)
     "deepbbs++": {},
