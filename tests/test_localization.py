@@ -145,15 +145,41 @@ def test_global_pose_without_a_guess(localizer, world):
         assert 0 <= res.place < len(localizer.places)
 
 
+def test_crops_are_views_of_the_map_cloud_prepared_once(localizer, world):
+    """localization.shared_cloud (default): the map's GICP cloud is prepared once with the map and every crop is a
+    view of it (nothing prepared per crop but the network's points), counted in nbytes; without it each crop prepares
+    its own cloud. Both place a scan the map was not built from."""
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.polish import PolishView
+
+    map_points, trajectory, drive, _ = world
+    assert localizer._cloud is not None and localizer._cloud.n_points > 1000
+    crop = localizer._crop(0)
+    assert isinstance(crop.pre.polish_cloud, PolishView) and crop.pre.polish_cloud.cloud is localizer._cloud.cloud
+    local = crop.pre.polish_cloud.points()
+    assert np.hypot(local[:, 0], local[:, 1]).max() <= localizer.crop_radius + 1e-6
+    assert localizer.nbytes > localizer._cloud.n_points * 200
+    own = MapLocalizer(map_points, localizer.config.replace(**{"localization.shared_cloud": False}),
+                       registration=localizer.registration, trajectory=trajectory)
+    assert own._cloud is None and not isinstance(own._crop(0).pre.polish_cloud, PolishView)
+    assert own.nbytes < localizer.nbytes
+    for loc in (localizer, own):
+        res = loc.localize(drive.scan_at(73).points)
+        ok, err = _ok(res.T_map_scan, drive.pose_at(73))
+        assert res.valid and ok, (loc.config.localization.shared_cloud, err, res.reason)
+
+
 def test_sharp_pose_under_min_score(localizer, world):
     """No answer reaches localization.min_score (raised to 0.99 here): the right pose is still accepted when it is
-    sharp (the scan points the map covers fit closely), and not with the sharp test off."""
+    sharp (the scan points the map covers fit closely), and not with the sharp test off (nor the agreement of two
+    places, the other way an answer under min_score is accepted)."""
     from deepbbs_ros.core.localization import MapLocalizer
 
     map_points, trajectory, drive, _ = world
     scan, T_gt = drive.scan_at(48).points, drive.pose_at(48)
     for sharp, want in ((0.9, True), (0.0, False)):
-        cfg = localizer.config.replace(**{"localization.min_score": 0.99, "localization.sharp_score": sharp})
+        cfg = localizer.config.replace(**{"localization.min_score": 0.99, "localization.sharp_score": sharp,
+                                          "localization.agree_margin": 0.2 if sharp else 0.0})
         loc = MapLocalizer(map_points, cfg, registration=localizer.registration, trajectory=trajectory)
         res = loc.localize(scan)
         assert res.valid == want, (sharp, res.score, res.reason)
@@ -189,14 +215,17 @@ def test_far_probe_finds_a_pose_slid_along_the_street(localizer, world):
 
 
 def test_the_probe_registers_the_scan_on_a_coarser_grid(localizer, world):
-    """``localization.probe_voxel``: the probe's GICP source is the scan's GICP cloud on a 1 m grid (fewer points,
-    the same place); 0, or a grid leaving too few voxels, keeps the scan's own cloud."""
+    """``localization.probe_voxel`` 1 m: the probe's GICP source is the scan's GICP cloud on a 1 m grid (fewer
+    points, the same place); 0 (the default), or a grid leaving too few voxels, keeps the scan's own cloud."""
     from deepbbs_ros.core import localization as L
 
     _, _, drive, _ = world
     pc = localizer.prepare(drive.scan_at(48).points).pre.polish_cloud.complete()
-    coarse = localizer._probe_cloud(pc)
-    assert localizer.config.localization.probe_voxel == 1.0
+    assert localizer.config.localization.probe_voxel == 0.0 and localizer._probe_cloud(pc) is pc
+    loc1 = L.MapLocalizer.__new__(L.MapLocalizer)
+    loc1.registration = localizer.registration
+    loc1.config = localizer.config.replace(**{"localization.probe_voxel": 1.0})
+    coarse = loc1._probe_cloud(pc)
     assert L.MIN_PROBE_POINTS <= coarse.n_points < pc.n_points / 2
     from scipy.spatial import cKDTree
 

@@ -270,3 +270,54 @@ def test_a_pickled_cloud_is_its_voxel_grid_with_the_rest_deferred(street_pair, d
         np.testing.assert_array_equal(np.asarray(k.cloud.covs()), np.asarray(c.cloud.covs()))
     np.testing.assert_allclose(b.T_target_source, a.T_target_source, atol=1e-9)
     assert a.applied and b.applied
+
+
+def test_a_view_of_a_larger_cloud_registers_in_its_own_frame(pair):
+    """PolishView: the target cloud prepared once in frame B (a map's), seen from frame A through T_b_a: GICP on the
+    view answers in frame A what GICP on the base answers in frame B, to rounding; its tree answers frame-A queries;
+    pickled it is a plain deferred cloud of its frame-A points."""
+    import pickle
+
+    from deepbbs_ros.core import verdict
+    from deepbbs_ros.core.polish import PolishView
+
+    src, tgt, T = pair
+    cfg = _cfg(**{"registration.exact_gicp": True})
+    T_b_a = _offset(trans=(120.0, -35.0, 2.0), yaw_deg=73.0)  # frame A (the view's) in frame B (the base's)
+    base_pts = tgt.polish_cloud.points() @ T_b_a[:3, :3].T + T_b_a[:3, 3]  # the target in frame B
+    base = prepare_polish_cloud(base_pts, 0.0, 20)
+    view = PolishView.of(base, tgt.polish_cloud.points(), T_b_a)
+    T0 = T @ _offset()
+    on_view = polish(src.polish_cloud, view, T0, cfg)
+    on_base = polish(src.polish_cloud, base, T_b_a @ T0, cfg)
+    assert on_view.applied and on_base.applied
+    np.testing.assert_allclose(T_b_a @ on_view.T_target_source, on_base.T_target_source, atol=1e-9)
+    rot, trans = _err(on_view.T_target_source, T)
+    assert rot < 0.2 and trans < 0.05, (rot, trans)
+    pts = src.polish_cloud.points()
+    assert verdict.fitness(pts, view.tree, on_view.T_target_source, 0.5) == verdict.fitness(
+        pts, base.tree, on_base.T_target_source, 0.5)
+    assert view.n_points == len(view.points()) and np.array_equal(view.points(), tgt.polish_cloud.points())
+    copy = pickle.loads(pickle.dumps(view))
+    assert type(copy) is PolishCloud and copy.pending is not None and np.array_equal(copy.points(), view.points())
+    with pytest.raises(ValueError, match="target only"):
+        polish(view, base, np.eye(4), cfg)
+
+
+def test_the_check_stops_a_gicp_that_wanders_and_spares_one_that_converges(pair):
+    """polish(..., check=(k, score)): a GICP not converged after k iterations whose pose then scores under ``score``
+    stops there, rejected and saying why; one converging before k is untouched (the same pose, bit for bit); one
+    still improving with a good score runs its whole budget."""
+    src, tgt, T = pair
+    cfg = _cfg(**{"registration.exact_gicp": True, "registration.polish_max_iters": 50})
+    good = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg)
+    checked = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg, check=(good.iterations + 1, 0.3))
+    assert good.applied and np.array_equal(good.T_target_source, checked.T_target_source)
+    far = T @ _offset(trans=(9.0, 6.0, 0.0), yaw_deg=40.0)  # another place: nothing fits, GICP wanders
+    free = polish(src.polish_cloud, tgt.polish_cloud, far, cfg)
+    stopped = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.9))
+    assert free.iterations > 3
+    assert not stopped.applied and stopped.iterations <= 3 and stopped.check_score < 0.9
+    assert stopped.reason.startswith(f"stopped after {stopped.iterations} iterations"), stopped.reason
+    lenient = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0))  # any score passes the check
+    assert lenient.iterations > 3 and lenient.check_score >= 0.0

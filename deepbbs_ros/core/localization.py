@@ -13,8 +13,9 @@
                 is the scan's yaw), the scan also described about points localization.descriptor_shift m ahead,
                 behind and to either side (a place between the lattice's rows); the localization.top_k best places
                 at least candidate_separation m apart, each from its best-matching point of the scan
-    register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (map points within
-                localization.crop_radius of the place, preprocessed once and kept in an LRU) from the
+    register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (the map within
+                localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
+                (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
                 descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
                 accepted, the failed ones again with GICP alone (accepted only when sharp, below), then DeepBBS++
                 from the opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
@@ -64,6 +65,9 @@ __all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "
 
 MIN_MAP_POINTS = 100  # a map with fewer points is refused
 MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
+#: bytes per voxel of a small_gicp cloud with covariances and normals (point, normal: 4 doubles; covariance: 16) and
+#: its k-d tree (about 32)
+CLOUD_BYTES = 224
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
@@ -337,14 +341,30 @@ class MapLocalizer:
 
             registration = DeepBBSRegistration(cfg)
         self.registration = registration
+        t0 = time.perf_counter()
+        self._cloud, self._voxels = self._map_cloud()
+        self.build_ms += (time.perf_counter() - t0) * 1e3
+
+    def _map_cloud(self) -> tuple[Any, _CellIndex | None]:
+        """(the map's GICP cloud in the map frame, its voxel centroids by 10 m cell) when crops are views of it
+        (``localization.shared_cloud``), else (None, None)."""
+        rc = self.config.registration
+        if not self.config.localization.shared_cloud or rc.polish == "none":
+            return None, None
+        pc = prepare_polish_cloud(self.points, rc.polish_voxel, rc.polish_neighbors,
+                                  registration_type=SMALL_GICP_TYPE[rc.polish],
+                                  threads=self.registration.gicp_threads())
+        return pc, _CellIndex(pc.points(), cell=10.0)
 
     @property
     def nbytes(self) -> int:
-        """Bytes held for the map besides the crops' cache: its points, the height grid, the descriptors."""
+        """Bytes held for the map besides the crops' cache: its points, the height grid, the descriptors, its GICP
+        cloud (``shared_cloud``)."""
         g = self.grid
+        cloud = 0 if self._cloud is None else self._cloud.n_points * CLOUD_BYTES + self._voxels.points.nbytes
         return int(self.points.nbytes + self._index.starts.nbytes + g.height.nbytes
                    + g.ground.nbytes + g.zmax.nbytes + g.count.nbytes + g.occupied.nbytes + self.descriptors.nbytes
-                   + sum(a.nbytes for a in self._spectra))
+                   + sum(a.nbytes for a in self._spectra) + cloud)
 
     # -- places -----------------------------------------------------------------------------------------------------
     @property
@@ -458,17 +478,34 @@ class MapLocalizer:
         pts = self._index.within(c[:2], self.crop_radius)
         return ((pts.astype(np.float64) - c) @ T_map_place[:3, :3]).astype(np.float32)
 
+    def _view_points(self, T_map_place: np.ndarray) -> np.ndarray:
+        """(M, 3) float64 the map's GICP voxel centroids within ``crop_radius`` (horizontally) of the place and within
+        the scans' range (``preprocess.min_range``, ``max_range``) of it, in the place's frame (the crop of a scan
+        taken there)."""
+        from deepbbs_ros.core.preprocess import crop_range
+
+        c = T_map_place[:3, 3]
+        pts = (self._voxels.within(c[:2], self.crop_radius).astype(np.float64) - c) @ T_map_place[:3, :3]
+        pp = self.config.preprocess
+        return np.compress(crop_range(pts, pp.min_range, pp.max_range), pts, axis=0)
+
     def _crop(self, place: int, T_map_place: np.ndarray | None = None) -> _Crop:
         """The preprocessed crop of place ``place`` (LRU), or (``place`` -1) one at ``T_map_place`` (not kept)."""
         if place >= 0 and place in self._crops:
             self._crops.move_to_end(place)
             return self._crops[place]
         T = self._places[place] if place >= 0 else T_map_place
-        local = self.crop_points(T)
+        local = self.crop_points(T) if self._cloud is None else self._view_points(T)
         if len(local) < MIN_SCAN_POINTS:
             raise LocalizationError(f"map: {len(local)} points within {self.crop_radius:.0f} m of "
                                     f"[{T[0, 3]:.1f}, {T[1, 3]:.1f}]")
-        crop = _Crop(T.copy(), self.registration.preprocess(local))
+        if self._cloud is None:
+            crop = _Crop(T.copy(), self.registration.preprocess(local))
+        else:  # a view of the map's GICP cloud: nothing to prepare but the network's points
+            from deepbbs_ros.core.polish import PolishView
+            from deepbbs_ros.core.scans import prepare_view
+
+            crop = _Crop(T.copy(), prepare_view(self.config, PolishView.of(self._cloud, local, T)))
         if place >= 0:
             self._crops[place] = crop
             while len(self._crops) > self.config.localization.crop_cache:
@@ -633,7 +670,14 @@ class MapLocalizer:
 
     def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, yaw_search: bool = True) -> Any:
         """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only."""
-        return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search)
+        return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search,
+                                          polish_check=self._check)
+
+    @property
+    def _check(self) -> tuple[int, float] | None:
+        """The GICP check of a candidate place (``localization.polish_check_*``; core.polish.polish's ``check``)."""
+        lc = self.config.localization
+        return (lc.polish_check_iters, lc.polish_check_score) if lc.polish_check_iters > 0 else None
 
     def _deep(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int, timings: dict[str, float],
               yaw_search: bool = True) -> _Answer:
@@ -978,7 +1022,7 @@ class MapLocalizer:
         for pc in (src.polish_cloud, crop.pre.polish_cloud):
             if getattr(pc, "pending", None) is not None:
                 pc.complete(threads=self.registration.gicp_threads())
-        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc)
+        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc, check=self._check)
         if not pol.applied:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
@@ -1036,7 +1080,7 @@ class MapLocalizer:
         for off in starts:
             S = T.copy()
             S[:2, 3] += off
-            pol = polish(src_pc, tgt_pc, S, rc)
+            pol = polish(src_pc, tgt_pc, S, rc, check=self._check)
             if not pol.applied:
                 continue
             score = verdict.fitness(src.points, tgt_pc.tree, pol.T_target_source, rc.verdict_dist)

@@ -42,7 +42,9 @@ __all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "pre
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
-MIN_POLISH_POINTS = 10  # fewer points per cloud (after the voxel grid): no polish
+MIN_POLISH_POINTS = 10
+#: polish(..., check=...): the source voxels scored at the check (a spread subset of about this many, on this grid)
+CHECK_POINTS, CHECK_CELL = 1000, 1.0  # fewer points per cloud (after the voxel grid): no polish
 
 
 def cpu_cores() -> int:
@@ -117,6 +119,50 @@ class PolishCloud:
         """This cloud moved by T (4, 4) (p' = R p + t), re-prepared (evaluation's extra yaw on a source)."""
         pts = self.points() @ np.asarray(T)[:3, :3].T + np.asarray(T)[:3, 3]
         return _prepared(pts, 0.0, neighbors, registration_type, threads)
+
+
+class _FramedTree:
+    """A prepared cloud's k-d tree (frame B) queried with points in frame A: they are moved by ``T_b_a`` first."""
+
+    def __init__(self, base: Any, T_b_a: np.ndarray) -> None:
+        self.base = base
+        self.R, self.t = np.asarray(T_b_a, np.float64)[:3, :3].copy(), np.asarray(T_b_a, np.float64)[:3, 3].copy()
+
+    def batch_nearest_neighbor_search(self, points: np.ndarray, num_threads: int = 1) -> Any:
+        p = np.asarray(points, dtype=np.float64) @ self.R.T + self.t
+        return self.base.batch_nearest_neighbor_search(p, num_threads=num_threads)
+
+
+@dataclass(eq=False)
+class PolishView(PolishCloud):
+    """A part of a larger prepared cloud (a map's: voxel grid, k-d tree and covariances built once, frame B) seen
+    from frame A: the precision-stage target of a map crop with no preparation of its own. ``local`` (n_points, 3)
+    float64 the part's voxel centroids in frame A (``points()``), ``T_base`` (4, 4) ``T_b_a``. :func:`polish` aligns
+    on the whole base cloud from ``T_base @ T_init`` and answers in frame A (GICP is the same in any frame, to
+    rounding); ``tree`` answers queries in frame A. Pickled as a plain deferred :class:`PolishCloud` of ``local``."""
+
+    T_base: np.ndarray = field(default_factory=lambda: np.eye(4))
+    local: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @classmethod
+    def of(cls, base: PolishCloud, local: np.ndarray, T_b_a: np.ndarray) -> PolishView:
+        """The view of ``base`` (completed here) whose centroids in frame A are ``local`` (N, 3), ``T_b_a`` (4, 4)."""
+        base.complete()
+        T = np.asarray(T_b_a, dtype=np.float64).copy()
+        return cls(base.cloud, _FramedTree(base.tree, T), len(local), n_cropped=len(local), spec=base.spec,
+                   T_base=T, local=np.ascontiguousarray(local, dtype=np.float64))
+
+    def points(self) -> np.ndarray:
+        return self.local.copy()
+
+    def __reduce__(self) -> tuple:
+        return _plain_cloud, (self.__getstate__(),)
+
+
+def _plain_cloud(state: dict) -> PolishCloud:
+    pc = PolishCloud.__new__(PolishCloud)
+    pc.__setstate__(state)
+    return pc
 
 
 def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, registration_type: str = "GICP",
@@ -228,10 +274,11 @@ class PolishResult:
     delta_trans_m: float = 0.0
     delta_rot_deg: float = 0.0
     timings_ms: dict[str, float] = field(default_factory=dict)
+    check_score: float = float("nan")  # the score at the check (polish(..., check=...)); nan when none was made
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
-           cfg: RegistrationConfig) -> PolishResult:
+           cfg: RegistrationConfig, check: tuple[int, float] | None = None) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
 
     Args:
@@ -240,6 +287,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         target: (M, 3) float target points or a :class:`PolishCloud`, same conventions.
         T_init: (4, 4) float64 initial ``T_target_source`` (the DeepBBS++ estimate).
         cfg: ``registration.polish*`` keys; ``cfg.polish`` must be "gicp" or "plane_icp".
+        check: (iterations, score): a polish not converged after that many iterations whose pose then scores under
+            ``score`` (the verdict's fitness at ``verdict_dist`` of a spread subset of the source's voxels) stops there,
+            rejected (GICP on a wrong place wanders for its whole budget); None: no check.
 
     Returns:
         :class:`PolishResult`; ``T_target_source`` is ``T_init`` unless the polish was accepted.
@@ -250,29 +300,56 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     T_init = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
     reg_type = SMALL_GICP_TYPE[cfg.polish]
     clouds = [_as_cloud(c, cfg, reg_type) for c in (source, target)]
+    if isinstance(clouds[0], PolishView):
+        raise ValueError("polish: a PolishView is a target only")
     t1 = time.perf_counter()
     for c in clouds:
         if c.n_points < MIN_POLISH_POINTS:
             ms = (t1 - t0) * 1e3
             return PolishResult(T_init.copy(), False, f"only {c.n_points} points after the voxel grid",
                                 timings_ms={"prepare": ms, "align": 0.0, "total": ms})
-    res = small_gicp.align(
-        clouds[1].cloud, clouds[0].cloud, clouds[1].tree,
-        init_T_target_source=T_init,
-        registration_type=reg_type,
-        max_correspondence_distance=cfg.polish_max_corr_dist,
-        num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
-        max_iterations=cfg.polish_max_iters,
-        rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
-        translation_epsilon=cfg.polish_trans_eps,
-    )  # fmt: skip
+    # a view of a larger cloud (PolishView, a map crop): aligned on the whole cloud in its frame, answered in ours
+    T_base = clouds[1].T_base if isinstance(clouds[1], PolishView) else None
+    tree = clouds[1].tree if T_base is None else clouds[1].tree.base
+
+    def align(T_start: np.ndarray, iterations: int) -> Any:
+        return small_gicp.align(
+            clouds[1].cloud, clouds[0].cloud, tree,
+            init_T_target_source=T_start,
+            registration_type=reg_type,
+            max_correspondence_distance=cfg.polish_max_corr_dist,
+            num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
+            max_iterations=iterations,
+            rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
+            translation_epsilon=cfg.polish_trans_eps,
+        )  # fmt: skip
+
+    start = T_init if T_base is None else T_base @ T_init
+    if check is None or not 0 < check[0] < cfg.polish_max_iters:
+        res, iterations, check_score = align(start, cfg.polish_max_iters), None, float("nan")
+    else:  # a first leg, a look at the fit, the rest of the budget only when it is worth it
+        from deepbbs_ros.core.verdict import fitness, spread_subset
+
+        res = align(start, check[0])
+        iterations, check_score = int(res.iterations), float("nan")
+        if not res.converged:
+            pts = spread_subset(clouds[0].points(), CHECK_POINTS, CHECK_CELL)
+            check_score = fitness(pts, tree, np.asarray(res.T_target_source), cfg.verdict_dist)
+            if check_score >= check[1]:
+                res = align(np.asarray(res.T_target_source), cfg.polish_max_iters - check[0])
+                iterations += int(res.iterations)
     t2 = time.perf_counter()
+    iterations = int(res.iterations) if iterations is None else iterations
     T = np.asarray(res.T_target_source, dtype=np.float64).copy()
+    if T_base is not None:
+        T = np.linalg.solve(T_base, T)
     dT = np.linalg.inv(T_init) @ T
     d_trans = float(np.linalg.norm(T[:3, 3] - T_init[:3, 3]))
     d_rot = float(np.degrees(np.arccos(np.clip((np.trace(dT[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
-    if not res.converged:
-        reason = f"not converged in {res.iterations} iterations"
+    if check is not None and not res.converged and check_score < check[1]:  # nan-safe: the check stopped it
+        reason = f"stopped after {iterations} iterations: score {check_score:.2f} < {check[1]:.2f}"
+    elif not res.converged:
+        reason = f"not converged in {iterations} iterations"
     elif int(res.num_inliers) < MIN_POLISH_POINTS:
         reason = f"only {res.num_inliers} correspondences within {cfg.polish_max_corr_dist} m"
     elif 0 < cfg.polish_max_trans < d_trans:
@@ -287,9 +364,10 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         applied=applied,
         reason=reason,
         converged=bool(res.converged),
-        iterations=int(res.iterations),
+        iterations=iterations,
         num_inliers=int(res.num_inliers),
         delta_trans_m=d_trans,
         delta_rot_deg=d_rot,
+        check_score=check_score,
         timings_ms={"prepare": (t1 - t0) * 1e3, "align": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3},
     )

@@ -268,6 +268,7 @@ class DeepBBSRegistration:
         preprocessed: bool = False,
         good_start: bool = False,
         yaw_search: bool = True,
+        polish_check: tuple[int, float] | None = None,
     ) -> RegistrationResult:
         """Estimate ``T_target_source`` (4, 4) float64 moving ``source`` onto ``target``.
 
@@ -291,6 +292,9 @@ class DeepBBSRegistration:
             yaw_search: False: no other start yaws for this call (``registration.global_search`` as "off"), the
                 given start only; per call, so that callers sharing one registration on several threads do not
                 change its configuration.
+            polish_check: (iterations, score): the precision stage stops, rejected, when not converged after that
+                many iterations with its pose scoring under ``score`` (:func:`core.polish.polish`; a search over
+                candidate places, where most are wrong and GICP wanders on them for its whole budget); None: no check.
 
         Raises:
             RegistrationError: a cloud that is not (N, 3) real numbers, empty, with too few valid points,
@@ -306,7 +310,7 @@ class DeepBBSRegistration:
             self.runner.process()  # the first call on a CPU: the network process starts (not counted in "total")
             clock.lap("startup")
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
-        st.yaw_search = yaw_search
+        st.yaw_search, st.polish_check = yaw_search, polish_check
         clock.lap("preprocess")
         with torch.inference_mode(), self.network.torch_threads(), _answer_read(st):
             self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)
@@ -560,7 +564,7 @@ class DeepBBSRegistration:
         st.T = matrix(st.R, st.t, self.model.scale)
         if rc.polish == "none" or st.src_pc is None or st.tgt_pc is None:
             return
-        pol = polish(st.src_pc, st.tgt_pc, st.T, rc)
+        pol = polish(st.src_pc, st.tgt_pc, st.T, rc, check=st.polish_check)
         st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
         if pol.applied:
             st.T = pol.T_target_source
@@ -682,6 +686,7 @@ class _State:
     spec: Any = None  # the same, for its speculative passes from the global search's other starts
     spec_n: int = 0  # how many of those starts it was given (the first ones)
     yaw_search: bool = True  # register(yaw_search=False): the global search does not run for this call
+    polish_check: tuple[int, float] | None = None  # register(polish_check=...): core.polish.polish's check
     network_ms: dict[str, float] = field(default_factory=dict)  # its embed / match / solve times
 
 

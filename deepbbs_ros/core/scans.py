@@ -9,6 +9,9 @@ and as target (odometry, the node)::
     sample      the network's points: crop, ground removal, farthest-point sampling (core/preprocess.py), on the
                 centroids of that grid (preprocess.share_grid) or on their own grid
 
+:func:`prepare_view` does the same for a part of a cloud prepared once (a map crop: core/localization.py), with no
+precision-stage preparation of its own.
+
 :func:`deskew_prepared` adds a prepared scan's precision-stage cloud deskewed with the scan's own velocity, once
 its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in the sensor frame; per-point times
 (N,) are seconds since the stamp.
@@ -18,16 +21,17 @@ from __future__ import annotations
 
 import copy
 import time
+from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.points import as_xyz
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, prepare_polish_cloud, prepared_cloud
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, PolishView, prepare_polish_cloud, prepared_cloud
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
 from deepbbs_ros.errors import RegistrationError
 
-__all__ = ["prepare_scan", "polish_cloud", "deskew_prepared"]
+__all__ = ["prepare_scan", "prepare_view", "polish_cloud", "deskew_prepared"]
 
 
 def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -64,16 +68,7 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
             elif rc.polish != "none" and stamp_ns is not None:
                 keep_raw = (np.asarray(points, dtype=np.float32), tt, int(stamp_ns))
     pc = polish_cloud(config, points, defer=defer, threads=threads) if rc.polish != "none" else None
-    if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
-        # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
-        if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
-            res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
-                                   pending_sample=(pp, pp.seed))
-        else:
-            res = preprocess(canonical_order(pc.points()).astype(np.float32), pp, gridded=True)
-        res.n_input, res.n_valid = len(points), pc.n_cropped
-    else:
-        res = preprocess(points, pp)
+    res = _sampled(pp, pc, points, lazy)
     if deskew_ms is not None:
         res.timings_ms["deskew"] = deskew_ms
         res.timings_ms["total"] += deskew_ms
@@ -83,6 +78,36 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
         res.polish_cloud = pc
         res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
         res.timings_ms["total"] += res.polish_cloud.prepare_ms
+    return res
+
+
+def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
+             ordered: bool = False) -> PreprocessResult:
+    """The network's points of a scan (N, 3) whose precision-stage cloud is ``pc`` (or None); ``ordered``: the
+    cloud's centroids come in an order of their own (not small_gicp's voxel grid's)."""
+    if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
+        # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
+        if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
+            res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
+                                   pending_sample=(pp, pp.seed))
+        else:
+            grid = pc.points() if ordered else canonical_order(pc.points())
+            res = preprocess(grid.astype(np.float32), pp, gridded=True)
+        res.n_input, res.n_valid = len(points), pc.n_cropped
+        return res
+    return preprocess(points, pp)
+
+
+def prepare_view(config: Config, view: PolishView) -> PreprocessResult:
+    """A part of a prepared map cloud (:class:`PolishView`: a map crop, frame A) -> its :class:`PreprocessResult`:
+    the network's points sampled from the view's centroids (in the order given: the map's), ``polish_cloud`` the
+    view (nothing more to prepare)."""
+    t0 = time.perf_counter()
+    pts = view.points().astype(np.float32)
+    res = _sampled(config.preprocess, view, pts, lazy=False, ordered=True)
+    res.polish_cloud = view
+    res.timings_ms["polish_prepare"] = 0.0
+    res.timings_ms["view"] = (time.perf_counter() - t0) * 1e3
     return res
 
 
