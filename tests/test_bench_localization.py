@@ -166,3 +166,34 @@ def test_a_baseline_answers_on_one_cpu_and_is_timed_on_every_core(tiny):
     ans = slow(data.queries[0].points)
     assert ans.timeout and not ans.valid and slow.timed.proc is None and slow.exact.proc is None  # never asked
     slow.close()
+
+
+def test_maplocalizer_is_timed_as_configured_and_answered_by_its_exact_twin(tiny, monkeypatch):
+    """MapLocalizer's query: timed with the config as given (GICP on every core), answered by a twin with
+    registration.exact_gicp (the same answer on any machine), whose time is kept beside; --inexact: no twin."""
+    from deepbbs_ros.config import Config
+
+    args, data, _ = tiny
+    built = []
+
+    class Stub:
+        def __init__(self, points, trajectory, config):
+            self.exact = config.registration.exact_gicp
+            built.append(self.exact)
+
+        def localize(self, scan):
+            T = np.eye(4)
+            T[0, 3] = 1.0 if self.exact else 2.0
+            return SimpleNamespace(T_map_scan=T, valid=self.exact, reason="exact" if self.exact else "timed")
+
+    monkeypatch.setattr(bench.MapLocalizerMethod, "_localizer", staticmethod(Stub))
+    m = bench.MapLocalizerMethod(data.points, data.trajectory, Config())
+    assert built == [False, True]
+    ans = m(data.queries[0].points)
+    assert ans.valid and ans.reason == "exact" and ans.T_map_scan[0, 3] == 1.0
+    assert ans.time_s > 0 and ans.exact_time_s > 0
+    s = bench.summarize([dict(bench.judge(ans, data.queries[0]), query=0)])
+    assert s["exact_time_s_p50"] == ans.exact_time_s and s["time_s_p50"] == ans.time_s
+    alone = bench.MapLocalizerMethod(data.points, data.trajectory, Config(), exact=False)
+    ans = alone(data.queries[0].points)
+    assert alone.exact is None and ans.reason == "timed" and not np.isfinite(ans.exact_time_s)

@@ -23,11 +23,12 @@ FPFH features and registration_ransac_based_on_feature_matching against the whol
 no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
 query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose);
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
-``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every answer is
-the same on any machine and in every run: MapLocalizer solves GICP on one thread (``registration.exact_gicp``; its
-k-d trees and covariances, the same on any number of threads, use every core); a baseline answers from a child
-process on one CPU (Open3D's RANSAC seeded) and is timed by a second child on every core, as a user runs it
-(:class:`ExactTimed`). ``--inexact``: MapLocalizer's GICP and the baselines on every core, one child each.
+``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every method is
+timed as a user runs it and every answer is the same on any machine and in every run: MapLocalizer is timed as
+configured (GICP on every core) and answered by a twin that solves GICP on one thread (``registration.exact_gicp``;
+its k-d trees and covariances, the same on any number of threads, use every core), whose own time is reported too
+(``exact_time_s_*``); a baseline answers from a child process on one CPU (Open3D's RANSAC seeded) and is timed by a
+second child on every core (:class:`ExactTimed`). ``--inexact``: the timed calls answer, one child per baseline.
 
 Figures (``localization.json`` under ``--out``), per method and map: share placed within 1 deg / 0.3 m (valid
 and right), wrong poses accepted (valid but off), no pose (and how many of those "ambiguous"), timeouts, time per
@@ -325,39 +326,55 @@ class Answer:
     reason: str = ""
     time_s: float = float("nan")
     timeout: bool = False
+    exact_time_s: float = float("nan")  # MapLocalizer: the time of the twin that answered (GICP on one thread)
 
 
 _REGISTRATION: dict = {}  # one DeepBBSRegistration (model loaded and warmed up once) shared by every map
 
 
 class MapLocalizerMethod:
-    """deepbbs_ros.core.localization.MapLocalizer, built once per map (``build_s``: the map's part, places and
-    descriptors; the model is loaded and warmed up once per run, before any query, and shared by every map)."""
+    """deepbbs_ros.core.localization.MapLocalizer, built once per map (``build_s``: the map's part, places,
+    descriptors and GICP cloud; the model is loaded and warmed up once per run, before any query, and shared by every
+    map). Each query is timed as configured; with ``exact`` (True unless ``--inexact``) a twin with
+    ``registration.exact_gicp`` (GICP's solve on one thread: the same answer on any machine) answers it, its own time
+    in ``exact_time_s``."""
 
     name = "maplocalizer"
 
-    def __init__(self, points: np.ndarray, trajectory: np.ndarray | None, config=None) -> None:
+    def __init__(self, points: np.ndarray, trajectory: np.ndarray | None, config=None, exact: bool = True) -> None:
         from deepbbs_ros.config import Config
+
+        config = config or Config()
+        t0 = time.perf_counter()
+        self.loc = self._localizer(points, trajectory, config)
+        self.build_s = time.perf_counter() - t0
+        self.exact = None
+        if exact and not config.registration.exact_gicp:
+            self.exact = self._localizer(points, trajectory, config.replace(**{"registration.exact_gicp": True}))
+
+    @staticmethod
+    def _localizer(points: np.ndarray, trajectory: np.ndarray | None, config):
         from deepbbs_ros.core.localization import MapLocalizer
         from deepbbs_ros.core.registration import DeepBBSRegistration
 
-        key = "default" if config is None else id(config)
+        key = config.to_yaml() if hasattr(config, "to_yaml") else repr(config)
         if key not in _REGISTRATION:
-            cfg = config or Config()
-            reg = DeepBBSRegistration(cfg)
+            reg = DeepBBSRegistration(config)
             if hasattr(reg, "warmup"):
                 reg.warmup()
-            _REGISTRATION[key] = (cfg, reg)
-        config, reg = _REGISTRATION[key]
-        t0 = time.perf_counter()
-        self.loc = MapLocalizer(points, config, registration=reg, trajectory=trajectory)
-        self.build_s = time.perf_counter() - t0
+            _REGISTRATION[key] = reg
+        return MapLocalizer(points, config, registration=_REGISTRATION[key], trajectory=trajectory)
 
     def __call__(self, scan: np.ndarray) -> Answer:
         t0 = time.perf_counter()
         r = self.loc.localize(scan)
         dt = time.perf_counter() - t0
-        return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
+        if self.exact is None:
+            return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
+        t0 = time.perf_counter()
+        r = self.exact.localize(scan)
+        return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
+                      exact_time_s=time.perf_counter() - t0)
 
 
 class Isolated(_common.Isolated):
@@ -537,7 +554,8 @@ def judge(ans: Answer, q: Query) -> dict:
     from deepbbs_ros.metrics import pair_errors
 
     row = {"place": q.place, "kind": q.kind, "s": q.s, "repetitive": q.repetitive, "valid": ans.valid,
-           "reason": ans.reason, "time_s": ans.time_s, "timeout": ans.timeout, "rot_err_deg": None,
+           "reason": ans.reason, "time_s": ans.time_s, "exact_time_s": ans.exact_time_s, "timeout": ans.timeout,
+           "rot_err_deg": None,
            "trans_err_m": None}
     close = False
     if ans.T_map_scan is not None and np.all(np.isfinite(ans.T_map_scan)):
@@ -566,6 +584,10 @@ def summarize(rows: list[dict]) -> dict:
     if len(t):
         out["time_s_p50"], out["time_s_p95"], out["time_s_max"] = (float(np.percentile(t, 50)),
                                                                    float(np.percentile(t, 95)), float(t.max()))
+    te = np.array([r.get("exact_time_s", np.nan) for r in rows], dtype=np.float64)
+    te = te[np.isfinite(te)]
+    if len(te):  # MapLocalizer's exact twin (GICP on one thread)
+        out["exact_time_s_p50"], out["exact_time_s_p95"] = float(np.percentile(te, 50)), float(np.percentile(te, 95))
     tp = np.array([r["time_s"] for r in rows if r["outcome"] == "placed"])
     if len(tp):
         out["placed_time_s_p50"], out["placed_time_s_p95"] = float(np.percentile(tp, 50)), float(np.percentile(tp, 95))
@@ -622,7 +644,7 @@ def make_method(name: str, points: np.ndarray, trajectory: np.ndarray | None, ar
             return factories[name](points, trajectory)
         exact = not getattr(args, "inexact", False)
         if name == "maplocalizer":
-            return MapLocalizerMethod(points, None if args.grid_places else trajectory, config)
+            return MapLocalizerMethod(points, None if args.grid_places else trajectory, config, exact=exact)
         kind = ExactTimed if exact else Isolated
         if name == "kiss-matcher+gicp":
             m = kind(name, KissMatcherSolver, points, args.baseline_timeout, config=config, voxel=args.km_voxel)
@@ -822,9 +844,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
     p.add_argument("--grid-places", action="store_true", help="MapLocalizer without the map drive's trajectory "
                    "(candidate places on a grid over the map's free space instead of keyframes)")
-    p.add_argument("--inexact", action="store_true", help="small_gicp's GICP solve on every core and the baselines "
-                   "on every core: a little faster, but answers that can change from run to run (default: "
-                   "registration.exact_gicp and the baselines on one CPU, the same answers on any machine)")
+    p.add_argument("--inexact", action="store_true", help="the timed calls answer (MapLocalizer's GICP solve and "
+                   "the baselines on every core): answers that can change from run to run (default: answered by "
+                   "twins with registration.exact_gicp and baselines on one CPU, the same on any machine)")
     p.add_argument("--generate-only", action="store_true", help="build the cached maps and queries, measure nothing")
     p.add_argument("--quick", action="store_true", help="a smoke test: one scene, a 300 m map, 4 queries, no real "
                    "data unless given, baselines on 2 queries")
@@ -839,7 +861,6 @@ def main(argv: list[str] | None = None) -> int:
     from deepbbs_ros.config import Config, load_config
 
     config = load_config(args.config) if args.config else Config()
-    config = config.replace(**{"registration.exact_gicp": not args.inexact})
     from deepbbs_ros.sim import SCENES
     from deepbbs_ros.train.cache import TEST_SEED_BASE
 

@@ -446,13 +446,22 @@ def loc_goal(c: dict) -> str:
     return "met" if not missed else "missed: " + ", ".join(missed)
 
 
-def loc_row(label: str, c: dict | None, notes: Notes, with_goal: bool) -> list[str]:
+def loc_exact_time(c: dict) -> str:
+    """MapLocalizer's exact twin (GICP solved on one thread): its time p50 / p95, "-" when it did not run."""
+    s50, s95 = c.get("exact_time_s_p50"), c.get("exact_time_s_p95")
+    return "-" if s50 is None else f"{ms(1e3 * s50)} / {ms(None if s95 is None else 1e3 * s95)}"
+
+
+def loc_row(label: str, c: dict | None, notes: Notes, with_goal: bool, exact: bool = False) -> list[str]:
+    n = (6 if with_goal else 5) + exact
     if not c:
-        return [label] + [NOT_RUN] * (6 if with_goal else 5)
+        return [label] + [NOT_RUN] * n
     if "note" in c:
-        return [label] + ["-" + notes.mark(c["note"])] * (6 if with_goal else 5)
+        return [label] + ["-" + notes.mark(c["note"])] * n
     row = [label, pct(100 * c["placed_share"], c.get("queries")) if c.get("placed_share") is not None else "-",
            str(c.get("wrong_count", "-")), loc_share(c, "none_share"), loc_time(c)]
+    if exact:
+        row.append(loc_exact_time(c))
     timeouts = c.get("timeout_count")
     row[3] += notes.mark(f"{timeouts} timeout(s) among them") if timeouts else ""
     return row + [loc_goal(c)] if with_goal else row + [ms(1e3 * c["build_s"]) if c.get("build_s") else "-"]
@@ -466,6 +475,7 @@ BOOT_INTRO = ("From boot, the node's case: a query that gets no pose goes on wit
 def localization(doc: dict | None, d: Path) -> list[str]:
     out = plots("localization", d) + command(doc)
     header = ["map", "placed (queries)", "wrong accepted", "no pose", "first pose p50 / p95 ms", "goal"]
+    eheader = [*header[:5], "one-thread GICP p50 / p95 ms", "goal"]  # MapLocalizer's exact twin beside
     bheader = ["map, method", "placed (queries)", "wrong accepted", "no pose", "first pose p50 / p95 ms",
                "map build ms"]
     kheader = ["query drives", "simulated urban", "simulated suburban", "simulated highway", "simulated open road"]
@@ -473,7 +483,7 @@ def localization(doc: dict | None, d: Path) -> list[str]:
     fig = (doc or {}).get("figures")
     if fig is None:
         maps = ["simulated urban", "simulated suburban", "simulated highway", "simulated open road", "real (pooled)"]
-        return (out + ["DeepBBS++ (MapLocalizer), every query:", ""] + not_run_table(header, maps) + [""]
+        return (out + ["DeepBBS++ (MapLocalizer), every query:", ""] + not_run_table(eheader, maps) + [""]
                 + [BOOT_INTRO.format(step=1.0, n=2), ""] + not_run_table(header, maps[:4]) + [""]
                 + ["Beside the baselines, on the same queries (every third):", ""]
                 + not_run_table(bheader, [f"{m}, {v}" for m in maps[:1] for v in LOC_LABELS.values()]) + [""]
@@ -482,13 +492,14 @@ def localization(doc: dict | None, d: Path) -> list[str]:
                 + ["Time against the map's size:", ""] + not_run_table(sheader, maps[:4]))
     maps, pooled = fig.get("maps") or {}, fig.get("pooled") or {}
     notes = Notes()
-    rows = [loc_row(map_label(k), (m.get("methods") or {}).get("maplocalizer"), notes, True) for k, m in maps.items()]
+    rows = [loc_row(map_label(k), (m.get("methods") or {}).get("maplocalizer"), notes, True, exact=True)
+            for k, m in maps.items()]
     ml = pooled.get("maplocalizer") or {}
     if ml.get("sim"):
-        rows.append(loc_row("all simulated maps", ml["sim"], notes, True))
+        rows.append(loc_row("all simulated maps", ml["sim"], notes, True, exact=True))
     if ml.get("all") and "real" in maps:
-        rows.append(loc_row("all maps", ml["all"], notes, True))
-    out += ["DeepBBS++ (MapLocalizer), every query:", ""] + table(header, rows) + notes.lines() + [""]
+        rows.append(loc_row("all maps", ml["all"], notes, True, exact=True))
+    out += ["DeepBBS++ (MapLocalizer), every query:", ""] + table(eheader, rows) + notes.lines() + [""]
     notes = Notes()
     rows = [loc_row(map_label(k), ((m.get("methods") or {}).get("maplocalizer") or {}).get("boot"), notes, True)
             for k, m in maps.items() if k != "real"]
