@@ -187,6 +187,7 @@ def test_maplocalizer_is_timed_as_configured_and_answered_by_its_exact_twin(tiny
             return SimpleNamespace(T_map_scan=T, valid=self.exact, reason="exact" if self.exact else "timed")
 
     monkeypatch.setattr(bench.MapLocalizerMethod, "_localizer", staticmethod(Stub))
+    monkeypatch.setattr(bench, "_registration", lambda config: None)  # no model to load for the stand-ins
     m = bench.MapLocalizerMethod(data.points, data.trajectory, Config())
     assert built == [False, True]
     ans = m(data.queries[0].points)
