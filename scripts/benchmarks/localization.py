@@ -844,7 +844,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fpfh-voxel", type=float, default=1.0, help="m, voxel of the FPFH + RANSAC baseline")
     p.add_argument("--boot-scans", type=int, default=2, help="the boot protocol: a simulated query with no pose "
                    "goes on with up to this many later scans of its drive (0: single scans only)")
-    p.add_argument("--boot-step", type=float, default=1.0, help="s between those scans (a search takes about 1 s; "
+    p.add_argument("--boot-step", type=float, default=1.0, help="s between those scans (a search takes up to ~1 s; "
                    "the node takes the newest scan when it is free)")
     p.add_argument("--seed", type=int, default=1, help="seed of the real places' moves")
     p.add_argument("--sim-seed", type=int, default=None, help="world seed of the first scene (default: a held-out "
