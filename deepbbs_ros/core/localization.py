@@ -477,9 +477,12 @@ class MapLocalizer:
     # -- crops ------------------------------------------------------------------------------------------------------
     def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
         """(M, 3) float32 map points within ``crop_radius`` (horizontally) of the place, in the place's frame."""
+        return self._local(self._index, T_map_place).astype(np.float32)
+
+    def _local(self, index: _CellIndex, T_map_place: np.ndarray) -> np.ndarray:
+        """(M, 3) float64 the points of ``index`` within ``crop_radius`` (horizontally) of the place, in its frame."""
         c = T_map_place[:3, 3]
-        pts = self._index.within(c[:2], self.crop_radius)
-        return ((pts.astype(np.float64) - c) @ T_map_place[:3, :3]).astype(np.float32)
+        return (index.within(c[:2], self.crop_radius).astype(np.float64) - c) @ T_map_place[:3, :3]
 
     def _view_points(self, T_map_place: np.ndarray) -> np.ndarray:
         """(M, 3) float64 the map's GICP voxel centroids within ``crop_radius`` (horizontally) of the place and within
@@ -487,8 +490,7 @@ class MapLocalizer:
         taken there)."""
         from deepbbs_ros.core.preprocess import crop_range
 
-        c = T_map_place[:3, 3]
-        pts = (self._voxels.within(c[:2], self.crop_radius).astype(np.float64) - c) @ T_map_place[:3, :3]
+        pts = self._local(self._voxels, T_map_place)
         pp = self.config.preprocess
         return np.compress(crop_range(pts, pp.min_range, pp.max_range), pts, axis=0)
 

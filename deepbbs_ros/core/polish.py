@@ -42,9 +42,9 @@ __all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "pre
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
-MIN_POLISH_POINTS = 10
+MIN_POLISH_POINTS = 10  # fewer points per cloud (after the voxel grid): no polish
 #: polish(..., check=...): the source voxels scored at the check (a spread subset of about this many, on this grid)
-CHECK_POINTS, CHECK_CELL = 1000, 1.0  # fewer points per cloud (after the voxel grid): no polish
+CHECK_POINTS, CHECK_CELL = 1000, 1.0
 
 
 def cpu_cores() -> int:
@@ -326,7 +326,8 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
 
     start = T_init if T_base is None else T_base @ T_init
     if check is None or not 0 < check[0] < cfg.polish_max_iters:
-        res, iterations, check_score = align(start, cfg.polish_max_iters), None, float("nan")
+        res, check_score = align(start, cfg.polish_max_iters), float("nan")
+        iterations = int(res.iterations)
     else:  # a first leg, a look at the fit, the rest of the budget only when it is worth it
         from deepbbs_ros.core.verdict import fitness, spread_subset
 
@@ -339,7 +340,6 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
                 res = align(np.asarray(res.T_target_source), cfg.polish_max_iters - check[0])
                 iterations += int(res.iterations)
     t2 = time.perf_counter()
-    iterations = int(res.iterations) if iterations is None else iterations
     T = np.asarray(res.T_target_source, dtype=np.float64).copy()
     if T_base is not None:
         T = np.linalg.solve(T_base, T)

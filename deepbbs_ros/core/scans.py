@@ -103,8 +103,7 @@ def prepare_view(config: Config, view: PolishView) -> PreprocessResult:
     the network's points sampled from the view's centroids (in the order given: the map's), ``polish_cloud`` the
     view (nothing more to prepare)."""
     t0 = time.perf_counter()
-    pts = view.points().astype(np.float32)
-    res = _sampled(config.preprocess, view, pts, lazy=False, ordered=True)
+    res = _sampled(config.preprocess, view, view.local.astype(np.float32), lazy=False, ordered=True)
     res.polish_cloud = view
     res.timings_ms["polish_prepare"] = 0.0
     res.timings_ms["view"] = (time.perf_counter() - t0) * 1e3
