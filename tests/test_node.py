@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -156,12 +157,25 @@ class Harness:
     def wait_processed(self, n: int, timeout: float = 30.0) -> None:
         s = self.node.stats
         done = self.wait_for(lambda: s()["processed"] + s()["rejected"] >= n and not self.node.worker.busy, timeout)
-        assert done, s()
+        assert done, f"{s()}\n{node_threads()}"
 
     def close(self) -> None:
         self.executor.shutdown()
+        self.thread.join(10.0)  # the spin thread out of its wait set before the nodes' handles go
         self.node.destroy_node()
         self.client.destroy_node()
+
+
+def node_threads() -> str:
+    """Where each of the node's own threads (``deepbbs-*``) is now: the innermost frames of its stack, for the
+    message of a test that timed out waiting for the node."""
+    names = {t.ident: t.name for t in threading.enumerate()}
+    out = []
+    for ident, frame in sys._current_frames().items():
+        name = names.get(ident, "")
+        if name.startswith("deepbbs"):
+            out.append(f"thread {name}:\n" + "".join(traceback.format_stack(frame)[-8:]))
+    return "\n".join(out) or "no deepbbs thread"
 
 
 def _check_pose(T_est: np.ndarray, T_gt: np.ndarray, rot_deg: float = 1.0, trans_m: float = 0.3) -> None:

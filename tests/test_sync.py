@@ -116,6 +116,20 @@ def test_jump_back_resets():
     assert sync.stats["late"] == 1 and sync.stats["resets"] == 1
 
 
+def test_a_lagging_input_is_no_time_jump():
+    """One input's older scans still arriving after the other's newer one (its thread behind): each input is
+    compared with its own newest stamp, so nothing is cleared and the pair forms when its partner arrives."""
+    out = []
+    sync = ApproximateTimeSync(2, 10, 0.05, out.append, jump_back_s=1.0)
+    sync.add(1, 20_000 * MS, "t20")
+    sync.add(0, 30_000 * MS, "s30")  # the source of the next pair overtakes the target of the last one
+    sync.add(1, 20_000 * MS, "t20 again")  # 10 s older than s30: not a jump on its own input
+    sync.add(1, 30_000 * MS, "t30")
+    assert [[p for _, p in t] for t in out] == [["s30", "t30"]]
+    assert sync.stats["resets"] == 0 and sync.stats["cleared"] == 0
+    assert sync.stats["stale"] == 1  # t20 (replaced by "t20 again") can never pair after t30
+
+
 def test_three_inputs():
     out = []
     sync = ApproximateTimeSync(3, 4, 0.03, out.append)

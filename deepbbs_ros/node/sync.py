@@ -14,9 +14,10 @@ Two additions make the output safe to feed a registration pipeline:
 * tuples are emitted in stamp order: once a tuple is emitted, queued messages older than its stamp on
   the same input can never be paired any more and are dropped (counted in ``stats["stale"]``), and
   a late message older than the last emitted stamp of its input is refused (``stats["late"]``);
-* a backwards jump of more than ``jump_back_s`` (a bag restarted, simulated time rewound) clears
-  every queue and the ordering memory (``stats["resets"]``; cleared messages in ``stats["cleared"]``)
-  instead of refusing everything after it.
+* a backwards jump of more than ``jump_back_s`` on one input (a bag restarted, simulated time rewound)
+  clears every queue and the ordering memory (``stats["resets"]``; cleared messages in ``stats["cleared"]``)
+  instead of refusing everything after it. Each input is compared with its own newest stamp: an input that
+  lags the other (its older scans still arriving after the other's newer ones) is no time jump.
 
 The class holds no ROS import: stamps are integers in nanoseconds and payloads are opaque. It is
 thread-safe (one lock); the callback is invoked outside the lock.
@@ -39,7 +40,8 @@ class ApproximateTimeSync:
         queue_size: messages kept per input (>= 1).
         slop: maximum spread of the stamps of one emitted tuple, seconds (>= 0).
         callback: called as ``callback(items)`` with one ``(stamp_ns, payload)`` per input, in input order.
-        jump_back_s: a stamp this many seconds older than the newest one seen resets the synchroniser.
+        jump_back_s: a stamp this many seconds older than the newest one seen on its input resets the
+            synchroniser.
     """
 
     def __init__(
@@ -65,7 +67,7 @@ class ApproximateTimeSync:
         self._lock = threading.Lock()
         self._queues: list[dict[int, Any]] = [{} for _ in range(n_inputs)]
         self._last_emitted: list[int | None] = [None] * n_inputs
-        self._newest_seen: int | None = None
+        self._newest_seen: list[int | None] = [None] * n_inputs  # per input: one lagging the other is no jump
         self.stats = {"received": 0, "emitted": 0, "overflow": 0, "stale": 0, "late": 0, "resets": 0, "cleared": 0}
 
     # -------------------------------------------------------------------------------------------
@@ -79,11 +81,13 @@ class ApproximateTimeSync:
         stamp_ns = int(stamp_ns)
         with self._lock:
             self.stats["received"] += 1
-            if self._newest_seen is not None and stamp_ns < self._newest_seen - self.jump_back_ns:
+            newest = self._newest_seen[index]
+            if newest is not None and stamp_ns < newest - self.jump_back_ns:
                 self._reset_locked()
                 self.stats["resets"] += 1
-            if self._newest_seen is None or stamp_ns > self._newest_seen:
-                self._newest_seen = stamp_ns
+                newest = None
+            if newest is None or stamp_ns > newest:
+                self._newest_seen[index] = stamp_ns
             last = self._last_emitted[index]
             if last is not None and stamp_ns <= last:
                 self.stats["late"] += 1
@@ -139,7 +143,7 @@ class ApproximateTimeSync:
             self.stats["cleared"] += len(q)
             q.clear()
         self._last_emitted = [None] * self.n_inputs
-        self._newest_seen = None
+        self._newest_seen = [None] * self.n_inputs
 
     def queue_lengths(self) -> Sequence[int]:
         """Messages currently queued per input (never more than ``queue_size`` each)."""
