@@ -305,7 +305,8 @@ def test_a_killed_worker_is_retried(local_ray, fleet_dir, tmp_path):
             time.sleep(0.01)
 
     th = threading.Thread(target=killer, daemon=True)
-    before = set(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*"))  # other runs' leftovers are not this one's
+    mine = f"deepbbs-fleet-{os.getpid()}-*"  # this process drives the fleet: other runs' folders are not its own
+    before = set(Path(tempfile.gettempdir()).glob(mine))
     th.start()
     sources = [str(fleet_dir / "drive_0"), str(fleet_dir / "drive_2")]
     try:
@@ -320,7 +321,7 @@ def test_a_killed_worker_is_retried(local_ray, fleet_dir, tmp_path):
                          tmp_path / f"single_{r.name}")
         _close(r.methods, single["methods"])
         assert (tmp_path / r.name / "metrics.json").exists()
-    assert not set(Path(tempfile.gettempdir()).glob("deepbbs-fleet-*")) - before  # the killed worker's folder too
+    assert not set(Path(tempfile.gettempdir()).glob(mine)) - before  # the killed worker's folder too
 
 
 def test_ctrl_c_keeps_finished_recordings(local_ray, fleet_dir, tmp_path):

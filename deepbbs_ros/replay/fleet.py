@@ -335,7 +335,7 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
     try:
         task = ray.remote(num_cpus=cpus_per_task, num_gpus=gpus_per_task, max_retries=retries)(replay_task)
         fn_ref, args_ref = ray.put(replay_one), ray.put(args)
-        tag = f"{os.getpid()}{int(time.time() * 1000) % 10**8}"
+        tag = f"{os.getpid()}-{int(time.time() * 1000) % 10**8}"  # the driver's pid first: one run's folders
         pending = {task.remote(fn_ref, args_ref, r.source, tag): i for i, r in enumerate(recs)}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)  # Ctrl-C is seen between waits
