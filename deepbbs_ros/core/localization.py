@@ -58,7 +58,9 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishView, polish, prepare_polish_cloud
+from deepbbs_ros.core.preprocess import crop_range
+from deepbbs_ros.core.scans import prepare_view
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 from deepbbs_ros.reprs import short_repr
 
@@ -488,8 +490,6 @@ class MapLocalizer:
         """(M, 3) float64 the map's GICP voxel centroids within ``crop_radius`` (horizontally) of the place and within
         the scans' range (``preprocess.min_range``, ``max_range``) of it, in the place's frame (the crop of a scan
         taken there)."""
-        from deepbbs_ros.core.preprocess import crop_range
-
         pts = self._local(self._voxels, T_map_place)
         pp = self.config.preprocess
         return np.compress(crop_range(pts, pp.min_range, pp.max_range), pts, axis=0)
@@ -507,9 +507,6 @@ class MapLocalizer:
         if self._cloud is None:
             crop = _Crop(T.copy(), self.registration.preprocess(local))
         else:  # a view of the map's GICP cloud: nothing to prepare but the network's points
-            from deepbbs_ros.core.polish import PolishView
-            from deepbbs_ros.core.scans import prepare_view
-
             crop = _Crop(T.copy(), prepare_view(self.config, PolishView.of(self._cloud, local, T)))
         if place >= 0:
             self._crops[place] = crop
