@@ -18,6 +18,7 @@ alike; recordings without ground truth train self-supervised) and validates on `
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import shlex
 import signal
@@ -207,6 +208,9 @@ def _cmd_fit(args) -> int:
     args.device = distributed.init_from_env(args.device or _config(args).registration.device)
     try:
         code = _fit(args, main_rank=distributed.world()[0] == 0)
+        # the trainer's DistributedDataParallel goes now, not at the interpreter's exit (rank 0's sat in a reference
+        # cycle): its reducer holds the process group, which destroy() below must end while the interpreter is whole
+        gc.collect()
         distributed.barrier()  # leave the group together: rank 0 may still be writing the run when the others end
         return code
     finally:
