@@ -78,6 +78,7 @@ setup(
             "deepbbs-replay = deepbbs_ros.cli.replay:main",
             "deepbbs-play = deepbbs_ros.cli.play:main",
             "deepbbs-node = deepbbs_ros.node.registration_node:main",
+            "deepbbs-localizer = deepbbs_ros.node.managed:main",  # the managed (lifecycle) localization node
             "deepbbs-ros = deepbbs_ros.cli.ros:main",  # topic echo/hz, param get/set, reset, dds-profile (no ros2 CLI)
             # only deepbbs-* names on the PATH (sox has a `play`); colcon installs these same scripts into
             # lib/deepbbs_ros (setup.cfg), so `ros2 run deepbbs_ros deepbbs-node` and the launch file use them

@@ -335,7 +335,24 @@ class RegistrationNode(Node):
     ) -> None:
         t_start = time.perf_counter()
         super().__init__(node_name, **node_kwargs)
-        self.cfg = self._declare_config(config or Config())
+        t_model = self._configure_parts(config or Config(), registration, odometry_method, remaps, t_start)
+        self._create_outputs(tf_broadcaster)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        t_warm = time.perf_counter()
+        self._warm()
+        self._subscribe()
+        t_end = time.perf_counter()
+        self.startup_s = t_end - t_start
+        self.get_logger().info(
+            f"ready in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up {t_end - t_warm:.1f} s)"
+        )
+
+    # -- phases: the plain node runs them in __init__, the managed node (node/managed.py) one per transition ------
+    def _configure_parts(self, config: Config, registration: Any, odometry_method: str, remaps: Any,
+                         t_start: float) -> float:
+        """Read the parameters; load the map file, the model (unless ``registration`` is given) and the pipeline's
+        parts (the worker's thread). Returns the model's load time (s)."""
+        self.cfg = self._declare_config(config)
         ncfg = self.cfg.node
         _validate_frame("node.odom_frame", ncfg.odom_frame)
         _validate_frame("node.base_frame", ncfg.base_frame)
@@ -405,7 +422,13 @@ class RegistrationNode(Node):
         # preprocessing on arrival only where every scan is registered by the network (the localizer preprocesses
         # the raw scan itself, with its per-point times)
         self._preprocess_on_arrival = not isinstance(self.odometry, LocalMapOdometry) and self.localization is None
+        self._map_file = map_file
+        return t_model
 
+    def _create_outputs(self, tf_broadcaster: TfBroadcaster | None) -> None:
+        """Publishers, the inputs' threads (their subscriptions are made by :meth:`_subscribe`), the ``/tf_static``
+        subscription, the services and the diagnostics timer."""
+        ncfg = self.cfg.node
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         self.inputs: list[CloudInput] = []
         self.static_tf = StaticTransforms()
@@ -416,7 +439,7 @@ class RegistrationNode(Node):
                                    extrinsic=self._base_from_sensor)
             self._sub_tf_static = self._subscribe_tf_static()
             # one QoS object per subscription: rclpy applies qos_overrides.<topic>.* to it in place
-            subscribe = [self._make_input(i, name, self._qos()) for i, name in enumerate(self.input_names)]
+            self._subscribe_inputs = [self._make_input(i, name, self._qos()) for i, name in enumerate(self.input_names)]
         except NodeError:
             self._stop_threads()
             raise
@@ -430,24 +453,29 @@ class RegistrationNode(Node):
         # that ended would leave the counters frozen); the messages still carry the node's time
         self._diag_timer = self.create_timer(ncfg.diagnostics_period, self._publish_diagnostics,
                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        t_warm = time.perf_counter()
+
+    def _warm(self) -> None:
+        """:meth:`_warmup` where ``node.warmup`` asks for it and the model is the node's own."""
         self.warmed_up = False
-        if ncfg.warmup and self._owns_reg:  # an injected registration (tests, the GICP anchor) is the caller's
+        if self.cfg.node.warmup and self._owns_reg:  # an injected registration (tests, the GICP anchor) is the caller's
             try:
                 self._warmup()
                 self.warmed_up = True
             except Exception as err:  # noqa: BLE001 - a failed warm-up costs the first scans' latency, nothing else
                 self.get_logger().warning(f"warm-up failed ({type(err).__name__}: {err}); the first scans run cold")
+
+    def _subscribe(self) -> None:
+        """Subscribe the inputs (after the warm-up: a publisher such as deepbbs-play sees the node once it is ready)
+        and log them. Subscriptions the node answers go here, publishers in :meth:`_create_outputs`."""
+        ncfg = self.cfg.node
+        map_file = self._map_file
         try:
-            self._subs = [make() for make in subscribe]
+            self._subs = [make() for make in self._subscribe_inputs]
         except Exception as err:  # rclpy raises several types for bad (remapped) names
             self._stop_threads()
             raise NodeError(f"cannot create topics: {err}".replace("\n", " ")) from err
-        t_end = time.perf_counter()
         self._t_ready = time.monotonic()
         self._last_pair_t = self._t_ready
-        self.startup_s = t_end - t_start
         #: the QoS each input really got, after ``qos_overrides.<topic>.subscription.*``: topic -> "reliable/5"
         self.input_qos = {inp.topic: _qos_text(sub.qos_profile) for inp, sub in zip(self.inputs, self._subs)}
         qos_text = ", ".join(f"{t}: {q}" for t, q in self.input_qos.items())
@@ -459,9 +487,12 @@ class RegistrationNode(Node):
             + (f" target=localization (map {map_file.source if map_file else self.inputs[1].topic})"
                if self.localization is not None else "")
         )
-        self.get_logger().info(
-            f"ready in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up {t_end - t_warm:.1f} s)"
-        )
+
+    def _unsubscribe(self) -> None:
+        """Destroy the inputs' subscriptions (:meth:`_subscribe` makes them again); the rest stays."""
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
 
     def _remapped(self, name: str) -> bool:
         """Whether a remap rule applies to the topic ``name``."""
@@ -507,16 +538,18 @@ class RegistrationNode(Node):
         target = overrides["node.target_mode"].value if "node.target_mode" in overrides else defaults.node.target_mode
         used = node_parameters(defaults, mode, target)
         ignore = [n for n in overrides if n not in used and (self.has_parameter(n) or n.startswith("qos_overrides."))]
-        errors, warnings, notes = check_parameter_names([n for n in overrides if n not in ignore], used, flat, mode)
-        if errors:
-            raise NodeError("; ".join(errors))
-        for text in warnings:
-            self.get_logger().warning(text)
-        for text in notes:
-            self.get_logger().info(text)
-        self.parameter_warnings = warnings
+        if not any(self.has_parameter(k) for k in used):  # the first time (the managed node reads them again)
+            errors, warnings, notes = check_parameter_names([n for n in overrides if n not in ignore], used, flat, mode)
+            if errors:
+                raise NodeError("; ".join(errors))
+            for text in warnings:
+                self.get_logger().warning(text)
+            for text in notes:
+                self.get_logger().info(text)
+            self.parameter_warnings = warnings
         for key, value in used.items():
-            self.declare_parameter(key, value, ParameterDescriptor(name=key, dynamic_typing=True))
+            if not self.has_parameter(key):
+                self.declare_parameter(key, value, ParameterDescriptor(name=key, dynamic_typing=True))
         values = {k: self.get_parameter(k).value for k in used}
         try:
             return Config.from_flat({**flat, **values})
@@ -968,6 +1001,11 @@ class RegistrationNode(Node):
             self.localization.stop()
 
     def destroy_node(self):
+        self._release()
+        return super().destroy_node()
+
+    def _release(self) -> None:
+        """Stop the threads, log the counts, close the node's own registration (its processes)."""
         self._stop_threads()
         s = self.stats()
         line = (f"stopping: {s['received']} clouds received, {s['processed']} processed, {s['published']} poses "
@@ -982,7 +1020,6 @@ class RegistrationNode(Node):
         self.get_logger().info(line)
         if self._owns_reg and hasattr(self.reg, "close"):
             self.reg.close()
-        return super().destroy_node()
 
 
 def _stamp_ns(msg: Any) -> int:

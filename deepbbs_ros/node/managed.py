@@ -1,0 +1,221 @@
+"""The managed (lifecycle) localization node ``deepbbs_localizer`` (console script ``deepbbs-localizer``).
+
+The same node as ``deepbbs-node`` (:class:`~deepbbs_ros.node.registration_node.RegistrationNode`: the same parameters,
+inputs and outputs), driven through the ROS 2 node lifecycle the way ``nav2_lifecycle_manager`` drives Nav2's
+servers (``<node>/change_state``, ``<node>/get_state``; lifecycle_msgs), with ``node.target_mode: localization``
+by default:
+
+* constructed (unconfigured): the parameters are declared (set them now, or with a params file);
+* **configure**: read the parameters, load the map (``localization.map_path``) and the model, start the pipeline's
+  threads, create the publishers, services and the diagnostics timer, warm up. A missing or bad map or model is
+  one error line and FAILURE: the node stays unconfigured, serves its lifecycle services and can be configured
+  again (after ``ros2 param set`` of the parameter named);
+* **activate**: subscribe to the inputs, publishers on;
+* **deactivate**: unsubscribe, publishers off (nothing answered or published); the map, the model and the
+  tracker's state stay;
+* **cleanup**: stop the threads, release the map and the model, destroy what configure made (back to
+  unconfigured; the parameters stay and may be changed);
+* **shutdown** (from any state) and **error** processing: release everything as cleanup does.
+
+Parameters of the node's own sections can be changed while unconfigured; in the other states a change is refused
+naming the transitions that allow it.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle.publisher import LifecyclePublisher
+from rclpy.node import Node
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.entry import cli_entry
+from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.node.outputs import TfBroadcaster
+from deepbbs_ros.node.registration_node import (
+    RegistrationNode,
+    _parser,  # noqa: F401 - the --help of deepbbs-localizer
+    node_parameters,
+    run_node,
+)
+
+NODE_NAME = "deepbbs_localizer"  # Nav2's naming: the name lifecycle_manager's node_names lists
+_ENTITIES = ("_publishers", "_subscriptions", "_services", "_clients", "_timers")
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+
+
+def localizer_defaults(cfg: Config | None = None) -> Config:
+    """``cfg`` (default ``Config()``) with ``node.target_mode: localization`` where it is pair mode's default,
+    ``stamped``: the managed node localizes unless told otherwise."""
+    cfg = cfg or Config()
+    if cfg.node.mode == "pair" and cfg.node.target_mode == "stamped":
+        return cfg.replace(**{"node.target_mode": "localization"})
+    return cfg
+
+
+class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
+    """See the module docstring. Args as :class:`RegistrationNode` (``registration`` given: used at every
+    configure and never closed by the node)."""
+
+    def __init__(
+        self,
+        config: Config | None = None,
+        *,
+        registration: Any = None,
+        tf_broadcaster: TfBroadcaster | None = None,
+        node_name: str = NODE_NAME,
+        remaps: Any = (),
+        **node_kwargs: Any,
+    ) -> None:
+        Node.__init__(self, node_name, **node_kwargs)
+        LifecycleNodeMixin.__init__(self)
+        self._defaults = localizer_defaults(config)
+        self._given = (registration, tf_broadcaster, remaps)
+        self._made: dict[str, list] | None = None  # the entities that existed before configure (None: unconfigured)
+        self._active = self._configured = False
+        self._declare_config(self._defaults)  # declared now, read at each configure (as Nav2's servers do)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info("unconfigured: waiting for the configure transition (a lifecycle manager, or "
+                               f"`ros2 lifecycle set {self.get_fully_qualified_name()} configure`)")
+
+    # -- transitions (the executor's thread; rclpy turns an exception into ERROR without a word: logged here) -----
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("configure", self._configure)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        def activate() -> None:
+            self._subscribe()
+            LifecycleNodeMixin.on_activate(self, state)  # the lifecycle publishers on
+            self._active = True
+            self.get_logger().info("active")
+
+        return self._transition("activate", activate)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        def deactivate() -> None:
+            self._deactivate(state)
+            self.get_logger().info("inactive: inputs unsubscribed, nothing published; the map is kept")
+
+        return self._transition("deactivate", deactivate)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("cleanup", lambda: self._teardown("unconfigured: map and model released"))
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        def shutdown() -> None:
+            self._deactivate(state)
+            self._teardown("finalized")
+
+        return self._transition("shutdown", shutdown)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        def recover() -> None:
+            self._deactivate(state)
+            self._teardown("unconfigured after an error: everything released")
+
+        return self._transition("error processing", recover)
+
+    def _transition(self, name: str, step: Callable[[], Any]) -> TransitionCallbackReturn:
+        try:
+            result = step()
+        except DeepBBSError as err:  # a user's mistake (a missing map, a bad parameter): one line
+            self.get_logger().error(f"{name} failed: {err}")
+            return FAILURE
+        except Exception as err:  # noqa: BLE001 - a bug: one line and the trace at debug level
+            self.get_logger().error(f"{name} failed: unexpected {type(err).__name__}: {err}")
+            self.get_logger().debug("".join(traceback.format_exception(err)))
+            return FAILURE
+        return result if isinstance(result, TransitionCallbackReturn) else SUCCESS
+
+    def _configure(self) -> TransitionCallbackReturn:
+        t_start = time.perf_counter()
+        self._made = {k: list(getattr(self, k)) for k in _ENTITIES}
+        registration, tf_broadcaster, remaps = self._given
+        try:
+            t_model = self._configure_parts(self._defaults, registration, "local_map", remaps, t_start)
+            self._create_outputs(tf_broadcaster)
+            t_warm = time.perf_counter()
+            self._warm()
+        except BaseException:
+            self._teardown(None)
+            raise
+        t_end = time.perf_counter()
+        self._configured = True
+        self.startup_s = t_end - t_start
+        self.get_logger().info(f"inactive: configured in {self.startup_s:.1f} s (model {t_model:.1f} s, warm-up "
+                               f"{t_end - t_warm:.1f} s); activate to subscribe to the inputs")
+        return SUCCESS
+
+    def _deactivate(self, state: LifecycleState) -> None:
+        if self._active:
+            self._unsubscribe()
+            LifecycleNodeMixin.on_deactivate(self, state)  # the lifecycle publishers off
+            self._active = False
+
+    def _teardown(self, line: str | None) -> None:
+        """Stop the threads, close the node's own model, destroy what configure made; ``line`` logged after the
+        counts (None: a configure that failed halfway, nothing logged)."""
+        if self._made is None:
+            if line is not None:
+                self.get_logger().info(line)
+            return
+        if line is not None and self._configured:
+            self._release()  # the threads stopped, the counts logged, the model closed
+        else:
+            for inp in getattr(self, "inputs", []):
+                inp.stop()
+            for part in ("worker", "localization"):
+                if getattr(self, part, None) is not None:
+                    getattr(self, part).stop()
+            if getattr(self, "_owns_reg", False) and hasattr(getattr(self, "reg", None), "close"):
+                self.reg.close()
+        for kind in _ENTITIES:
+            for entity in [e for e in getattr(self, kind) if e not in self._made[kind]]:
+                if isinstance(entity, LifecyclePublisher):
+                    self.destroy_lifecycle_publisher(entity)
+                else:
+                    getattr(self, "destroy_" + kind[1:-1])(entity)
+        self._made, self._configured = None, False
+        self.reg = self.localization = self.odometry = self._map_file = None
+        if line is not None:
+            self.get_logger().info(line)
+
+    # -- the node's outputs are lifecycle publishers: on while active -------------------------------------------
+    def create_publisher(self, *args: Any, **kwargs: Any):
+        if getattr(self, "_made", None) is not None:  # during configure (rclpy's own publishers stay plain)
+            return self.create_lifecycle_publisher(*args, **kwargs)
+        return Node.create_publisher(self, *args, **kwargs)
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        if not self._configured:
+            return SetParametersResult(successful=True)  # read at the next configure
+        declared = node_parameters(self.cfg, self.cfg.node.mode, self.cfg.node.target_mode)
+        ours = [p.name for p in params if p.name in declared]
+        if ours:
+            return SetParametersResult(successful=False, reason=f"deactivate and clean up the node, then configure "
+                                       f"it again, to change {', '.join(ours)}")
+        return SetParametersResult(successful=True)
+
+    def destroy_node(self):
+        self._deactivate(LifecycleState("active", 3))
+        self._teardown("stopped")
+        return Node.destroy_node(self)
+
+
+@cli_entry("deepbbs-localizer")
+def main(argv: list[str] | None = None) -> int:
+    """``deepbbs-localizer [--config YAML] [--ros-args ...]``: run until Ctrl-C, unconfigured until told."""
+    return run_node(argv, "deepbbs-localizer", "Managed (lifecycle) DeepBBS++ localization node: configure loads "
+                    "the map and the model, activate subscribes to the scans (nav2_lifecycle_manager, or "
+                    "`ros2 lifecycle set`).", LocalizerNode)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())
