@@ -125,6 +125,15 @@ class Manager:
         self.client.destroy_node()
 
 
+def _cli(*args: str):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "deepbbs_ros.cli.ros", "--timeout", "20", *args],
+                          capture_output=True, text=True, timeout=120, env=dict(os.environ))
+
+
 def _shipped_weights() -> None:
     if not default_weights_path().is_file():
         pytest.skip("shipped weights missing")
@@ -199,7 +208,10 @@ def test_a_missing_map_fails_configure_in_one_line_and_the_node_stays(ros, drive
         errors = [line for line in capfd.readouterr().err.splitlines() if "ERROR" in line]
         assert len(errors) == 1 and "configure failed: localization.map_path" in errors[0], errors
         assert "nowhere.pcd" in errors[0] and "Traceback" not in errors[0]
-        assert m.transition(Transition.TRANSITION_CONFIGURE) is False and m.state() == "unconfigured"  # again
+        # again from deepbbs-ros (ros2 lifecycle's pip-install stand-in), its own process: refused, exit code 1
+        res = _cli("lifecycle", "set", "/lc_fail", "configure")
+        assert res.returncode == 1 and "/lc_fail: configure failed" in res.stdout and "now unconfigured" in res.stdout
+        assert _cli("lifecycle", "get", "/lc_fail").stdout.strip() == "/lc_fail: unconfigured [1]"
         assert m.set_string("localization.map_path", _map(tmp_path, drive))
         assert m.transition(Transition.TRANSITION_CONFIGURE) and m.state() == "inactive"
         # configured: the node's parameters are fixed until cleanup, said in the refusal
@@ -210,8 +222,9 @@ def test_a_missing_map_fails_configure_in_one_line_and_the_node_stays(ros, drive
         m.send(sim.scan_at(22).points, sim.stamp_ns(22))
         assert m.wait_for(lambda: m.poses, 90.0), m.node.stats()
         _check_pose(pose_stamped_to_matrix(m.poses[0])[0], sim.pose_at(22))
-        # shutdown from active (as the manager's shutdown ends): finalized, everything released
-        assert m.transition(Transition.TRANSITION_ACTIVE_SHUTDOWN)
+        # shutdown from active by its label (the manager's shutdown ends with it): finalized, everything released
+        res = _cli("lifecycle", "set", "/lc_fail", "shutdown")
+        assert res.returncode == 0 and res.stdout.strip() == "/lc_fail: shutdown ok; now finalized", res
         assert m.state() == "finalized" and m.node.localization is None
         assert m.get.wait_for_service(1.0)  # still serving its lifecycle services
     finally:
@@ -225,3 +238,71 @@ def test_localizer_defaults_and_states():
     assert localizer_defaults(Config().replace(**{"node.target_mode": "latched"})).node.target_mode == "latched"
     assert localizer_defaults(Config().replace(**{"node.mode": "odometry"})).node.mode == "odometry"
     assert (State.PRIMARY_STATE_UNCONFIGURED, State.PRIMARY_STATE_INACTIVE, State.PRIMARY_STATE_ACTIVE) == (1, 2, 3)
+
+
+def test_the_localizer_process_with_the_shipped_params_file(ros, drive, tmp_path):
+    """``deepbbs-localizer`` in its own process with config/nav2_localization.yaml (keyed by its default name, as the
+    launch file gives it), driven from this process as the lifecycle manager drives it: unconfigured until told,
+    configure (the model and the map loaded there) and activate over lifecycle_msgs, a scan answered, SIGINT: exit 0
+    with the counts logged and no traceback."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    _shipped_weights()
+    params = Path(__file__).resolve().parents[1] / "config" / "nav2_localization.yaml"
+    cmd = [sys.executable, "-m", "deepbbs_ros.node.managed", "--ros-args", "--params-file", str(params),
+           "-p", f"localization.map_path:={_map(tmp_path, drive)}", "-p", "node.warmup:=false",
+           "-p", "registration.network_process:=off"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")), daemon=True)
+    reader.start()
+    c = rclpy.create_node("lc_proc_manager")
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(c)
+    spin = threading.Thread(target=executor.spin, daemon=True)
+    spin.start()
+    try:
+        poses: list[PoseStamped] = []
+        c.create_subscription(PoseStamped, "/deepbbs_localizer/pose", poses.append, 10)
+        scans = c.create_publisher(PointCloud2, "source_cloud", 5)
+        change = c.create_client(ChangeState, "/deepbbs_localizer/change_state")
+        get = c.create_client(GetState, "/deepbbs_localizer/get_state")
+        assert change.wait_for_service(60.0) and get.wait_for_service(10.0), "".join(lines)
+
+        def call(client, request):
+            future = client.call_async(request)
+            deadline = time.monotonic() + 120.0
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert future.done(), "".join(lines)
+            return future.result()
+
+        assert call(get, GetState.Request()).current_state.id == State.PRIMARY_STATE_UNCONFIGURED
+        for t in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
+            assert call(change, ChangeState.Request(transition=Transition(id=t))).success, "".join(lines)
+        assert call(get, GetState.Request()).current_state.id == State.PRIMARY_STATE_ACTIVE
+        deadline = time.monotonic() + 10.0
+        while scans.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sim = drive[0]
+        scans.publish(arrays_to_pointcloud2(sim.scan_at(32).points.astype(np.float32), stamp_ns=sim.stamp_ns(32),
+                                            frame_id="lidar"))
+        deadline = time.monotonic() + 90.0
+        while not poses and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert poses, "".join(lines)
+        _check_pose(pose_stamped_to_matrix(poses[0])[0], sim.pose_at(32))
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 0, "".join(lines)
+        reader.join(10.0)
+        log = "".join(lines)
+        assert "stopping: 1 clouds received" in log and "1 poses published" in log, log
+        assert "Traceback" not in log and "Failed to publish" not in log, log
+    finally:
+        proc.kill() if proc.poll() is None else None
+        executor.shutdown()
+        spin.join(10.0)
+        c.destroy_node()

@@ -10,6 +10,7 @@ Real rclpy underneath (the same DDS graph as ``ros2``)::
     deepbbs-ros param set /deepbbs_registration use_sim_time true
     deepbbs-ros reset                                          # calls /deepbbs_registration/reset
     deepbbs-ros relocalize                                     # localization: search the whole map again
+    deepbbs-ros lifecycle set /deepbbs_localizer configure     # the managed node's transitions (ros2 lifecycle)
     deepbbs-ros static-tf --z 1.8 --frame-id base_link --child-frame-id velodyne   # on /tf_static until stopped
     deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
     deepbbs-ros build-interfaces                               # tf2_msgs for /tf (no PyPI wheel)
@@ -33,6 +34,8 @@ from deepbbs_ros.cli.common import cli_entry
 from deepbbs_ros.errors import NodeError
 
 DEFAULT_NODE = "/deepbbs_registration"
+LIFECYCLE_NODE = "/deepbbs_localizer"  # deepbbs-localizer, the managed node
+TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
 DEFAULT_TIMEOUT = 30.0  # s; deepbbs-node takes 4-8 s to start (torch, the model, the warm-up)
 NOT_WALL_CLOCK_S = 60.0  # s; stamps further than this from the wall clock are a recording's or sim time
 
@@ -78,6 +81,12 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("relocalize", help="call the node's ~/relocalize (node.target_mode localization: forget the "
                                           "pose, search the whole map on the next scan)")
     r.add_argument("node", nargs="?", default=DEFAULT_NODE)
+    lc = sub.add_parser("lifecycle", help="get, set: a managed node's state and transitions (as ros2 lifecycle)")
+    lc = lc.add_subparsers(dest="action", required=True)
+    lc.add_parser("get", help="the node's state").add_argument("node", nargs="?", default=LIFECYCLE_NODE)
+    ls = lc.add_parser("set", help="trigger a transition: configure, activate, deactivate, cleanup, shutdown")
+    ls.add_argument("node")
+    ls.add_argument("transition", choices=TRANSITIONS)
     st = sub.add_parser(
         "static-tf", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="publish a static transform on /tf_static until stopped (tf2_ros static_transform_publisher's flags)",
@@ -140,6 +149,8 @@ def _with_node(args: argparse.Namespace) -> int:
             return _topic(node, args)
         if args.command == "param":
             return _param(node, args)
+        if args.command == "lifecycle":
+            return _lifecycle(node, args)
         return _reset(node, args)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
@@ -192,6 +203,27 @@ def _reset(node: Any, args: argparse.Namespace) -> int:
                       args.timeout, name)  # fmt: skip
     print(f"{name}: {'ok' if res.success else 'failed'}: {res.message}")
     return 0 if res.success else 1
+
+
+def _lifecycle(node: Any, args: argparse.Namespace) -> int:
+    """``lifecycle get NODE``: its state; ``lifecycle set NODE TRANSITION``: the transition by its label (as ros2
+    lifecycle), then the state it reached; exit code 1 when the node refused or failed it (its log says why)."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    name = _node_name(args.node)
+    get = _client(node, GetState, name + "/get_state", args.timeout)
+    ok = True
+    if args.action == "set":
+        change = _client(node, ChangeState, name + "/change_state", args.timeout)
+        request = ChangeState.Request(transition=Transition(label=args.transition))
+        ok = _spin_until(node, change.call_async(request), args.timeout, f"{name} {args.transition}").success
+    state = _spin_until(node, get.call_async(GetState.Request()), args.timeout, name + "/get_state").current_state
+    if args.action == "set":
+        print(f"{name}: {args.transition} {'ok' if ok else 'failed (the node logs why)'}; now {state.label}")
+    else:
+        print(f"{name}: {state.label} [{state.id}]")
+    return 0 if ok else 1
 
 
 def _param(node: Any, args: argparse.Namespace) -> int:
