@@ -128,6 +128,7 @@ def test_params_file_is_nav2s_layout_and_loads_into_the_config(tmp_path):
     assert Config.from_yaml(one).to_flat() == loaded.to_flat()
     lm = doc["lifecycle_manager_localization"]["ros__parameters"]
     assert lm["node_names"] == [managed.NODE_NAME] and lm["autostart"] is True and lm["bond_timeout"] == 0.0
+    assert lm["service_timeout"] >= 30.0  # configure (model, map, warm-up) takes seconds: more than Nav2's 5 s default
 
 
 def test_params_file_reaches_the_node_under_its_name(tmp_path):
