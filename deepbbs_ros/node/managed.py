@@ -78,6 +78,7 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
         self._given = (registration, tf_broadcaster, remaps)
         self._made: dict[str, list] | None = None  # the entities that existed before configure (None: unconfigured)
         self._active = self._configured = False
+        self._activated: list = []  # the subscriptions activate made
         self._declare_config(self._defaults)  # declared now, read at each configure (as Nav2's servers do)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info("unconfigured: waiting for the configure transition (a lifecycle manager, or "
@@ -89,7 +90,9 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         def activate() -> None:
-            self._subscribe()
+            before = list(self._subscriptions)
+            self._subscribe()  # every subscription it makes is undone by deactivate
+            self._activated = [sub for sub in self._subscriptions if sub not in before]
             LifecycleNodeMixin.on_activate(self, state)  # the lifecycle publishers on
             self._active = True
             self.get_logger().info("active")
@@ -153,7 +156,9 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
 
     def _deactivate(self, state: LifecycleState) -> None:
         if self._active:
-            self._unsubscribe()
+            for sub in self._activated:
+                self.destroy_subscription(sub)
+            self._activated = self._subs = []
             LifecycleNodeMixin.on_deactivate(self, state)  # the lifecycle publishers off
             self._active = False
 

@@ -488,12 +488,6 @@ class RegistrationNode(Node):
                if self.localization is not None else "")
         )
 
-    def _unsubscribe(self) -> None:
-        """Destroy the inputs' subscriptions (:meth:`_subscribe` makes them again); the rest stays."""
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
-
     def _remapped(self, name: str) -> bool:
         """Whether a remap rule applies to the topic ``name``."""
         try:
