@@ -26,6 +26,7 @@ from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from test_node import _check_pose  # noqa: E402
 
@@ -306,3 +307,28 @@ def test_the_localizer_process_with_the_shipped_params_file(ros, drive, tmp_path
         executor.shutdown()
         spin.join(10.0)
         c.destroy_node()
+
+
+def test_a_bad_model_or_map_fails_configure_in_one_line(ros, drive, tmp_path, capfd):
+    """A missing checkpoint, a damaged map: configure fails with one error line naming the parameter (no trace), the
+    node stays unconfigured with nothing of the attempt left (no publisher, no thread of the node's)."""
+    bad = tmp_path / "bad.pcd"
+    bad.write_bytes(b"# .PCD v0.7\nFIELDS x y z\nnonsense")
+    good = _map(tmp_path, drive)
+    node = LocalizerNode(_config(**{"localization.map_path": good, "registration.weights": str(tmp_path / "no.pt")}),
+                         node_name="lc_bad")
+    try:
+        publishers = len(list(node.publishers))
+        for param, value, named in [(None, None, "registration.weights: file not found"),
+                                    ("localization.map_path", str(bad), "localization.map_path: ")]:
+            if param:
+                node.set_parameters([rclpy.parameter.Parameter(param, value=value)])
+            capfd.readouterr()
+            assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+            assert node._state_machine.current_state[1] == "unconfigured"
+            errors = [line for line in capfd.readouterr().err.splitlines() if "ERROR" in line]
+            assert len(errors) == 1 and f"configure failed: {named}" in errors[0], errors
+            assert len(list(node.publishers)) == publishers and node.reg is None
+            assert not [t for t in threading.enumerate() if t.name.startswith("deepbbs")], threading.enumerate()
+    finally:
+        node.destroy_node()
