@@ -156,7 +156,7 @@ def test_transitions_as_the_lifecycle_manager_drives_them(ros, drive, tmp_path, 
         log = capfd.readouterr().err
         assert "map from " in log and "candidate places" in log and "inactive: configured in" in log, log
         assert m.node.localization.has_map and m.node._owns_reg
-        assert m.client.count_publishers("/lc_node/pose") == 1  # created by configure, silent until active
+        assert m.wait_for(lambda: m.client.count_publishers("/lc_node/pose") == 1, 10.0)  # made by configure
         # inactive: the scan topic is not subscribed, nothing is received or answered
         m.send(sim.scan_at(12).points, sim.stamp_ns(12))
         time.sleep(1.0)
