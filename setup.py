@@ -58,6 +58,8 @@ setup(
         # tf2_msgs definitions, built at install time (deepbbs_ros/interfaces.py)
         "deepbbs_ros.resources.interfaces.tf2_msgs": ["package.xml"],
         "deepbbs_ros.resources.interfaces.tf2_msgs.msg": ["*"],
+        "deepbbs_ros.resources.interfaces.bond": ["package.xml"],  # bond/Status: Nav2's lifecycle manager's heartbeat
+        "deepbbs_ros.resources.interfaces.bond.msg": ["*"],
     },
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

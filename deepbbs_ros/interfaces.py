@@ -1,4 +1,4 @@
-"""Build and install ROS 2 message packages that PyPI has no wheel for (today: ``tf2_msgs``).
+"""Build and install ROS 2 message packages that PyPI has no wheel for (``tf2_msgs``, ``bond``).
 
 The definitions ship with this package (``deepbbs_ros/resources/interfaces/<package>/msg/*.idl``, the
 ``*.msg`` beside them for reference, ``package.xml``). The code is generated with the rosidl generators that
@@ -30,7 +30,8 @@ import textwrap
 
 INTERFACES = pathlib.Path(__file__).resolve().parent / "resources" / "interfaces"
 #: package -> message dependencies (their libraries are linked)
-PACKAGES = {"tf2_msgs": ["geometry_msgs", "std_msgs", "builtin_interfaces"]}
+PACKAGES = {"tf2_msgs": ["geometry_msgs", "std_msgs", "builtin_interfaces"],
+            "bond": ["std_msgs", "builtin_interfaces"]}  # bond/Status: the heartbeat of Nav2's lifecycle manager
 
 
 class BuildError(RuntimeError):

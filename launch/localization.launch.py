@@ -11,8 +11,8 @@ start), ``params_file`` (default: this package's config/nav2_localization.yaml, 
 (info), ``use_lifecycle_manager`` (true where nav2_lifecycle_manager is installed).
 
 With Nav2 installed, ``nav2_lifecycle_manager`` (``lifecycle_manager_localization``, ``node_names:
-[deepbbs_localizer]``) drives the node through ``deepbbs_localizer/change_state``; the shipped params file sets its
-``bond_timeout: 0.0`` (the node publishes no bond heartbeat). Without Nav2 (a pip install), ``autostart`` is done by
+[deepbbs_localizer]``) drives the node through ``deepbbs_localizer/change_state`` and watches its bond heartbeat
+(``bond_timeout`` in the params file). Without Nav2 (a pip install), ``autostart`` is done by
 this file: configure at start, activate once the node is inactive (launch_ros lifecycle events).
 The node runs with the shipped Fast DDS shared-memory profile (resources/fastdds_shm.xml) unless
 FASTRTPS_DEFAULT_PROFILES_FILE / FASTDDS_DEFAULT_PROFILES_FILE is already set.

@@ -127,7 +127,7 @@ def test_params_file_is_nav2s_layout_and_loads_into_the_config(tmp_path):
     one.write_text(yaml.safe_dump({managed.NODE_NAME: doc[managed.NODE_NAME]}))
     assert Config.from_yaml(one).to_flat() == loaded.to_flat()
     lm = doc["lifecycle_manager_localization"]["ros__parameters"]
-    assert lm["node_names"] == [managed.NODE_NAME] and lm["autostart"] is True and lm["bond_timeout"] == 0.0
+    assert lm["node_names"] == [managed.NODE_NAME] and lm["autostart"] is True and lm["bond_timeout"] == 4.0
     assert lm["service_timeout"] >= 30.0  # configure (model, map, warm-up) takes seconds: more than Nav2's 5 s default
 
 

@@ -332,3 +332,80 @@ def test_a_bad_model_or_map_fails_configure_in_one_line(ros, drive, tmp_path, ca
             assert not [t for t in threading.enumerate() if t.name.startswith("deepbbs")], threading.enumerate()
     finally:
         node.destroy_node()
+
+
+BOND_CHECK = """
+import sys, time, threading, uuid
+sys.path.insert(0, sys.argv[2])
+import bond
+assert bond.__file__.startswith(sys.argv[1]), bond.__file__
+import rclpy
+from bond.msg import Status
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.lifecycle import TransitionCallbackReturn
+from test_node import tiny_registration
+SUCCESS = TransitionCallbackReturn.SUCCESS
+from deepbbs_ros.config import Config
+from deepbbs_ros.node.managed import LocalizerNode
+
+rclpy.init()
+cfg = Config().replace(**{"node.target_mode": "latched", "node.warmup": False, "registration.network_process": "off"})
+node = LocalizerNode(cfg, registration=tiny_registration(cfg), node_name="lc_bond")
+manager = rclpy.create_node("lc_bond_manager")  # the lifecycle manager's side of the bond
+heard = []
+mine = str(uuid.uuid4())
+manager.create_subscription(Status, "bond", lambda m: heard.append(m) if m.instance_id != mine else None, 100)
+pub = manager.create_publisher(Status, "bond", 5)
+ex = MultiThreadedExecutor(num_threads=2)
+ex.add_node(node); ex.add_node(manager)
+threading.Thread(target=ex.spin, daemon=True).start()
+assert node.trigger_configure() == SUCCESS
+time.sleep(0.5)
+assert not heard, "a heartbeat while inactive"
+assert node.trigger_activate() == SUCCESS
+deadline = time.monotonic() + 10
+while (len(heard) < 5 or node.bond.sister is None) and time.monotonic() < deadline:
+    pub.publish(Status(id="lc_bond", instance_id=mine, active=True, heartbeat_timeout=4.0, heartbeat_period=0.1))
+    time.sleep(0.1)
+n_active = len(heard)
+assert n_active >= 5 and all(m.active for m in heard), heard
+assert {(m.id, m.instance_id) for m in heard} == {("lc_bond", node.bond.instance_id)}, heard
+assert abs(heard[0].heartbeat_period - 0.1) < 1e-6 and heard[0].heartbeat_timeout == 4.0  # float32
+assert node.bond.sister == mine and node.bond.sister_active
+t = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in heard]
+span = t[-1] - t[0]
+assert node.trigger_deactivate() == SUCCESS
+time.sleep(0.5)
+assert heard[-1].active is False and all(m.active for m in heard[:-1]), [m.active for m in heard]
+count = len(heard)
+time.sleep(0.5)
+assert len(heard) == count, "heartbeats after deactivate"
+print(f"ok {n_active} heartbeats over {span:.2f} s, then active=false")
+ex.shutdown(); node.destroy_node(); manager.destroy_node(); rclpy.shutdown()
+"""
+
+
+def test_bond_heartbeat_while_active(tmp_path):
+    """With the bond messages built (as `make venv` / deepbbs-ros build-interfaces does; here into a temporary
+    folder), the active node publishes bondcpp's heartbeat on bond (its name as id, 0.1 s period, 4 s timeout, active)
+    and hears the manager's side; nothing while inactive; deactivate breaks it (active false, then silence)."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pytest.importorskip("rosidl_generator_c")
+    if shutil.which("gcc") is None or shutil.which("g++") is None:
+        pytest.skip("needs gcc and g++")
+    from deepbbs_ros import interfaces
+
+    stage = interfaces.build_package("bond", tmp_path, install=False)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(stage), env.get("PYTHONPATH", "")])
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([str(stage / "lib"), env.get("LD_LIBRARY_PATH", "")])
+    tests = str(Path(__file__).resolve().parent)
+    res = subprocess.run([sys.executable, "-c", BOND_CHECK, str(stage), tests], capture_output=True, text=True,
+                         env=env, timeout=180)
+    assert res.returncode == 0 and res.stdout.startswith("ok"), res.stdout + res.stderr
+    print(res.stdout)

@@ -36,6 +36,8 @@ from rclpy.node import Node
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.node.bond import BondHeartbeat
+from deepbbs_ros.node.bond import available as bond_available
 from deepbbs_ros.node.outputs import TfBroadcaster
 from deepbbs_ros.node.registration_node import (
     RegistrationNode,
@@ -79,6 +81,7 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
         self._made: dict[str, list] | None = None  # the entities that existed before configure (None: unconfigured)
         self._active = self._configured = False
         self._activated: list = []  # the subscriptions activate made
+        self.bond: BondHeartbeat | None = None  # the heartbeat to nav2_lifecycle_manager while active
         self._declare_config(self._defaults)  # declared now, read at each configure (as Nav2's servers do)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info("unconfigured: waiting for the configure transition (a lifecycle manager, or "
@@ -95,6 +98,10 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
             self._activated = [sub for sub in self._subscriptions if sub not in before]
             LifecycleNodeMixin.on_activate(self, state)  # the lifecycle publishers on
             self._active = True
+            self.bond = BondHeartbeat(self) if bond_available() else None  # what Nav2's manager waits for
+            if self.bond is None:
+                self.get_logger().warning("no bond heartbeat: the bond messages are not installed (deepbbs-ros "
+                                          "build-interfaces); a lifecycle manager with bond_timeout > 0 gives up")
             self.get_logger().info("active")
 
         return self._transition("activate", activate)
@@ -156,6 +163,9 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
 
     def _deactivate(self, state: LifecycleState) -> None:
         if self._active:
+            if self.bond is not None:
+                self.bond.close()
+                self.bond = None
             for sub in self._activated:
                 self.destroy_subscription(sub)
             self._activated = self._subs = []
