@@ -13,7 +13,7 @@ Real rclpy underneath (the same DDS graph as ``ros2``)::
     deepbbs-ros lifecycle set /deepbbs_localizer configure     # the managed node's transitions (ros2 lifecycle)
     deepbbs-ros static-tf --z 1.8 --frame-id base_link --child-frame-id velodyne   # on /tf_static until stopped
     deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
-    deepbbs-ros build-interfaces                               # tf2_msgs for /tf (no PyPI wheel)
+    deepbbs-ros build-interfaces                               # tf2_msgs for /tf, bond for Nav2 (no PyPI wheels)
 
 Latency is the receive time minus the message's ``header.stamp``: meaningful when the stamps are
 wall-clock time (a live driver). A recording played with ``deepbbs-play`` keeps its recorded stamps (and
@@ -105,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--frame-id", required=True, help="parent frame")
     st.add_argument("--child-frame-id", required=True, help="child frame")
     sub.add_parser("dds-profile", help="print the shipped Fast DDS profile path (and the line to export it)")
-    b = sub.add_parser("build-interfaces", help="build and install tf2_msgs from its definition (gcc, g++)")
+    b = sub.add_parser("build-interfaces",
+                       help="build and install tf2_msgs and bond from their definitions (gcc, g++)")
     b.add_argument("--force", action="store_true", help="rebuild even when installed")
     return p
 
