@@ -14,8 +14,9 @@ Examples::
 
 Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv, frames.csv or scans.csv
 (localization), traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
-1 error (or a recording fault mid-way: results so far are written, marked incomplete), 130 Ctrl-C
-(results so far are written, marked incomplete).
+1 error (or a recording fault mid-way, or not one pair, frame or scan answered: results so far are written,
+marked incomplete), 130 Ctrl-C (results so far are written, marked incomplete). ``--start`` / ``--end``: seconds
+since the recording's first scan (:mod:`deepbbs_ros.datasets.window`).
 
 Several sources (paths, quoted globs, or a ``.txt`` file with one source per line), ``--workers`` or
 ``--ray-address`` make a fleet run (:mod:`deepbbs_ros.replay.fleet`): each recording runs as a Ray task
