@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from typing import Any
 
@@ -43,10 +44,12 @@ def nothing_answered(mode: str, res: Any) -> str | None:
 
 
 def _common(reasons: Any) -> str:
-    """``"<the most common reason>" (k of n)`` of an iterable of reasons."""
-    counts = Counter(str(r) for r in reasons)
-    reason, k = counts.most_common(1)[0]
-    return f"{k} of {sum(counts.values())}: {reason}"
+    """``k of n: <the most common reason>`` of an iterable of reasons; reasons that differ only in their numbers
+    (a point count, a frame number) count as one, shown by its first instance."""
+    reasons = [str(r) for r in reasons]
+    kinds = [re.sub(r"\d+(\.\d+)?", "#", r) for r in reasons]
+    kind, k = Counter(kinds).most_common(1)[0]
+    return f"{k} of {len(reasons)}: {reasons[kinds.index(kind)]}"
 
 
 def frame_offset(records: list, rot_tol_deg: float, trans_tol_m: float) -> dict | None:
