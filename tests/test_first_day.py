@@ -73,6 +73,9 @@ def test_trajectory_fit_rule(site_map):
     assert not buried.fits and buried.occupied > 0
     with pytest.raises(LocalizationError, match="expected \\(K, 4, 4\\)"):
         check_trajectory(pts, traj[:, :3])
+    longer = np.concatenate([traj, traj[-3:] + np.array([[0, 0, 0, 200.0]] * 3 + [[0, 0, 0, 0]])])  # a cropped map
+    part = check_trajectory(pts, longer)
+    assert part.fits and part.on_map.tolist() == [True] * FRAMES + [False] * 3
 
 
 @pytest.fixture(scope="module")
@@ -97,11 +100,17 @@ def test_moved_map_uses_its_own_places_and_says_why(site_map, registration, tmp_
     with pytest.raises(LocalizationError, match="points within"):
         loc._crop(-1, _rz(0.0, (5000.0, 0.0, 0.0)))  # nothing of the map there
 
+    ok = read_map(site_map)  # a map cropped after it was made: its trajectory's poses off the map are no place
+    longer = np.concatenate([ok.trajectory, ok.trajectory[-3:] + _rz(0.0, (200.0, 0.0, 0.0)) - np.eye(4)])
+    cropped = MapLocalizer(ok.points, Config(), registration=registration, trajectory=longer)
+    whole = MapLocalizer(ok.points, Config(), registration=registration, trajectory=ok.trajectory)
+    assert cropped.trajectory_warning == "" and cropped.keyframes == whole.keyframes
+    np.testing.assert_allclose(cropped.places, whole.places)
+
     node = NodeLocalization(Config(), registration)
     line = node.build(MapData(prior.points.astype(np.float32), "map", "moved.pcd", prior.trajectory))
     assert "a grid over its free space" in line
     assert node.map_warning.startswith("map from moved.pcd: the map's trajectory does not fit the map")
-    ok = read_map(site_map)
     assert "keyframes of its trajectory" in node.build(MapData(ok.points.astype(np.float32), "map", "site.pcd",
                                                               ok.trajectory))
     assert node.map_warning == ""

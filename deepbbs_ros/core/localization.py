@@ -327,8 +327,10 @@ class MapLocalizer:
         self.template = _PolarTemplate(lc.descriptor_radius, lc.descriptor_rings, lc.descriptor_sectors,
                                        lc.descriptor_cell)
         self.trajectory_warning = ""  # a trajectory that does not fit the map (core/map_fit.py): grid places instead
-        if trajectory is not None and not (fit := check_trajectory(self.points, trajectory)).fits:
-            self.trajectory_warning, trajectory = fit.message, None
+        if trajectory is not None:  # its poses off the map (a cropped map) are no place either
+            fit = check_trajectory(self.points, trajectory)
+            self.trajectory_warning = fit.message
+            trajectory = np.asarray(trajectory, dtype=np.float64)[fit.on_map] if fit.fits else None
         if trajectory is not None:
             self._places = self._keyframe_places(trajectory)
         else:

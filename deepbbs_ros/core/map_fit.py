@@ -49,6 +49,7 @@ class TrajectoryFit:
     bad_height: int
     occupied: int
     message: str = ""
+    on_map: np.ndarray | None = None  # (K,) bool, every pose of the trajectory: the map has points around it (rule 1)
 
 
 def check_trajectory(points: np.ndarray, trajectory: np.ndarray) -> TrajectoryFit:
@@ -86,7 +87,13 @@ def check_trajectory(points: np.ndarray, trajectory: np.ndarray) -> TrajectoryFi
     bad = off | height | occupied
     n = len(pos)
     fits = (n - int(bad.sum())) >= FIT_SHARE * n
-    fit = TrajectoryFit(bool(fits), n, int(off.sum()), int(height.sum()), int(occupied.sum()))
+    # rule 1 for every pose, not only the checked ones (a pose beyond the cells of the checked ones: kept)
+    xy = traj[:, :2, 3]
+    ij = np.floor((xy - cells.lo) / CELL).astype(np.int64)
+    known = ((ij >= 1) & (ij <= cells.shape - 2)).all(axis=1)
+    on_map = np.ones(len(traj), bool)
+    on_map[known] = counts[cells.around(xy[known])].sum(axis=1) >= SUPPORT_POINTS
+    fit = TrajectoryFit(bool(fits), n, int(off.sum()), int(height.sum()), int(occupied.sum()), on_map=on_map)
     if not fits:
         fit.message = (f"the map's trajectory does not fit the map: {int(bad.sum())} of {n} poses checked are not "
                        f"where a sensor could have been ({fit.off_map} off the map, {fit.bad_height} not "
