@@ -12,11 +12,12 @@ latched or localization takes it::
 from __future__ import annotations
 
 import argparse
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from deepbbs_ros.errors import NodeError
+
+if TYPE_CHECKING:  # numpy is imported where it is used: `deepbbs-ros --help` stays quick
+    import numpy as np
 
 #: coordinates farther than this (m) from the origin (UTM, a survey) are sent as float64: float32 keeps ~1 cm there
 FLOAT64_BEYOND = 100_000.0
@@ -64,6 +65,8 @@ def load(args: argparse.Namespace) -> tuple[np.ndarray, str]:
 def voxel_centroids(points: np.ndarray, voxel: float) -> np.ndarray:
     """(M, 3) float64 the centroid of the points (N, 3) of every occupied ``voxel`` m cube (float64 throughout:
     a map in UTM keeps its millimetres)."""
+    import numpy as np
+
     key = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
@@ -74,6 +77,7 @@ def voxel_centroids(points: np.ndarray, voxel: float) -> np.ndarray:
 def serve(node: Any, points: np.ndarray, args: argparse.Namespace, what: str) -> int:
     """Publish ``points`` once on ``args.topic`` (reliable, transient local, depth 1) and keep the publisher until
     Ctrl-C / SIGTERM (exit code 0)."""
+    import numpy as np
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
