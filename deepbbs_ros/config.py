@@ -351,7 +351,9 @@ class NodeConfig:
     good_start_max_gap: float = 0.5  # s; pair mode: a longer gap since the last answer's source stamp: no good start
 
     def validate(self) -> None:
-        _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}")
+        hint = (f" ({self.mode!r} is a target mode: node.mode:=pair with node.target_mode:={self.mode})"
+                if self.mode in ("stamped", "latched", "localization") else "")
+        _check(self.mode in ("pair", "odometry"), "node.mode", f"must be 'pair' or 'odometry', got {self.mode!r}{hint}")
         _check(self.queue_size >= 1, "node.queue_size", "must be >= 1")
         _check(self.slop >= 0, "node.slop", "must be >= 0")
         _check(

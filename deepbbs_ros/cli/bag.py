@@ -92,6 +92,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--stride", type=int, default=1, metavar="N", help="use every N-th scan")
     g.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="use only the first N scans (after --stride) (default: all)")
+    g.add_argument("--start", type=float, default=None, metavar="S",
+                   help="use the scans from S seconds after the recording's first scan (default: the first)")
+    g.add_argument("--end", type=float, default=None, metavar="S",
+                   help="use the scans before S seconds after the recording's first scan; the rest of the drive can "
+                   "then be localized in the map ('deepbbs-replay --start S') (default: the last)")
     g.add_argument("--config", default=None, metavar="YAML",
                    help="config file: preprocess.min_range / max_range (the crop) and the odometry's sections "
                    "(default: none, the built-in values)")
@@ -223,11 +228,15 @@ def _map(args) -> int:
         raise DatasetError(f"--voxel must be > 0 m, got {args.voxel:g}")
     if args.stride < 1 or (args.max_frames is not None and args.max_frames < 1):
         raise DatasetError("--stride and --max-frames must be >= 1")
+    from deepbbs_ros.datasets.window import check_window, windowed
+
+    check_window(args.start, args.end)
     cfg = offline_threads(load_config(args.config))  # one thread: the same map on any machine
     args.lenient = True  # a cut recording: the map of what was read, then the fault (exit code 1)
     source = _open(args)
     if len(source) == 0:
         raise DatasetError(f"{args.src}: the recording holds no scan")
+    source = windowed(source, args.start, args.end)
     from tqdm import tqdm
 
     total = len(source)
@@ -236,6 +245,10 @@ def _map(args) -> int:
     try:
         built = build_map(source, cfg, voxel=args.voxel, source=args.pose_source or "auto", stride=args.stride,
                           has_ground_truth=source.has_ground_truth, progress=bar.update, max_frames=args.max_frames)
+    except DatasetError:
+        if hasattr(source, "check_not_empty"):
+            source.check_not_empty()  # --start / --end outside the recording: that is the one line
+        raise
     finally:
         bar.close()
     if source.errors and built.frames_read == 0:

@@ -14,8 +14,9 @@ Examples::
 
 Writes ``OUT/<timestamp>/`` (``OUT/latest`` points at it): metrics.json, pairs.csv, frames.csv or scans.csv
 (localization), traj/*.tum|*.kitti, *.png, config_used.yaml, results_bag/ (rosbag2, mcap). Exit codes: 0 done,
-1 error (or a recording fault mid-way: results so far are written, marked incomplete), 130 Ctrl-C
-(results so far are written, marked incomplete).
+1 error (or a recording fault mid-way, or not one pair, frame or scan answered: results so far are written,
+marked incomplete), 130 Ctrl-C (results so far are written, marked incomplete). ``--start`` / ``--end``: seconds
+since the recording's first scan (:mod:`deepbbs_ros.datasets.window`).
 
 Several sources (paths, quoted globs, or a ``.txt`` file with one source per line), ``--workers`` or
 ``--ray-address`` make a fleet run (:mod:`deepbbs_ros.replay.fleet`): each recording runs as a Ray task
@@ -85,6 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
                    f"{d('eval.wrong_prior')})")
     g.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="stop after this many frames (odometry, localization: kept frames) (default: all)")
+    g.add_argument("--start", type=float, default=None, metavar="S",
+                   help="replay the scans from S seconds after the recording's first scan (default: the first)")
+    g.add_argument("--end", type=float, default=None, metavar="S",
+                   help="replay the scans before S seconds after the recording's first scan; with --start, a part of "
+                   "a drive, e.g. the part 'deepbbs-bag map --end S' left out of the map (default: the last)")
     g.add_argument("--max-pairs", type=int, default=None, metavar="N",
                    help="pairs: stop after this many pairs (default: all)")
     i = p.add_argument_group("input")
@@ -173,6 +179,9 @@ def replay_recording(args) -> int:
     for flag in ("max_frames", "max_pairs"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1")
+    from deepbbs_ros.datasets.window import check_window, windowed
+
+    check_window(getattr(args, "start", None), getattr(args, "end", None))
     if args.mode == "localization":
         from deepbbs_ros.datasets.maps import read_map
 
@@ -182,6 +191,7 @@ def replay_recording(args) -> int:
 
     source = open_source(args.source, topic=args.topic, gt_topic=args.gt_topic, gt_tolerance_s=args.gt_tolerance,
                          lenient=True)
+    source = windowed(source, getattr(args, "start", None), getattr(args, "end", None))
     if args.mode == "pairs" and not source.has_ground_truth:
         raise DatasetError(f"{args.source}: pairs mode needs ground-truth poses and found none: "
                            f"{ground_truth_hint(source)}; without them --mode odometry measures trajectories and "
@@ -227,10 +237,13 @@ def build_tracker(prior, cfg, *, weights=None, device=None, quiet=False):
     places = getattr(localizer, "places", None)
     if not quiet:
         where = (f"{len(prior.trajectory)} trajectory poses" if prior.trajectory is not None
-                 else "no trajectory beside it")
+                 else "no trajectory beside it") + (" (not used: it does not fit)" if localizer.trajectory_warning
+                                                    else "")
         print(f"map {prior.path}: {len(prior.points)} points, {where}; "
               f"{0 if places is None else len(places)} candidate places ({setup_ms / 1e3:.1f} s)", file=sys.stderr)
     res = LocalizationResults(setup_ms=setup_ms, map_points=len(prior.points), places=places, map_xyz=prior.points)
+    if localizer.trajectory_warning:  # among the run's warnings (metrics.json, printed at the end)
+        res.warnings.append(f"map {prior.path}: {localizer.trajectory_warning}")
     return MapTracker(localizer, cfg), res
 
 
@@ -287,6 +300,14 @@ def run_replay(args, cfg, source, methods, results=None) -> int:
 
     if res.frames_read == 0 and source.errors:
         raise DatasetError(f"no scan could be read: {source.errors[0]}")
+    if not interrupted and hasattr(source, "check_not_empty"):
+        source.check_not_empty()  # --start / --end outside the recording: one line
+    from deepbbs_ros.replay.checks import frame_offset, nothing_answered
+
+    none = None if interrupted else nothing_answered(args.mode, res)
+    if none:  # every pair, frame or scan failed: the run says so (results so far written all the same)
+        res.complete = False
+        res.errors.insert(0, none)
 
     if args.mode == "pairs":
         mm = report.pair_metrics(res, cfg)
@@ -294,7 +315,7 @@ def run_replay(args, cfg, source, methods, results=None) -> int:
         mm = report.localization_metrics(res, cfg)
     else:
         mm = report.odometry_metrics(res)
-    warnings = list(getattr(source, "warnings", []))
+    warnings = list(getattr(source, "warnings", [])) + list(getattr(res, "warnings", []))
     if args.mode == "pairs" and res.complete and not (args.max_pairs and res.pairs >= args.max_pairs):
         hint = pair_count_hint(logged.positions, cfg.eval, res.pairs)
         if hint:
@@ -307,6 +328,10 @@ def run_replay(args, cfg, source, methods, results=None) -> int:
         tum = trajectory_path(args.map)
         extra["map"] = {"path": str(args.map), "points": res.map_points,
                         "trajectory": str(tum) if tum.is_file() else None}
+        offset = frame_offset(res.records, cfg.eval.success_rot_deg, cfg.eval.success_trans)
+        if offset:  # every pose off the truth by one rigid motion: the map and the truth in different frames
+            extra["frame_offset"] = offset
+            warnings.append(offset["message"])
 
     def write_json():
         report.write_metrics_json(run / "metrics.json", source=str(args.source), mode=args.mode, res=res, config=cfg,
@@ -367,6 +392,8 @@ def ground_truth_hint(source) -> str:
     file of a folder (where and in which format), the topics a bag could take with --gt-topic."""
     path = Path(source.path)
     fmt = getattr(source, "format", "")
+    if fmt == "kitti" and getattr(source, "truth_note", ""):
+        return source.truth_note
     if fmt == "kitti":
         return (f"add poses.txt to the folder (or ../../poses/{path.name}.txt, KITTI's dataset/poses/): KITTI "
                 "odometry format, one line of 12 numbers per scan (the 3x4 row-major pose of camera 0), with "

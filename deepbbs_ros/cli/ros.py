@@ -12,6 +12,7 @@ Real rclpy underneath (the same DDS graph as ``ros2``)::
     deepbbs-ros relocalize                                     # localization: search the whole map again
     deepbbs-ros lifecycle set /deepbbs_localizer configure     # the managed node's transitions (ros2 lifecycle)
     deepbbs-ros static-tf --z 1.8 --frame-id base_link --child-frame-id velodyne   # on /tf_static until stopped
+    deepbbs-ros map-server site.pcd --topic /map/points --frame map             # latched until stopped
     deepbbs-ros dds-profile                                    # the shipped Fast DDS profile, for your driver
     deepbbs-ros build-interfaces                               # tf2_msgs for /tf, bond for Nav2 (no PyPI wheels)
 
@@ -30,6 +31,7 @@ import sys
 import time
 from typing import Any
 
+from deepbbs_ros.cli import map_server
 from deepbbs_ros.cli.common import cli_entry
 from deepbbs_ros.errors import NodeError
 
@@ -104,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
         st.add_argument(f"--{comp}", type=float, default=None, help=f"quaternion {comp[1]}")
     st.add_argument("--frame-id", required=True, help="parent frame")
     st.add_argument("--child-frame-id", required=True, help="child frame")
+    map_server.add_parser(sub)
     sub.add_parser("dds-profile", help="print the shipped Fast DDS profile path (and the line to export it)")
     b = sub.add_parser("build-interfaces",
                        help="build and install tf2_msgs and bond from their definitions (gcc, g++)")
@@ -141,11 +144,14 @@ def _with_node(args: argparse.Namespace) -> int:
     static_tf = None
     if args.command == "static-tf":
         static_tf = _static_transform(args)  # bad flags: one line before any DDS
+    served = map_server.load(args) if args.command == "map-server" else None  # a bad map: one line, no DDS
     rclpy.init(args=[])  # rclpy's handlers: SIGINT / SIGTERM shut the context down, which ends the spin below
     node = rclpy.create_node(f"deepbbs_ros_cli_{int(time.time() * 1000) % 100000}")
     try:
         if static_tf is not None:
             return _static_tf(node, static_tf)
+        if served is not None:
+            return map_server.serve(node, served[0], args, served[1])
         if args.command == "topic":
             return _topic(node, args)
         if args.command == "param":

@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.map_fit import check_trajectory
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishView, polish, prepare_polish_cloud
 from deepbbs_ros.core.preprocess import crop_range
 from deepbbs_ros.core.scans import prepare_view
@@ -325,6 +326,11 @@ class MapLocalizer:
         self.grid = _HeightGrid(self.points, lc.descriptor_cell, pad=lc.descriptor_radius)
         self.template = _PolarTemplate(lc.descriptor_radius, lc.descriptor_rings, lc.descriptor_sectors,
                                        lc.descriptor_cell)
+        self.trajectory_warning = ""  # a trajectory that does not fit the map (core/map_fit.py): grid places instead
+        if trajectory is not None:  # its poses off the map (a cropped map) are no place either
+            fit = check_trajectory(self.points, trajectory)
+            self.trajectory_warning = fit.message
+            trajectory = np.asarray(trajectory, dtype=np.float64)[fit.on_map] if fit.fits else None
         if trajectory is not None:
             self._places = self._keyframe_places(trajectory)
         else:
@@ -491,6 +497,8 @@ class MapLocalizer:
         the scans' range (``preprocess.min_range``, ``max_range``) of it, in the place's frame (the crop of a scan
         taken there)."""
         pts = self._local(self._voxels, T_map_place)
+        if not len(pts):  # no map there: _crop says so (crop_range would refuse the empty cloud)
+            return pts
         pp = self.config.preprocess
         return np.compress(crop_range(pts, pp.min_range, pp.max_range), pts, axis=0)
 

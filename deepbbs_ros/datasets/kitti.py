@@ -4,7 +4,8 @@
 * ``poses.txt``: one 3x4 row-major matrix per frame, ``P_k`` = the pose of the left camera (cam0) of
   frame k in the cam0 frame of frame 0 (KITTI's own convention). The official layout keeps it in
   ``dataset/poses/<seq>.txt``; both places are accepted.
-* ``calib.txt``: ``Tr`` = ``T_cam0_velo`` (3x4), mapping LiDAR points into the camera frame.
+* ``calib.txt``: ``Tr`` = ``T_cam0_velo`` (3x4), mapping LiDAR points into the camera frame. Only the ground
+  truth needs it: without it the folder reads as one without ground truth (a warning says why).
 * ``times.txt``: seconds since the start of the sequence, one per frame (else index * 0.1 s).
 
 Ground truth in the LiDAR frame (as kiss-icp's KITTI loader does)::
@@ -130,6 +131,14 @@ class KittiSource(ScanSource):
                 break
         self.poses: list[np.ndarray] = []
         self.pose_error: DatasetError | None = None
+        #: why a pose file is left unused (no calib.txt), "" otherwise; among :attr:`warnings`
+        self.truth_note = ""
+        if self.pose_file is not None and not (self.path / "calib.txt").is_file():
+            self.truth_note = (f"{self.pose_file} left unused: KITTI poses are camera 0's and need calib.txt with its "
+                               f"'Tr:' line (LiDAR to camera 0) in {self.path} to become the LiDAR's; without it no "
+                               "ground truth (odometry still runs)")
+            self.warnings.append(self.truth_note)
+            self.pose_file = None
         if self.pose_file is not None:
             self.has_ground_truth = True
             self.gt_topic = str(self.pose_file)

@@ -120,6 +120,7 @@ class NodeLocalization:
         self.tracker: Any = None
         self.localizer: Any = None
         self.map_build_s = float("nan")
+        self.map_warning = ""
         # counters (read by diagnostics() from the executor thread)
         self.placed = 0  # scans with a valid pose (published)
         self.rejected = 0  # scans the verdict (or the tracker) rejected: counted, never published
@@ -152,7 +153,11 @@ class NodeLocalization:
             self._pending_localizer = localizer
             self.map_build_s = build_s
         places = len(localizer.places)
-        how = "keyframes of its trajectory" if data.trajectory is not None else "a grid over its free space"
+        #: one line when the map's trajectory does not fit it (core/map_fit.py; the node logs it as a warning)
+        self.map_warning = f"map from {data.source}: {localizer.trajectory_warning}" if (
+            getattr(localizer, "trajectory_warning", "")) else ""
+        fits = data.trajectory is not None and not self.map_warning
+        how = "keyframes of its trajectory" if fits else "a grid over its free space"
         return (f"map from {data.source}: {len(data.points)} points in {data.frame_id!r}, {places} candidate places "
                 f"({how}), built in {build_s:.1f} s")
 

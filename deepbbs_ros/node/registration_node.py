@@ -409,6 +409,8 @@ class RegistrationNode(Node):
         self.localization = NodeLocalization(self.cfg, registration) if localization else None
         if map_file is not None:
             self.get_logger().info(self.localization.build(map_file))
+            if self.localization.map_warning:
+                self.get_logger().warning(self.localization.map_warning)
         if ncfg.publish_odometry:  # warm the imports the first odometry message needs
             import scipy.spatial  # noqa: F401
             import scipy.spatial.transform  # noqa: F401

@@ -275,6 +275,7 @@ class OdometryResults:
     frames_read: int = 0
     complete: bool = True
     errors: list[str] = field(default_factory=list)
+    registered: int = 0  # registrations (any method, frames after the first) that gave an estimate
 
     @property
     def frames(self) -> int:
@@ -340,6 +341,7 @@ def run_odometry(
                     try:
                         T_first_k, ms = method.step(scan.points, scan.point_times(), scan.stamp_ns)
                         st["last"] = T_first_k
+                        res.registered += k > 0
                     except DeepBBSError as err:
                         T_first_k, ms = st.get("last", np.eye(4)), float("nan")
                         res.failed[name].append(f"frame {scan.index}: {err}")
@@ -366,6 +368,8 @@ def run_odometry(
                 if not np.isfinite(T_rel).all():
                     res.failed[name].append(f"frame {scan.index}: non-finite estimate")
                     T_rel = T_init
+                elif not np.isnan(ms):
+                    res.registered += 1
                 res.T_world_est[name].append(res.T_world_est[name][-1] @ T_rel)
                 res.runtime_ms[name].append(ms_prep + ms)
                 st.update(prev=prep if prep is not None else st.get("prev"), rel=T_rel)
@@ -424,6 +428,7 @@ class LocalizationResults:
     map_points: int = 0
     places: np.ndarray | None = None  # (P, 4, 4) the localizer's candidate places (plots)
     map_xyz: np.ndarray | None = None  # (N, 3) the map (plots, results bag)
+    warnings: list[str] = field(default_factory=list)  # e.g. a map trajectory that does not fit the map
 
     @property
     def frames(self) -> int:
