@@ -1,0 +1,144 @@
+"""How a sensor is carried: car roof, wheeled robot, legged robot, hand (no ROS).
+
+:class:`MountTrajectory` moves a sensor along a path of waypoints on the floor and gives its
+ground-truth pose ``T_world_lidar`` at any time (x forward, z up, REP-103). Motions per mount (the
+numbers are drawn per seed from these ranges):
+
+* ``car``: 2-4 m/s through a place (on the roads the drive simulator's own vehicle model is used),
+  corners rounded over 6 m, sensor at its own ``mount_height`` (1.9 m by default), level;
+* ``wheeled``: a ground robot, sensor 0.3-1.0 m above the floor, 0.5-1.2 m/s, planar (no roll or
+  pitch), stops at each waypoint and turns in place at 30-60 deg/s; smooth (smoothstep) speed profiles;
+* ``legged``: a quadruped, sensor 0.45-0.7 m high, 0.6-1.5 m/s, turning while it walks (corners over
+  1.5 m), gait 1.5-2.5 Hz: pitch sway 1-3 deg at the gait frequency, roll sway 1.5-4 deg at half of it,
+  height bob 1-2.5 cm;
+* ``handheld``: walked at 1.0-1.5 m/s, sensor 1.1-1.5 m high, pointed forward and down (10-35 deg),
+  slow random roll (+-10 deg), step bob 2-4 cm at 1.6-2.0 Hz, and the hand sweeping the view
+  left and right (25-45 deg at 0.25-0.4 Hz), yaw rates up to about 90 deg/s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deepbbs_ros.errors import SimulationError
+from deepbbs_ros.sim.trajectory import euler_to_matrix
+
+MOUNTS = ("car", "wheeled", "legged", "handheld")
+DT = 0.01  # s, grid of the precomputed planar motion
+
+
+def _smooth(tau: np.ndarray) -> np.ndarray:
+    tau = np.clip(tau, 0.0, 1.0)
+    return tau * tau * (3.0 - 2.0 * tau)
+
+
+def _loop(path: np.ndarray, closed: bool, laps: int) -> np.ndarray:
+    pts = np.concatenate([path] * laps + [path[:1]]) if closed else path
+    return np.asarray(pts, dtype=np.float64)
+
+
+class MountTrajectory:
+    """Poses of a sensor carried along ``path`` ((K, 2) waypoints; ``closed``: a loop, walked round and
+    round) for ``duration`` s; ``floor(x, y)`` gives the floor height; ``sensor_height`` and
+    ``sensor_pitch_deg`` are used by the ``car`` mount only (the others draw their own)."""
+
+    def __init__(self, mount: str, path: np.ndarray, floor, seed: int, duration: float, *, closed: bool = True,
+                 sensor_height: float = 1.9, sensor_pitch_deg: float = 0.0) -> None:
+        if mount not in MOUNTS:
+            raise SimulationError(f"unknown mount {mount!r}; choose one of {', '.join(MOUNTS)}")
+        self.mount, self.floor, self.duration = mount, floor, float(duration)
+        rng = np.random.default_rng([int(seed), 8111, MOUNTS.index(mount)])
+        self.t_grid = np.arange(0.0, duration + 1.0, DT)
+        speed = {"car": (2.0, 4.0), "wheeled": (0.5, 1.2), "legged": (0.6, 1.5), "handheld": (1.0, 1.5)}[mount]
+        self.speed = float(rng.uniform(*speed))
+        perimeter = float(np.sum(np.linalg.norm(np.diff(_loop(path, closed, 1), axis=0), axis=1)))
+        laps = int(np.ceil(self.speed * (duration + 1.0) / max(perimeter, 1e-6))) + 1
+        pts = _loop(path, closed, laps)
+        if mount == "wheeled":
+            self.xy, self.yaw = self._stop_and_turn(pts, rng)
+        else:
+            self.xy, self.yaw = self._walk(pts, {"car": 6.0, "legged": 1.5, "handheld": 2.5}[mount])
+        if mount == "car":
+            self.height, self.pitch0 = float(sensor_height), np.deg2rad(sensor_pitch_deg)
+        elif mount == "wheeled":
+            self.height, self.pitch0 = float(rng.uniform(0.3, 1.0)), np.deg2rad(sensor_pitch_deg)
+        elif mount == "legged":
+            self.height, self.pitch0 = float(rng.uniform(0.45, 0.7)), 0.0
+            self.gait = float(rng.uniform(1.5, 2.5))
+            self.sway = np.deg2rad([rng.uniform(1.0, 3.0), rng.uniform(1.5, 4.0)])  # pitch, roll amplitudes
+            self.bob = float(rng.uniform(0.01, 0.025))
+        else:
+            self.height, self.pitch0 = float(rng.uniform(1.1, 1.5)), np.deg2rad(rng.uniform(10.0, 35.0))
+            self.gait = float(rng.uniform(1.6, 2.0))
+            self.bob = float(rng.uniform(0.02, 0.04))
+            amp = float(rng.uniform(25.0, 45.0))  # deg; the sweep's own peak rate stays <= 75 deg/s
+            self.sweep = (np.deg2rad(amp), min(float(rng.uniform(0.25, 0.4)), 75.0 / (2 * np.pi * amp)))
+            self.roll_waves = [(np.deg2rad(rng.uniform(2.0, 5.0)), rng.uniform(0.05, 0.3), rng.uniform(0, 6.3))
+                               for _ in range(2)]
+        self.phase = rng.uniform(0.0, 2 * np.pi, 3)
+
+    # ---- planar motion -----------------------------------------------------------------------------
+    def _walk(self, pts: np.ndarray, corner: float) -> tuple[np.ndarray, np.ndarray]:
+        """Constant speed along the polyline with corners cut over ``corner`` metres (moving average)."""
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        s_pts = np.concatenate([[0.0], np.cumsum(seg)])
+        ds = 0.05
+        s = np.arange(0.0, s_pts[-1], ds)
+        dense = np.stack([np.interp(s, s_pts, pts[:, 0]), np.interp(s, s_pts, pts[:, 1])], 1)
+        k = max(int(corner / ds), 1)
+        kernel = np.ones(k) / k
+        padded = np.concatenate([np.repeat(dense[:1], k, 0), dense, np.repeat(dense[-1:], k, 0)])
+        sm = np.stack([np.convolve(padded[:, i], kernel, mode="same")[k:-k] for i in range(2)], 1)
+        s_t = np.minimum(self.speed * self.t_grid + 0.5 * corner, s[-1])  # start past the smoothing's edge
+        xy = np.stack([np.interp(s_t, s, sm[:, 0]), np.interp(s_t, s, sm[:, 1])], 1)
+        d = np.gradient(sm, axis=0)
+        heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        if s_t[-1] >= s[-1] - 1e-9:
+            raise SimulationError("path too short for this drive (internal)")
+        return xy, np.interp(s_t, s, heading)
+
+    def _stop_and_turn(self, pts: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Drive each segment straight (smoothstep speed, peak = speed), stop, turn in place, go on."""
+        rate = np.deg2rad(rng.uniform(30.0, 60.0))
+        knots_t, knots_xy, knots_yaw = [0.0], [pts[0]], [np.arctan2(*(pts[1] - pts[0])[::-1])]
+        for a, b in zip(pts[:-1], pts[1:]):
+            heading = np.arctan2(b[1] - a[1], b[0] - a[0])
+            turn = float(np.angle(np.exp(1j * (heading - knots_yaw[-1]))))
+            t_turn = 1.5 * abs(turn) / rate
+            length = float(np.linalg.norm(b - a))
+            knots_t += [knots_t[-1] + t_turn, knots_t[-1] + t_turn + 1.5 * length / self.speed]
+            knots_xy += [a, b]
+            knots_yaw += [knots_yaw[-1] + turn, knots_yaw[-1] + turn]
+            if knots_t[-1] > self.t_grid[-1]:
+                break
+        kt = np.asarray(knots_t)
+        i = np.clip(np.searchsorted(kt, self.t_grid, side="right") - 1, 0, len(kt) - 2)
+        tau = _smooth((self.t_grid - kt[i]) / np.maximum(kt[i + 1] - kt[i], 1e-9))
+        kxy, kyaw = np.asarray(knots_xy), np.asarray(knots_yaw)
+        xy = kxy[i] + tau[:, None] * (kxy[i + 1] - kxy[i])
+        return xy, kyaw[i] + tau * (kyaw[i + 1] - kyaw[i])
+
+    # ---- poses -------------------------------------------------------------------------------------
+    def poses(self, t: np.ndarray | float) -> np.ndarray:
+        """(..., 4, 4) float64 ``T_world_lidar`` at times ``t`` (s since the start)."""
+        t = np.asarray(t, dtype=np.float64)
+        x = np.interp(t, self.t_grid, self.xy[:, 0])
+        y = np.interp(t, self.t_grid, self.xy[:, 1])
+        yaw = np.interp(t, self.t_grid, self.yaw)
+        roll, pitch, dz = np.zeros_like(t), np.full_like(t, self.pitch0), np.zeros_like(t)
+        ph = self.phase
+        if self.mount == "legged":
+            pitch = pitch + self.sway[0] * np.sin(2 * np.pi * self.gait * t + ph[0])
+            roll = self.sway[1] * np.sin(np.pi * self.gait * t + ph[1])
+            dz = self.bob * np.sin(2 * np.pi * self.gait * t + ph[2])
+        elif self.mount == "handheld":
+            amp, f = self.sweep
+            yaw = yaw + amp * np.sin(2 * np.pi * f * t + ph[0])
+            roll = sum(a * np.sin(2 * np.pi * fr * t + p) for a, fr, p in self.roll_waves)
+            dz = self.bob * np.sin(2 * np.pi * self.gait * t + ph[2])
+        T = np.zeros(t.shape + (4, 4))
+        T[..., :3, :3] = euler_to_matrix(roll, pitch, yaw)
+        T[..., 0, 3], T[..., 1, 3] = x, y
+        T[..., 2, 3] = self.floor(x, y) + self.height + dz
+        T[..., 3, 3] = 1.0
+        return T
