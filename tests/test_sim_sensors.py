@@ -193,3 +193,42 @@ def test_make_simulator_keeps_car_drives_on_roads_unchanged():
 PINNED_MEAN = (0.20589273200774277, 0.9610648349942272, -1.3198116226502323)
 PINNED_T = (-76.8163257479286, -27.63021667116382, 2.0491050215663353)
 PINNED_RINGS = [176, 176, 178, 178, 178, 176, 178, 178, 177, 173, 176, 177, 179, 165, 165, 160]
+
+
+def test_cli_new_sensor_mount_and_place(tmp_path, capsys):
+    from deepbbs_ros.cli import sim as cli
+    from deepbbs_ros.datasets import open_source
+    from deepbbs_ros.sim.mounts import MOUNTS
+    from deepbbs_ros.sim.rig import ALL_PLACES
+
+    assert cli.SCENES + cli.PLACES == ALL_PLACES and cli.PRESETS == SENSORS and cli.MOUNTS == MOUNTS
+    out = tmp_path / "walk"
+    argv = ["--scene", "garage", "--mount", "wheeled", "--lidar", "os1_32", "--azimuth-step", "4", "--raw",
+            "--frames", "2", "--seed", "2", "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 0
+    lid = make_sensor("os1_32", azimuth_step_deg=4.0)
+    ref = RigSimulator("garage", 2, lid, "wheeled", frames=2)
+    got = list(open_source(out))
+    assert len(got) == 2
+    for scan in got:
+        exp = next(ref.scan_at(k) for k in range(2) if ref.stamp_ns(k) == scan.stamp_ns)
+        assert np.allclose(scan.points, exp.points, atol=1e-6) and np.array_equal(scan.fields["t"], exp.fields["t"])
+        assert np.allclose(scan.T_world_lidar, exp.T_world_lidar, atol=1e-6)
+    assert cli.main(["--lidar", "avia", "--beams", "4", "--out", str(tmp_path / "x"), "--quiet"]) == 1
+    assert "do not apply to avia" in capsys.readouterr().err
+
+
+def test_training_cache_can_mix_sensors_mounts_and_places(tmp_path):
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.errors import DatasetError
+    from deepbbs_ros.train.cache import load_drive, sim_drive_specs, simulate_cached_drive
+
+    default = sim_drive_specs(["urban", "garage"], [10, 11], 2)
+    assert [(s.name, s.sensor, s.mount) for s in default] == [("urban_10", None, "car"), ("garage_11", None, "car")]
+    mixed = sim_drive_specs(["corridor"], [12], 2, sensors=["mid360"], mounts=["handheld"])
+    assert mixed[0].name == "corridor_handheld_mid360_12"
+    path = simulate_cached_drive(mixed[0], tmp_path, Config().preprocess, 256)
+    drive = load_drive(path)
+    assert len(drive) == 2 and drive.meta["sensor"] == {"preset": "mid360", "mount": "handheld"}
+    with pytest.raises(DatasetError, match="unknown sensor 'hdl128'"):
+        sim_drive_specs(["urban"], [1], 2, sensors=["hdl128"])
