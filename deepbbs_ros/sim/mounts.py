@@ -5,15 +5,16 @@ ground-truth pose ``T_world_lidar`` at any time (x forward, z up, REP-103). Moti
 numbers are drawn per seed from these ranges):
 
 * ``car``: 2-4 m/s through a place (on the roads the drive simulator's own vehicle model is used),
-  corners rounded over 6 m, sensor at its own ``mount_height`` (1.9 m by default), level;
+  corners rounded over 10 m, sensor at its own ``mount_height`` (1.9 m by default), level;
 * ``wheeled``: a ground robot, sensor 0.3-1.0 m above the floor, 0.5-1.2 m/s, planar (no roll or
   pitch), stops at each waypoint and turns in place at 30-60 deg/s; smooth (smoothstep) speed profiles;
 * ``legged``: a quadruped, sensor 0.45-0.7 m high, 0.6-1.5 m/s, turning while it walks (corners over
   1.5 m), gait 1.5-2.5 Hz: pitch sway 1-3 deg at the gait frequency, roll sway 1.5-4 deg at half of it,
   height bob 1-2.5 cm;
-* ``handheld``: walked at 1.0-1.5 m/s, sensor 1.1-1.5 m high, pointed forward and down (10-35 deg),
-  slow random roll (+-10 deg), step bob 2-4 cm at 1.6-2.0 Hz, and the hand sweeping the view
-  left and right (25-45 deg at 0.25-0.4 Hz), yaw rates up to about 90 deg/s.
+* ``handheld``: walked at 0.5-1.2 m/s, sensor 1.1-1.5 m high, pointed forward and down (10-35 deg),
+  slow random roll (+-10 deg) and pitch (+-6 deg) wobble, step bob 2-4 cm at 1.6-2.0 Hz, a slow aiming
+  drift (5-15 deg), and about every 10 s a glance: the hand turns the sensor 30-60 deg aside and back
+  in 1.5-2.5 s, at up to 90 deg/s.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ class MountTrajectory:
         self.mount, self.floor, self.duration = mount, floor, float(duration)
         rng = np.random.default_rng([int(seed), 8111, MOUNTS.index(mount)])
         self.t_grid = np.arange(0.0, duration + 1.0, DT)
-        speed = {"car": (2.0, 4.0), "wheeled": (0.5, 1.2), "legged": (0.6, 1.5), "handheld": (1.0, 1.5)}[mount]
+        speed = {"car": (2.0, 4.0), "wheeled": (0.5, 1.2), "legged": (0.6, 1.5), "handheld": (0.5, 1.2)}[mount]
         self.speed = float(rng.uniform(*speed))
         perimeter = float(np.sum(np.linalg.norm(np.diff(_loop(path, closed, 1), axis=0), axis=1)))
         laps = int(np.ceil(self.speed * (duration + 1.0) / max(perimeter, 1e-6))) + 1
@@ -57,7 +58,7 @@ class MountTrajectory:
         if mount == "wheeled":
             self.xy, self.yaw = self._stop_and_turn(pts, rng)
         else:
-            self.xy, self.yaw = self._walk(pts, {"car": 6.0, "legged": 1.5, "handheld": 2.5}[mount])
+            self.xy, self.yaw = self._walk(pts, {"car": 10.0, "legged": 1.5, "handheld": 2.5}[mount])
         if mount == "car":
             self.height, self.pitch0 = float(sensor_height), np.deg2rad(sensor_pitch_deg)
         elif mount == "wheeled":
@@ -71,10 +72,16 @@ class MountTrajectory:
             self.height, self.pitch0 = float(rng.uniform(1.1, 1.5)), np.deg2rad(rng.uniform(10.0, 35.0))
             self.gait = float(rng.uniform(1.6, 2.0))
             self.bob = float(rng.uniform(0.02, 0.04))
-            amp = float(rng.uniform(25.0, 45.0))  # deg; the sweep's own peak rate stays <= 75 deg/s
-            self.sweep = (np.deg2rad(amp), min(float(rng.uniform(0.25, 0.4)), 75.0 / (2 * np.pi * amp)))
+            self.sweep = (np.deg2rad(rng.uniform(5.0, 15.0)), float(rng.uniform(0.1, 0.3)))  # slow aiming drift
             self.roll_waves = [(np.deg2rad(rng.uniform(2.0, 5.0)), rng.uniform(0.05, 0.3), rng.uniform(0, 6.3))
                                for _ in range(2)]
+            self.pitch_waves = [(np.deg2rad(rng.uniform(1.0, 3.0)), rng.uniform(0.1, 0.6), rng.uniform(0, 6.3))
+                                for _ in range(2)]
+            # glances: the hand turns the sensor 30-60 deg aside and back, peak rate <= 90 deg/s, ~every 10 s
+            starts = np.cumsum(rng.exponential(10.0, int(duration / 5.0) + 2))
+            amps = rng.uniform(30.0, 60.0, len(starts)) * rng.choice([-1.0, 1.0], len(starts))
+            lengths = np.maximum(rng.uniform(1.5, 2.5, len(starts)), np.abs(amps) * np.pi / 90.0)
+            self.glances = np.stack([starts, np.deg2rad(amps), lengths], 1)
         self.phase = rng.uniform(0.0, 2 * np.pi, 3)
 
     # ---- planar motion -----------------------------------------------------------------------------
@@ -134,7 +141,11 @@ class MountTrajectory:
         elif self.mount == "handheld":
             amp, f = self.sweep
             yaw = yaw + amp * np.sin(2 * np.pi * f * t + ph[0])
+            for t_start, angle, length in self.glances:  # sin^2 bump: out and back, peak rate angle * pi / length
+                tau = np.clip((t - t_start) / length, 0.0, 1.0)
+                yaw = yaw + angle * np.sin(np.pi * tau) ** 2
             roll = sum(a * np.sin(2 * np.pi * fr * t + p) for a, fr, p in self.roll_waves)
+            pitch = pitch + sum(a * np.sin(2 * np.pi * fr * t + p) for a, fr, p in self.pitch_waves)
             dz = self.bob * np.sin(2 * np.pi * self.gait * t + ph[2])
         T = np.zeros(t.shape + (4, 4))
         T[..., :3, :3] = euler_to_matrix(roll, pitch, yaw)
