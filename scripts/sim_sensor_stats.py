@@ -162,8 +162,8 @@ def main(argv: list[str] | None = None) -> int:
         ts = ts[ts < 60.0]
         simm = motion_stats(sim.T_world_lidar(ts), np.diff(ts))
         print(f"\nreal handheld recording ({len(P)} keyframes, median spacing {np.median(dt):.2f} s): "
-              f"speed median / p90 {real[0]:.2f} / {real[1]:.2f} m/s, rotation median / p90 / max {real[2]:.1f} / {real[3]:.1f} / "
-              f"{real[4]:.1f} deg/s")
+              f"speed median / p90 {real[0]:.2f} / {real[1]:.2f} m/s, "
+              f"rotation median / p90 / max {real[2]:.1f} / {real[3]:.1f} / {real[4]:.1f} deg/s")
         print(f"simulated handheld walk at the same spacing ({len(ts)} poses): "
               f"speed {simm[0]:.2f} / {simm[1]:.2f} m/s, rotation {simm[2]:.1f} / {simm[3]:.1f} / {simm[4]:.1f} deg/s")
 
