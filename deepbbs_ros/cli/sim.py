@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g = parser.add_argument_group("output")
     g.add_argument("--format", choices=FORMATS, default="mcap", help="output format (default: mcap rosbag2)")
+    g.add_argument("--driver-layout", action="store_true",
+                   help="with --raw and mcap / db3: write the clouds in the sensor driver's own PointCloud2 layout "
+                        "(velodyne_pointcloud, ouster-ros (organised), livox_ros_driver2, HesaiLidar_ROS_2.0; not "
+                        "for helios32) instead of a packed one")
     g.add_argument("--out", required=True, metavar="PATH", help="output directory (must not exist, or be empty)")
     g.add_argument("--workers", type=int, default=1, metavar="N",
                    help="simulate frames in N processes (car drives on roads; others use one) (default: 1)")
@@ -152,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.workers < 1:
         raise SimulationError(f"--workers must be >= 1, got {args.workers}")
+    if args.driver_layout and (not args.raw or args.format not in ("mcap", "db3") or args.lidar == "helios32"):
+        raise SimulationError("--driver-layout needs --raw, --format mcap or db3, and a sensor other than helios32")
     lidar = make_lidar(args)
     t0 = time.perf_counter()
     sim = make_simulator(args.scene, args.seed, lidar, args.mount, frames=args.frames,
@@ -164,7 +170,12 @@ def main(argv: list[str] | None = None) -> int:
         frames = iter(sim)
     counted = _Counted(frames, args.frames)
     topic = APOLLO_RAW_LIDAR_TOPIC if args.raw else APOLLO_LIDAR_TOPIC
-    n = write_scans(counted, args.out, args.format, topic=topic, progress=not args.quiet)
+    layout: dict = {}
+    if args.driver_layout:
+        layout = {"driver": "ouster" if args.lidar == "ouster64" else driver_of(lidar.name)}
+        if layout["driver"] == "ouster":
+            layout["shape"] = (lidar.beams, lidar.columns)
+    n = write_scans(counted, args.out, args.format, topic=topic, progress=not args.quiet, **layout)
     wall = time.perf_counter() - t0
     if not args.quiet:
         from rich.console import Console
