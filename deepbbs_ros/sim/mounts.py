@@ -6,8 +6,9 @@ numbers are drawn per seed from these ranges):
 
 * ``car``: 2-4 m/s through a place (on the roads the drive simulator's own vehicle model is used),
   corners rounded over 10 m, sensor at its own ``mount_height`` (1.9 m by default), level;
-* ``wheeled``: a ground robot, sensor 0.3-1.0 m above the floor, 0.5-1.2 m/s, planar (no roll or
-  pitch), stops at each waypoint and turns in place at 30-60 deg/s; smooth (smoothstep) speed profiles;
+* ``wheeled``: a ground robot, sensor 0.3-1.0 m above the floor, 0.5-1.2 m/s (0.5 m/s^2), planar (no roll
+  or pitch), drives straight between corners (turns of more than 15 deg), stops there and turns in place at
+  30-60 deg/s (90 deg/s^2);
 * ``legged``: a quadruped, sensor 0.45-0.7 m high, 0.6-1.5 m/s, turning while it walks (corners over
   1.5 m), gait 1.5-2.5 Hz: pitch sway 1-3 deg at the gait frequency, roll sway 1.5-4 deg at half of it,
   height bob 1-2.5 cm;
@@ -28,9 +29,35 @@ MOUNTS = ("car", "wheeled", "legged", "handheld")
 DT = 0.01  # s, grid of the precomputed planar motion
 
 
-def _smooth(tau: np.ndarray) -> np.ndarray:
-    tau = np.clip(tau, 0.0, 1.0)
-    return tau * tau * (3.0 - 2.0 * tau)
+def _trapezoid_duration(total: float, vmax: float, acc: float) -> float:
+    """Seconds to cover ``total`` from rest to rest, accelerating at ``acc`` up to ``vmax``."""
+    if total <= vmax * vmax / acc:  # triangular: never reaches vmax
+        return 2.0 * np.sqrt(total / acc)
+    return vmax / acc + total / vmax
+
+
+def _trapezoid(e: np.ndarray, total: float, vmax: float, acc: float) -> np.ndarray:
+    """Distance covered ``e`` seconds into a rest-to-rest move of ``total`` (see :func:`_trapezoid_duration`)."""
+    dur = _trapezoid_duration(total, vmax, acc)
+    t_acc = min(vmax / acc, dur / 2.0)
+    v_peak = acc * t_acc
+    e = np.clip(e, 0.0, dur)
+    return np.where(e < t_acc, 0.5 * acc * e * e,
+                    np.where(e < dur - t_acc, 0.5 * acc * t_acc * t_acc + v_peak * (e - t_acc),
+                             total - 0.5 * acc * (dur - e) ** 2))
+
+
+def _corners(pts: np.ndarray, min_turn_deg: float = 15.0) -> np.ndarray:
+    """The waypoints where a dense path (a road's lane sampled every metre) turns by more than
+    ``min_turn_deg`` since the last one kept: where a wheeled robot stops to turn in place."""
+    keep = [0]
+    for i in range(1, len(pts) - 1):
+        a, b = pts[i] - pts[keep[-1]], pts[i + 1] - pts[i]
+        turn = np.degrees(abs(np.angle(np.exp(1j * (np.arctan2(b[1], b[0]) - np.arctan2(a[1], a[0]))))))
+        if turn > min_turn_deg:
+            keep.append(i)
+    keep.append(len(pts) - 1)
+    return pts[keep]
 
 
 def _loop(path: np.ndarray, closed: bool, laps: int) -> np.ndarray:
@@ -56,7 +83,7 @@ class MountTrajectory:
         laps = int(np.ceil(self.speed * (duration + 1.0) / max(perimeter, 1e-6))) + 1
         pts = _loop(path, closed, laps)
         if mount == "wheeled":
-            self.xy, self.yaw = self._stop_and_turn(pts, rng)
+            self.xy, self.yaw = self._stop_and_turn(_corners(pts), rng)
         else:
             self.xy, self.yaw = self._walk(pts, {"car": 10.0, "legged": 1.5, "handheld": 2.5}[mount])
         if mount == "car":
@@ -105,25 +132,32 @@ class MountTrajectory:
         return xy, np.interp(s_t, s, heading)
 
     def _stop_and_turn(self, pts: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Drive each segment straight (smoothstep speed, peak = speed), stop, turn in place, go on."""
-        rate = np.deg2rad(rng.uniform(30.0, 60.0))
-        knots_t, knots_xy, knots_yaw = [0.0], [pts[0]], [np.arctan2(*(pts[1] - pts[0])[::-1])]
+        """Drive each segment straight (trapezoidal speed: 0.5 m/s^2 up to ``speed``), stop, turn in place
+        (90 deg/s^2 up to 30-60 deg/s), go on."""
+        rate, acc_w, acc_v = np.deg2rad(rng.uniform(30.0, 60.0)), np.deg2rad(90.0), 0.5
+        yaw0 = float(np.arctan2(pts[1, 1] - pts[0, 1], pts[1, 0] - pts[0, 0]))
+        segs = []  # (start time, xy0, xy1, yaw0, yaw1, total, vmax, acc): one turn or one straight each
+        t, yaw = 0.0, yaw0
         for a, b in zip(pts[:-1], pts[1:]):
-            heading = np.arctan2(b[1] - a[1], b[0] - a[0])
-            turn = float(np.angle(np.exp(1j * (heading - knots_yaw[-1]))))
-            t_turn = 1.5 * abs(turn) / rate
-            length = float(np.linalg.norm(b - a))
-            knots_t += [knots_t[-1] + t_turn, knots_t[-1] + t_turn + 1.5 * length / self.speed]
-            knots_xy += [a, b]
-            knots_yaw += [knots_yaw[-1] + turn, knots_yaw[-1] + turn]
-            if knots_t[-1] > self.t_grid[-1]:
+            heading = float(np.arctan2(b[1] - a[1], b[0] - a[0]))
+            turn = float(np.angle(np.exp(1j * (heading - yaw))))
+            for xy1, yaw1, total, vmax, acc in ((a, yaw + turn, abs(turn), rate, acc_w),
+                                                (b, yaw + turn, float(np.linalg.norm(b - a)), self.speed, acc_v)):
+                segs.append((t, a, xy1, yaw, yaw1, total, vmax, acc))
+                t += _trapezoid_duration(total, vmax, acc)
+                yaw = yaw1
+            if t > self.t_grid[-1]:
                 break
-        kt = np.asarray(knots_t)
-        i = np.clip(np.searchsorted(kt, self.t_grid, side="right") - 1, 0, len(kt) - 2)
-        tau = _smooth((self.t_grid - kt[i]) / np.maximum(kt[i + 1] - kt[i], 1e-9))
-        kxy, kyaw = np.asarray(knots_xy), np.asarray(knots_yaw)
-        xy = kxy[i] + tau[:, None] * (kxy[i + 1] - kxy[i])
-        return xy, kyaw[i] + tau * (kyaw[i + 1] - kyaw[i])
+        starts = np.array([sg[0] for sg in segs] + [np.inf])
+        i = np.clip(np.searchsorted(starts, self.t_grid, side="right") - 1, 0, len(segs) - 1)
+        xy, yaw_out = np.empty((len(self.t_grid), 2)), np.empty(len(self.t_grid))
+        for k in np.unique(i):
+            t0, xy0, xy1, y0, y1, total, vmax, acc = segs[k]
+            m = i == k
+            frac = _trapezoid(self.t_grid[m] - t0, total, vmax, acc) / max(total, 1e-12)
+            xy[m] = xy0 + frac[:, None] * (np.asarray(xy1) - xy0)
+            yaw_out[m] = y0 + frac * (y1 - y0)
+        return xy, yaw_out
 
     # ---- poses -------------------------------------------------------------------------------------
     def poses(self, t: np.ndarray | float) -> np.ndarray:
