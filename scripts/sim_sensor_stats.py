@@ -68,10 +68,10 @@ def picture_place(path, sim, scan) -> None:
     keep = (top > 0.05) & (low < (place.ceiling or 1e9) - 0.01)  # not the floor, not the ceiling slab
     o = np.argsort(top[keep])
     ax[0].add_collection(PolyCollection(tri[keep][o][:, :, :2], array=np.clip(top[keep][o], 0, 12),
-                                        cmap="terrain_r", edgecolors="face", linewidths=0.6))
+                                        cmap="viridis", edgecolors="face", linewidths=0.6))
     loop = np.vstack([place.path, place.path[:1]])
     ax[0].plot(loop[:, 0], loop[:, 1], "k--", lw=0.8)
-    ax[0].set_title(f"{place.name}: mesh from above, dashed = the loop")
+    ax[0].set_title(f"{place.name}: mesh from above (colour = height), dashed = the loop")
     o = np.argsort(w[:, 2])
     ax[1].scatter(w[o, 0], w[o, 1], c=np.clip(w[o, 2], 0, 8), s=0.2, cmap="viridis", linewidths=0, rasterized=True)
     ax[1].set_title(f"one {sim.lidar.name} scan, {sim.mount} mount ({len(w)} points)")
