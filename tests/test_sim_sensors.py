@@ -168,6 +168,9 @@ def test_rig_drive_is_reproducible_and_compensation_uses_its_own_ground_truth():
     near_floor = np.abs(w[:, 2]) < 0.3
     on_floor = np.abs(w[:, 2]) < 2e-3  # deskewed with the true poses: the floor stays a plane
     assert near_floor.sum() > 500 and on_floor.sum() > 0.9 * near_floor.sum()
+    still = RigSimulator("garage", 5, lid, "handheld", frames=4, motion_distortion=False, compensate=True).scan_at(3)
+    w = still.points.astype(np.float64) @ still.T_world_lidar[:3, :3].T + still.T_world_lidar[:3, 3]
+    assert (np.abs(w[:, 2]) < 2e-3).sum() > 0.9 * (np.abs(w[:, 2]) < 0.3).sum()  # an instantaneous scan stays put
     raw = RigSimulator("corridor", 5, avia(), "legged", frames=2).scan_at(1)
     assert raw.fields["timestamp"].dtype == np.float64 and raw.point_times().max() < 0.1
 

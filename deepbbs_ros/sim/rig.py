@@ -131,9 +131,10 @@ class RigSimulator:
         if self.compensate:
             fields = dict(fields)
             t = fields.pop("time").astype(np.float64)
-            T_rel = np.linalg.inv(T0) @ self.T_world_lidar(t0 + t)  # (N, 4, 4) T_lidar0_lidar(t)
-            pts = (np.einsum("nij,nj->ni", T_rel[:, :3, :3], pts.astype(np.float64)) + T_rel[:, :3, 3])
-            pts = pts.astype(np.float32)
+            if self.motion_distortion:  # else every ray was cast from T0: nothing to undo
+                T_rel = np.linalg.inv(T0) @ self.T_world_lidar(t0 + t)  # (N, 4, 4) T_lidar0_lidar(t)
+                pts = (np.einsum("nij,nj->ni", T_rel[:, :3, :3], pts.astype(np.float64)) + T_rel[:, :3, 3])
+                pts = pts.astype(np.float32)
         else:
             fields = driver_fields(lid.name, fields, stamp)
         return Scan(index=frame, stamp_ns=stamp, points=pts, fields=fields, frame_id=APOLLO_LIDAR_FRAME,
