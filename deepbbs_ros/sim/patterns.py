@@ -7,17 +7,19 @@ Spinning sensors are :class:`~deepbbs_ros.sim.lidar.LidarConfig` presets (ray ca
 Figures are the vendors' published datasheet values (rounded; ranges at about 10 % reflectivity where a
 datasheet gives two):
 
-* Ouster OS0 / OS1 (Ouster OS0 and OS1 datasheets, rev7): 32, 64 or 128 beams, uniform spacing over a
-  90 deg (OS0, +-45) or 45 deg (OS1, +-22.5) vertical field of view, 1024 columns at 10 Hz, range
-  0.5-50 m (OS0) / 0.5-120 m (OS1), precision about +-1.5-5 cm; organised output, per-point ``t`` (uint32
-  ns since the scan's stamp), as ouster-ros publishes it.
+* Ouster OS0 / OS1 (Ouster OS0 / OS1 datasheets and hardware user manuals, rev7; static.ouster.dev
+  sensor docs): 32, 64 or 128 beams, uniform spacing over a 90 deg (OS0, +-45) or 45 deg (OS1, +-22.5)
+  vertical field of view, 1024 columns at 10 Hz, range 0.5-50 m (OS0) / 0.5-120 m (OS1) (10 % targets at
+  50 % detection probability), repeatability +-1.5-5 cm (the first OS1 datasheet: +-1.5 cm at high SNR,
+  +-3 cm at SNR 100); organised output, per-point ``t`` (uint32 ns since the scan's stamp), as ouster-ros
+  publishes it.
 * Hesai XT32 (Hesai PandarXT-32 / XT32M2X user manuals, www.hesaitech.com/downloads): 32 channels 1 deg
   apart over -16..+15 deg, 0.18 deg azimuth at 10 Hz, 0.05-120 m, precision 0.5-1 cm; per-point
   ``timestamp`` (float64, absolute seconds) as HesaiLidar_ROS_2.0 publishes it.
 * RoboSense RS-Helios-32 (RS-Helios 5515 datasheet): 32 beams over -55..+15 deg, dense around the
   horizon and sparse below (the table here is Helios-like, not the vendor's calibration), 0.2 deg azimuth
   at 10 Hz, 0.2-150 m, +-2 cm; per-point ``timestamp`` (float64, absolute seconds) as rslidar_sdk does.
-* Livox Avia (Livox Avia user manual v1.0, 2020.10): 70.4 x 77.2 deg (horizontal x vertical) forward
+* Livox Avia (Livox Avia user manual v1.0, 2020.10, www.livoxtech.com/avia): 70.4 x 77.2 deg (horizontal x vertical) forward
   field of view, non-repetitive scanning, 6 laser lines, 240,000 points/s, 10 Hz frames, blind zone 1 m,
   190 m at 10 % reflectivity, range random error 2 cm (1 sigma at 20 m).
 * Livox Mid-360 (Livox Mid-360 user manual / livox wiki): 360 x 59 deg (-7..+52 deg elevation),
