@@ -19,9 +19,9 @@ datasheet gives two):
 * RoboSense RS-Helios-32 (RS-Helios 5515 datasheet): 32 beams over -55..+15 deg, dense around the
   horizon and sparse below (the table here is Helios-like, not the vendor's calibration), 0.2 deg azimuth
   at 10 Hz, 0.2-150 m, +-2 cm; per-point ``timestamp`` (float64, absolute seconds) as rslidar_sdk does.
-* Livox Avia (Livox Avia user manual v1.0, 2020.10, www.livoxtech.com/avia): 70.4 x 77.2 deg (horizontal x vertical) forward
-  field of view, non-repetitive scanning, 6 laser lines, 240,000 points/s, 10 Hz frames, blind zone 1 m,
-  190 m at 10 % reflectivity, range random error 2 cm (1 sigma at 20 m).
+* Livox Avia (Livox Avia user manual v1.0, 2020.10, www.livoxtech.com/avia): 70.4 x 77.2 deg (horizontal x
+  vertical) forward field of view, non-repetitive scanning, 6 laser lines, 240,000 points/s, 10 Hz frames,
+  blind zone 1 m, 190 m at 10 % reflectivity, range random error 2 cm (1 sigma at 20 m).
 * Livox Mid-360 (Livox Mid-360 user manual / livox wiki): 360 x 59 deg (-7..+52 deg elevation),
   non-repetitive, 4 laser lines, 200,000 points/s, blind zone 0.1 m, 40 m at 10 % reflectivity, 2 cm;
   coverage of the field of view grows with integration time.
