@@ -9,7 +9,8 @@ Sensors (each on a wheeled robot in the courtyard): points per scan, share of 0.
 field of view that the rays of one frame and of ten frames hit (the pattern, before any surface), median
 range. Mounts (in the courtyard): speed, rotation rate between poses 0.1 s and 0.4 s apart, roll and pitch
 ranges, sensor height. Places (OS1-64 on a wheeled robot): points per scan, share of upward rays (> 30 deg
-elevation, Mid-360) that return (1 under a ceiling), median range. ``--real-livox``: a KITTI-layout folder
+elevation, Mid-360) that return (1 under a ceiling), median range; with ``--gicp-pairs``, GICP from the truth
+on pairs 0.5 s apart per place and rig. ``--real-livox``: a KITTI-layout folder
 (``poses.txt``, ``times.txt``) of a handheld recording; its speeds and rotation rates between keyframes are
 printed beside the simulated handheld walk's at the same spacing.
 """
@@ -114,6 +115,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=10, help="frames simulated per sensor / mount / place")
     p.add_argument("--real-livox", default="", help="a KITTI-layout handheld recording to compare motion with")
     p.add_argument("--pictures", default="", help="folder for the PNGs ('' = none)")
+    p.add_argument("--gicp-pairs", type=int, default=0,
+                   help="also register this many pairs (0.5 s apart) per place and rig with GICP from the truth")
+    p.add_argument("--gicp-voxel", type=float, default=0.0, help="GICP voxel size, m (0 = eval.baseline_voxel_size)")
+    p.add_argument("--gicp-max-corr", type=float, default=0.0,
+                   help="GICP max correspondence distance, m (0 = eval.baseline_max_corr_dist)")
     args = p.parse_args(argv)
 
     from deepbbs_ros.sim.mounts import MOUNTS
@@ -188,7 +194,40 @@ def main(argv: list[str] | None = None) -> int:
         from pathlib import Path
 
         picture_patterns(Path(args.pictures) / "livox_patterns.png")
+    if args.gicp_pairs:
+        gicp_table(args.seed, args.gicp_pairs, args.gicp_voxel, args.gicp_max_corr)
     return 0
+
+
+def gicp_table(seed: int, pairs: int, voxel: float = 0.0, max_corr: float = 0.0) -> None:
+    """GICP (``SmallGicpRegistration("gicp")``) started at the truth on compensated pairs 0.5 s apart: the share
+    that stays within 1 deg / 0.3 m (a place too poor in structure slides away) and the worst pair."""
+    from deepbbs_ros.baselines import SmallGicpRegistration
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.metrics import pair_errors
+    from deepbbs_ros.sim.patterns import make_sensor
+    from deepbbs_ros.sim.places import PLACES
+    from deepbbs_ros.sim.rig import RigSimulator
+
+    sets = {"eval.threads": 1, **({"eval.baseline_voxel_size": voxel} if voxel else {}),
+            **({"eval.baseline_max_corr_dist": max_corr} if max_corr else {})}
+    gicp = SmallGicpRegistration("gicp", Config().replace(**sets))
+    rigs = (("os1_64", "wheeled"), ("mid360", "legged"), ("avia", "handheld"))
+    print("\n| place | " + " | ".join(f"{s} {m}: within 1 deg / 0.3 m (worst deg / m)" for s, m in rigs) + " |")
+    print("|---|" + "---|" * len(rigs))
+    for place in PLACES:
+        cells = []
+        for sensor, mount in rigs:
+            sim = RigSimulator(place, seed, make_sensor(sensor), mount, frames=10 * pairs + 6, compensate=True)
+            ok, worst = 0, (0.0, 0.0)
+            for i in range(pairs):
+                a, b = sim.scan_at(10 * i), sim.scan_at(10 * i + 5)
+                T_gt = np.linalg.inv(a.T_world_lidar) @ b.T_world_lidar
+                r, t = pair_errors(gicp.register(b.points, a.points, T_init=T_gt).T_target_source, T_gt)
+                ok += int(r <= 1.0 and t <= 0.3)
+                worst = max(worst, (float(r), float(t)), key=lambda e: max(e[0], e[1] / 0.3))
+            cells.append(f"{ok}/{pairs} ({worst[0]:.2f} / {worst[1]:.2f})")
+        print(f"| {place} | " + " | ".join(cells) + " |", flush=True)
 
 
 if __name__ == "__main__":
