@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "hall, courtyard (campus square), garage (parking level) (default: urban)")
     g.add_argument("--mount", choices=MOUNTS, default="car",
                    help="what carries the sensor: car (roof), wheeled (ground robot 0.3-1 m high, turns in place), "
-                        "legged (quadruped, sway and bob), handheld (tilted down, sweeping) (default: car)")
+                        "legged (quadruped, sway and bob), handheld (tilted down, glancing aside) (default: car)")
     g.add_argument("--seed", type=int, default=0, help="random seed; same seed -> same drive (default: 0)")
     g.add_argument("--frames", type=int, default=100, metavar="N", help="number of frames (default: 100)")
     g.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="spin / frame rate (default: 10)")
@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability of a lost return" + preset)
     g.add_argument("--mount-height", type=float, default=None, metavar="M",
                    help="sensor height above the road, car mount only" + preset)
-    g.add_argument("--mount-pitch", type=float, default=None, metavar="DEG", help="nose-down sensor tilt" + preset)
+    g.add_argument("--mount-pitch", type=float, default=None, metavar="DEG",
+                   help="nose-down sensor tilt, car and wheeled mounts" + preset)
     g.add_argument(
         "--no-motion-distortion", action="store_true",
         help="cast the whole sweep from the pose at the stamp (default: each column from its own pose)",
