@@ -165,21 +165,36 @@ def driver_cloud(
     frame_id: str = "lidar",
 ) -> Any:
     """A scan as the driver ``driver`` publishes it: ``"velodyne"`` (:data:`VELODYNE`, unorganised, in
-    the given order) or ``"ouster"`` (:data:`OUSTER`, organised ``beams`` x ``columns``, row 0 = the top
-    beam as ouster-ros writes it, no return = zeros, ``t`` in ns).
+    the given order), ``"ouster"`` (:data:`OUSTER`, organised ``beams`` x ``columns``, row 0 = the top
+    beam as ouster-ros writes it, no return = zeros, ``t`` in ns), ``"livox"`` (:data:`LIVOX`) or
+    ``"hesai"`` (:data:`HESAI`), both unorganised in the given order.
 
     Args:
         xyz: (N, 3) float32 points, sensor frame, metres.
         fields: ``intensity`` (N,), ``time`` (N,) seconds since the stamp, ``ring`` (N,) (0 = lowest beam),
-            and for Ouster ``column`` (N,) (the simulator's :class:`~deepbbs_ros.datasets.base.Scan` fields).
+            and for Ouster ``column`` (N,) (the simulator's :class:`~deepbbs_ros.datasets.base.Scan` fields;
+            Ouster also takes ``t`` in ns instead of ``time``). Livox: ``line``, ``timestamp`` (float64 ns,
+            absolute) and optionally ``tag``; Hesai: ``ring`` and ``timestamp`` (float64 s, absolute).
     """
     f = fields
+    if driver in ("livox", "hesai"):
+        if "timestamp" not in f:
+            raise PointCloudFormatError(f"the {driver} layout needs a 'timestamp' field")
+        values = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": f["intensity"],
+                  "timestamp": f["timestamp"]}  # fmt: skip
+        if driver == "livox":
+            values.update(line=f["line"], tag=f.get("tag", np.zeros(len(xyz), np.uint8)))
+        else:
+            values["ring"] = f["ring"]
+        return build_cloud(LIVOX if driver == "livox" else HESAI, values, flavor=flavor, stamp_ns=stamp_ns,
+                           frame_id=frame_id)
     if driver == "velodyne":
         values = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": f["intensity"],
                   "ring": f["ring"], "time": f["time"]}  # fmt: skip
         return build_cloud(VELODYNE, values, flavor=flavor, stamp_ns=stamp_ns, frame_id=frame_id)
     if driver != "ouster":
-        raise PointCloudFormatError(f"unknown driver layout {driver!r}; choose 'velodyne' or 'ouster'")
+        raise PointCloudFormatError(
+            f"unknown driver layout {driver!r}; choose 'velodyne', 'ouster', 'livox' or 'hesai'")
     if "column" not in f or beams < 1 or columns < 1:
         raise PointCloudFormatError("the Ouster layout needs a 'column' field and the beams x columns shape")
     h, w = int(beams), int(columns)
@@ -191,7 +206,8 @@ def driver_cloud(
         grid[n][row] = xyz[:, i]
     grid["intensity"][row] = f["intensity"]
     grid["reflectivity"][row] = np.clip(f["intensity"], 0, 255).astype(np.uint16)
-    grid["t"][row] = np.round(np.asarray(f["time"], dtype=np.float64) * 1e9).astype(np.uint32)
+    grid["t"][row] = np.asarray(f["t"], np.uint32) if "t" in f else \
+        np.round(np.asarray(f["time"], dtype=np.float64) * 1e9).astype(np.uint32)
     grid["ring"] = np.repeat(np.arange(h, dtype=np.uint16), w)
     grid["range"][row] = np.round(np.linalg.norm(xyz, axis=1) * 1000.0).astype(np.uint32)
     return build_cloud(OUSTER, grid, height=h, width=w, flavor=flavor, stamp_ns=stamp_ns, frame_id=frame_id)

@@ -103,6 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--randomize-sensor", choices=("auto", "yes", "no"), default="auto",
                    help="random LiDAR model/angles/noise/dropout/mounting per drive (auto: train yes, val/test no)")
     g.add_argument("--cache-points", type=int, default=4096, help="points kept per frame (FPS of the voxel grid)")
+    g.add_argument("--sensors", default="",
+                   help="sensor presets drawn per drive (deepbbs-sim --lidar names, 'random' = the randomised "
+                        "road sensors), e.g. 'random,os1_64,avia,mid360' (default: the randomised road sensors)")
+    g.add_argument("--mounts", default="",
+                   help="mounts drawn per drive: car, wheeled, legged, handheld (default: car)")
     g = c.add_argument_group("a user's recording")
     g.add_argument("--source", action="append", default=[], help="bag / mcap / Apollo or KITTI folder (repeatable)")
     g.add_argument("--topic", help="PointCloud2 topic (needed when there are several)")
@@ -178,7 +183,9 @@ def _cmd_cache(args) -> int:
         C.check_disjoint_seeds(seeds, *others)
         scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
         randomize = args.randomize_sensor == "yes" or (args.randomize_sensor == "auto" and args.split == "train")
-        specs = C.sim_drive_specs(scenes, seeds, args.frames)
+        sensors = [s.strip() for s in args.sensors.split(",") if s.strip()] or None
+        mounts = [m.strip() for m in args.mounts.split(",") if m.strip()] or None
+        specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts)
         written += list(C.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
                                           randomize_sensor=randomize, progress=not args.no_progress))
         manifest = out / "manifest.json"
@@ -186,6 +193,7 @@ def _cmd_cache(args) -> int:
         info[f"{args.split}:{seeds[0]}..{seeds[-1]}"] = {
             "scenes": scenes, "seeds": [seeds[0], seeds[-1]], "frames": args.frames,
             "randomize_sensor": randomize, "cache_points": args.cache_points,
+            **({"sensors": sensors, "mounts": mounts} if sensors or mounts else {}),
             "command": "deepbbs-train " + shlex.join(sys.argv[1:]) if sys.argv else ""}
         manifest.write_text(json.dumps(info, indent=2))
     if not args.source and not (args.drives or args.seeds):

@@ -31,7 +31,9 @@ class Scan:
         stamp_ns: header stamp in nanoseconds (start of the sweep for simulated scans).
         points: (N, 3) float32 xyz in the sensor frame, metres, only valid returns.
         fields: extra per-point arrays with the same N (e.g. ``intensity`` float32, ``time``
-            float32 seconds relative to ``stamp_ns``, ``ring`` uint16).
+            float32 seconds relative to ``stamp_ns``, ``ring`` uint16; drivers' own time fields:
+            Ouster ``t`` uint32 ns since the stamp, Livox ``timestamp`` float64 absolute ns, Hesai and
+            RoboSense ``timestamp`` float64 absolute s).
         frame_id: the sensor frame.
         T_world_lidar: (4, 4) float64 ground-truth pose of the sensor at ``stamp_ns``, or None.
     """
@@ -48,6 +50,11 @@ class Scan:
         for name, unit in TIME_FIELDS:
             if name in self.fields:
                 return np.asarray(self.fields[name], dtype=np.float64) * unit
+        if "timestamp" in self.fields:  # absolute: Livox float64 ns, Hesai / RoboSense float64 s
+            ts = np.asarray(self.fields["timestamp"], dtype=np.float64)
+            if len(ts) and float(np.max(ts)) > 1e12:
+                return (ts - float(self.stamp_ns)) * 1e-9
+            return ts - self.stamp_ns * 1e-9
         return None
 
     def __post_init__(self) -> None:

@@ -752,7 +752,8 @@ def write_rosbag(
 
     Each scan becomes a ``sensor_msgs/msg/PointCloud2`` on ``topic`` (x y z float32 + every field of
     ``Scan.fields``, header stamp = ``stamp_ns``, frame = ``Scan.frame_id``; or, with ``driver``
-    ``"velodyne"`` / ``"ouster"``, that driver's layout, :func:`msg_adapters.layouts.driver_cloud`, with
+    ``"velodyne"`` / ``"ouster"`` / ``"livox"`` / ``"hesai"``, that driver's layout,
+    :func:`msg_adapters.layouts.driver_cloud`, with
     ``shape`` = (beams, columns) for the organised Ouster cloud); each ground-truth pose a
     ``geometry_msgs/msg/PoseStamped`` on ``gt_topic`` (frame ``world``, pose = ``T_world_lidar``, same
     stamp). Log times equal the header stamps. mcap: zstd chunks of ``chunk_size`` bytes, each with a

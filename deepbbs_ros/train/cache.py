@@ -203,20 +203,53 @@ def random_lidar(rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
 
 @dataclass
 class SimDriveSpec:
-    """One simulated drive of the cache."""
+    """One simulated drive of the cache.
+
+    scene: a road scene or a place (``deepbbs_ros.sim.rig.ALL_PLACES``); sensor: a preset name
+    (``deepbbs_ros.sim.patterns.SENSORS``), or None for the randomised road sensors (:func:`random_lidar`);
+    mount: ``deepbbs_ros.sim.mounts.MOUNTS``. Left at None / ``"car"`` on a road scene the drive is the one
+    the cache has always made.
+    """
 
     scene: str
     seed: int
     frames: int
+    sensor: str | None = None
+    mount: str = "car"
 
     @property
     def name(self) -> str:
-        return f"{self.scene}_{self.seed}"
+        if self.sensor is None and self.mount == "car":
+            return f"{self.scene}_{self.seed}"
+        return f"{self.scene}_{self.mount}_{self.sensor or 'random'}_{self.seed}"
 
 
-def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int) -> list[SimDriveSpec]:
-    """Drives for ``seeds``, the scene types cycling over ``scenes`` (seed i -> scenes[i % len])."""
-    return [SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames)) for i, s in enumerate(seeds)]
+def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int, *,
+                    sensors: Sequence[str] | None = None, mounts: Sequence[str] | None = None) -> list[SimDriveSpec]:
+    """Drives for ``seeds``, the scene types cycling over ``scenes`` (seed i -> scenes[i % len]).
+
+    sensors / mounts: when given, each drive draws one of them from its seed (``"random"`` in sensors =
+    the randomised road sensors); left out, every drive is a car with a randomised road sensor, as before.
+    """
+    from deepbbs_ros.sim.mounts import MOUNTS
+    from deepbbs_ros.sim.patterns import SENSORS
+
+    for name in sensors or ():
+        if name != "random" and name not in SENSORS:
+            raise DatasetError(f"training cache: unknown sensor {name!r}; choose from random, {', '.join(SENSORS)}")
+    for name in mounts or ():
+        if name not in MOUNTS:
+            raise DatasetError(f"training cache: unknown mount {name!r}; choose from {', '.join(MOUNTS)}")
+    specs = []
+    for i, s in enumerate(seeds):
+        spec = SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames))
+        if sensors or mounts:
+            pick = np.random.default_rng([int(s), 7920])
+            sensor = str(pick.choice(list(sensors))) if sensors else "random"
+            spec.sensor = None if sensor == "random" else sensor
+            spec.mount = str(pick.choice(list(mounts))) if mounts else "car"
+        specs.append(spec)
+    return specs
 
 
 def check_disjoint_seeds(*groups: Iterable[int]) -> None:
@@ -243,16 +276,30 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
 
     path = Path(out_dir) / f"{spec.name}.npz"
     rng = np.random.default_rng([spec.seed, 7919])
-    if randomize_sensor:
+    if spec.sensor is not None:  # a named preset (solid-state ones included), as its datasheet gives it
+        from deepbbs_ros.sim.patterns import make_sensor
+
+        lidar, desc = make_sensor(spec.sensor), {"preset": spec.sensor}
+        u = float(rng.random())
+        motion, compensate = u < 0.8, u < 0.5
+    elif randomize_sensor:
         lidar, desc = random_lidar(rng)
         u = float(rng.random())
         motion, compensate = u < 0.8, u < 0.5
     else:
         lidar, desc, motion, compensate = LidarConfig.hdl64(), {"preset": "hdl64"}, True, True
+    if spec.sensor is None and spec.mount == "car":  # the road drives the cache has always made
+        scans = simulate_drive(spec.scene, spec.seed, spec.frames, lidar=lidar, motion_distortion=motion,
+                               compensate=compensate)
+    else:
+        from deepbbs_ros.sim.rig import make_simulator
+
+        scans = iter(make_simulator(spec.scene, spec.seed, lidar, spec.mount, frames=spec.frames,
+                                    motion_distortion=motion, compensate=compensate))
+        desc = {**desc, "mount": spec.mount}
     frames, poses, stamps, raw_counts = [], [], [], []
     t0 = time.perf_counter()
-    for k, scan in enumerate(simulate_drive(spec.scene, spec.seed, spec.frames, lidar=lidar, motion_distortion=motion,
-                                                   compensate=compensate)):
+    for k, scan in enumerate(scans):
         frames.append(cache_frame(scan.points, pre, cache_points, seed=spec.seed * 1000 + k))
         poses.append(scan.T_world_lidar)
         stamps.append(scan.stamp_ns)
