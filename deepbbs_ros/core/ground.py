@@ -34,6 +34,7 @@ from deepbbs_ros.config import PreprocessConfig
 _SAMPLES = 4096  # the search runs on at most this many points (a seeded subset)
 _TOL = 0.15  # m; inlier band of a floor hypothesis
 _MIN_POINTS = 3
+_NEAR_LIMIT_DEG = 5.0  # an upright plane within this of the tilt limit is checked against the floor search
 
 
 def _signed(pts: np.ndarray, plane: np.ndarray) -> np.ndarray:
@@ -55,6 +56,30 @@ def plausible_floor(points: np.ndarray, plane: np.ndarray, cfg: PreprocessConfig
     if plane[3] < cfg.floor_heights[0]:
         return False
     return fraction_below(points, plane, cfg.ground_layer) <= cfg.floor_max_below
+
+
+def choose_floor(points: np.ndarray, upright: np.ndarray | None, cfg: PreprocessConfig, *,
+                 seed: int = 0) -> tuple[np.ndarray | None, str]:
+    """The floor of a scan (N, 3) given the upright fit's plane (None: it found none): ``(plane, status)``.
+
+    The upright plane stays ("upright") when it is a :func:`plausible_floor` tilted less than
+    ``ground_max_tilt_deg - _NEAR_LIMIT_DEG`` from +z (every car-roof scan). One at the tilt limit may be a cut
+    through a floor tilted further (a handheld sensor): the floor search's plane replaces it when it holds more
+    points. An implausible or missing upright plane gives the floor search's ("floor_search"), or ``(None,
+    "none")`` when that finds none either.
+    """
+    plausible = upright is not None and plausible_floor(points, upright, cfg)
+    if plausible and upright[2] >= np.cos(np.deg2rad(cfg.ground_max_tilt_deg - _NEAR_LIMIT_DEG)):
+        return upright, "upright"
+    floor = find_floor(points, cfg, seed=seed)
+    if plausible and (floor is None or _support(points, floor) <= _support(points, upright)):
+        return upright, "upright"
+    return (floor, "floor_search") if floor is not None else (None, "none")
+
+
+def _support(points: np.ndarray, plane: np.ndarray) -> int:
+    """Points of ``points`` (N, 3) within ``_TOL`` of ``plane``."""
+    return int(np.count_nonzero(np.abs(_signed(np.asarray(points, dtype=np.float64), plane)) <= _TOL))
 
 
 def find_floor(points: np.ndarray, cfg: PreprocessConfig, *, seed: int = 0,

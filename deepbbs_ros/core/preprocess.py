@@ -659,20 +659,25 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
 def _ground(pts: np.ndarray, cfg: PreprocessConfig, seed: int) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Step 2: ``(nonground mask or None, plane or None, ground_status)`` of the valid points (see the module
     docstring: the upright fit, checked as a floor, then the floor search at any tilt)."""
-    from deepbbs_ros.core.ground import find_floor, plausible_floor
+    from deepbbs_ros.core.ground import choose_floor, find_floor
 
+    keep, upright = None, None
     if cfg.ground_search != "any":
         try:
-            keep, plane = remove_ground(pts, cfg, seed=seed)
-            if cfg.ground_search == "upright" or plausible_floor(pts, plane, cfg):
-                return keep, plane, "upright"
+            keep, upright = remove_ground(pts, cfg, seed=seed)
         except RegistrationError:
-            if cfg.ground_search == "upright":  # no ground near the sensor (a cropped or indoor cloud): keep all
-                return None, None, "none"
-    plane = find_floor(pts, cfg, seed=seed)
+            pass  # no ground near the sensor (a cropped or indoor cloud)
+        if cfg.ground_search == "upright":
+            return (keep, upright, "upright") if upright is not None else (None, None, "none")
+        plane, status = choose_floor(pts, upright, cfg, seed=seed)
+    else:
+        plane = find_floor(pts, cfg, seed=seed)
+        status = "floor_search" if plane is not None else "none"
     if plane is None:
         return None, None, "none"
-    return np.abs(_signed_dist(pts, plane.astype(np.float32))) > cfg.ground_layer / 2.0, plane, "floor_search"
+    if plane is upright:
+        return keep, upright, status
+    return np.abs(_signed_dist(pts, plane.astype(np.float32))) > cfg.ground_layer / 2.0, plane, status
 
 
 def _need_points(n: int, reason: str) -> None:
