@@ -17,7 +17,8 @@ from deepbbs_ros.core.preprocess import fit_ground_plane, preprocess
 
 
 def room_scan(height: float, *, ceiling: float = 2.6, half: tuple[float, float] = (12.0, 6.0),
-              R_sensor_level: np.ndarray | None = None, rays: int = 20000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+              R_sensor_level: np.ndarray | None = None, rays: int = 20000,
+              seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Ray cast a box room (floor z = 0, ceiling z = ``ceiling``, walls at x = +-half[0], y = +-half[1], level frame)
     from a sensor ``height`` m above the floor at the room's centre, rotated by ``R_sensor_level`` (the sensor frame's
     axes in the level frame: a tilt); rays uniform over the sphere. Returns ((rays, 3) float32 points in the sensor
