@@ -90,7 +90,7 @@ class PreprocessConfig:
     # "upright": the ground fit above only (a plane under a roughly upright sensor); "auto": that fit, and the floor
     # search at any tilt (core/ground.py) when it finds no plausible floor; "any": the floor search only
     ground_search: str = "auto"
-    floor_max_tilt_deg: float = 60.0  # floor search: the floor's normal is within this angle of the sensor's +z
+    floor_max_tilt_deg: float = 45.0  # floor search: the floor's normal is within this angle of the sensor's +z
     floor_heights: list[float] = field(default_factory=lambda: [0.1, 3.0])  # m; the sensor's plausible heights
     floor_max_below: float = 0.2  # a floor has at most this fraction of the points more than ground_layer under it
     floor_min_support: float = 0.05  # the floor search's plane holds at least this fraction of the points

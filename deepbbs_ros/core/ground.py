@@ -13,7 +13,7 @@ there may be no dominant floor at all. This module adds two things (no ROS impor
   floor candidate when
 
   - its normal is within ``floor_max_tilt_deg`` of the gravity hint ``up`` (default the sensor's +z: a handheld
-    sensor is rarely held more than 60 degrees off upright; walls, whose normal is horizontal, and ceilings, whose
+    sensor is rarely held more than 45 degrees off upright; walls, whose normal is horizontal, and ceilings, whose
     sensor-facing normal points down, never qualify),
   - the sensor is ``floor_heights[0] <= d <= floor_heights[1]`` above it (plausible mounts, 0.1-3 m by default),
   - at most ``floor_max_below`` of the points lie more than ``ground_layer`` under it;
