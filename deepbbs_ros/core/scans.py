@@ -102,9 +102,10 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
              ordered: bool = False) -> PreprocessResult:
     """The network's points of a scan (N, 3) whose precision-stage cloud is ``pc`` (or None); ``ordered``: the
     cloud's centroids come in an order of their own (not small_gicp's voxel grid's)."""
-    # the shared grid, unless it is too sparse for min_candidates (about half a grid is ground): then the scan's own
-    # grid, which shrinks its voxel for a sparse cloud
-    if pc is not None and pp.share_grid and pc.n_points >= max(pp.num_points, 2 * pp.min_candidates):
+    # the shared grid, unless a raw scan's is too sparse for min_candidates (about half a grid is ground): then the
+    # scan's own grid, which shrinks its voxel for a sparse cloud (a view's points are a grid already: never)
+    enough = pc is not None and pc.n_points >= (pp.num_points if ordered else max(pp.num_points, 2 * pp.min_candidates))
+    if pc is not None and pp.share_grid and enough:
         # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
         if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
             res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
