@@ -81,7 +81,7 @@ class PreprocessConfig:
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
     # the LiDAR: "auto" (the driver's PointCloud2 layout when recognised, else the cloud's shape) or a name of
     # deepbbs_ros/core/sensors.py ("hdl64", "hdl32", "vlp16", "ouster", "hesai", "robosense", "livox_avia",
-    # "livox_mid360"); it sets the defaults of min_range and voxel_size, a setting changed from its
+    # "livox_mid360"); it sets the defaults of min_range, voxel_size and ground_search, a setting changed from its
     # default always wins
     sensor: str = "auto"
     # self-filter: an axis-aligned box [xmin, xmax, ymin, ymax, zmin, zmax] in the sensor frame (m) whose points are

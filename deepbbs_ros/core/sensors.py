@@ -34,6 +34,8 @@ SENSORS: dict[str, dict[str, tuple[Any, str]]] = {
                            "body to crop 2 m around"),
         "voxel_size": (0.2, "3,000-5,000 points a frame over 70 x 77 degrees: a 0.3 m grid leaves too few "
                             "candidates for the sampling"),
+        "ground_search": ("any", "held at any tilt: the upright fit's 20-degree cone cuts a tilted floor, the floor "
+                                 "search at any tilt does not"),
     },
     "livox_mid360": {
         "min_range": (0.3, "360 x 59 degrees from 0.1 m on a robot: the robot's body belongs in self_filter_box"),
