@@ -151,6 +151,8 @@ def deskew_prepared(config: Config, pre: PreprocessResult, motion: tuple[np.ndar
     on raw and compensated sweeps alike)."""
     if pre.raw_points is None or pre.times is None or pre.polish_cloud is None:
         return pre
+    if pre.sensor != "auto":  # the defaults of the sensor the scan was prepared with
+        config = dataclasses.replace(config, preprocess=resolve(config.preprocess, pre.sensor))
     t0 = time.perf_counter()
     cloud = _deskewed_cloud(config, pre, motion[0], motion[1], threads)
     ms = (time.perf_counter() - t0) * 1e3

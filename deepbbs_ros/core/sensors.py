@@ -43,8 +43,9 @@ SENSORS: dict[str, dict[str, tuple[Any, str]]] = {
     },
 }
 
-#: ``msg_adapters.layouts.recognise_driver`` names -> the sensor whose defaults apply (None: decided by shape)
-DRIVER_SENSORS: dict[str, str | None] = {"velodyne": "hdl64", "ouster": "ouster", "hesai": "hesai",
+#: ``msg_adapters.layouts.recognise_driver`` names -> the sensor whose defaults apply (a Velodyne's model is unknown
+#: from its fields, and every spinning row is the defaults: None; a Livox is told by its shape)
+DRIVER_SENSORS: dict[str, str | None] = {"velodyne": None, "ouster": "ouster", "hesai": "hesai",
                                          "robosense": "robosense", "livox": None}
 
 _NARROW = 0.5  # a cloud filling less than this fraction of the azimuth circle is a narrow solid-state sensor
@@ -69,12 +70,11 @@ def guess_sensor(points: np.ndarray, driver: str | None = None) -> str | None:
     nothing says it is anything but a spinning sensor (the defaults apply). A Livox cloud, or any cloud that fills
     less than half the azimuth circle, is a ``"livox_avia"`` (narrow field of view) or, filling more, a
     ``"livox_mid360"``."""
-    if driver is not None and DRIVER_SENSORS.get(driver) is not None:
-        return DRIVER_SENSORS[driver]
-    narrow = azimuth_coverage(points) < _NARROW
     if driver == "livox":
-        return "livox_avia" if narrow else "livox_mid360"
-    return "livox_avia" if narrow else None
+        return "livox_avia" if azimuth_coverage(points) < _NARROW else "livox_mid360"
+    if driver in DRIVER_SENSORS:  # a spinning sensor's driver: its row, whatever the cloud's shape (a crop)
+        return DRIVER_SENSORS[driver]
+    return "livox_avia" if azimuth_coverage(points) < _NARROW else None
 
 
 def resolve(cfg: PreprocessConfig, sensor: str | None = None) -> PreprocessConfig:
