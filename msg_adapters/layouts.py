@@ -30,6 +30,7 @@ __all__ = [
     "Layout",
     "build_cloud",
     "driver_cloud",
+    "recognise_driver",
 ]
 
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
@@ -65,6 +66,29 @@ FLOAT64_XYZ: Layout = (
     (("x", 0, FLOAT64, 1), ("y", 8, FLOAT64, 1), ("z", 16, FLOAT64, 1), ("intensity", 24, FLOAT32, 1)),
     32,
 )  # fmt: skip
+
+
+#: per-point field names that only one driver family writes -> its name (first match wins)
+_DRIVER_FIELDS: tuple[tuple[frozenset[str], str], ...] = (
+    (frozenset({"tag", "line"}), "livox"),  # livox_ros_driver(2): tag, line, float64 timestamp
+    (frozenset({"t", "reflectivity"}), "ouster"),  # ouster-ros: t (ns), reflectivity, ring, ambient / near_ir, range
+    (frozenset({"ring", "time"}), "velodyne"),  # velodyne_pointcloud PointXYZIRT: float32 time (s), ring
+    (frozenset({"ring", "timestamp"}), "hesai"),  # HesaiLidar_ROS_2.0 (rslidar_sdk XYZIRT writes the same fields)
+)
+
+
+def recognise_driver(fields: Any) -> str | None:
+    """The driver family that wrote a PointCloud2, from its field names: ``"livox"``, ``"ouster"``,
+    ``"velodyne"``, ``"hesai"`` (also RoboSense's rslidar_sdk, whose XYZIRT layout is the same), or None.
+
+    Args:
+        fields: the message's field names (``msg_adapters.pointcloud2.field_names(msg)``), a message's
+            ``fields`` (PointField objects) or a :data:`Layout`.
+    """
+    if isinstance(fields, tuple) and len(fields) == 2 and isinstance(fields[1], int):  # a Layout
+        fields = fields[0]
+    names = {f if isinstance(f, str) else f[0] if isinstance(f, tuple) else str(f.name) for f in fields}
+    return next((driver for need, driver in _DRIVER_FIELDS if need <= names), None)
 
 
 def _header(flavor: str, stamp_ns: int, frame_id: str):

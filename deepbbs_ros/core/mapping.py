@@ -146,7 +146,7 @@ def build_map(
             read, or no scan usable. Ctrl-C while reading ends the reading: the map holds the scans before it
             (``interrupted``).
     """
-    from deepbbs_ros.core.preprocess import crop_range, deskew
+    from deepbbs_ros.core.preprocess import crop_mask, deskew
 
     cfg = (config or Config()).validate()
     if source not in MAP_SOURCES:
@@ -204,7 +204,7 @@ def build_map(
             if prev is not None and times is not None and len(times) == len(pts) and scan.stamp_ns > prev[1]:
                 dt = (scan.stamp_ns - prev[1]) * 1e-9
                 pts = deskew(pts, times, np.linalg.inv(prev[0]) @ T, dt)  # the motion since the last scan used
-            pts = pts[crop_range(pts, pp.min_range, pp.max_range)]
+            pts = pts[crop_mask(pts, pp)]
             if len(pts) == 0:
                 out.skipped.append(f"frame {scan.index}: no point within {pp.min_range:g}-{pp.max_range:g} m")
                 continue

@@ -248,7 +248,7 @@ class DeepBBSOdometry:
                 delta: np.ndarray | None = None) -> np.ndarray:
         """Finite points, deskewed to the stamp with ``delta`` (default: the velocity so far, from the
         third scan on), cropped to [min_range, max_range]: (N, 3) float64."""
-        from deepbbs_ros.core.preprocess import crop_range
+        from deepbbs_ros.core.preprocess import crop_mask
 
         pp = self.config.preprocess
         pts = as_xyz(points, "odometry", dtype=np.float64)  # (N, 3) only (core/points.py)
@@ -259,7 +259,7 @@ class DeepBBSOdometry:
             if len(tt) == len(pts):
                 ok = np.isfinite(pts).all(axis=1)
                 pts = deskew(pts[ok], tt[ok], delta, self.period)
-        frame = pts[crop_range(pts, pp.min_range, pp.max_range)]
+        frame = pts[crop_mask(pts, pp)]
         if len(frame) < 10:
             raise RegistrationError(f"odometry: only {len(frame)} valid points within the crop range")
         return frame

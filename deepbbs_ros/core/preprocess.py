@@ -4,7 +4,10 @@ The pipeline turns one raw LiDAR sweep (``(N, 3)`` xyz in the sensor frame, metr
 NaN/Inf returns) into a fixed number of well spread non-ground points, the input of the DeepBBS
 network:
 
-1. ``valid_crop``: drop non-finite points, keep ``min_range <= ||p|| <= max_range``.
+0. ``sensor``: a named ``preprocess.sensor`` sets the defaults of that LiDAR (core/sensors.py); ``"auto"`` is
+   resolved by the caller that knows the driver (``core.scans.prepare_scan``).
+1. ``valid_crop``: drop non-finite points, keep ``min_range <= ||p|| <= max_range``, drop the points inside
+   ``self_filter_box`` (the robot's body, a car's roof).
 2. ``ground``: fit one ground plane ``a x + b y + c z + d = 0`` (unit normal, ``c > 0``) robustly
    on the points near the sensor and drop the layer ``|a x + b y + c z + d| <= ground_layer / 2``
    (DeepBBS removes a 0.5 m layer around a least-squares plane). Two robust seedings:
@@ -19,7 +22,16 @@ network:
    A plain least-squares fit over the whole scan would be pulled up by buildings: both methods fit
    only points near the current plane estimate, and walls (vertical) never win a near-horizontal
    RANSAC hypothesis.
-3. ``voxel``: one point per occupied ``voxel_size`` cube, the centroid of its points. Skipped for
+
+   That fit assumes a roughly upright sensor above the ground (a car roof). With ``ground_search`` "auto"
+   (default) a plane it finds must also be a plausible floor (the sensor above it, few points under it:
+   ``core.ground.plausible_floor``); when it finds none, the floor search at any tilt (``core.ground.find_floor``:
+   handheld, tilted, low and indoor sensors) takes over, and when that finds none either, every point is kept
+   (``ground_status`` says which happened). "upright" runs the first fit alone, "any" the floor search alone.
+3. ``voxel``: one point per occupied ``voxel_size`` cube, the centroid of its points. A sparse cloud (fewer
+   than ``min_candidates`` voxels from at least as many points) is put on a finer grid, ``voxel_size *
+   sqrt(voxels / min_candidates)`` but at least ``voxel_size / 4`` (a scan's voxels fill surfaces: their count
+   goes as 1 / voxel^2), so that about ``min_candidates`` candidates remain for the sampling. Skipped for
    ``gridded`` input: ``DeepBBSRegistration.preprocess`` (``preprocess.share_grid``, default) hands in
    the centroids of the precision stage's grid of the whole scan (``registration.polish_voxel``, put in
    :func:`canonical_order`), so a scan is voxelised once; steps 1, 2 and 4 then run on them.
@@ -140,8 +152,11 @@ class PreprocessResult:
     Attributes:
         points: (M, 3) float32 sampled non-ground points, sensor frame, metres (M = num_points).
         ground_plane: (4,) float64 ``[a, b, c, d]`` with ``a x + b y + c z + d = 0``, unit normal,
-            ``c > 0``; None when ground removal is disabled or found no ground plane (no points
-            within ``ground_seed_radius``, or no near-horizontal plane holding 10 % of them).
+            ``c > 0`` (upright fit) or turned towards the sensor (floor search: ``d`` is the sensor's height);
+            None when ground removal is disabled or found no ground (every point kept).
+        ground_status: how the ground was found: "upright" (the upright fit), "floor_search" (the floor search at
+            any tilt), "none" (no plausible floor: every point kept) or "off" (``remove_ground`` false).
+        sensor: the ``preprocess.sensor`` whose defaults were applied ("auto": none, the generic defaults).
         n_input: points given (including invalid ones).
         n_valid: finite points inside the range crop.
         n_nonground: valid points left after ground removal (before voxelisation and sampling).
@@ -179,6 +194,8 @@ class PreprocessResult:
     deskew: str = ""
     deskewed_cloud: Any = None
     velocity: tuple[np.ndarray, float] | None = None
+    ground_status: str = ""
+    sensor: str = "auto"
     # (cfg, seed) while the sampling waits (``prepare_scan(..., lazy=True)``: on the grid of ``polish_cloud``, put in
     # :func:`canonical_order`): the first read of a sampled field (:data:`SAMPLED_FIELDS`) runs it; None once sampled
     pending_sample: Any = field(default=None, repr=False, compare=False)
@@ -190,6 +207,11 @@ class PreprocessResult:
         parts = (f"{f.name}=" + ("<not sampled yet>" if f.name in SAMPLED_FIELDS
                                  else short_value(getattr(self, f.name))) for f in fields(self) if f.repr)
         return f"{type(self).__name__}({', '.join(parts)})"
+
+    @property
+    def ground_found(self) -> bool:
+        """A ground plane was found and its layer removed (``ground_plane`` is set)."""
+        return self.ground_plane is not None
 
     @property
     def sampled(self) -> bool:
@@ -224,7 +246,7 @@ class PreprocessResult:
 
 
 #: the fields of a :class:`PreprocessResult` that the (possibly waiting) sampling fills in: reading one runs it
-SAMPLED_FIELDS = ("points", "ground_plane", "n_nonground", "n_voxels", "dense_points")
+SAMPLED_FIELDS = ("points", "ground_plane", "n_nonground", "n_voxels", "dense_points", "ground_status")
 _SAMPLE_LOCK = threading.Lock()
 
 
@@ -265,6 +287,20 @@ def crop_range(points: np.ndarray, min_range: float, max_range: float) -> np.nda
         r2 = np.einsum("ij,ij->i", pts, pts)
     # NaN compares False; Inf gives r2 = inf > max_range**2.
     return (r2 >= min_range * min_range) & (r2 <= max_range * max_range)
+
+
+def crop_mask(points: np.ndarray, cfg: PreprocessConfig) -> np.ndarray:
+    """(N,) bool mask of the points of ``points`` (N, 3) that step 1 keeps: :func:`crop_range` with the config's
+    ranges, and outside ``cfg.self_filter_box`` ``[xmin, xmax, ymin, ymax, zmin, zmax]`` (sensor frame) when set."""
+    keep = crop_range(points, cfg.min_range, cfg.max_range)
+    box = cfg.self_filter_box
+    if len(box) == 6:
+        pts = _as_points(points)
+        inside = np.ones(len(pts), dtype=bool)
+        for axis in range(3):
+            inside &= (pts[:, axis] >= box[2 * axis]) & (pts[:, axis] <= box[2 * axis + 1])
+        keep &= ~inside
+    return keep
 
 
 # -- step 2: ground plane -------------------------------------------------------------------------
@@ -552,7 +588,9 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         RegistrationError: empty input, wrong shape, fewer than 3 finite points inside the range crop,
             or fewer than 3 points left after ground removal.
     """
-    cfg = cfg or PreprocessConfig()
+    from deepbbs_ros.core.sensors import resolve
+
+    cfg = resolve(cfg or PreprocessConfig())
     seed = cfg.seed if seed is None else seed
     timings: dict[str, float] = {}
     t_start = t0 = time.perf_counter()
@@ -563,20 +601,18 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         raise RegistrationError("preprocess: empty point cloud")
 
     # 1. finite points inside the range crop
-    pts = np.compress(crop_range(pts, cfg.min_range, cfg.max_range), pts, axis=0)
+    pts = np.compress(crop_mask(pts, cfg), pts, axis=0)
     n_valid = len(pts)
     _need_points(n_valid, f"of {n_input} points are finite and within [{cfg.min_range}, {cfg.max_range}] m "
                  f"(need {MIN_POINTS})")
     t1 = _lap(timings, "valid_crop", t0)
 
     # 2. ground plane and layer removal
-    plane = None
+    plane, status = None, "off"
     if cfg.remove_ground:
-        try:
-            keep, plane = remove_ground(pts, cfg, seed=seed)
+        keep, plane, status = _ground(pts, cfg, seed)
+        if keep is not None:
             pts = np.compress(keep, pts, axis=0)
-        except RegistrationError:
-            plane = None  # no ground near the sensor (e.g. a cropped or indoor cloud): keep every point
     n_nonground = len(pts)
     _need_points(n_nonground, f"of {n_valid} valid points are off the ground layer "
                  f"(ground_layer={cfg.ground_layer} m; need {MIN_POINTS})")
@@ -584,6 +620,9 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
 
     # 3. voxel grid; keep the raw points when voxelising would leave fewer than num_points
     vox = pts if gridded else voxel_downsample(pts, cfg.voxel_size)
+    if not gridded and cfg.voxel_size > 0 and len(vox) < cfg.min_candidates <= len(pts):
+        # sparse cloud: a finer grid, about min_candidates voxels (their count goes as 1 / voxel^2)
+        vox = voxel_downsample(pts, cfg.voxel_size * max(0.25, float(np.sqrt(len(vox) / cfg.min_candidates))))
     if len(vox) < cfg.num_points <= len(pts):
         vox = pts
     t3 = _lap(timings, "voxel", t2)
@@ -612,7 +651,33 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         n_voxels=len(vox),
         timings_ms=timings,
         dense_points=dense,
+        ground_status=status,
+        sensor=cfg.sensor,
     )
+
+
+def _ground(pts: np.ndarray, cfg: PreprocessConfig, seed: int) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """Step 2: ``(nonground mask or None, plane or None, ground_status)`` of the valid points (see the module
+    docstring: the upright fit, checked as a floor, then the floor search at any tilt)."""
+    from deepbbs_ros.core.ground import choose_floor, find_floor
+
+    keep, upright = None, None
+    if cfg.ground_search != "any":
+        try:
+            keep, upright = remove_ground(pts, cfg, seed=seed)
+        except RegistrationError:
+            pass  # no ground near the sensor (a cropped or indoor cloud)
+        if cfg.ground_search == "upright":
+            return (keep, upright, "upright") if upright is not None else (None, None, "none")
+        plane, status = choose_floor(pts, upright, cfg, seed=seed)
+    else:
+        plane = find_floor(pts, cfg, seed=seed)
+        status = "floor_search" if plane is not None else "none"
+    if plane is None:
+        return None, None, "none"
+    if plane is upright:
+        return keep, upright, status
+    return np.abs(_signed_dist(pts, plane.astype(np.float32))) > cfg.ground_layer / 2.0, plane, status
 
 
 def _need_points(n: int, reason: str) -> None:

@@ -202,16 +202,17 @@ class DeepBBSRegistration:
     # -- preprocessing ---------------------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                    motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
-                   lazy: bool = False) -> PreprocessResult:
+                   lazy: bool = False, driver: str | None = None) -> PreprocessResult:
         """Raw scan (N, 3) metres (per-point ``times`` (N,) s since ``stamp_ns``, a known ``motion`` of the
         sensor) -> :class:`PreprocessResult` with its precision-stage cloud (:func:`core.scans.prepare_scan`).
         Everything a scan needs is here: a scan preprocessed once serves as source and as target (odometry, the
         node). ``defer``: the precision-stage cloud's k-d tree and covariances wait (:meth:`PolishCloud.complete`).
         ``lazy``: the network's points (ground removal, FPS) wait for their first read (a good start may never need
-        them; :meth:`PreprocessResult.sample`).
+        them; :meth:`PreprocessResult.sample`). ``driver``: the driver that published the scan
+        (``msg_adapters.layouts.recognise_driver``), which settles ``preprocess.sensor`` "auto".
         """
         return prepare_scan(self.config, points, times, stamp_ns, motion, defer=defer, threads=self.gicp_threads(),
-                            lazy=lazy)
+                            lazy=lazy, driver=driver)
 
     def polish_cloud(self, points: np.ndarray, *, defer: bool = False) -> PolishCloud:
         """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""

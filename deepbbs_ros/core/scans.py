@@ -20,6 +20,7 @@ its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from typing import Any
 
@@ -28,15 +29,16 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, PolishView, prepare_polish_cloud, prepared_cloud
-from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, deskew, preprocess
+from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, crop_mask, deskew, preprocess
+from deepbbs_ros.core.sensors import guess_sensor, resolve
 from deepbbs_ros.errors import RegistrationError
 
-__all__ = ["prepare_scan", "prepare_view", "polish_cloud", "deskew_prepared"]
+__all__ = ["prepare_scan", "prepare_view", "polish_cloud", "deskew_prepared", "with_sensor"]
 
 
 def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                  motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
-                 threads: int = 1, lazy: bool = False) -> PreprocessResult:
+                 threads: int = 1, lazy: bool = False, driver: str | None = None) -> PreprocessResult:
     """Raw scan (N, 3) metres -> :class:`PreprocessResult` (``config.preprocess``), with the scan's
     precision-stage cloud (``polish_cloud``) when ``registration.polish`` is on.
 
@@ -52,9 +54,14 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
     the shared grid): the network's points (ground removal, FPS) wait for their first read
     (:meth:`PreprocessResult.sample`): a registration from a good start (``register(..., good_start=True)``) needs
     only the precision-stage cloud, and pays for them only when it falls back to the deep passes.
+
+    ``preprocess.sensor`` "auto" is settled here: by ``driver`` (``msg_adapters.layouts.recognise_driver`` of the
+    scan's PointCloud2 fields, when the caller has them) or the scan's shape (``core.sensors.guess_sensor``); the
+    defaults of that sensor apply to the whole preparation (``result.sensor`` names it).
     """
-    pp, rc = config.preprocess, config.registration
     points = as_xyz(points, "preprocess")  # (N, 3) real numbers, NaN rows dropped by the crop (core/points.py)
+    config = with_sensor(config, points, driver)
+    pp, rc = config.preprocess, config.registration
     keep_raw, deskew_ms = None, None
     if pp.deskew and times is not None:
         tt = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -74,6 +81,7 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
         res.timings_ms["total"] += deskew_ms
     if keep_raw is not None:
         res.raw_points, res.times, res.stamp_ns = keep_raw
+    res.sensor = pp.sensor
     if pc is not None:
         res.polish_cloud = pc
         res.timings_ms["polish_prepare"] = res.polish_cloud.prepare_ms
@@ -81,11 +89,23 @@ def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = 
     return res
 
 
+def with_sensor(config: Config, points: np.ndarray, driver: str | None = None) -> Config:
+    """``config`` with ``preprocess.sensor`` settled (``"auto"``: from ``driver`` or the shape of ``points`` (N, 3))
+    and that sensor's defaults applied (:func:`core.sensors.resolve`); ``config`` itself when nothing changes."""
+    pp = config.preprocess
+    name = guess_sensor(points, driver) if pp.sensor == "auto" else pp.sensor
+    resolved = resolve(pp, name)
+    return config if resolved is pp else dataclasses.replace(config, preprocess=resolved)
+
+
 def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
              ordered: bool = False) -> PreprocessResult:
     """The network's points of a scan (N, 3) whose precision-stage cloud is ``pc`` (or None); ``ordered``: the
     cloud's centroids come in an order of their own (not small_gicp's voxel grid's)."""
-    if pc is not None and pp.share_grid and pc.n_points >= pp.num_points:
+    # the shared grid, unless a raw scan's is too sparse for min_candidates (about half a grid is ground): then the
+    # scan's own grid, which shrinks its voxel for a sparse cloud (a view's points are a grid already: never)
+    enough = pc is not None and pc.n_points >= (pp.num_points if ordered else max(pp.num_points, 2 * pp.min_candidates))
+    if pc is not None and pp.share_grid and enough:
         # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
         if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
             res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
@@ -113,8 +133,11 @@ def prepare_view(config: Config, view: PolishView) -> PreprocessResult:
 def polish_cloud(config: Config, points: np.ndarray, *, defer: bool = False, threads: int = 1) -> PolishCloud:
     """Raw scan (N, 3) -> its precision-stage cloud (``registration.polish_*``, the preprocess crop)."""
     pp, rc = config.preprocess, config.registration
+    points = as_xyz(points, "polish_cloud", dtype=None)
+    if pp.self_filter_box:  # the robot's own body is no part of the scene
+        points = np.compress(crop_mask(points, pp), points, axis=0)
     return prepare_polish_cloud(
-        as_xyz(points, "polish_cloud", dtype=None), rc.polish_voxel, rc.polish_neighbors,
+        points, rc.polish_voxel, rc.polish_neighbors,
         registration_type=SMALL_GICP_TYPE[rc.polish],
         min_range=pp.min_range, max_range=pp.max_range, threads=threads, defer=defer,
         max_voxels=rc.polish_max_voxels)
@@ -128,6 +151,8 @@ def deskew_prepared(config: Config, pre: PreprocessResult, motion: tuple[np.ndar
     on raw and compensated sweeps alike)."""
     if pre.raw_points is None or pre.times is None or pre.polish_cloud is None:
         return pre
+    if pre.sensor != "auto":  # the defaults of the sensor the scan was prepared with
+        config = dataclasses.replace(config, preprocess=resolve(config.preprocess, pre.sensor))
     t0 = time.perf_counter()
     cloud = _deskewed_cloud(config, pre, motion[0], motion[1], threads)
     ms = (time.perf_counter() - t0) * 1e3

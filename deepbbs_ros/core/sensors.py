@@ -1,0 +1,92 @@
+"""Preprocessing defaults per LiDAR, and which LiDAR a scan comes from (no ROS import).
+
+``preprocess.sensor`` names a row of :data:`SENSORS`; ``"auto"`` picks one from the driver that published the
+scan (``driver``: ``msg_adapters.layouts.recognise_driver`` reads it from the PointCloud2 fields, and the caller
+passes it in) or, without one, from the cloud's shape (:func:`guess_sensor`). :func:`resolve` applies the row to a
+:class:`PreprocessConfig`: a setting the user changed from its default always wins over the sensor's.
+
+Only what genuinely differs between sensors is in the table. The spinning sensors keep the defaults the model was
+trained and measured with (car-roof HDL-64E and the simulated spinning drives): their rows are empty on purpose, so
+that a recognised Velodyne, Ouster or Hesai cloud is preprocessed exactly as before. Per-point times need no row:
+a cloud's times are used when the driver writes them, and a sweep model is fitted only when the times follow the
+azimuth (``core.preprocess.SweepTimes``: spinning sensors, not Livox rosettes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.config import PreprocessConfig
+
+#: sensor name -> {PreprocessConfig field: (value, reason)}
+SENSORS: dict[str, dict[str, tuple[Any, str]]] = {
+    "hdl64": {},  # the reference: the defaults (car roof, 2 m ego crop, 80 m crop the model's scale is set for)
+    "hdl32": {},  # spinning, 360 degrees, car or robot: the defaults (a roof or body: preprocess.self_filter_box)
+    "vlp16": {},  # idem; sparse rings are handled by min_candidates, not by a row
+    "ouster": {},  # OS0 / OS1 / OS2 at 32-128 beams: spinning, 360 degrees
+    "hesai": {},  # XT-32 / Pandar: spinning, 360 degrees
+    "robosense": {},  # RS-LiDAR 16 / 32 / Helios: spinning, 360 degrees
+    "livox_avia": {
+        "min_range": (1.0, "non-repetitive rosette with a ~1 m blind zone, handheld or on a small robot: no car "
+                           "body to crop 2 m around"),
+        "voxel_size": (0.2, "3,000-5,000 points a frame over 70 x 77 degrees: a 0.3 m grid leaves too few "
+                            "candidates for the sampling"),
+        "ground_search": ("any", "held at any tilt: the upright fit's 20-degree cone cuts a tilted floor, the floor "
+                                 "search at any tilt does not"),
+    },
+    "livox_mid360": {
+        "min_range": (0.3, "360 x 59 degrees from 0.1 m on a robot: the robot's body belongs in self_filter_box"),
+        "voxel_size": (0.2, "about 20,000 points a frame spread over a hemisphere-like pattern: a finer grid"),
+    },
+}
+
+#: ``msg_adapters.layouts.recognise_driver`` names -> the sensor whose defaults apply (a Velodyne's model is unknown
+#: from its fields, and every spinning row is the defaults: None; a Livox is told by its shape)
+DRIVER_SENSORS: dict[str, str | None] = {"velodyne": None, "ouster": "ouster", "hesai": "hesai",
+                                         "robosense": "robosense", "livox": None}
+
+_NARROW = 0.5  # a cloud filling less than this fraction of the azimuth circle is a narrow solid-state sensor
+_AZ_BINS = 36  # 10-degree azimuth bins
+_MAX_SHAPE_POINTS = 4096  # the shape guess reads an even subsample
+
+
+def azimuth_coverage(points: np.ndarray) -> float:
+    """Fraction of the 36 ten-degree azimuth bins (sensor frame, around +z) holding at least 0.2 % of the
+    finite points of ``points`` (N, 3): about 1 for a spinning sensor, about 0.2 for a Livox Avia."""
+    pts = np.asarray(points)[:: max(1, len(points) // _MAX_SHAPE_POINTS)]
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) == 0:
+        return 0.0
+    az = np.arctan2(pts[:, 1], pts[:, 0])
+    hist = np.bincount(((az + np.pi) / (2 * np.pi) * _AZ_BINS).astype(int) % _AZ_BINS, minlength=_AZ_BINS)
+    return float(np.count_nonzero(hist >= 0.002 * len(pts))) / _AZ_BINS
+
+
+def guess_sensor(points: np.ndarray, driver: str | None = None) -> str | None:
+    """The sensor of a scan (N, 3) from its ``driver`` (a :data:`DRIVER_SENSORS` name) or its shape; None when
+    nothing says it is anything but a spinning sensor (the defaults apply). A Livox cloud, or any cloud that fills
+    less than half the azimuth circle, is a ``"livox_avia"`` (narrow field of view) or, filling more, a
+    ``"livox_mid360"``."""
+    if driver == "livox":
+        return "livox_avia" if azimuth_coverage(points) < _NARROW else "livox_mid360"
+    if driver in DRIVER_SENSORS:  # a spinning sensor's driver: its row, whatever the cloud's shape (a crop)
+        return DRIVER_SENSORS[driver]
+    return "livox_avia" if azimuth_coverage(points) < _NARROW else None
+
+
+def resolve(cfg: PreprocessConfig, sensor: str | None = None) -> PreprocessConfig:
+    """``cfg`` with the defaults of ``sensor`` (default ``cfg.sensor``; ``"auto"`` or None: ``cfg`` as is) in every
+    field that still holds its generic default; the fields the user changed keep their values. The result's
+    ``sensor`` names the sensor applied."""
+    name = cfg.sensor if sensor is None else sensor
+    if name in (None, "auto") or name not in SENSORS:
+        return cfg
+    generic = PreprocessConfig()
+    changes = {k: v for k, (v, _) in SENSORS[name].items() if getattr(cfg, k) == getattr(generic, k)}
+    if not changes and cfg.sensor == name:
+        return cfg
+    return replace(cfg, sensor=name, **changes)
+
