@@ -314,6 +314,17 @@ class NodeConfig:
     # with no initial pose: the whole map searched, then tracked; lost and found again (~/relocalize)
     target_mode: str = "stamped"
     map_frame: str = "map"  # localization: the frame of the map read from localization.map_path
+    # localization: who provides odom_frame -> base_frame (REP-105). "tf": an odometry source (wheel odometry, an
+    # EKF) on /tf, looked up at each scan's stamp; the node publishes map_frame -> odom_frame. "lidar": the node's own
+    # LiDAR odometry on the same scans publishes odom_frame -> base_frame, and map_frame -> odom_frame from it.
+    # "none": the node publishes map_frame -> base_frame itself (no odom frame)
+    localization_odom: str = "tf"
+    # s; localization: map_frame -> odom_frame is stamped this long after its scan (as AMCL's transform_tolerance),
+    # so that lookups up to then need no extrapolation
+    transform_tolerance: float = 1.0
+    # s; localization: the last map_frame -> odom_frame is broadcast again this often between scans (0 = with each
+    # localized scan only)
+    map_odom_period: float = 0.2
     # localization: a background thread prepares the map crop of the place the tracked pose reaches next, so that the
     # scan that gets there does not wait for it
     map_prefetch: bool = True
@@ -366,6 +377,10 @@ class NodeConfig:
         _check(self.tf_timeout >= 0, "node.tf_timeout", "must be >= 0")
         _check(self.target_mode in ("stamped", "latched", "localization"), "node.target_mode",
                f"must be 'stamped', 'latched' or 'localization', got {self.target_mode!r}")
+        _check(self.localization_odom in ("tf", "lidar", "none"), "node.localization_odom",
+               f"must be 'tf', 'lidar' or 'none', got {self.localization_odom!r}")
+        _check(self.transform_tolerance >= 0, "node.transform_tolerance", "must be >= 0")
+        _check(self.map_odom_period >= 0, "node.map_odom_period", "must be >= 0 (0 = with each localized scan)")
         _check(len(self.initial_pose) == 6, "node.initial_pose", "must be [x, y, z, roll, pitch, yaw]")
         _check(self.map_crop_radius >= 0, "node.map_crop_radius", "must be >= 0 (0 = preprocess.max_range)")
         _check(self.unpaired_warn_after > 0, "node.unpaired_warn_after", "must be > 0")

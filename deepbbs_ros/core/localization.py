@@ -81,6 +81,9 @@ GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
 
 #: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
 DESKEW_WINDOW = 5
+#: MapTracker.hint: the places within this many standard deviations of the hint's position are searched first, and an
+#: answer within as many of its yaw accepted; at least HINT_MIN_RADIUS m / HINT_MIN_YAW rad (an exact hint)
+HINT_SIGMAS, HINT_MIN_RADIUS, HINT_MIN_YAW = 3.0, 10.0, np.radians(30.0)
 
 
 @dataclass
@@ -92,7 +95,7 @@ class LocalizationResult:
             used; identity when there is none).
         valid: the verdict accepted it and nothing else looked alike (publish only when True).
         score: the verdict's score of the chosen pose (nan when none).
-        mode: "global" (searched the map) or "tracking" (from a guess / prediction).
+        mode: "global" (searched the map), "tracking" (from a guess / prediction) or "hint" (near a pose hint).
         reason: "" when valid; else one line why no pose.
         event: set by :class:`MapTracker`: "found", "tracking", "lost", "relocalized", "searching".
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
@@ -260,6 +263,11 @@ def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
 def _heading(T: np.ndarray) -> np.ndarray:
     """(2,) the unit horizontal heading (x axis) of a pose T (4, 4)."""
     return T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)
+
+
+def _yaw(T: np.ndarray) -> float:
+    """The yaw (rad) of a pose T (4, 4): the heading of its x axis."""
+    return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -606,7 +614,8 @@ class MapLocalizer:
         return near
 
     def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
-                 stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None) -> LocalizationResult:
+                 stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None,
+                 among: np.ndarray | None = None) -> LocalizationResult:
         """The pose of ``scan`` in the map.
 
         Args:
@@ -619,6 +628,7 @@ class MapLocalizer:
                 Never a wrong pose on purpose: the verdict rejects.
             times, stamp_ns, motion: per-point times (N,) s since the stamp and the sensor's known motion
                 (``T_prev_cur``, seconds) for deskewing (``DeepBBSRegistration.preprocess``); optional.
+            among: with no guess, the places (indices into :attr:`places`) searched instead of all (a pose hint's).
 
         Raises:
             LocalizationError: a scan that is not (N, 3) numbers, with too few finite points, a bad guess.
@@ -635,7 +645,7 @@ class MapLocalizer:
         if guess is not None:
             res = self._track(pts, src, guess, timings)
         else:
-            res = self._global(pts, src, None, timings)
+            res = self._global(pts, src, among, timings)
         res.timings_ms = timings
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return res
@@ -1192,6 +1202,42 @@ class MapTracker:
         self.state = "searching"
         self.rejected = 0
         self._poses: list[tuple[int, np.ndarray]] = []  # (stamp_ns, T_map_scan) of the last accepted scans
+        self._hint: tuple[np.ndarray, float, float] | None = None  # hint(): pose, radius (m), yaw window (rad)
+
+    def hint(self, T_map_scan: np.ndarray, covariance: np.ndarray | None = None) -> None:
+        """A pose hint (an operator's initial pose, RViz's "2D Pose Estimate"): forget the pose, and the next
+        :meth:`step` searches the places within ``HINT_SIGMAS`` standard deviations of its position first (at least
+        ``HINT_MIN_RADIUS`` m) and accepts an answer only within that reach and ``HINT_SIGMAS`` sigma of its yaw (at
+        least ``HINT_MIN_YAW``); when the verdict rejects there, the whole map. ``T_map_scan`` (4, 4); ``covariance``
+        (6, 6) x y z rot x rot y rot z (None: the minimum reach)."""
+        T = np.asarray(T_map_scan, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise LocalizationError(f"hint: expected a finite (4, 4) T_map_scan, got shape {T.shape}")
+        cov = np.zeros((6, 6)) if covariance is None else np.nan_to_num(np.asarray(covariance, dtype=np.float64))
+        sigma_xy = float(np.sqrt(max(cov[0, 0], cov[1, 1], 0.0)))
+        sigma_yaw = float(np.sqrt(max(cov[5, 5], 0.0)))
+        self.reset()
+        self._hint = (T, max(HINT_SIGMAS * sigma_xy, HINT_MIN_RADIUS), max(HINT_SIGMAS * sigma_yaw, HINT_MIN_YAW))
+
+    def _step_hint(self, scan: Any, stamp_ns: int, times: np.ndarray | None) -> LocalizationResult | None:
+        """The search near a pending :meth:`hint` (consumed): its result when the verdict accepts a pose within its
+        reach, else None (the caller searches the whole map)."""
+        T_hint, radius, max_yaw = self._hint
+        self._hint = None
+        xy = self.localizer.places[:, :2, 3]
+        d = np.linalg.norm(xy - T_hint[:2, 3], axis=1)
+        among = np.flatnonzero(d <= radius)
+        if len(among) == 0:
+            among = np.argsort(d)[:1]  # the hint off the places: the nearest one
+        res = self.localizer.localize(scan, None, times=times, stamp_ns=stamp_ns, among=among)
+        if not res.valid:
+            return None
+        off = float(np.linalg.norm(res.T_map_scan[:2, 3] - T_hint[:2, 3]))
+        turn = abs(float(np.angle(np.exp(1j * (_yaw(res.T_map_scan) - _yaw(T_hint))))))
+        if off > radius or (max_yaw < np.pi and turn > max_yaw):
+            return None  # a pose outside the hint's reach: the whole map decides
+        res.mode = "hint"
+        return res
 
     def predict(self, stamp_ns: int) -> np.ndarray | None:
         """T_map_scan (4, 4) at ``stamp_ns`` under constant velocity from the last two accepted poses (the last pose
@@ -1240,7 +1286,9 @@ class MapTracker:
             else:
                 res.event = "tracking"
             return res
-        res = self.localizer.localize(scan, None, times=times, stamp_ns=stamp_ns)
+        res = self._step_hint(scan, stamp_ns, times) if self._hint is not None else None
+        if res is None:
+            res = self.localizer.localize(scan, None, times=times, stamp_ns=stamp_ns)
         if res.valid:
             res.event = "relocalized" if self.state == "lost" else "found"
             if self.state == "lost":
