@@ -296,17 +296,21 @@ class NodeConfig:
     qos_reliability: str = "best_effort"  # "best_effort" (sensor data) | "reliable"
     qos_depth: int = 5  # history depth of the input subscriptions
     publish_odometry: bool = True  # ~/odometry (nav_msgs/Odometry: pose, twist, covariances)
-    # odometry mode: odom_frame -> base_frame on /tf (REP-105); needs tf2_msgs (built by `make venv`, or
-    # `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with node.pair_tf
+    # odometry mode: odom_frame -> base_frame on /tf (REP-105); localization: map_frame -> odom_frame; needs tf2_msgs
+    # (built by `make venv`, or `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with
+    # node.pair_tf
     publish_tf: bool = True
-    pair_tf: bool = False  # pair mode: broadcast target frame -> source frame on /tf
+    pair_tf: bool = False  # pair mode (not localization): broadcast target frame -> source frame on /tf
     invert_tf: bool = False  # broadcast base_frame -> odom_frame instead (another node owns odom's tree)
     publish_aligned_cloud: bool = False  # ~/aligned_cloud: the source in the target frame (odometry: in odom)
-    odom_frame: str = "odom"  # odometry mode: the fixed frame of ~/odometry and of the TF it broadcasts
-    # odometry mode: the published motion is the base's, T_base_sensor looked up on /tf_static (robot_state_publisher);
-    # "" = the cloud's frame (no lookup)
+    # odometry mode: the fixed frame of ~/odometry and of the TF it broadcasts; localization: map_frame's child
+    odom_frame: str = "odom"
+    # odometry and localization: the published poses are the base's, T_base_sensor looked up on /tf_static
+    # (robot_state_publisher); "" = the cloud's frame (no lookup)
     base_frame: str = "base_link"
-    tf_timeout: float = 1.0  # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity
+    # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity. Localization: also how
+    # long a scan waits for odom_frame -> base_frame at its stamp on /tf
+    tf_timeout: float = 1.0
     # pair mode: "stamped" pairs source and target by stamp (slop); "latched" takes the target topic as a map /
     # reference cloud (transient_local, reliable): the latest target serves every source, cropped around the
     # current estimate, the answer is the scan's pose in the target frame, the last answer the next start;

@@ -110,7 +110,7 @@ class Rep105:
         self.pose_cov = node.create_publisher(PoseWithCovarianceStamped, "~/pose_with_covariance", POSE_QOS)
         self.sub_initialpose = node.create_subscription(PoseWithCovarianceStamped, INITIALPOSE_TOPIC,
                                                         self._on_initialpose, 10)
-        self.last_map_odom: tuple[np.ndarray, int] | None = None  # (T_map_odom, stamp ns of its scan)
+        self.last_map_odom: tuple[np.ndarray, int, str] | None = None  # (T_map_odom, its scan's stamp ns, map frame)
         self._last_sent = 0.0  # monotonic time of the last map -> odom broadcast
         self.status = "no pose yet"  # /diagnostics: localization.map -> odom
         self.hints = 0
@@ -159,8 +159,8 @@ class Rep105:
         T_odom_base = self._odom_base(base, stamp)
         if T_odom_base is None:
             return
-        self.last_map_odom = (T_map_base @ np.linalg.inv(T_odom_base), stamp)
-        self._send(frame, stamp)
+        self.last_map_odom = (T_map_base @ np.linalg.inv(T_odom_base), stamp, frame)
+        self._send(stamp)
         self.status = "ok"
 
     def _odom_base(self, base: str, stamp_ns: int) -> np.ndarray | None:
@@ -176,8 +176,8 @@ class Rep105:
                        "node.localization_odom:=lidar (the node's own) or none (map -> base directly)")
         return T
 
-    def _send(self, frame: str, stamp_ns: int) -> None:
-        T_map_odom, _ = self.last_map_odom
+    def _send(self, stamp_ns: int) -> None:
+        T_map_odom, _, frame = self.last_map_odom
         post = stamp_ns + int(self.cfg.transform_tolerance * 1e9)
         self.outputs.tf([matrix_to_transform_stamped(T_map_odom, post, frame, self.cfg.odom_frame)])
         self._last_sent = time.monotonic()
@@ -187,7 +187,7 @@ class Rep105:
         if self.last_map_odom is None or time.monotonic() - self._last_sent < 0.5 * self.cfg.map_odom_period:
             return
         now = self._node.get_clock().now().nanoseconds
-        self._send(self.cfg.map_frame, max(int(now), self.last_map_odom[1]))
+        self._send(max(int(now), self.last_map_odom[1]))
 
     # -- /initialpose ------------------------------------------------------------------------------------------
     def _on_initialpose(self, msg: PoseWithCovarianceStamped) -> None:
