@@ -194,13 +194,14 @@ def test_no_odometry_source_says_so_and_still_publishes_poses(ros, drive, tmp_pa
 @pytest.mark.parametrize("source", ["lidar", "none"])
 def test_own_lidar_odometry_or_map_to_base(ros, drive, tmp_path, source):
     """"lidar": the node's own LiDAR odometry publishes odom -> base_link at each scan's stamp and map -> odom
-    composed with it is the true base pose; "none": map -> base_link directly, no odom frame. One parent each."""
+    composed with it is the true base pose; "none": map -> base_link directly, no odom frame. One parent each, with
+    node.pair_tf set too (pair mode's map -> sensor frame does not apply here)."""
     sim, _, _, scan = drive
     T_bl = _mount()
     mount = rclpy.create_node(f"rep105_{source}_rsp")  # robot_state_publisher's part, before the node starts
     pub = mount.create_publisher(TFMessage, "/tf_static", STATIC)
     pub.publish(TFMessage(transforms=[matrix_to_transform_stamped(T_bl, 0, "base_link", "lidar")]))
-    h = _harness(_config(**{"node.localization_odom": source, "node.base_frame": "base_link"}),
+    h = _harness(_config(**{"node.localization_odom": source, "node.base_frame": "base_link", "node.pair_tf": True}),
                  f"rep105_{source}", drive, tmp_path)
     try:
         assert h.wait_for(lambda: h.node.static_tf.lookup("base_link", "lidar") is not None, 20.0)

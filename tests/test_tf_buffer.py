@@ -73,6 +73,7 @@ def test_out_of_range_stamps_history_and_unconnected_frames():
     assert buf.lookup("map", "base_link", 13 * S) is None  # map not connected
     assert buf.wait("map", "base_link", 0.05, 13 * S) is None
     assert buf.has_edge("odom", "base_link") and not buf.has_edge("map", "odom")
+    assert buf.newest("odom", "base_link") == 10 * S + 49 * S // 10 and buf.newest("map", "odom") is None
     # a small allowance answers just past the ends with the end's transform
     ext = TransformBuffer(extrapolation_s=0.2)
     ext.add_stamped("odom", "base_link", 1 * S, _T(1, 0, 0, 0))

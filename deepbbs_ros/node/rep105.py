@@ -114,7 +114,7 @@ class Rep105:
         self._last_sent = 0.0  # monotonic time of the last map -> odom broadcast
         self.status = "no pose yet"  # /diagnostics: localization.map -> odom
         self.hints = 0
-        self._waited = False  # the first scan waits node.tf_timeout for odom -> base; later ones only while it is seen
+        self._waited = False  # the first scan waits node.tf_timeout for odom -> base (_odom_base)
         self.timer = None
         if self.mode != "none" and ncfg.map_odom_period > 0 and outputs.tf is not None:
             self.timer = node.create_timer(ncfg.map_odom_period, self.republish)
@@ -165,7 +165,10 @@ class Rep105:
 
     def _odom_base(self, base: str, stamp_ns: int) -> np.ndarray | None:
         odom = self.cfg.odom_frame
-        wait = self.cfg.tf_timeout if (not self._waited or self.tf.has_edge(odom, base)) else 0.0
+        # tf2's canTransform with a timeout: wait for the odometry to reach the scan's stamp, on the first scan (the
+        # odometry may not be up yet) and while its transforms arrive, not for a stamp it has passed already
+        newest = self.tf.newest(odom, base)
+        wait = self.cfg.tf_timeout if (not self._waited or (newest is not None and newest < stamp_ns)) else 0.0
         self._waited = True
         T = self.tf.wait(odom, base, wait, stamp_ns) if self.mode == "tf" else self.tf.lookup(odom, base, stamp_ns)
         if T is None:

@@ -139,9 +139,13 @@ class TransformBuffer(StaticTransforms):
 
     def has_edge(self, parent: str, child: str) -> bool:
         """Whether a dynamic ``parent -> child`` transform was received (and is still in the history)."""
+        return self.newest(parent, child) is not None
+
+    def newest(self, parent: str, child: str) -> int | None:
+        """The newest stamp (ns) of the dynamic ``parent -> child`` transform, None when there is none."""
         with self._cond:
             edge = self._edges.get(child)
-            return edge is not None and edge.parent == parent and bool(edge.stamps)
+            return edge.stamps[-1] if edge is not None and edge.parent == parent and edge.stamps else None
 
     def _up(self, frame: str, stamp_ns: int | None) -> list[tuple[str, np.ndarray | None]]:
         """[(ancestor, T_ancestor_frame)] from ``frame`` itself up to its root; None from an edge without data at
