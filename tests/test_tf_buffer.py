@@ -98,3 +98,15 @@ def test_tf_messages_feed_the_buffer():
                                 matrix_to_transform_stamped(_T(0, 0, 0, 0), 5 * S, "same", "same")])
     assert buf.add_dynamic_message(msg) == 1
     np.testing.assert_allclose(buf.lookup("odom", "base_link", 5 * S), _T(1, 2, 0, 0.1), atol=1e-9)
+
+
+def test_quaternions_of_random_rotations():
+    from deepbbs_ros.node.tf_buffer import matrix_from_quat, quat_from_matrix
+
+    for R in Rotation.random(200, random_state=1).as_matrix():
+        q = quat_from_matrix(R)
+        assert q[3] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
+        np.testing.assert_allclose(matrix_from_quat(q), R, atol=1e-12)
+    for yaw in (0.0, np.pi, -np.pi / 2):  # w near 0 (180 deg) and the axes
+        np.testing.assert_allclose(matrix_from_quat(quat_from_matrix(_T(0, 0, 0, yaw)[:3, :3])),
+                                   _T(0, 0, 0, yaw)[:3, :3], atol=1e-12)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import bisect
 import time
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -22,10 +21,24 @@ from deepbbs_ros.node.tf_static import StaticTransforms
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> unit quaternion (x, y, z, w), w >= 0."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(R).as_quat()
+    """(3, 3) rotation -> unit quaternion (x, y, z, w), w >= 0 (Shepperd's method: the largest of the four first)."""
+    m = np.asarray(R, dtype=np.float64)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    diag = (tr, m[0, 0], m[1, 1], m[2, 2])
+    i = int(np.argmax(diag))
+    if i == 0:
+        w = 0.5 * np.sqrt(max(1.0 + tr, 0.0))
+        q = np.array([(m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w), w])
+    elif i == 1:
+        x = 0.5 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+        q = np.array([x, (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x), (m[2, 1] - m[1, 2]) / (4 * x)])
+    elif i == 2:
+        y = 0.5 * np.sqrt(max(1.0 - m[0, 0] + m[1, 1] - m[2, 2], 0.0))
+        q = np.array([(m[0, 1] + m[1, 0]) / (4 * y), y, (m[1, 2] + m[2, 1]) / (4 * y), (m[0, 2] - m[2, 0]) / (4 * y)])
+    else:
+        z = 0.5 * np.sqrt(max(1.0 - m[0, 0] - m[1, 1] + m[2, 2], 0.0))
+        q = np.array([(m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z, (m[1, 0] - m[0, 1]) / (4 * z)])
+    q /= np.linalg.norm(q)
     return -q if q[3] < 0 else q
 
 
@@ -62,8 +75,8 @@ class _Edge:
 
     def __init__(self, parent: str) -> None:
         self.parent = parent
-        self.stamps: deque[int] = deque()
-        self.T: deque[np.ndarray] = deque()
+        self.stamps: list[int] = []  # sorted
+        self.T: list[np.ndarray] = []
 
     def add(self, stamp_ns: int, T: np.ndarray, history_ns: int) -> None:
         if self.stamps and stamp_ns <= self.stamps[-1]:
@@ -79,9 +92,9 @@ class _Edge:
         else:
             self.stamps.append(stamp_ns)
             self.T.append(T)
-        while self.stamps and self.stamps[0] < self.stamps[-1] - history_ns:
-            self.stamps.popleft()
-            self.T.popleft()
+        old = bisect.bisect_left(self.stamps, self.stamps[-1] - history_ns)
+        if old:
+            del self.stamps[:old], self.T[:old]
 
     def at(self, stamp_ns: int | None, extrapolation_ns: int) -> np.ndarray | None:
         if not self.stamps:
