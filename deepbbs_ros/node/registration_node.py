@@ -643,13 +643,15 @@ class RegistrationNode(Node):
             self._extrinsics[frame] = (T, True)
             t, log = T[:3, 3], self.get_logger().info
             log(f"{base} <- {frame} from /tf_static: translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m; "
-                f"publishing the motion of {base}" + (" from now on" if known is not None else ""))
+                f"publishing the {'pose' if self.localization is not None else 'motion'} of {base}"
+                + (" from now on" if known is not None else ""))
             return T
         if known is None:
             self._extrinsics[frame] = (np.eye(4), False)
             self.get_logger().warning(
                 f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} s: "
-                f"publishing the sensor's motion as {base}'s (identity); publish it (robot_state_publisher) "
+                f"publishing the sensor's {'pose' if self.localization is not None else 'motion'} as {base}'s "
+                "(identity); publish it (robot_state_publisher) "
                 "or set -p \"node.base_frame:=''\" to use the cloud frame"
             )
         return np.eye(4)
