@@ -404,7 +404,11 @@ class RegistrationNode(Node):
         #: localization with node.localization_odom lidar: the node's own odometry of odom -> base
         self.loc_odometry = None
         if localization and ncfg.localization_odom == "lidar":
-            self.loc_odometry = LocalMapOdometry(self.cfg, self.reg, covariance=False)
+            try:
+                self.loc_odometry = LocalMapOdometry(self.cfg, self.reg, covariance=False)
+            except ImportError as err:
+                raise NodeError(f"node.localization_odom lidar needs kiss-icp and small_gicp ({err}); install them, "
+                                "or use 'tf' (an odometry source) or 'none'") from err
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(arrival_preprocess(self.reg, self._pair_start.enabled or (
             self._map_target is not None and ncfg.good_start)))
@@ -992,8 +996,7 @@ class RegistrationNode(Node):
     def _localization_warning(self) -> str:
         if self.localization is None:
             return ""
-        status = self.rep105.status if self.rep105 is not None else ""
-        return self.localization.warning() or (status if status.startswith("no ") and status != "no pose yet" else "")
+        return self.localization.warning() or (self.rep105.problem if self.rep105 is not None else "")
 
     def _stop_threads(self) -> None:
         for inp in self.inputs:

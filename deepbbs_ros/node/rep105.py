@@ -113,6 +113,7 @@ class Rep105:
         self.last_map_odom: tuple[np.ndarray, int, str] | None = None  # (T_map_odom, its scan's stamp ns, map frame)
         self._last_sent = 0.0  # monotonic time of the last map -> odom broadcast
         self.status = "no pose yet"  # /diagnostics: localization.map -> odom
+        self.problem = ""  # the /diagnostics WARN message while map -> odom cannot be updated, else ""
         self.hints = 0
         self._waited = False  # the first scan waits node.tf_timeout for odom -> base (_odom_base)
         self.timer = None
@@ -161,7 +162,7 @@ class Rep105:
             return
         self.last_map_odom = (T_map_base @ np.linalg.inv(T_odom_base), stamp, frame)
         self._send(stamp)
-        self.status = "ok"
+        self.status, self.problem = "ok", ""
 
     def _odom_base(self, base: str, stamp_ns: int) -> np.ndarray | None:
         odom = self.cfg.odom_frame
@@ -172,7 +173,8 @@ class Rep105:
         self._waited = True
         T = self.tf.wait(odom, base, wait, stamp_ns) if self.mode == "tf" else self.tf.lookup(odom, base, stamp_ns)
         if T is None:
-            self.status = f"no {odom} -> {base} at the scan's stamp: {self.cfg.map_frame} -> {odom} not updated"
+            self.status = self.problem = (f"no {odom} -> {base} at the scan's stamp: {self.cfg.map_frame} -> {odom} "
+                                          "not updated")
             self._warn("no_odom_tf", f"no transform {odom} -> {base} on /tf at the scan's stamp {stamp_ns} ns "
                        f"(waited {wait:.1f} s): {self.cfg.map_frame} -> {odom} not updated, the pose is still "
                        "published on the topics; run an odometry source that publishes it, or set "
