@@ -331,17 +331,21 @@ class NodeConfig:
     qos_reliability: str = "best_effort"  # "best_effort" (sensor data) | "reliable"
     qos_depth: int = 5  # history depth of the input subscriptions
     publish_odometry: bool = True  # ~/odometry (nav_msgs/Odometry: pose, twist, covariances)
-    # odometry mode: odom_frame -> base_frame on /tf (REP-105); needs tf2_msgs (built by `make venv`, or
-    # `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with node.pair_tf
+    # odometry mode: odom_frame -> base_frame on /tf (REP-105); localization: map_frame -> odom_frame; needs tf2_msgs
+    # (built by `make venv`, or `deepbbs-ros build-interfaces`). Pair mode broadcasts target -> source frame only with
+    # node.pair_tf
     publish_tf: bool = True
-    pair_tf: bool = False  # pair mode: broadcast target frame -> source frame on /tf
+    pair_tf: bool = False  # pair mode (not localization): broadcast target frame -> source frame on /tf
     invert_tf: bool = False  # broadcast base_frame -> odom_frame instead (another node owns odom's tree)
     publish_aligned_cloud: bool = False  # ~/aligned_cloud: the source in the target frame (odometry: in odom)
-    odom_frame: str = "odom"  # odometry mode: the fixed frame of ~/odometry and of the TF it broadcasts
-    # odometry mode: the published motion is the base's, T_base_sensor looked up on /tf_static (robot_state_publisher);
-    # "" = the cloud's frame (no lookup)
+    # odometry mode: the fixed frame of ~/odometry and of the TF it broadcasts; localization: map_frame's child
+    odom_frame: str = "odom"
+    # odometry and localization: the published poses are the base's, T_base_sensor looked up on /tf_static
+    # (robot_state_publisher); "" = the cloud's frame (no lookup)
     base_frame: str = "base_link"
-    tf_timeout: float = 1.0  # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity
+    # s after start-up / the first scan to wait for base_frame <- cloud frame; then identity. Localization: also how
+    # long a scan waits for odom_frame -> base_frame at its stamp on /tf
+    tf_timeout: float = 1.0
     # pair mode: "stamped" pairs source and target by stamp (slop); "latched" takes the target topic as a map /
     # reference cloud (transient_local, reliable): the latest target serves every source, cropped around the
     # current estimate, the answer is the scan's pose in the target frame, the last answer the next start;
@@ -349,6 +353,17 @@ class NodeConfig:
     # with no initial pose: the whole map searched, then tracked; lost and found again (~/relocalize)
     target_mode: str = "stamped"
     map_frame: str = "map"  # localization: the frame of the map read from localization.map_path
+    # localization: who provides odom_frame -> base_frame (REP-105). "tf": an odometry source (wheel odometry, an
+    # EKF) on /tf, looked up at each scan's stamp; the node publishes map_frame -> odom_frame. "lidar": the node's own
+    # LiDAR odometry on the same scans publishes odom_frame -> base_frame, and map_frame -> odom_frame from it.
+    # "none": the node publishes map_frame -> base_frame itself (no odom frame)
+    localization_odom: str = "tf"
+    # s; localization: map_frame -> odom_frame is stamped this long after its scan (as AMCL's transform_tolerance),
+    # so that lookups up to then need no extrapolation
+    transform_tolerance: float = 1.0
+    # s; localization: the last map_frame -> odom_frame is broadcast again this often between scans (0 = with each
+    # localized scan only)
+    map_odom_period: float = 0.2
     # localization: a background thread prepares the map crop of the place the tracked pose reaches next, so that the
     # scan that gets there does not wait for it
     map_prefetch: bool = True
@@ -403,6 +418,10 @@ class NodeConfig:
         _check(self.tf_timeout >= 0, "node.tf_timeout", "must be >= 0")
         _check(self.target_mode in ("stamped", "latched", "localization"), "node.target_mode",
                f"must be 'stamped', 'latched' or 'localization', got {self.target_mode!r}")
+        _check(self.localization_odom in ("tf", "lidar", "none"), "node.localization_odom",
+               f"must be 'tf', 'lidar' or 'none', got {self.localization_odom!r}")
+        _check(self.transform_tolerance >= 0, "node.transform_tolerance", "must be >= 0")
+        _check(self.map_odom_period >= 0, "node.map_odom_period", "must be >= 0 (0 = with each localized scan)")
         _check(len(self.initial_pose) == 6, "node.initial_pose", "must be [x, y, z, roll, pitch, yaw]")
         _check(self.map_crop_radius >= 0, "node.map_crop_radius", "must be >= 0 (0 = preprocess.max_range)")
         _check(self.unpaired_warn_after > 0, "node.unpaired_warn_after", "must be > 0")

@@ -400,3 +400,31 @@ def test_tracker_deskews_raw_sweeps_without_drifting(localizer):
         assert ok, (k, res.event, err)
         worst = tuple(max(a, b) for a, b in zip(worst, err))
     assert tracker.motion() is not None and worst[0] < 0.5 and worst[1] < 0.15, worst
+
+
+def test_a_hint_is_searched_first_and_settles_look_alikes(localizer, world):
+    """MapTracker.hint (the node's /initialpose): the map twice, 500 m apart, is ambiguous with no hint; a hint near
+    one copy searches its places first and places the scan there; a bad hint is one line."""
+    from deepbbs_ros.core.localization import MapLocalizer, MapTracker
+
+    map_points, trajectory, drive, _ = world
+    shift = np.array([500.0, 0.0, 0.0])
+    twin = trajectory.copy()
+    twin[:, :3, 3] += shift
+    loc = MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
+                       registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
+    tracker = MapTracker(loc)
+    T_gt = drive.pose_at(48)
+    cov = np.diag([0.25, 0.25, 0.0, 0.0, 0.0, 0.0685])  # RViz's 2D Pose Estimate
+    T_twin = T_gt.copy()
+    T_twin[:3, 3] += shift
+    for T_true in (T_gt, T_twin):  # either copy: the one the hint is on
+        hint = T_true.copy()
+        hint[:2, 3] += [1.0, -0.8]
+        tracker.hint(hint, cov)
+        assert tracker.state == "searching"
+        res = tracker.step(drive.scan_at(48).points, drive.stamp_ns(48))
+        assert res.valid and res.mode == "hint" and res.event == "found", res.reason
+        assert _ok(res.T_map_scan, T_true)[0]
+    with pytest.raises(LocalizationError, match="^hint: "):
+        tracker.hint(np.full((4, 4), np.nan))

@@ -116,6 +116,9 @@ class NodeLocalization:
         self._pending_map: MapData | None = None
         self._pending_localizer: Any = None
         self._relocalize = False
+        self._hint: tuple[np.ndarray, np.ndarray] | None = None  # hint(): T_map_base, covariance, for the next step
+        #: cloud frame -> T_base_sensor (4, 4): a hint is the base's pose, the tracker's the sensor's (set by the node)
+        self.extrinsic = lambda frame: np.eye(4)
         self.map: MapData | None = None
         self.tracker: Any = None
         self.localizer: Any = None
@@ -171,13 +174,20 @@ class NodeLocalization:
         with self._lock:
             self._relocalize = True
 
-    def _take_requests(self) -> None:
+    def hint(self, T_map_base: np.ndarray, covariance: np.ndarray) -> None:
+        """A pose hint (``/initialpose``: the base's pose in the map, (4, 4), and its (6, 6) covariance): the next
+        :meth:`step` searches near it first (``MapTracker.hint``), then the whole map."""
+        with self._lock:
+            self._hint = (np.asarray(T_map_base, dtype=np.float64), np.asarray(covariance, dtype=np.float64))
+
+    def _take_requests(self, cloud: Cloud) -> None:
         from deepbbs_ros.core.localization import MapTracker
 
         with self._lock:
             data, self._pending_map = self._pending_map, None
             localizer, self._pending_localizer = self._pending_localizer, None
             relocalize, self._relocalize = self._relocalize, False
+            hint, self._hint = self._hint, None
         if data is not None:
             self.map, self.localizer = data, localizer
             self.tracker = MapTracker(localizer, self.config)
@@ -185,6 +195,9 @@ class NodeLocalization:
             self.first_pose_s = float("nan")
         elif relocalize and self.tracker is not None:
             self.tracker.reset()
+            self._search_t0 = None
+        if hint is not None and self.tracker is not None:
+            self.tracker.hint(hint[0] @ self.extrinsic(cloud.frame_id), hint[1])  # the sensor's pose
             self._search_t0 = None
 
     # -- one scan ----------------------------------------------------------------------------------------------
@@ -198,8 +211,8 @@ class NodeLocalization:
         if localizer is None or tracker is None or not hasattr(localizer, "prepare"):
             return
         with self._lock:
-            if self._pending_localizer is not None or self._relocalize:
-                return  # a new map or a reset waits for step(): prepared there
+            if self._pending_localizer is not None or self._relocalize or self._hint is not None:
+                return  # a new map, a reset or a hint waits for step(): prepared there
         motion = tracker.motion() if cloud.times is not None and hasattr(tracker, "motion") else None
         t0 = time.perf_counter()
         try:
@@ -219,7 +232,7 @@ class NodeLocalization:
         """
         from deepbbs_ros.errors import LocalizationError
 
-        self._take_requests()
+        self._take_requests(cloud)
         tracker = self.tracker
         if tracker is None:
             raise BadInput("no_target", "no map yet (localization.map_path is empty and nothing arrived on the map "
@@ -253,7 +266,8 @@ class NodeLocalization:
                 self.time_to_first_pose_s = took
                 if np.isnan(self.first_pose_s):
                     self.first_pose_s = took
-                line = (f"localization {'relocalized' if res.event == 'relocalized' else 'found'}: "
+                near = " near the initial pose" if getattr(res, "mode", "") == "hint" else ""
+                line = (f"localization {'relocalized' if res.event == 'relocalized' else 'found'}{near}: "
                         f"{_pose_text(T)} in {self.map.frame_id!r} after {self._search_scans + 1} scan(s), "
                         f"{took:.2f} s (score {res.score:.2f}, {res.candidates} candidate place(s))")
                 self._search_t0 = None

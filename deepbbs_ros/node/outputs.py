@@ -82,7 +82,8 @@ class Outputs:
         if ncfg.publish_aligned_cloud:
             self.aligned = node.create_publisher(PointCloud2, "~/aligned_cloud", cloud_qos)
         self.tf: TfBroadcaster | None = None
-        if ncfg.publish_tf and (ncfg.mode == "odometry" or ncfg.pair_tf):
+        # localization mode: REP-105's map -> odom (node/rep105.py), never the sensor frame as a child of map
+        if ncfg.publish_tf and (ncfg.mode == "odometry" or ncfg.pair_tf or ncfg.target_mode == "localization"):
             self.tf = tf_broadcaster or _tf_publisher(node)
 
     # -- one registration ---------------------------------------------------------------------------

@@ -98,8 +98,9 @@ from deepbbs_ros.node.pipeline import (
     register_clouds,
     takes_good_start,
 )
+from deepbbs_ros.node.rep105 import Rep105
 from deepbbs_ros.node.sync import ApproximateTimeSync
-from deepbbs_ros.node.tf_static import StaticTransforms
+from deepbbs_ros.node.tf_buffer import TransformBuffer
 from deepbbs_ros.node.worker import LatestSlotWorker
 
 NODE_NAME = "deepbbs_registration"
@@ -109,6 +110,7 @@ ODOM_INPUT = "cloud"
 KISS_ICP_INPUT = "pointcloud_topic"  # KISS-ICP's input name: taken as the odometry input when remapped
 #: the node's other topics and services (remapping them is legitimate; parameter services are under ``~/``)
 NODE_TOPICS = ("~/pose", "~/transform", "~/odometry", "~/aligned_cloud", "~/reset", "~/relocalize", "/tf",
+               "~/pose_with_covariance", "/initialpose",
                "/tf_static", "/diagnostics", "/clock", "/rosout", "/parameter_events")
 JUMP_BACK_S = 1.0  # s; odometry mode: a stamp this far before the last one is a time jump (reset)
 
@@ -418,6 +420,14 @@ class RegistrationNode(Node):
         # pipeline: synchroniser (pair mode), odometry (odometry mode), the registration worker
         self.sync = ApproximateTimeSync(2, ncfg.queue_size, ncfg.slop, self._on_pair)
         self.odometry = self._make_odometry()
+        #: localization with node.localization_odom lidar: the node's own odometry of odom -> base
+        self.loc_odometry = None
+        if localization and ncfg.localization_odom == "lidar":
+            try:
+                self.loc_odometry = LocalMapOdometry(self.cfg, self.reg, covariance=False)
+            except ImportError as err:
+                raise NodeError(f"node.localization_odom lidar needs kiss-icp and small_gicp ({err}); install them, "
+                                "or use 'tf' (an odometry source) or 'none'") from err
         self.worker = LatestSlotWorker(self._process, self._on_thread_error, name="deepbbs-registration")
         self._cache = PreprocessCache(arrival_preprocess(self.reg, self._pair_start.enabled or (
             self._map_target is not None and ncfg.good_start)))
@@ -433,13 +443,20 @@ class RegistrationNode(Node):
         ncfg = self.cfg.node
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         self.inputs: list[CloudInput] = []
-        self.static_tf = StaticTransforms()
+        self.static_tf = TransformBuffer()  # /tf_static, and /tf in localization mode (node/tf_buffer.py)
         self._extrinsics: dict[str, Any] = {}  # cloud frame -> T_base_sensor, once known (or given up on)
         self._t_ready = self._t_tf = time.monotonic()  # the static transform's wait counts from here
         try:
             self.outputs = Outputs(self, ncfg, self._qos(), self._errors.log, tf_broadcaster,
                                    extrinsic=self._base_from_sensor)
+            #: localization mode: REP-105 outputs (map -> odom, the base's pose, /initialpose; node/rep105.py)
+            self.rep105 = None if self.localization is None else Rep105(
+                self, ncfg, self.outputs, self.static_tf, self._base_from_sensor, self._warnings.log,
+                self.localization.hint)
+            if self.localization is not None:
+                self.localization.extrinsic = self._base_from_sensor  # /initialpose: the base's pose -> the sensor's
             self._sub_tf_static = self._subscribe_tf_static()
+            self._sub_tf = self._subscribe_tf() if self.rep105 is not None and self.rep105.mode == "tf" else None
             # one QoS object per subscription: rclpy applies qos_overrides.<topic>.* to it in place
             self._subscribe_inputs = [self._make_input(i, name, self._qos()) for i, name in enumerate(self.input_names)]
         except NodeError:
@@ -610,7 +627,7 @@ class RegistrationNode(Node):
         """Subscribe ``/tf_static`` (transient local, as robot_state_publisher latches it) where odometry mode
         needs ``T_base_sensor``; None elsewhere, or without tf2_msgs (then the base frame moves as the sensor)."""
         ncfg = self.cfg.node
-        if ncfg.mode != "odometry" or not ncfg.base_frame:
+        if (ncfg.mode != "odometry" and self.localization is None) or not ncfg.base_frame:
             return None
         try:
             from tf2_msgs.msg import TFMessage
@@ -623,6 +640,17 @@ class RegistrationNode(Node):
         qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         return self.create_subscription(TFMessage, "/tf_static", self.static_tf.add_message, qos)
+
+    def _subscribe_tf(self):
+        """Localization mode with ``node.localization_odom: tf``: ``/tf`` into the TF buffer (``odom -> base`` at
+        each scan's stamp); None without tf2_msgs."""
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            return None
+        qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        return self.create_subscription(TFMessage, "/tf", self.static_tf.add_dynamic_message, qos)
 
     def _base_from_sensor(self, frame: str):
         """``T_base_sensor`` for a cloud in ``frame`` (odometry mode, on the worker thread): looked up on
@@ -648,13 +676,15 @@ class RegistrationNode(Node):
             self._extrinsics[frame] = (T, True)
             t, log = T[:3, 3], self.get_logger().info
             log(f"{base} <- {frame} from /tf_static: translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m; "
-                f"publishing the motion of {base}" + (" from now on" if known is not None else ""))
+                f"publishing the {'pose' if self.localization is not None else 'motion'} of {base}"
+                + (" from now on" if known is not None else ""))
             return T
         if known is None:
             self._extrinsics[frame] = (np.eye(4), False)
             self.get_logger().warning(
                 f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} s: "
-                f"publishing the sensor's motion as {base}'s (identity); publish it (robot_state_publisher) "
+                f"publishing the sensor's {'pose' if self.localization is not None else 'motion'} as {base}'s "
+                "(identity); publish it (robot_state_publisher) "
                 "or set -p \"node.base_frame:=''\" to use the cloud frame"
             )
         return np.eye(4)
@@ -791,13 +821,15 @@ class RegistrationNode(Node):
                 else:  # the verdict: a pose that cannot be trusted is not published (counted, logged rate-limited)
                     self._untrusted(reg.result)
             elif mode == "localize":
+                if self.loc_odometry is not None:  # odom -> base of the node's own odometry first, then map -> odom
+                    self.rep105.odometry_step(src, self.loc_odometry.step(src))
                 loc = self.localization.step(src)
                 reg = loc.registered
                 if loc.line:
                     self.get_logger().info(loc.line)
                 t0 = time.perf_counter()
                 if loc.result.valid:  # a rejected scan is counted (there and as not trusted), never published
-                    self.outputs.localized(src, loc.frame_id, reg, loc.crop)
+                    self.rep105.localized(src, loc.frame_id, reg, loc.result, loc.crop)
                 else:
                     with self._lock:
                         self._counts["untrusted"] += 1
@@ -974,6 +1006,7 @@ class RegistrationNode(Node):
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         if self.localization is not None:
             values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
+            values.update({f"localization.{k}": v for k, v in self.rep105.diagnostics().items()})
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
         for kind, n in sorted(s["warnings"].items()):
@@ -986,8 +1019,13 @@ class RegistrationNode(Node):
         self.outputs.publish_diagnostics(
             f"{self.get_name()}: registration", self._device, values,
             sum(s["errors"].values()) + sum(s["warnings"].values()),
-            self.get_clock().now().to_msg(), self.localization.warning() if self.localization is not None else "",
+            self.get_clock().now().to_msg(), self._localization_warning(),
         )  # fmt: skip
+
+    def _localization_warning(self) -> str:
+        if self.localization is None:
+            return ""
+        return self.localization.warning() or (self.rep105.problem if self.rep105 is not None else "")
 
     def _stop_threads(self) -> None:
         for inp in self.inputs:
