@@ -40,7 +40,11 @@ from deepbbs_ros.node.pipeline import (
 )
 from deepbbs_ros.node.tf_static import base_covariance, base_motion
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2
-from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
+from msg_adapters.transforms import (
+    matrix_to_odometry,
+    matrix_to_pose_stamped,
+    matrix_to_transform_stamped,
+)
 
 TfBroadcaster = Callable[[list[Any]], None]  # list of geometry_msgs/TransformStamped -> broadcast on /tf
 
@@ -113,10 +117,14 @@ class Outputs:
 
     def localized(self, src: Cloud, frame: str, reg: Registered, target_points: np.ndarray | None) -> None:
         """Latched target: ``T_map_source`` in the map ``frame``, stamped with the source stamp; on
-        ``~/odometry`` with the registration covariance against the map crop (no velocity: unknown twist)."""
+        ``~/odometry`` with the localization's covariance (else the registration covariance against the map crop; no
+        velocity: unknown twist)."""
         self._pose_and_transform(reg.T, src.stamp_ns, frame, src.frame_id)
         if self.odometry is not None:
-            if target_points is None:
+            cov = getattr(reg.result, "covariance", None)  # the localization's own (core/covariance.py)
+            if cov is not None:
+                cov = np.asarray(cov, dtype=np.float64)
+            elif target_points is None:
                 cov = np.eye(6) * UNKNOWN_TWIST_COV
             else:
                 cov = registration_covariance(src, Cloud(target_points, 0, frame, 0.0, pp=_Points(target_points)), reg)
