@@ -217,24 +217,54 @@ def accumulated(steps: list, chain: list, before: bool = False) -> list:
     return rows
 
 
-def fit(rows_by_set: dict, names: list[str]) -> tuple[tuple[float, float], float]:
-    """(factors, weak exponent) from raw rows (factors of 1, no weak inflation) of the simulated sets ``names``: the
-    exponent (0 to 3 in steps of 0.1) that makes the sets' median NEES most alike (least spread of their logs), then
-    the translation and the rotation factors that make the pooled mean NEES of each block 3 (chi2(3)'s mean: the
-    criterion of the band; the medians then show the tails)."""
+def fit(rows_by_set: dict, names: list[str], alpha: float) -> tuple[float, float]:
+    """The (translation, rotation) factors from raw rows (factors of 1, no weak inflation) of the simulated sets
+    ``names`` with the weak exponent ``alpha``: those that make the pooled mean NEES of each block 3 (chi2(3)'s mean,
+    the band's criterion; the medians then show the tails)."""
     from deepbbs_ros.core.covariance import calibrated
 
-    def medians(alpha):
-        return [np.median([float(d @ np.linalg.solve(c, d)) for d, c in
-                           ((d, calibrated(c, (1.0, 1.0), alpha)) for d, c in rows_by_set[n])]) for n in names]
-
-    alphas = np.round(np.arange(0.0, 3.01, 0.1), 2)
-    spread = [float(np.std(np.log(medians(a)))) for a in alphas]
-    alpha = float(alphas[int(np.argmin(spread))])
     rows = [(d, calibrated(c, (1.0, 1.0), alpha)) for n in names for d, c in rows_by_set[n]]
     kt = float(np.mean([d[:3] @ np.linalg.solve(c[:3, :3], d[:3]) for d, c in rows]) / 3.0)
     kr = float(np.mean([d[3:] @ np.linalg.solve(c[3:, 3:], d[3:]) for d, c in rows]) / 3.0)
-    return (kt, kr), alpha
+    return kt, kr
+
+
+def alpha_spread(rows_by_set: dict, names: list[str], alpha: float) -> float:
+    """The spread (standard deviation of the logs) of the sets' mean NEES with ``alpha`` and its fitted factors."""
+    from deepbbs_ros.core.covariance import calibrated
+
+    f = fit(rows_by_set, names, alpha)
+    means = [np.mean([float(d @ np.linalg.solve(c, d)) for d, c in
+                      ((d, calibrated(c, f, alpha)) for d, c in rows_by_set[n])]) for n in names]
+    return float(np.std(np.log(means)))
+
+
+def save_rows(path: Path, loc_rows: dict, step_rows: dict, chains: dict, truth: dict) -> None:
+    """The raw rows of every set (for --refit)."""
+    import json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays, meta = {}, {"truth": truth, "loc": list(loc_rows), "odo": list(step_rows)}
+    for i, (name, rows) in enumerate(loc_rows.items()):
+        arrays[f"loc{i}_d"] = np.array([d for d, _ in rows]).reshape(-1, 6)
+        arrays[f"loc{i}_c"] = np.array([c for _, c in rows]).reshape(-1, 6, 6)
+    for i, (name, rows) in enumerate(step_rows.items()):
+        arrays[f"odo{i}_d"] = np.array([d for d, _ in rows]).reshape(-1, 6)
+        arrays[f"odo{i}_c"] = np.array([c for _, c in rows]).reshape(-1, 6, 6)
+        arrays[f"odo{i}_chain"] = np.array([np.stack(c) for c in chains[name]]).reshape(-1, 4, 4, 4)
+    np.savez_compressed(path, meta=json.dumps(meta), **arrays)
+
+
+def load_rows(path: str) -> tuple[dict, dict, dict, dict]:
+    import json
+
+    z = np.load(path)
+    meta = json.loads(str(z["meta"]))
+    truth = {k: (tuple(v) if v is not None else None) for k, v in meta["truth"].items()}
+    loc = {n: list(zip(z[f"loc{i}_d"], z[f"loc{i}_c"])) for i, n in enumerate(meta["loc"])}
+    odo = {n: list(zip(z[f"odo{i}_d"], z[f"odo{i}_c"])) for i, n in enumerate(meta["odo"])}
+    chains = {n: [tuple(c) for c in z[f"odo{i}_chain"]] for i, n in enumerate(meta["odo"])}
+    return loc, odo, chains, truth
 
 
 def report(title: str, figs: dict) -> None:
@@ -264,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
-    ap.add_argument("--fit", action="store_true", help="print the correlation factors (run with factors of 1)")
+    ap.add_argument("--fit", action="store_true", help="fit the constants on the simulated sets (raw covariances); the "
+                    "raw rows are kept in OUT/covariance_rows.npz")
+    ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
     ap.add_argument("--out", default="bench_out", help="figures: OUT/covariance.json")
     args = ap.parse_args(argv)
 
@@ -277,7 +309,10 @@ def main(argv: list[str] | None = None) -> int:
     config = Config()
     loc_rows, step_rows, chains, truth, notes = {}, {}, {}, {}, {}
     t0 = time.perf_counter()
-    for name, points, keys, queries, drive, tsig in [*sim_sets(args), *real_sets(args)]:
+    if args.refit:
+        loc_rows, step_rows, chains, truth = load_rows(args.refit)
+        args.fit = True
+    for name, points, keys, queries, drive, tsig in ([] if args.refit else [*sim_sets(args), *real_sets(args)]):
         truth[name] = tsig
         if "localization" not in args.skip:
             loc_rows[name], failed = localization_rows(points, keys, queries, config, args)
@@ -286,14 +321,19 @@ def main(argv: list[str] | None = None) -> int:
             step_rows[name], chains[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     figures: dict = {}
+    if args.fit and not args.refit:
+        save_rows(Path(args.out) / "covariance_rows.npz", loc_rows, step_rows, chains, truth)
     if args.fit:
         figures["fit"] = {}
-        for key, rows in (("localization", loc_rows), ("odometry", step_rows)):
+        for key, rows, alpha in (("localization", loc_rows, covmod.LOCALIZATION_WEAK_EXPONENT_CHOSEN),
+                                 ("odometry", step_rows, covmod.ODOMETRY_WEAK_EXPONENT_CHOSEN)):
             sims = [n for n in rows if n.startswith("sim")]
             if not sims:
                 continue
-            factors, alpha = fit(rows, sims)
-            figures["fit"][key] = {"factors": factors, "weak_exponent": alpha, "sets": sims}
+            factors = fit(rows, sims, alpha)
+            spread = {a: alpha_spread(rows, sims, a) for a in (0.0, 0.5, 1.0, 1.5, 2.0, 2.5)}
+            figures["fit"][key] = {"factors": factors, "weak_exponent": alpha, "sets": sims,
+                                   "spread_of_log_mean_nees_by_exponent": spread}
             for n in rows:
                 rows[n] = [(d, covmod.calibrated(c, factors, alpha)) for d, c in rows[n]]
         print(f"\nfitted (simulated sets only; the tables below use them): {figures['fit']}")
