@@ -245,7 +245,7 @@ def save_rows(path: Path, loc_rows: dict, step_rows: dict, chains: dict, truth: 
 
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays, meta = {}, {"truth": truth, "loc": list(loc_rows), "odo": list(step_rows)}
-    for i, (name, rows) in enumerate(loc_rows.items()):
+    for i, rows in enumerate(loc_rows.values()):
         arrays[f"loc{i}_d"] = np.array([d for d, _ in rows]).reshape(-1, 6)
         arrays[f"loc{i}_c"] = np.array([c for _, c in rows]).reshape(-1, 6, 6)
     for i, (name, rows) in enumerate(step_rows.items()):
