@@ -157,3 +157,28 @@ def test_no_covariance_from_too_little():
     assert gicp_covariance(np.eye(6), 1.0, 3, np.eye(4)) is None
     assert gicp_covariance(np.zeros((6, 6)), 1.0, 100, np.eye(4)) is None
     assert gicp_covariance(np.full((6, 6), np.nan), 1.0, 100, np.eye(4)) is None
+
+
+# ---- the localizer: a covariance on every valid pose -----------------------------------------------------------
+import test_localization as _tl  # noqa: E402
+
+world = _tl.world
+localizer = _tl.localizer
+
+
+def test_localizer_gives_every_valid_pose_a_covariance(localizer, world):
+    """A held-out scan tracked from a guess and found by a search: each valid result has a covariance (finite,
+    symmetric, positive definite, well below 1 m^2 / rad^2) whose NEES of the true error is plausible; a rejected
+    scan has none."""
+    from deepbbs_ros.replay.synthetic import pose
+
+    _, _, drive, other = world
+    T_gt = drive.pose_at(61)
+    for guess in (T_gt @ pose(0.3, -0.2, 0.0, np.radians(1.0)), None):
+        res = localizer.localize(drive.scan_at(61).points, guess)
+        assert res.valid, res.reason
+        assert is_covariance(res.covariance, 1.0), res.covariance
+        assert _nees(T_gt, res.T_map_scan, res.covariance) < chi2.ppf(0.999, 6)
+        assert "covariance" in res.timings_ms
+    res = localizer.localize(other.scan_at(5).points)
+    assert not res.valid and res.covariance is None
