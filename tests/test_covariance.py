@@ -182,3 +182,26 @@ def test_localizer_gives_every_valid_pose_a_covariance(localizer, world):
         assert "covariance" in res.timings_ms
     res = localizer.localize(other.scan_at(5).points)
     assert not res.valid and res.covariance is None
+
+
+def test_conjugated_matches_monte_carlo():
+    """The base's odometry ``T_bs T_os T_bs^-1`` (the mounting exact): its covariance from :func:`conjugated`
+    against sampled errors of ``T_os`` (first order); a sensor at the base gives the sensor's covariance."""
+    from deepbbs_ros.core.covariance import conjugated
+
+    rng = np.random.default_rng(4)
+    T_bs, T_os = _pose(rng, 0.3, 1.5), _pose(rng, 0.4, 30.0)
+    A = rng.normal(size=(6, 6)) * 1e-3
+    cov = A @ A.T
+    d = rng.multivariate_normal(np.zeros(6), cov, 4000)
+    R = Rotation.from_rotvec(d[:, 3:]).as_matrix() @ T_os[:3, :3]
+    Ts = np.tile(np.eye(4), (len(d), 1, 1))
+    Ts[:, :3, :3], Ts[:, :3, 3] = R, T_os[:3, 3] + d[:, :3]
+    T_sb = np.linalg.inv(T_bs)
+    want = T_bs @ T_os @ T_sb
+    got = T_bs @ Ts @ T_sb
+    errs = np.concatenate([got[:, :3, 3] - want[:3, 3],
+                           Rotation.from_matrix(got[:, :3, :3] @ want[:3, :3].T).as_rotvec()], axis=1)
+    emp = np.cov(errs.T)
+    np.testing.assert_allclose(conjugated(T_bs, T_os, cov), emp, atol=0.1 * np.abs(emp).max())
+    np.testing.assert_allclose(conjugated(np.eye(4), T_os, cov), cov, atol=1e-15)

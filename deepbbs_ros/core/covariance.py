@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["adjoint", "calibrated", "compose", "gicp_covariance", "gicp_hessian", "is_covariance", "pose_error",
-           "scan_covariance", "skew"]
+__all__ = ["adjoint", "calibrated", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance",
+           "pose_error", "scan_covariance", "skew"]
 
 #: weak-direction exponent: the variance along an eigen-direction of a block of the information with ``lambda`` is
 #: multiplied by ``(lambda_max / lambda) ** exponent`` (chosen, not fitted: 1 for the localization, where a corridor
@@ -139,6 +139,15 @@ def compose(T_a: np.ndarray, cov_a: np.ndarray | None, T_b: np.ndarray, cov_b: n
         Jb[:3, :3] = Jb[3:, 3:] = Ta[:3, :3]
         out += Jb @ np.asarray(cov_b, dtype=np.float64) @ Jb.T
     return 0.5 * (out + out.T)
+
+
+def conjugated(T_base_sensor: np.ndarray, T_odom_sensor: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(6, 6) covariance of ``T_base_sensor @ T_odom_sensor @ inv(T_base_sensor)`` (the base's odometry, the mounting
+    exact) from ``cov``, that of ``T_odom_sensor``."""
+    T_bs = np.asarray(T_base_sensor, dtype=np.float64)
+    T_sb = np.linalg.inv(T_bs)
+    X = np.asarray(T_odom_sensor, dtype=np.float64) @ T_sb
+    return compose(T_bs, None, X, compose(T_odom_sensor, cov, T_sb, None))
 
 
 def pose_error(T_true: np.ndarray, T_est: np.ndarray) -> np.ndarray:

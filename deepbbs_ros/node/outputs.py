@@ -28,6 +28,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import PointCloud2
 
 from deepbbs_ros.config import NodeConfig
+from deepbbs_ros.core.covariance import conjugated
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.covariance import twist_from_delta
 from deepbbs_ros.node.inputs import Cloud
@@ -148,7 +149,7 @@ class Outputs:
                 twist = twist_from_delta(base_motion(T_bs, step.T_prev_curr), step.dt)  # in the base frame
             self.odometry.publish(
                 matrix_to_odometry(T_odom, cloud.stamp_ns, odom, child, twist,
-                                   base_covariance(T_bs, step.pose_covariance),
+                                   conjugated(T_bs, step.T_odom, step.pose_covariance),
                                    base_covariance(T_bs, step.twist_covariance))
             )  # fmt: skip
         # the scan (sensor frame) moved into the odom frame, stamped with that frame: it lines up with every
