@@ -44,7 +44,7 @@ from deepbbs_ros.core.preprocess import deskew
 from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.reprs import short_repr
 
-__all__ = ["DeepBBSOdometry", "OdometryStep", "deskew", "se3_power"]
+__all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
 
 def se3_power(T: np.ndarray, a: float) -> np.ndarray:

@@ -41,11 +41,7 @@ from deepbbs_ros.node.pipeline import (
 )
 from deepbbs_ros.node.tf_static import base_covariance, base_motion
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2
-from msg_adapters.transforms import (
-    matrix_to_odometry,
-    matrix_to_pose_stamped,
-    matrix_to_transform_stamped,
-)
+from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
 
 TfBroadcaster = Callable[[list[Any]], None]  # list of geometry_msgs/TransformStamped -> broadcast on /tf
 

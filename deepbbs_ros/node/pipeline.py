@@ -30,11 +30,7 @@ import numpy as np
 
 from deepbbs_ros.core.covariance import compose
 from deepbbs_ros.errors import RegistrationError
-from deepbbs_ros.node.covariance import (
-    alignment_quality,
-    twist_covariance,
-    twist_from_delta,
-)
+from deepbbs_ros.node.covariance import alignment_quality, twist_covariance, twist_from_delta
 from deepbbs_ros.node.inputs import BadInput, Cloud
 
 #: twist covariance when the velocity is unknown (first scan, or two clouds of the same instant)
