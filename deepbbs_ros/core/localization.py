@@ -99,8 +99,8 @@ class LocalizationResult:
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
         path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
             after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "total" (those
-            that ran).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "covariance",
+            "total" (those that ran).
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
