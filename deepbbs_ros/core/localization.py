@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.covariance import scan_covariance
 from deepbbs_ros.core.map_fit import check_trajectory
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishView, polish, prepare_polish_cloud
 from deepbbs_ros.core.preprocess import crop_range
@@ -104,11 +105,14 @@ class LocalizationResult:
         candidates: candidate places registered (global), 1 when tracking from the guess alone.
         path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
             after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "total" (those
-            that ran).
+        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "covariance",
+            "total" (those that ran).
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
+        covariance: (6, 6) float64 covariance of ``T_map_scan`` for every valid pose (ROS order x, y, z, rot x, rot y,
+            rot z; position error in the map frame, rotation error a left perturbation: core/covariance.py), from the
+            GICP of the scan on the crop at the pose; None when not valid or none could be computed.
     """
 
     __repr__ = short_repr
@@ -125,6 +129,7 @@ class LocalizationResult:
     crop: np.ndarray | None = None
     place: int = -1
     alternatives: list[tuple[float, float, float]] = field(default_factory=list)
+    covariance: np.ndarray | None = None
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -816,7 +821,8 @@ class MapLocalizer:
         if self.config.localization.refine_tracking:
             T_map_scan = self._refine(src, crop, T_map_scan, timings)
         return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
-                                  crop=_crop_cloud(crop), place=place)
+                                  crop=_crop_cloud(crop), place=place,
+                                  covariance=self._covariance(src, crop, T_map_scan, timings))
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
                 timings: dict[str, float]) -> LocalizationResult:
@@ -906,7 +912,8 @@ class MapLocalizer:
                                       alternatives=alternatives)
         T = self._refine(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
-                                  crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives)
+                                  crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
+                                  covariance=self._covariance(src, best.crop, T, timings))
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float]) -> None:
@@ -1071,6 +1078,15 @@ class MapLocalizer:
         pol = polish(src.polish_cloud, crop.pre.polish_cloud, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
         return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
+
+    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
+                    timings: dict[str, float]) -> np.ndarray | None:
+        """The covariance of a valid ``T_map_scan`` (core/covariance.py), timed into ``covariance``."""
+        t = time.perf_counter()
+        cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan, self.config,
+                              self.registration.gicp_threads())
+        timings["covariance"] = (time.perf_counter() - t) * 1e3
+        return cov
 
     def _gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int) -> _Answer | None:
         """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score;

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
@@ -97,6 +98,9 @@ class OdometryStep:
     path: which path answered: "gicp" (GICP against the local map from the prediction, DeepBBS++ not consulted or
         not kept), "deepbbs" or "search" (DeepBBS++'s answer kept: its deep passes, or its any-start search);
         "" at the first scan.
+    covariance: (6, 6) float64 covariance of ``T_first_k`` against the local map (the map held fixed), from the
+        VGICP's Hessian and residuals at the pose (core/covariance.py: position error in the first scan's frame,
+        rotation error a left perturbation); None at the first scan or when the VGICP gives none.
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -110,6 +114,7 @@ class OdometryStep:
     timings_ms: dict[str, float] = field(default_factory=dict)
     points: np.ndarray | None = None
     path: str = ""
+    covariance: np.ndarray | None = None
 
 
 def _cloud_points(cloud: Any) -> np.ndarray | None:
@@ -155,6 +160,7 @@ class DeepBBSOdometry:
         self.deepbbs_calls = 0
         self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
         self._deepbbs_path = "deepbbs"  # the path of DeepBBS++'s last answer (RegistrationResult.path)
+        self._gicp: tuple[np.ndarray, float, int] = (np.zeros((6, 6)), float("nan"), 0)  # the last VGICP's H, e, n
 
     @property
     def registration(self) -> Any:
@@ -184,6 +190,7 @@ class DeepBBSOdometry:
         # predict + align: GICP against the voxel map from the constant-velocity prediction
         prior = self.pose @ se3_power(self.delta, scale)
         pose, fit = self._align(cloud, prior)
+        gicp = self._gicp
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
         reason = self._suspect(scale, gap, fit)
@@ -196,11 +203,12 @@ class DeepBBSOdometry:
                     pose_b, fit_b = init_b, self._fit_at(cloud, init_b)
                 else:
                     pose_b, fit_b = self._align(cloud, init_b)
+                gicp_b = self._gicp
                 # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
                 # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
                 better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
                 if better:
-                    pose, fit, won, path = pose_b, fit_b, True, self._deepbbs_path
+                    pose, fit, won, path, gicp = pose_b, fit_b, True, self._deepbbs_path, gicp_b
             clock.lap("deepbbs")
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
@@ -215,8 +223,10 @@ class DeepBBSOdometry:
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
+        cov = _cov.gicp_covariance(*gicp, pose, factors=_cov.ODOMETRY_FACTORS,
+                                   weak_exponent=_cov.ODOMETRY_WEAK_EXPONENT)
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
-                            path)
+                            path, cov)
 
     # -- stages ------------------------------------------------------------------------------------
     def _new_map(self) -> Any:
@@ -297,6 +307,7 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         res = small_gicp.align(self._map, cloud, init, max_correspondence_distance=oc.max_corr_dist,
                                num_threads=self.threads, max_iterations=iters or oc.max_iters)
+        self._gicp = (np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers))  # covariance
         return np.asarray(res.T_target_source, dtype=np.float64), float(res.num_inliers) / max(1, cloud.size())
 
     def _fit_at(self, cloud: Any, pose: np.ndarray) -> float:

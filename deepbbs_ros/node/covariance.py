@@ -1,7 +1,10 @@
 """Covariance and twist of a registration result, for ``nav_msgs/Odometry`` (no ROS import).
 
-The pose covariance is the least-squares covariance of point-to-point alignment evaluated at the
-solution (as ICP covariance estimates do): with the aligned source points ``q_i = R p_i + t``, their
+The localization's and the odometry's covariances come from their GICP's Hessian
+(:mod:`deepbbs_ros.core.covariance`); this point-to-point one is pair mode's and the fallback.
+
+The pose covariance is the least-squares covariance of point-to-point alignment evaluated at the solution
+(as ICP covariance estimates do): with the aligned source points ``q_i = R p_i + t``, their
 nearest target points at distance ``d_i``, the inlier set ``I`` (``d_i <= tau``), weights ``w_i`` (the
 network's best-buddy weights gamma when given, normalised to mean 1) and the left perturbation
 ``delta = [dt (3), dtheta (3)]`` (ROS covariance order x, y, z, rot x, rot y, rot z),
@@ -19,24 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deepbbs_ros.core.covariance import adjoint, skew
+
+__all__ = ["AlignmentQuality", "adjoint", "alignment_quality", "skew", "twist_covariance", "twist_from_delta"]
+
 _SIGMA2_FLOOR = 1e-6  # m^2; noise-free synthetic data must not give a singular covariance
 _NOT_CONVERGED_INFLATION = 100.0
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(3,) -> (3, 3) with ``skew(v) @ u == cross(v, u)``."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def adjoint(T: np.ndarray) -> np.ndarray:
-    """(6, 6) adjoint of ``T`` for perturbations ordered ``[translation, rotation]``."""
-    R, t = T[:3, :3], T[:3, 3]
-    Ad = np.zeros((6, 6))
-    Ad[:3, :3] = R
-    Ad[:3, 3:] = skew(t) @ R
-    Ad[3:, 3:] = R
-    return Ad
 
 
 @dataclass

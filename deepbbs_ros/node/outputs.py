@@ -28,6 +28,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import PointCloud2
 
 from deepbbs_ros.config import NodeConfig
+from deepbbs_ros.core.covariance import conjugated
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.covariance import twist_from_delta
 from deepbbs_ros.node.inputs import Cloud
@@ -114,10 +115,14 @@ class Outputs:
 
     def localized(self, src: Cloud, frame: str, reg: Registered, target_points: np.ndarray | None) -> None:
         """Latched target: ``T_map_source`` in the map ``frame``, stamped with the source stamp; on
-        ``~/odometry`` with the registration covariance against the map crop (no velocity: unknown twist)."""
+        ``~/odometry`` with the localization's covariance (else the registration covariance against the map crop; no
+        velocity: unknown twist)."""
         self._pose_and_transform(reg.T, src.stamp_ns, frame, src.frame_id)
         if self.odometry is not None:
-            if target_points is None:
+            cov = getattr(reg.result, "covariance", None)  # the localization's own (core/covariance.py)
+            if cov is not None:
+                cov = np.asarray(cov, dtype=np.float64)
+            elif target_points is None:
                 cov = np.eye(6) * UNKNOWN_TWIST_COV
             else:
                 cov = registration_covariance(src, Cloud(target_points, 0, frame, 0.0, pp=_Points(target_points)), reg)
@@ -141,7 +146,7 @@ class Outputs:
                 twist = twist_from_delta(base_motion(T_bs, step.T_prev_curr), step.dt)  # in the base frame
             self.odometry.publish(
                 matrix_to_odometry(T_odom, cloud.stamp_ns, odom, child, twist,
-                                   base_covariance(T_bs, step.pose_covariance),
+                                   conjugated(T_bs, step.T_odom, step.pose_covariance),
                                    base_covariance(T_bs, step.twist_covariance))
             )  # fmt: skip
         # the scan (sensor frame) moved into the odom frame, stamped with that frame: it lines up with every

@@ -28,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.covariance import compose
 from deepbbs_ros.errors import RegistrationError
-from deepbbs_ros.node.covariance import adjoint, alignment_quality, twist_covariance, twist_from_delta
+from deepbbs_ros.node.covariance import alignment_quality, twist_covariance, twist_from_delta
 from deepbbs_ros.node.inputs import BadInput, Cloud
 
 #: twist covariance when the velocity is unknown (first scan, or two clouds of the same instant)
@@ -198,8 +199,8 @@ class ScanToScanOdometry:
         covariance: compute the twist and the pose / twist covariances (``node.publish_odometry``);
             without it they are zeros (only ``~/odometry`` carries them).
 
-    The pose covariance accumulates the step covariances moved into the odometry frame,
-    ``Sigma_k = Sigma_{k-1} + Ad(T_odom_{k-1}) Sigma_step Ad(T_odom_{k-1})^T``.
+    The pose covariance accumulates the step covariances along the chain ``T_odom_k = T_odom_{k-1} @ T_step``
+    (:func:`deepbbs_ros.core.covariance.compose`).
     """
 
     def __init__(self, registration: Any, *, covariance: bool = True) -> None:
@@ -227,8 +228,7 @@ class ScanToScanOdometry:
         dt = (cloud.stamp_ns - prev.stamp_ns) * 1e-9
         if self.covariance:
             cov_step = registration_covariance(cloud, prev, reg)
-            Ad = adjoint(self._T_odom)
-            self._cov_odom = self._cov_odom + Ad @ cov_step @ Ad.T
+            self._cov_odom = compose(self._T_odom, self._cov_odom, reg.T, cov_step)
             twist, twist_cov = motion_twist(reg.T, cov_step, dt)
         else:
             twist, twist_cov = np.zeros(6), np.zeros((6, 6))
@@ -250,12 +250,11 @@ class LocalMapOdometry:
 
     Pose: ``T_odom_k = T_first_k`` (the odom frame is the first scan's sensor frame at its stamp).
     Twist: the motion since the previous scan ``T_{k-1}_k`` over the stamp gap (:func:`motion_twist`).
-    Covariances: the step covariance is the registration-residual one of :mod:`deepbbs_ros.node.covariance`
-    evaluated on the step's motion ``T_{k-1}_k``: scan k (deskewed with that motion over the stamp gap,
-    cropped, on a grid of 1.5 x ``odometry.voxel_size``) against scan k-1 (a grid of
-    0.5 x voxel). The pose covariance accumulates it as :class:`ScanToScanOdometry` does,
-    ``Sigma_k = Sigma_{k-1} + Ad(T_odom_{k-1}) Sigma_step Ad(T_odom_{k-1})^T``: conservative, since the local
-    map bounds the drift better than a chain of independent steps.
+    Covariances: the step covariance is that of scan k's VGICP on the local map (``OdometryStep.covariance``,
+    :mod:`deepbbs_ros.core.covariance`: its Hessian and residuals, calibrated on simulated drives), moved into scan
+    k-1's frame; without one, the point-to-point residual covariance of :mod:`deepbbs_ros.node.covariance` of scan k
+    against scan k-1 under the step's motion. The pose covariance accumulates it along ``T_odom_k = T_odom_{k-1} @
+    T_{k-1}_k`` as :class:`ScanToScanOdometry` does (independent steps: the drift of a chain).
     """
 
     def __init__(self, config: Any, registration: Any, *, covariance: bool = True) -> None:
@@ -304,9 +303,8 @@ class LocalMapOdometry:
         twist, twist_cov = np.zeros(6), np.zeros((6, 6))
         if self.covariance:
             t1 = time.perf_counter()
-            cov_step = self._step_covariance(cloud, T_step, dt, out.points)
-            Ad = adjoint(self._T_odom)
-            self._cov_odom = self._cov_odom + Ad @ cov_step @ Ad.T
+            cov_step = self._step_covariance(cloud, T_step, dt, out.points, getattr(out, "covariance", None))
+            self._cov_odom = compose(self._T_odom, self._cov_odom, T_step, cov_step)
             twist, twist_cov = motion_twist(T_step, cov_step, dt)
             timings["covariance"] = (time.perf_counter() - t1) * 1e3
         self._T_odom = T
@@ -331,13 +329,19 @@ class LocalMapOdometry:
         return np.asarray(voxel_down_sample(pts, self.odometry.voxel_size * 0.5))
 
     def _step_covariance(self, cloud: Cloud, T_step: np.ndarray, dt: float,
-                         registered: np.ndarray | None = None) -> np.ndarray:
-        """(6, 6) covariance of ``T_{k-1}_k`` (left perturbation in scan k-1's frame) from the residuals
-        of scan k's ICP grid against scan k-1's map grid under the step's motion. ``registered``: scan k as
-        the odometry registered it (deskewed, cropped, that grid: ``OdometryStep.points``), used as it is
-        instead of deskewing and gridding the raw scan again (~3x cheaper on a 120k-point scan)."""
+                         registered: np.ndarray | None = None, map_cov: np.ndarray | None = None) -> np.ndarray:
+        """(6, 6) covariance of ``T_{k-1}_k`` (scan k-1's frame): ``map_cov`` (the VGICP covariance of ``T_odom_k``,
+        odometry frame) rotated into scan k-1's frame; without it, from the residuals of scan k's ICP grid against
+        scan k-1's map grid under the step's motion. ``registered``: scan k as the odometry registered it (deskewed,
+        cropped, that grid: ``OdometryStep.points``), used as it is instead of deskewing and gridding the raw scan
+        again (~3x cheaper on a 120k-point scan)."""
         from kiss_icp.voxelization import voxel_down_sample
 
+        if map_cov is not None:
+            self._prev_grid = registered
+            B = np.zeros((6, 6))
+            B[:3, :3] = B[3:, 3:] = self._T_odom[:3, :3].T
+            return B @ np.asarray(map_cov, dtype=np.float64) @ B.T
         prev = self._prev_grid
         if isinstance(prev, Cloud):  # the origin, deskewed with the first motion now that it is known
             prev = self._grid(prev, T_step, dt)

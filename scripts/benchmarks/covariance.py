@@ -1,0 +1,357 @@
+#!/usr/bin/env python3
+"""Covariances: how honest are the published pose covariances? NEES of the localization's and the odometry's poses.
+
+For every pose with a true pose: the error ``delta = [t_true - t, log(R_true R^T)]`` (core/covariance.py's convention)
+and its NEES ``delta^T Sigma^-1 delta``, which is chi-square with 6 degrees of freedom when the covariance is honest;
+per data set: N, the mean NEES and the 95 % band of the mean of N chi2(6) (``[chi2.ppf(0.025, 6N) / N,
+chi2.ppf(0.975, 6N) / N]``), the median (chi2(6)'s: 5.35), the share above chi2.ppf(0.95, 6) (5 % when honest), and
+the same for the position block alone (3 DoF).
+
+* localization: a map of a simulated drive (scans every ``--map-step`` m, true poses) and the scans of a second drive
+  in another lane on another day (every ``--query-every`` th), tracked from their true pose moved by a start error
+  (``--start-sigma`` m and deg per axis, the tracking prediction's); real scans: the map of the even scans of each
+  ``--real`` folder, the odd ones localized from a start error as well.
+* odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
+  scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
+  node publishes on ``~/odometry`` (the steps composed along the chain).
+
+Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
+localization and odometry) instead of the GICP one.
+
+Calibration: ``--fit`` fits core/covariance.py's constants (``*_FACTORS``, ``*_WEAK_EXPONENT``) from the raw
+covariances (factors of 1, no weak inflation) of the simulated sets only (:func:`fit`), and scores every set, the real
+ones included (checked, not fitted), with them. Truth error: the real sets' ground truth is itself off by
+centimetres (KITTI about 2 cm / 0.05 deg, nuScenes about 5 cm / 0.3 deg: the data's README); the "+truth" columns add
+that as an isotropic covariance (per axis) to the estimate's, the plain ones do not.
+
+    python scripts/benchmarks/covariance.py --real ../shared/realdata/kitti/00 ../shared/realdata/nuscenes_hdl32
+    python scripts/benchmarks/covariance.py --scenes urban --lidars hdl64 --fit      # the factors, quickly
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common
+
+CHI2_MEDIAN_6 = 5.348120627447122  # scipy.stats.chi2.median(6)
+#: per-axis (m, deg) error of the real sets' ground truth (the data's README)
+TRUTH_SIGMA = {"kitti": (0.02, 0.05), "nuscenes": (0.05, 0.3)}
+
+
+def nees_stats(rows: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+    """[(delta (6,), cov (6, 6))] -> the figures of one set (module docstring)."""
+    from scipy.stats import chi2
+
+    if not rows:
+        return {"n": 0}
+    out: dict = {"n": len(rows)}
+    for name, sl, dof in (("pose", slice(0, 6), 6), ("position", slice(0, 3), 3)):
+        v = np.array([float(d[sl] @ np.linalg.solve(c[sl, sl], d[sl])) for d, c in rows])
+        n = len(v)
+        out[name] = {"mean": float(v.mean()), "median": float(np.median(v)),
+                     "band": [float(chi2.ppf(0.025, dof * n) / n), float(chi2.ppf(0.975, dof * n) / n)],
+                     "above_p95": float(np.mean(v > chi2.ppf(0.95, dof)))}
+        out[name]["inside"] = bool(out[name]["band"][0] <= out[name]["mean"] <= out[name]["band"][1])
+    return out
+
+
+def with_truth(rows, sigma: tuple[float, float] | None):
+    if sigma is None:
+        return rows
+    add = np.diag([sigma[0] ** 2] * 3 + [np.radians(sigma[1]) ** 2] * 3)
+    return [(d, c + add) for d, c in rows]
+
+
+def perturbed(T: np.ndarray, rng, sigma: float) -> np.ndarray:
+    """``T`` moved by ``sigma`` m per axis and ``sigma`` deg per rotation axis (normal)."""
+    from scipy.spatial.transform import Rotation
+
+    E = np.eye(4)
+    E[:3, :3] = Rotation.from_rotvec(np.radians(rng.normal(0, sigma, 3))).as_matrix()
+    E[:3, 3] = rng.normal(0, sigma, 3)
+    return E @ T
+
+
+# ---- data ---------------------------------------------------------------------------------------------------------
+def sim_sets(args):
+    """(name, map points, map poses, [(points, T_map_scan)], drive of (points, times, stamp_ns, T) for odometry)."""
+    from deepbbs_ros.sim import LidarConfig
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    for scene in args.scenes:
+        for lidar_name in args.lidars:
+            lidar = LidarConfig.preset(lidar_name)
+            F = args.frames
+            sim = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True)
+            P = [sim.pose_at(k) for k in range(F)]
+            pts, keys, last = [], [], None
+            for k in range(F):
+                if last is not None and np.linalg.norm(P[k][:3, 3] - P[last][:3, 3]) < args.map_step:
+                    continue
+                p = sim.scan_at(k).points
+                r = np.linalg.norm(p, axis=1)
+                p = p[(r > 2.0) & (r < 80.0)]
+                pts.append((p @ P[k][:3, :3].T + P[k][:3, 3]).astype(np.float32))
+                keys.append(P[k])
+                last = k
+            other = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True, world_frames=F,
+                                   lane_offset=None, day=2)
+            queries = [(other.scan_at(k).points, other.pose_at(k)) for k in range(10, F - 10, args.query_every)]
+            raw = DriveSimulator(scene, args.seed + 1, lidar, frames=args.odometry_frames)
+            drive = []
+            for k in range(args.odometry_frames):
+                s = raw.scan_at(k)
+                drive.append((s.points, s.fields.get("time"), s.stamp_ns, raw.pose_at(k)))
+            yield f"sim {scene} {lidar_name}", np.concatenate(pts), np.array(keys), queries, drive, None
+
+
+def real_sets(args):
+    from deepbbs_ros.datasets import open_source
+
+    for folder in args.real:
+        scans = list(open_source(folder))
+        name = Path(folder).name
+        name = f"kitti {name}" if "kitti" in str(folder) else name
+        truth = TRUTH_SIGMA["kitti" if "kitti" in str(folder) else "nuscenes"]
+        T0 = np.linalg.inv(scans[0].T_world_lidar)
+        pts, keys, queries = [], [], []
+        for i, s in enumerate(scans):
+            T = T0 @ s.T_world_lidar
+            if i % 2 == 0:
+                r = np.linalg.norm(s.points, axis=1)
+                p = s.points[(r > 2.5) & (r < 80.0)]
+                pts.append((p @ T[:3, :3].T + T[:3, 3]).astype(np.float32))
+                keys.append(T)
+            else:
+                queries.append((s.points, T))
+        drive = [(s.points, s.fields.get("time"), s.stamp_ns, T0 @ s.T_world_lidar) for s in scans]
+        yield f"real {name}", np.concatenate(pts), np.array(keys), queries, drive, truth
+
+
+# ---- runs ---------------------------------------------------------------------------------------------------------
+def localization_rows(points, keys, queries, config, args, log=print) -> tuple[list, int]:
+    from deepbbs_ros.core.covariance import pose_error
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    loc = MapLocalizer(points, config, trajectory=keys)
+    rng = np.random.default_rng(args.seed)
+    rows, failed = [], 0
+    for pts, T_true in queries:
+        res = loc.localize(pts, perturbed(T_true, rng, args.start_sigma))
+        if not res.valid:
+            failed += 1
+            continue
+        if args.before:
+            cov = _before_localization(res, pts)
+        else:
+            cov = res.covariance
+        if cov is None:
+            failed += 1
+            continue
+        rows.append((pose_error(T_true, res.T_map_scan), np.asarray(cov)))
+    return rows, failed
+
+
+def _before_localization(res, pts) -> np.ndarray:
+    """What the node published before: the point-to-point residual covariance on the crop (node/covariance.py)."""
+    from deepbbs_ros.node.covariance import alignment_quality
+
+    q = alignment_quality(np.asarray(pts)[:: max(1, len(pts) // 4000)], res.crop, res.T_map_scan)
+    return q.covariance
+
+
+def odometry_rows(drive, config, args) -> tuple[list, list]:
+    """(step rows [(delta, step covariance)], chain [(T_odom_{k-1}, T_{k-1}_k, T_odom_k, true T_first_k)]) of the
+    scans with a step covariance."""
+    from kiss_icp.voxelization import voxel_down_sample
+
+    from deepbbs_ros.core.covariance import pose_error
+    from deepbbs_ros.core.odometry import DeepBBSOdometry
+    from deepbbs_ros.node.covariance import alignment_quality
+
+    odo = DeepBBSOdometry(config)
+    steps, chain = [], []
+    T_prev, prev_points, T0_true, Tp_true = None, None, None, None
+    for pts, times, stamp, T_true in drive:
+        out = odo.register_frame(pts, times, stamp)
+        T = out.T_first_k
+        if T_prev is not None:
+            if args.before:  # node/pipeline.py's point-to-point step covariance as it was
+                src = np.asarray(voxel_down_sample(out.points, odo.voxel_size * 1.5))
+                step_cov = alignment_quality(src, prev_points, out.T_prev_k).covariance
+            elif out.covariance is not None:
+                B = np.zeros((6, 6))
+                B[:3, :3] = B[3:, 3:] = T_prev[:3, :3].T
+                step_cov = B @ out.covariance @ B.T
+            else:
+                step_cov = None
+            if step_cov is not None:
+                steps.append((pose_error(np.linalg.inv(Tp_true) @ T_true, out.T_prev_k), step_cov))
+                chain.append((T_prev, out.T_prev_k, T, np.linalg.inv(T0_true) @ T_true))
+        else:
+            T0_true = T_true
+        T_prev, prev_points, Tp_true = T, out.points, T_true
+    return steps, chain
+
+
+def accumulated(steps: list, chain: list, before: bool = False) -> list:
+    """The accumulated rows [(delta of T_odom_k, its covariance)]: the step covariances composed along the chain as
+    the node does (``before``: the SE(3)-adjoint sum the node had)."""
+    from deepbbs_ros.core.covariance import adjoint, compose, pose_error
+
+    rows, cov = [], np.zeros((6, 6))
+    for (_, step_cov), (T_prev, T_step, T, T_true) in zip(steps, chain):
+        if before:
+            Ad = adjoint(T_prev)
+            cov = cov + Ad @ step_cov @ Ad.T
+        else:
+            cov = compose(T_prev, cov, T_step, step_cov)
+        rows.append((pose_error(T_true, T), cov.copy()))
+    return rows
+
+
+def fit(rows_by_set: dict, names: list[str], alpha: float) -> tuple[float, float]:
+    """The (translation, rotation) factors from raw rows (factors of 1, no weak inflation) of the simulated sets
+    ``names`` with the weak exponent ``alpha``: those that make the pooled mean NEES of each block 3 (chi2(3)'s mean,
+    the band's criterion; the medians then show the tails)."""
+    from deepbbs_ros.core.covariance import calibrated
+
+    rows = [(d, calibrated(c, (1.0, 1.0), alpha)) for n in names for d, c in rows_by_set[n]]
+    kt = float(np.mean([d[:3] @ np.linalg.solve(c[:3, :3], d[:3]) for d, c in rows]) / 3.0)
+    kr = float(np.mean([d[3:] @ np.linalg.solve(c[3:, 3:], d[3:]) for d, c in rows]) / 3.0)
+    return kt, kr
+
+
+def alpha_spread(rows_by_set: dict, names: list[str], alpha: float) -> float:
+    """The spread (standard deviation of the logs) of the sets' mean NEES with ``alpha`` and its fitted factors."""
+    from deepbbs_ros.core.covariance import calibrated
+
+    f = fit(rows_by_set, names, alpha)
+    means = [np.mean([float(d @ np.linalg.solve(c, d)) for d, c in
+                      ((d, calibrated(c, f, alpha)) for d, c in rows_by_set[n])]) for n in names]
+    return float(np.std(np.log(means)))
+
+
+def save_rows(path: Path, loc_rows: dict, step_rows: dict, chains: dict, truth: dict) -> None:
+    """The raw rows of every set (for --refit)."""
+    import json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays, meta = {}, {"truth": truth, "loc": list(loc_rows), "odo": list(step_rows)}
+    for i, rows in enumerate(loc_rows.values()):
+        arrays[f"loc{i}_d"] = np.array([d for d, _ in rows]).reshape(-1, 6)
+        arrays[f"loc{i}_c"] = np.array([c for _, c in rows]).reshape(-1, 6, 6)
+    for i, (name, rows) in enumerate(step_rows.items()):
+        arrays[f"odo{i}_d"] = np.array([d for d, _ in rows]).reshape(-1, 6)
+        arrays[f"odo{i}_c"] = np.array([c for _, c in rows]).reshape(-1, 6, 6)
+        arrays[f"odo{i}_chain"] = np.array([np.stack(c) for c in chains[name]]).reshape(-1, 4, 4, 4)
+    np.savez_compressed(path, meta=json.dumps(meta), **arrays)
+
+
+def load_rows(path: str) -> tuple[dict, dict, dict, dict]:
+    import json
+
+    z = np.load(path)
+    meta = json.loads(str(z["meta"]))
+    truth = {k: (tuple(v) if v is not None else None) for k, v in meta["truth"].items()}
+    loc = {n: list(zip(z[f"loc{i}_d"], z[f"loc{i}_c"])) for i, n in enumerate(meta["loc"])}
+    odo = {n: list(zip(z[f"odo{i}_d"], z[f"odo{i}_c"])) for i, n in enumerate(meta["odo"])}
+    chains = {n: [tuple(c) for c in z[f"odo{i}_chain"]] for i, n in enumerate(meta["odo"])}
+    return loc, odo, chains, truth
+
+
+def report(title: str, figs: dict) -> None:
+    print(f"\n{title}")
+    print(f"{'set':34s} {'N':>4s} {'mean NEES':>10s} {'95% band':>15s} {'median':>7s} {'>p95':>6s} | "
+          f"{'pos mean':>9s} {'band':>13s} {'>p95':>6s}")
+    for name, f in figs.items():
+        if not f.get("n"):
+            print(f"{name:34s}    0")
+            continue
+        p, q = f["pose"], f["position"]
+        print(f"{name:34s} {f['n']:4d} {p['mean']:10.2f} [{p['band'][0]:5.2f}, {p['band'][1]:5.2f}] "
+              f"{p['median']:7.2f} {p['above_p95']:6.1%} | {q['mean']:9.2f} [{q['band'][0]:4.2f}, {q['band'][1]:4.2f}]"
+              f" {q['above_p95']:6.1%}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--scenes", nargs="*", default=["urban", "suburban", "highway", "open_road"])
+    ap.add_argument("--lidars", nargs="*", default=["hdl64", "vlp16"])
+    ap.add_argument("--real", nargs="*", default=[], help="KITTI-layout folders with ground truth")
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--frames", type=int, default=200, help="frames of each simulated map drive (10 Hz)")
+    ap.add_argument("--map-step", type=float, default=2.0, help="m between the map's scans")
+    ap.add_argument("--query-every", type=int, default=12, help="every n-th scan of the second drive is a query")
+    ap.add_argument("--odometry-frames", type=int, default=60, help="frames of each simulated odometry drive")
+    ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
+    ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
+    ap.add_argument("--fit", action="store_true", help="fit the constants on the simulated sets (raw covariances); the "
+                    "raw rows are kept in OUT/covariance_rows.npz")
+    ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
+    ap.add_argument("--out", default="bench_out", help="figures: OUT/covariance.json")
+    args = ap.parse_args(argv)
+
+    import deepbbs_ros.core.covariance as covmod
+    from deepbbs_ros.config import Config
+
+    if args.fit:  # raw covariances: factors of 1, no weak inflation
+        covmod.LOCALIZATION_FACTORS = covmod.ODOMETRY_FACTORS = (1.0, 1.0)
+        covmod.LOCALIZATION_WEAK_EXPONENT = covmod.ODOMETRY_WEAK_EXPONENT = 0.0
+    config = Config()
+    loc_rows, step_rows, chains, truth, notes = {}, {}, {}, {}, {}
+    t0 = time.perf_counter()
+    if args.refit:
+        loc_rows, step_rows, chains, truth = load_rows(args.refit)
+        args.fit = True
+    for name, points, keys, queries, drive, tsig in ([] if args.refit else [*sim_sets(args), *real_sets(args)]):
+        truth[name] = tsig
+        if "localization" not in args.skip:
+            loc_rows[name], failed = localization_rows(points, keys, queries, config, args)
+            notes[name] = f"{failed} of {len(queries)} queries without a pose"
+        if "odometry" not in args.skip:
+            step_rows[name], chains[name] = odometry_rows(drive, config, args)
+        print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    figures: dict = {}
+    if args.fit and not args.refit:
+        save_rows(Path(args.out) / "covariance_rows.npz", loc_rows, step_rows, chains, truth)
+    if args.fit:
+        figures["fit"] = {}
+        for key, rows, alpha in (("localization", loc_rows, covmod.LOCALIZATION_WEAK_EXPONENT_CHOSEN),
+                                 ("odometry", step_rows, covmod.ODOMETRY_WEAK_EXPONENT_CHOSEN)):
+            sims = [n for n in rows if n.startswith("sim")]
+            if not sims:
+                continue
+            factors = fit(rows, sims, alpha)
+            spread = {a: alpha_spread(rows, sims, a) for a in (0.0, 0.5, 1.0, 1.5, 2.0, 2.5)}
+            figures["fit"][key] = {"factors": factors, "weak_exponent": alpha, "sets": sims,
+                                   "spread_of_log_mean_nees_by_exponent": spread}
+            for n in rows:
+                rows[n] = [(d, covmod.calibrated(c, factors, alpha)) for d, c in rows[n]]
+        print(f"\nfitted (simulated sets only; the tables below use them): {figures['fit']}")
+    acc_rows = {n: accumulated(step_rows[n], chains[n], args.before) for n in step_rows}
+    label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
+    for key, rows in (("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)):
+        figures[key] = {}
+        for name, r in rows.items():
+            figures[key][name] = nees_stats(r)
+            if truth[name] is not None:
+                figures[key][name + " +truth"] = nees_stats(with_truth(r, truth[name]))
+        if rows:
+            report(f"{key} NEES ({label})", figures[key])
+    for name, note in notes.items():
+        print(f"  localization {name}: {note}")
+    _common.write_json(Path(args.out), "covariance.json", figures)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
