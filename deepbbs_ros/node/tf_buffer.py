@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.node.tf_static import StaticTransforms
+from deepbbs_ros.node.tf_static import StaticTransforms, valid_transforms
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
@@ -137,17 +137,10 @@ class TransformBuffer(StaticTransforms):
 
     def add_dynamic_message(self, msg: Any) -> int:
         """Add every transform of a ``/tf`` TFMessage; returns how many (invalid ones are skipped)."""
-        from msg_adapters.transforms import transform_stamped_to_matrix
-
         n = 0
-        for ts in getattr(msg, "transforms", []):
-            try:
-                T, stamp_ns, parent, child = transform_stamped_to_matrix(ts)
-            except Exception:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
-                continue
-            if parent and child and parent != child and np.all(np.isfinite(T)):
-                self.add_stamped(parent, child, stamp_ns, T)
-                n += 1
+        for T, stamp_ns, parent, child in valid_transforms(msg):
+            self.add_stamped(parent, child, stamp_ns, T)
+            n += 1
         return n
 
     def has_edge(self, parent: str, child: str) -> bool:

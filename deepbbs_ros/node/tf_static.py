@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -36,17 +37,10 @@ class StaticTransforms:
 
     def add_message(self, msg: Any) -> int:
         """Add every transform of a TFMessage; returns how many were added (invalid ones are skipped)."""
-        from msg_adapters.transforms import transform_stamped_to_matrix
-
         n = 0
-        for ts in getattr(msg, "transforms", []):
-            try:
-                T, _, parent, child = transform_stamped_to_matrix(ts)
-            except Exception:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
-                continue
-            if parent and child and parent != child and np.all(np.isfinite(T)):
-                self.add(parent, child, T)
-                n += 1
+        for T, _, parent, child in valid_transforms(msg):
+            self.add(parent, child, T)
+            n += 1
         return n
 
     @property
@@ -86,6 +80,20 @@ class StaticTransforms:
                 if left <= 0:
                     return None
                 self._cond.wait(left)
+
+
+def valid_transforms(msg: Any) -> Iterator[tuple[np.ndarray, int, str, str]]:
+    """``(T_parent_child (4, 4), stamp_ns, parent, child)`` of each usable transform of a TFMessage: a malformed one
+    (zero quaternion, NaN, no frame names, a frame its own parent) is skipped."""
+    from msg_adapters.transforms import transform_stamped_to_matrix
+
+    for ts in getattr(msg, "transforms", []):
+        try:
+            T, stamp_ns, parent, child = transform_stamped_to_matrix(ts)
+        except Exception:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
+            continue
+        if parent and child and parent != child and np.all(np.isfinite(T)):
+            yield T, stamp_ns, parent, child
 
 
 def base_motion(T_base_sensor: np.ndarray, T_odom_sensor: np.ndarray) -> np.ndarray:
