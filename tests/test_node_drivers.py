@@ -96,6 +96,27 @@ def test_cache_passes_no_driver_to_a_preprocess_without_one():
     assert got == [400]
 
 
+def test_describe_names_the_driver_and_the_defaults_chosen():
+    from deepbbs_ros.config import PreprocessConfig
+    from deepbbs_ros.node.drivers import describe
+
+    wide, cfg = _points(0, 2000), PreprocessConfig()  # around the sensor: a spinning sensor's shape
+    narrow = wide[np.abs(np.arctan2(wide[:, 1], wide[:, 0])) < np.deg2rad(35)]
+    avia = "the livox_avia defaults (preprocess.min_range 1.0, preprocess.voxel_size 0.2, preprocess.ground_search any)"
+    assert describe("/l", cfg, "livox", narrow)[0] == f"livox: {avia}"
+    line = describe("/l", cfg, "livox", narrow)[1]
+    assert line == f"/l: livox driver recognised from the fields; preprocessing with {avia}"
+    assert describe("/o", cfg, "ouster", wide)[0] == "ouster: the ouster defaults (the generic ones)"
+    assert describe("/v", cfg, "velodyne", narrow)[0] == "velodyne: the generic defaults"  # a crop stays a Velodyne
+    assert describe("/p", cfg, None, narrow)[0] == f"none: {avia} (from the cloud's shape)"
+    assert describe("/p", cfg, None, wide)[1] == ("/p: no known LiDAR driver in the fields; preprocessing with the "
+                                                  "generic defaults (from the cloud's shape)")
+    assert describe("/v", cfg, "velodyne", narrow, used=False)[0] == f"velodyne: {avia} (from the cloud's shape)"
+    mine = PreprocessConfig(sensor="hdl64", voxel_size=0.25)
+    want = "livox: the hdl64 defaults (the generic ones) (preprocess.sensor is 'hdl64')"
+    assert describe("/l", mine, "livox", narrow)[0] == want
+
+
 def test_local_map_odometry_preprocesses_with_its_driver():
     from deepbbs_ros.core.odometry import DeepBBSOdometry
 

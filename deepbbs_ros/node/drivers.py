@@ -37,9 +37,11 @@ def sensor_defaults(cfg: PreprocessConfig, driver: str | None, xyz: np.ndarray) 
                     if f.name != "sensor" and getattr(out, f.name) != getattr(cfg, f.name)}
 
 
-def describe(topic: str, cfg: PreprocessConfig, driver: str | None, xyz: np.ndarray) -> tuple[str, str]:
-    """(the ``input.<topic>.driver`` diagnostics value, the log line) for ``topic``'s first scan ``xyz``."""
-    sensor, changes = sensor_defaults(cfg, driver, xyz)
+def describe(topic: str, cfg: PreprocessConfig, driver: str | None, xyz: np.ndarray,
+             used: bool = True) -> tuple[str, str]:
+    """(the ``input.<topic>.driver`` diagnostics value, the log line) for ``topic``'s first scan ``xyz``; ``used``:
+    the preprocessing takes the driver (else it settles the sensor from the cloud's shape alone: localization)."""
+    sensor, changes = sensor_defaults(cfg, driver if used else None, xyz)
     if sensor is None:
         defaults = "the generic defaults"
     else:
@@ -47,5 +49,7 @@ def describe(topic: str, cfg: PreprocessConfig, driver: str | None, xyz: np.ndar
         defaults = f"the {sensor} defaults ({settings})"
     if cfg.sensor != "auto":
         defaults += f" (preprocess.sensor is {cfg.sensor!r})"
-    found = f"{driver} driver recognised" if driver else "no known LiDAR driver"
-    return f"{driver or 'none'}: {defaults}", f"{topic}: {found} from the fields; preprocessing with {defaults}"
+    elif not used or driver is None:
+        defaults += " (from the cloud's shape)"
+    found = f"{driver} driver recognised from the fields" if driver else "no known LiDAR driver in the fields"
+    return f"{driver or 'none'}: {defaults}", f"{topic}: {found}; preprocessing with {defaults}"

@@ -629,7 +629,7 @@ class RegistrationNode(Node):
     def _on_driver(self, index: int, driver: str | None, xyz: Any) -> None:
         """An input's driver, recognised from its first message: logged, on /diagnostics, given to the odometry."""
         topic = self.inputs[index].topic
-        value, line = describe_driver(topic, self.cfg.preprocess, driver, xyz)
+        value, line = describe_driver(topic, self.cfg.preprocess, driver, xyz, used=self.localization is None)
         with self._lock:
             self._drivers[topic] = value
         self.get_logger().info(line)
