@@ -82,10 +82,11 @@ class ScanHandle:
         deskew: the worker's ``PreprocessResult.deskew``.
         local: the ``PreprocessResult`` in the node's process, once the proxy runs there (fallback).
         driver: the driver that published the scan (``preprocess(..., driver=)``), for a scan preprocessed again.
+        sensor: the sensor whose defaults it was preprocessed with (``PreprocessResult.sensor``).
     """
 
     __slots__ = ("id", "xyz", "times", "stamp_ns", "points", "timings_ms", "deskew", "local", "driver",
-                 "__weakref__")
+                 "sensor", "__weakref__")
 
     def __init__(self, hid: int, xyz: np.ndarray, times: np.ndarray | None, stamp_ns: int | None,
                  points: np.ndarray | None = None, timings_ms: dict | None = None, deskew: str = "",
@@ -96,6 +97,7 @@ class ScanHandle:
         self.deskew = deskew if local is None else local.deskew
         self.local = local
         self.driver: str | None = None
+        self.sensor: str = getattr(local, "sensor", "auto")
 
     def __repr__(self) -> str:
         where = "local" if self.local is not None else f"remote #{self.id}"
@@ -288,6 +290,7 @@ class RegistrationProcess:
     # -- internals -------------------------------------------------------------------------------------
     def _handle(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, out: dict) -> ScanHandle:
         h = ScanHandle(hid, xyz, times, stamp, out["points"], out["timings_ms"], out["deskew"])
+        h.sensor = out.get("sensor", "auto")
         weakref.finalize(h, self._released.append, hid)  # appended only: safe from any thread, even inside GC
         return h
 
@@ -521,7 +524,8 @@ class _Worker:
     @staticmethod
     def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet
         points = pre.points if getattr(pre, "sampled", True) else None
-        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew}
+        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew,
+                "sensor": getattr(pre, "sensor", "auto")}
 
     def run(self, msg: tuple) -> Any:
         op = msg[0]
