@@ -179,3 +179,24 @@ def test_node_gives_each_input_its_drivers_defaults(ros, world):
         assert d["input./target_cloud.driver"] == "velodyne: the generic defaults"
     finally:
         h.close()
+
+
+def test_node_local_map_odometry_consults_deepbbs_with_the_driver(ros, world):
+    """Odometry mode (local map): the Livox input's driver reaches DeepBBS++'s preprocessing when the odometry
+    consults it (the first motion: the previous and the current scan)."""
+    cfg = tiny_config(**{"node.mode": "odometry", "node.base_frame": "", "node.diagnostics_period": 0.2})
+    rec = RecordingRegistration(tiny_registration(cfg))
+    h = Harness(cfg, "reg_drivers_odom", registration=rec)
+    try:
+        for k in range(2):
+            xyz = scan(world, at(10.0 + 0.3 * k), seed=5 + k, n_points=20000)
+            xyz = xyz[np.abs(np.arctan2(xyz[:, 1], xyz[:, 0])) < np.deg2rad(35)]
+            h.send_raw("cloud", _driver_msg("livox", xyz, np.linspace(0, 0.1, len(xyz)), (7 + k) * SEC // 10)[0])
+            h.wait_processed(k + 1)
+        assert h.node.odometry.odometry.driver == "livox"
+        assert rec.prepared and all(p == ("livox", "livox_avia") for p in rec.prepared), rec.prepared
+        d = {}
+        assert h.wait_for(lambda: d.update(h.diagnostics()) or "input./cloud.driver" in d, 5), d
+        assert d["input./cloud.driver"].startswith("livox: the livox_avia defaults")
+    finally:
+        h.close()
