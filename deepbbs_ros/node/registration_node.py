@@ -633,9 +633,8 @@ class RegistrationNode(Node):
         with self._lock:
             self._drivers[topic] = value
         self.get_logger().info(line)
-        for odo in (self.odometry, self.loc_odometry):
-            if isinstance(odo, LocalMapOdometry):  # DeepBBS++ consulted on its deskewed scans
-                odo.odometry.driver = driver
+        if isinstance(self.odometry, LocalMapOdometry):  # DeepBBS++ consulted on its deskewed scans
+            self.odometry.odometry.driver = driver
 
     # -- TF: base <- sensor from /tf_static --------------------------------------------------------
     def _subscribe_tf_static(self):
