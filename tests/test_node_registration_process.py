@@ -112,6 +112,15 @@ def test_proxy_bad_input_is_one_line(proxy):
     assert proxy.alive
 
 
+def test_proxy_preprocesses_with_the_driver(proxy, street_pair):
+    """The driver the node recognised reaches the preprocessing for the worker; the handle keeps it."""
+    src, _, _ = _pair(street_pair, 3)
+    cone = src[np.abs(np.arctan2(src[:, 1], src[:, 0])) < np.deg2rad(35)]  # a Livox Avia's field of view
+    h = proxy.preprocess(cone, defer=True, lazy=True, driver="livox")
+    assert (h.driver, h.sensor) == ("livox", "livox_avia")
+    assert proxy.preprocess(src, defer=True, lazy=True, driver="velodyne").sensor == "auto"  # the generic defaults
+
+
 def test_proxy_handles_are_released(proxy, street_pair):
     from deepbbs_ros.node.registration_process import MAX_SCANS
 

@@ -141,6 +141,9 @@ class DeepBBSOdometry:
         self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0  # map voxel, m
         self.threads = threads_or_all(oc.threads)
         self._reg = registration
+        #: the driver that publishes the scans (``msg_adapters.layouts.recognise_driver``; the node sets it from its
+        #: input's first message): DeepBBS++'s preprocessing settles ``preprocess.sensor`` "auto" with it
+        self.driver: str | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -342,8 +345,8 @@ class DeepBBSOdometry:
         reg = self.registration
         try:
             if self._prev_pp is None and self._prev_points is not None:
-                self._prev_pp = reg.preprocess(self._prev_points.astype(np.float32))
-            cur = reg.preprocess(frame.astype(np.float32))
+                self._prev_pp = self._preprocess(self._prev_points)
+            cur = self._preprocess(frame)
             if self._prev_pp is None:
                 return None
             res = reg.register(cur, self._prev_pp)
@@ -356,6 +359,11 @@ class DeepBBSOdometry:
             self.deepbbs_rejected += 1
             return None
         return res.T_target_source
+
+    def _preprocess(self, frame: np.ndarray) -> Any:
+        """DeepBBS++'s preprocessing of a (deskewed) scan, with :attr:`driver` when one is known."""
+        kwargs = {} if self.driver is None else {"driver": self.driver}
+        return self.registration.preprocess(frame.astype(np.float32), **kwargs)
 
     def _restart_deskewed(self, points: np.ndarray, times: np.ndarray) -> tuple[Any, np.ndarray]:
         """Second scan: both scans deskewed with the first velocity and the map rebuilt from the first (a
@@ -376,7 +384,7 @@ class DeepBBSOdometry:
             # the first motion always asks DeepBBS++: this scan's preprocessing for it is done now, while a live
             # node has nothing waiting (the next scan is a period away), not on the first motion's long step
             try:
-                self._prev_pp = self.registration.preprocess(frame.astype(np.float32))
+                self._prev_pp = self._preprocess(frame)
             except RegistrationError:
                 self._prev_pp = None  # the first motion tries again (and fails the same way: no DeepBBS++)
             clock.lap("deepbbs")

@@ -19,6 +19,29 @@ WORLD_FRAME = "world"
 #: per-point time fields of real drivers and their unit in seconds: Velodyne ``time`` (s since the
 #: stamp), Ouster ``t`` (ns since the stamp); the first one a cloud has is used
 TIME_FIELDS = (("time", 1.0), ("t", 1e-9))
+#: absolute per-point time field of Livox (float64 ns) and Hesai / RoboSense (float64 s), read after TIME_FIELDS
+ABSOLUTE_TIME_FIELD = "timestamp"
+
+
+def time_field(names: Iterable[str]) -> str | None:
+    """The per-point time field a cloud with fields ``names`` is timed by: the first of :data:`TIME_FIELDS`, else
+    :data:`ABSOLUTE_TIME_FIELD`, else None."""
+    names = set(names)
+    absolute = ABSOLUTE_TIME_FIELD if ABSOLUTE_TIME_FIELD in names else None
+    return next((n for n, _ in TIME_FIELDS if n in names), absolute)
+
+
+def time_offsets(name: str, values: np.ndarray, stamp_ns: int) -> np.ndarray:
+    """(N,) float64 seconds since ``stamp_ns`` from the per-point time field ``name`` (:func:`time_field`) holding
+    ``values``: relative fields scaled by their unit; the absolute ``timestamp`` read as nanoseconds when its values
+    exceed 1e12 (Livox), else as seconds (Hesai, RoboSense), and made relative to the stamp."""
+    ts = np.asarray(values, dtype=np.float64)
+    unit = dict(TIME_FIELDS).get(name)
+    if unit is not None:
+        return ts * unit
+    if len(ts) and float(np.max(ts)) > 1e12:
+        return (ts - float(stamp_ns)) * 1e-9
+    return ts - stamp_ns * 1e-9
 
 
 @dataclass
@@ -46,16 +69,10 @@ class Scan:
     T_world_lidar: np.ndarray | None = None
 
     def point_times(self) -> np.ndarray | None:
-        """(N,) float64 seconds since ``stamp_ns`` from the first of :data:`TIME_FIELDS` present, or None."""
-        for name, unit in TIME_FIELDS:
-            if name in self.fields:
-                return np.asarray(self.fields[name], dtype=np.float64) * unit
-        if "timestamp" in self.fields:  # absolute: Livox float64 ns, Hesai / RoboSense float64 s
-            ts = np.asarray(self.fields["timestamp"], dtype=np.float64)
-            if len(ts) and float(np.max(ts)) > 1e12:
-                return (ts - float(self.stamp_ns)) * 1e-9
-            return ts - self.stamp_ns * 1e-9
-        return None
+        """(N,) float64 seconds since ``stamp_ns`` from the first of :data:`TIME_FIELDS` present, else the absolute
+        ``timestamp`` (:func:`time_offsets`), or None."""
+        name = time_field(self.fields)
+        return None if name is None else time_offsets(name, self.fields[name], self.stamp_ns)
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float32).reshape(-1, 3)

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.datasets.base import TIME_FIELDS
+from deepbbs_ros.datasets.base import time_field, time_offsets
 from deepbbs_ros.errors import PointCloudFormatError, RegistrationError
 from deepbbs_ros.node.worker import LatestSlotWorker
 
@@ -58,8 +58,9 @@ class Cloud:
 
     Attributes:
         xyz: (N, 3) float32 valid points, sensor frame ``frame_id``, metres.
-        times: (N,) float64 per-point time offsets from the stamp, seconds, as the driver writes them
-            (:data:`TIME_FIELDS`); None when the cloud has no time field. The local-map odometry
+        times: (N,) float64 per-point time offsets from the stamp, seconds, from the driver's time field
+            (``datasets.base.time_field``: Velodyne ``time``, Ouster ``t``, Livox / Hesai absolute ``timestamp``);
+            None when the cloud has no time field. The local-map odometry
             deskews with its velocity; with ``node.pair_deskew`` each input of pair mode follows its
             topic's velocity (``core.deskew.StreamDeskew``) and deskews the scan's GICP cloud with it.
         stamp_ns: ``header.stamp`` in nanoseconds.
@@ -70,6 +71,7 @@ class Cloud:
         t_ready: ``time.perf_counter()`` when preprocessing finished.
         timings_ms: ``input_wait`` (callback -> input thread), ``decode``, ``preprocess`` (absent on a
             cache hit).
+        driver: the driver that publishes the topic (``node.drivers.recognise``, from its first message), or None.
     """
 
     xyz: np.ndarray
@@ -80,9 +82,7 @@ class Cloud:
     pp: Any = None
     t_ready: float = 0.0
     timings_ms: dict[str, float] = field(default_factory=dict)
-
-
-#: per-point time fields of real drivers -> seconds per unit (Velodyne ``time`` float32 s, Ouster ``t`` uint32 ns)
+    driver: str | None = None
 
 
 def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.ndarray | None, int, str]:
@@ -91,7 +91,8 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
 
     The points are read through a structured dtype over the message buffer (no copy of the buffer,
     :func:`msg_adapters.pointcloud2.pointcloud2_to_arrays`); only the valid points are copied out.
-    Times come from the first of :data:`TIME_FIELDS` the cloud declares (scaled to seconds).
+    Times come from the cloud's time field (``datasets.base.time_field``: Velodyne ``time`` s, Ouster ``t`` ns,
+    Livox / Hesai absolute ``timestamp``, read as ``Scan.point_times`` reads it), as seconds since the stamp.
 
     A time field with the same value for every point (e.g. all 0) gives None: it carries no timing.
 
@@ -104,9 +105,9 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     if int(msg.width) * int(msg.height) == 0 and len(msg.data) == 0:
         raise BadInput("empty_cloud", f"{topic}: empty PointCloud2 (width * height = 0, no data)")
     declared = set(field_names(msg))
-    time_field = next(((name, scale) for name, scale in TIME_FIELDS if name in declared), None)
+    tname = time_field(declared)
     try:
-        arr = pointcloud2_to_arrays(msg, (time_field[0],) if time_field else ())
+        arr = pointcloud2_to_arrays(msg, (tname,) if tname else ())
     except PointCloudFormatError as err:
         raise BadInput("malformed_cloud", f"{topic}: {err}") from err
     n_decl = int(msg.width) * int(msg.height)
@@ -120,12 +121,12 @@ def decode_cloud(msg: Any, topic: str, min_points: int) -> tuple[np.ndarray, np.
     if not arr.frame_id:
         raise BadInput("missing_frame", f"{topic}: header.frame_id is empty")
     times = None
-    if time_field is not None:
-        raw = arr.fields[time_field[0]]
+    if tname is not None:
+        raw = arr.fields[tname]
         # a count > 1 time field is not a per-point time; one value for every point (a driver without per-point
         # timing writes 0) says nothing about when each point was measured: no times, as without the field
         if raw.ndim == 1 and raw.min() != raw.max():
-            times = raw.astype(np.float64) * time_field[1]
+            times = time_offsets(tname, raw, int(arr.stamp_ns))
     return arr.xyz, times, int(arr.stamp_ns), arr.frame_id
 
 
@@ -155,20 +156,22 @@ def _takes(fn: Callable[..., Any], name: str) -> bool:
 
 
 class PreprocessCache:
-    """``preprocess(xyz, times, stamp_ns)`` results keyed by the points' content; thread-safe, at most
-    ``size`` kept.
+    """``preprocess(xyz, times, stamp_ns)`` results keyed by the points' content (and the driver); thread-safe, at
+    most ``size`` kept.
 
     Args:
         preprocess: ``((N, 3) float32, (N,) float64 per-point times or None, stamp ns) -> result`` (DeepBBS++
-            keeps the raw scan and its times for the deskew stage); may raise :class:`RegistrationError`.
+            keeps the raw scan and its times for the deskew stage); may raise :class:`RegistrationError`. When it
+            takes ``driver`` (DeepBBS++), a recognised driver is passed to it.
         size: results kept (least recently used evicted).
     """
 
     def __init__(self, preprocess: Callable[..., Any], size: int = PP_CACHE) -> None:
         self._preprocess = preprocess
+        self._takes_driver = _takes(preprocess, "driver")
         self.size = int(size)
         self._lock = threading.Lock()
-        self._entries: OrderedDict[tuple[int, int, int], Future] = OrderedDict()
+        self._entries: OrderedDict[tuple, Future] = OrderedDict()
         self.hits = 0
         self.misses = 0
 
@@ -179,14 +182,16 @@ class PreprocessCache:
         return int(xyz.shape[0]), zlib.crc32(buf), zlib.adler32(buf)
 
     def get(self, xyz: np.ndarray, label: str, times: np.ndarray | None = None,
-            stamp_ns: int | None = None) -> tuple[Any, float]:
-        """(result, ms spent here) for ``xyz``; computed at most once per content while cached.
+            stamp_ns: int | None = None, driver: str | None = None) -> tuple[Any, float]:
+        """(result, ms spent here) for ``xyz`` published by ``driver``; computed at most once per content while
+        cached.
 
         Raises:
             BadInput: ``preprocess_failed`` (``label`` names the cloud) when preprocessing raised
                 RegistrationError.
         """
-        key = self.key(xyz)
+        key = self.key(xyz) if driver is None else (*self.key(xyz), driver)
+        kwargs = {"driver": driver} if driver is not None and self._takes_driver else {}
         t0 = time.perf_counter()
         with self._lock:
             fut = self._entries.get(key)
@@ -202,7 +207,7 @@ class PreprocessCache:
                 self.hits += 1
         if owner:
             try:
-                fut.set_result(self._preprocess(xyz, times, stamp_ns))
+                fut.set_result(self._preprocess(xyz, times, stamp_ns, **kwargs))
             except BaseException as exc:  # noqa: BLE001 - handed to every waiter, then re-raised below
                 fut.set_exception(exc)
                 with self._lock:
@@ -235,6 +240,8 @@ class CloudInput:
         capacity: messages that may wait while one is processed; the oldest is dropped beyond that.
         gate: take the next message only while this event is set (the registration worker's ``room``:
             preprocess at most one pair ahead of the registration).
+        on_driver: called once, with the driver recognised from the first good message's fields (or None) and that
+            message's points, before they are preprocessed (the node logs it, the odometry takes it).
     """
 
     def __init__(
@@ -251,7 +258,11 @@ class CloudInput:
         gate: threading.Event | None = None,
         deskew: Any = None,
         jump_back_s: float = 1.0,
+        on_driver: Callable[[str | None, np.ndarray], None] | None = None,
     ) -> None:
+        self._on_driver = on_driver
+        self.driver: str | None = None  # the driver recognised from the first good message (node.drivers)
+        self._recognised = False
         self._jump_back_ns = int(jump_back_s * 1e9)
         self.topic = topic
         self._cache = cache
@@ -314,9 +325,15 @@ class CloudInput:
         try:
             xyz, times, stamp_ns, frame = decode_cloud(msg, self.topic, self._min_points)
             self._check(frame, stamp_ns)
+            if not self._recognised:  # once per topic, from the first good message's fields
+                from deepbbs_ros.node.drivers import recognise
+
+                self.driver, self._recognised = recognise(msg), True
+                if self._on_driver is not None:
+                    self._on_driver(self.driver, xyz)
             t1 = time.perf_counter()
             pp, pp_ms = ((None, 0.0) if self._cache is None
-                         else self._cache.get(xyz, f"{frame}@{stamp_ns}", times, stamp_ns))
+                         else self._cache.get(xyz, f"{frame}@{stamp_ns}", times, stamp_ns, self.driver))
             if self._deskew is not None and pp is not None and times is not None:
                 t_d = time.perf_counter()
                 pp = self._deskew.apply(pp)  # this topic's velocity; the GICP cloud deskewed with it
@@ -328,4 +345,4 @@ class CloudInput:
         timings = {"input_wait": (t0 - t_recv) * 1e3, "decode": (t1 - t0) * 1e3}
         if pp_ms > 0:  # computed here, not a cache hit
             timings["preprocess"] = pp_ms
-        self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, times, pp, t_ready, timings))
+        self._on_cloud(Cloud(xyz, stamp_ns, frame, t_recv, times, pp, t_ready, timings, self.driver))

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import signal
 import sys
 import threading
@@ -87,6 +88,7 @@ from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
 from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
+from deepbbs_ros.node.drivers import describe as describe_driver
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
@@ -443,6 +445,7 @@ class RegistrationNode(Node):
         ncfg = self.cfg.node
         # topics: a bad (remapped) name becomes NodeError, after stopping the threads started so far
         self.inputs: list[CloudInput] = []
+        self._drivers: dict[str, str] = {}  # topic -> its driver and the preprocessing defaults (node.drivers)
         self.static_tf = TransformBuffer()  # /tf_static, and /tf in localization mode (node/tf_buffer.py)
         self._extrinsics: dict[str, Any] = {}  # cloud frame -> T_base_sensor, once known (or given up on)
         self._t_ready = self._t_tf = time.monotonic()  # the static transform's wait counts from here
@@ -618,9 +621,20 @@ class RegistrationNode(Node):
                 increasing_stamps=not pair, gate=None if latched else self.worker.room,
                 deskew=None if latched else self._stream_deskew(),
                 capacity=1 if pair else self.cfg.node.odometry_backlog,
+                on_driver=None if latched else functools.partial(self._on_driver, index),
             )
         )  # fmt: skip
         return subscribe
+
+    def _on_driver(self, index: int, driver: str | None, xyz: Any) -> None:
+        """An input's driver, recognised from its first message: logged, on /diagnostics, given to the odometry."""
+        topic = self.inputs[index].topic
+        value, line = describe_driver(topic, self.cfg.preprocess, driver, xyz, used=self.localization is None)
+        with self._lock:
+            self._drivers[topic] = value
+        self.get_logger().info(line)
+        if isinstance(self.odometry, LocalMapOdometry):  # DeepBBS++ consulted on its deskewed scans
+            self.odometry.odometry.driver = driver
 
     # -- TF: base <- sensor from /tf_static --------------------------------------------------------
     def _subscribe_tf_static(self):
@@ -999,6 +1013,8 @@ class RegistrationNode(Node):
             "sync queue lengths": ",".join(map(str, s["sync_queue"])),
             "odometry restarts on time jumps": s["time_jumps"],
         }
+        with self._lock:
+            values.update({f"input.{topic}.driver": v for topic, v in sorted(self._drivers.items())})
         if self.cfg.node.mode == "pair":  # which path answered: GICP from the good start, the deep passes, the search
             for path, n in s["paths"].items():
                 values[f"paths.{path}"] = n

@@ -81,9 +81,12 @@ class ScanHandle:
         timings_ms: the worker's preprocessing timings.
         deskew: the worker's ``PreprocessResult.deskew``.
         local: the ``PreprocessResult`` in the node's process, once the proxy runs there (fallback).
+        driver: the driver that published the scan (``preprocess(..., driver=)``), for a scan preprocessed again.
+        sensor: the sensor whose defaults it was preprocessed with (``PreprocessResult.sensor``).
     """
 
-    __slots__ = ("id", "xyz", "times", "stamp_ns", "points", "timings_ms", "deskew", "local", "__weakref__")
+    __slots__ = ("id", "xyz", "times", "stamp_ns", "points", "timings_ms", "deskew", "local", "driver",
+                 "sensor", "__weakref__")
 
     def __init__(self, hid: int, xyz: np.ndarray, times: np.ndarray | None, stamp_ns: int | None,
                  points: np.ndarray | None = None, timings_ms: dict | None = None, deskew: str = "",
@@ -93,6 +96,8 @@ class ScanHandle:
         self.timings_ms = dict(timings_ms or (local.timings_ms if local is not None else {}))
         self.deskew = deskew if local is None else local.deskew
         self.local = local
+        self.driver: str | None = None
+        self.sensor: str = getattr(local, "sensor", "auto")
 
     def __repr__(self) -> str:
         where = "local" if self.local is not None else f"remote #{self.id}"
@@ -199,9 +204,9 @@ class RegistrationProcess:
     # -- the interface the node uses ----------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
                    motion: tuple[np.ndarray, float] | None = None, *, defer: bool = False,
-                   lazy: bool = False) -> ScanHandle:
-        """``DeepBBSRegistration.preprocess`` (``core.scans.prepare_scan``) in this thread, the result handed to the
-        worker (which builds its GICP cloud's k-d tree and covariances when it registers it) -> a
+                   lazy: bool = False, driver: str | None = None) -> ScanHandle:
+        """``DeepBBSRegistration.preprocess`` (``core.scans.prepare_scan``, ``driver`` as there) in this thread, the
+        result handed to the worker (which builds its GICP cloud's k-d tree and covariances when it registers it) -> a
         :class:`ScanHandle` of it. ``lazy``: the sampled points wait for their first use, in the worker (a good start
         never needs them); the handle's ``points`` are then None.
 
@@ -214,13 +219,17 @@ class RegistrationProcess:
                 xyz = np.ascontiguousarray(points)
                 tt = None if times is None else np.ascontiguousarray(times)
                 stamp = None if stamp_ns is None else int(stamp_ns)
-                return self._handle(hid, xyz, tt, stamp, self._adopt(hid, xyz, tt, stamp, motion, lazy))
+                h = self._handle(hid, xyz, tt, stamp, self._adopt(hid, xyz, tt, stamp, motion, lazy, driver))
+                h.driver = driver
+                return h
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
-        return ScanHandle(0, points, times, stamp_ns, local=local.preprocess(points, times, stamp_ns, motion,
-                                                                             defer=defer and local.defers_precision,
-                                                                             lazy=lazy))
+        h = ScanHandle(0, points, times, stamp_ns, local=local.preprocess(points, times, stamp_ns, motion,
+                                                                          defer=defer and local.defers_precision,
+                                                                          lazy=lazy, driver=driver))
+        h.driver = driver
+        return h
 
     def register(self, source: Any, target: Any, *, T_init: np.ndarray | None = None,
                  preprocessed: bool = False, good_start: bool = False) -> Any:
@@ -281,6 +290,7 @@ class RegistrationProcess:
     # -- internals -------------------------------------------------------------------------------------
     def _handle(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, out: dict) -> ScanHandle:
         h = ScanHandle(hid, xyz, times, stamp, out["points"], out["timings_ms"], out["deskew"])
+        h.sensor = out.get("sensor", "auto")
         weakref.finalize(h, self._released.append, hid)  # appended only: safe from any thread, even inside GC
         return h
 
@@ -289,7 +299,9 @@ class RegistrationProcess:
             hid = next(self._ids)
             try:
                 out = self._call(("deskew", stream.key, pre.id, hid))
-                return self._handle(hid, pre.xyz, pre.times, pre.stamp_ns, out)
+                h = self._handle(hid, pre.xyz, pre.times, pre.stamp_ns, out)
+                h.driver = pre.driver
+                return h
             except _Lost as err:
                 self._failed(err)
         local = self._fallback()
@@ -297,20 +309,23 @@ class RegistrationProcess:
             from deepbbs_ros.core.deskew import StreamDeskew
 
             stream._local = StreamDeskew(local)
-        return ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
+        h = ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
+        h.driver = pre.driver
+        return h
 
-    def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any, lazy: bool = False) -> dict:
+    def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any, lazy: bool = False,
+               driver: str | None = None) -> dict:
         """Preprocess a scan here (numpy, mostly without the GIL) and hand it to the worker under ``hid`` (the GICP
         cloud's k-d tree and covariances are built there; with ``lazy`` the sampling too, when first needed) -> the
         worker's reply."""
-        pre = prepare_scan(self.config, xyz, times, stamp, motion, defer=True, threads=0, lazy=lazy)
+        pre = prepare_scan(self.config, xyz, times, stamp, motion, defer=True, threads=0, lazy=lazy, driver=driver)
         return self._call(("adopt", hid, pre))
 
     def _again(self, h: ScanHandle) -> None:
         """Preprocess a handle's scan again for the worker, under a new id (its deskew is not redone)."""
         hid = next(self._ids)
         try:
-            self._adopt(hid, h.xyz, h.times, h.stamp_ns, None)
+            self._adopt(hid, h.xyz, h.times, h.stamp_ns, None, driver=h.driver)
         except _Lost as err:
             self._failed(err)
             return
@@ -321,7 +336,8 @@ class RegistrationProcess:
         """The handle's PreprocessResult in this process (preprocessed again once, after a fallback)."""
         if h.local is None:
             local = self._fallback()
-            h.local = local.preprocess(h.xyz, h.times, h.stamp_ns, defer=local.defers_precision, lazy=True)
+            h.local = local.preprocess(h.xyz, h.times, h.stamp_ns, defer=local.defers_precision, lazy=True,
+                                       driver=h.driver)
         return h.local
 
     def _call(self, msg: tuple) -> Any:
@@ -508,7 +524,8 @@ class _Worker:
     @staticmethod
     def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet
         points = pre.points if getattr(pre, "sampled", True) else None
-        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew}
+        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew,
+                "sensor": getattr(pre, "sensor", "auto")}
 
     def run(self, msg: tuple) -> Any:
         op = msg[0]
