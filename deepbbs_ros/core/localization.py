@@ -448,33 +448,13 @@ class MapLocalizer:
         return g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= clearance_m)
 
     def _grid_places(self) -> np.ndarray:
-        """Places over free space, one per ``grid_spacing`` square block: of the block's cells with ground (nothing
-        OBSTACLE_BAND above the local ground) at least ``free_clearance`` from any obstacle, the one farthest from
-        obstacles (the middle of a road, of a yard); the sensor ``sensor_height`` above its ground."""
-        from scipy.ndimage import distance_transform_edt, uniform_filter
+        """Places over the map's drivable space (core/places.py): one per ``grid_spacing`` square block, the column
+        farthest from obstacles, ``sensor_height`` above its ground (the search puts the scan at its own height)."""
+        from deepbbs_ros.core.places import grid_places
 
         lc, g = self.config.localization, self.grid
-        above = np.where(g.occupied, g.zmax - np.nan_to_num(g.ground, nan=np.inf), -np.inf)
-        obstacle = (above > OBSTACLE_BAND[0]) & (above < max(OBSTACLE_BAND[1], lc.sensor_height))
-        clearance = distance_transform_edt(~obstacle) * g.cell  # m to the nearest obstacle cell
-        free = g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= max(lc.free_clearance, g.cell))
-        # where the mapping sensor passed: its ground is sampled densely (ground seen from afar is not, and a place
-        # there would be described by a map that saw it from elsewhere)
-        full = g.count >= GROUND_FILL * np.percentile(g.count[free], 95) if free.any() else free
-        free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
-        ix, iy = np.nonzero(free)
-        if len(ix) == 0:
-            return np.zeros((0, 4, 4))
-        step = max(1, int(round(lc.grid_spacing / g.cell)))
-        block = (ix // step) * (g.shape[1] // step + 1) + iy // step
-        order = np.lexsort((-clearance[ix, iy], block))  # by block, the clearest cell first
-        first = order[np.r_[True, block[order][1:] != block[order][:-1]]]
-        ix, iy = ix[first], iy[first]
-        xy = g.origin + (np.stack([ix, iy], axis=1) + 0.5) * g.cell
-        out = np.repeat(np.eye(4)[None], len(xy), axis=0)
-        out[:, :2, 3] = xy
-        out[:, 2, 3] = g.ground[ix, iy] + lc.sensor_height
-        return out
+        return grid_places(self.points, g.origin, g.cell, g.shape, lc.grid_spacing, lc.free_clearance,
+                           lc.sensor_height, lc.map_voxel)
 
     # -- crops ------------------------------------------------------------------------------------------------------
     def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
