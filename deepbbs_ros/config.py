@@ -435,12 +435,15 @@ class LocalizationConfig:
     place_band: float = 14.0
     place_band_step: float = 1.75  # m, the lattice's step along and across the drive
     offset_clearance: float = 1.0  # m; a lattice place (place_band) needs ground and no obstacle within this radius
-    # m; without a trajectory the candidate places are a grid of this step over the map's free space (where the mapping
-    # sensor passed): finer than place_spacing, since a place may lie beside the path as well as along it
+    # m; without a trajectory the candidate places are a grid of this step over the map's drivable space
+    # (core/places.py: ground seen from close by, where the mapping sensor passed): finer than place_spacing, since a
+    # place may lie beside the path as well as along it
     grid_spacing: float = 2.5
-    sensor_height: float = 1.8  # m; grid places (no trajectory): the sensor's assumed height above the ground
-    # grid places: a cell is free space when no map point lies between 0.3 m and sensor_height above its ground within
-    # this radius (m)
+    # m; grid places (no trajectory): where a place's descriptor is centred above its ground; a search puts the scan at
+    # its own height above the ground, measured from the scan's ground plane
+    sensor_height: float = 1.8
+    # m; grid places: a place keeps at least this distance from obstacles (columns with returns 0.3-2 m above their
+    # ground whose ground the map does not see densely: walls, parked cars; not the mapping car's roof, canopy)
     free_clearance: float = 1.5
     descriptor_radius: float = 60.0  # m; the place descriptor (Scan Context) covers this radius around a place
     descriptor_rings: int = 20  # rings of the descriptor (radial bins)
