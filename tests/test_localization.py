@@ -145,6 +145,24 @@ def test_global_pose_without_a_guess(localizer, world):
         assert 0 <= res.place < len(localizer.places)
 
 
+def test_global_pose_in_a_map_without_its_trajectory(localizer, world):
+    """A map given as points only: places over its drivable space (the road the map drive took, none in the
+    buildings), each within reach of the drive, and a scan placed from no guess at its own height."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    loc = MapLocalizer(map_points, localizer.config, registration=localizer.registration)
+    xy = loc.places[:, :2, 3]
+    on_drive = np.min(np.linalg.norm(trajectory[:, None, :2, 3] - xy[None], axis=2), axis=0)
+    assert len(loc.places) >= 10 and loc.keyframes == 0
+    assert np.percentile(on_drive, 90) < 15.0  # on the street, not in the buildings beside it
+    path = trajectory[6:55:4, :2, 3]  # every stretch of the mapped drive has a place in its 2.5 m block or the next
+    assert np.max(np.min(np.linalg.norm(path[:, None] - xy[None], axis=2), axis=1)) < 3.0
+    res = loc.localize(drive.scan_at(48).points)
+    ok, err = _ok(res.T_map_scan, drive.pose_at(48))
+    assert res.valid and ok, (err, res.reason)
+
+
 def test_crops_are_views_of_the_map_cloud_prepared_once(localizer, world):
     """localization.shared_cloud (default): the map's GICP cloud is prepared once with the map and every crop is a
     view of it (nothing prepared per crop but the network's points), counted in nbytes; without it each crop prepares
