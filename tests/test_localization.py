@@ -332,6 +332,23 @@ def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
     assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
 
 
+def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
+    """Every first answer far below the verdict (under localization.retry_floor): no pose at once, without the
+    retries (GICP alone, the opposite yaw, slid poses) that only a nearly right answer can profit from."""
+    _, _, _, other = world
+    scan = other.scan_at(3).points
+    res = localizer.localize(scan)
+    assert not res.valid and "scan outside the map" in res.reason and res.score < 0.3, res.reason
+    assert "gicp" not in res.timings_ms  # no retry ran
+    always = localizer.config.replace(**{"localization.retry_floor": 0.0})
+    old, localizer.config = localizer.config, always
+    try:
+        slow = localizer.localize(scan)
+    finally:
+        localizer.config = old
+    assert not slow.valid and "gicp" in slow.timings_ms  # the retries ran, and changed nothing
+
+
 def test_two_identical_places_are_ambiguous(localizer, world):
     """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
     from deepbbs_ros.core.localization import MapLocalizer

@@ -5,7 +5,7 @@
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
                 m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
                 (other lanes, the other way), or (no trajectory) a grid of localization.grid_spacing over the map's
-                free space
+                drivable space (core/places.py)
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
@@ -17,8 +17,10 @@
                 localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
                 (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
                 descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
-                accepted, the failed ones again with GICP alone (accepted only when sharp, below), then DeepBBS++
-                from the opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
+                accepted and the best scores localization.retry_floor or more, the failed ones again with GICP
+                alone (accepted only when sharp, below), then DeepBBS++ from the opposite yaw
+                (localization.flip_starts); below it, no pose at once (a scan outside the map); the verdict (valid /
+                score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
@@ -779,7 +781,8 @@ class MapLocalizer:
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
-        if not any(a.ok for a in answers) and not self._sharp(src, top) and not self._agreed(src, answers, top):
+        if (not any(a.ok for a in answers) and not top.score < lc.retry_floor and not self._sharp(src, top)
+                and not self._agreed(src, answers, top)):
             self._retry(src, answers, failed, timings)  # no place accepted: the failed starts again
         answers.sort(key=lambda a: -a.score)
         best = self._refined(src, answers, timings)
