@@ -458,6 +458,10 @@ class LocalizationConfig:
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
+    # places; in a map with more candidate places than this (over about 1 km of road without its trajectory) the
+    # scan's descriptor about its sensor alone ranks every place first, and the descriptors about the points around it
+    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place); 0 = all
+    rank_shortlist: int = 10000
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
     # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
     confident_score: float = 0.8
@@ -559,6 +563,7 @@ class LocalizationConfig:
         _check(0 <= self.descriptor_shift <= self.descriptor_radius / 4, "localization.descriptor_shift",
                "must be >= 0 and <= descriptor_radius / 4")
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
+        _check(self.rank_shortlist >= 0, "localization.rank_shortlist", "must be >= 0 (0 = every place)")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
         _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")

@@ -107,6 +107,23 @@ def test_scan_described_about_points_around_its_sensor(localizer, world):
         localizer.rank(descs, None, centres[:3])
 
 
+def test_a_large_map_ranks_a_shortlist_first(localizer, world):
+    """More places than localization.rank_shortlist: the descriptors about the points around the sensor are matched
+    with the places the sensor's own ranks best only; the scan's place is among them and ranks first as with all."""
+    _, _, drive, _ = world
+    c = localizer.description_centres
+    desc = localizer.describe(drive.scan_at(48).points, c)
+    every = localizer.rank(desc, None, c)
+    old = localizer.config
+    try:
+        localizer.config = old.replace(**{"localization.rank_shortlist": len(localizer.places) // 4})
+        short = localizer.rank(desc, None, c)
+    finally:
+        localizer.config = old
+    assert short[0][0] == every[0][0] and short[0][1] == every[0][1]
+    assert np.linalg.norm(localizer.places[short[0][0]][:2, 3] - drive.pose_at(48)[:2, 3]) < 4.0
+
+
 def test_places_beside_the_drive(localizer, world):
     """Lattice places cover the road beside the map drive (the other lane), on free ground, a half step apart."""
     from scipy.spatial import cKDTree

@@ -9,10 +9,11 @@
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
-    rank        every place against the scan, every column shift (a circular correlation by FFT; the best shift
-                is the scan's yaw), the scan also described about points localization.descriptor_shift m ahead,
-                behind and to either side (a place between the lattice's rows); the localization.top_k best places
-                at least candidate_separation m apart, each from its best-matching point of the scan
+    rank        every place against the scan (in a map of more than localization.rank_shortlist places, the places
+                the descriptor about the sensor alone ranks best), every column shift (a circular correlation by FFT;
+                the best shift is the scan's yaw), the scan also described about points localization.descriptor_shift
+                m ahead, behind and to either side (a place between the lattice's rows); the localization.top_k best
+                places at least candidate_separation m apart, each from its best-matching point of the scan
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (the map within
                 localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
                 (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
@@ -547,6 +548,13 @@ class MapLocalizer:
         if len(cs) != len(descs):
             raise LocalizationError(f"rank: {len(descs)} descriptors for {len(cs)} centres")
         skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
+        if 0 < lc.rank_shortlist < len(idx) and len(descs) > 1:
+            # a large map: the descriptor about the first centre (the sensor) alone against every place, then all of
+            # them against the places it ranks best only
+            first = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
+            d0, _ = _match_many(first, descs[:1, skip:])
+            idx = np.sort(idx[np.argpartition(d0[0], lc.rank_shortlist)[:lc.rank_shortlist]])
+            among = idx
         spectra = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
         dists, shifts = _match_many(spectra, descs[:, skip:])  # (K, P)
         which = np.argmin(dists, axis=0)  # the first of equals: the sensor's own first
