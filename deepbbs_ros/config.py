@@ -489,9 +489,10 @@ class LocalizationConfig:
     # 0 = never
     flip_starts: int = 4
     # the failed candidates are retried (GICP alone, the opposite yaw, poses slid along the road) only when the best
-    # first answer scores at least this; below, no pose at once (a scan outside the map: its first answers scored
-    # 0.08-0.35 on simulated and real maps, and the retries doubled its time to say so); 0 = always retry
-    retry_floor: float = 0.3
+    # first answer scores at least this; below, no pose at once. Scans from outside the map score 0.08-0.35 there and
+    # the retries double their time to "no pose", but real scans inside a map can too (nuScenes at 2 Hz: 0.08-0.17,
+    # then placed by the retries): 0 = always retry (the default)
+    retry_floor: float = 0.0
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
     # the GICP of a candidate place (the precision stage of its registration, GICP alone, the probes) looks at its fit

@@ -18,10 +18,9 @@
                 localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
                 (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
                 descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
-                accepted and the best scores localization.retry_floor or more, the failed ones again with GICP
+                accepted (and the best scores localization.retry_floor or more), the failed ones again with GICP
                 alone (accepted only when sharp, below), then DeepBBS++ from the opposite yaw
-                (localization.flip_starts); below it, no pose at once (a scan outside the map); the verdict (valid /
-                score) chooses
+                (localization.flip_starts); the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
