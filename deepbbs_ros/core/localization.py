@@ -74,11 +74,8 @@ MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 #: its k-d tree (about 32)
 CLOUD_BYTES = 224
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
-OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
+OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (the lattice's places)
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
-# grid places: a cell's ground is "seen from close by" with GROUND_FILL of the points of the best-filled ground cells,
-# and a place needs GROUND_COVERAGE of such cells around it
-GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
 
 
 #: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
