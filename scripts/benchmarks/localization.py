@@ -23,7 +23,8 @@ FPFH features and registration_ransac_based_on_feature_matching against the whol
 no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
 query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose);
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
-``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every method is
+``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places over the map's drivable space);
+``--outside N``: each map also answers N queries of another map (no pose is right, timed). Every method is
 timed as a user runs it and every answer is the same on any machine and in every run: MapLocalizer is timed as
 configured (GICP on every core) and answered by a twin that solves GICP on one thread (``registration.exact_gicp``;
 its k-d trees and covariances, the same on any number of threads, use every core), whose own time is reported too
@@ -871,7 +872,7 @@ def main(argv: list[str] | None = None) -> int:
                    "test seed); the others follow")
     p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
     p.add_argument("--grid-places", action="store_true", help="MapLocalizer without the map drive's trajectory "
-                   "(candidate places on a grid over the map's free space instead of keyframes)")
+                   "(candidate places over the map's drivable space instead of keyframes)")
     p.add_argument("--inexact", action="store_true", help="the timed calls answer (MapLocalizer's GICP solve and "
                    "the baselines on every core): answers that can change from run to run (default: answered by "
                    "twins with registration.exact_gicp and baselines on one CPU, the same on any machine)")
