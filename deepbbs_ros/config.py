@@ -491,12 +491,15 @@ class LocalizationConfig:
     place_band: float = 14.0
     place_band_step: float = 1.75  # m, the lattice's step along and across the drive
     offset_clearance: float = 1.0  # m; a lattice place (place_band) needs ground and no obstacle within this radius
-    # m; without a trajectory the candidate places are a grid of this step over the map's free space (where the mapping
-    # sensor passed): finer than place_spacing, since a place may lie beside the path as well as along it
+    # m; without a trajectory the candidate places are a grid of this step over the map's drivable space
+    # (core/places.py: ground seen from close by, where the mapping sensor passed): finer than place_spacing, since a
+    # place may lie beside the path as well as along it
     grid_spacing: float = 2.5
-    sensor_height: float = 1.8  # m; grid places (no trajectory): the sensor's assumed height above the ground
-    # grid places: a cell is free space when no map point lies between 0.3 m and sensor_height above its ground within
-    # this radius (m)
+    # m; grid places (no trajectory): where a place's descriptor is centred above its ground; a search puts the scan at
+    # its own height above the ground, measured from the scan's ground plane
+    sensor_height: float = 1.8
+    # m; grid places: a place keeps at least this distance from obstacles (columns with returns 0.3-2 m above their
+    # ground whose ground the map does not see densely: walls, parked cars; not the mapping car's roof, canopy)
     free_clearance: float = 1.5
     descriptor_radius: float = 60.0  # m; the place descriptor (Scan Context) covers this radius around a place
     descriptor_rings: int = 20  # rings of the descriptor (radial bins)
@@ -511,6 +514,10 @@ class LocalizationConfig:
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
+    # places; in a map with more candidate places than this (over about 1 km of road without its trajectory) the
+    # scan's descriptor about its sensor alone ranks every place first, and the descriptors about the points around it
+    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place); 0 = all
+    rank_shortlist: int = 10000
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
     # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
     confident_score: float = 0.8
@@ -537,6 +544,11 @@ class LocalizationConfig:
     # descriptor's yaw failed (a street looks alike both ways: a drive the other way matched a place 180 deg off);
     # 0 = never
     flip_starts: int = 4
+    # the failed candidates are retried (GICP alone, the opposite yaw, poses slid along the road) only when the best
+    # first answer scores at least this; below, no pose at once. Scans from outside the map score 0.08-0.35 there and
+    # the retries double their time to "no pose", but real scans inside a map can too (nuScenes at 2 Hz: 0.08-0.17,
+    # then placed by the retries): 0 = always retry (the default)
+    retry_floor: float = 0.0
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
     # the GICP of a candidate place (the precision stage of its registration, GICP alone, the probes) looks at its fit
@@ -608,6 +620,7 @@ class LocalizationConfig:
         _check(0 <= self.descriptor_shift <= self.descriptor_radius / 4, "localization.descriptor_shift",
                "must be >= 0 and <= descriptor_radius / 4")
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
+        _check(self.rank_shortlist >= 0, "localization.rank_shortlist", "must be >= 0 (0 = every place)")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
         _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
         _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")
@@ -628,6 +641,7 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.probe_voxel >= 0, "localization.probe_voxel", "must be >= 0 (0 = the scan's own GICP cloud)")
         _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
+        _check(0 <= self.retry_floor <= 1, "localization.retry_floor", "must be in [0, 1]")
         _check(self.far_probe >= 0, "localization.far_probe", "must be >= 0 (0 = no far probe)")
         _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")

@@ -107,6 +107,23 @@ def test_scan_described_about_points_around_its_sensor(localizer, world):
         localizer.rank(descs, None, centres[:3])
 
 
+def test_a_large_map_ranks_a_shortlist_first(localizer, world):
+    """More places than localization.rank_shortlist: the descriptors about the points around the sensor are matched
+    with the places the sensor's own ranks best only; the scan's place is among them and ranks first as with all."""
+    _, _, drive, _ = world
+    c = localizer.description_centres
+    desc = localizer.describe(drive.scan_at(48).points, c)
+    every = localizer.rank(desc, None, c)
+    old = localizer.config
+    try:
+        localizer.config = old.replace(**{"localization.rank_shortlist": len(localizer.places) // 4})
+        short = localizer.rank(desc, None, c)
+    finally:
+        localizer.config = old
+    assert short[0][0] == every[0][0] and short[0][1] == every[0][1]
+    assert np.linalg.norm(localizer.places[short[0][0]][:2, 3] - drive.pose_at(48)[:2, 3]) < 4.0
+
+
 def test_places_beside_the_drive(localizer, world):
     """Lattice places cover the road beside the map drive (the other lane), on free ground, a half step apart."""
     from scipy.spatial import cKDTree
@@ -143,6 +160,24 @@ def test_global_pose_without_a_guess(localizer, world):
         assert res.valid and ok and res.mode == "global" and res.reason == "", (k, err, res.reason)
         assert res.candidates >= 1 and res.timings_ms["total"] > 0 and res.crop is not None and res.crop.shape[1] == 3
         assert 0 <= res.place < len(localizer.places)
+
+
+def test_global_pose_in_a_map_without_its_trajectory(localizer, world):
+    """A map given as points only: places over its drivable space (the road the map drive took, none in the
+    buildings), each within reach of the drive, and a scan placed from no guess at its own height."""
+    from deepbbs_ros.core.localization import MapLocalizer
+
+    map_points, trajectory, drive, _ = world
+    loc = MapLocalizer(map_points, localizer.config, registration=localizer.registration)
+    xy = loc.places[:, :2, 3]
+    on_drive = np.min(np.linalg.norm(trajectory[:, None, :2, 3] - xy[None], axis=2), axis=0)
+    assert len(loc.places) >= 10 and loc.keyframes == 0
+    assert np.percentile(on_drive, 90) < 15.0  # on the street, not in the buildings beside it
+    path = trajectory[6:55:4, :2, 3]  # every stretch of the mapped drive has a place in its 2.5 m block or the next
+    assert np.max(np.min(np.linalg.norm(path[:, None] - xy[None], axis=2), axis=1)) < 3.0
+    res = loc.localize(drive.scan_at(48).points)
+    ok, err = _ok(res.T_map_scan, drive.pose_at(48))
+    assert res.valid and ok, (err, res.reason)
 
 
 def test_crops_are_views_of_the_map_cloud_prepared_once(localizer, world):
@@ -312,6 +347,24 @@ def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
     _, _, _, other = world
     res = localizer.localize(other.scan_at(3).points)
     assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
+
+
+def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
+    """Every first answer far below the verdict (under localization.retry_floor): no pose at once, without the
+    retries (GICP alone, the opposite yaw, slid poses) that only a nearly right answer can profit from."""
+    _, _, _, other = world
+    scan = other.scan_at(3).points
+    old = localizer.config
+    try:
+        localizer.config = old.replace(**{"localization.retry_floor": 0.3})
+        res = localizer.localize(scan)
+        localizer.config = old.replace(**{"localization.retry_floor": 0.0})  # the default: always retry
+        slow = localizer.localize(scan)
+    finally:
+        localizer.config = old
+    assert not res.valid and "scan outside the map" in res.reason and res.score < 0.3, res.reason
+    assert "gicp" not in res.timings_ms  # no retry ran
+    assert not slow.valid and "gicp" in slow.timings_ms  # the retries ran, and changed nothing
 
 
 def test_two_identical_places_are_ambiguous(localizer, world):

@@ -5,20 +5,22 @@
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
                 m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
                 (other lanes, the other way), or (no trajectory) a grid of localization.grid_spacing over the map's
-                free space
+                drivable space (core/places.py)
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan
-    rank        every place against the scan, every column shift (a circular correlation by FFT; the best shift
-                is the scan's yaw), the scan also described about points localization.descriptor_shift m ahead,
-                behind and to either side (a place between the lattice's rows); the localization.top_k best places
-                at least candidate_separation m apart, each from its best-matching point of the scan
+    rank        every place against the scan (in a map of more than localization.rank_shortlist places, the places
+                the descriptor about the sensor alone ranks best), every column shift (a circular correlation by FFT;
+                the best shift is the scan's yaw), the scan also described about points localization.descriptor_shift
+                m ahead, behind and to either side (a place between the lattice's rows); the localization.top_k best
+                places at least candidate_separation m apart, each from its best-matching point of the scan
     register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (the map within
                 localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
                 (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
                 descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
-                accepted, the failed ones again with GICP alone (accepted only when sharp, below), then DeepBBS++
-                from the opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
+                accepted (and the best scores localization.retry_floor or more), the failed ones again with GICP
+                alone (accepted only when sharp, below), then DeepBBS++ from the opposite yaw
+                (localization.flip_starts); the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
@@ -74,11 +76,8 @@ MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 #: its k-d tree (about 32)
 CLOUD_BYTES = 224
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
-OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (free-space places)
+OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (the lattice's places)
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
-# grid places: a cell's ground is "seen from close by" with GROUND_FILL of the points of the best-filled ground cells,
-# and a place needs GROUND_COVERAGE of such cells around it
-GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
 
 
 #: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
@@ -469,33 +468,13 @@ class MapLocalizer:
         return g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= clearance_m)
 
     def _grid_places(self) -> np.ndarray:
-        """Places over free space, one per ``grid_spacing`` square block: of the block's cells with ground (nothing
-        OBSTACLE_BAND above the local ground) at least ``free_clearance`` from any obstacle, the one farthest from
-        obstacles (the middle of a road, of a yard); the sensor ``sensor_height`` above its ground."""
-        from scipy.ndimage import distance_transform_edt, uniform_filter
+        """Places over the map's drivable space (core/places.py): one per ``grid_spacing`` square block, the column
+        farthest from obstacles, ``sensor_height`` above its ground (the search puts the scan at its own height)."""
+        from deepbbs_ros.core.places import grid_places
 
         lc, g = self.config.localization, self.grid
-        above = np.where(g.occupied, g.zmax - np.nan_to_num(g.ground, nan=np.inf), -np.inf)
-        obstacle = (above > OBSTACLE_BAND[0]) & (above < max(OBSTACLE_BAND[1], lc.sensor_height))
-        clearance = distance_transform_edt(~obstacle) * g.cell  # m to the nearest obstacle cell
-        free = g.occupied & (above <= OBSTACLE_BAND[0]) & (clearance >= max(lc.free_clearance, g.cell))
-        # where the mapping sensor passed: its ground is sampled densely (ground seen from afar is not, and a place
-        # there would be described by a map that saw it from elsewhere)
-        full = g.count >= GROUND_FILL * np.percentile(g.count[free], 95) if free.any() else free
-        free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
-        ix, iy = np.nonzero(free)
-        if len(ix) == 0:
-            return np.zeros((0, 4, 4))
-        step = max(1, int(round(lc.grid_spacing / g.cell)))
-        block = (ix // step) * (g.shape[1] // step + 1) + iy // step
-        order = np.lexsort((-clearance[ix, iy], block))  # by block, the clearest cell first
-        first = order[np.r_[True, block[order][1:] != block[order][:-1]]]
-        ix, iy = ix[first], iy[first]
-        xy = g.origin + (np.stack([ix, iy], axis=1) + 0.5) * g.cell
-        out = np.repeat(np.eye(4)[None], len(xy), axis=0)
-        out[:, :2, 3] = xy
-        out[:, 2, 3] = g.ground[ix, iy] + lc.sensor_height
-        return out
+        return grid_places(self.points, g.origin, g.cell, g.shape, lc.grid_spacing, lc.free_clearance,
+                           lc.sensor_height, lc.map_voxel)
 
     # -- crops ------------------------------------------------------------------------------------------------------
     def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
@@ -588,6 +567,13 @@ class MapLocalizer:
         if len(cs) != len(descs):
             raise LocalizationError(f"rank: {len(descs)} descriptors for {len(cs)} centres")
         skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
+        if 0 < lc.rank_shortlist < len(idx) and len(descs) > 1:
+            # a large map: the descriptor about the first centre (the sensor) alone against every place, then all of
+            # them against the places it ranks best only
+            first = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
+            d0, _ = _match_many(first, descs[:1, skip:])
+            idx = np.sort(idx[np.argpartition(d0[0], lc.rank_shortlist)[:lc.rank_shortlist]])
+            among = idx
         spectra = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
         dists, shifts = _match_many(spectra, descs[:, skip:])  # (K, P)
         which = np.argmin(dists, axis=0)  # the first of equals: the sensor's own first
@@ -865,7 +851,8 @@ class MapLocalizer:
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
-        if not any(a.ok for a in answers) and not self._sharp(src, top) and not self._agreed(src, answers, top):
+        if (not any(a.ok for a in answers) and not top.score < lc.retry_floor and not self._sharp(src, top)
+                and not self._agreed(src, answers, top)):
             self._retry(src, answers, failed, timings)  # no place accepted: the failed starts again
         answers.sort(key=lambda a: -a.score)
         best = self._refined(src, answers, timings)

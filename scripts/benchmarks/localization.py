@@ -23,7 +23,8 @@ FPFH features and registration_ransac_based_on_feature_matching against the whol
 no acceptance test: every answer counts as published). The baselines run on every ``--baseline-every``-th
 query, each in a child process with a ``--baseline-timeout`` s limit (a timeout counts as no pose);
 ``--baseline-prior R`` gives them the map within R m of a coarse prior instead (context only).
-``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places on a grid). Every method is
+``--grid-places``: MapLocalizer without the map drive's trajectory (candidate places over the map's drivable space);
+``--outside N``: each map also answers N queries of another map (no pose is right, timed). Every method is
 timed as a user runs it and every answer is the same on any machine and in every run: MapLocalizer is timed as
 configured (GICP on every core) and answered by a twin that solves GICP on one thread (``registration.exact_gicp``;
 its k-d trees and covariances, the same on any number of threads, use every core), whose own time is reported too
@@ -732,6 +733,26 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
     return fig
 
 
+def evaluate_outside(data: MapData, outside: list[Query], args, config=None, log=print) -> dict:
+    """MapLocalizer on scans from places that are not in the map (``outside``: other maps' queries): the right answer
+    is no pose. -> {"queries", "none_share", "wrong_count", "time_s_p50", "time_s_p95", "time_s_max"} (the time to
+    the "no pose")."""
+    m = make_method("maplocalizer", data.points, data.trajectory, args, config)
+    if isinstance(m, str):
+        return {"note": m}
+    times, wrong = [], 0
+    for n, q in enumerate(outside):
+        ans = m(q.points)
+        times.append(ans.time_s)
+        wrong += bool(ans.valid)
+        log(f"  {data.name} outside {n + 1}/{len(outside)} [{q.place}]: {'WRONG' if ans.valid else 'none'} "
+            f"{ans.time_s:.2f} s {ans.reason[:70]}")
+    t = np.array(times)
+    return {"queries": len(outside), "none_share": 1.0 - wrong / max(len(outside), 1), "wrong_count": wrong,
+            "time_s_p50": float(np.percentile(t, 50)), "time_s_p95": float(np.percentile(t, 95)),
+            "time_s_max": float(t.max())}
+
+
 # ---- report ------------------------------------------------------------------------------------------------------
 def report(figs: dict, methods: list[str]) -> None:
     from rich.console import Console
@@ -851,10 +872,14 @@ def main(argv: list[str] | None = None) -> int:
                    "test seed); the others follow")
     p.add_argument("--config", default=None, help="config YAML for MapLocalizer and the baselines")
     p.add_argument("--grid-places", action="store_true", help="MapLocalizer without the map drive's trajectory "
-                   "(candidate places on a grid over the map's free space instead of keyframes)")
+                   "(candidate places over the map's drivable space instead of keyframes)")
     p.add_argument("--inexact", action="store_true", help="the timed calls answer (MapLocalizer's GICP solve and "
                    "the baselines on every core): answers that can change from run to run (default: answered by "
                    "twins with registration.exact_gicp and baselines on one CPU, the same on any machine)")
+    p.add_argument("--outside", type=int, default=0, help="also this many scans from places not in each map (the "
+                   "next map's queries, spread over it; the last map gets the first's): no pose is right, "
+                   "timed to the answer")
+    p.add_argument("--outside-only", action="store_true", help="with --outside: measure only the scans outside")
     p.add_argument("--generate-only", action="store_true", help="build the cached maps and queries, measure nothing")
     p.add_argument("--quick", action="store_true", help="a smoke test: one scene, a 300 m map, 4 queries, no real "
                    "data unless given, baselines on 2 queries")
@@ -887,7 +912,17 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     figs = {}
     for name, data in maps.items():
-        figs[name] = evaluate_map(data, methods, args, config)
+        figs[name] = {"methods": {}, "rows": {}} if args.outside_only else evaluate_map(data, methods, args, config)
+    if args.outside > 0 and len(maps) > 1:  # each map against another map's queries (every one out of it)
+        names = list(maps)
+        for i, name in enumerate(names):
+            other = maps[names[(i + 1) % len(names)]].queries
+            pick = np.unique(np.linspace(0, len(other) - 1, min(args.outside, len(other))).round().astype(int))
+            figs[name]["outside"] = evaluate_outside(maps[name], [other[j] for j in pick], args, config)
+            o = figs[name]["outside"]
+            print(f"{name}: outside the map, {o.get('queries')} scans: no pose {100 * o.get('none_share', 0):.0f} %, "
+                  f"wrong {o.get('wrong_count')}, p50 {o.get('time_s_p50', float('nan')):.2f} s, "
+                  f"p95 {o.get('time_s_p95', float('nan')):.2f} s")
     fig = {"maps": figs, "pooled": aggregate(figs, methods), "labels": LABELS,
            "tolerance": {"rot_deg": ROT_OK_DEG, "trans_m": TRANS_OK_M},
            "settings": {k: v for k, v in vars(args).items()},
