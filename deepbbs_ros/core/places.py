@@ -11,8 +11,9 @@ read off the map itself::
                 height: what a wheel or a walker would hit); points higher up (the mapping vehicle's own roof, tree
                 canopy, a sign over the road) do not block a column, nor do a few stray returns
     drivable    columns with ground seen from close by (a ground return in GROUND_FILL of the column's map-voxel
-                sub-squares, over GROUND_COVERAGE of the columns around: where the mapping sensor passed; ground
-                seen from afar holds the rings' lines only), no obstacle and
+                sub-squares, relative to this map's best-seen column, or to its SPARSE_QUANTILE column on a map too
+                sparse for any place so; over GROUND_COVERAGE of the columns around: where the mapping sensor passed;
+                ground seen from afar holds the rings' lines only), no obstacle and
                 ``clearance`` m to the nearest obstacle column
     places      one per ``spacing`` m square block of drivable columns, the column farthest from obstacles
 
@@ -38,6 +39,7 @@ GROUND_WINDOW = 5  # columns; the local ground is the lowest column ground withi
 # the ground is "seen from close by" in a column with a ground return in GROUND_FILL of its map-voxel sub-squares, and
 # a place needs GROUND_COVERAGE of such columns around it
 GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
+SPARSE_QUANTILE = 0.9  # a sparse map's reference coverage: this quantile of its columns' (_close_coverage)
 
 
 def robust_ground(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int]) -> np.ndarray:
@@ -63,9 +65,9 @@ def robust_ground(points: np.ndarray, origin: np.ndarray, cell: float, shape: tu
 
 
 def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int],
-                     clearance: float, voxel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     clearance: float, voxel: float, sparse: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(drivable (nx, ny) bool, clearance to the nearest obstacle (nx, ny) m, ground (nx, ny) m) of the grid over
-    ``points`` (N, 3) on a ``voxel`` m grid (module docstring)."""
+    ``points`` (N, 3) on a ``voxel`` m grid (module docstring; ``sparse``: :func:`_close_coverage`)."""
     from scipy.ndimage import distance_transform_edt, uniform_filter
 
     ground = robust_ground(points, origin, cell, shape)
@@ -85,12 +87,23 @@ def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape:
     key = np.unique(sq[:, 0] * ny + sq[:, 1])  # the occupied sub-squares, once each
     cols = (key // ny) // sub * shape[1] + (key % ny) // sub  # the column of each
     covered = np.bincount(cols, minlength=n).reshape(shape) / float(sub * sub)
-    full = covered >= GROUND_FILL
+    full = covered >= GROUND_FILL * _close_coverage(covered, sparse)
     obstacle = (np.bincount(flat[in_band], minlength=n) >= OBSTACLE_POINTS).reshape(shape) & ~full
     dist = distance_transform_edt(~obstacle) * cell  # m to the nearest obstacle column
     free = full & (dist >= max(clearance, cell))
     free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
     return free, dist, ground
+
+
+def _close_coverage(covered: np.ndarray, sparse: bool = False) -> float:
+    """The share of sub-squares with a ground return where this map's sensor passed closest: its best-seen column's
+    (1 on a dense map, as a roof LiDAR's on a 0.2 m grid); on a map too sparse for that to give any place (thinned,
+    or made by a sparse sensor: its ground coverage is patchy even under the sensor's path), the SPARSE_QUANTILE of
+    its columns with any ground return. GROUND_FILL is a share of what this map can show, not of an ideal density."""
+    seen = covered[covered > 0]
+    if not len(seen):
+        return 1.0
+    return float(np.quantile(seen, SPARSE_QUANTILE)) if sparse else float(seen.max())
 
 
 def grid_places(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int], spacing: float,
@@ -99,6 +112,8 @@ def grid_places(points: np.ndarray, origin: np.ndarray, cell: float, shape: tupl
     one per ``spacing`` m square block, the column farthest from obstacles, ``height`` m above its ground
     (module docstring)."""
     free, dist, ground = drivable_columns(points, origin, cell, shape, clearance, voxel)
+    if not free.any():  # a sparse map: ground coverage judged against its own typical column's
+        free, dist, ground = drivable_columns(points, origin, cell, shape, clearance, voxel, sparse=True)
     ix, iy = np.nonzero(free)
     if len(ix) == 0:
         return np.zeros((0, 4, 4))
