@@ -108,12 +108,15 @@ def test_moved_map_uses_its_own_places_and_says_why(site_map, registration, tmp_
     np.testing.assert_allclose(cropped.places, whole.places)
 
     node = NodeLocalization(Config(), registration)
-    line = node.build(MapData(prior.points.astype(np.float32), "map", "moved.pcd", prior.trajectory))
-    assert "a grid over its free space" in line
-    assert node.map_warning.startswith("map from moved.pcd: the map's trajectory does not fit the map")
-    assert "keyframes of its trajectory" in node.build(MapData(ok.points.astype(np.float32), "map", "site.pcd",
-                                                              ok.trajectory))
-    assert node.map_warning == ""
+    try:
+        line = node.build(MapData(prior.points.astype(np.float32), "map", "moved.pcd", prior.trajectory))
+        assert "a grid over its free space" in line
+        assert node.map_warning.startswith("map from moved.pcd: the map's trajectory does not fit the map")
+        assert "keyframes of its trajectory" in node.build(MapData(ok.points.astype(np.float32), "map", "site.pcd",
+                                                                  ok.trajectory))
+        assert node.map_warning == ""
+    finally:
+        node.stop()  # its prefetch thread
 
 
 # -- 8. the map and the truth in different frames -------------------------------------------------------------------

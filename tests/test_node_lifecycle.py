@@ -317,6 +317,7 @@ def test_a_bad_model_or_map_fails_configure_in_one_line(ros, drive, tmp_path, ca
     good = _map(tmp_path, drive)
     node = LocalizerNode(_config(**{"localization.map_path": good, "registration.weights": str(tmp_path / "no.pt")}),
                          node_name="lc_bad")
+    before = set(threading.enumerate())  # another test's leftover thread is not this node's
     try:
         publishers = len(list(node.publishers))
         for param, value, named in [(None, None, "registration.weights: file not found"),
@@ -329,7 +330,8 @@ def test_a_bad_model_or_map_fails_configure_in_one_line(ros, drive, tmp_path, ca
             errors = [line for line in capfd.readouterr().err.splitlines() if "ERROR" in line]
             assert len(errors) == 1 and f"configure failed: {named}" in errors[0], errors
             assert len(list(node.publishers)) == publishers and node.reg is None
-            assert not [t for t in threading.enumerate() if t.name.startswith("deepbbs")], threading.enumerate()
+            assert not [t for t in threading.enumerate() if t.name.startswith("deepbbs") and t not in before], (
+                threading.enumerate())
     finally:
         node.destroy_node()
 

@@ -137,6 +137,10 @@ def test_map_to_odom_beside_a_drifting_odometry(ros, drive, tmp_path):
         # robot_state_publisher runs before the robot drives: its latched mounting reaches the node first
         assert h.wait_for(lambda: h.node.static_tf.lookup("base_link", "lidar") is not None, 20.0)
         assert h.wait_for(lambda: h.node.static_tf.has_edge("odom", "base_link"), 20.0)
+        # /tf is volatile and the stand-in replays its stamps in a loop: wait until the node heard every scan's (a real
+        # odometry's stamps only go forward; on a loaded machine the first scans could otherwise come before theirs)
+        assert h.wait_for(lambda: all(h.node.static_tf.lookup("odom", "base_link", sim.stamp_ns(k)) is not None
+                                      for k in FRAMES), 20.0)
         _send(h, sim, scan, FRAMES)
         assert len(h.poses) == len(FRAMES), h.node.localization.diagnostics()
         assert h.wait_for(lambda: len(h.tf.edge("map", "odom")) >= len(FRAMES), 5.0), h.tf.parents()
