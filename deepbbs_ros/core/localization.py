@@ -8,7 +8,7 @@
                 drivable space (core/places.py)
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
-                the scan
+                the scan (core/descriptors.py)
     rank        every place against the scan (in a map of more than localization.rank_shortlist places, the places
                 the descriptor about the sensor alone ranks best), every column shift (a circular correlation by FFT;
                 the best shift is the scan's yaw), the scan also described about points localization.descriptor_shift
@@ -25,7 +25,7 @@
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
                 side: a pose that slides (a featureless road) is ambiguous too, a better optimum nearby (the next
-                lane, the next repeat of a facade) replaces it
+                lane, the next repeat of a facade) replaces it (these rules: core/acceptance.py)
     sharp       when none reaches localization.min_score, the best (refined as below) is still accepted when it
                 is sharp (of the scan points within sharp_dist of the map, a share >= sharp_score within
                 verdict_dist: the right pose seen from another carriageway), or when two candidate places' answers
@@ -42,8 +42,10 @@ Measured (the localization benchmark's simulated 1 km urban map, 1.5 M points at
 2 cores): map build 2.0 s, of which 0.6 s the map's GICP cloud (278 k voxels), 137 MB held (62 MB of it that cloud);
 a global search's time hardly grows with the map (p50 0.45, 0.40, 0.40 s at 250, 500, 1000 m of road): one FFT row per
 place, then a fixed number of registrations.
-:class:`MapTracker` is the state machine around it (the node's and the replay's): constant-velocity prediction,
-lost after localization.lost_after rejected scans, then the global search until found again.
+:class:`MapTracker` (core/tracking.py) is the state machine around it (the node's and the replay's): constant-velocity
+prediction, lost after localization.lost_after rejected scans, then the global search until found again. The results
+and the search's data types are in core/localization_types.py, the map's cell index in core/map_index.py; this module
+builds the map's places and crops and runs the search and the tracking registration.
 
 Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
 ``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
@@ -54,19 +56,46 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict, deque
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core import acceptance
 from deepbbs_ros.core.covariance import scan_covariance
+from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests reach the descriptor's helpers here)
+    GROUND_WINDOW,
+    _HeightGrid,
+    _match,
+    _match_many,
+    _normalise_columns,
+    _PolarTemplate,
+    _spectra,
+)
+from deepbbs_ros.core.localization_types import (  # noqa: F401  (re-exported)
+    LocalizationResult,
+    PreparedScan,
+    _Answer,
+    _Crop,
+    _crop_cloud,
+    _heading,
+    _rz,
+    _yaw,
+)
 from deepbbs_ros.core.map_fit import check_trajectory
+from deepbbs_ros.core.map_index import _CellIndex, voxel_downsample
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishView, polish, prepare_polish_cloud
 from deepbbs_ros.core.preprocess import crop_range
 from deepbbs_ros.core.scans import prepare_view
+from deepbbs_ros.core.tracking import (  # noqa: F401
+    DESKEW_WINDOW,
+    HINT_MIN_RADIUS,
+    HINT_MIN_YAW,
+    HINT_SIGMAS,
+    HINT_YAW_STEP,
+    MapTracker,
+)
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
-from deepbbs_ros.reprs import short_repr
 
 __all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "voxel_downsample"]
 
@@ -77,227 +106,6 @@ MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 CLOUD_BYTES = 224
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 OBSTACLE_BAND = (0.3, 2.5)  # m above the local ground: what makes a grid cell an obstacle (the lattice's places)
-GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
-
-
-#: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
-DESKEW_WINDOW = 5
-#: MapTracker.hint: the places within this many standard deviations of the hint's position are searched first, and an
-#: answer within as many of its yaw accepted; at least HINT_MIN_RADIUS m / HINT_MIN_YAW rad (an exact hint)
-HINT_SIGMAS, HINT_MIN_RADIUS, HINT_MIN_YAW = 3.0, 10.0, np.radians(30.0)
-#: MapTracker.hint: DeepBBS++ starts from the hint's yaw, and this far apart either side within its yaw window
-HINT_YAW_STEP = np.radians(45.0)
-
-
-@dataclass
-class LocalizationResult:
-    """One scan's pose in the map, or why there is none.
-
-    Attributes:
-        T_map_scan: (4, 4) float64, p_map = R p_scan + t; the best estimate even when not valid (then not to be
-            used; identity when there is none).
-        valid: the verdict accepted it and nothing else looked alike (publish only when True).
-        score: the verdict's score of the chosen pose (nan when none).
-        mode: "global" (searched the map), "tracking" (from a guess / prediction) or "hint" (near a pose hint).
-        reason: "" when valid; else one line why no pose.
-        event: set by :class:`MapTracker`: "found", "tracking", "lost", "relocalized", "searching".
-        candidates: candidate places registered (global), 1 when tracking from the guess alone.
-        path: which registration path answered: "gicp" (tracking, good start), "deepbbs", "search" (a local search
-            after the guess was rejected).
-        timings_ms: "preprocess", "describe", "rank", "crop", "register", "gicp", "probe", "refine", "covariance",
-            "total" (those that ran).
-        crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
-        place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
-        alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
-        covariance: (6, 6) float64 covariance of ``T_map_scan`` for every valid pose (ROS order x, y, z, rot x, rot y,
-            rot z; position error in the map frame, rotation error a left perturbation: core/covariance.py), from the
-            GICP of the scan on the crop at the pose; None when not valid or none could be computed.
-    """
-
-    __repr__ = short_repr
-
-    T_map_scan: np.ndarray
-    valid: bool
-    score: float
-    mode: str
-    reason: str
-    event: str = ""
-    candidates: int = 0
-    path: str = ""
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    crop: np.ndarray | None = None
-    place: int = -1
-    alternatives: list[tuple[float, float, float]] = field(default_factory=list)
-    covariance: np.ndarray | None = None
-
-
-def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(N, 3) -> (M, 3) float32: the centroid of the points of every occupied ``voxel`` m cube (0: as given)."""
-    pts = np.asarray(points, dtype=np.float64)
-    if voxel <= 0 or len(pts) == 0:
-        return pts.astype(np.float32)
-    key = np.floor(pts / voxel).astype(np.int64)
-    key -= key.min(axis=0)
-    dims = key.max(axis=0) + 1
-    flat = (key[:, 0] * dims[1] + key[:, 1]) * dims[2] + key[:, 2]
-    _, inv, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    out = np.stack([np.bincount(inv, weights=pts[:, j], minlength=len(counts)) for j in range(3)], axis=1)
-    return (out / counts[:, None]).astype(np.float32)
-
-
-# -- the height grid and the descriptor -------------------------------------------------------------------------------
-class _HeightGrid:
-    """A 2D grid (cell ``cell`` m) over points (N, 3): per cell the highest point above the local ground (the lowest
-    point within GROUND_WINDOW cells), 0 where empty; ``ground`` the local ground (nan where nothing lies near).
-    ``origin`` (2,) the corner of cell (0, 0); arrays indexed [ix, iy]."""
-
-    def __init__(self, points: np.ndarray, cell: float, pad: float = 0.0) -> None:
-        from scipy.ndimage import minimum_filter
-
-        xy = points[:, :2].astype(np.float64)
-        self.cell = float(cell)
-        self.origin = xy.min(axis=0) - pad
-        ij = np.floor((xy - self.origin) / cell).astype(np.int64)
-        self.shape = tuple(int(v) for v in (np.ceil((xy.max(axis=0) + pad - self.origin) / cell).astype(int) + 1))
-        flat = ij[:, 0] * self.shape[1] + ij[:, 1]
-        n = self.shape[0] * self.shape[1]
-        z = points[:, 2].astype(np.float32)
-        zmax = np.full(n, -np.inf, np.float32)
-        zmin = np.full(n, np.inf, np.float32)
-        self.count = np.bincount(flat, minlength=n).reshape(self.shape)  # points per cell
-        np.maximum.at(zmax, flat, z)
-        np.minimum.at(zmin, flat, z)
-        zmax, zmin = zmax.reshape(self.shape), zmin.reshape(self.shape)
-        ground = minimum_filter(zmin, size=GROUND_WINDOW, mode="constant", cval=np.inf)
-        occupied = np.isfinite(zmax)
-        with np.errstate(invalid="ignore"):
-            self.height = np.where(occupied, zmax - np.where(np.isfinite(ground), ground, zmax), 0.0).astype(np.float32)
-        self.ground = np.where(np.isfinite(ground), ground, np.nan).astype(np.float32)
-        self.zmax, self.occupied = zmax, occupied
-
-    def index(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ix, iy, inside) of map positions xy (..., 2)."""
-        ij = np.floor((np.asarray(xy, np.float64) - self.origin) / self.cell).astype(np.int64)
-        inside = (ij[..., 0] >= 0) & (ij[..., 0] < self.shape[0]) & (ij[..., 1] >= 0) & (ij[..., 1] < self.shape[1])
-        return np.clip(ij[..., 0], 0, self.shape[0] - 1), np.clip(ij[..., 1], 0, self.shape[1] - 1), inside
-
-    def ground_at(self, xy: np.ndarray, fallback: float) -> np.ndarray:
-        """The local ground height (m) at positions xy (K, 2); ``fallback`` where the grid has none."""
-        ix, iy, inside = self.index(xy)
-        g = np.where(inside, self.ground[ix, iy], np.nan)
-        return np.where(np.isfinite(g), g, fallback)
-
-
-class _PolarTemplate:
-    """Which grid cells (offsets from the centre cell) fall in which (ring, sector) bin of a descriptor of ``rings``
-    x ``sectors`` bins out to ``radius`` m (sectors counted counter-clockwise from +x, sector 0 starting at -pi)."""
-
-    def __init__(self, radius: float, rings: int, sectors: int, cell: float) -> None:
-        self.radius, self.rings, self.sectors, self.cell = radius, rings, sectors, cell
-        # sample every bin densely enough that each gets its cells (small inner bins included), then deduplicate
-        dr = min(cell / 2.0, radius / rings / 2.0)
-        r = np.arange(dr / 2.0, radius, dr)
-        pts = []
-        for rr in r:
-            n = max(sectors * 2, int(np.ceil(2 * np.pi * rr / (cell / 2.0))))
-            a = -np.pi + (np.arange(n) + 0.5) * (2 * np.pi / n)
-            pts.append(np.stack([rr * np.cos(a), rr * np.sin(a)], axis=1))
-        p = np.concatenate(pts)
-        ring = np.minimum((np.hypot(p[:, 0], p[:, 1]) / (radius / rings)).astype(np.int64), rings - 1)
-        sector = np.minimum(((np.arctan2(p[:, 1], p[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(np.int64),
-                            sectors - 1)
-        off = np.floor(p / cell + 0.5).astype(np.int64)  # offsets of the cells holding the samples (centre cell 0)
-        key = np.unique(np.stack([ring * sectors + sector, off[:, 0], off[:, 1]], axis=1), axis=0)
-        self.bin, self.dx, self.dy = key[:, 0], key[:, 1], key[:, 2]
-        self.starts = np.flatnonzero(np.r_[True, self.bin[1:] != self.bin[:-1]])
-
-    def describe(self, grid: _HeightGrid, centres: np.ndarray) -> np.ndarray:
-        """(K, rings, sectors) float32 descriptors of the grid around the map positions ``centres`` (K, 2)."""
-        cx, cy, _ = grid.index(centres)
-        out = np.empty((len(centres), self.rings * self.sectors), np.float32)
-        padded = np.pad(grid.height, 1)  # index -1 / shape: the zero border (outside the grid)
-        for a in range(0, len(centres), 64):  # batches of places: (64, cells of the template)
-            ix = np.clip(cx[a:a + 64, None] + self.dx[None] + 1, 0, grid.shape[0] + 1)
-            iy = np.clip(cy[a:a + 64, None] + self.dy[None] + 1, 0, grid.shape[1] + 1)
-            out[a:a + 64] = np.maximum.reduceat(padded[ix, iy], self.starts, axis=1)
-        return out.reshape(len(centres), self.rings, self.sectors)
-
-
-def _normalise_columns(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(..., R, S) -> (columns scaled to unit norm, (..., S) 1.0 where a column is not empty)."""
-    norm = np.linalg.norm(desc, axis=-2, keepdims=True)
-    nonzero = norm > 1e-6
-    return np.where(nonzero, desc / np.where(nonzero, norm, 1.0), 0.0).astype(np.float32), nonzero[..., 0, :]
-
-
-def _spectra(places: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The places' part of :func:`_match`, (P, R, S) -> (their normalised columns' spectra (P, R, S // 2 + 1),
-    their non-empty columns' spectra (P, S // 2 + 1), their non-empty column counts (P, 1)): the same for every
-    query, computed once per map."""
-    pn, pmask = _normalise_columns(places)
-    return (np.fft.rfft(pn, axis=-1), np.fft.rfft(pmask.astype(np.float32), axis=-1),
-            pmask.sum(axis=-1, keepdims=True))
-
-
-def _match(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
-           query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Scan Context distance of the query (R, S) to every place (P, R, S) (or their :func:`_spectra`) at every
-    column shift: -> (distance (P,) in [0, 1] (mean cosine distance of the columns both have), shift (P,) int: place
-    column (s + shift) % S matches query column s). Circular correlations by FFT over the sectors."""
-    dist, shift = _match_many(places, query[None])
-    return dist[0], shift[0]
-
-
-def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
-                query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_match` of K queries (K, R, S) at once: -> (distance (K, P), shift (K, P))."""
-    fp, fpmask, psum = _spectra(places) if isinstance(places, np.ndarray) else places
-    qn, qmask = _normalise_columns(query)  # (K, R, S), (K, S)
-    S = query.shape[-1]
-    fq = np.conj(np.fft.rfft(qn, axis=-1))  # (K, R, F)
-    # one query at a time, not one matrix product: numpy's BLAS threads contend with the network's on 2 cores
-    prod = np.stack([(fp * f[None]).sum(axis=1) for f in fq])  # (K, P, F)
-    corr = np.fft.irfft(prod, n=S, axis=-1)  # (K, P, S): sum_s <p[:, s+k], q[:, s]>
-    both = np.fft.irfft(fpmask[None] * np.conj(np.fft.rfft(qmask.astype(np.float32), axis=-1))[:, None], n=S,
-                        axis=-1)  # (K, P, S) columns non-empty in both
-    either = psum[None] + qmask.sum(axis=-1)[:, None, None] - both  # columns non-empty in one of them
-    sim = corr / np.maximum(either, 1.0)  # an empty column facing a full one counts as a mismatch
-    shift = np.argmax(sim, axis=-1)
-    best = np.take_along_axis(sim, shift[..., None], axis=-1)[..., 0]
-    return (1.0 - best).astype(np.float64), shift
-
-
-def _heading(T: np.ndarray) -> np.ndarray:
-    """(2,) the unit horizontal heading (x axis) of a pose T (4, 4)."""
-    return T[:2, 0] / max(float(np.linalg.norm(T[:2, 0])), 1e-9)
-
-
-def _yaw(T: np.ndarray) -> float:
-    """The yaw (rad) of a pose T (4, 4): the heading of its x axis."""
-    return float(np.arctan2(T[1, 0], T[0, 0]))
-
-
-def _rz(yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:2, :2] = [[c, -s], [s, c]]
-    return T
-
-
-@dataclass
-class PreparedScan:
-    """A scan made ready for :meth:`MapLocalizer.localize` by :meth:`MapLocalizer.prepare` (e.g. on arrival)."""
-
-    points: np.ndarray  # (N, 3) float32 the scan's finite points, sensor frame, metres
-    pre: Any  # its PreprocessResult (GICP cloud with k-d tree and covariances; sampling lazy)
-    preprocess_ms: float  # what preparing it took
-
-
-@dataclass
-class _Crop:
-    T_map_place: np.ndarray  # (4, 4) the crop's frame (gravity-aligned, origin at the place's sensor position)
-    pre: Any  # its PreprocessResult (GICP cloud included)
-    map_cloud: np.ndarray | None = None  # (M, 3) float32 its GICP cloud in the map frame (LocalizationResult.crop)
 
 
 class MapLocalizer:
@@ -878,15 +686,7 @@ class MapLocalizer:
                                       f"no candidate place passed the verdict (best score {best.score:.2f} < "
                                       f"{self._threshold:.2f}, not sharp)", candidates=n, path="deepbbs",
                                       place=best.place)
-        rivals = [a for a in pool[1:] if (a.ok or sharp) and a.score >= best.score - (
-                      lc.ambiguity_probe_margin if a.probe else lc.ambiguity_margin)
-                  and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > (
-                      max(0.5, 0.5 * lc.ambiguity_probe) if a.probe else lc.ambiguity_distance)]
-        if lc.ambiguity_sharp_margin < 1 and any(not a.probe for a in rivals):
-            # another place ties only when it fits about as closely where the map covers the scan: a look-alike
-            # stretch of a highway scores near the right pose but fits looser
-            bar = self._sharpness(src, best) - lc.ambiguity_sharp_margin
-            rivals = [a for a in rivals if a.probe or self._sharpness(src, a) >= bar]
+        rivals = acceptance.rivals(src, best, pool, sharp, self.config, self.registration)
         alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
                         and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
         if rivals:
@@ -970,32 +770,6 @@ class MapLocalizer:
             ans.T, ans.score, ans.sharp = T, score, None
         return ans
 
-    def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
-        """An answer under min_score, not sharp, accepted all the same (``agree_margin``): valid by the registration's
-        verdict, the answers of at least two candidate places within 1 deg / 0.3 m of it, at least ``agree_sharp``
-        sharp, and every answer more than ``ambiguity_distance`` away at least ``agree_margin`` lower."""
-        from deepbbs_ros.metrics import pair_errors
-
-        lc = self.config.localization
-        if lc.agree_margin <= 0 or not best.score >= self.config.registration.verdict_threshold:
-            return False
-        near = [a for a in answers if not a.probe]
-        rot, trans = pair_errors(np.stack([a.T for a in near]), np.repeat(best.T[None], len(near), axis=0))
-        places = {a.place for a, r, t in zip(near, rot, trans, strict=True) if r <= 1.0 and t <= 0.3}
-        if len(places) < 2:
-            return False
-        far = [a.score for a in answers if np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
-        if far and max(far) > best.score - lc.agree_margin:
-            return False
-        return self._sharpness(src, best) >= lc.agree_sharp
-
-    def _sharp(self, src: Any, ans: _Answer) -> bool:
-        """An answer under min_score accepted all the same (``sharp_score``): valid by the registration's verdict and
-        sharp (:meth:`_sharpness`)."""
-        lc = self.config.localization
-        return (lc.sharp_score > 0 and ans.score >= self.config.registration.verdict_threshold
-                and self._sharpness(src, ans) >= lc.sharp_score)
-
     def _better_gicp(self, src: Any, crop: _Crop, T_init: np.ndarray, place: int, ans: _Answer,
                      timings: dict[str, float]) -> _Answer:
         """GICP alone from T_init (:meth:`_gicp`) beside the network's ``ans``: the better of the two."""
@@ -1019,36 +793,22 @@ class MapLocalizer:
         rc = getattr(getattr(self.registration, "config", None), "registration", None)
         return rc is not None and rc.global_search != "off"
 
+    # -- acceptance (core/acceptance.py) -------------------------------------------------------------------------
     @property
     def _threshold(self) -> float:
-        return max(self.config.registration.verdict_threshold, self.config.localization.min_score)
+        return acceptance.threshold(self.config)
 
     def _accepts(self, valid: bool, score: float) -> bool:
-        """The registration's verdict and the map's own bar (``localization.min_score``)."""
-        return bool(valid) and np.isfinite(score) and score >= self.config.localization.min_score
+        return acceptance.accepts(self.config, valid, score)
 
     def _sharpness(self, src: Any, ans: _Answer) -> float:
-        """Of the scan's verdict points within ``localization.sharp_dist`` of the answer's crop, the share within
-        ``registration.verdict_dist`` (0 when none or no crop cloud): a fit that is close wherever the map covers
-        the scan, whatever the share the map covers (another carriageway sees another side of the road). Measured once
-        per answer (kept in ``ans.sharp``)."""
-        if ans.sharp is None:
-            ans.sharp = self._measure_sharpness(src, ans)
-        return ans.sharp
+        return acceptance.sharpness(src, ans, self.config, self.registration)
 
-    def _measure_sharpness(self, src: Any, ans: _Answer) -> float:
-        tgt = ans.crop.pre.polish_cloud
-        if tgt is None or len(src.points) == 0:
-            return 0.0
-        if getattr(tgt, "pending", None) is not None:
-            tgt.complete(threads=self.registration.gicp_threads())
-        T = np.linalg.inv(ans.crop.T_map_place) @ ans.T
-        pts = np.asarray(src.points, np.float64) @ T[:3, :3].T + T[:3, 3]
-        _, sq = tgt.tree.batch_nearest_neighbor_search(pts, num_threads=1)
-        sq = np.asarray(sq, np.float64)
-        covered = int(np.sum(sq <= self.config.localization.sharp_dist ** 2))
-        close = int(np.sum(sq <= self.config.registration.verdict_dist ** 2))
-        return close / covered if covered else 0.0
+    def _sharp(self, src: Any, ans: _Answer) -> bool:
+        return acceptance.sharp(src, ans, self.config, self.registration)
+
+    def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
+        return acceptance.agreed(src, answers, best, self.config, self.registration)
 
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
@@ -1168,30 +928,6 @@ class MapLocalizer:
         return coarse if coarse.n_points >= MIN_PROBE_POINTS else pc
 
 
-@dataclass
-class _Answer:
-    score: float
-    ok: bool  # accepted by the verdict and localization.min_score
-    T: np.ndarray  # T_map_scan
-    place: int
-    crop: _Crop
-    probe: bool = False  # from the GICP probe around the best answer
-    gicp: bool = False  # from GICP alone (the network's answer failed or scored low)
-    sharp: float | None = None  # MapLocalizer._sharpness, once measured
-    refined: bool = False  # MapLocalizer._refined has seen it
-
-
-def _crop_cloud(crop: _Crop) -> np.ndarray | None:
-    """(M, 3) float32 the crop's GICP cloud in the map frame (kept with the crop)."""
-    if crop.map_cloud is None:
-        pc = getattr(crop.pre, "polish_cloud", None)
-        if pc is None:
-            return None
-        p = np.asarray(pc.points(), dtype=np.float64)[:, :3]
-        crop.map_cloud = (p @ crop.T_map_place[:3, :3].T + crop.T_map_place[:3, 3]).astype(np.float32)
-    return crop.map_cloud
-
-
 def _as_cloud(points: Any, name: str) -> np.ndarray:
     """(N, 3) float32 (NaN rows kept) or LocalizationError naming ``name``."""
     from deepbbs_ros.core.points import as_xyz
@@ -1200,191 +936,3 @@ def _as_cloud(points: Any, name: str) -> np.ndarray:
         return as_xyz(points, name)
     except DeepBBSError as err:
         raise LocalizationError(str(err)) from err
-
-
-class _CellIndex:
-    """Map points sorted by their ``cell`` m square (x, y), for fast crops."""
-
-    def __init__(self, points: np.ndarray, cell: float) -> None:
-        self.cell = cell
-        ij = np.floor(points[:, :2] / cell).astype(np.int64)
-        self.lo = ij.min(axis=0)
-        ij -= self.lo
-        self.ny = int(ij[:, 1].max()) + 1
-        self.nx = int(ij[:, 0].max()) + 1
-        key = ij[:, 0] * self.ny + ij[:, 1]
-        order = np.argsort(key, kind="stable")
-        self.points = points[order]
-        key = key[order]
-        self.starts = np.searchsorted(key, np.arange(self.nx * self.ny + 1))
-
-    def within(self, xy: np.ndarray, radius: float) -> np.ndarray:
-        """(M, 3) the points within ``radius`` m of xy (2,), horizontally."""
-        lo = np.floor((np.asarray(xy) - radius) / self.cell).astype(np.int64) - self.lo
-        hi = np.floor((np.asarray(xy) + radius) / self.cell).astype(np.int64) - self.lo
-        lo, hi = np.maximum(lo, 0), np.minimum(hi, [self.nx - 1, self.ny - 1])
-        parts = []
-        for i in range(lo[0], hi[0] + 1):
-            a, b = self.starts[i * self.ny + lo[1]], self.starts[i * self.ny + hi[1] + 1]
-            if b > a:
-                parts.append(self.points[a:b])
-        if not parts:
-            return np.zeros((0, 3), np.float32)
-        p = np.concatenate(parts)
-        d = p[:, :2] - np.asarray(xy, dtype=np.float32)
-        return p[np.einsum("ij,ij->i", d, d) <= radius * radius]
-
-
-class MapTracker:
-    """The state machine shared by the node and the replay (module docstring).
-
-    One scan in -> one :class:`LocalizationResult` out with its ``event``: "found" (first pose), "tracking",
-    "lost" (``lost_after`` rejected scans in a row, or a pose implying more than ``max_speed``), "searching" (no
-    pose yet, or still lost), "relocalized" (found again after being lost). ``state``: "searching" | "tracking" |
-    "lost"; ``recoveries``: times it was lost and found again.
-    """
-
-    def __init__(self, localizer: MapLocalizer, config: Config | None = None) -> None:
-        self.localizer = localizer
-        self.config = config if config is not None else localizer.config
-        self.recoveries = 0
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget everything: the next scan is searched in the whole map (the node's ~/relocalize)."""
-        self.state = "searching"
-        self.rejected = 0
-        self._poses: list[tuple[int, np.ndarray]] = []  # (stamp_ns, T_map_scan) of the last accepted scans
-        self._hint: tuple[np.ndarray, float, float] | None = None  # hint(): pose, radius (m), yaw window (rad)
-
-    def hint(self, T_map_scan: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        """A pose hint (an operator's initial pose, RViz's "2D Pose Estimate"): forget the pose, and the next
-        :meth:`step` registers the scan from the hint (:meth:`MapLocalizer.localize_near`: its yaw, and
-        ``HINT_YAW_STEP`` steps within ``HINT_SIGMAS`` sigma of it), then searches the places within ``HINT_SIGMAS``
-        standard deviations of its position (at least ``HINT_MIN_RADIUS`` m), accepting an answer only within that reach
-        and ``HINT_SIGMAS`` sigma of its yaw (at least ``HINT_MIN_YAW``); when the verdict rejects there, the whole map.
-        ``T_map_scan`` (4, 4); ``covariance`` (6, 6) x y z rot x rot y rot z (None: the minimum reach)."""
-        T = np.asarray(T_map_scan, dtype=np.float64)
-        if T.shape != (4, 4) or not np.isfinite(T).all():
-            raise LocalizationError(f"hint: expected a finite (4, 4) T_map_scan, got shape {T.shape}")
-        cov = np.zeros((6, 6)) if covariance is None else np.nan_to_num(np.asarray(covariance, dtype=np.float64))
-        sigma_xy = float(np.sqrt(max(cov[0, 0], cov[1, 1], 0.0)))
-        sigma_yaw = float(np.sqrt(max(cov[5, 5], 0.0)))
-        self.reset()
-        self._hint = (T, max(HINT_SIGMAS * sigma_xy, HINT_MIN_RADIUS), max(HINT_SIGMAS * sigma_yaw, HINT_MIN_YAW))
-
-    def _step_hint(self, scan: Any) -> LocalizationResult | None:
-        """The search near a pending :meth:`hint` (consumed) for a :class:`PreparedScan`: DeepBBS++ from the hint,
-        then the places within its reach; the result when the verdict accepts a pose within its reach, else None (the
-        caller searches the whole map)."""
-        T_hint, radius, max_yaw = self._hint
-        self._hint = None
-        # DeepBBS++ from the hint, at its yaw, then HINT_YAW_STEP either side within its window
-        steps = np.arange(1, int(min(max_yaw, np.pi) / HINT_YAW_STEP) + 1) * HINT_YAW_STEP
-        yaws = [0.0] + [s * y for y in steps for s in (1.0, -1.0)]
-        res = self.localizer.localize_near(scan, T_hint, yaws)
-        if res.valid and self._near(res, T_hint, radius, max_yaw):
-            return res
-        xy = self.localizer.places[:, :2, 3]
-        d = np.linalg.norm(xy - T_hint[:2, 3], axis=1)
-        among = np.flatnonzero(d <= radius)
-        if len(among) == 0:
-            among = np.argsort(d)[:1]  # the hint off the places: the nearest one
-        res = self.localizer.localize(scan, None, among=among)
-        if not res.valid or not self._near(res, T_hint, radius, max_yaw):
-            return None  # no pose, or one outside the hint's reach: the whole map decides
-        res.mode = "hint"
-        return res
-
-    @staticmethod
-    def _near(res: LocalizationResult, T_hint: np.ndarray, radius: float, max_yaw: float) -> bool:
-        """Whether a pose lies within a hint's reach: ``radius`` m and ``max_yaw`` rad of its yaw."""
-        off = float(np.linalg.norm(res.T_map_scan[:2, 3] - T_hint[:2, 3]))
-        turn = abs(float(np.angle(np.exp(1j * (_yaw(res.T_map_scan) - _yaw(T_hint))))))
-        return off <= radius and (max_yaw >= np.pi or turn <= max_yaw)
-
-    def predict(self, stamp_ns: int) -> np.ndarray | None:
-        """T_map_scan (4, 4) at ``stamp_ns`` under constant velocity from the last two accepted poses (the last pose
-        with one; None with none)."""
-        if not self._poses:
-            return None
-        s1, T1 = self._poses[-1]
-        if len(self._poses) < 2:
-            return T1.copy()
-        s0, T0 = self._poses[-2]
-        dt0, dt1 = (s1 - s0) * 1e-9, (stamp_ns - s1) * 1e-9
-        if dt0 <= 0 or dt1 < 0 or dt1 > 5.0 * max(dt0, 0.05):
-            return T1.copy()
-        from scipy.spatial.transform import Rotation
-
-        step = np.linalg.inv(T0) @ T1
-        k = dt1 / dt0
-        out = np.eye(4)
-        out[:3, :3] = Rotation.from_rotvec(Rotation.from_matrix(step[:3, :3]).as_rotvec() * k).as_matrix()
-        out[:3, 3] = step[:3, 3] * k
-        return T1 @ out
-
-    def step(self, scan: Any, stamp_ns: int, times: np.ndarray | None = None) -> LocalizationResult:
-        """Localize one scan (N, 3) (sensor frame, metres; or its :class:`PreparedScan`, deskewed already) stamped
-        ``stamp_ns`` (per-point ``times`` (N,) s since the stamp, optional). Raises LocalizationError for bad input
-        (the state is unchanged)."""
-        lc = self.config.localization
-        stamp_ns = int(stamp_ns)
-        if self.state == "tracking":
-            guess = self.predict(stamp_ns)
-            motion = self.motion() if times is not None else None
-            res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
-            if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
-                res.valid = False
-                res.reason = f"implausible motion (faster than {lc.max_speed:.0f} m/s)"
-            if res.valid:
-                self.rejected = 0
-                self._accept(stamp_ns, res.T_map_scan)
-                res.event = "tracking"
-                return res
-            self.rejected += 1
-            if self.rejected >= lc.lost_after:
-                self.state = "lost"
-                self._poses.clear()
-                res.event = "lost"
-            else:
-                res.event = "tracking"
-            return res
-        res = None
-        if self._hint is not None:
-            if not isinstance(scan, PreparedScan):
-                scan = self.localizer.prepare(scan, times, stamp_ns)  # once for the hint's searches and the map's
-            res = self._step_hint(scan)
-        if res is None:
-            res = self.localizer.localize(scan, None, times=times, stamp_ns=stamp_ns)
-        if res.valid:
-            res.event = "relocalized" if self.state == "lost" else "found"
-            if self.state == "lost":
-                self.recoveries += 1
-            self.state, self.rejected = "tracking", 0
-            self._accept(stamp_ns, res.T_map_scan)
-        else:
-            res.event = "searching"
-        return res
-
-    def motion(self) -> tuple[np.ndarray, float] | None:
-        """The sensor's recent motion (``T_prev_cur`` (4, 4), seconds) over the last ``DESKEW_WINDOW`` accepted poses
-        while tracking (deskewing a scan: :meth:`MapLocalizer.prepare`), else None. Safe to call from another thread.
-        A window, not the last step: the deskew's motion is read off map poses that it shapes, and from two poses the
-        loop amplifies their noise (a raw-sweep drive: tilt 0.1 -> 7 deg in 25 scans, the verdict still at 0.99)."""
-        poses = list(self._poses)  # one read: the list may be appended to meanwhile
-        if self.state != "tracking" or len(poses) < 2:
-            return None
-        (s0, T0), (s1, T1) = poses[0], poses[-1]
-        return np.linalg.inv(T0) @ T1, (s1 - s0) * 1e-9
-
-    def _plausible(self, T: np.ndarray, stamp_ns: int) -> bool:
-        if not self._poses:
-            return True
-        s1, T1 = self._poses[-1]
-        dt = max((stamp_ns - s1) * 1e-9, 0.05)
-        return float(np.linalg.norm(T[:3, 3] - T1[:3, 3])) <= self.config.localization.max_speed * dt + 1.0
-
-    def _accept(self, stamp_ns: int, T: np.ndarray) -> None:
-        self._poses.append((stamp_ns, T.copy()))
-        del self._poses[:-DESKEW_WINDOW]
