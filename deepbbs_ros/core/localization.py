@@ -4,8 +4,8 @@
 
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
                 m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
-                (other lanes, the other way), or (no trajectory) a grid of localization.grid_spacing over the map's
-                drivable space (core/places.py)
+                (other lanes, the other way; core/drive_places.py), or (no trajectory) a grid of
+                localization.grid_spacing over the map's drivable space (core/places.py)
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan (core/descriptors.py)
@@ -14,18 +14,18 @@
                 the best shift is the scan's yaw), the scan also described about points localization.descriptor_shift
                 m ahead, behind and to either side (a place between the lattice's rows); the localization.top_k best
                 places at least candidate_separation m apart, each from its best-matching point of the scan
-    register    DeepBBS++ (core/registration.py) of the scan on each candidate's map crop (the map within
-                localization.crop_radius of the place: a view of the map's GICP cloud, prepared once with the map
-                (localization.shared_cloud), and the network's points sampled from it, kept in an LRU) from the
-                descriptor's yaw (GICP alone beside an answer under confident_score: a lane off?); when no place is
-                accepted (and the best scores localization.retry_floor or more), the failed ones again with GICP
-                alone (accepted only when sharp, below), then DeepBBS++ from the opposite yaw
-                (localization.flip_starts); the verdict (valid / score) chooses
+    register    (the search: core/place_search.py) DeepBBS++ (core/registration.py) of the scan on each candidate's
+                map crop (the map within localization.crop_radius of the place: a view of the map's GICP cloud,
+                prepared once with the map (localization.shared_cloud), and the network's points sampled from it,
+                kept in an LRU) from the descriptor's yaw (GICP alone beside an answer under confident_score: a
+                lane off?); when no place is accepted (and the best scores localization.retry_floor or more), the
+                failed ones again with GICP alone (accepted only when sharp, below), then DeepBBS++ from the
+                opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
     ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
                 ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
                 is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
                 side: a pose that slides (a featureless road) is ambiguous too, a better optimum nearby (the next
-                lane, the next repeat of a facade) replaces it (these rules: core/acceptance.py)
+                lane, the next repeat of a facade) replaces it (this rule and the next: core/acceptance.py)
     sharp       when none reaches localization.min_score, the best (refined as below) is still accepted when it
                 is sharp (of the scan points within sharp_dist of the map, a share >= sharp_score within
                 verdict_dist: the right pose seen from another carriageway), or when two candidate places' answers
@@ -45,7 +45,8 @@ place, then a fixed number of registrations.
 :class:`MapTracker` (core/tracking.py) is the state machine around it (the node's and the replay's): constant-velocity
 prediction, lost after localization.lost_after rejected scans, then the global search until found again. The results
 and the search's data types are in core/localization_types.py, the map's cell index in core/map_index.py; this module
-builds the map's places and crops and runs the search and the tracking registration.
+builds the map (places, descriptors, GICP cloud), its crops, describes and ranks a scan, and tracks from a guess;
+``MapLocalizer`` takes its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch`.
 
 Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
 ``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
