@@ -200,7 +200,7 @@ class MapLocalizer(PlaceSearch):
                    + g.ground.nbytes + g.zmax.nbytes + g.count.nbytes + g.occupied.nbytes + self.descriptors.nbytes
                    + sum(a.nbytes for a in self._spectra) + cloud)
 
-    # -- places -----------------------------------------------------------------------------------------------------
+    # -- places ----------------------------------------------------------------------------------------------------
     @property
     def places(self) -> np.ndarray:
         """(P, 4, 4) float64 candidate place poses ``T_map_place`` (gravity-aligned, at the sensor's position)."""
@@ -215,7 +215,7 @@ class MapLocalizer(PlaceSearch):
         return grid_places(self.points, g.origin, g.cell, g.shape, lc.grid_spacing, lc.free_clearance,
                            lc.sensor_height, lc.map_voxel)
 
-    # -- crops ------------------------------------------------------------------------------------------------------
+    # -- crops -----------------------------------------------------------------------------------------------------
     def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
         """(M, 3) float32 map points within ``crop_radius`` (horizontally) of the place, in the place's frame."""
         return self._local(self._index, T_map_place).astype(np.float32)
@@ -255,7 +255,7 @@ class MapLocalizer(PlaceSearch):
                 self._crops.popitem(last=False)
         return crop
 
-    # -- the scan ---------------------------------------------------------------------------------------------------
+    # -- the scan --------------------------------------------------------------------------------------------------
     def describe(self, scan: np.ndarray, centres: np.ndarray | None = None) -> np.ndarray:
         """(R, S) float32 descriptor of a raw scan (N, 3), sensor frame (its yaw: the columns' order), about the
         sensor; with ``centres`` (K, 2) (m, sensor frame): (K, R, S), one about each (about the sensor: the same)."""
@@ -331,7 +331,7 @@ class MapLocalizer(PlaceSearch):
                 break
         return chosen
 
-    # -- localize ---------------------------------------------------------------------------------------------------
+    # -- localize --------------------------------------------------------------------------------------------------
     def prefetch(self, T_map_scan: np.ndarray) -> int:
         """Prepare and keep the crop that tracking a scan at ``T_map_scan`` (4, 4) would register on (the place
         nearest it, once the crop tracked now no longer reaches it), so that the scan that reaches a new place does
@@ -540,7 +540,7 @@ class MapLocalizer(PlaceSearch):
                                   crop=_crop_cloud(crop), place=place,
                                   covariance=self._covariance(src, crop, T_map_scan, timings))
 
-    # -- acceptance (core/acceptance.py) -------------------------------------------------------------------------
+    # -- acceptance (core/acceptance.py) ---------------------------------------------------------------------------
     @property
     def _threshold(self) -> float:
         return acceptance.threshold(self.config)
@@ -557,6 +557,7 @@ class MapLocalizer(PlaceSearch):
     def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
         return acceptance.agreed(src, answers, best, self.config, self.registration)
 
+    # -- GICP: refine, covariance, tracking's GICP from the guess --------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
         correspondence distance lets far pairs pull the pose along a road with few features); kept when it does not
