@@ -34,9 +34,10 @@
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
-With a guess (tracking): GICP of the scan on the crop of the place nearest the guess, from the guess, and the verdict
-(``DeepBBSRegistration.register(..., good_start=True)`` instead when the registration offers it); DeepBBS++ from the
-guess when that is rejected, and the places within localization.track_search_radius (as above) when that is too.
+With a guess (tracking, core/guess_tracking.py): GICP of the scan on the crop of the place nearest the guess, from
+the guess, and the verdict (``DeepBBSRegistration.register(..., good_start=True)`` instead when the registration
+offers it); DeepBBS++ from the guess when that is rejected, and the places within localization.track_search_radius
+(as above) when that is too.
 
 Measured (the localization benchmark's simulated 1 km urban map, 1.5 M points at 0.2 m, 3950 places; quiet machine,
 2 cores): map build 2.0 s, of which 0.6 s the map's GICP cloud (278 k voxels), 137 MB held (62 MB of it that cloud);
@@ -45,8 +46,9 @@ place, then a fixed number of registrations.
 :class:`MapTracker` (core/tracking.py) is the state machine around it (the node's and the replay's): constant-velocity
 prediction, lost after localization.lost_after rejected scans, then the global search until found again. The results
 and the search's data types are in core/localization_types.py, the map's cell index in core/map_index.py; this module
-builds the map (places, descriptors, GICP cloud), its crops, describes and ranks a scan, and tracks from a guess;
-``MapLocalizer`` takes its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch`.
+builds the map (places, descriptors, GICP cloud) and its crops, and describes and ranks a scan; ``MapLocalizer`` takes
+its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch` and its tracking from a guess from
+:class:`~deepbbs_ros.core.guess_tracking.GuessTracking`.
 
 Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
 ``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
@@ -74,6 +76,7 @@ from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests re
     _spectra,
 )
 from deepbbs_ros.core.drive_places import OBSTACLE_BAND, keyframe_places  # noqa: F401
+from deepbbs_ros.core.guess_tracking import GuessTracking
 from deepbbs_ros.core.localization_types import (  # noqa: F401  (re-exported)
     LocalizationResult,
     PreparedScan,
@@ -109,7 +112,7 @@ MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 CLOUD_BYTES = 224
 
 
-class MapLocalizer(PlaceSearch):
+class MapLocalizer(GuessTracking, PlaceSearch):
     """Finds a scan's pose in a prior map (module docstring).
 
     Args:
@@ -471,75 +474,6 @@ class MapLocalizer(PlaceSearch):
         lc = self.config.localization
         return (lc.polish_check_iters, lc.polish_check_score) if lc.polish_check_iters > 0 else None
 
-    def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
-        lc = self.config.localization
-        t = time.perf_counter()
-        xy = self._places[:, :2, 3]
-        d = np.linalg.norm(xy - guess[:2, 3], axis=1)
-        near = int(np.argmin(d))
-        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # a crop serves while the sensor is this close to it
-        if self._track_place >= 0 and d[self._track_place] <= reach:
-            near = self._track_place  # the same crop as the last scan: no new preprocessing, the network's memo
-        if d[near] <= reach:
-            crop = self._crop(near)
-            self._track_place = near
-        else:  # off the places: a crop at the guess (gravity-aligned), kept while the sensor stays near it
-            near, crop = -1, self._guess_crop
-            if crop is None or np.linalg.norm(crop.T_map_place[:2, 3] - guess[:2, 3]) > reach:
-                T = np.eye(4)
-                T[:3, 3] = guess[:3, 3]
-                crop = self._guess_crop = self._crop(-1, T)
-        timings["crop"] = (time.perf_counter() - t) * 1e3
-        T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
-        t = time.perf_counter()
-        # GICP from the guess (the GICP anchor's work) and the verdict on a spread subset of the scan's voxels, as
-        # register(..., good_start=True) does, but here: its score decides whether the scan is worth a retry
-        ans, at_guess = self._track_gicp(src, crop, T_guess, near)
-        timings["gicp"] = (time.perf_counter() - t) * 1e3
-        score, T_map_scan, path = at_guess, guess, "gicp"
-        if ans is not None:
-            score, T_map_scan = ans.score, ans.T
-            if ans.ok:
-                self._track_scores.append(ans.score)
-                return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
-        recent = float(np.median(self._track_scores)) if len(self._track_scores) >= 2 else float("nan")
-        if np.isfinite(score) and score < lc.track_drop * recent:  # nan-safe: no recent scores, no shortcut
-            # far below the recent scans' scores: not a poor fit but another place (a kidnap, the map's end); the
-            # DeepBBS++ retry and the local search would cost seconds to say so: the global search decides
-            return LocalizationResult(T_map_scan, False, score, "tracking",
-                                      f"rejected from the guess: score {score:.2f} far below the recent "
-                                      f"{recent:.2f} (no local search)", candidates=1, path=path, place=near)
-        t = time.perf_counter()
-        # DeepBBS++ from the guess (its GICP-first path was ours); a rejection goes to the local search below, not to
-        # other yaws
-        reg = self._register(src, crop, T_guess, yaw_search=False)
-        timings["register"] = (time.perf_counter() - t) * 1e3
-        path = getattr(reg, "path", "") or "deepbbs"
-        if not (reg.score <= score):  # nan-safe: the better of the two
-            score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
-        if self._accepts(reg.valid, reg.score):
-            return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
-                                 timings)
-        if lc.track_search_radius > 0:  # a local search among the places around the guess
-            among = np.flatnonzero(d <= lc.track_search_radius)
-            if len(among):
-                res = self._global(pts, src, among, timings)
-                res.mode, res.path = "tracking", "search"
-                if res.valid:
-                    return res
-                res.reason = f"rejected from the guess (score {score:.2f}); local search: {res.reason}"
-                return res
-        return LocalizationResult(T_map_scan, False, score, "tracking", f"rejected from the guess (score {score:.2f})",
-                                  candidates=1, path=path, place=near)
-
-    def _tracked(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
-                 timings: dict[str, float]) -> LocalizationResult:
-        if self.config.localization.refine_tracking:
-            T_map_scan = self._refine(src, crop, T_map_scan, timings)
-        return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
-                                  crop=_crop_cloud(crop), place=place,
-                                  covariance=self._covariance(src, crop, T_map_scan, timings))
-
     # -- acceptance (core/acceptance.py) ---------------------------------------------------------------------------
     @property
     def _threshold(self) -> float:
@@ -557,7 +491,7 @@ class MapLocalizer(PlaceSearch):
     def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
         return acceptance.agreed(src, answers, best, self.config, self.registration)
 
-    # -- GICP: refine, covariance, tracking's GICP from the guess --------------------------------------------------
+    # -- GICP: refine, covariance ----------------------------------------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
         correspondence distance lets far pairs pull the pose along a road with few features); kept when it does not
@@ -582,30 +516,6 @@ class MapLocalizer(PlaceSearch):
                               self.registration.gicp_threads())
         timings["covariance"] = (time.perf_counter() - t) * 1e3
         return cov
-
-    def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
-                    place: int) -> tuple[_Answer | None, float]:
-        """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
-        (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
-        (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
-        Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
-        GICP did not apply, the score at the guess itself when it did not, else nan)."""
-        from deepbbs_ros.core import verdict
-        from deepbbs_ros.core.registration import good_start_gicp, good_start_points
-
-        rc = self.config.registration
-        if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
-            return None, float("nan")
-        th = self.registration.gicp_threads()
-        spc, tpc = src.polish_cloud.complete(threads=th), crop.pre.polish_cloud.complete(threads=th)
-        pts = good_start_points(spc, rc)
-        pol = good_start_gicp(spc, tpc, T_place_scan, rc)  # as register()'s good start
-        if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
-            return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
-        T = pol.T_target_source
-        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
-        return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
 
 
 def _as_cloud(points: Any, name: str) -> np.ndarray:

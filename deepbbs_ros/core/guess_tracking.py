@@ -1,0 +1,115 @@
+"""Tracking from a guess in a prior map (no ROS): :class:`GuessTracking`, the part of
+:class:`~deepbbs_ros.core.localization.MapLocalizer` that registers a scan from a predicted pose.
+
+GICP of the scan on the crop of the place nearest the guess (the crop tracked last while it still serves; off the
+places, a crop at the guess), from the guess, with register()'s good-start verdict; DeepBBS++ from the guess when that
+is rejected, and a search among the places within ``localization.track_search_radius`` when that is too, unless the
+score fell far below the recent scans' (``track_drop``: a kidnap, the global search decides). A mixin: it works on
+the localizer's places, crops, registration and configuration. :class:`~deepbbs_ros.core.tracking.MapTracker` drives it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud
+
+
+class GuessTracking:
+    """Tracking from a guess for :class:`~deepbbs_ros.core.localization.MapLocalizer` (module docstring)."""
+
+    def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
+        lc = self.config.localization
+        t = time.perf_counter()
+        xy = self._places[:, :2, 3]
+        d = np.linalg.norm(xy - guess[:2, 3], axis=1)
+        near = int(np.argmin(d))
+        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # a crop serves while the sensor is this close to it
+        if self._track_place >= 0 and d[self._track_place] <= reach:
+            near = self._track_place  # the same crop as the last scan: no new preprocessing, the network's memo
+        if d[near] <= reach:
+            crop = self._crop(near)
+            self._track_place = near
+        else:  # off the places: a crop at the guess (gravity-aligned), kept while the sensor stays near it
+            near, crop = -1, self._guess_crop
+            if crop is None or np.linalg.norm(crop.T_map_place[:2, 3] - guess[:2, 3]) > reach:
+                T = np.eye(4)
+                T[:3, 3] = guess[:3, 3]
+                crop = self._guess_crop = self._crop(-1, T)
+        timings["crop"] = (time.perf_counter() - t) * 1e3
+        T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
+        t = time.perf_counter()
+        # GICP from the guess (the GICP anchor's work) and the verdict on a spread subset of the scan's voxels, as
+        # register(..., good_start=True) does, but here: its score decides whether the scan is worth a retry
+        ans, at_guess = self._track_gicp(src, crop, T_guess, near)
+        timings["gicp"] = (time.perf_counter() - t) * 1e3
+        score, T_map_scan, path = at_guess, guess, "gicp"
+        if ans is not None:
+            score, T_map_scan = ans.score, ans.T
+            if ans.ok:
+                self._track_scores.append(ans.score)
+                return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+        recent = float(np.median(self._track_scores)) if len(self._track_scores) >= 2 else float("nan")
+        if np.isfinite(score) and score < lc.track_drop * recent:  # nan-safe: no recent scores, no shortcut
+            # far below the recent scans' scores: not a poor fit but another place (a kidnap, the map's end); the
+            # DeepBBS++ retry and the local search would cost seconds to say so: the global search decides
+            return LocalizationResult(T_map_scan, False, score, "tracking",
+                                      f"rejected from the guess: score {score:.2f} far below the recent "
+                                      f"{recent:.2f} (no local search)", candidates=1, path=path, place=near)
+        t = time.perf_counter()
+        # DeepBBS++ from the guess (its GICP-first path was ours); a rejection goes to the local search below, not to
+        # other yaws
+        reg = self._register(src, crop, T_guess, yaw_search=False)
+        timings["register"] = (time.perf_counter() - t) * 1e3
+        path = getattr(reg, "path", "") or "deepbbs"
+        if not (reg.score <= score):  # nan-safe: the better of the two
+            score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
+        if self._accepts(reg.valid, reg.score):
+            return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
+                                 timings)
+        if lc.track_search_radius > 0:  # a local search among the places around the guess
+            among = np.flatnonzero(d <= lc.track_search_radius)
+            if len(among):
+                res = self._global(pts, src, among, timings)
+                res.mode, res.path = "tracking", "search"
+                if res.valid:
+                    return res
+                res.reason = f"rejected from the guess (score {score:.2f}); local search: {res.reason}"
+                return res
+        return LocalizationResult(T_map_scan, False, score, "tracking", f"rejected from the guess (score {score:.2f})",
+                                  candidates=1, path=path, place=near)
+
+    def _tracked(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
+                 timings: dict[str, float]) -> LocalizationResult:
+        if self.config.localization.refine_tracking:
+            T_map_scan = self._refine(src, crop, T_map_scan, timings)
+        return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
+                                  crop=_crop_cloud(crop), place=place,
+                                  covariance=self._covariance(src, crop, T_map_scan, timings))
+
+    def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
+                    place: int) -> tuple[_Answer | None, float]:
+        """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
+        (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
+        (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
+        Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
+        GICP did not apply, the score at the guess itself when it did not, else nan)."""
+        from deepbbs_ros.core import verdict
+        from deepbbs_ros.core.registration import good_start_gicp, good_start_points
+
+        rc = self.config.registration
+        if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
+            return None, float("nan")
+        th = self.registration.gicp_threads()
+        spc, tpc = src.polish_cloud.complete(threads=th), crop.pre.polish_cloud.complete(threads=th)
+        pts = good_start_points(spc, rc)
+        pol = good_start_gicp(spc, tpc, T_place_scan, rc)  # as register()'s good start
+        if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
+            return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
+        T = pol.T_target_source
+        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
+        ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
+        return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
