@@ -143,7 +143,10 @@ def test_map_to_odom_beside_a_drifting_odometry(ros, drive, tmp_path):
                                       for k in FRAMES), 20.0)
         _send(h, sim, scan, FRAMES)
         assert len(h.poses) == len(FRAMES), h.node.localization.diagnostics()
-        assert h.wait_for(lambda: len(h.tf.edge("map", "odom")) >= len(FRAMES), 5.0), h.tf.parents()
+        # every scan's map -> odom (stamped its scan's stamp + the tolerance); the re-broadcasts between scans are
+        # stamped with the clock, so counting the edge's transforms could be satisfied before the last scan's arrived
+        assert h.wait_for(lambda: all(sim.stamp_ns(k) + TOLERANCE_NS in h.tf.edge("map", "odom") for k in FRAMES),
+                          5.0), sorted(h.tf.edge("map", "odom"))
         parents = _one_parent(h)
         assert parents["odom"] == {"map"} and parents["base_link"] == {"odom"} and parents["lidar"] == {"base_link"}
         map_odom, odom_base = h.tf.edge("map", "odom"), h.tf.edge("odom", "base_link")
