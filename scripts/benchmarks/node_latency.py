@@ -437,7 +437,10 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         map_pub.publish(stream.map_msg)
         cmd += ["-p", "node.target_mode:=latched", "-p", f"node.initial_pose:={stream.initial_pose}"]
     elif localization:
-        cmd += ["-p", "node.target_mode:=localization", "-p", f"localization.map_path:={stream.map_path}"]
+        cmd += ["-p", "node.target_mode:=localization", "-p", f"localization.map_path:={stream.map_path}",
+                # no robot here (no /tf_static mounting, no odometry on /tf): the scan's own pose, as the anchor's,
+                # without the first scan's wait for transforms that never come
+                "-p", "node.localization_odom:=none", "-p", "node.base_frame:=''"]
     if method == "deepbbs":
         cmd += ["-p", f"registration.device:={args.device}"]
         if args.threads is not None:
