@@ -125,7 +125,7 @@ class Outputs:
             elif target_points is None:
                 cov = np.eye(6) * UNKNOWN_TWIST_COV
             else:
-                cov = registration_covariance(src, Cloud(target_points, 0, frame, 0.0, pp=_Points(target_points)), reg)
+                cov = crop_covariance(src, reg, target_points)
             self.odometry.publish(
                 matrix_to_odometry(reg.T, src.stamp_ns, frame, src.frame_id, np.zeros(6), cov,
                                    np.eye(6) * UNKNOWN_TWIST_COV)
@@ -186,6 +186,12 @@ class _Points:
 
     def __init__(self, points: np.ndarray) -> None:
         self.points = points
+
+
+def crop_covariance(src: Cloud, reg: Registered, target_points: np.ndarray) -> np.ndarray:
+    """(6, 6) :func:`registration_covariance` of ``reg`` (the source on a map crop) against ``target_points`` (M, 3),
+    the crop's points in the pose's frame."""
+    return registration_covariance(src, Cloud(target_points, 0, "", 0.0, pp=_Points(target_points)), reg)
 
 
 def _tf_publisher(node: Any) -> TfBroadcaster:

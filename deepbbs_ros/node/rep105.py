@@ -29,7 +29,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from deepbbs_ros.node.covariance import skew
 from deepbbs_ros.node.inputs import Cloud
-from deepbbs_ros.node.pipeline import UNKNOWN_TWIST_COV, OdometryEstimate, Registered, registration_covariance
+from deepbbs_ros.node.outputs import crop_covariance
+from deepbbs_ros.node.pipeline import UNKNOWN_TWIST_COV, OdometryEstimate, Registered
 from deepbbs_ros.node.tf_buffer import TransformBuffer
 from deepbbs_ros.node.tf_static import base_motion
 from msg_adapters.transforms import (
@@ -73,15 +74,10 @@ def base_pose_covariance(result: Any, src: Cloud, reg: Registered, crop: np.ndar
         return np.eye(6) * UNKNOWN_TWIST_COV
     # the residuals of the points the result says it registered (none in this mode today: the placeholder); a k-d
     # tree of the whole crop per scan would cost ~27 ms of the tracking's ~40 ms
-    cov = registration_covariance(src, Cloud(crop, 0, "", 0.0, pp=_Points(crop)), reg)
+    cov = crop_covariance(src, reg, crop)
     if np.all(np.diag(cov) >= UNKNOWN_TWIST_COV):
         return cov
     return move_pivot(cov, T_map_base[:3, 3])
-
-
-class _Points:
-    def __init__(self, points: np.ndarray) -> None:
-        self.points = points
 
 
 class Rep105:

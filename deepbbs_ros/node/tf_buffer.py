@@ -12,7 +12,6 @@ each edge.
 from __future__ import annotations
 
 import bisect
-import time
 from typing import Any
 
 import numpy as np
@@ -189,15 +188,3 @@ class TransformBuffer(StaticTransforms):
                     return np.linalg.inv(T_anc_target) @ T_anc_source
         return None
 
-    def wait(self, target: str, source: str, timeout: float, stamp_ns: int | None = None) -> np.ndarray | None:
-        """:meth:`lookup`, waiting up to ``timeout`` s for the transforms to arrive."""
-        end = time.monotonic() + max(0.0, timeout)
-        with self._cond:
-            while True:
-                T = self.lookup(target, source, stamp_ns)
-                if T is not None:
-                    return T
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)

@@ -68,12 +68,13 @@ class StaticTransforms:
             return None
         return np.linalg.inv(T_rt) @ T_rs
 
-    def wait(self, target: str, source: str, timeout: float) -> np.ndarray | None:
-        """:meth:`lookup`, waiting up to ``timeout`` s for the transforms to arrive."""
+    def wait(self, target: str, source: str, timeout: float, *at: Any) -> np.ndarray | None:
+        """:meth:`lookup` (``at``: what a subclass's lookup takes beyond the frames, e.g. a stamp), waiting up to
+        ``timeout`` s for the transforms to arrive."""
         end = time.monotonic() + max(0.0, timeout)
         with self._cond:
             while True:
-                T = self.lookup(target, source)
+                T = self.lookup(target, source, *at)
                 if T is not None:
                     return T
                 left = end - time.monotonic()
