@@ -65,9 +65,10 @@ def robust_ground(points: np.ndarray, origin: np.ndarray, cell: float, shape: tu
 
 
 def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int],
-                     clearance: float, voxel: float, sparse: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     clearance: float, voxel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(drivable (nx, ny) bool, clearance to the nearest obstacle (nx, ny) m, ground (nx, ny) m) of the grid over
-    ``points`` (N, 3) on a ``voxel`` m grid (module docstring; ``sparse``: :func:`_close_coverage`)."""
+    ``points`` (N, 3) on a ``voxel`` m grid (module docstring; a map too sparse for any drivable column so is judged
+    against its own typical column: :func:`_close_coverage`)."""
     from scipy.ndimage import distance_transform_edt, uniform_filter
 
     ground = robust_ground(points, origin, cell, shape)
@@ -87,11 +88,18 @@ def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape:
     key = np.unique(sq[:, 0] * ny + sq[:, 1])  # the occupied sub-squares, once each
     cols = (key // ny) // sub * shape[1] + (key % ny) // sub  # the column of each
     covered = np.bincount(cols, minlength=n).reshape(shape) / float(sub * sub)
-    full = covered >= GROUND_FILL * _close_coverage(covered, sparse)
-    obstacle = (np.bincount(flat[in_band], minlength=n) >= OBSTACLE_POINTS).reshape(shape) & ~full
-    dist = distance_transform_edt(~obstacle) * cell  # m to the nearest obstacle column
-    free = full & (dist >= max(clearance, cell))
-    free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
+    near_band = (np.bincount(flat[in_band], minlength=n) >= OBSTACLE_POINTS).reshape(shape)
+
+    def free_of(full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        obstacle = near_band & ~full
+        dist = distance_transform_edt(~obstacle) * cell  # m to the nearest obstacle column
+        free = full & (dist >= max(clearance, cell))
+        free &= uniform_filter(full.astype(np.float32), size=GROUND_WINDOW + 2) >= GROUND_COVERAGE
+        return free, dist
+
+    free, dist = free_of(covered >= GROUND_FILL * _close_coverage(covered))
+    if not free.any():  # a sparse map: ground coverage judged against its own typical column's
+        free, dist = free_of(covered >= GROUND_FILL * _close_coverage(covered, sparse=True))
     return free, dist, ground
 
 
@@ -112,8 +120,6 @@ def grid_places(points: np.ndarray, origin: np.ndarray, cell: float, shape: tupl
     one per ``spacing`` m square block, the column farthest from obstacles, ``height`` m above its ground
     (module docstring)."""
     free, dist, ground = drivable_columns(points, origin, cell, shape, clearance, voxel)
-    if not free.any():  # a sparse map: ground coverage judged against its own typical column's
-        free, dist, ground = drivable_columns(points, origin, cell, shape, clearance, voxel, sparse=True)
     ix, iy = np.nonzero(free)
     if len(ix) == 0:
         return np.zeros((0, 4, 4))
