@@ -33,8 +33,12 @@ import shutil
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _families_doc  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "benchmarks.md"
+SENSORS_PAGE = "sensors.md"  # docs/sensors.md: the per-family tables (bench:families), when the page exists
 README = ROOT / "README.md"
 DOCS_BENCH = ROOT / "docs" / "benchmarks"
 NOT_RUN = "not run"
@@ -65,7 +69,7 @@ PLOTS = {
 }
 BENCHMARKS = ["registration", "good_start", "deskew", "odometry", "localization", "node_latency_odometry",
               "node_latency_pair", "node_latency_localization", "kidnap", "first_contact", "busy", "decode",
-              "simulator", "fleet", "threads"]
+              "simulator", "fleet", "threads", "families"]
 NODE_LATENCY = ("node_latency_odometry", "node_latency_pair", "node_latency_localization")
 NODE_KEEP = ("layout", "stream", "run", "busy", "method", "pairs", "answered", "p50_ms", "p99_ms", "error", "cpu",
              "cpu_ms")
@@ -1073,12 +1077,15 @@ def readme(docs: dict[str, dict | None], d: Path) -> list[str]:
 def section(name: str, docs: dict[str, dict | None], d: Path) -> list[str]:
     if name in ("machine", "readme"):
         return {"machine": machine, "readme": readme}[name](docs, d)
+    if name == "sensor_defaults":  # docs/sensors.md: the rows of deepbbs_ros/core/sensors.py
+        return _families_doc.sensor_defaults()
     doc = docs.get("registration") if name == "verdict" else docs.get(name)
     fn = {"registration": registration, "verdict": verdict, "deskew": deskew, "odometry": odometry,
           "node_latency_odometry": node_latency_odometry, "node_latency_pair": node_latency_pair,
           "first_contact": first_contact, "busy": busy, "decode": decode, "simulator": simulator,
           "fleet": fleet, "threads": threads, "good_start": good_start, "localization": localization,
-          "node_latency_localization": node_latency_localization, "kidnap": kidnap}.get(name)
+          "node_latency_localization": node_latency_localization, "kidnap": kidnap,
+          "families": lambda doc, d: _families_doc.families(doc, command(doc), NOT_RUN)}.get(name)
     if fn is None:
         raise SystemExit(f"render_docs.py: unknown marker bench:{name}")
     return fn(doc, d)
@@ -1115,7 +1122,8 @@ def main(argv: list[str] | None = None) -> int:
         args.results = docs_bench
     docs = load_all(args.results)
     stale = []
-    for path in (page, readme_path):
+    sensors = docs_bench.parent / SENSORS_PAGE
+    for path in (page, readme_path, *([sensors] if sensors.is_file() else [])):
         text = path.read_text()
         new = render(text, docs, docs_bench)
         if new == text:

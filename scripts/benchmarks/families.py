@@ -1,0 +1,279 @@
+#!/usr/bin/env python3
+"""Registration per LiDAR family: real scans where there are some, simulated pairs of every sensor on its mounts.
+
+For each data set (real: KITTI HDL-64E sequences ``--kitti``, a reference pair ``--pair``, nuScenes HDL-32E
+``--nuscenes``, a Livox Avia walk ``--livox``; simulated: every ``--sims`` entry ``sensor:mount:place``, sweeps
+compensated to their stamps) and each method (DeepBBS++ as shipped, small_gicp GICP, KISS-Matcher + GICP), from a
+good start (the source as recorded: neighbouring scans) and from starts moved by a yaw and a shift up to 180 deg /
+10 m (the basin): success (within 1 deg / 0.3 m), the pairs DeepBBS++ misses with their overlap (the share of
+source points within 0.5 m of the target at the truth), the median errors of DeepBBS++ and GICP on the pairs both
+get right, the verdict's accepted wrong poses and rejected right ones, and p50 / p95 time per raw pair (both scans
+preprocessed) with the ratio to GICP's p50 in the same run. Real pairs follow ``deepbbs-replay --mode pairs``
+(``--stride``, ``--max-dist``). Answers are exact as in registration.py (``--inexact``: not).
+
+    python scripts/benchmarks/families.py --quick --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --pair PATH/TO/hdl32_pair \
+        --nuscenes PATH/TO/nuscenes_hdl32 --livox PATH/TO/livox_avia_loop --out results/benchmarks
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402  (puts the checkout first on sys.path)
+import registration as _reg  # noqa: E402
+
+METHODS = "deepbbs++,gicp,kiss-matcher+gicp"
+#: start offsets of the basin: (|yaw| deg, shift m); the first is the good start
+BASIN = [(0.0, 0.0), (30.0, 2.0), (60.0, 4.0), (90.0, 6.0), (135.0, 8.0), (180.0, 10.0)]
+#: simulated sensor on the mounts and places it is used in (sensor:mount:place)
+SIMS = ("hdl64:car:urban", "hdl32:car:suburban", "vlp16:wheeled:courtyard", "os0_64:legged:corridor",
+        "os1_32:wheeled:garage", "os1_64:wheeled:hall", "os1_128:car:suburban", "xt32:wheeled:courtyard",
+        "helios32:car:open_road", "avia:handheld:courtyard", "avia:handheld:hall", "mid360:legged:garage",
+        "mid360:handheld:corridor")
+REAL = {"kitti": "hdl64", "pair": "hdl32", "nuscenes": "hdl32", "livox": "avia"}  # real set -> its sensor
+OVERLAP_M = 0.5
+
+
+def overlap(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_points: int = 20000) -> float:
+    """Share of the finite source points (an even subsample) within 0.5 m of a target point at the truth ``T``."""
+    from scipy.spatial import cKDTree
+
+    s = src[np.isfinite(src).all(axis=1)]
+    s = s[:: max(1, len(s) // max_points)] @ T[:3, :3].T + T[:3, 3]
+    t = tgt[np.isfinite(tgt).all(axis=1)]
+    d, _ = cKDTree(t).query(s, distance_upper_bound=OVERLAP_M)
+    return float(np.mean(np.isfinite(d))) if len(s) else 0.0
+
+
+def truth_check(src: np.ndarray, tgt: np.ndarray, T: np.ndarray) -> tuple[float, float]:
+    """How far GICP started at the truth ``T`` moves from it (deg, m): the resolution of the truth on this pair (a
+    miss by about that much is the truth's, not the method's)."""
+    from deepbbs_ros.baselines import SmallGicpRegistration
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.metrics import pair_errors
+
+    g = SmallGicpRegistration("gicp", Config().replace(**{"eval.threads": 1}))
+    rot, tr = pair_errors(g.align(g.preprocess(src), g.preprocess(tgt), T).T_target_source, T)
+    return float(rot), float(tr)
+
+
+def real_sets(args) -> dict[str, dict]:
+    """name -> {"sensor", "source", "frames": [(points, T_world_lidar)], "pairs": [(i, j)]} of the real data."""
+    from deepbbs_ros.datasets import open_source
+    from deepbbs_ros.replay.runner import iter_pairs
+
+    sets = {}
+    folders = [("kitti", f) for f in args.kitti] + [(k, getattr(args, k)) for k in ("nuscenes", "livox")
+                                                    if getattr(args, k)]
+    for kind, folder in folders:
+        scans = list(open_source(folder))
+        index = {id(s): k for k, s in enumerate(scans)}
+        stride, dist = (args.livox_stride, args.livox_max_dist) if kind == "livox" else (1, args.max_dist)
+        pairs = [(index[id(s)], index[id(t)]) for s, t in iter_pairs(scans, stride, dist)]
+        sets[f"{kind}_{Path(folder).name}"] = {
+            "sensor": REAL[kind], "source": "real", "mount": "handheld" if kind == "livox" else "car",
+            "frames": [(np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar)) for s in scans],
+            "pairs": pairs}
+    if args.pair:
+        target, source, T = _common.read_reference_pair(args.pair)
+        sets["pair_" + Path(args.pair).name] = {"sensor": "hdl32", "source": "real", "mount": "car",
+                                               "frames": [(target, np.eye(4)), (source, T)], "pairs": [(1, 0)]}
+    return sets
+
+
+def sim_sets(args) -> dict[str, dict]:
+    """The ``--sims`` recordings (held-out seeds), ``--sim-frames`` scans about 2 m (car) or 1 m apart; pairs of
+    neighbours; cached in ``--cache``."""
+    from deepbbs_ros.sim import WORLDS_VERSION
+    from deepbbs_ros.sim.rig import make_simulator
+    from deepbbs_ros.train.cache import TEST_SEED_BASE
+
+    sets = {}
+    for spec in args.sims:
+        sensor, mount, place = spec.split(":")
+        seed = TEST_SEED_BASE + 500 + zlib.crc32(spec.encode()) % 1000  # held out, the same whatever the list
+        cache = Path(args.cache).expanduser() / f"families_{spec.replace(':', '_')}_{seed}x{args.sim_frames}_w{WORLDS_VERSION}.npz"
+        if cache.is_file():
+            frames = list(np.load(cache, allow_pickle=True)["frames"])
+        else:
+            sim = make_simulator(place, seed, sensor, mount, frames=300, compensate=True)
+            step, picks, last = 2.0 if mount == "car" else 1.0, [], None
+            for k in range(10, 300):
+                p = sim.pose_at(k)[:3, 3]
+                if last is None or np.linalg.norm(p - last) >= step:
+                    picks.append(k)
+                    last = p
+                if len(picks) == args.sim_frames:
+                    break
+            frames = [(sim.scan_at(k).points.astype(np.float32), sim.pose_at(k)) for k in picks]
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            np.savez(cache, frames=np.array(frames, dtype=object))
+        sets[f"sim_{sensor}_{mount}_{place}"] = {"sensor": sensor, "source": "sim", "mount": mount, "place": place,
+                                                 "frames": [tuple(f) for f in frames],
+                                                 "pairs": [(k, k - 1) for k in range(1, len(frames))]}
+    return sets
+
+
+def plan(sets: dict, args) -> list[dict]:
+    """Every set's pairs (at most ``--pairs-per-set``, evenly spread) from the good start, and its first
+    ``--basin-pairs`` of them (the reference pair: ``--pair-trials`` times) from every basin offset, each with its
+    own random sign of the yaw and direction of the shift."""
+    rng = np.random.default_rng(args.seed)
+    cases = []
+    for name, s in sets.items():
+        pairs = s["pairs"]
+        if len(pairs) > args.pairs_per_set:
+            pairs = [pairs[k] for k in np.linspace(0, len(pairs) - 1, args.pairs_per_set).round().astype(int)]
+        s["pairs"] = pairs
+        for level, (yaw, shift) in enumerate(BASIN):
+            chosen = pairs if level == 0 else pairs[:: max(1, len(pairs) // args.basin_pairs)][: args.basin_pairs]
+            trials = args.pair_trials if name.startswith("pair_") and level else 1
+            for i, j in chosen:
+                for _ in range(trials):
+                    phi = rng.uniform(0, 2 * np.pi)
+                    cases.append({"set": name, "i": int(i), "j": int(j), "level": level,
+                                  "move": [float(yaw * rng.choice([-1, 1])), shift * np.cos(phi), shift * np.sin(phi)]})
+    return cases
+
+
+def collect(cases, sets, names, args, path: Path) -> list[dict]:
+    from deepbbs_ros.metrics import pair_errors
+
+    done = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+    if len(done) >= len(cases):
+        return done
+    regs = _reg.make_methods(names, args)
+    overlaps: dict = {}
+    with path.open("a") as fh:
+        for n, case in enumerate(cases[len(done):], start=len(done)):
+            frames = sets[case["set"]]["frames"]
+            P = _reg.yaw_shift(*case["move"])
+            raw, tgt = frames[case["i"]][0], frames[case["j"]][0]
+            src = (raw @ P[:3, :3].T + P[:3, 3]).astype(np.float32)
+            T_gt = np.linalg.inv(frames[case["j"]][1]) @ frames[case["i"]][1]
+            key = (case["set"], case["i"], case["j"])
+            if key not in overlaps:
+                overlaps[key] = overlap(raw, tgt, T_gt)
+            rec = {**case, "overlap": overlaps[key], "dist": float(np.linalg.norm(T_gt[:3, 3]))}
+            for m in names:
+                r = _reg.run_case(m, regs[m], src, tgt)
+                rot, tr = pair_errors(r.pop("T") @ P, T_gt)
+                rec[m] = {**r, "rot": float(rot), "trans": float(tr), "ok": bool(rot <= 1.0 and tr <= 0.3)}
+            fh.write(json.dumps(rec) + "\n")
+            fh.flush()
+            done.append(rec)
+            print(f"case {n + 1}/{len(cases)} {case['set']} level {case['level']}: " + ", ".join(
+                f"{m} {'ok' if rec[m]['ok'] else 'FAIL'} {rec[m]['ms']:.0f} ms" for m in names), flush=True)
+    for pair in regs.values():
+        for r in pair:
+            if hasattr(r, "close"):
+                r.close()
+    return done
+
+
+def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
+    out = {}
+    for name, s in sets.items():
+        rs = [r for r in recs if r["set"] == name]
+        good = [r for r in rs if r["level"] == 0]
+        if not good:
+            continue
+        cell = {"sensor": s["sensor"], "source": s["source"], "mount": s["mount"], "place": s.get("place"),
+                "pairs": len(good), "overlap_median": float(np.median([r["overlap"] for r in good])),
+                "success_pct": {}, "p50_ms": {}, "p95_ms": {}, "p50_over_gicp": {}}
+        for m in names:
+            ms = np.array([r[m]["ms"] for r in good])
+            cell["success_pct"][m] = 100.0 * np.mean([r[m]["ok"] for r in good])
+            cell["p50_ms"][m], cell["p95_ms"][m] = float(np.median(ms)), float(np.percentile(ms, 95))
+        g50 = cell["p50_ms"].get("gicp")
+        cell["p50_over_gicp"] = {m: v / g50 for m, v in cell["p50_ms"].items()} if g50 else {}
+        if "deepbbs++" in names:
+            frames = s["frames"]
+            cell["missed"] = [{"i": r["i"], "j": r["j"], "overlap": r["overlap"], "dist_m": r["dist"],
+                               "rot_deg": r["deepbbs++"]["rot"], "trans_m": r["deepbbs++"]["trans"],
+                               "accepted": r["deepbbs++"].get("valid"), "gicp_ok": r.get("gicp", {}).get("ok"),
+                               "truth_gicp_deg_m": truth_check(frames[r["i"]][0], frames[r["j"]][0], np.linalg.inv(
+                                   frames[r["j"]][1]) @ frames[r["i"]][1])}
+                              for r in good if not r["deepbbs++"]["ok"]]
+            both = [r for r in good if r["deepbbs++"]["ok"] and r.get("gicp", {}).get("ok")]
+            cell["both_right"] = {"pairs": len(both), **{
+                f"{m}_{e}_median": float(np.median([r[m][e] for r in both])) if both else None
+                for m in ("deepbbs++", "gicp") if m in names for e in ("rot", "trans")}}
+            deep = [r["deepbbs++"] for r in rs]
+            cell["verdict"] = {"cases": len(deep), "accepted_wrong": sum(x["valid"] and not x["ok"] for x in deep),
+                               "rejected_right": sum(x["ok"] and not x["valid"] for x in deep),
+                               "right": sum(x["ok"] for x in deep)}
+        cell["basin"] = []
+        for level, (yaw, shift) in enumerate(BASIN):
+            lv = [r for r in rs if r["level"] == level]
+            if lv:
+                cell["basin"].append({"yaw_deg": yaw, "shift_m": shift, "cases": len(lv), "success_pct": {
+                    m: 100.0 * np.mean([r[m]["ok"] for r in lv]) for m in names}})
+        out[name] = cell
+    return out
+
+
+def report(fig: dict, names: list[str]) -> None:
+    for name, c in fig.items():
+        succ = ", ".join(f"{m} {v:.0f} %" for m, v in c["success_pct"].items())
+        times = ", ".join(f"{m} {c['p50_ms'][m]:.0f}/{c['p95_ms'][m]:.0f} ms" for m in names)
+        print(f"{name} ({c['pairs']} pairs, overlap p50 {c['overlap_median']:.2f}): {succ}; {times}")
+        for x in c.get("missed", []):
+            print(f"   missed {x['i']}->{x['j']}: overlap {x['overlap']:.2f}, {x['dist_m']:.1f} m apart, "
+                  f"error {x['rot_deg']:.2f} deg / {x['trans_m']:.2f} m, accepted {x['accepted']}, GICP ok {x['gicp_ok']}, "
+                  "GICP from the truth moves {:.2f} deg / {:.2f} m".format(*x["truth_gicp_deg_m"]))
+        if "verdict" in c:
+            print(f"   both right: {c['both_right']}; verdict: {c['verdict']}")
+        print("   basin: " + "; ".join(f"{b['yaw_deg']:.0f} deg/{b['shift_m']:.0f} m " + "/".join(
+            f"{b['success_pct'][m]:.0f}" for m in names) for b in c["basin"]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry folders (HDL-64E), e.g. PATH/TO/kitti/00")
+    p.add_argument("--pair", default=None, help="a folder with a real HDL-32E pair (two .pcd, relative.txt)")
+    p.add_argument("--nuscenes", default=None, help="nuScenes HDL-32E scans in the KITTI layout")
+    p.add_argument("--livox", default=None, help="Livox Avia keyframes in the KITTI layout")
+    p.add_argument("--sims", nargs="*", default=list(SIMS), help="simulated sets sensor:mount:place")
+    p.add_argument("--max-dist", type=float, default=5.0, help="m between the scans of a real pair (not Livox)")
+    p.add_argument("--livox-stride", type=int, default=4, help="every n-th Livox keyframe is a source")
+    p.add_argument("--livox-max-dist", type=float, default=2.0, help="m between the scans of a Livox pair")
+    p.add_argument("--pairs-per-set", type=int, default=16, help="pairs per set from the good start (evenly spread)")
+    p.add_argument("--basin-pairs", type=int, default=4, help="pairs per set from each basin offset")
+    p.add_argument("--pair-trials", type=int, default=3, help="random moves of the --pair pair per basin offset")
+    p.add_argument("--sim-frames", type=int, default=7, help="scans per simulated set")
+    p.add_argument("--quick", action="store_true", help="8 pairs per set, 2 per basin offset, 5 simulated scans: "
+                   "a few minutes per family")
+    p.add_argument("--methods", default=METHODS, help=f"comma list of {METHODS}")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", default="results/benchmarks", help="folder for families.json and families_cases.jsonl "
+                   "(a rerun continues from it)")
+    p.add_argument("--config", default=None, help="config YAML of DeepBBS++ (default: the defaults)")
+    p.add_argument("--weights", default="", help="checkpoint ('' = the shipped model)")
+    p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the simulated scans")
+    p.add_argument("--inexact", action="store_true", help="one call per method answers and is timed")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.pairs_per_set, args.basin_pairs, args.sim_frames = 8, 2, 5
+    names = [m for m in args.methods.split(",") if m]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sets = {**real_sets(args), **sim_sets(args)}
+    cases = plan(sets, args)
+    recs = collect(cases, sets, names, args, out / "families_cases.jsonl")
+    fig = summarise(recs, sets, names)
+    report(fig, names)
+    _common.write_json(out, "families.json", {"sets": fig, "basin": BASIN, "methods": names,
+                                              "settings": {k: v for k, v in vars(args).items()}})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

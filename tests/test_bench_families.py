@@ -1,0 +1,80 @@
+"""The per-family registration benchmark (scripts/benchmarks/families.py): its overlap, its plan of starts, its
+summary and the tables of docs/sensors.md rendered from it, on tiny synthetic inputs."""
+
+from __future__ import annotations
+
+import sys
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts" / "benchmarks"))
+
+import _families_doc  # noqa: E402
+import families  # noqa: E402
+
+
+def _cloud(n=400, seed=0):
+    return np.random.default_rng(seed).uniform(-10, 10, (n, 3)).astype(np.float32)
+
+
+def test_overlap_is_the_share_of_source_points_near_the_target_at_the_truth():
+    tgt = _cloud()
+    T = np.eye(4)
+    T[:3, 3] = [3.0, 0.0, 0.0]
+    src = tgt - T[:3, 3]  # p_target = p_source + t: the same points
+    assert families.overlap(src, tgt, T) == 1.0
+    assert families.overlap(src, tgt, np.eye(4)) < 0.5  # 3 m off: few points within 0.5 m
+    half = np.vstack([src[:200], src[200:] + [0, 0, 100.0]])  # half the source sees nothing of the target
+    assert families.overlap(half, tgt, T) == 0.5
+
+
+def test_plan_covers_every_basin_offset_with_exact_moves():
+    sets = {"sim_a": {"pairs": [(k, k - 1) for k in range(1, 7)]}, "pair_p": {"pairs": [(1, 0)]}}
+    args = Namespace(pairs_per_set=4, basin_pairs=2, pair_trials=3, seed=1)
+    cases = families.plan(sets, args)
+    a = [c for c in cases if c["set"] == "sim_a"]
+    assert sum(c["level"] == 0 for c in a) == 4 and all(sum(c["level"] == k for c in a) == 2 for k in range(1, 6))
+    assert sum(c["set"] == "pair_p" for c in cases) == 1 + 3 * 5
+    for c in cases:
+        yaw, shift = families.BASIN[c["level"]]
+        assert abs(abs(c["move"][0]) - yaw) < 1e-9 and abs(np.hypot(*c["move"][1:]) - shift) < 1e-9
+    assert families.plan(sets, args) == cases  # deterministic
+
+
+def _rec(level, deep_ok, valid, gicp_ok=True):
+    return {"set": "sim_vlp16_wheeled_hall", "i": 1, "j": 0, "level": level, "overlap": 0.8, "dist": 1.0,
+            "deepbbs++": {"ok": deep_ok, "valid": valid, "score": 0.5, "ms": 100.0, "rot": 0.1 if deep_ok else 9.0,
+                          "trans": 0.02 if deep_ok else 2.0},
+            "gicp": {"ok": gicp_ok, "ms": 50.0, "rot": 0.2, "trans": 0.03}}
+
+
+def test_summary_and_its_tables():
+    tgt = _cloud()
+    sets = {"sim_vlp16_wheeled_hall": {"sensor": "vlp16", "source": "sim", "mount": "wheeled", "place": "hall",
+                                       "frames": [(tgt, np.eye(4)), (tgt, np.eye(4))]}}
+    recs = [_rec(0, True, True), _rec(0, False, True), _rec(0, True, False), _rec(5, True, True, gicp_ok=False)]
+    fig = families.summarise(recs, sets, ["deepbbs++", "gicp"])
+    c = fig["sim_vlp16_wheeled_hall"]
+    assert c["pairs"] == 3 and abs(c["success_pct"]["deepbbs++"] - 200 / 3) < 1e-9
+    assert c["verdict"] == {"cases": 4, "accepted_wrong": 1, "rejected_right": 1, "right": 3}
+    assert c["both_right"]["pairs"] == 2 and c["both_right"]["gicp_trans_median"] == 0.03
+    assert c["p50_over_gicp"]["deepbbs++"] == 2.0
+    (miss,) = c["missed"]
+    assert miss["overlap"] == 0.8 and miss["accepted"] and max(miss["truth_gicp_deg_m"]) < 0.05  # same cloud
+    assert [b["yaw_deg"] for b in c["basin"]] == [0.0, 180.0]
+    doc = {"command": "scripts/benchmarks/families.py --quick", "figures": {"sets": fig, "basin": families.BASIN}}
+    text = "\n".join(_families_doc.families(doc, ["Measured by x."], "not run"))
+    assert "| Velodyne VLP-16 | simulated, wheeled, hall | 3 | 0.80 | 66.7 % (3) | 100.0 % (3) | - |" in text
+    assert "1 / 1 (of 4)" in text and "x2.00" in text and "overlap 0.80" in text
+    assert "not run" in "\n".join(_families_doc.families(None, [], "not run"))
+
+
+def test_sensor_defaults_table_names_every_sensor_row():
+    from deepbbs_ros.core.sensors import SENSORS
+
+    text = "\n".join(_families_doc.sensor_defaults())
+    assert all(f"`{name}`" in text for name in SENSORS)
+    assert "`preprocess.voxel_size`: 0.2 (default 0.3)" in text
