@@ -99,7 +99,8 @@ def sim_sets(args) -> dict[str, dict]:
     for spec in args.sims:
         sensor, mount, place = spec.split(":")
         seed = TEST_SEED_BASE + 500 + zlib.crc32(spec.encode()) % 1000  # held out, the same whatever the list
-        cache = Path(args.cache).expanduser() / f"families_{spec.replace(':', '_')}_{seed}x{args.sim_frames}_w{WORLDS_VERSION}.npz"
+        key = f"{spec.replace(':', '_')}_{seed}x{args.sim_frames}_w{WORLDS_VERSION}"
+        cache = Path(args.cache).expanduser() / f"families_{key}.npz"
         if cache.is_file():
             frames = list(np.load(cache, allow_pickle=True)["frames"])
         else:
@@ -227,7 +228,8 @@ def report(fig: dict, names: list[str]) -> None:
         print(f"{name} ({c['pairs']} pairs, overlap p50 {c['overlap_median']:.2f}): {succ}; {times}")
         for x in c.get("missed", []):
             print(f"   missed {x['i']}->{x['j']}: overlap {x['overlap']:.2f}, {x['dist_m']:.1f} m apart, "
-                  f"error {x['rot_deg']:.2f} deg / {x['trans_m']:.2f} m, accepted {x['accepted']}, GICP ok {x['gicp_ok']}, "
+                  f"error {x['rot_deg']:.2f} deg / {x['trans_m']:.2f} m, accepted {x['accepted']}, "
+                  f"GICP ok {x['gicp_ok']}, "
                   "GICP from the truth moves {:.2f} deg / {:.2f} m".format(*x["truth_gicp_deg_m"]))
         if "verdict" in c:
             print(f"   both right: {c['both_right']}; verdict: {c['verdict']}")
