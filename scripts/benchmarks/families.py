@@ -147,13 +147,15 @@ def plan(sets: dict, args) -> list[dict]:
 def collect(cases, sets, names, args, path: Path) -> list[dict]:
     from deepbbs_ros.metrics import pair_errors
 
-    done = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
-    if len(done) >= len(cases):
-        return done
+    recorded = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+    by_key = {_key(r): r for r in recorded}
+    todo = [c for c in cases if _key(c) not in by_key]
+    if not todo or args.report_only:
+        return [by_key[_key(c)] for c in cases if _key(c) in by_key]
     regs = _reg.make_methods(names, args)
     overlaps: dict = {}
     with path.open("a") as fh:
-        for n, case in enumerate(cases[len(done):], start=len(done)):
+        for n, case in enumerate(todo, start=len(cases) - len(todo)):
             frames = sets[case["set"]]["frames"]
             P = _reg.yaw_shift(*case["move"])
             raw, tgt = frames[case["i"]][0], frames[case["j"]][0]
@@ -169,14 +171,20 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
                 rec[m] = {**r, "rot": float(rot), "trans": float(tr), "ok": bool(rot <= 1.0 and tr <= 0.3)}
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
-            done.append(rec)
+            by_key[_key(rec)] = rec
             print(f"case {n + 1}/{len(cases)} {case['set']} level {case['level']}: " + ", ".join(
                 f"{m} {'ok' if rec[m]['ok'] else 'FAIL'} {rec[m]['ms']:.0f} ms" for m in names), flush=True)
     for pair in regs.values():
         for r in pair:
             if hasattr(r, "close"):
                 r.close()
-    return done
+    return [by_key[_key(c)] for c in cases]
+
+
+def _key(case: dict) -> str:
+    """A case's identity in families_cases.jsonl: a rerun runs only the cases it lacks (delete a set's lines to run
+    that set again)."""
+    return json.dumps([case["set"], case["i"], case["j"], case["level"], [round(v, 9) for v in case["move"]]])
 
 
 def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
@@ -256,10 +264,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--methods", default=METHODS, help=f"comma list of {METHODS}")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="results/benchmarks", help="folder for families.json and families_cases.jsonl "
-                   "(a rerun continues from it)")
+                   "(a rerun runs only the cases it lacks)")
     p.add_argument("--config", default=None, help="config YAML of DeepBBS++ (default: the defaults)")
     p.add_argument("--weights", default="", help="checkpoint ('' = the shipped model)")
     p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the simulated scans")
+    p.add_argument("--report-only", action="store_true", help="summarise the cases already in families_cases.jsonl "
+                   "without running more (a data set without any has no row)")
     p.add_argument("--inexact", action="store_true", help="one call per method answers and is timed")
     args = p.parse_args(argv)
     if args.quick:
