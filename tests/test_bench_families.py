@@ -45,7 +45,9 @@ def test_plan_covers_every_basin_offset_with_exact_moves():
 
 
 def _rec(level, deep_ok, valid, gicp_ok=True):
-    return {"set": "sim_vlp16_wheeled_hall", "i": 1, "j": 0, "level": level, "overlap": 0.8, "dist": 1.0,
+    good = {"deepbbs++good": {"ok": True, "valid": True, "score": 0.9, "ms": 60.0, "rot": 0.1, "trans": 0.02,
+                              "path": "gicp"}} if level == 0 else {}
+    return {**good, "set": "sim_vlp16_wheeled_hall", "i": 1, "j": 0, "level": level, "overlap": 0.8, "dist": 1.0,
             "deepbbs++": {"ok": deep_ok, "valid": valid, "score": 0.5, "ms": 100.0, "rot": 0.1 if deep_ok else 9.0,
                           "trans": 0.02 if deep_ok else 2.0},
             "gicp": {"ok": gicp_ok, "ms": 50.0, "rot": 0.2, "trans": 0.03}}
@@ -56,7 +58,7 @@ def test_summary_and_its_tables():
     sets = {"sim_vlp16_wheeled_hall": {"sensor": "vlp16", "source": "sim", "mount": "wheeled", "place": "hall",
                                        "frames": [(tgt, np.eye(4)), (tgt, np.eye(4))]}}
     recs = [_rec(0, True, True), _rec(0, False, True), _rec(0, True, False), _rec(5, True, True, gicp_ok=False)]
-    fig = families.summarise(recs, sets, ["deepbbs++", "gicp"])
+    fig = families.summarise(recs, sets, ["deepbbs++", "deepbbs++good", "gicp"])
     c = fig["sim_vlp16_wheeled_hall"]
     assert c["pairs"] == 3 and abs(c["success_pct"]["deepbbs++"] - 200 / 3) < 1e-9
     assert c["verdict"] == {"cases": 4, "accepted_wrong": 1, "rejected_right": 1, "right": 3}
@@ -69,6 +71,9 @@ def test_summary_and_its_tables():
     text = "\n".join(_families_doc.families(doc, ["Measured by x."], "not run"))
     assert "| Velodyne VLP-16 | simulated, wheeled, hall | 3 | 0.80 | 66.7 % (3) | 100.0 % (3) | - |" in text
     assert "1 / 1 (of 4)" in text and "x2.00" in text and "overlap 0.80" in text
+    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "accepted_wrong": 0, "rejected_right": 0}
+    assert "| 100.0 % (3) | x1.20 | 3 of 3 |" in text
+    assert "deepbbs++good" not in c["basin"][1]["success_pct"]
     assert "not run" in "\n".join(_families_doc.families(None, [], "not run"))
 
 

@@ -11,7 +11,9 @@ REAL_LABELS = {"kitti": "KITTI {}", "pair": "reference pair", "nuscenes": "nuSce
 METHODS = ("deepbbs++", "gicp", "kiss-matcher+gicp")
 HEADER = ["LiDAR", "data", "pairs", "overlap p50", "DeepBBS++", "GICP", "KISS-Matcher + GICP",
           "errors where both are right, deg / m: DeepBBS++; GICP", "verdict: wrong accepted / right rejected",
-          "DeepBBS++ p50 / p95 ms", "p50 / GICP's"]
+          "DeepBBS++ p50 / p95 ms", "p50 / GICP's", "`good_start=True`: success", "its p50 / GICP's",
+          "its GICP path accepted"]
+GOOD = "deepbbs++good"
 
 
 def data_label(name: str, c: dict) -> str:
@@ -44,7 +46,15 @@ def _row(name: str, c: dict) -> list[str]:
             *(_pct(s.get(m), n) for m in METHODS), f"{_err(b, 'deepbbs++')}; {_err(b, 'gicp')} ({b.get('pairs', 0)})",
             f"{v.get('accepted_wrong', '-')} / {v.get('rejected_right', '-')} (of {v.get('cases', '-')})",
             f"{c['p50_ms']['deepbbs++']:.0f} / {c['p95_ms']['deepbbs++']:.0f}",
-            "-" if ratio is None else f"x{ratio:.2f}"]
+            "-" if ratio is None else f"x{ratio:.2f}", *_good(c)]
+
+
+def _good(c: dict) -> list[str]:
+    g, ratio = c.get("good_start"), (c.get("p50_over_gicp") or {}).get(GOOD)
+    if not g:
+        return ["-", "-", "-"]
+    return [_pct(c["success_pct"][GOOD], g["pairs"]), "-" if ratio is None else f"x{ratio:.2f}",
+            f"{g['gicp_path']} of {g['pairs']}"]
 
 
 def _missed(name: str, c: dict) -> list[str]:
@@ -67,7 +77,9 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
                 "From moved starts (the basin): " + not_run + "."]
     out = command + ["Good start (neighbouring scans as recorded): success within 1 deg / 0.3 m per method "
                      "(pairs in brackets), overlap = share of source points within 0.5 m of the target at the truth; "
-                     "the verdict's counts are over every start of the set.", ""]
+                     "the verdict's counts are over every start of the set. `good_start=True`: DeepBBS++ told that "
+                     "the start is good (`register(..., good_start=True)`, as the node does with `node.good_start`): "
+                     "GICP from it, accepted by a stricter verdict, else the full pipeline.", ""]
     out += ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(_row(n, fig[n])) + " |" for n in _order(fig)]
     missed = [line for n in _order(fig) for line in _missed(n, fig[n])]

@@ -29,7 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
 import registration as _reg  # noqa: E402
 
-METHODS = "deepbbs++,gicp,kiss-matcher+gicp"
+METHODS = "deepbbs++,deepbbs++good,gicp,kiss-matcher+gicp"
+GOOD = "deepbbs++good"  # register(src, tgt, T_init=identity, good_start=True): from the good start only
 #: start offsets of the basin: (|yaw| deg, shift m); the first is the good start
 BASIN = [(0.0, 0.0), (30.0, 2.0), (60.0, 4.0), (90.0, 6.0), (135.0, 8.0), (180.0, 10.0)]
 #: simulated sensor on the mounts and places it is used in (sensor:mount:place)
@@ -149,10 +150,12 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
 
     recorded = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
     by_key = {_key(r): r for r in recorded}
-    todo = [c for c in cases if _key(c) not in by_key]
+    todo = [c for c in cases if any(m not in by_key.get(_key(c), {}) for m in _applicable(c, names))]
     if not todo or args.report_only:
         return [by_key[_key(c)] for c in cases if _key(c) in by_key]
-    regs = _reg.make_methods(names, args)
+    regs = _reg.make_methods([m for m in names if m != GOOD], args)
+    if GOOD in names:
+        regs[GOOD] = regs["deepbbs++"] if "deepbbs++" in regs else _reg.make_methods(["deepbbs++"], args)["deepbbs++"]
     overlaps: dict = {}
     with path.open("a") as fh:
         for n, case in enumerate(todo, start=len(cases) - len(todo)):
@@ -164,21 +167,37 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
             key = (case["set"], case["i"], case["j"])
             if key not in overlaps:
                 overlaps[key] = overlap(raw, tgt, T_gt)
-            rec = {**case, "overlap": overlaps[key], "dist": float(np.linalg.norm(T_gt[:3, 3]))}
-            for m in names:
-                r = _reg.run_case(m, regs[m], src, tgt)
+            rec = by_key.get(_key(case)) or {**case, "overlap": overlaps[key],
+                                             "dist": float(np.linalg.norm(T_gt[:3, 3]))}
+            for m in (m for m in _applicable(case, names) if m not in rec):
+                r = run_good(regs[m], src, tgt) if m == GOOD else _reg.run_case(m, regs[m], src, tgt)
                 rot, tr = pair_errors(r.pop("T") @ P, T_gt)
                 rec[m] = {**r, "rot": float(rot), "trans": float(tr), "ok": bool(rot <= 1.0 and tr <= 0.3)}
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
             by_key[_key(rec)] = rec
             print(f"case {n + 1}/{len(cases)} {case['set']} level {case['level']}: " + ", ".join(
-                f"{m} {'ok' if rec[m]['ok'] else 'FAIL'} {rec[m]['ms']:.0f} ms" for m in names), flush=True)
+                f"{m} {'ok' if rec[m]['ok'] else 'FAIL'} {rec[m]['ms']:.0f} ms" for m in names if m in rec), flush=True)
     for pair in regs.values():
         for r in pair:
             if hasattr(r, "close"):
                 r.close()
     return [by_key[_key(c)] for c in cases]
+
+
+def _applicable(case: dict, names: list[str]) -> list[str]:
+    return [m for m in names if m != GOOD or case["level"] == 0]
+
+
+def run_good(regs, src: np.ndarray, tgt: np.ndarray) -> dict:
+    """DeepBBS++ told that the start (identity) is good: GICP first, its stricter verdict, the full pipeline only
+    when that rejects (``path``)."""
+    def call(reg):
+        res = reg.register(src, tgt, T_init=np.eye(4), good_start=True)
+        return res.T_target_source, {"valid": bool(res.valid), "score": float(res.score), "path": res.path}
+
+    (T, extra), ms, _ = _common.timed_then_answered(call, *regs)
+    return {"ms": ms, "T": T, **extra}
 
 
 def _key(case: dict) -> str:
@@ -198,9 +217,16 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
                 "pairs": len(good), "overlap_median": float(np.median([r["overlap"] for r in good])),
                 "success_pct": {}, "p50_ms": {}, "p95_ms": {}, "p50_over_gicp": {}}
         for m in names:
-            ms = np.array([r[m]["ms"] for r in good])
-            cell["success_pct"][m] = 100.0 * np.mean([r[m]["ok"] for r in good])
+            ran = [r[m] for r in good if m in r]
+            if not ran:
+                continue
+            ms = np.array([x["ms"] for x in ran])
+            cell["success_pct"][m] = 100.0 * np.mean([x["ok"] for x in ran])
             cell["p50_ms"][m], cell["p95_ms"][m] = float(np.median(ms)), float(np.percentile(ms, 95))
+            if m == GOOD:  # answered by GICP and the good-start verdict, or by the full pipeline after it rejected
+                cell["good_start"] = {"pairs": len(ran), "gicp_path": sum(x["path"] == "gicp" for x in ran),
+                                      "accepted_wrong": sum(x["valid"] and not x["ok"] for x in ran),
+                                      "rejected_right": sum(x["ok"] and not x["valid"] for x in ran)}
         g50 = cell["p50_ms"].get("gicp")
         cell["p50_over_gicp"] = {m: v / g50 for m, v in cell["p50_ms"].items()} if g50 else {}
         if "deepbbs++" in names:
@@ -224,7 +250,7 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
             lv = [r for r in rs if r["level"] == level]
             if lv:
                 cell["basin"].append({"yaw_deg": yaw, "shift_m": shift, "cases": len(lv), "success_pct": {
-                    m: 100.0 * np.mean([r[m]["ok"] for r in lv]) for m in names}})
+                    m: 100.0 * np.mean([r[m]["ok"] for r in lv]) for m in names if m != GOOD and m in lv[0]}})
         out[name] = cell
     return out
 
@@ -232,7 +258,7 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
 def report(fig: dict, names: list[str]) -> None:
     for name, c in fig.items():
         succ = ", ".join(f"{m} {v:.0f} %" for m, v in c["success_pct"].items())
-        times = ", ".join(f"{m} {c['p50_ms'][m]:.0f}/{c['p95_ms'][m]:.0f} ms" for m in names)
+        times = ", ".join(f"{m} {v:.0f}/{c['p95_ms'][m]:.0f} ms" for m, v in c["p50_ms"].items())
         print(f"{name} ({c['pairs']} pairs, overlap p50 {c['overlap_median']:.2f}): {succ}; {times}")
         for x in c.get("missed", []):
             print(f"   missed {x['i']}->{x['j']}: overlap {x['overlap']:.2f}, {x['dist_m']:.1f} m apart, "
@@ -240,9 +266,9 @@ def report(fig: dict, names: list[str]) -> None:
                   f"GICP ok {x['gicp_ok']}, "
                   "GICP from the truth moves {:.2f} deg / {:.2f} m".format(*x["truth_gicp_deg_m"]))
         if "verdict" in c:
-            print(f"   both right: {c['both_right']}; verdict: {c['verdict']}")
+            print(f"   both right: {c['both_right']}; verdict: {c['verdict']}; good start: {c.get('good_start')}")
         print("   basin: " + "; ".join(f"{b['yaw_deg']:.0f} deg/{b['shift_m']:.0f} m " + "/".join(
-            f"{b['success_pct'][m]:.0f}" for m in names) for b in c["basin"]))
+            f"{v:.0f}" for v in b["success_pct"].values()) for b in c["basin"]))
 
 
 def main(argv: list[str] | None = None) -> int:
