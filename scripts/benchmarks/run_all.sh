@@ -2,11 +2,12 @@
 # Every benchmark behind docs/benchmarks.md, in a fixed order, into one folder, then a summary of the figures.
 #
 #   scripts/benchmarks/run_all.sh --kitti PATH/TO/kitti/00 --kitti PATH/TO/kitti/02 [--pair PATH/TO/pair] [--out DIR]
-#       [--cache DIR]
+#       [--cache DIR] [--nuscenes PATH/TO/nuscenes_hdl32] [--livox PATH/TO/livox_avia_loop]
 #
 # --kitti: a KITTI odometry sequence folder (velodyne/, poses.txt, calib.txt), repeatable; the benchmarks read
 # its first 10 scans. --pair: optional folder of a real reference pair (two .pcd files, target and source in
-# name order, and relative.txt). --cache: the localization benchmark's generated maps and queries (default
+# name order, and relative.txt). --nuscenes, --livox: optional real scans of other LiDARs in the KITTI layout for
+# families.py (its --help). --cache: the localization benchmark's generated maps and queries (default
 # ~/.cache/deepbbs_ros/bench; made once). --out: results folder (default results/benchmarks/<UTC time>). Each benchmark
 # writes its JSON and PNG there (the node latency runs into sub-folders) and its log under logs/; a failing
 # one is reported and the others still run (exit code 1 at the end). Run it with nothing else on the computer:
@@ -15,6 +16,7 @@ set -u
 cd "$(dirname "$0")/../.."
 KITTI=()
 PAIR=()
+FAMILIES=()
 OUT="results/benchmarks/$(date -u +%Y-%m-%d_%H-%M-%S)"
 CACHE="${XDG_CACHE_HOME:-$HOME/.cache}/deepbbs_ros/bench"
 while [ $# -gt 0 ]; do
@@ -23,7 +25,8 @@ while [ $# -gt 0 ]; do
     --pair) PAIR=(--pair "$2"); shift 2 ;;
     --out) OUT="$2"; shift 2 ;;
     --cache) CACHE="$2"; shift 2 ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    --nuscenes|--livox) FAMILIES+=("$1" "$2"); shift 2 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "run_all.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -61,6 +64,7 @@ step decode $PY $B/decode.py --runs 500 --out "$OUT"
 step simulator $PY $B/simulator.py --frames 30 --out "$OUT"
 step registration $PY $B/registration.py --kitti "${KITTI[@]}" "${PAIR[@]}" --out "$OUT"
 step good_start $PY $B/good_start.py --kitti "${KITTI[@]}" --out "$OUT"
+step families $PY $B/families.py --quick --kitti "${KITTI[@]}" "${PAIR[@]}" "${FAMILIES[@]}" --cache "$CACHE" --out "$OUT"
 step deskew $PY $B/deskew.py --drives-per-scene 1 --threads 1 --out "$OUT"
 step odometry $PY $B/odometry.py --frames 500 --kitti "${KITTI[@]}" --out "$OUT"
 step busy $PY $B/busy.py --kitti "${KITTI[@]}" --rounds 1 --policies passive,default --out "$OUT"
