@@ -54,8 +54,9 @@ def overlap(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_points: int = 2
 
 
 def truth_check(src: np.ndarray, tgt: np.ndarray, T: np.ndarray) -> tuple[float, float]:
-    """How far GICP started at the truth ``T`` moves from it (deg, m): the resolution of the truth on this pair (a
-    miss by about that much is the truth's, not the method's)."""
+    """How far GICP started at the truth ``T`` moves from it (deg, m): on real scans the resolution of the recorded
+    truth on this pair (a miss by about that much is the truth's); on simulated ones (an exact truth) GICP's own
+    error, which DeepBBS++'s GICP precision stage shares."""
     from deepbbs_ros.baselines import SmallGicpRegistration
     from deepbbs_ros.config import Config
     from deepbbs_ros.metrics import pair_errors
