@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Fill the figure tables of docs/benchmarks.md and the README's "Results" table from the benchmarks' JSON files.
+"""Fill the figure tables of docs/benchmarks.md, docs/sensors.md and the README's "Results" table from the benchmarks'
+JSON files.
 
     python scripts/benchmarks/render_docs.py OUT --copy     # after run_all.sh --out OUT: copy, then render
     python scripts/benchmarks/render_docs.py docs/benchmarks --check   # the pages are a render of the JSON
