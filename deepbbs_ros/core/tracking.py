@@ -97,6 +97,12 @@ class MapTracker:
         turn = abs(float(np.angle(np.exp(1j * (_yaw(res.T_map_scan) - _yaw(T_hint))))))
         return off <= radius and (max_yaw >= np.pi or turn <= max_yaw)
 
+    @property
+    def last_stamp_ns(self) -> int | None:
+        """The stamp of the last accepted scan (ns), None with none since the last reset."""
+        poses = self._poses
+        return poses[-1][0] if poses else None
+
     def predict(self, stamp_ns: int) -> np.ndarray | None:
         """T_map_scan (4, 4) at ``stamp_ns`` under constant velocity from the last two accepted poses (the last pose
         with one; None with none)."""
