@@ -134,6 +134,12 @@ class MapTracker:
             guess = self.predict(stamp_ns)
             motion = self.motion() if times is not None else None
             res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
+            if not res.valid and res.path == "gicp" and len(self._poses) >= 2:
+                # rejected at once from the constant-velocity prediction (its GICP far below the recent scores): the
+                # sensor stopped, turned back or the prediction spans a gap; once more from the last pose, at rest
+                still = self.localizer.localize(scan, self._poses[-1][1], times=times, stamp_ns=stamp_ns, motion=motion)
+                if still.valid:
+                    res = still
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False
                 res.reason = f"implausible motion (faster than {lc.max_speed:.0f} m/s)"

@@ -15,12 +15,25 @@ from __future__ import annotations
 
 import threading
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-#: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one
-BRIDGE_MAX = 8
+#: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one, in
+#: each of at most BRIDGE_ROUNDS rounds (the scans that arrive while it bridges are the next round's)
+BRIDGE_MAX, BRIDGE_ROUNDS = 12, 6
+
+
+class ArrivalGate:
+    """The localization input's gate (``LatestSlotWorker``'s ``gate``): open while the registration worker has room,
+    as every input's, and also while ``keeps()`` (a search or a bridge runs: every scan is decoded, prepared, kept)."""
+
+    def __init__(self, room: threading.Event, keeps: Callable[[], bool]) -> None:
+        self._room, self._keeps = room, keeps
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._keeps() or self._room.wait(timeout)
 
 
 class ScanBridge:

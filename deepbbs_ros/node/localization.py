@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_ROUNDS, ScanBridge
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
@@ -347,7 +347,7 @@ class NodeLocalization:
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
         done = rounds = self._followed = 0
-        while rounds < 4 and self.tracker.state == "tracking":  # scans keep arriving while it bridges: a few rounds
+        while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
             scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns)
             if not scans:
                 break
@@ -363,7 +363,7 @@ class NodeLocalization:
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                if self.tracker.state != "tracking":  # lost while following: the next scan searches
+                if not loc.result.valid:  # the worker's next scan goes on from the last good pose (or searches)
                     return
 
     def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:

@@ -621,14 +621,21 @@ class RegistrationNode(Node):
             CloudInput(
                 self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival and not latched else None,
                 self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
-                increasing_stamps=not pair,  # localization: every scan decoded (the bridge keeps them, bridge.py)
-                gate=None if latched or self.localization is not None else self.worker.room,
+                increasing_stamps=not pair, gate=None if latched else self._input_gate(),
                 deskew=None if latched else self._stream_deskew(),
                 capacity=1 if pair else self.cfg.node.odometry_backlog,
                 on_driver=None if latched else functools.partial(self._on_driver, index),
             )
         )  # fmt: skip
         return subscribe
+
+    def _input_gate(self) -> Any:
+        """The worker's room; in localization mode also open while a search or a bridge runs (node/bridge.py)."""
+        if self.localization is None:
+            return self.worker.room
+        from deepbbs_ros.node.bridge import ArrivalGate
+
+        return ArrivalGate(self.worker.room, lambda: self.localization.keeps_arrivals)
 
     def _on_driver(self, index: int, driver: str | None, xyz: Any) -> None:
         """An input's driver, recognised from its first message: logged, on /diagnostics, given to the odometry."""
@@ -715,7 +722,7 @@ class RegistrationNode(Node):
         dropped = inp.dropped
         inp.submit(msg, t_recv)
         if inp.dropped > dropped and self.localization is not None:
-            self._drops.dropped("before preprocessing: the input was still decoding and preparing the scan before it",
+            self._drops.dropped("before preprocessing: a newer scan arrived while the registration was busy",
                                 _stamp_ns(msg), inp.topic)
         elif inp.dropped > dropped and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
             self.get_logger().debug(f"{inp.topic}: the oldest waiting cloud dropped (scan at "
@@ -834,6 +841,7 @@ class RegistrationNode(Node):
         t_in = src.t_recv if tgt is None else max(src.t_recv, tgt.t_recv)
         t_ready = src.t_ready if tgt is None else max(src.t_ready, tgt.t_ready)
         timings = {"queue_wait": (t_start - t_ready) * 1e3}
+        found = None  # localization: a scan a search placed (the scans that came meanwhile follow it)
         try:
             if mode == "pair":
                 T_start = self._pair_start.start(src, tgt)  # the last valid answer (None: the full pipeline)
@@ -853,12 +861,7 @@ class RegistrationNode(Node):
                 reg = loc.registered
                 t0 = time.perf_counter()
                 self._localized(src, loc)
-                for cloud, later in self.localization.bridge(loc, src.stamp_ns):  # scans that came during a search
-                    if self.loc_odometry is not None:
-                        self.rep105.odometry_step(cloud, self.loc_odometry.step(cloud))
-                    self._localized(cloud, later)
-                if self.localization.last_bridge:
-                    self.get_logger().info(self.localization.last_bridge)
+                found = loc if loc.result.event in ("found", "relocalized") else None
             elif mode == "map":
                 reg, tgt_points = self._map_target.register(self.reg, src)
                 t0 = time.perf_counter()
@@ -894,8 +897,22 @@ class RegistrationNode(Node):
         timings["publish"] = (t_end - t0) * 1e3
         timings["total"] = (t_end - t_in) * 1e3
         self._stages.add(timings)
+        if mode == "localize" and found is not None:
+            self._follow(src, found)
         if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
             self.get_logger().debug(_step_line(src, reg, timings))
+
+    def _follow(self, src: Cloud, found: Any) -> None:
+        """A search placed ``src``: the scans that arrived meanwhile are tracked and published (node/bridge.py), the
+        node's own odometry stepped through them first; their time is the ``bridge`` stage."""
+        t0 = time.perf_counter()
+        for cloud, later in self.localization.bridge(found, src.stamp_ns):
+            if self.loc_odometry is not None:
+                self.rep105.odometry_step(cloud, self.loc_odometry.step(cloud))
+            self._localized(cloud, later)
+        if self.localization.last_bridge:
+            self._stages.add({"bridge": (time.perf_counter() - t0) * 1e3})
+            self.get_logger().info(self.localization.last_bridge)
 
     def _localized(self, src: Cloud, loc: Any) -> None:
         """Publish one localized scan (REP-105 outputs); a rejected one is counted (there and as not trusted), never
