@@ -305,7 +305,7 @@ def kitti_stream(args, layout: str, stream: str, seq: Path) -> Stream:
     out = [driver_cloud(layout, xyz, f, beams=beams, columns=columns, frame_id=frame) for xyz, f in msgs]
     desc = _describe(out, np.mean([len(x) for x, _ in msgs]), f"KITTI {seq.name} HDL-64E, time field 0", layout)
     res = Stream(out, stream_pairs(len(out), stream), desc)
-    if args.mode == "localization":
+    if getattr(args, "mode", "") == "localization":
         keys = range(0, len(scans), max(1, args.map_every))
         add_map(args, res, [s.T_world_lidar for s in scans],
                 [(scans[k].points, scans[k].T_world_lidar, scans[k].stamp_ns) for k in keys], f"map_kitti_{seq.name}")
