@@ -117,5 +117,6 @@ def test_scan_bridge_takes_the_first_two_then_spread():
         b.add(SimpleNamespace(stamp_ns=s))
     got = [c.stamp_ns for c in b.take(4)]
     assert len(got) == BRIDGE_MAX and got[:2] == [5, 6] and got[-1] == 23 and got == sorted(got), got
+    assert b.dropped == 25 - 1 - 1 - BRIDGE_MAX  # all but the found scan (4), those taken and the newest (24)
     assert [c.stamp_ns for c in b.take(23)] == [] and len(b) == 1  # the newest stays (the worker's next job)
     assert ScanBridge(0).take(0) == [] and np.isfinite(len(ScanBridge(0)))

@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 
 #: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one, in
-#: each of at most BRIDGE_ROUNDS rounds (the scans that arrive while it bridges are the next round's)
-BRIDGE_MAX, BRIDGE_ROUNDS = 12, 6
+#: each of at most BRIDGE_ROUNDS rounds (the scans that arrive while it bridges are the next round's), for at most
+#: BRIDGE_BUDGET_S s in all (then the newest scan is tracked from the last pose followed: the bridge never runs away)
+BRIDGE_MAX, BRIDGE_ROUNDS, BRIDGE_BUDGET_S = 12, 6, 2.0
 
 
 class ArrivalGate:
@@ -47,6 +48,7 @@ class ScanBridge:
         self.size = max(int(size), 0)
         self._lock = threading.Lock()
         self._scans: deque[Any] = deque(maxlen=max(self.size, 1))
+        self.dropped = 0  # scans kept and then forgotten or passed over unanswered (full, thinned, older)
 
     def __len__(self) -> int:
         with self._lock:
@@ -56,6 +58,7 @@ class ScanBridge:
         """Keep ``scan`` (the oldest kept one goes when full). Called on the input thread."""
         if self.size:
             with self._lock:
+                self.dropped += len(self._scans) == self._scans.maxlen
                 self._scans.append(scan)
 
     def clear(self) -> None:
@@ -63,9 +66,10 @@ class ScanBridge:
             self._scans.clear()
 
     def forget_until(self, stamp_ns: int) -> None:
-        """Forget the scans stamped at or before ``stamp_ns`` (answered, or older than the scan searched)."""
+        """Forget the scans stamped at or before ``stamp_ns`` (that one answered; the older ones dropped)."""
         with self._lock:
             kept = [s for s in self._scans if s.stamp_ns > stamp_ns]
+            self.dropped += sum(s.stamp_ns < stamp_ns for s in self._scans)
             self._scans.clear()
             self._scans.extend(kept)
 
@@ -82,6 +86,7 @@ class ScanBridge:
                 later = [later[i] for i in sorted(pick)]  # 0, 1, ..., the last: at most `most`
             last = later[-1].stamp_ns
             kept = [s for s in self._scans if s.stamp_ns > last]
+            self.dropped += len(self._scans) - len(kept) - len(later) - sum(s.stamp_ns == after_ns for s in self._scans)
             self._scans.clear()
             self._scans.extend(kept)
             return later

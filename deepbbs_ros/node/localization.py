@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_ROUNDS, ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_ROUNDS, ScanBridge
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
@@ -243,13 +243,31 @@ class NodeLocalization:
 
     @property
     def keeps_arrivals(self) -> bool:
-        """Whether the scans arriving now are kept for :meth:`bridge` (a search runs, ``localization.bridge_scans``)."""
+        """Whether the scans arriving now are kept for :meth:`bridge` (a search or a bridge runs,
+        ``localization.bridge_scans``): their fate is counted there (followed, or :attr:`dropped`)."""
+        return self._bridge.size > 0 and (self.searching or self._bridging)
+
+    @property
+    def searching(self) -> bool:
+        """A map and no pose: the next scan searches."""
         tracker = self.tracker
-        return self._bridge.size > 0 and tracker is not None and (tracker.state != "tracking" or self._bridging)
+        return tracker is not None and tracker.state != "tracking"
+
+    @property
+    def opens_input(self) -> bool:
+        """Whether the input decodes and prepares every scan now, not only while the worker has room: the bridge
+        keeps them (a search or a bridge runs)."""
+        return self.keeps_arrivals
+
+    @property
+    def dropped(self) -> int:
+        """Scans kept during a search or a bridge and never answered (thinned, passed over, the buffer full)."""
+        return self._bridge.dropped
 
     def arrived(self, cloud: Cloud) -> None:
-        """A scan on its way to the worker (input thread): kept for :meth:`bridge` (``localization.bridge_scans``)."""
-        self._bridge.add(cloud)
+        """A scan on its way to the worker (input thread): kept for :meth:`bridge` while :attr:`keeps_arrivals`."""
+        if self.keeps_arrivals:
+            self._bridge.add(cloud)
 
     def step(self, cloud: Cloud) -> LocalizedScan | None:
         """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread; None for a scan
@@ -347,6 +365,7 @@ class NodeLocalization:
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
         done = rounds = self._followed = 0
+        t0 = time.perf_counter()
         while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
             scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns)
             if not scans:
@@ -363,8 +382,8 @@ class NodeLocalization:
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                if not loc.result.valid:  # the worker's next scan goes on from the last good pose (or searches)
-                    return
+                if not loc.result.valid or time.perf_counter() - t0 > BRIDGE_BUDGET_S:
+                    return  # the worker's next scan goes on from the last good pose (the rest: dropped)
 
     def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
         localizer, T = job
@@ -411,6 +430,7 @@ class NodeLocalization:
             "map crops prepared ahead": self.prefetched,
             "scans prepared on arrival": self.prepared,
             "scans followed after a search": self.bridged,
+            "scans kept during a search, dropped": self.dropped,
         }
         if self.map is not None:
             out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"

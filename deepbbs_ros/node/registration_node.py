@@ -635,7 +635,7 @@ class RegistrationNode(Node):
             return self.worker.room
         from deepbbs_ros.node.bridge import ArrivalGate
 
-        return ArrivalGate(self.worker.room, lambda: self.localization.keeps_arrivals)
+        return ArrivalGate(self.worker.room, lambda: self.localization.opens_input)
 
     def _on_driver(self, index: int, driver: str | None, xyz: Any) -> None:
         """An input's driver, recognised from its first message: logged, on /diagnostics, given to the odometry."""
@@ -1062,7 +1062,9 @@ class RegistrationNode(Node):
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         if self.localization is not None:
             values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
-            values.update({f"localization.{k}": v for k, v in self._drops.diagnostics().items()})
+            drops = self._drops.diagnostics()
+            drops["scans dropped unanswered"] += self.localization.dropped  # kept during a search, not answered
+            values.update({f"localization.{k}": v for k, v in drops.items()})
             values.update({f"localization.{k}": v for k, v in self.rep105.diagnostics().items()})
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n
