@@ -120,3 +120,27 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     assert b.dropped == 25 - 1 - 1 - BRIDGE_MAX  # all but the found scan (4), those taken and the newest (24)
     assert [c.stamp_ns for c in b.take(23)] == [] and len(b) == 1  # the newest stays (the worker's next job)
     assert ScanBridge(0).take(0) == [] and np.isfinite(len(ScanBridge(0)))
+
+
+def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
+    """MapTracker: a scan rejected at once from the constant-velocity prediction (25 m ahead: the sensor stopped) is
+    registered once more by GICP from the last pose at rest and placed right (without: rejected, 'no local search')."""
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.tracking import MapTracker
+
+    sim, points, poses, scan = drive
+    cfg = _config()
+    loc = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
+    tracker = MapTracker(loc, cfg)
+    k = 40
+    T = scan(k)[1]
+    back = T.copy()
+    back[:3, 3] -= 25.0 * T[:3, 0]  # 25 m behind along the heading, 0.1 s earlier: the prediction is 25 m ahead
+    s0, s1 = sim.stamp_ns(k) - 200_000_000, sim.stamp_ns(k) - 100_000_000
+    tracker.state, tracker._poses = "tracking", [(s0, back), (s1, T.copy())]
+    loc._track_scores.extend([1.0, 1.0])  # the recent tracked scans' scores
+    assert np.linalg.norm(tracker.predict(sim.stamp_ns(k))[:3, 3] - T[:3, 3]) > 20.0
+    res = tracker.step(scan(k)[0], sim.stamp_ns(k))
+    # answered by GICP from the last pose, not by the slower local search among the places (what it took without)
+    assert res.valid and tracker.state == "tracking" and res.path == "gicp", (res.reason, res.path)
+    _check_pose(res.T_map_scan, T)
