@@ -144,3 +144,32 @@ def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
     # answered by GICP from the last pose, not by the slower local search among the places (what it took without)
     assert res.valid and tracker.state == "tracking" and res.path == "gicp", (res.reason, res.path)
     _check_pose(res.T_map_scan, T)
+
+
+def test_tracked_covariance_reads_the_refinement(drive):
+    """A tracked pose's covariance comes from the refinement GICP's own last linearisation (no second one): the same
+    as linearising again at the pose (core/covariance.scan_covariance), to within 2 % of its largest entry."""
+    from deepbbs_ros.core.covariance import scan_covariance
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.tracking import MapTracker
+
+    sim, points, poses, scan = drive
+    cfg = _config()
+    loc = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
+    seen = []
+    own = loc._covariance
+
+    def both(src, crop, T, timings):
+        reused = loc._refined_at is not None and np.array_equal(loc._refined_at[0], T)
+        cov = own(src, crop, T, timings)
+        seen.append((reused, cov, scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T, cfg)))
+        return cov
+
+    loc._covariance = both
+    tracker = MapTracker(loc, cfg)
+    tracker.state, tracker._poses = "tracking", [(sim.stamp_ns(29), scan(29)[1])]
+    for k in (30, 31, 32):
+        assert tracker.step(scan(k)[0], sim.stamp_ns(k)).valid
+    assert seen and all(reused for reused, *_ in seen)
+    for _, cov, again in seen:
+        assert np.abs(cov - again).max() <= 0.02 * np.abs(again).max()
