@@ -602,7 +602,8 @@ class LocalizationConfig:
     max_speed: float = 40.0  # m/s; MapTracker: a pose implying a faster motion since the last one counts as rejected
     # the node keeps the scans that arrive while a search runs (at most this many, the newest): once the search places a
     # scan, the tracker follows its pose through them to the newest scan, so that tracking goes on from a fresh
-    # prediction; 0 = off (the scans that arrived meanwhile are dropped and the next one is tracked from the found pose)
+    # prediction; about 3.7 MB each for a KITTI HDL-64E scan (raw and prepared); 0 = off (the scans that arrived
+    # meanwhile are dropped and the next one is tracked from the found pose)
     bridge_scans: int = 30
 
     def validate(self) -> None:
