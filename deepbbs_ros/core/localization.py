@@ -65,7 +65,12 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import acceptance
-from deepbbs_ros.core.covariance import scan_covariance
+from deepbbs_ros.core.covariance import (
+    LOCALIZATION_FACTORS,
+    LOCALIZATION_WEAK_EXPONENT,
+    gicp_covariance,
+    scan_covariance,
+)
 from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests reach the descriptor's helpers here)
     GROUND_WINDOW,
     _HeightGrid,
@@ -506,14 +511,25 @@ class MapLocalizer(GuessTracking, PlaceSearch):
                                   polish_max_rot_deg=2.0)
         pol = polish(src.polish_cloud, crop.pre.polish_cloud, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
-        return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
+        if not pol.applied:
+            return T_map_scan
+        T_out = crop.T_map_place @ pol.T_target_source
+        # converged: its last linearisation is the covariance's (same clouds, refine_corr_dist), not made again
+        self._refined_at = (T_out, src, crop, pol.hessian)
+        return T_out
 
     def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
                     timings: dict[str, float]) -> np.ndarray | None:
         """The covariance of a valid ``T_map_scan`` (core/covariance.py), timed into ``covariance``."""
         t = time.perf_counter()
-        cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan, self.config,
-                              self.registration.gicp_threads())
+        last, self._refined_at = getattr(self, "_refined_at", None), None
+        if last is not None and last[1] is src and last[2] is crop and last[3] is not None and np.array_equal(
+                last[0], T_map_scan):  # the refinement's GICP converged at this pose: its Hessian
+            cov = gicp_covariance(*last[3], T_map_scan, factors=LOCALIZATION_FACTORS,
+                                  weak_exponent=LOCALIZATION_WEAK_EXPONENT)
+        else:
+            cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan,
+                                  self.config, self.registration.gicp_threads())
         timings["covariance"] = (time.perf_counter() - t) * 1e3
         return cov
 

@@ -275,6 +275,9 @@ class PolishResult:
     delta_rot_deg: float = 0.0
     timings_ms: dict[str, float] = field(default_factory=dict)
     check_score: float = float("nan")  # the score at the check (polish(..., check=...)); nan when none was made
+    #: small_gicp's (H (6, 6), error, inliers) at its last linearisation (core/covariance.py reads a pose's covariance
+    #: from them); None when it did not run
+    hessian: tuple[np.ndarray, float, int] | None = None
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
@@ -370,4 +373,5 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         delta_rot_deg=d_rot,
         check_score=check_score,
         timings_ms={"prepare": (t1 - t0) * 1e3, "align": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3},
+        hessian=(np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers)),
     )

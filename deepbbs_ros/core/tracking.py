@@ -97,6 +97,12 @@ class MapTracker:
         turn = abs(float(np.angle(np.exp(1j * (_yaw(res.T_map_scan) - _yaw(T_hint))))))
         return off <= radius and (max_yaw >= np.pi or turn <= max_yaw)
 
+    @property
+    def last_stamp_ns(self) -> int | None:
+        """The stamp of the last accepted scan (ns), None with none since the last reset."""
+        poses = self._poses
+        return poses[-1][0] if poses else None
+
     def predict(self, stamp_ns: int) -> np.ndarray | None:
         """T_map_scan (4, 4) at ``stamp_ns`` under constant velocity from the last two accepted poses (the last pose
         with one; None with none)."""
@@ -128,6 +134,12 @@ class MapTracker:
             guess = self.predict(stamp_ns)
             motion = self.motion() if times is not None else None
             res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
+            if not res.valid and res.path == "gicp" and len(self._poses) >= 2:
+                # rejected at once from the constant-velocity prediction (its GICP far below the recent scores): the
+                # sensor stopped, turned back or the prediction spans a gap; once more from the last pose, at rest
+                still = self.localizer.localize(scan, self._poses[-1][1], times=times, stamp_ns=stamp_ns, motion=motion)
+                if still.valid:
+                    res = still
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False
                 res.reason = f"implausible motion (faster than {lc.max_speed:.0f} m/s)"

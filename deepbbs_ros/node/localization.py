@@ -19,12 +19,18 @@ descriptors are built there, off the worker) and :meth:`relocalize` (the executo
 that the next :meth:`step` applies, so neither waits for a registration. With ``node.map_prefetch`` a thread of its
 own prepares the map crop of the place the tracked pose will reach in :data:`PREFETCH_AHEAD_S` s
 (``MapLocalizer.prefetch``), so that the scan that gets there does not wait for it.
+
+A search slower than the scan period does not lose what it finds: the node hands every scan to :meth:`arrived`
+(:class:`~deepbbs_ros.node.bridge.ScanBridge`, ``localization.bridge_scans``), and once a search places a scan,
+:meth:`bridge` tracks the scans that arrived meanwhile in stamp order, so that the worker's next scan is tracked from
+a fresh prediction instead of a pose seconds old. A scan the bridge already answered is skipped by :meth:`step`.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
+from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_ROUNDS, ScanBridge
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
@@ -137,6 +144,15 @@ class NodeLocalization:
         self._search_t0: float | None = None  # perf_counter of the first scan of the running search
         self._search_scans = 0
         self._last_search_log = 0.0
+        self._bridge = ScanBridge(config.localization.bridge_scans)
+        self.bridged = 0  # scans answered by the bridge after a search (their poses published)
+        self.skipped = 0  # scans the worker got after the bridge had answered them (not registered twice)
+        #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
+        #: can make a search outlast the scan period on a tiny map; 0 in use
+        self.search_delay_s = 0.0
+        self.last_bridge = ""  # the last bridge's log line (bridge())
+        self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
+        self._followed = 0
 
     # -- the map -----------------------------------------------------------------------------------------------
     def build(self, data: MapData) -> str:
@@ -188,6 +204,8 @@ class NodeLocalization:
             localizer, self._pending_localizer = self._pending_localizer, None
             relocalize, self._relocalize = self._relocalize, False
             hint, self._hint = self._hint, None
+        if data is not None or relocalize:
+            self._bridge.forget_until(cloud.stamp_ns - 1)  # scans before the request: not this search's
         if data is not None:
             self.map, self.localizer = data, localizer
             self.tracker = MapTracker(localizer, self.config)
@@ -223,8 +241,37 @@ class NodeLocalization:
             cloud.pp = (localizer, pre)
             cloud.timings_ms["preprocess"] = (time.perf_counter() - t0) * 1e3
 
-    def step(self, cloud: Cloud) -> LocalizedScan:
-        """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread.
+    @property
+    def keeps_arrivals(self) -> bool:
+        """Whether the scans arriving now are kept for :meth:`bridge` (a search or a bridge runs,
+        ``localization.bridge_scans``): their fate is counted there (followed, or :attr:`dropped`)."""
+        return self._bridge.size > 0 and (self.searching or self._bridging)
+
+    @property
+    def searching(self) -> bool:
+        """A map and no pose: the next scan searches."""
+        tracker = self.tracker
+        return tracker is not None and tracker.state != "tracking"
+
+    @property
+    def opens_input(self) -> bool:
+        """Whether the input decodes and prepares every scan now, not only while the worker has room: the bridge
+        keeps them (a search or a bridge runs)."""
+        return self.keeps_arrivals
+
+    @property
+    def dropped(self) -> int:
+        """Scans kept during a search or a bridge and never answered (thinned, passed over, the buffer full)."""
+        return self._bridge.dropped
+
+    def arrived(self, cloud: Cloud) -> None:
+        """A scan on its way to the worker (input thread): kept for :meth:`bridge` while :attr:`keeps_arrivals`."""
+        if self.keeps_arrivals:
+            self._bridge.add(cloud)
+
+    def step(self, cloud: Cloud) -> LocalizedScan | None:
+        """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread; None for a scan
+        :meth:`bridge` answered already (counted in :attr:`skipped`).
 
         Raises:
             BadInput: ``no_target`` before a map, ``localization_failed`` for a scan the localizer refuses
@@ -238,8 +285,14 @@ class NodeLocalization:
             raise BadInput("no_target", "no map yet (localization.map_path is empty and nothing arrived on the map "
                                         "topic, latched: transient_local, reliable)")
         state_before = tracker.state
+        last = tracker.last_stamp_ns
+        if state_before == "tracking" and last is not None and cloud.stamp_ns <= last:
+            self.skipped += 1
+            return None
         if state_before != "tracking" and self._search_t0 is None:
             self._search_t0, self._search_scans = cloud.t_recv, 0
+        if state_before != "tracking" and self.search_delay_s > 0:
+            time.sleep(self.search_delay_s)
         t0 = time.perf_counter()
         try:
             pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None
@@ -289,8 +342,48 @@ class NodeLocalization:
             ahead = tracker.predict(cloud.stamp_ns + int(PREFETCH_AHEAD_S * 1e9))
             if ahead is not None:
                 self._prefetch.submit((self.localizer, ahead))
+        self._bridge.forget_until(cloud.stamp_ns)
         reg = Registered(T, res, timings)
         return LocalizedScan(res, reg, getattr(res, "crop", None), self.map.frame_id, line)
+
+    def bridge(self, found: LocalizedScan, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
+        """After a search placed the scan stamped ``stamp_ns`` (``found``: its :meth:`step`): track the scans that
+        arrived meanwhile (:meth:`ScanBridge.take`), in stamp order, yielding each with its :meth:`step` (published
+        like any tracked scan); ends when none is left or the tracker lost the pose. One log line, on the last."""
+        self.last_bridge = ""
+        if found.result.event not in ("found", "relocalized") or self.tracker is None:
+            return
+        t0 = time.perf_counter()
+        self._bridging = True
+        try:
+            yield from self._follow(stamp_ns)
+        finally:
+            self._bridging = False
+        if self._followed:
+            self.last_bridge = (f"localization: followed the pose through {self._followed} scan(s) that arrived during "
+                                f"the search in {(time.perf_counter() - t0):.2f} s; tracking from the newest")
+
+    def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
+        done = rounds = self._followed = 0
+        t0 = time.perf_counter()
+        while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
+            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns)
+            if not scans:
+                break
+            rounds += 1
+            for cloud in scans:
+                try:
+                    loc = self.step(cloud)
+                except BadInput:
+                    continue
+                if loc is None:
+                    continue
+                done += 1
+                self._followed = done
+                self.bridged += bool(loc.result.valid)
+                yield cloud, loc
+                if not loc.result.valid or time.perf_counter() - t0 > BRIDGE_BUDGET_S:
+                    return  # the worker's next scan goes on from the last good pose (the rest: dropped)
 
     def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
         localizer, T = job
@@ -336,6 +429,8 @@ class NodeLocalization:
             "last search took (s)": _seconds(self.time_to_first_pose_s),
             "map crops prepared ahead": self.prefetched,
             "scans prepared on arrival": self.prepared,
+            "scans followed after a search": self.bridged,
+            "scans kept during a search, dropped": self.dropped,
         }
         if self.map is not None:
             out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"

@@ -89,6 +89,7 @@ from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
 from deepbbs_ros.node.dds import apply_default_profile
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.drivers import describe as describe_driver
+from deepbbs_ros.node.drops import DropLog
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
@@ -384,6 +385,8 @@ class RegistrationNode(Node):
         self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
         # conditions of the graph, not of a message: an input that never pairs, a target not there yet
         self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), ncfg.error_log_period)
+        # localization: a scan dropped unanswered is said once, later ones summarised (node/drops.py)
+        self._drops = DropLog(lambda text: self.get_logger().info(text), ncfg.error_log_period)
         self._stages = StageTimes()
         self._lock = threading.Lock()
         self._odom_lock = threading.Lock()  # the odometry state: worker thread vs ~/reset
@@ -618,13 +621,21 @@ class RegistrationNode(Node):
             CloudInput(
                 self.resolve_topic_name(name), self._cache if self._preprocess_on_arrival and not latched else None,
                 self.cfg.node.min_points, on_cloud, self._on_bad, self._on_thread_error,
-                increasing_stamps=not pair, gate=None if latched else self.worker.room,
+                increasing_stamps=not pair, gate=None if latched else self._input_gate(),
                 deskew=None if latched else self._stream_deskew(),
                 capacity=1 if pair else self.cfg.node.odometry_backlog,
                 on_driver=None if latched else functools.partial(self._on_driver, index),
             )
         )  # fmt: skip
         return subscribe
+
+    def _input_gate(self) -> Any:
+        """The worker's room; in localization mode also open while a search or a bridge runs (node/bridge.py)."""
+        if self.localization is None:
+            return self.worker.room
+        from deepbbs_ros.node.bridge import ArrivalGate
+
+        return ArrivalGate(self.worker.room, lambda: self.localization.opens_input)
 
     def _on_driver(self, index: int, driver: str | None, xyz: Any) -> None:
         """An input's driver, recognised from its first message: logged, on /diagnostics, given to the odometry."""
@@ -710,7 +721,10 @@ class RegistrationNode(Node):
         inp = self.inputs[index]
         dropped = inp.dropped
         inp.submit(msg, t_recv)
-        if inp.dropped > dropped and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
+        if inp.dropped > dropped and self.localization is not None:
+            self._drops.dropped("before preprocessing: a newer scan arrived while the registration was busy",
+                                _stamp_ns(msg), inp.topic)
+        elif inp.dropped > dropped and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
             self.get_logger().debug(f"{inp.topic}: the oldest waiting cloud dropped (scan at "
                                     f"{_stamp_ns(msg)} ns arrived, {inp.dropped} dropped so far)")
 
@@ -762,7 +776,10 @@ class RegistrationNode(Node):
             self._last_pair_t = time.monotonic()
         self.localization.prepare(cloud)  # its GICP cloud on this input thread, on arrival (as the other modes)
         cloud.t_ready = time.perf_counter()
-        self.worker.submit(("localize", cloud, None))
+        self.localization.arrived(cloud)  # kept while a search runs: its pose is carried through them (bridge.py)
+        if self.worker.submit(("localize", cloud, None)) and not self.localization.keeps_arrivals:
+            self._drops.dropped("waiting for the registration: a newer scan replaced it (the registration of a scan "
+                                "took longer than the scan period)", cloud.stamp_ns, self.inputs[0].topic)
 
     def _on_scan(self, cloud: Cloud) -> None:
         with self._lock:
@@ -824,6 +841,7 @@ class RegistrationNode(Node):
         t_in = src.t_recv if tgt is None else max(src.t_recv, tgt.t_recv)
         t_ready = src.t_ready if tgt is None else max(src.t_ready, tgt.t_ready)
         timings = {"queue_wait": (t_start - t_ready) * 1e3}
+        found = None  # localization: a scan a search placed (the scans that came meanwhile follow it)
         try:
             if mode == "pair":
                 T_start = self._pair_start.start(src, tgt)  # the last valid answer (None: the full pipeline)
@@ -838,15 +856,12 @@ class RegistrationNode(Node):
                 if self.loc_odometry is not None:  # odom -> base of the node's own odometry first, then map -> odom
                     self.rep105.odometry_step(src, self.loc_odometry.step(src))
                 loc = self.localization.step(src)
+                if loc is None:  # answered already, while following a search's pose to the newest scan
+                    return
                 reg = loc.registered
-                if loc.line:
-                    self.get_logger().info(loc.line)
                 t0 = time.perf_counter()
-                if loc.result.valid:  # a rejected scan is counted (there and as not trusted), never published
-                    self.rep105.localized(src, loc.frame_id, reg, loc.result, loc.crop)
-                else:
-                    with self._lock:
-                        self._counts["untrusted"] += 1
+                self._localized(src, loc)
+                found = loc if loc.result.event in ("found", "relocalized") else None
             elif mode == "map":
                 reg, tgt_points = self._map_target.register(self.reg, src)
                 t0 = time.perf_counter()
@@ -882,8 +897,33 @@ class RegistrationNode(Node):
         timings["publish"] = (t_end - t0) * 1e3
         timings["total"] = (t_end - t_in) * 1e3
         self._stages.add(timings)
+        if mode == "localize" and found is not None:
+            self._follow(src, found)
         if mode == "odometry" and self.get_logger().is_enabled_for(LoggingSeverity.DEBUG):
             self.get_logger().debug(_step_line(src, reg, timings))
+
+    def _follow(self, src: Cloud, found: Any) -> None:
+        """A search placed ``src``: the scans that arrived meanwhile are tracked and published (node/bridge.py), the
+        node's own odometry stepped through them first; their time is the ``bridge`` stage."""
+        t0 = time.perf_counter()
+        for cloud, later in self.localization.bridge(found, src.stamp_ns):
+            if self.loc_odometry is not None:
+                self.rep105.odometry_step(cloud, self.loc_odometry.step(cloud))
+            self._localized(cloud, later)
+        if self.localization.last_bridge:
+            self._stages.add({"bridge": (time.perf_counter() - t0) * 1e3})
+            self.get_logger().info(self.localization.last_bridge)
+
+    def _localized(self, src: Cloud, loc: Any) -> None:
+        """Publish one localized scan (REP-105 outputs); a rejected one is counted (there and as not trusted), never
+        published."""
+        if loc.line:
+            self.get_logger().info(loc.line)
+        if loc.result.valid:
+            self.rep105.localized(src, loc.frame_id, loc.registered, loc.result, loc.crop)
+        else:
+            with self._lock:
+                self._counts["untrusted"] += 1
 
     def _check_time_jump(self, cloud: Cloud) -> None:
         """Odometry mode: a scan more than ``JUMP_BACK_S`` before the last one (a bag played again, ``deepbbs-play
@@ -1022,6 +1062,9 @@ class RegistrationNode(Node):
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
         if self.localization is not None:
             values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
+            drops = self._drops.diagnostics()
+            drops["scans dropped unanswered"] += self.localization.dropped  # kept during a search, not answered
+            values.update({f"localization.{k}": v for k, v in drops.items()})
             values.update({f"localization.{k}": v for k, v in self.rep105.diagnostics().items()})
         for kind, n in sorted(s["errors"].items()):
             values[f"errors.{kind}"] = n

@@ -39,7 +39,12 @@ its trajectory beside it): deepbbs-node runs ``node.target_mode: localization`` 
 whole map is searched, within the warm-up, then the scans are tracked); the anchor runs ``node.target_mode:
 latched`` on the same map, published once on a latched topic, from ``node.initial_pose`` = the first scan's true
 pose, each scan registered by GICP on the map's crop from the last answer. The node's map crop refresh is in its
-stage breakdown (``register.crop``; the anchor's ``map_crop``).
+stage breakdown (``register.crop``; the anchor's ``map_crop``). With ``--data kitti`` the map is the sequence's
+every ``--map-every``-th scan at its ground-truth pose (the real scans: not motion-compensated). ``--no-trajectory``
+writes the map alone (a map from another tool: the node searches the places of its drivable space). Localization runs
+also print the node's boot: the time from the first scan published to the first pose received (the whole map searched
+while the scans keep coming at ``--rate``; set ``--warmup`` longer than that so that the measured periods are
+tracking) and the share of the scans published after that first pose that were answered.
 
 ``--runs N`` repeats every configuration (a fresh node each run); ``--busy-runs M`` adds M runs with one
 CPU-bound background process on the machine. Every run prints the pairs published (after ``--warmup``
@@ -49,7 +54,8 @@ node's processes together) to the anchor's of the same run, and the node's own s
 ``search``); the last lines judge the DeepBBS++ node against the
 goal (``--goal-*``, ``--busy-*``). ``--out DIR`` also keeps every run: ``runs.jsonl`` (one line per run and
 node: its summary, the node's stage breakdown and CPU, and every answered pair's latency with its period and
-frames) and ``latency.png`` (each run's latency per period and its distribution, the goal's lines drawn in), to see
+frames), ``node_<method>.log`` (the last run's log of each node) and ``latency.png`` (each run's latency per period
+and its distribution, the goal's lines drawn in), to see
 whether a tail is a few stalls or a drift. DDS stays on loopback in a run-specific domain. Quick check (a minute):
 
     python scripts/benchmarks/node_latency.py --seconds 5 --layout both --mode odometry
@@ -110,6 +116,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="node mode; localization: tracking in a prior map of the drive (the anchor: a latched map)")
     g.add_argument("--map-every", type=int, default=2, help="localization: every k-th frame goes into the map")
     g.add_argument("--map-voxel", type=float, default=0.2, help="localization: the map's voxel grid (m)")
+    g.add_argument("--no-trajectory", action="store_true",
+                   help="localization: the map file without its trajectory (the node's places from the map alone)")
     g.add_argument("--stream", choices=("consecutive", "fixed", "same", "both"), default="consecutive",
                    help="pair mode: consecutive scans; a fixed target (frame 0) for frames 1-4; the same pair every "
                         "period; both = consecutive and fixed")
@@ -209,39 +217,43 @@ def sim_stream(args, layout: str, stream: str) -> Stream:
     print(f"  simulated {len(scans)} frames of {desc} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     out = Stream(msgs, stream_pairs(len(msgs), stream), desc)
     if args.mode == "localization":
-        add_map(args, out, lidar, [s.T_world_lidar for s in scans])
+        from deepbbs_ros.sim.simulator import DriveSimulator
+
+        sim = DriveSimulator(args.scene, args.seed, lidar, frames=args.scans, motion_distortion=False)
+        keys = list(range(0, args.scans, max(1, args.map_every)))
+        add_map(args, out, [s.T_world_lidar for s in scans], [(sim.scan_at(k).points, sim.pose_at(k),
+                                                                sim.stamp_ns(k)) for k in keys],
+                f"map_{args.scene}_{args.seed}_{args.scans}")
     return out
 
 
-def add_map(args, stream: Stream, lidar, poses: list[np.ndarray]) -> None:
-    """--mode localization: the drive's map (every ``--map-every``-th frame without motion distortion at its true
-    pose, on a ``--map-voxel`` grid) as a PCD with its trajectory (under ``--out`` or a temporary folder) and as a
-    PointCloud2 in ``map``; the anchor's initial pose = the first published scan's."""
+def add_map(args, stream: Stream, poses: list[np.ndarray], keys: list[tuple[np.ndarray, np.ndarray, int]],
+            name: str) -> None:
+    """--mode localization: the drive's map (``keys``: (points, true pose, stamp) of every ``--map-every``-th frame,
+    simulated ones without motion distortion, on a ``--map-voxel`` grid) as a PCD with its trajectory (without:
+    ``--no-trajectory``; under ``--out`` or a temporary folder) and as a PointCloud2 in ``map``; the anchor's initial
+    pose = the first published scan's (``poses``: every frame's true pose)."""
     from scipy.spatial.transform import Rotation
 
     from deepbbs_ros.core.localization import voxel_downsample
     from deepbbs_ros.datasets.maps import write_map
-    from deepbbs_ros.sim.simulator import DriveSimulator
     from msg_adapters.pointcloud2 import arrays_to_pointcloud2
 
     t0 = time.perf_counter()
-    sim = DriveSimulator(args.scene, args.seed, lidar, frames=args.scans, motion_distortion=False)
-    keys = list(range(0, args.scans, max(1, args.map_every)))
-    parts = []
-    for k in keys:
-        P = sim.pose_at(k)
-        parts.append(sim.scan_at(k).points @ P[:3, :3].T + P[:3, 3])
-    points = voxel_downsample(np.concatenate(parts), args.map_voxel)
+    parts = [np.asarray(pts[:, :3], np.float64) @ P[:3, :3].T + P[:3, 3] for pts, P, _ in keys]
+    points = voxel_downsample(np.concatenate(parts).astype(np.float32), args.map_voxel)
     folder = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="deepbbs_map_"))
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"map_{args.scene}_{args.seed}_{args.scans}.pcd"
-    write_map(path, points, np.stack([sim.pose_at(k) for k in keys]), np.array([sim.stamp_ns(k) for k in keys]))
+    path = folder / f"{name}{'_alone' if args.no_trajectory else ''}.pcd"
+    write_map(path, points, *((None, None) if args.no_trajectory else
+                              (np.stack([P for _, P, _ in keys]), np.array([s for *_, s in keys]))))
     stream.map_path = str(path)
     stream.map_msg = arrays_to_pointcloud2(points, stamp_ns=STAMP0_NS, frame_id="map")
     first = poses[stream.pairs[0][0]]
     rpy = Rotation.from_matrix(first[:3, :3]).as_euler("ZYX")[::-1]
     stream.initial_pose = [*map(float, first[:3, 3]), *map(float, rpy)]
-    stream.desc += f"; map {len(points)} points from {len(keys)} frames"
+    stream.desc += (f"; map {len(points)} points from {len(keys)} frames"
+                    + (", no trajectory" if args.no_trajectory else ", with its trajectory"))
     print(f"  map of {len(points)} points ({len(keys)} frames) in {time.perf_counter() - t0:.1f} s: {path}",
           file=sys.stderr)
 
@@ -292,7 +304,12 @@ def kitti_stream(args, layout: str, stream: str, seq: Path) -> Stream:
     frame = "velodyne" if layout == "velodyne" else "os_sensor"
     out = [driver_cloud(layout, xyz, f, beams=beams, columns=columns, frame_id=frame) for xyz, f in msgs]
     desc = _describe(out, np.mean([len(x) for x, _ in msgs]), f"KITTI {seq.name} HDL-64E, time field 0", layout)
-    return Stream(out, stream_pairs(len(out), stream), desc)
+    res = Stream(out, stream_pairs(len(out), stream), desc)
+    if getattr(args, "mode", "") == "localization":
+        keys = range(0, len(scans), max(1, args.map_every))
+        add_map(args, res, [s.T_world_lidar for s in scans],
+                [(scans[k].points, scans[k].T_world_lidar, scans[k].stamp_ns) for k in keys], f"map_kitti_{seq.name}")
+    return res
 
 
 class FreshSources:
@@ -336,6 +353,8 @@ class RunResult:
     error: str = ""
     cpu: str = ""  # CPU ms per period per thread group (cpu_line)
     cpu_ms: float = float("nan")  # CPU ms per period, every process of the node together (cpu_total)
+    first_pose_s: float = float("nan")  # localization: first scan published -> first pose received (s)
+    after_first: tuple[int, int] = (0, 0)  # localization: scans published after the first pose: (answered, all)
 
     @property
     def answered(self) -> float:
@@ -449,16 +468,23 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             cmd += ["-p", f"registration.weights:={args.weights}"]
         for p in args.param:
             cmd += ["-p", p]
-    log = tempfile.TemporaryFile("w+")  # not a pipe: a chatty node must never block on a full one
+    # not a pipe: a chatty node must never block on a full one; kept under --out (the last run's of each node)
+    log = (args.out / f"node_{method}.log").open("w+") if args.out is not None else tempfile.TemporaryFile("w+")
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, text=True)
     node = rclpy.create_node(f"bench_{method}")
     res = RunResult()
     sent: dict[int, float] = {}  # stamp -> publication time of the source cloud (measured pairs only)
     diags: list[DiagnosticArray] = []
+    boot: dict[int, float] = {}  # localization: every stamp -> its publication time
+    answered: set[int] = set()
+    first: list[float] = []  # the first pose's arrival
 
     def on_pose(msg: PoseStamped) -> None:
         t = time.perf_counter()
         s = stamp_to_ns(msg.header.stamp)
+        answered.add(s)
+        if not first:
+            first.append(t)
         if s in sent:
             res.latencies_ms.append((t - sent.pop(s)) * 1e3)
             k = (s - STAMP0_NS) // int(SEC / args.rate)
@@ -503,11 +529,16 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             if measured:
                 res.pairs += 1
                 sent[stamp] = time.perf_counter()
+            boot[stamp] = time.perf_counter()
             pubs[-1].publish(src)
         end = time.perf_counter() + 3.0
         while time.perf_counter() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
         periods = n_total - n_warm
+        if first and localization:
+            res.first_pose_s = first[0] - min(boot.values())
+            after = [s for s, t in boot.items() if t > first[0]]
+            res.after_first = (sum(s in answered for s in after), len(after))
         cpu1 = cpu_snapshot(proc.pid)
         res.cpu, res.cpu_ms = cpu_line(cpu0, cpu1, periods), cpu_total(cpu0, cpu1, periods)
         if res.cpu:
@@ -561,6 +592,8 @@ def save_runs(out: Path, layout: str, stream: str, runs: list[tuple[str, bool, d
                 "pairs": r.pairs, "answered": r.answered, "p50_ms": r.pct(50), "p99_ms": r.pct(99),
                 "error": r.error, "cpu": r.cpu,
                 "cpu_ms": round(r.cpu_ms, 2) if np.isfinite(r.cpu_ms) else None, "diagnostics": r.diagnostics,
+                "first_pose_s": r.first_pose_s if np.isfinite(r.first_pose_s) else None,
+                "answered_after_first_pose": list(r.after_first),
                 "samples": [{"period": k, "source": f[0], "target": f[1], "latency_ms": round(v, 2)}
                             for k, v, f in zip(r.periods, r.latencies_ms, r.frames)],
             })  # fmt: skip
@@ -658,6 +691,13 @@ def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]])
                 con.print(f"[red]{label} {method}: node failed[/red]: {r.error[-2000:]}")
             else:
                 con.print(f"  {label} {method}: {stage_line(r.diagnostics)}", soft_wrap=True)
+                if args.mode == "localization" and method != ANCHOR:
+                    n, m, d = *r.after_first, r.diagnostics
+                    con.print(f"  {label} {method}: boot: first pose {r.first_pose_s:.2f} s after the first scan; "
+                              f"scans published after it answered: {n} of {m} ({100 * n / max(m, 1):.1f} %); "
+                              f"followed after the search {d.get('localization.scans followed after a search', '-')}, "
+                              f"dropped unanswered {d.get('localization.scans dropped unanswered', '-')}",
+                              soft_wrap=True)
                 if r.cpu:
                     con.print(f"  {label} {method}: {r.cpu}", soft_wrap=True)
 
@@ -677,8 +717,6 @@ def main(argv: list[str] | None = None) -> int:
         raise DeepBBSError(f"--stream {args.stream} is a pair-mode stream (odometry mode takes consecutive scans)")
     if args.data == "kitti" and args.kitti is None:
         raise DeepBBSError("--data kitti needs --kitti PATH (a KITTI sequence folder, or a folder of them)")
-    if args.mode == "localization" and args.data != "sim":
-        raise DeepBBSError("--mode localization builds its map from the simulated drive: use --data sim")
     seqs = [s for k in args.kitti for s in kitti_sequences(k)] if args.data == "kitti" else []
 
     from deepbbs_ros.cli.common import local_ros_env

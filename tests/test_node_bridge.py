@@ -1,0 +1,175 @@
+"""A global search slower than the scan period, over real DDS: the pose it finds is carried through the scans that
+arrived meanwhile (node/bridge.py) and tracking goes on with no loss; scans dropped unanswered are said once.
+
+The map and the scans are tests/test_node_localization.py's simulated drive; the scans are sent at 10 Hz. The search
+is made to outlast the period by the node's test hook ``NodeLocalization.search_delay_s`` (every search waits that
+long before it starts: the registration itself is the real one).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.node.dds import apply_default_profile
+
+apply_default_profile()  # before the first DDS participant of this process
+
+rclpy = pytest.importorskip("rclpy")
+
+import test_node  # noqa: E402
+import test_node_localization  # noqa: E402
+from test_node import Harness, _check_pose  # noqa: E402
+from test_node_localization import _config, _registration, _write_map  # noqa: E402
+
+from msg_adapters.transforms import pose_stamped_to_matrix  # noqa: E402
+
+ros = test_node.ros  # the module fixture: rclpy context
+drive = test_node_localization.drive  # the module fixture: the simulated drive and its map
+PERIOD = 0.1  # s: 10 Hz
+
+
+def _harness(drive_data, tmp_path, name: str, **extra) -> Harness:
+    sim, points, poses, _ = drive_data
+    _write_map(tmp_path / "map.pcd", points, poses)
+    cfg = _config(**{"localization.map_path": str(tmp_path / "map.pcd"), "node.localization_odom": "none",
+                     "node.base_frame": "", **extra})
+    return Harness(cfg, name, registration=_registration(cfg))
+
+
+def _stream(h: Harness, sim, scan, frames) -> dict[int, float]:
+    """Send ``frames`` at 10 Hz; -> stamp -> time.perf_counter() sent (the node's clock of arrival)."""
+    sent = {}
+    t0 = time.perf_counter()
+    for i, k in enumerate(frames):
+        time.sleep(max(t0 + i * PERIOD - time.perf_counter(), 0.0))
+        sent[sim.stamp_ns(k)] = time.perf_counter()
+        h.send("source_cloud", scan(k)[0], sim.stamp_ns(k), "lidar")
+    return sent
+
+
+def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd):
+    """The first search takes > 1 s (10+ scans arrive meanwhile): once it places its scan, the node follows the pose
+    through the scans that arrived (their poses published, right), and every scan sent after the first pose is
+    answered with the right pose; never lost, one 'followed' line."""
+    sim, _, _, scan = drive
+    h = _harness(drive, tmp_path, "bridge_node")
+    try:
+        h.node.localization.search_delay_s = 1.2
+        frames = list(range(12, 42))  # 3 s of driving at 10 Hz
+        sent = _stream(h, sim, scan, frames)
+        assert h.wait_for(lambda: h.node.localization.tracker is not None
+                          and h.node.localization.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
+                          and not h.node.worker.busy, 60.0), h.node.localization.diagnostics()
+        assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
+        got = {pose_stamped_to_matrix(m)[1]: pose_stamped_to_matrix(m)[0] for m in h.poses}
+        truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
+        for stamp, T in got.items():
+            _check_pose(T, truth[stamp])
+        first = min(got)
+        assert first == sim.stamp_ns(frames[0]), "the search's scan is the first placed"
+        loc = h.node.localization
+        found_at = sent[first] + loc.first_pose_s  # the search's end (its time counts from the scan's arrival)
+        during = [s for s in got if s > first and sent[s] < found_at]  # arrived during the search, answered after it
+        assert loc.first_pose_s > 10 * PERIOD and len(during) >= 8, (loc.first_pose_s, sorted(got))
+        later = [s for s in sent if sent[s] > found_at]  # every scan sent after the first pose is answered
+        assert later and all(s in got for s in later), (sorted(got), later)
+        assert loc.state == "tracking" and loc.bridged >= 3 and loc.events.get("lost", 0) == 0, loc.diagnostics()
+        assert h.wait_for(lambda: h.diagnostics().get("localization.scans followed after a search", "0") != "0", 5.0)
+        log = capfd.readouterr().err
+        assert log.count("localization found") == 1 and log.count("followed the pose through") == 1, log
+        assert "localization lost" not in log, log
+    finally:
+        h.close()
+
+
+def test_drops_are_said_once_and_counted(ros, drive, tmp_path, capfd):
+    """Without the bridge (``localization.bridge_scans`` 0), the scans that wait for a long search are dropped: the
+    first drop is one log line naming why and the counter, later ones are only counted (/diagnostics)."""
+    sim, _, _, scan = drive
+    h = _harness(drive, tmp_path, "drops_node", **{"localization.bridge_scans": 0, "node.error_log_period": 60.0})
+    try:
+        h.node.localization.search_delay_s = 1.0
+        _stream(h, sim, scan, range(12, 20))
+        assert h.wait_for(lambda: h.node.localization.placed >= 1 and not h.node.worker.busy, 60.0)
+        drops = h.node.worker.dropped + sum(i.dropped for i in h.node.inputs)
+        assert drops >= 3, h.node.stats()
+        assert h.wait_for(lambda: h.diagnostics().get("localization.scans dropped unanswered") == str(drops), 5.0), (
+            h.diagnostics())
+        log = capfd.readouterr().err
+        lines = [ln for ln in log.splitlines() if "dropped unanswered" in ln]
+        assert len(lines) == 1 and "1 dropped so far" in lines[0] and "registration" in lines[0], log
+    finally:
+        h.close()
+
+
+def test_scan_bridge_takes_the_first_two_then_spread():
+    """ScanBridge.take: the scans after the found one less the newest, at most BRIDGE_MAX, the first two and the last
+    of them kept; the ones before the found scan and those taken are forgotten."""
+    from types import SimpleNamespace
+
+    from deepbbs_ros.node.bridge import BRIDGE_MAX, ScanBridge
+
+    b = ScanBridge(30)
+    for s in range(25):
+        b.add(SimpleNamespace(stamp_ns=s))
+    got = [c.stamp_ns for c in b.take(4)]
+    assert len(got) == BRIDGE_MAX and got[:2] == [5, 6] and got[-1] == 23 and got == sorted(got), got
+    assert b.dropped == 25 - 1 - 1 - BRIDGE_MAX  # all but the found scan (4), those taken and the newest (24)
+    assert [c.stamp_ns for c in b.take(23)] == [] and len(b) == 1  # the newest stays (the worker's next job)
+    assert ScanBridge(0).take(0) == [] and np.isfinite(len(ScanBridge(0)))
+
+
+def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
+    """MapTracker: a scan rejected at once from the constant-velocity prediction (25 m ahead: the sensor stopped) is
+    registered once more by GICP from the last pose at rest and placed right (without: rejected, 'no local search')."""
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.tracking import MapTracker
+
+    sim, points, poses, scan = drive
+    cfg = _config()
+    loc = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
+    tracker = MapTracker(loc, cfg)
+    k = 40
+    T = scan(k)[1]
+    back = T.copy()
+    back[:3, 3] -= 25.0 * T[:3, 0]  # 25 m behind along the heading, 0.1 s earlier: the prediction is 25 m ahead
+    s0, s1 = sim.stamp_ns(k) - 200_000_000, sim.stamp_ns(k) - 100_000_000
+    tracker.state, tracker._poses = "tracking", [(s0, back), (s1, T.copy())]
+    loc._track_scores.extend([1.0, 1.0])  # the recent tracked scans' scores
+    assert np.linalg.norm(tracker.predict(sim.stamp_ns(k))[:3, 3] - T[:3, 3]) > 20.0
+    res = tracker.step(scan(k)[0], sim.stamp_ns(k))
+    # answered by GICP from the last pose, not by the slower local search among the places (what it took without)
+    assert res.valid and tracker.state == "tracking" and res.path == "gicp", (res.reason, res.path)
+    _check_pose(res.T_map_scan, T)
+
+
+def test_tracked_covariance_reads_the_refinement(drive):
+    """A tracked pose's covariance comes from the refinement GICP's own last linearisation (no second one): the same
+    as linearising again at the pose (core/covariance.scan_covariance), to within 2 % of its largest entry."""
+    from deepbbs_ros.core.covariance import scan_covariance
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.tracking import MapTracker
+
+    sim, points, poses, scan = drive
+    cfg = _config()
+    loc = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
+    seen = []
+    own = loc._covariance
+
+    def both(src, crop, T, timings):
+        reused = loc._refined_at is not None and np.array_equal(loc._refined_at[0], T)
+        cov = own(src, crop, T, timings)
+        seen.append((reused, cov, scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T, cfg)))
+        return cov
+
+    loc._covariance = both
+    tracker = MapTracker(loc, cfg)
+    tracker.state, tracker._poses = "tracking", [(sim.stamp_ns(29), scan(29)[1])]
+    for k in (30, 31, 32):
+        assert tracker.step(scan(k)[0], sim.stamp_ns(k)).valid
+    assert seen and all(reused for reused, *_ in seen)
+    for _, cov, again in seen:
+        assert np.abs(cov - again).max() <= 0.02 * np.abs(again).max()
