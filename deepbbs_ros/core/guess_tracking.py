@@ -94,7 +94,7 @@ class GuessTracking:
                     place: int) -> tuple[_Answer | None, float]:
         """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
         (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
-        (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
+        (``good_start_points``) on the crop, accepted from ``good_start_probability`` (and ``localization.min_score``).
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
         GICP did not apply, the score at the guess itself when it did not, else nan)."""
         from deepbbs_ros.core import verdict
@@ -111,5 +111,6 @@ class GuessTracking:
             return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
         T = pol.T_target_source
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
+        prob = verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")  # register()'s good-start verdict
+        ok = verdict.is_valid(prob, rc.good_start_probability) and self._accepts(True, score)
         return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
