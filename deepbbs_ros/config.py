@@ -240,7 +240,9 @@ class RegistrationConfig:
     # fitness: share of the source's sampled points within verdict_dist of the target's precision-stage cloud
     verdict_dist: float = 0.5  # m
     verdict_probability: float = 0.5  # a result is valid when its probability of being right reaches this
-    verdict_threshold: float = 0.35  # the global search ("auto") runs when the deep answer's fitness is under this
+    # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
+    # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated
+    verdict_threshold: float = 0.35
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
     # every registration ("always") or never ("off"); global_yaws starts at 360 / global_yaws degree steps (the
     # given start included), the global_polish best of them (ranked by their fitness before it) get the precision stage

@@ -601,12 +601,14 @@ class DeepBBSRegistration:
         rc = self.config.registration
         st.score = self._score(st, st.T)
         if st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None:
-            target = st.tgt_pc
-        else:  # no precision stage: the voxelised non-ground points, else the sampled ones (not calibrated for)
-            dense = st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np)
-            target = st.tgt_dense if dense else st.tgt_np
-        st.probability = verdict.probability(st.src_np, st.T, target, rc.verdict_dist)
-        st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
+            st.probability = verdict.probability(st.src_np, st.T, st.tgt_pc, rc.verdict_dist)
+            st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
+            return
+        # no precision stage: the voxelised non-ground points, else the sampled ones, for which the probability is
+        # not calibrated: reported, and the fitness decides (registration.verdict_threshold)
+        dense = st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np)
+        st.probability = verdict.probability(st.src_np, st.T, st.tgt_dense if dense else st.tgt_np, rc.verdict_dist)
+        st.valid = verdict.is_valid(st.score, rc.verdict_threshold)
 
     def _result(self, st: _State, clock: Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())

@@ -15,7 +15,8 @@ search ranks its starts by it.
 
 Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
 arrays) both are taken against the target's voxelised non-ground points, or its sampled points (the score within
-``max(verdict_dist, inlier_dist)``): sparser references, for which the probability is not calibrated.
+``max(verdict_dist, inlier_dist)``): sparser references, for which the probability is not calibrated; there the
+score decides, against ``registration.verdict_threshold``.
 
 The good-start path (``register(..., good_start=True)``) has no sampled points: its verdict takes a spread subset of
 the source's precision-stage voxels (:func:`spread_subset`, ground included) against the same target cloud, with its
