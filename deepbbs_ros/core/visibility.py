@@ -52,6 +52,18 @@ def cell_size(az: np.ndarray, el: np.ndarray) -> float:
     return float(_CELLS[-1])
 
 
+def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The target's direction cells: (cell size (rad), the occupied cells' keys (sorted), the nearest return's range
+    in each (m))."""
+    taz, tel, tr = _angles(np.asarray(target, np.float64))
+    cell = cell_size(taz, tel)
+    tkey = _keys(taz, tel, cell)
+    order = np.argsort(tkey)
+    tkey, tr = tkey[order], tr[order]
+    starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
+    return cell, tkey[starts], np.minimum.reduceat(tr, starts)
+
+
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
              plane_dist: np.ndarray | None = None, self_plane: float | None = None) -> np.ndarray:
     """The verdict's features of a pose -> (len(FEATURES),) float64.
@@ -59,7 +71,8 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     Args:
         moved: (N, 3) source points moved into the target's sensor frame by the pose, metres.
         sq_dist: (N,) squared distance of each to its nearest target point (the k-d tree's answer).
-        target: (M, 3) the target cloud in its sensor frame, metres (its precision-stage voxels, or a map crop).
+        target: (M, 3) the target cloud in its sensor frame, metres (its precision-stage voxels, or a map crop), or
+            its :func:`directions` table.
         dist: m, the verdict's distance (``registration.verdict_dist``).
         plane_dist: (N,) distance of each to its nearest target point's tangent plane (None: no normals).
         self_plane: the same share as ``plane_close`` for target points against their nearest other target point
@@ -74,20 +87,14 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     that a rough real scene (trees, motion) is not taken for a loose fit.
     """
     n = len(moved)
-    if n == 0 or len(target) == 0:
+    if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
     close = int(np.sum(sq <= 0.25 * dist * dist))
     plane = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= 0.2 * dist)))
-    taz, tel, tr = _angles(np.asarray(target, np.float64))
-    cell = cell_size(taz, tel)
-    tkey = _keys(taz, tel, cell)
-    order = np.argsort(tkey, kind="stable")
-    tkey, tr = tkey[order], tr[order]
-    starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
-    ukey, nearest = tkey[starts], np.minimum.reduceat(tr, starts)  # per cell: the nearest return
+    cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
     un = ~seen
     viol = 0
     if un.any():
@@ -111,10 +118,9 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
-    tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
+    tpts, table, own, normals = _target(target, dist)
     if len(moved) == 0 or len(tpts) == 0:
         return features(moved, np.zeros(0), tpts, dist)
-    normals = None
     if tree is None:
         from scipy.spatial import cKDTree
 
@@ -122,12 +128,29 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
         sq = d * d
     else:
         idx, sq = tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
-        nrm = np.asarray(target.cloud.normals())[:, :3]
-        normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
     idx = np.asarray(idx, np.int64)
     plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
-    own = None if normals is None else self_planarity(tpts, tree, normals, dist)
-    return features(moved, np.asarray(sq, np.float64), tpts, dist, plane, own)
+    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own)
+
+
+def _target(target, dist: float) -> tuple:
+    """(points (M, 3), :func:`directions`, :func:`self_planarity` or None, normals or None) of a target; kept on a
+    precision-stage cloud (its voxels never change), so that a cloud judged again (the good start, then the full
+    pipeline; a scan that is the next pair's target) pays for them once."""
+    cached = getattr(target, "_visibility", None)
+    if cached is not None and cached[0] == dist:
+        return cached[1]
+    tree = getattr(target, "tree", None)
+    tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
+    normals = None
+    if tree is not None:
+        nrm = np.asarray(target.cloud.normals())[:, :3]
+        normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
+    own = None if normals is None or len(tpts) < 2 else self_planarity(tpts, tree, normals, dist)
+    out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals)
+    if tree is not None:
+        target._visibility = (dist, out)
+    return out
 
 
 def self_planarity(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> float:
