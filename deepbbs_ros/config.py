@@ -239,7 +239,7 @@ class RegistrationConfig:
     # scripts/calibrate_verdict.py); valid when it reaches verdict_probability. RegistrationResult.score = the
     # fitness: share of the source's sampled points within verdict_dist of the target's precision-stage cloud
     verdict_dist: float = 0.5  # m
-    verdict_probability: float = 0.5  # a result is valid when its probability of being right reaches this
+    verdict_probability: float = 0.7  # a result is valid when its probability of being right reaches this
     # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
     # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated
     verdict_threshold: float = 0.35
@@ -262,7 +262,7 @@ class RegistrationConfig:
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
     # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
     # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
-    good_start_probability: float = 0.5  # the good-start verdict: valid when its probability of being right reaches it
+    good_start_probability: float = 0.7  # the good-start verdict: valid when its probability of being right reaches it
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
     good_start_max_trans: float = 3.0  # m; GICP moving the start further: the start was not good -> the full pipeline

@@ -10,11 +10,12 @@ scans ``gap`` frames apart, prepares them as the registration does, and scores p
 * another place: a scan far along the same recording as the source, GICP from identity.
 
 Real scans are rougher than simulated ones: most rigs are degraded (:func:`degrade`: range noise, things that
-are in one scan only, the carrier's own body near the sensor), so that the fit does not learn the simulator's
-clean surfaces. A pose within 1 degree / 0.3 m of the truth is right; beyond 2 degrees or 0.5 m wrong; in between
-it is left out of the fit. Each pose gives two feature rows (core/visibility.py): the pair verdict's (the sampled
-non-ground points) and the good start's (its spread subset of the GICP voxels). A logistic regression per verdict
-(classes weighted equally) is written to ``deepbbs_ros/resources/verdict_model.json`` with this command line. ::
+are in one scan only, the carrier's own body near the sensor) and half keep the motion skew of the sweep (not
+compensated, as KITTI and nuScenes scans are not), so that the fit does not learn the simulator's clean surfaces.
+A pose within 1 degree / 0.3 m of the truth is right; beyond 2 degrees or 0.5 m wrong; in between it is left out of
+the fit. Each pose gives two feature rows (core/visibility.py): the network's sampled non-ground points ("pair", kept
+for comparison) and a spread subset of the GICP voxels ("good_start": the model both verdicts of the registration
+use). A logistic regression per row kind (classes weighted equally) is written to ``deepbbs_ros/resources/verdict_model.json`` with this command line. ::
 
     python scripts/calibrate_verdict.py                    # fit and write the shipped coefficients
     python scripts/calibrate_verdict.py --dump rows.npz    # also keep the rows (the benchmark reads them)
@@ -137,7 +138,9 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print) -> dict[st
     rng = np.random.default_rng(seed)
     for ri, (sensor, mount, place) in enumerate(rigs):
         t0 = time.perf_counter()
-        sim = make_simulator(place, seed * 100 + ri, sensor, mount, frames=frames, compensate=True)
+        # real scans are rarely motion-compensated (KITTI, nuScenes are not): half the rigs keep the sweep's skew
+        skewed = rng.random() < 0.5
+        sim = make_simulator(place, seed * 100 + ri, sensor, mount, frames=frames, compensate=not skewed)
         rough = rng.random() < 0.6  # most rigs degraded like a real recording (:func:`degrade`)
         scan = _Scans(sim, reg, driver_of(sensor), rng, body_points(rng) if rough else None, rough)
 
@@ -167,7 +170,8 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print) -> dict[st
                              ("kind", kind)):
                     out[k].append(v)
         n = sum(1 for r in out["rig"] if r == ri)
-        log(f"{sensor}/{mount}/{place}: {n} poses, {time.perf_counter() - t0:.1f} s")
+        log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
+            f"{time.perf_counter() - t0:.1f} s")
     return {k: np.asarray(v) for k, v in out.items()}
 
 

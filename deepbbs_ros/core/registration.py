@@ -600,8 +600,10 @@ class DeepBBSRegistration:
         ``registration.verdict_probability``."""
         rc = self.config.registration
         st.score = self._score(st, st.T)
-        if st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None:
-            st.probability = verdict.probability(st.src_np, st.T, st.tgt_pc, rc.verdict_dist)
+        if (st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None
+                and st.src_pc is not None):  # the good start's points and coefficients: they carry to real scans
+            pts = good_start_points(st.src_pc, rc)
+            st.probability = verdict.probability(pts, st.T, st.tgt_pc, rc.verdict_dist, "good_start")
             st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
             return
         # no precision stage: the voxelised non-ground points, else the sampled ones, for which the probability is

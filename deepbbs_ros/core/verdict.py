@@ -6,7 +6,10 @@ of every sensor, mount and place (core/calibrated.py, fitted by ``scripts/calibr
 land on the target's surfaces (within ``registration.verdict_dist``), how tightly (within a fifth of it of the
 target's tangent planes), and how many sit where the target sensor saw through (in front of its returns in their
 direction): a wrong pose puts surfaces into the target's free space, a right one only into space it could not see.
-The result is ``valid`` when the probability reaches ``registration.verdict_probability``.
+The points judged are a spread subset of the source's precision-stage voxels (:func:`spread_subset`, ground
+included): on real scans they carry the simulated calibration better than the network's sampled points (far-spread
+non-ground points, whose fit depends on the overlap more than on the pose). The result is ``valid`` when the
+probability reaches ``registration.verdict_probability``.
 
 The **score** is still reported: the **fitness** of the pose, the share of the source's sampled points (the
 network's non-ground points, ``preprocess.num_points`` of them) within ``registration.verdict_dist`` of the target's
@@ -18,9 +21,8 @@ arrays) both are taken against the target's voxelised non-ground points, or its 
 ``max(verdict_dist, inlier_dist)``): sparser references, for which the probability is not calibrated; there the
 score decides, against ``registration.verdict_threshold``.
 
-The good-start path (``register(..., good_start=True)``) has no sampled points: its verdict takes a spread subset of
-the source's precision-stage voxels (:func:`spread_subset`, ground included) against the same target cloud, with its
-own fitted coefficients and ``registration.good_start_probability``.
+The good-start path (``register(..., good_start=True)``) judges the same points with the same coefficients, valid
+from ``registration.good_start_probability``.
 """
 
 from __future__ import annotations

@@ -12,9 +12,10 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
-Per set and verdict: the poses, right (1 deg / 0.3 m) and wrong; wrong accepted and right rejected by the fixed
-fitness thresholds (0.35 sampled, 0.65 voxels) and by the probability (``registration.verdict_probability``,
-``good_start_probability``); and the reliability curve: per predicted-probability bin (0-0.1, ..., 0.9-1) the poses
+Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed
+(the pair verdict: the fitness of the sampled points). Per set and verdict: the poses, right (1 deg / 0.3 m) and
+wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
+probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per predicted-probability bin (0-0.1, ..., 0.9-1) the poses
 and the share right. A wrong pose here is anything beyond 1 deg / 0.3 m. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
@@ -63,8 +64,8 @@ def sim_figures(pairs: int, seed: int, rc) -> dict:
     data = cv.collect(cv.RIGS, seed, pairs)
     fam = np.array([FAMILY.get(cv.RIGS[r][0], "sparse") for r in data["rig"]])
     out = {}
+    p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
-        p = calibrated.probability(data[key], name)
         for f in ("dense", "sparse", "solid", "all"):
             m = np.ones(len(fam), bool) if f == "all" else fam == f
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar)
