@@ -15,7 +15,8 @@ compensated, as KITTI and nuScenes scans are not), so that the fit does not lear
 A pose within 1 degree / 0.3 m of the truth is right; beyond 2 degrees or 0.5 m wrong; in between it is left out of
 the fit. Each pose gives two feature rows (core/visibility.py): the network's sampled non-ground points ("pair", kept
 for comparison) and a spread subset of the GICP voxels ("good_start": the model both verdicts of the registration
-use). A logistic regression per row kind (classes weighted equally) is written to ``deepbbs_ros/resources/verdict_model.json`` with this command line. ::
+use). A logistic regression per row kind (classes weighted equally) is written to
+``deepbbs_ros/resources/verdict_model.json`` with this command line. ::
 
     python scripts/calibrate_verdict.py                    # fit and write the shipped coefficients
     python scripts/calibrate_verdict.py --dump rows.npz    # also keep the rows (the benchmark reads them)

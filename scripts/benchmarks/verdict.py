@@ -15,8 +15,9 @@ and the good-start verdict (a spread subset of the GICP voxels):
 Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed
 (the pair verdict: the fitness of the sampled points). Per set and verdict: the poses, right (1 deg / 0.3 m) and
 wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
-probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per predicted-probability bin (0-0.1, ..., 0.9-1) the poses
-and the share right. A wrong pose here is anything beyond 1 deg / 0.3 m. ::
+probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
+predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
+beyond 1 deg / 0.3 m. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
