@@ -3,9 +3,10 @@
 The features of a pose (core/visibility.py: how much of the source the target saw, how much it saw through,
 how tightly the seen part fits) go through a logistic regression fitted on simulated pairs of every sensor,
 mount and place (``scripts/calibrate_verdict.py``; right: within 1 degree / 0.3 m of the truth). The
-coefficients ship in ``deepbbs_ros/resources/verdict_model.json``, read once; one set for the pair verdict
-(the sampled non-ground points) and one for the good start's (a spread subset of the GICP voxels, ground
-included). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+coefficients ship in ``deepbbs_ros/resources/verdict_model.json``, read once: ``"good_start"``, for a spread
+subset of the source's GICP voxels (ground included), is the one the registration's verdicts use (the pair verdict
+and the good start); ``"pair"``, for the network's sampled non-ground points, is fitted beside it for comparison
+(it carried worse to real scans). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
 """
 
 from __future__ import annotations
