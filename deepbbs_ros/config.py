@@ -260,8 +260,8 @@ class RegistrationConfig:
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
-    # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
-    # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
+    # the last pose): GICP alone from it on the precision-stage clouds, judged by the verdict (its spread subset of the
+    # source's GICP voxels, ground included); the full pipeline (deep passes, search) runs only when that rejects
     good_start_probability: float = 0.7  # the good-start verdict: valid when its probability of being right reaches it
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
