@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core import acceptance
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud
 
 
@@ -67,7 +68,7 @@ class GuessTracking:
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
             score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
-        if self._accepts(reg.valid, reg.score):
+        if self._accepts(acceptance.fits(self.config, reg.score), reg.score):
             return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
                                  timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
