@@ -54,7 +54,7 @@ setup(
                                      exclude=["deepbbs_ros.models.train_state*", "*.__pycache__"]),
     package_data={
         "deepbbs_ros.models": ["*.pt", "*.json"],
-        "deepbbs_ros.resources": ["*.xml"],
+        "deepbbs_ros.resources": ["*.xml", "*.json"],  # verdict_model.json: the calibrated verdict
         # tf2_msgs definitions, built at install time (deepbbs_ros/interfaces.py)
         "deepbbs_ros.resources.interfaces.tf2_msgs": ["package.xml"],
         "deepbbs_ros.resources.interfaces.tf2_msgs.msg": ["*"],

@@ -234,11 +234,15 @@ class RegistrationConfig:
     threads: int = 1
     success_rot_deg: float = 1.0  # a registration "converged" only within these of ...
     success_trans: float = 0.3  # ... the evaluation thresholds (docs/CONVENTIONS.md)
-    # the verdict (core/verdict.py): RegistrationResult.score = share of the source's sampled points within
-    # verdict_dist of the target's precision-stage cloud; valid when score >= verdict_threshold (calibrated on
-    # simulated and real pairs)
+    # the verdict (core/verdict.py): RegistrationResult.probability = the calibrated probability that the pose is
+    # within 1 deg / 0.3 m of the truth (fitted on simulated pairs of every sensor, mount and place:
+    # scripts/calibrate_verdict.py); valid when it reaches verdict_probability. RegistrationResult.score = the
+    # fitness: share of the source's sampled points within verdict_dist of the target's precision-stage cloud
     verdict_dist: float = 0.5  # m
-    verdict_threshold: float = 0.35  # a result is valid when its score reaches this
+    verdict_probability: float = 0.7  # a result is valid when its probability of being right reaches this
+    # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
+    # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated
+    verdict_threshold: float = 0.35
     # the global search (core/global_search.py): other start yaws when the answer fails the verdict ("auto"), on
     # every registration ("always") or never ("off"); global_yaws starts at 360 / global_yaws degree steps (the
     # given start included), the global_polish best of them (ranked by their fitness before it) get the precision stage
@@ -256,9 +260,9 @@ class RegistrationConfig:
     global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
     # twice as far around both
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
-    # the last pose): GICP alone from it on the precision-stage clouds, and a stricter verdict on a spread subset of the
-    # source's GICP voxels (ground included); the full pipeline (deep passes, search) runs only when that rejects
-    good_start_threshold: float = 0.65  # the good-start verdict: valid when this share of the voxels is on the target
+    # the last pose): GICP alone from it on the precision-stage clouds, judged by the verdict (its spread subset of the
+    # source's GICP voxels, ground included); the full pipeline (deep passes, search) runs only when that rejects
+    good_start_probability: float = 0.7  # the good-start verdict: valid when its probability of being right reaches it
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     good_start_max_iters: int = 10  # GICP iterations from a good start: not converged by then -> the full pipeline
     good_start_max_trans: float = 3.0  # m; GICP moving the start further: the start was not good -> the full pipeline
@@ -304,6 +308,7 @@ class RegistrationConfig:
         _check(self.threads >= 0, "registration.threads", "must be >= 0 (0 = leave torch's setting)")
         _check(self.verdict_dist > 0, "registration.verdict_dist", "must be > 0")
         _check(0 <= self.verdict_threshold <= 1, "registration.verdict_threshold", "must be in [0, 1]")
+        _check(0 <= self.verdict_probability <= 1, "registration.verdict_probability", "must be in [0, 1]")
         _check(self.global_search in ("auto", "always", "off"), "registration.global_search",
                f"must be 'auto', 'always' or 'off', got {self.global_search!r}")
         _check(self.global_yaws >= 1, "registration.global_yaws", "must be >= 1 (1 = the given start only)")
@@ -313,7 +318,7 @@ class RegistrationConfig:
         _check(self.global_rank_points == 0 or self.global_rank_points >= 16, "registration.global_rank_points",
                "must be 0 (all sampled points) or >= 16")
         _check(self.global_shift >= 0, "registration.global_shift", "must be >= 0 (0 = off)")
-        _check(0 <= self.good_start_threshold <= 1, "registration.good_start_threshold", "must be in [0, 1]")
+        _check(0 <= self.good_start_probability <= 1, "registration.good_start_probability", "must be in [0, 1]")
         _check(self.good_start_points >= 16, "registration.good_start_points", "must be >= 16")
         _check(self.good_start_max_iters >= 1, "registration.good_start_max_iters", "must be >= 1")
         _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")

@@ -48,3 +48,7 @@ class NodeError(DeepBBSError):
 
 class LocalizationError(DeepBBSError, ValueError):
     """Localization in a prior map cannot run on the given input (empty map, unreadable map file, a scan too small)."""
+
+
+class VerdictModelError(DeepBBSError):
+    """The calibrated verdict's coefficients (deepbbs_ros/resources/verdict_model.json) are missing or unreadable."""

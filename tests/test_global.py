@@ -171,7 +171,7 @@ def test_any_start_and_the_verdict(scans, registrations):
     P = pose(3.0, -6.0, 0.0, np.radians(150.0))  # the source turned by 150 degrees and moved 6.7 m
     moved = (src @ P[:3, :3].T + P[:3, 3]).astype(np.float32)
     good = registrations["auto"].register(src, tgt)  # a good start: the search does not run
-    assert good.valid and good.starts == 1 and good.score >= Config().registration.verdict_threshold
+    assert good.valid and good.starts == 1 and good.probability >= Config().registration.verdict_probability
     assert good.path == "deepbbs" and good.good_start == ""  # the deep passes from the given start answered
     assert max(pair_errors(good.T_target_source, T_gt)) < 0.3
     res = registrations["auto"].register(moved, tgt)  # no initial guess: the global search finds it
@@ -180,7 +180,7 @@ def test_any_start_and_the_verdict(scans, registrations):
     assert res.valid and res.starts == 4 and res.path == "search"
     local = registrations["off"].register(moved, tgt)  # from the given start only: a wrong pose, rejected
     assert max(pair_errors(local.T_target_source @ P, T_gt)) > 1.0
-    assert not local.valid and local.score < res.score
+    assert not local.valid and local.probability < res.probability
     lost = registrations["auto"].register(elsewhere, tgt)  # another place: a pose, but not a valid one
     assert not lost.valid and lost.starts == 4 + 17  # the yaw starts, then the turned and shifted ones: none valid
     # the search switched off for one call (callers sharing a registration on several threads): the configuration

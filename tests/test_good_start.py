@@ -83,7 +83,7 @@ def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
         s, t = reg.preprocess(src, lazy=True), reg.preprocess(tgt, lazy=True)
         res = reg.register(s, t, T_init=T0, good_start=True)
         assert res.path == "gicp" and res.valid and res.good_start == "accepted", res
-        assert res.score >= reg.config.registration.good_start_threshold
+        assert res.probability >= reg.config.registration.good_start_probability
         rot, tr = pair_errors(res.T_target_source, T_gt)
         assert rot < 0.3 and tr < 0.1, (rot, tr)
         assert not s.sampled and not t.sampled  # ground removal + FPS not paid

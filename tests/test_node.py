@@ -229,7 +229,7 @@ def test_pair_mode_withholds_a_pose_the_verdict_rejects(ros, world):
         assert h.wait_for(lambda: h.diagnostics().get("poses not published (the verdict rejected them)") == "1")
         s = h.node.stats()
         assert not h.poses and s["untrusted"] == 1 and s["errors"] == {"untrusted_pose": 1}
-        assert s["verdict_score"] < h.node.cfg.registration.verdict_threshold
+        assert s["verdict_probability"] < h.node.cfg.registration.verdict_probability
         src_xyz = scan(world, T_w_tgt @ pose(1.0, 0.2, 0.0, np.deg2rad(3.0)), seed=2)
         h.send("target_cloud", tgt_xyz, 6 * SEC, "lidar_t")
         h.send("source_cloud", src_xyz, 6 * SEC, "lidar_s")

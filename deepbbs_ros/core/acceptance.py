@@ -24,6 +24,15 @@ def threshold(config: Config) -> float:
     return max(config.registration.verdict_threshold, config.localization.min_score)
 
 
+def fits(config: Config, score: float) -> bool:
+    """The registration's verdict as the map takes it: its fitness against ``registration.verdict_threshold``. The
+    map's bars (``localization.min_score``, ``sharp_score``, ``agree_margin``) are calibrated on the fitness, not on
+    the registration's calibrated probability, which the map's acceptance does not use yet."""
+    from deepbbs_ros.core import verdict
+
+    return verdict.is_valid(score, config.registration.verdict_threshold)
+
+
 def accepts(config: Config, valid: bool, score: float) -> bool:
     """The registration's verdict and the map's own bar (``localization.min_score``)."""
     return bool(valid) and np.isfinite(score) and score >= config.localization.min_score

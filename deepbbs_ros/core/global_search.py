@@ -219,7 +219,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
 def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
     """Each deep answer of ``starts`` (in order) set on a copy of ``st`` by ``apply(cand, start)``, then the
-    precision stage, the deskew stage and the verdict; the best score so far is kept, and the first valid one
+    precision stage, the deskew stage and the verdict; the most probable so far is kept, and the first valid one
     ends the loop."""
     for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
@@ -227,7 +227,7 @@ def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
         reg._polish(cand, Clock(reg.device))
         reg._deskew(cand, Clock(reg.device))
         reg._verdict(cand)
-        if cand.score > best.score:
+        if (cand.probability, cand.score) > (best.probability, best.score):
             best = cand
         if best.valid:
             break

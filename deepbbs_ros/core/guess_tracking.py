@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core import acceptance
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud
 
 
@@ -67,7 +68,7 @@ class GuessTracking:
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
             score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
-        if self._accepts(reg.valid, reg.score):
+        if self._accepts(acceptance.fits(self.config, reg.score), reg.score):
             return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
                                  timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
@@ -94,7 +95,7 @@ class GuessTracking:
                     place: int) -> tuple[_Answer | None, float]:
         """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
         (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
-        (``good_start_points``) on the crop, accepted from ``good_start_threshold`` (and ``localization.min_score``).
+        (``good_start_points``) on the crop, accepted from ``good_start_probability`` (and ``localization.min_score``).
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
         GICP did not apply, the score at the guess itself when it did not, else nan)."""
         from deepbbs_ros.core import verdict
@@ -111,5 +112,6 @@ class GuessTracking:
             return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
         T = pol.T_target_source
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        ok = verdict.is_valid(score, rc.good_start_threshold) and self._accepts(True, score)
+        prob = verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")  # register()'s good-start verdict
+        ok = verdict.is_valid(prob, rc.good_start_probability) and self._accepts(True, score)
         return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")

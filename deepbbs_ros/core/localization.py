@@ -427,7 +427,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             best.candidates += 1
             T_map_scan = crop.T_map_place @ reg.T_target_source
-            if self._accepts(reg.valid, reg.score):
+            if self._accepts(acceptance.fits(self.config, reg.score), reg.score):
                 res = self._tracked(src, crop, T_map_scan, float(reg.score), "deepbbs", near, timings)
                 res.mode, res.candidates = "hint", best.candidates
                 best = res

@@ -33,7 +33,8 @@ class PlaceSearch:
         t = time.perf_counter()
         reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search)
         timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-        return _Answer(float(reg.score), self._accepts(reg.valid, reg.score), crop.T_map_place @ reg.T_target_source,
+        return _Answer(float(reg.score), self._accepts(acceptance.fits(self.config, reg.score), reg.score),
+                       crop.T_map_place @ reg.T_target_source,
                        place, crop)
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,

@@ -22,7 +22,7 @@ last pose) a cheaper path runs first and answers alone when its stricter verdict
 
     gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
                 registration.good_start_max_iters, a verdict on a spread subset of the source's voxels
-                (registration.good_start_threshold); rejected -> the stages above on the same clouds
+                (registration.good_start_probability); rejected -> the stages above on the same clouds
 
 Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -96,9 +96,13 @@ class RegistrationResult:
             else why the raw clouds were kept; "" when neither scan was deskewed.
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32: the sampled points;
             on the "gicp" path the spread subsets of the GICP clouds that its verdict scores.
-        valid: the verdict: the pose can be trusted (``score >= registration.verdict_threshold``).
-        score: the verdict's score (core/verdict.py): share of the sampled source points within
-            ``registration.verdict_dist`` of the target's precision-stage cloud under the pose.
+        valid: the verdict: the pose can be trusted (``probability >= registration.verdict_probability``; on the
+            "gicp" path ``registration.good_start_probability``).
+        score: the pose's fitness (core/verdict.py): share of the sampled source points within
+            ``registration.verdict_dist`` of the target's precision-stage cloud under the pose (on the "gicp" path:
+            of its spread subset of the source's GICP voxels).
+        probability: the verdict: the calibrated probability (0..1) that the pose is within 1 degree / 0.3 m of
+            the truth (core/verdict.py: fitted on simulated pairs of every sensor, mount and place).
         starts: start yaws tried (1: the given start; more when the global search ran, core/global_search.py).
         path: which path answered: "gicp" (``good_start``: GICP from the given start, accepted by its stricter
             verdict), "deepbbs" (the deep passes from the given start, then the precision stage) or "search" (the
@@ -125,6 +129,7 @@ class RegistrationResult:
     starts: int = 1
     path: str = "deepbbs"
     good_start: str = ""
+    probability: float = float("nan")
 
 
 class DeepBBSRegistration:
@@ -357,11 +362,12 @@ class DeepBBSRegistration:
             return _GoodStart(src, tgt, reason=f"GICP from the start: {why}")
         T = pol.T_target_source
         pts = good_start_points(spc, rc)
-        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)  # the stricter verdict (calibrated: voxels)
+        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
+        prob = verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")  # its own calibrated verdict
         clock.lap("good_start")
-        if not verdict.is_valid(score, rc.good_start_threshold):
-            return _GoodStart(src, tgt, reason=f"verdict {score:.2f} < registration.good_start_threshold "
-                                               f"{rc.good_start_threshold}")
+        if not verdict.is_valid(prob, rc.good_start_probability):
+            return _GoodStart(src, tgt, reason=f"verdict {prob:.2f} < registration.good_start_probability "
+                                               f"{rc.good_start_probability}")
         self._searched.append(False)
         inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
         T, deskew, more = self._good_start_deskew(src, tgt, T)  # both scans deskewed (node.pair_deskew): again on them
@@ -375,7 +381,7 @@ class DeepBBSRegistration:
             iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
             gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
             source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", deskew=deskew,
-            valid=True, score=float(score), starts=1, path="gicp", good_start="accepted"))
+            valid=True, score=float(score), starts=1, path="gicp", good_start="accepted", probability=float(prob)))
 
     def _good_start_deskew(self, a: PreprocessResult, b: PreprocessResult,
                            T: np.ndarray) -> tuple[np.ndarray, str, int]:
@@ -590,8 +596,21 @@ class DeepBBSRegistration:
         return verdict.fitness_to_points(st.src_np, st.tgt_np, T, max(d, rc.inlier_dist))  # sparse: a wider gate
 
     def _verdict(self, st: _State) -> None:
+        """The pose's score (fitness) and calibrated probability (core/verdict.py); valid from
+        ``registration.verdict_probability``."""
+        rc = self.config.registration
         st.score = self._score(st, st.T)
-        st.valid = verdict.is_valid(st.score, self.config.registration.verdict_threshold)
+        if (st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None
+                and st.src_pc is not None):  # the good start's points and coefficients: they carry to real scans
+            pts = good_start_points(st.src_pc, rc)
+            st.probability = verdict.probability(pts, st.T, st.tgt_pc, rc.verdict_dist, "good_start")
+            st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
+            return
+        # no precision stage: the voxelised non-ground points, else the sampled ones, for which the probability is
+        # not calibrated: reported, and the fitness decides (registration.verdict_threshold)
+        dense = st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np)
+        st.probability = verdict.probability(st.src_np, st.T, st.tgt_dense if dense else st.tgt_np, rc.verdict_dist)
+        st.valid = verdict.is_valid(st.score, rc.verdict_threshold)
 
     def _result(self, st: _State, clock: Clock) -> RegistrationResult:
         stages = ("preprocess", "embed", "match", "solve", "refine") + (("dense",) if st.iters["dense"] else ())
@@ -616,6 +635,7 @@ class DeepBBSRegistration:
             deskew=st.deskew,
             valid=bool(st.valid),
             score=float(st.score),
+            probability=float(st.probability),
             starts=int(st.starts),
             path="search" if st.starts > 1 else "deepbbs",
         )
@@ -678,7 +698,8 @@ class _State:
     polish_reason: str = ""
     deskew: str = ""
     T_start: np.ndarray = field(default_factory=lambda: np.eye(4))  # the given start (the global search turns it)
-    score: float = float("nan")  # the verdict (core/verdict.py)
+    score: float = float("nan")  # the verdict's fitness (core/verdict.py)
+    probability: float = float("nan")  # the verdict: P(right)
     valid: bool = False
     starts: int = 1
     others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]

@@ -1,28 +1,35 @@
 """The verdict on a registration: can its pose be trusted? (no ROS)
 
-The score is the **fitness** of the final pose: the share of the source's sampled points (the network's
-non-ground points, ``preprocess.num_points`` of them) that land within ``registration.verdict_dist`` metres of
-the target's precision-stage cloud (the whole cropped scan on the ``registration.polish_voxel`` grid, ground
-included) under ``T_target_source``. A true pair puts the source's walls, poles and trees on the target's;
-two different places (or a wrong pose of the right place) leave most of them in free space. Non-ground
-source points make the ground, which any two roads share, count for nothing. The result is ``valid`` when
-the score reaches ``registration.verdict_threshold`` (calibrated on simulated
-and real pairs; the measured rates: docs/benchmarks.md, scripts/benchmarks/registration.py).
+The verdict is a **probability that the pose is right** (within 1 degree / 0.3 m), calibrated on simulated pairs
+of every sensor, mount and place (core/calibrated.py, fitted by ``scripts/calibrate_verdict.py``). Its inputs
+(core/visibility.py) are shares that mean the same on any sensor: of the source's points under the pose, how many
+land on the target's surfaces (within ``registration.verdict_dist``), how tightly (within a fifth of it of the
+target's tangent planes), and how many sit where the target sensor saw through (in front of its returns in their
+direction): a wrong pose puts surfaces into the target's free space, a right one only into space it could not see.
+The points judged are a spread subset of the source's precision-stage voxels (:func:`spread_subset`, ground
+included): on real scans they carry the simulated calibration better than the network's sampled points (far-spread
+non-ground points, whose fit depends on the overlap more than on the pose). The result is ``valid`` when the
+probability reaches ``registration.verdict_probability``.
+
+The **score** is still reported: the **fitness** of the pose, the share of the source's sampled points (the
+network's non-ground points, ``preprocess.num_points`` of them) within ``registration.verdict_dist`` of the target's
+precision-stage cloud (the whole cropped scan on the ``registration.polish_voxel`` grid, ground included). The global
+search ranks its starts by it.
 
 Without the target's precision-stage cloud (``registration.polish: none``, or clouds registered as preprocessed
-arrays) the score is taken against the target's voxelised non-ground points, or its sampled points within
-``max(verdict_dist, inlier_dist)``: sparser references, for which the threshold is not calibrated.
+arrays) both are taken against the target's voxelised non-ground points, or its sampled points (the score within
+``max(verdict_dist, inlier_dist)``): sparser references, for which the probability is not calibrated; there the
+score decides, against ``registration.verdict_threshold``.
 
-The good-start path (``register(..., good_start=True)``) has no sampled points: its verdict takes a spread subset of
-the source's precision-stage voxels (:func:`spread_subset`, ground included, so a stricter threshold:
-``registration.good_start_threshold``) against the same target cloud.
+The good-start path (``register(..., good_start=True)``) judges the same points with the same coefficients, valid
+from ``registration.good_start_probability``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["fitness", "fitness_to_points", "is_valid", "spread_subset"]
+__all__ = ["fitness", "fitness_to_points", "is_valid", "probability", "spread_subset"]
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -47,6 +54,18 @@ def fitness_to_points(points: np.ndarray, target: np.ndarray, T: np.ndarray, dis
         return 0.0
     d, _ = cKDTree(np.asarray(target, dtype=np.float64)).query(_moved(points, T), k=1)
     return float(np.mean(d <= dist))
+
+
+def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: str = "pair",
+                threads: int = 1) -> float:
+    """The calibrated probability (0..1) that ``T`` (4, 4) ``T_target_source`` is right, from ``points`` (N, 3)
+    (source frame: the sampled points for the ``"pair"`` model, the spread voxel subset for ``"good_start"``)
+    against ``target`` (its precision-stage cloud, or a plain (M, 3) cloud). 0 for no points."""
+    from deepbbs_ros.core import calibrated, visibility
+
+    if len(points) == 0:
+        return 0.0
+    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads), model)
 
 
 def is_valid(score: float, threshold: float) -> bool:

@@ -1008,9 +1008,9 @@ class RegistrationNode(Node):
     def _untrusted(self, result: Any) -> None:
         with self._lock:
             self._counts["untrusted"] += 1
-        self._errors.log("untrusted_pose", f"pose not published: the verdict's score {result.score:.2f} is below "
-                         f"registration.verdict_threshold {self.cfg.registration.verdict_threshold} (the scans do not "
-                         "overlap, or no start yaw registered them)")
+        self._errors.log("untrusted_pose", f"pose not published: the verdict's probability {result.probability:.2f} is "
+                         f"below registration.verdict_probability {self.cfg.registration.verdict_probability} (the "
+                         "scans do not overlap, or no start yaw registered them)")
 
     # -- diagnostics --------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
@@ -1140,6 +1140,7 @@ def _result_summary(result: Any) -> dict[str, float]:
         "inlier_ratio": float(getattr(result, "inlier_ratio", float("nan"))),
         "converged": float(bool(getattr(result, "converged", False))),
         "verdict_score": float(getattr(result, "score", float("nan"))),
+        "verdict_probability": float(getattr(result, "probability", float("nan"))),
     }
 
 

@@ -194,7 +194,8 @@ def gicp_first_scores(reg, src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, T_g
 
 def calibration(scores: list[dict], rc) -> dict:
     out = {"converged": len(scores), "right": sum(s["right"] for s in scores)}
-    for kind, thr in (("voxels", rc.good_start_threshold), ("sampled", rc.verdict_threshold)):
+    # the fitness thresholds the verdict had before its calibrated probability (0.65 voxels, 0.35 sampled points)
+    for kind, thr in (("voxels", 0.65), ("sampled", rc.verdict_threshold)):
         wrong = [s[kind] for s in scores if not s["right"]]
         right = [s[kind] for s in scores if s["right"]]
         out[kind] = {"threshold": thr, "wrong_max": max(wrong, default=float("nan")),

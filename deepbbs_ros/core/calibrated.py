@@ -1,0 +1,62 @@
+"""The calibrated verdict: the probability that a pose is right (no ROS).
+
+The features of a pose (core/visibility.py: how much of the source the target saw, how much it saw through,
+how tightly the seen part fits) go through a logistic regression fitted on simulated pairs of every sensor,
+mount and place (``scripts/calibrate_verdict.py``; right: within 1 degree / 0.3 m of the truth). The
+coefficients ship in ``deepbbs_ros/resources/verdict_model.json``, read once: ``"good_start"``, for a spread
+subset of the source's GICP voxels (ground included), is the one the registration's verdicts use (the pair verdict
+and the good start); ``"pair"``, for the network's sampled non-ground points, is fitted beside it for comparison
+(it carried worse to real scans). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+
+import numpy as np
+
+from deepbbs_ros.core.visibility import FEATURES
+from deepbbs_ros.errors import VerdictModelError
+
+DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "verdict_model.json"
+#: how the features enter the regression: shares as log-odds (clipped), so that 0.9 -> 0.99 weighs like 0.5 -> 0.9
+TRANSFORM = "logit(clip(x, 0.005, 0.995))"
+_EPS = 0.005
+
+
+def design(rows: np.ndarray) -> np.ndarray:
+    """Feature rows (K, len(FEATURES)) -> the regression's inputs (K, len(FEATURES)) (:data:`TRANSFORM`)."""
+    x = np.clip(np.atleast_2d(np.asarray(rows, np.float64)), _EPS, 1 - _EPS)
+    return np.log(x / (1 - x))
+
+
+@functools.lru_cache(maxsize=4)
+def load(path: str | None = None) -> dict[str, tuple[np.ndarray, float]]:
+    """The coefficients {verdict: (coef (F,), intercept)} from ``path`` (the shipped file when None); read once."""
+    p = Path(path) if path else DEFAULT_PATH
+    try:
+        doc = json.loads(p.read_text())
+        if list(doc["features"]) != list(FEATURES) or doc["transform"] != TRANSFORM:
+            raise ValueError("fitted for other features")
+        out = {}
+        for name, m in doc["models"].items():
+            coef = np.asarray(m["coef"], np.float64)
+            if coef.shape != (len(FEATURES),) or not np.all(np.isfinite(coef)) or not np.isfinite(m["intercept"]):
+                raise ValueError(f"model {name!r} is not {len(FEATURES)} finite coefficients")
+            out[name] = (coef, float(m["intercept"]))
+        if not {"pair", "good_start"} <= set(out):
+            raise ValueError("needs the 'pair' and 'good_start' models")
+        return out
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise VerdictModelError(f"calibrated verdict {p}: {e} (refit: python scripts/calibrate_verdict.py)") from None
+
+
+def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None) -> np.ndarray | float:
+    """P(right) of feature rows (K, F) -> (K,), or of one row (F,) -> float, by the ``verdict`` model
+    ("pair" or "good_start")."""
+    coef, icpt = load(path)[verdict]
+    z = design(rows) @ coef + icpt
+    p = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
+    return float(p[0]) if np.ndim(rows) == 1 else p

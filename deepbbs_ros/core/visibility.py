@@ -1,0 +1,166 @@
+"""What a pose says the target sensor should have seen, against what it saw (no ROS).
+
+A right pose puts the source's surfaces where the target sensor saw surfaces; a wrong one puts some of them
+in space the target sensor saw through. With the moved source points in the target's sensor frame (a scan's
+frame is its sensor's origin; a map crop's is the place it was cut round), every point is:
+
+* **seen**: within ``dist`` m of a target point;
+* **violating**: clearly in front of the nearest target return in its direction cell (the target's rays
+  there all went further: the source says there is a surface where the target saw free space);
+* **unknown**: behind the target's returns (occluded), or in a direction with no target return (outside the
+  target's field of view or range): it says nothing either way.
+
+Direction cells (azimuth x elevation) are sized from the target cloud's own angular density, so that a
+64-beam ring, a 16-beam ring and a Livox rosette get cells holding a few returns each. :func:`features`
+gives the numbers the calibrated verdict (core/calibrated.py) turns into a probability; each is a share,
+so it means the same for a 3,000-point handheld cloud and a 120,000-point car scan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: the features :func:`features` returns, in order
+FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel")
+_CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
+_SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
+_SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
+_PER_CELL = 3.0  # target returns a direction cell should hold on average
+
+
+def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r = np.linalg.norm(p, axis=1)
+    az = np.arctan2(p[:, 1], p[:, 0])
+    el = np.arcsin(np.clip(p[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0))
+    return az, el, r
+
+
+def _keys(az: np.ndarray, el: np.ndarray, cell: float) -> np.ndarray:
+    i = np.floor((az + np.pi) / cell).astype(np.int64)
+    j = np.floor((el + np.pi / 2) / cell).astype(np.int64)
+    return i * 100_000 + j
+
+
+def cell_size(az: np.ndarray, el: np.ndarray) -> float:
+    """The smallest direction cell (rad) of :data:`_CELLS` in which the target's occupied cells hold about
+    ``_PER_CELL`` returns on average (measured on an even subsample of at most ``_SHAPE_POINTS``)."""
+    step = max(1, -(-len(az) // _SHAPE_POINTS))
+    az, el = az[::step], el[::step]
+    for cell in _CELLS:
+        if len(az) and len(az) * step / len(np.unique(_keys(az, el, cell))) >= _PER_CELL:
+            return float(cell)
+    return float(_CELLS[-1])
+
+
+def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The target's direction cells: (cell size (rad), the occupied cells' keys (sorted), the nearest return's range
+    in each (m))."""
+    taz, tel, tr = _angles(np.asarray(target, np.float64))
+    cell = cell_size(taz, tel)
+    tkey = _keys(taz, tel, cell)
+    order = np.argsort(tkey)
+    tkey, tr = tkey[order], tr[order]
+    starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
+    return cell, tkey[starts], np.minimum.reduceat(tr, starts)
+
+
+def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
+             plane_dist: np.ndarray | None = None, self_plane: float | None = None) -> np.ndarray:
+    """The verdict's features of a pose -> (len(FEATURES),) float64.
+
+    Args:
+        moved: (N, 3) source points moved into the target's sensor frame by the pose, metres.
+        sq_dist: (N,) squared distance of each to its nearest target point (the k-d tree's answer).
+        target: (M, 3) the target cloud in its sensor frame, metres (its precision-stage voxels, or a map crop), or
+            its :func:`directions` table.
+        dist: m, the verdict's distance (``registration.verdict_dist``).
+        plane_dist: (N,) distance of each to its nearest target point's tangent plane (None: no normals).
+        self_plane: the same share as ``plane_close`` for target points against their nearest other target point
+            (:func:`self_planarity`): how close the target's own surfaces come to planes (None: 1).
+
+    ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
+    among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
+    tangent plane among those (``fitness_close`` without normals); ``consistency``: seen / (seen + violating);
+    ``observable``:
+    (seen + violating) / N, the share the target could judge (the overlap); ``violations``: violating / N;
+    ``plane_rel``: ``plane_close`` over ``self_plane`` (at most 1): as tight as the target's own surfaces allow, so
+    that a rough real scene (trees, motion) is not taken for a loose fit.
+    """
+    n = len(moved)
+    if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    sq = np.asarray(sq_dist, np.float64)
+    seen = sq <= dist * dist
+    n_seen = int(seen.sum())
+    close = int(np.sum(sq <= 0.25 * dist * dist))
+    plane = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= 0.2 * dist)))
+    cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
+    un = ~seen
+    viol = 0
+    if un.any():
+        saz, sel, sr = _angles(np.asarray(moved, np.float64)[un])
+        skey = _keys(saz, sel, cell)
+        idx = np.clip(np.searchsorted(ukey, skey), 0, len(ukey) - 1)
+        hit = ukey[idx] == skey
+        margin = np.maximum(2.0 * dist, 0.05 * nearest[idx])  # clearly in front: noise and the cell's spread
+        viol = int(np.sum(hit & (sr < nearest[idx] - margin)))
+    judged = n_seen + viol
+    plane_close = plane / max(n_seen, 1)
+    rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
+    return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
+                     judged / n, viol / n, rel])
+
+
+def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
+    """:func:`features` of ``points`` (N, 3) (source frame) under ``T`` (4, 4) ``T_target_source`` against
+    ``target``: a precision-stage cloud (``core.polish.PolishCloud``: its voxels, k-d tree and normals) or a
+    plain (M, 3) cloud (a ``scipy`` k-d tree is built, no normals)."""
+    T = np.asarray(T, np.float64)
+    moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
+    tree = getattr(target, "tree", None)
+    tpts, table, own, normals = _target(target, dist)
+    if len(moved) == 0 or len(tpts) == 0:
+        return features(moved, np.zeros(0), tpts, dist)
+    if tree is None:
+        from scipy.spatial import cKDTree
+
+        d, idx = cKDTree(tpts).query(moved, k=1)
+        sq = d * d
+    else:
+        idx, sq = tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    idx = np.asarray(idx, np.int64)
+    plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own)
+
+
+def _target(target, dist: float) -> tuple:
+    """(points (M, 3), :func:`directions`, :func:`self_planarity` or None, normals or None) of a target; kept on a
+    precision-stage cloud (its voxels never change), so that a cloud judged again (the good start, then the full
+    pipeline; a scan that is the next pair's target) pays for them once."""
+    cached = getattr(target, "_visibility", None)
+    if cached is not None and cached[0] == dist:
+        return cached[1]
+    tree = getattr(target, "tree", None)
+    tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
+    normals = None
+    if tree is not None:
+        nrm = np.asarray(target.cloud.normals())[:, :3]
+        normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
+    own = None if normals is None or len(tpts) < 2 else self_planarity(tpts, tree, normals, dist)
+    out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals)
+    if tree is not None:
+        target._visibility = (dist, out)
+    return out
+
+
+def self_planarity(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> float:
+    """Of an even subset of the target's points, the share within ``dist / 5`` of their nearest other point's
+    tangent plane (among those with one within ``dist``): 1 for clean walls, lower for trees and smeared scans."""
+    sub = tpts[:: max(1, len(tpts) // _SELF_POINTS)]
+    idx, sq = tree.batch_knn_search(sub, 2, num_threads=1)
+    j, sq = np.asarray(idx, np.int64)[:, 1], np.asarray(sq, np.float64)[:, 1]
+    ok = (sq <= dist * dist) & (j >= 0) & (j < len(tpts))
+    if not ok.any():
+        return 1.0
+    res = np.einsum("ij,ij->i", sub[ok] - tpts[j[ok]], normals[j[ok]])
+    return float(np.mean(np.abs(res) <= 0.2 * dist))

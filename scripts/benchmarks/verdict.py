@@ -1,0 +1,162 @@
+#!/usr/bin/env python3
+"""The calibrated verdict per sensor family: reliability, wrong poses accepted, right ones rejected.
+
+Figures (``verdict.json`` under ``--out``), for the pair verdict (the sampled points: ``RegistrationResult.valid``)
+and the good-start verdict (a spread subset of the GICP voxels):
+
+* ``sim``: simulated pairs of every sensor, mount and place (``scripts/calibrate_verdict.py``'s rigs and poses with
+  another seed than the fit's: GICP answers from near and far starts, the truth moved beyond 2 deg / 0.5 m, another
+  place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360);
+* ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
+  ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
+  deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
+  start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
+
+Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed
+(the pair verdict: the fitness of the sampled points). Per set and verdict: the poses, right (1 deg / 0.3 m) and
+wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
+probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
+predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
+beyond 1 deg / 0.3 m. ::
+
+    python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
+        PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
+    python scripts/benchmarks/verdict.py --sim-pairs 2 --out /tmp/v      # simulation only, quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import _common  # noqa: E402
+import numpy as np  # noqa: E402
+
+OLD = {"pair": 0.35, "good_start": 0.65}  # the fixed fitness thresholds the probability replaced
+FAMILY = {"hdl64": "dense", "ouster64": "dense", "os0_64": "dense", "os0_128": "dense", "os1_64": "dense",
+          "os1_128": "dense", "avia": "solid", "mid360": "solid"}  # every other simulated sensor: sparse
+
+
+def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar: float) -> dict:
+    """Counts and the reliability curve of one set of poses (labels y, fitness score, probability prob)."""
+    y = np.asarray(y, bool)
+    bins = []
+    for lo in np.arange(0.0, 1.0, 0.1):
+        m = (prob >= lo) & ((prob < lo + 0.1) | (lo >= 0.9))
+        if m.any():
+            bins.append({"p": f"{lo:.1f}-{lo + 0.1:.1f}", "n": int(m.sum()), "right": round(float(y[m].mean()), 3)})
+    return {"poses": int(len(y)), "right": int(y.sum()), "wrong": int((~y).sum()),
+            "old_wrong_accepted": int(np.sum(~y & (score >= old))),
+            "old_right_rejected": int(np.sum(y & (score < old))),
+            "wrong_accepted": int(np.sum(~y & (prob >= bar))), "right_rejected": int(np.sum(y & (prob < bar))),
+            "max_wrong_p": round(float(prob[~y].max()), 3) if (~y).any() else None,
+            "min_right_p": round(float(prob[y].min()), 3) if y.any() else None, "reliability": bins}
+
+
+def sim_figures(pairs: int, seed: int, rc) -> dict:
+    import calibrate_verdict as cv
+
+    from deepbbs_ros.core import calibrated
+
+    data = cv.collect(cv.RIGS, seed, pairs)
+    fam = np.array([FAMILY.get(cv.RIGS[r][0], "sparse") for r in data["rig"]])
+    out = {}
+    p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
+    for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
+        for f in ("dense", "sparse", "solid", "all"):
+            m = np.ones(len(fam), bool) if f == "all" else fam == f
+            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar)
+    return out
+
+
+def real_pairs(spec: str):
+    """'FOLDER:stride:max_dist' -> (name, [(src Scan, tgt Scan, None)])."""
+    from deepbbs_ros.datasets import open_source
+    from deepbbs_ros.replay.runner import iter_pairs
+
+    path, stride, dist = spec.rsplit(":", 2) if spec.count(":") >= 2 else (spec, "1", "5")
+    return Path(path).name, list(iter_pairs(open_source(path), int(stride), float(dist)))
+
+
+def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Path | None = None) -> dict:
+    import calibrate_verdict as cv
+
+    from deepbbs_ros.core import calibrated, visibility
+
+    rc, rng, out, feats = reg.config.registration, np.random.default_rng(7), {}, []
+    sets = [real_pairs(s) for s in specs]
+    if pair:
+        tgt, src, T_ref = _common.read_reference_pair(pair)
+        sets.append((Path(pair).name, [("ref", src, tgt, T_ref)]))
+    for name, pairs in sets:
+        rows = {"pair": [], "good": []}
+        for item in pairs:
+            if item[0] == "ref":
+                _, sp, tp, T_gt = item
+                starts = [cv.perturb(rng, (0, 45), (0, 5), 0.0) for _ in range(trials)]
+                ps, pt = reg.preprocess(sp), reg.preprocess(tp)
+            else:
+                s, t = item
+                T_gt = np.linalg.inv(t.T_world_lidar) @ s.T_world_lidar
+                starts = [None]
+                ps = reg.preprocess(s.points, s.point_times(), s.stamp_ns)
+                pt = reg.preprocess(t.points, t.point_times(), t.stamp_ns)
+            for T0 in starts:
+                res = reg.register(ps, pt, T_init=T0, preprocessed=True)
+                y = cv.label(res.T_target_source, T_gt)[0] == 1
+                rows["pair"].append((y, res.score, res.probability))
+                feats.append((name, "pair", y, *visibility.pose_features(ps.points, res.T_target_source,
+                                                                          pt.polish_cloud, rc.verdict_dist)))
+            for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
+                pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
+                if pol.applied:
+                    f = cv.rows_of(ps, pt, pol.T_target_source, rc)[1]
+                    y = cv.label(pol.T_target_source, T_gt)[0] == 1
+                    rows["good"].append((y, f[0], calibrated.probability(f, "good_start")))
+                    feats.append((name, "good", y, *f))
+        for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
+                                  ("good_start", "good", rc.good_start_probability)):
+            a = np.array(rows[key], float).reshape(-1, 3)
+            out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar)
+        print(name, {k: {kk: v[kk] for kk in list(v)[:9]} for k, v in out.items() if k.endswith("/" + name)},
+              flush=True)
+    if dump:
+        np.savez(dump, set=np.array([f[0] for f in feats]), verdict=np.array([f[1] for f in feats]),
+                 y=np.array([f[2] for f in feats]), x=np.array([f[3:] for f in feats], float))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--real", nargs="*", default=[], metavar="FOLDER:STRIDE:MAX_DIST",
+                    help="real sets with ground truth (KITTI-style folders), pair protocol per set")
+    ap.add_argument("--pair", help="a reference pair folder (two .pcd and relative.txt)")
+    ap.add_argument("--trials", type=int, default=10, help="perturbed starts of the reference pair (default 10)")
+    ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
+    ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
+    ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
+    ap.add_argument("--dump", type=Path, help="also write the real poses' features here (.npz)")
+    args = ap.parse_args(argv)
+
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    reg = DeepBBSRegistration(Config())
+    figures = {"thresholds": {"old": OLD, "pair": reg.config.registration.verdict_probability,
+                              "good_start": reg.config.registration.good_start_probability}}
+    if args.sim_pairs > 0:
+        figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration)
+        for k, v in figures["sim"].items():
+            print("sim", k, {kk: v[kk] for kk in list(v)[:9]}, v["reliability"], flush=True)
+    if args.real or args.pair:
+        figures["real"] = real_figures(args.real, args.pair, args.trials, reg, args.dump)
+    _common.write_json(args.out, "verdict.json", figures)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,221 @@
+#!/usr/bin/env python3
+"""Fit the calibrated verdict (core/calibrated.py) on simulated pairs of every sensor, mount and place.
+
+For every rig of :data:`RIGS` (each simulated sensor at least once, each mount, each place) it takes pairs of
+scans ``gap`` frames apart, prepares them as the registration does, and scores poses with known truth:
+
+* GICP answers (``registration.good_start_*`` limits) from the truth moved a little and from far starts (yaw up to
+  45 degrees, up to 4 m): mostly right, and GICP's own local minima (wrong);
+* the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one);
+* another place: a scan far along the same recording as the source, GICP from identity.
+
+Real scans are rougher than simulated ones: most rigs are degraded (:func:`degrade`: range noise, things that
+are in one scan only, the carrier's own body near the sensor) and half keep the motion skew of the sweep (not
+compensated, as KITTI and nuScenes scans are not), so that the fit does not learn the simulator's clean surfaces.
+A pose within 1 degree / 0.3 m of the truth is right; beyond 2 degrees or 0.5 m wrong; in between it is left out of
+the fit. Each pose gives two feature rows (core/visibility.py): the network's sampled non-ground points ("pair", kept
+for comparison) and a spread subset of the GICP voxels ("good_start": the model both verdicts of the registration
+use). A logistic regression per row kind (classes weighted equally) is written to
+``deepbbs_ros/resources/verdict_model.json`` with this command line. ::
+
+    python scripts/calibrate_verdict.py                    # fit and write the shipped coefficients
+    python scripts/calibrate_verdict.py --dump rows.npz    # also keep the rows (the benchmark reads them)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from deepbbs_ros.config import Config  # noqa: E402
+from deepbbs_ros.core import calibrated, visibility  # noqa: E402
+from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
+from deepbbs_ros.metrics import pair_errors  # noqa: E402
+from deepbbs_ros.sim.patterns import driver_of  # noqa: E402
+from deepbbs_ros.sim.rig import make_simulator  # noqa: E402
+from deepbbs_ros.sim.trajectory import euler_to_matrix  # noqa: E402
+
+#: (sensor, mount, place): every simulated sensor, every mount, every place
+RIGS = (
+    ("hdl64", "car", "urban"), ("hdl64", "car", "highway"), ("hdl32", "car", "suburban"), ("vlp16", "car", "open_road"),
+    ("vlp16", "wheeled", "corridor"), ("ouster64", "car", "suburban"), ("os0_32", "wheeled", "hall"),
+    ("os0_64", "legged", "courtyard"), ("os0_128", "wheeled", "garage"), ("os1_32", "legged", "corridor"),
+    ("os1_64", "wheeled", "courtyard"), ("os1_128", "car", "urban"), ("xt32", "wheeled", "garage"),
+    ("helios32", "car", "highway"), ("avia", "handheld", "courtyard"), ("avia", "handheld", "hall"),
+    ("avia", "wheeled", "garage"), ("mid360", "legged", "hall"), ("mid360", "handheld", "corridor"),
+    ("mid360", "wheeled", "urban"), ("vlp16", "handheld", "garage"), ("hdl32", "wheeled", "courtyard"),
+)
+GAPS = (1, 3, 6, 10)  # frames between target and source (10 Hz)
+FAR = 40  # frames: "another place" (the other end of a loop, or far along a road)
+
+
+def perturb(rng: np.random.Generator, yaw_deg: tuple[float, float], trans: tuple[float, float],
+            tilt_deg: float = 1.0) -> np.ndarray:
+    """A random rigid motion: yaw of magnitude in ``yaw_deg``, horizontal shift in ``trans`` m, small tilt."""
+    yaw = np.radians(rng.uniform(*yaw_deg) * rng.choice([-1, 1]))
+    roll, pitch = np.radians(rng.uniform(-tilt_deg, tilt_deg, 2))
+    T = np.eye(4)
+    T[:3, :3] = euler_to_matrix(roll, pitch, yaw)
+    a = rng.uniform(0, 2 * np.pi)
+    T[:3, 3] = rng.uniform(*trans) * np.array([np.cos(a), np.sin(a), 0.0])
+    return T
+
+
+def degrade(points: np.ndarray, rng: np.random.Generator, body: np.ndarray | None) -> np.ndarray:
+    """A simulated scan (N, 3) made more like a real one: range noise (up to 5 cm), 0-4 boxes seen in this scan
+    only (cars and people that moved), and ``body`` (K, 3), the carrier's own points, fixed to the sensor."""
+    p = np.asarray(points, np.float64)
+    r = np.linalg.norm(p, axis=1, keepdims=True)
+    p = p * (1 + rng.normal(0, rng.uniform(0.005, 0.05), (len(p), 1)) / np.maximum(r, 0.1))
+    extra = [] if body is None else [body]
+    for _ in range(int(rng.integers(0, 5))):
+        a = rng.uniform(-np.pi, np.pi)
+        c = rng.uniform(3, 25) * np.array([np.cos(a), np.sin(a), 0.0])
+        size = rng.uniform([0.5, 0.5, 0.8], [4.5, 2.0, 2.0])
+        n = int(rng.integers(50, 400))
+        q = rng.uniform(-0.5, 0.5, (n, 3)) * size
+        face = rng.integers(0, 3, n)
+        q[np.arange(n), face] = np.sign(q[np.arange(n), face]) * size[face] / 2  # on the box's faces
+        extra.append(q + c + np.r_[0, 0, np.min(p[:, 2]) + size[2] / 2])
+    return np.vstack([p, *extra]).astype(np.float32)
+
+
+def body_points(rng: np.random.Generator) -> np.ndarray | None:
+    """The carrier's own returns (a roof edge, a robot's frame, a hand) about 1.5-2.8 m round the sensor, or None."""
+    if rng.random() < 0.4:
+        return None
+    n = int(rng.integers(100, 600))
+    a = rng.uniform(-np.pi, np.pi) + rng.uniform(-1.2, 1.2, n)
+    rad = rng.uniform(1.5, 2.8, n)
+    return np.c_[rad * np.cos(a), rad * np.sin(a), rng.uniform(-1.0, -0.2, n)]
+
+
+def rows_of(src, tgt, T: np.ndarray, rc) -> tuple[np.ndarray, np.ndarray]:
+    """The pair verdict's and the good start's feature rows of the pose ``T`` (src and tgt PreprocessResults)."""
+    tpc = tgt.polish_cloud
+    pair = visibility.pose_features(src.points, T, tpc, rc.verdict_dist)
+    good = visibility.pose_features(good_start_points(src.polish_cloud, rc), T, tpc, rc.verdict_dist)
+    return pair, good
+
+
+def label(T: np.ndarray, T_gt: np.ndarray) -> tuple[int, float, float]:
+    """1 right (1 deg / 0.3 m), 0 wrong (beyond 2 deg or 0.5 m), -1 in between."""
+    r, t = pair_errors(T, T_gt)
+    r, t = float(r), float(t)
+    return (1 if r <= 1.0 and t <= 0.3 else 0 if r > 2.0 or t > 0.5 else -1), r, t
+
+
+class _Scans:
+    """Scans of one simulated recording, prepared as the registration does (degraded first when ``rough``), each
+    once: ``scans(k)`` -> (PreprocessResult, T_world_lidar)."""
+
+    def __init__(self, sim, reg, driver: str, rng: np.random.Generator, body: np.ndarray | None, rough: bool):
+        self.sim, self.reg, self.driver, self.rng, self.body, self.rough = sim, reg, driver, rng, body, rough
+        self.cache: dict[int, tuple] = {}
+
+    def __call__(self, k: int) -> tuple:
+        if k not in self.cache:
+            s = self.sim.scan_at(k)
+            pts = degrade(s.points, self.rng, self.body) if self.rough else s.points
+            self.cache[k] = (self.reg.preprocess(pts, driver=self.driver), s.T_world_lidar)
+        return self.cache[k]
+
+
+def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print) -> dict[str, np.ndarray]:
+    """Feature rows of poses on simulated pairs (see the module): {"pair", "good", "y", "rot", "trans", "rig",
+    "kind"}."""
+    reg = DeepBBSRegistration(Config())
+    rc = reg.config.registration
+    out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind")}
+    rng = np.random.default_rng(seed)
+    for ri, (sensor, mount, place) in enumerate(rigs):
+        t0 = time.perf_counter()
+        # real scans are rarely motion-compensated (KITTI, nuScenes are not): half the rigs keep the sweep's skew
+        skewed = rng.random() < 0.5
+        sim = make_simulator(place, seed * 100 + ri, sensor, mount, frames=frames, compensate=not skewed)
+        rough = rng.random() < 0.6  # most rigs degraded like a real recording (:func:`degrade`)
+        scan = _Scans(sim, reg, driver_of(sensor), rng, body_points(rng) if rough else None, rough)
+
+        for p in range(pairs):
+            i = int(rng.integers(0, frames - FAR - 1))
+            j = i + GAPS[p % len(GAPS)]
+            (tgt, Tt), (src, Ts) = scan(i), scan(j)
+            T_gt = np.linalg.inv(Tt) @ Ts
+            poses = []
+            for kind, yaw, tr in (("near", (0, 3), (0, 0.5)), ("far", (10, 45), (1, 4)), ("far", (5, 30), (0.5, 3))):
+                pol = good_start_gicp(src.polish_cloud, tgt.polish_cloud, perturb(rng, yaw, tr) @ T_gt, rc)
+                if pol.applied:
+                    poses.append((kind, pol.T_target_source))
+            poses.append(("moved", perturb(rng, (2, 15), (0.5, 2.5)) @ T_gt))
+            poses.append(("moved", perturb(rng, (0, 2), (0.6, 1.5)) @ T_gt))
+            other, To = scan(min(frames - 1, i + FAR))
+            if np.linalg.norm(To[:3, 3] - Tt[:3, 3]) > 8.0:  # another place: any answer is wrong
+                pol = good_start_gicp(other.polish_cloud, tgt.polish_cloud, np.eye(4), rc)
+                poses.append(("other", pol.T_target_source if pol.applied else np.eye(4)))
+                T_other = np.linalg.inv(Tt) @ To
+            for kind, T in poses:
+                y, r, t = label(T, T_other if kind == "other" else T_gt)
+                if y < 0:
+                    continue
+                pair, good = rows_of(other if kind == "other" else src, tgt, T, rc)
+                for k, v in (("pair", pair), ("good", good), ("y", y), ("rot", r), ("trans", t), ("rig", ri),
+                             ("kind", kind)):
+                    out[k].append(v)
+        n = sum(1 for r in out["rig"] if r == ri)
+        log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
+            f"{time.perf_counter() - t0:.1f} s")
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
+    """Logistic regression of y on X (rows of :func:`calibrated.design`), the two classes weighted equally."""
+    w = np.where(y == 1, 0.5 / max(np.sum(y == 1), 1), 0.5 / max(np.sum(y == 0), 1))
+
+    def loss(beta):
+        z = X @ beta[1:] + beta[0]
+        p = 1.0 / (1.0 + np.exp(-z))
+        nll = np.sum(w * (np.logaddexp(0, z) - y * z))
+        g = X.T @ (w * (p - y))
+        return nll + l2 * beta[1:] @ beta[1:], np.r_[np.sum(w * (p - y)), g + 2 * l2 * beta[1:]]
+
+    res = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B")
+    return res.x[1:], float(res.x[0])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--pairs", type=int, default=6, help="pairs per rig (default 6)")
+    ap.add_argument("--seed", type=int, default=38)
+    ap.add_argument("--out", type=Path, default=calibrated.DEFAULT_PATH)
+    ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
+    args = ap.parse_args(argv)
+    data = collect(RIGS, args.seed, args.pairs)
+    if args.dump:
+        np.savez(args.dump, **data)
+    models = {}
+    for name, key in (("pair", "pair"), ("good_start", "good")):
+        X, y = calibrated.design(data[key]), data["y"].astype(float)
+        coef, icpt = fit_logistic(X, y)
+        p = 1.0 / (1.0 + np.exp(-(X @ coef + icpt)))
+        models[name] = {"coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6)}
+        print(f"{name}: {int(y.sum())} right, {int((1 - y).sum())} wrong; highest wrong p {p[y == 0].max():.3f}, "
+              f"right under 0.5: {int(np.sum(p[y == 1] < 0.5))}")
+    doc = {"features": list(visibility.FEATURES), "transform": calibrated.TRANSFORM, "models": models,
+           "fitted_on": f"{len(data['y'])} simulated poses, {len(RIGS)} rigs (sensor/mount/place), seed {args.seed}",
+           "command": "python scripts/calibrate_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
+    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

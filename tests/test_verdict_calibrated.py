@@ -1,0 +1,82 @@
+"""The calibrated verdict: visibility features (seen / free-space violation / unknown), the shipped coefficients,
+and a probability that separates a right pose from a wrong one (core/visibility.py, core/calibrated.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.core import calibrated, verdict, visibility
+from deepbbs_ros.errors import ConfigError, VerdictModelError
+
+
+def _room(rng: np.random.Generator, n: int = 4000) -> np.ndarray:
+    """Returns of a sensor at the origin inside a 20 x 12 x 4 m box room (walls, floor, ceiling) with a pillar."""
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    half = np.array([10.0, 6.0, 2.0])
+    t = np.min(half / np.maximum(np.abs(d), 1e-9), axis=1)  # the box's face along each ray
+    return (d * t[:, None]).astype(np.float64)
+
+
+def _shifted(T_shift: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    return pts @ T_shift[:3, :3].T + T_shift[:3, 3]
+
+
+def test_features_see_a_right_pose_and_the_free_space_a_wrong_one_violates():
+    rng = np.random.default_rng(0)
+    target = _room(rng)
+    source = _room(np.random.default_rng(1), 1500)
+    right = visibility.pose_features(source, np.eye(4), target, 0.5)
+    f = dict(zip(visibility.FEATURES, right, strict=True))
+    assert f["fitness"] > 0.95 and f["consistency"] > 0.99 and f["violations"] < 0.01, f
+    T = np.eye(4)
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    T[:2, :2], T[0, 3] = [[c, -s], [s, c]], -2.0  # turned 30 deg: walls land in the room, where the target saw through
+    wrong = dict(zip(visibility.FEATURES, visibility.pose_features(source, T, target, 0.5), strict=True))
+    assert wrong["violations"] > 0.05 and wrong["consistency"] < f["consistency"] - 0.05, wrong
+    assert calibrated.probability(right) > 0.9 > calibrated.probability(visibility.pose_features(source, T, target,
+                                                                                                 0.5))
+
+
+def test_points_behind_the_target_or_outside_its_view_say_nothing():
+    target = np.array([[5.0, y, z] for y in np.linspace(-2, 2, 21) for z in np.linspace(-1, 1, 11)])  # a wall ahead
+    behind = target + np.array([4.0, 0.0, 0.0])  # occluded by the wall
+    aside = target[:, [1, 0, 2]] * np.array([1.0, -1.0, 1.0])  # a wall to the right: no target return there
+    for pts in (behind, aside):
+        f = dict(zip(visibility.FEATURES, visibility.pose_features(pts, np.eye(4), target, 0.5), strict=True))
+        assert f["fitness"] == 0 and f["violations"] == 0 and f["observable"] == 0, f
+    front = target * 0.4  # 3 m in front of the wall, in the same directions: the target saw through it
+    f = dict(zip(visibility.FEATURES, visibility.pose_features(front, np.eye(4), target, 0.5), strict=True))
+    assert f["violations"] == 1.0 and f["consistency"] == 0.0, f
+
+
+def test_cell_size_follows_the_target_density():
+    rng = np.random.default_rng(2)
+    dense, sparse = _room(rng, 40000), _room(rng, 2000)
+    cells = [visibility.cell_size(*visibility._angles(p)[:2]) for p in (dense, sparse)]
+    assert cells[0] < cells[1], cells
+
+
+def test_shipped_coefficients_load_and_a_damaged_file_is_one_line(tmp_path):
+    models = calibrated.load()
+    assert {"pair", "good_start"} <= set(models)
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    assert doc["command"].startswith("python scripts/calibrate_verdict.py")
+    with pytest.raises(VerdictModelError, match="verdict_model|missing|No such file") as e:
+        calibrated.load(str(tmp_path / "missing.json"))
+    assert "\n" not in str(e.value)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**doc, "models": {"pair": {"coef": [1.0], "intercept": 0.0}}}))
+    with pytest.raises(VerdictModelError, match="finite coefficients"):
+        calibrated.load(str(bad))
+
+
+def test_probability_is_empty_safe_and_the_setting_is_checked():
+    assert verdict.probability(np.zeros((0, 3)), np.eye(4), np.ones((5, 3)), 0.5) == 0.0
+    from deepbbs_ros.config import Config
+
+    with pytest.raises(ConfigError, match="registration.verdict_probability"):
+        Config.from_dict({"registration": {"verdict_probability": 1.5}})
