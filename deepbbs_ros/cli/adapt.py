@@ -27,6 +27,7 @@ def _strides(text: str) -> list[int]:
 
 
 def run_adapt(args, cfg: Config) -> int:
+    from deepbbs_ros.cli.train import _overrides
     from deepbbs_ros.core.registration import DeepBBSRegistration
     from deepbbs_ros.train import adapt as A
     from deepbbs_ros.train.adapt_report import evaluate_held, held_pairs, markdown
@@ -89,7 +90,8 @@ def run_adapt(args, cfg: Config) -> int:
     meta = {"command": "deepbbs-train " + shlex.join(sys.argv[1:]), "recording": str(args.recording),
             "labels": summary.get("kept")}
     cost = A.fine_tune(cfg, out, rec, labels, steps=args.steps, resume=args.resume,
-                       time_budget_min=args.time_budget_min, device=args.device, progress=progress, meta=meta)
+                       time_budget_min=args.time_budget_min, device=args.device, progress=progress, meta=meta,
+                       train_overrides=_overrides(args.set))
     after = evaluate(str(out / A.ADAPTED_MODEL))
     A.write_json(out / "report.json", {"labels": summary, "training": cost, "before": before, "after": after})
     text = markdown(before, after, summary, cost)

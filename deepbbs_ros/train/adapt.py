@@ -135,18 +135,24 @@ def make_labels(rec: Recording, reg, frames: list[int], strides: list[int], rot_
 
 
 def fine_tune(config: Config, out: Path, rec: Recording, labels: Labels, *, steps: int, resume: bool,
-              time_budget_min: float | None, device: str | None, progress: bool, meta: dict[str, Any]) -> dict:
-    """Fine-tune the shipped network on the kept labels; ``out/model_adapted.pt`` is the result (checkpoint format
-    of the shipped weights). ``train.*`` settings apply; epochs / steps per epoch are set from ``steps``."""
+              time_budget_min: float | None, device: str | None, progress: bool, meta: dict[str, Any],
+              train_overrides: dict[str, Any] | None = None) -> dict:
+    """Fine-tune the shipped network (``registration.weights``) on the kept labels; ``out/model_adapted.pt`` is the
+    result (the shipped weights' checkpoint format). The loss and augmentation settings are those the weights were
+    trained with (their checkpoint's ``train`` section), but for ``train_overrides`` (``train.*`` keys, the user's
+    ``--set``), ``train.lr`` from ``config`` and no learning-rate decay; epochs of up to 50 steps make ``steps``."""
     from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
     from deepbbs_ros.train.trainer import LATEST_MODEL, Trainer
 
     weights = config.registration.weights or str(default_weights_path())
     model, init_cfg, _ = load_checkpoint(weights)
     spe = max(1, min(50, steps))
-    tc = dataclasses.replace(config.train, steps_per_epoch=spe, epochs=math.ceil(steps / spe))
-    cfg = Config.from_dict({**config.to_dict(), "model": init_cfg.to_dict()["model"],
-                            "train": dataclasses.asdict(tc)})
+    epochs = math.ceil(steps / spe)
+    train = {**dataclasses.asdict(init_cfg.train),
+             **{k.split(".", 1)[1]: v for k, v in (train_overrides or {}).items() if k.startswith("train.")},
+             "lr": config.train.lr, "steps_per_epoch": spe, "epochs": epochs, "lr_step": epochs + 1,
+             "checkpoint_minutes": config.train.checkpoint_minutes}
+    cfg = Config.from_dict({**config.to_dict(), "model": init_cfg.to_dict()["model"], "train": train})
     drive = rec.drive()
     sampler = LabelSampler(drive, labels, AugmentConfig.from_train(cfg.train, cfg.train.num_points
                                                                    or cfg.preprocess.num_points))
