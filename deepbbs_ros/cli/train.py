@@ -176,9 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--strides", default="1,2,4", help="pairs (i, i + s) for these strides s")
     g.add_argument("--cycle-rot-deg", type=float, default=1.0, help="triplets agree within this rotation")
     g.add_argument("--cycle-trans", type=float, default=0.3, help="m; and this translation")
-    g = a.add_argument_group("fine-tuning (train.* settings apply)")
+    g = a.add_argument_group("fine-tuning (the loss and augmentation the weights were trained with; --set train.* "
+                             "changes them)")
     g.add_argument("--steps", type=int, default=200, help="optimiser steps")
-    g.add_argument("--lr", type=float, default=1e-4, help="learning rate (train.lr)")
+    g.add_argument("--lr", type=float, default=1e-4, help="learning rate of the fine-tuning (replaces train.lr)")
     g.add_argument("--time-budget-min", type=float, help="stop (after saving) after this many minutes")
     g.add_argument("--device", help=f"auto | cpu | cuda | cuda:N (default: {config_default('registration.device')})")
     g = a.add_argument_group("report (uses the recording's poses when it has them, never for training)")
