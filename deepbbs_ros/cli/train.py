@@ -6,6 +6,7 @@
     deepbbs-train fit --run runs/default --resume                              # continue exactly
     deepbbs-train evaluate --weights runs/default/model_best.pt --out runs/default/eval.json
     deepbbs-train report --run runs/default                                    # speed + validation history
+    deepbbs-train adapt my_recording.mcap --out runs/adapt                     # learn your sensor, no labels
     torchrun --nproc_per_node 4 $(which deepbbs-train) fit --cache runs/cache/train --run-dir runs/ddp
 
 ``fit`` under ``torchrun`` trains with DistributedDataParallel (gloo on a CPU, NCCL with one GPU per
@@ -156,6 +157,38 @@ def build_parser() -> argparse.ArgumentParser:
                    "from identity), gicp-gt (small_gicp from the ground truth: the pair's conditioning floor)")
     e.add_argument("--out", help="write all figures and per-pair errors to this JSON file")
     e.add_argument("--markdown", help="also write the summary tables as Markdown (for MODEL.md) to this file")
+
+    # -- adapt ----------------------------------------------------------------------------------
+    a = sub.add_parser("adapt", help="fine-tune the model on an unlabeled recording of your sensor (pseudo-labels "
+                       "from the answers the verdict accepts) and report before / after on scans held back",
+                       formatter_class=HelpFormatter)
+    common(a)
+    a.add_argument("recording", help="bag / mcap / Apollo, KITTI or scan folder (anything deepbbs-replay reads)")
+    a.add_argument("--out", required=True, help="folder: labels, checkpoints, log, model_adapted.pt, report")
+    a.add_argument("--resume", action="store_true", help="continue the adaptation in --out (labels and training)")
+    g = a.add_argument_group("recording")
+    g.add_argument("--topic", help="PointCloud2 topic (needed when there are several)")
+    g.add_argument("--every", type=int, default=1, help="keep every k-th scan")
+    g.add_argument("--max-frames", type=int, default=0, help="at most this many scans (0 = all)")
+    g.add_argument("--held-back", type=float, default=0.3, help="share of the scans, at the end, held back")
+    g.add_argument("--gap", type=int, default=5, help="scans dropped between the adaptation and held-back parts")
+    g = a.add_argument_group("pseudo-labels")
+    g.add_argument("--strides", default="1,2,4", help="pairs (i, i + s) for these strides s")
+    g.add_argument("--cycle-rot-deg", type=float, default=1.0, help="triplets agree within this rotation")
+    g.add_argument("--cycle-trans", type=float, default=0.3, help="m; and this translation")
+    g = a.add_argument_group("fine-tuning (the loss and augmentation the weights were trained with; --set train.* "
+                             "changes them)")
+    g.add_argument("--steps", type=int, default=200, help="optimiser steps")
+    g.add_argument("--lr", type=float, default=1e-4, help="learning rate of the fine-tuning (replaces train.lr)")
+    g.add_argument("--time-budget-min", type=float, help="stop (after saving) after this many minutes")
+    g.add_argument("--device", help=f"auto | cpu | cuda | cuda:N (default: {config_default('registration.device')})")
+    g = a.add_argument_group("report (uses the recording's poses when it has them, never for training)")
+    g.add_argument("--eval-stride", type=int, default=1, help="a held-back source every this many scans")
+    g.add_argument("--eval-max-dist", type=float, default=5.0, help="m; target: the last scan within this distance")
+    g.add_argument("--perturb-yaw", type=float, default=45.0, help="deg; random start yaw of the perturbed starts")
+    g.add_argument("--perturb-trans", type=float, default=2.0, help="m; random start shift of the perturbed starts")
+    g.add_argument("--trials", type=int, default=2, help="perturbed starts per pair")
+    g.add_argument("--no-report", action="store_true", help="skip the before / after registrations")
 
     # -- report ---------------------------------------------------------------------------------
     r = sub.add_parser("report", help="Markdown summary of a run: speed, validation history, best checkpoint",
@@ -349,6 +382,12 @@ def _cmd_evaluate(args) -> int:
     return 0
 
 
+def _cmd_adapt(args) -> int:
+    from deepbbs_ros.cli.adapt import run_adapt
+
+    return run_adapt(args, _config(args))
+
+
 def _sigterm(signum, frame):
     raise KeyboardInterrupt
 
@@ -366,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
     _set_threads(getattr(args, "threads", 0))
     # SIGTERM (kill PID) behaves like Ctrl-C: the loop saves its state before exiting
     signal.signal(signal.SIGTERM, _sigterm)
-    commands = {"cache": _cmd_cache, "fit": _cmd_fit, "evaluate": _cmd_evaluate, "report": _cmd_report}
+    commands = {"cache": _cmd_cache, "fit": _cmd_fit, "evaluate": _cmd_evaluate, "report": _cmd_report,
+                "adapt": _cmd_adapt}
     return commands[args.command](args)
 
 

@@ -110,11 +110,13 @@ class Trainer:
         progress: show a tqdm bar.
         curves: redraw ``curves.png`` at every epoch end.
         meta: extra metadata stored in every checkpoint (data description, command line).
+        sampler: where training pairs come from (``batch(rng, n)``, ``num_pairs``); None = a ``PairSampler`` over
+            ``train_drives`` (adaptation passes its pseudo-labels, :mod:`deepbbs_ros.train.adapt`).
     """
 
     def __init__(self, config: Config, run_dir: str | Path, train_drives: list[Drive],
                  val_drives: list[Drive] | None = None, *, device: str | None = None, model=None,
-                 progress: bool = True, meta: dict[str, Any] | None = None, curves: bool = True):
+                 progress: bool = True, meta: dict[str, Any] | None = None, curves: bool = True, sampler=None):
         import torch
 
         from deepbbs_ros.core.model import DeepBBSNet
@@ -150,7 +152,7 @@ class Trainer:
         self.scheduler = torch.optim.lr_scheduler.StepLR(
             self.optimizer, step_size=tc.lr_step * tc.steps_per_epoch, gamma=tc.lr_gamma
         )
-        self.sampler = PairSampler(train_drives, AugmentConfig.from_train(tc, self.num_points))
+        self.sampler = sampler or PairSampler(train_drives, AugmentConfig.from_train(tc, self.num_points))
         self.val_drives = val_drives or []
         self._val_set: ValidationSet | None = None
         self.step = 0
