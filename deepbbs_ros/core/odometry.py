@@ -251,7 +251,13 @@ class DeepBBSOdometry:
             return 1.0, False
         scale = dt / self.period
         if scale < 1.0 / self.config.odometry.gap_factor:
-            self.period = dt  # ... until a shorter one shows that a frame was missing before
+            # ... until a shorter one shows that a frame was missing before: the velocity so far was per the old
+            # period, rescale it to the new one (left as it was, the next prediction is period_old / dt times too far:
+            # metres on a recording whose first interval was long)
+            self.period = dt
+            self.delta = se3_power(self.delta, scale)
+            self._deltas = deque((se3_power(d, scale) for d in self._deltas), maxlen=self._deltas.maxlen)
+            return 1.0, False
         return max(scale, 1e-3), scale > self.config.odometry.gap_factor
 
     def _has_times(self, times: np.ndarray | None) -> bool:
