@@ -8,8 +8,16 @@ import pytest
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import degeneracy as D
 from deepbbs_ros.core.odometry import DeepBBSOdometry
+from deepbbs_ros.node.dds import apply_default_profile
+
+apply_default_profile()  # before the first DDS participant of this process
 
 small_gicp = pytest.importorskip("small_gicp")
+rclpy = pytest.importorskip("rclpy")
+
+import test_node  # noqa: E402
+
+ros = test_node.ros  # the module fixture: rclpy context
 
 
 def _corridor_scan(x: float, rng: np.random.Generator, n: int = 6000, width: float = 2.0,
@@ -100,3 +108,24 @@ def test_corridor_drive_does_not_slide_with_the_hold():
     assert err_on < 0.5 * err_off
     steps = [np.linalg.norm(s.T_prev_k[:3, 3]) for s in steps_on[3:]]
     assert max(steps) < 2 * 0.2  # no step jumps
+
+
+def test_node_diagnostics_warn_in_a_degenerate_place(ros):
+    """Odometry mode over real DDS: in the featureless corridor /diagnostics names the weak axis and warns."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from test_node import SEC, Harness, tiny_config
+
+    cfg = tiny_config(**{"node.mode": "odometry", "node.diagnostics_period": 0.2, "odometry.deepbbs_init": "never",
+                         "odometry.voxel_size": 0.5, "preprocess.min_range": 0.5, "preprocess.max_range": 25.0})
+    h = Harness(cfg, "reg_degenerate")
+    rng = np.random.default_rng(3)
+    try:
+        for k in range(4):
+            h.send("cloud", _corridor_scan(0.2 * k, rng, n=20000).astype(np.float32), (300 + k) * SEC // 10)
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: h.diagnostics().get("degenerate", "no").startswith("corridor-like, weak axis x"))
+        status = h.diags[-1].status[0]
+        assert status.level == DiagnosticStatus.WARN and status.message.startswith("degenerate place: corridor-like")
+        assert int(h.diagnostics()["odometry: scans in degenerate places"]) >= 1
+    finally:
+        h.close()
