@@ -52,6 +52,8 @@ from deepbbs_ros.reprs import short_repr
 
 #: the gate's floor, in map voxels: a perfectly predictable drive's centimetres are no jump
 GATE_FLOOR = 0.1
+#: the map voxel is at most the first scan's median range over this (odometry.voxel_size 0)
+VOXEL_PER_RANGE = 10.0
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -154,7 +156,8 @@ class DeepBBSOdometry:
     def __init__(self, config: Config | None = None, registration: Any = None) -> None:
         self.config = (config or Config()).validate()
         pp, oc = self.config.preprocess, self.config.odometry
-        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0  # map voxel, m
+        # map voxel, m; with odometry.voxel_size 0 the first scan sizes it (_size_voxels)
+        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0
         self.threads = threads_or_all(oc.threads)
         self._reg = registration
         #: the driver that publishes the scans (``msg_adapters.layouts.recognise_driver``; the node sets it from its
@@ -204,6 +207,8 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         scale, gap = self._time_scale(stamp_ns)
         frame = self._deskew(points, times, scale)
+        if self.frames == 0 and self.config.odometry.voxel_size <= 0:
+            self._size_voxels(frame)
         clock.lap("deskew")
         cloud = self._prepare(frame)
         clock.lap("prepare")
@@ -258,6 +263,21 @@ class DeepBBSOdometry:
                             path, cov, deg.label, dev, limit)
 
     # -- stages ------------------------------------------------------------------------------------
+    def _size_voxels(self, frame: np.ndarray) -> None:
+        """The map voxel from the first scan: its median range / ``VOXEL_PER_RANGE``, at most ``max_range / 80``.
+
+        A car's spinning sensor on a road (median ranges of 10-15 m) keeps the ``max_range / 80`` voxel (1 m at 80
+        m); indoors, in a garage or with a sensor looking down at the floor (median ranges of 3-4 m) a 1 m voxel
+        blurs the walls and GICP's steps wander: the voxel shrinks with the scene, as KISS-ICP's map follows its
+        range."""
+        rng = float(np.median(np.linalg.norm(frame, axis=1)))
+        size = min(self.config.preprocess.max_range / 80.0, rng / VOXEL_PER_RANGE)
+        if np.isfinite(size) and size > 0 and size != self.voxel_size:
+            self.voxel_size = size
+            self._map = self._new_map()
+            self._gate = _deg.MotionGate(self.config.odometry.gate_sigmas, self.config.odometry.fit_window,
+                                         GATE_FLOOR * size)
+
     def _new_map(self) -> Any:
         import small_gicp
 
