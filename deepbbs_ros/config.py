@@ -441,7 +441,9 @@ class OdometryConfig:
 
     # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
     deepbbs_init: str = "auto"
-    voxel_size: float = 0.0  # m; local map voxel (VGICP); the scan grid is half of it; 0 = preprocess.max_range / 80
+    # m; local map voxel (VGICP); the scan grid is half of it; 0 = the first scan's median range / 10, at most
+    # preprocess.max_range / 80 (smaller indoors, where a car's 1 m voxel blurs the walls)
+    voxel_size: float = 0.0
     neighbors: int = 20  # neighbours for the scan's covariances
     max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map
     max_iters: int = 20  # GICP iterations per alignment
@@ -468,7 +470,7 @@ class OdometryConfig:
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
                f"must be 'auto', 'always' or 'never', got {self.deepbbs_init!r}")
-        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = max_range / 80)")
+        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = from the first scan)")
         _check(self.neighbors >= 5, "odometry.neighbors", "must be >= 5")
         _check(self.max_corr_dist > 0, "odometry.max_corr_dist", "must be > 0")
         _check(self.max_iters >= 1, "odometry.max_iters", "must be >= 1")
