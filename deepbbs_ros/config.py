@@ -446,7 +446,9 @@ class OdometryConfig:
 
     # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
     deepbbs_init: str = "auto"
-    voxel_size: float = 0.0  # m; local map voxel (VGICP); the scan grid is half of it; 0 = preprocess.max_range / 80
+    # m; local map voxel (VGICP); the scan grid is half of it; 0 = the first scan's median range / 10, at most
+    # preprocess.max_range / 80 (smaller indoors, where a car's 1 m voxel blurs the walls)
+    voxel_size: float = 0.0
     neighbors: int = 20  # neighbours for the scan's covariances
     max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map
     max_iters: int = 20  # GICP iterations per alignment
@@ -460,14 +462,20 @@ class OdometryConfig:
     # DeepBBS++ only when the fit after GICP falls below fit_drop x the running median
     gap_trust: float = 3.5
     fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
-    fit_window: int = 20  # frames in the running median of the fit
+    fit_window: int = 20  # frames in the running median of the fit (and in the gate's deviation, gate_sigmas)
     fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
     threads: int = 0  # small_gicp threads; 0 = every core (deepbbs-replay: eval.threads unless that is 0)
+    # degenerate place (corridor, tunnel, open field): a translation direction of the GICP Hessian with an eigenvalue
+    # below this x the largest; along it the prediction's position is kept and /diagnostics warns; 0 = never
+    degenerate_ratio: float = 0.005
+    # DeepBBS++ also checks a step that deviates from the constant-velocity prediction by more than this x the rms of
+    # the last fit_window steps' deviations (at least a quarter of the map voxel); 0 = off
+    gate_sigmas: float = 4.0
 
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
                f"must be 'auto', 'always' or 'never', got {self.deepbbs_init!r}")
-        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = max_range / 80)")
+        _check(self.voxel_size >= 0, "odometry.voxel_size", "must be >= 0 (0 = from the first scan)")
         _check(self.neighbors >= 5, "odometry.neighbors", "must be >= 5")
         _check(self.max_corr_dist > 0, "odometry.max_corr_dist", "must be > 0")
         _check(self.max_iters >= 1, "odometry.max_iters", "must be >= 1")
@@ -480,6 +488,8 @@ class OdometryConfig:
         _check(self.fit_window >= 1, "odometry.fit_window", "must be >= 1")
         _check(self.fit_margin >= 0, "odometry.fit_margin", "must be >= 0")
         _check(self.threads >= 0, "odometry.threads", "must be >= 0 (0 = every core)")
+        _check(0 <= self.degenerate_ratio < 1, "odometry.degenerate_ratio", "must be in [0, 1) (0 = never)")
+        _check(self.gate_sigmas >= 0, "odometry.gate_sigmas", "must be >= 0 (0 = off)")
 
 
 @dataclass

@@ -8,10 +8,15 @@
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
                 voxels, least-recently-used voxels dropped) from the prediction
+    hold        along the directions the VGICP's Hessian cannot constrain (a corridor's axis, an open field's
+                plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
+                position is kept there (core/degeneracy.py)
     check       fit = share of scan points with a map correspondence; on a fit drop, a stamp gap longer
                 than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
                 motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
-                and the map alignment runs again from there; the start with the clearly better fit wins
+                and the map alignment runs again from there; so does a step that deviates from the prediction
+                by more than ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's
+                adaptive threshold); the start with the clearly better fit wins
                 (first motion: the GICP-precise DeepBBS++ result itself, the map being the first scan)
     update      map, velocity
 
@@ -38,11 +43,17 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
+from deepbbs_ros.core import degeneracy as _deg
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
 from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.reprs import short_repr
+
+#: the gate's floor, in map voxels: a perfectly predictable drive's centimetres are no jump
+GATE_FLOOR = 0.1
+#: the map voxel is at most the first scan's median range over this (odometry.voxel_size 0)
+VOXEL_PER_RANGE = 10.0
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -101,6 +112,10 @@ class OdometryStep:
     covariance: (6, 6) float64 covariance of ``T_first_k`` against the local map (the map held fixed), from the
         VGICP's Hessian and residuals at the pose (core/covariance.py: position error in the first scan's frame,
         rotation error a left perturbation); None at the first scan or when the VGICP gives none.
+    degenerate: "" in a well-constrained place, else what the VGICP's Hessian says, e.g. "corridor-like, weak axis x
+        (ratio 2.1e-03)" (the scan's axes; core/degeneracy.py): along it the prediction's position was kept.
+    deviation: metres between the pose and the constant-velocity prediction; gate: the gate's limit then (inf while
+        it has too few steps or is off).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -115,6 +130,9 @@ class OdometryStep:
     points: np.ndarray | None = None
     path: str = ""
     covariance: np.ndarray | None = None
+    degenerate: str = ""
+    deviation: float = float("nan")
+    gate: float = float("inf")
 
 
 def _cloud_points(cloud: Any) -> np.ndarray | None:
@@ -138,7 +156,8 @@ class DeepBBSOdometry:
     def __init__(self, config: Config | None = None, registration: Any = None) -> None:
         self.config = (config or Config()).validate()
         pp, oc = self.config.preprocess, self.config.odometry
-        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0  # map voxel, m
+        # map voxel, m; with odometry.voxel_size 0 the first scan sizes it (_size_voxels)
+        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0
         self.threads = threads_or_all(oc.threads)
         self._reg = registration
         #: the driver that publishes the scans (``msg_adapters.layouts.recognise_driver``; the node sets it from its
@@ -164,6 +183,9 @@ class DeepBBSOdometry:
         self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
         self._deepbbs_path = "deepbbs"  # the path of DeepBBS++'s last answer (RegistrationResult.path)
         self._gicp: tuple[np.ndarray, float, int] = (np.zeros((6, 6)), float("nan"), 0)  # the last VGICP's H, e, n
+        oc = self.config.odometry
+        self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
+        self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
 
     @property
     def registration(self) -> Any:
@@ -185,6 +207,8 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         scale, gap = self._time_scale(stamp_ns)
         frame = self._deskew(points, times, scale)
+        if self.frames == 0 and self.config.odometry.voxel_size <= 0:
+            self._size_voxels(frame)
         clock.lap("deskew")
         cloud = self._prepare(frame)
         clock.lap("prepare")
@@ -194,9 +218,11 @@ class DeepBBSOdometry:
         prior = self.pose @ se3_power(self.delta, scale)
         pose, fit = self._align(cloud, prior)
         gicp = self._gicp
+        pose, deg = self._hold(pose, prior)
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
-        reason = self._suspect(scale, gap, fit)
+        dev, limit = _deg.deviation(pose, prior), self._gate.limit()
+        reason = self._suspect(scale, gap, fit, dev, limit)
         won, path = False, "gicp"
         if reason:
             T_prev_k = self._deepbbs(frame)
@@ -207,12 +233,17 @@ class DeepBBSOdometry:
                 else:
                     pose_b, fit_b = self._align(cloud, init_b)
                 gicp_b = self._gicp
+                pose_b, deg_b = self._hold(pose_b, init_b)
                 # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
                 # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
                 better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
                 if better:
-                    pose, fit, won, path, gicp = pose_b, fit_b, True, self._deepbbs_path, gicp_b
+                    pose, fit, won, path, gicp, deg = pose_b, fit_b, True, self._deepbbs_path, gicp_b, deg_b
             clock.lap("deepbbs")
+        dev = _deg.deviation(pose, prior)
+        if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
+            self._gate.update(_deg.deviation(_deg.hold(pose, prior, deg.weak), prior))
+        self.degenerate_frames += bool(deg.axes)
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
         self._deltas.append(self.delta)
@@ -229,9 +260,24 @@ class DeepBBSOdometry:
         cov = _cov.gicp_covariance(*gicp, pose, factors=_cov.ODOMETRY_FACTORS,
                                    weak_exponent=_cov.ODOMETRY_WEAK_EXPONENT)
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
-                            path, cov)
+                            path, cov, deg.label, dev, limit)
 
     # -- stages ------------------------------------------------------------------------------------
+    def _size_voxels(self, frame: np.ndarray) -> None:
+        """The map voxel from the first scan: its median range / ``VOXEL_PER_RANGE``, at most ``max_range / 80``.
+
+        A car's spinning sensor on a road (median ranges of 10-15 m) keeps the ``max_range / 80`` voxel (1 m at 80
+        m); indoors, in a garage or with a sensor looking down at the floor (median ranges of 3-4 m) a 1 m voxel
+        blurs the walls and GICP's steps wander: the voxel shrinks with the scene, as KISS-ICP's map follows its
+        range."""
+        rng = float(np.median(np.linalg.norm(frame, axis=1)))
+        size = min(self.config.preprocess.max_range / 80.0, rng / VOXEL_PER_RANGE)
+        if np.isfinite(size) and size > 0 and size != self.voxel_size:
+            self.voxel_size = size
+            self._map = self._new_map()
+            self._gate = _deg.MotionGate(self.config.odometry.gate_sigmas, self.config.odometry.fit_window,
+                                         GATE_FLOOR * size)
+
     def _new_map(self) -> Any:
         import small_gicp
 
@@ -251,7 +297,13 @@ class DeepBBSOdometry:
             return 1.0, False
         scale = dt / self.period
         if scale < 1.0 / self.config.odometry.gap_factor:
-            self.period = dt  # ... until a shorter one shows that a frame was missing before
+            # ... until a shorter one shows that a frame was missing before: the velocity so far was per the old
+            # period, rescale it to the new one (left as it was, the next prediction is period_old / dt times too far:
+            # metres on a recording whose first interval was long)
+            self.period = dt
+            self.delta = se3_power(self.delta, scale)
+            self._deltas = deque((se3_power(d, scale) for d in self._deltas), maxlen=self._deltas.maxlen)
+            return 1.0, False
         return max(scale, 1e-3), scale > self.config.odometry.gap_factor
 
     def _has_times(self, times: np.ndarray | None) -> bool:
@@ -313,18 +365,28 @@ class DeepBBSOdometry:
         self._gicp = (np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers))  # covariance
         return np.asarray(res.T_target_source, dtype=np.float64), float(res.num_inliers) / max(1, cloud.size())
 
+    def _hold(self, pose: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, _deg.Degeneracy]:
+        """The last VGICP's degeneracy at ``pose`` and ``pose`` held to ``start`` along its weak directions (not on
+        the first motion: its start, identity, is no prediction)."""
+        deg = _deg.analyse(self._gicp[0], pose[:3, :3], self.config.odometry.degenerate_ratio)
+        limit = self._gate.limit()
+        if self.frames < 2 or not np.isfinite(limit):
+            return pose, deg
+        return _deg.hold(pose, start, deg.weak, limit), deg
+
     def _fit_at(self, cloud: Any, pose: np.ndarray) -> float:
         """The fit of the scan near ``pose`` (one GICP iteration)."""
         return self._align(cloud, pose, iters=1)[1]
 
-    def _suspect(self, scale: float, gap: bool, fit: float) -> str:
+    def _suspect(self, scale: float, gap: bool, fit: float, dev: float = 0.0, limit: float = float("inf")) -> str:
         """Why DeepBBS++ should check this frame ("" = it should not).
 
         A stamp gap of up to ``odometry.gap_trust`` periods (one or two dropped scans: a node that was busy
         for a moment) is left to GICP from the prediction scaled to the gap: over a few periods constant
         velocity is off by centimetres, well inside GICP's basin, and the fit check below catches the
         rest (it needs one earlier fit on a gap, three otherwise). Asking DeepBBS++ on every dropped scan
-        made a busy node slower exactly when it was behind, so that it dropped more scans."""
+        made a busy node slower exactly when it was behind, so that it dropped more scans. A step ``dev`` metres
+        off the prediction, beyond the gate's ``limit``, is checked as well."""
         oc = self.config.odometry
         if oc.deepbbs_init == "never":
             return ""
@@ -334,6 +396,8 @@ class DeepBBSOdometry:
             return f"stamp gap of {scale:.1f} periods"
         if self.frames == 1:
             return "first motion"
+        if dev > limit:
+            return f"step {dev:.2f} m off the prediction, gate {limit:.2f} m"
         median = float(np.median(self._fits)) if self._fits else float("nan")
         if len(self._fits) >= (1 if gap else 3) and fit < oc.fit_drop * median:
             why = f"fit {fit:.2f} < {oc.fit_drop} x median {median:.2f}"

@@ -264,6 +264,8 @@ class LocalMapOdometry:
         self.covariance = covariance
         self.consulted = 0  # scans on which DeepBBS++ was consulted ...
         self.won = 0  # ... and those where its start gave the better fit
+        self.degenerate = ""  # the last scan's place, when degenerate (OdometryStep.degenerate): /diagnostics warns
+        self.degenerate_frames = 0  # scans in a degenerate place so far
         self.reset()
 
     def reset(self) -> None:
@@ -287,6 +289,8 @@ class LocalMapOdometry:
         except RegistrationError as err:
             raise BadInput("registration_failed", str(err)) from err
         T, T_step = np.asarray(out.T_first_k, np.float64), np.asarray(out.T_prev_k, np.float64)
+        self.degenerate = getattr(out, "degenerate", "")
+        self.degenerate_frames += bool(self.degenerate)
         if not (np.all(np.isfinite(T)) and np.all(np.isfinite(T_step))):
             self.reset()
             raise BadInput("registration_failed", "odometry returned a non-finite pose; restarting at identity")

@@ -1030,6 +1030,7 @@ class RegistrationNode(Node):
         out["latency_ms"] = self._stages.summary()
         if isinstance(self.odometry, LocalMapOdometry):
             out["deepbbs_consulted"], out["deepbbs_won"] = self.odometry.consulted, self.odometry.won
+            out["degenerate"], out["degenerate_frames"] = self.odometry.degenerate, self.odometry.degenerate_frames
         return out
 
     def _publish_diagnostics(self) -> None:
@@ -1060,6 +1061,8 @@ class RegistrationNode(Node):
                 values[f"paths.{path}"] = n
         if "deepbbs_consulted" in s:
             values["odometry: DeepBBS++ consulted / won"] = f"{s['deepbbs_consulted']} / {s['deepbbs_won']}"
+            values["degenerate"] = s["degenerate"] or "no"  # e.g. "corridor-like, weak axis x (ratio 2.1e-03)"
+            values["odometry: scans in degenerate places"] = s["degenerate_frames"]
         if self.localization is not None:
             values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
             drops = self._drops.diagnostics()
@@ -1078,7 +1081,9 @@ class RegistrationNode(Node):
         self.outputs.publish_diagnostics(
             f"{self.get_name()}: registration", self._device, values,
             sum(s["errors"].values()) + sum(s["warnings"].values()),
-            self.get_clock().now().to_msg(), self._localization_warning(),
+            self.get_clock().now().to_msg(),
+            self._localization_warning() or (f"degenerate place: {s['degenerate']}; the motion model holds the weak "
+                                             "direction" if s.get("degenerate") else ""),
         )  # fmt: skip
 
     def _localization_warning(self) -> str:

@@ -7,9 +7,13 @@ plots under ``--out``/odometry/<run>/latest): KITTI drift (segments of 100 m and
 throughput (frames/s, with its ratio to KISS-ICP's in the same run) of every method on a held-out simulated
 HDL-64E drive of ``--frames`` raw sweeps (simulated once into ``--cache``), the same drive with ``--variants``
 (``drop``: 8 gaps of 3-10 dropped scans; ``wrong-prior``: 10 motion priors off by up to 30 deg / 2 m; KISS-ICP
-is left out of these, a diverged KISS-ICP takes seconds a scan), and every ``--kitti`` sequence as it is.
+is left out of these, a diverged KISS-ICP takes seconds a scan), every ``--kitti`` sequence as it is, every ``--real``
+recording (any folder or bag deepbbs-replay reads) and, per sensor family, simulated ``--rigs`` (place:sensor:mount,
+``--rig-frames`` each, simulated once into ``--cache``): ATE, RPE and the largest single-step error side by side.
 
     python scripts/benchmarks/odometry.py --frames 1000 --kitti PATH/TO/kitti/00 PATH/TO/kitti/02
+    python scripts/benchmarks/odometry.py --frames 0 --real PATH/TO/livox_avia_loop PATH/TO/nuscenes_hdl32 \
+        --rigs corridor:vlp16:wheeled,garage:avia:handheld,hall:os0_64:legged,courtyard:mid360:handheld
     python scripts/benchmarks/odometry.py --frames 300 --variants clean -- --device cuda   # after --: deepbbs-replay
 
 Extra arguments after ``--`` go to every deepbbs-replay run.
@@ -79,6 +83,30 @@ class _Sized:
         return self.n
 
 
+def ensure_rig(args, rig: str) -> Path:
+    """A ``place:sensor:mount`` recording of ``--rig-frames`` raw scans, simulated once into the cache (mcap)."""
+    from deepbbs_ros.datasets import open_source, write_scans
+    from deepbbs_ros.sim import WORLDS_VERSION
+    from deepbbs_ros.sim.rig import make_simulator
+
+    place, sensor, mount = rig.split(":")
+    root = Path(args.cache).expanduser() if args.cache else Path.home() / ".cache" / "deepbbs_ros" / "bench"
+    path = root / f"rig_{place}_{sensor}_{mount}_{args.seed}_{args.rig_frames}_w{WORLDS_VERSION}"
+    if path.exists() and len(open_source(path)) == args.rig_frames:
+        return path
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+    tmp = path.with_name(path.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    print(f"simulating {rig} ({args.rig_frames} frames, seed {args.seed}) into {path}")
+    sim = make_simulator(place, args.seed, sensor, mount, frames=args.rig_frames)
+    write_scans(_Sized(iter(sim), args.rig_frames), tmp, "mcap", progress=False)
+    tmp.rename(path)
+    return path
+
+
 VARIANTS = {"clean": [], "drop": ["--drop-frames", "8", "--seed", "1"],
             "wrong-prior": ["--wrong-prior", "10", "--seed", "1"]}
 
@@ -102,6 +130,7 @@ def summary(doc: dict) -> dict:
         out[name] = {"frames": m.get("frames"), "kitti_t_err_pct": m.get("kitti_t_err_pct"),
                      "kitti_r_err_deg_per_100m": m.get("kitti_r_err_deg_per_100m"), "ate_rmse_m": m.get("ate_rmse_m"),
                      "rpe_trans_m_mean": (m.get("rpe_trans_m") or {}).get("mean"), "fps": m.get("fps"),
+                     "max_step_err_m": (m.get("rpe_trans_m") or {}).get("max"),
                      "fps_over_kiss_icp": m["fps"] / kiss if kiss and m.get("fps") else None,
                      "path_length_m": m.get("path_length_m"), "failed_frames": m.get("failed_frames")}
     return {"complete": doc.get("complete"), "methods": out}
@@ -144,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", default="clean,drop,wrong-prior", help=f"comma list of {', '.join(VARIANTS)}")
     p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders, e.g. PATH/TO/kitti/00")
     p.add_argument("--kitti-frames", type=int, default=None, help="the first frames of each KITTI sequence (all)")
+    p.add_argument("--real", nargs="*", default=[], help="other real recordings (folders or bags deepbbs-replay reads)")
+    p.add_argument("--rigs", default="", help="comma list of simulated place:sensor:mount, e.g. corridor:vlp16:wheeled")
+    p.add_argument("--rig-frames", type=int, default=100, help="frames of each --rigs recording")
     p.add_argument("--cache", default=None, help="cache root for simulated drives")
     p.add_argument("--out", default="results/benchmarks", help="folder for odometry.json, odometry.png, odometry/")
     p.add_argument("--config", default=None, help="config YAML passed to deepbbs-replay")
@@ -164,6 +196,14 @@ def main(argv: list[str] | None = None) -> int:
         doc = replay_run(Path(seq), out / "odometry" / f"kitti_{Path(seq).name}", args.method, limit + extra)
         if doc:
             runs[f"KITTI {Path(seq).name}"] = summary(doc)
+    for seq in args.real:
+        doc = replay_run(Path(seq), out / "odometry" / f"real_{Path(seq).name}", args.method, extra)
+        if doc:
+            runs[Path(seq).name] = summary(doc)
+    for rig in [r for r in args.rigs.split(",") if r]:
+        doc = replay_run(ensure_rig(args, rig), out / "odometry" / f"rig_{rig.replace(':', '_')}", args.method, extra)
+        if doc:
+            runs[f"sim {rig}"] = summary(doc)
     if not runs:
         print("no run wrote metrics", file=sys.stderr)
         return 1
@@ -171,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{name}:")
         for m, v in r["methods"].items():
             f = {k: "-" if x is None else f"{x:.3f}" for k, x in v.items()}
-            print(f"  {m:>10}: drift {f['kitti_t_err_pct']} %, ATE {f['ate_rmse_m']} m, {f['fps']} frames/s "
+            print(f"  {m:>10}: drift {f['kitti_t_err_pct']} %, ATE {f['ate_rmse_m']} m, RPE {f['rpe_trans_m_mean']} m, "
+                  f"max step error {f['max_step_err_m']} m, {f['fps']} frames/s "
                   f"(x{f['fps_over_kiss_icp']} KISS-ICP's)")
     _common.write_json(out, "odometry.json", {"runs": runs})
     plot(runs, out)
