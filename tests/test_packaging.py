@@ -40,7 +40,8 @@ def test_wheel_builds_without_warnings_and_ships_the_data(tmp_path):
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
         entry = z.read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
-    assert {"deepbbs_ros/models/deepbbspp_lidar.pt", "deepbbs_ros/resources/fastdds_shm.xml"} <= names
+    assert {"deepbbs_ros/models/deepbbspp_lidar.pt", "deepbbs_ros/resources/fastdds_shm.xml",
+            "deepbbs_ros/resources/verdict_model.json"} <= names
     assert not any("train_state" in n for n in names)  # the training state stays in the repository
     parser = configparser.ConfigParser()
     parser.read_string(entry)
