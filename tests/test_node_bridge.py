@@ -159,9 +159,9 @@ def test_tracked_covariance_reads_the_refinement(drive):
     seen = []
     own = loc._covariance
 
-    def both(src, crop, T, timings):
-        reused = loc._refined_at is not None and np.array_equal(loc._refined_at[0], T)
-        cov = own(src, crop, T, timings)
+    def both(src, crop, T, timings, hessian=None):
+        reused = hessian is not None  # the refinement's, handed on with its pose
+        cov = own(src, crop, T, timings, hessian)
         seen.append((reused, cov, scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T, cfg)))
         return cov
 

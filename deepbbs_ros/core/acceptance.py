@@ -38,6 +38,11 @@ def accepts(config: Config, valid: bool, score: float) -> bool:
     return bool(valid) and np.isfinite(score) and score >= config.localization.min_score
 
 
+def accepts_fit(config: Config, score: float) -> bool:
+    """:func:`accepts` with the verdict taken from the fitness (:func:`fits`): how the map judges every answer."""
+    return accepts(config, fits(config, score), score)
+
+
 def sharpness(src: Any, ans: _Answer, config: Config, registration: Any) -> float:
     """Of the scan's verdict points within ``localization.sharp_dist`` of the answer's crop, the share within
     ``registration.verdict_dist`` (0 when none or no crop cloud): a fit that is close wherever the map covers

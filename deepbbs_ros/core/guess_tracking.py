@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import acceptance
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud
 
 
@@ -68,7 +67,7 @@ class GuessTracking:
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
             score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
-        if self._accepts(acceptance.fits(self.config, reg.score), reg.score):
+        if self._accepts_fit(reg.score):
             return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
                                  timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
@@ -85,11 +84,12 @@ class GuessTracking:
 
     def _tracked(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
                  timings: dict[str, float]) -> LocalizationResult:
+        hessian = None
         if self.config.localization.refine_tracking:
-            T_map_scan = self._refine(src, crop, T_map_scan, timings)
+            T_map_scan, hessian = self._refine_gicp(src, crop, T_map_scan, timings)
         return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
                                   crop=_crop_cloud(crop), place=place,
-                                  covariance=self._covariance(src, crop, T_map_scan, timings))
+                                  covariance=self._covariance(src, crop, T_map_scan, timings, hessian))
 
     def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
                     place: int) -> tuple[_Answer | None, float]:

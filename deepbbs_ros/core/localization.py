@@ -427,7 +427,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             best.candidates += 1
             T_map_scan = crop.T_map_place @ reg.T_target_source
-            if self._accepts(acceptance.fits(self.config, reg.score), reg.score):
+            if self._accepts_fit(reg.score):
                 res = self._tracked(src, crop, T_map_scan, float(reg.score), "deepbbs", near, timings)
                 res.mode, res.candidates = "hint", best.candidates
                 best = res
@@ -487,6 +487,9 @@ class MapLocalizer(GuessTracking, PlaceSearch):
     def _accepts(self, valid: bool, score: float) -> bool:
         return acceptance.accepts(self.config, valid, score)
 
+    def _accepts_fit(self, score: float) -> bool:
+        return acceptance.accepts_fit(self.config, score)
+
     def _sharpness(self, src: Any, ans: _Answer) -> float:
         return acceptance.sharpness(src, ans, self.config, self.registration)
 
@@ -498,34 +501,36 @@ class MapLocalizer(GuessTracking, PlaceSearch):
 
     # -- GICP: refine, covariance ----------------------------------------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
+        """:meth:`_refine_gicp`'s pose alone (``T_map_scan`` itself when not refined)."""
+        return self._refine_gicp(src, crop, T_map_scan, timings)[0]
+
+    def _refine_gicp(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
+                     timings: dict[str, float]) -> tuple[np.ndarray, Any]:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
         correspondence distance lets far pairs pull the pose along a road with few features); kept when it does not
-        converge or moves more than 1 m / 2 deg."""
+        converge or moves more than 1 m / 2 deg. -> (the pose, the converged GICP's last linearisation, which is the
+        covariance's at that pose (:meth:`_covariance`), or None when not refined)."""
         import dataclasses
 
         lc, rc = self.config.localization, self.config.registration
         if lc.refine_corr_dist <= 0 or rc.polish == "none" or src.polish_cloud is None or crop.pre.polish_cloud is None:
-            return T_map_scan
+            return T_map_scan, None
         t = time.perf_counter()
         cfg = dataclasses.replace(rc, polish_max_corr_dist=lc.refine_corr_dist, polish_max_trans=1.0,
                                   polish_max_rot_deg=2.0)
         pol = polish(src.polish_cloud, crop.pre.polish_cloud, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
         if not pol.applied:
-            return T_map_scan
-        T_out = crop.T_map_place @ pol.T_target_source
-        # converged: its last linearisation is the covariance's (same clouds, refine_corr_dist), not made again
-        self._refined_at = (T_out, src, crop, pol.hessian)
-        return T_out
+            return T_map_scan, None
+        return crop.T_map_place @ pol.T_target_source, pol.hessian
 
-    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
-                    timings: dict[str, float]) -> np.ndarray | None:
-        """The covariance of a valid ``T_map_scan`` (core/covariance.py), timed into ``covariance``."""
+    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float],
+                    hessian: Any = None) -> np.ndarray | None:
+        """The covariance of a valid ``T_map_scan`` (core/covariance.py), timed into ``covariance``: from ``hessian``
+        (:meth:`_refine_gicp`'s, when it refined to this pose), else from a GICP linearisation made here."""
         t = time.perf_counter()
-        last, self._refined_at = getattr(self, "_refined_at", None), None
-        if last is not None and last[1] is src and last[2] is crop and last[3] is not None and np.array_equal(
-                last[0], T_map_scan):  # the refinement's GICP converged at this pose: its Hessian
-            cov = gicp_covariance(*last[3], T_map_scan, factors=LOCALIZATION_FACTORS,
+        if hessian is not None:
+            cov = gicp_covariance(*hessian, T_map_scan, factors=LOCALIZATION_FACTORS,
                                   weak_exponent=LOCALIZATION_WEAK_EXPONENT)
         else:
             cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan,

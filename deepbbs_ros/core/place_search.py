@@ -33,8 +33,7 @@ class PlaceSearch:
         t = time.perf_counter()
         reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search)
         timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-        return _Answer(float(reg.score), self._accepts(acceptance.fits(self.config, reg.score), reg.score),
-                       crop.T_map_place @ reg.T_target_source,
+        return _Answer(float(reg.score), self._accepts_fit(reg.score), crop.T_map_place @ reg.T_target_source,
                        place, crop)
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
@@ -116,10 +115,10 @@ class PlaceSearch:
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
                                       alternatives=alternatives)
-        T = self._refine(src, best.crop, best.T, timings)
+        T, hessian = self._refine_gicp(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
-                                  covariance=self._covariance(src, best.crop, T, timings))
+                                  covariance=self._covariance(src, best.crop, T, timings, hessian))
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float]) -> None:
@@ -228,8 +227,8 @@ class PlaceSearch:
         if not pol.applied:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
-        ans = _Answer(score, self._accepts(verdict.is_valid(score, rc.verdict_threshold), score),
-                      crop.T_map_place @ pol.T_target_source, place, crop, gicp=True)
+        ans = _Answer(score, self._accepts_fit(score), crop.T_map_place @ pol.T_target_source, place, crop,
+                      gicp=True)
         ans.ok = ans.ok and self._sharpness(src, ans) >= self.config.localization.sharp_score
         return ans
 
@@ -262,8 +261,7 @@ class PlaceSearch:
             if not pol.applied:
                 continue
             score = verdict.fitness(src.points, tgt_pc.tree, pol.T_target_source, rc.verdict_dist)
-            valid = verdict.is_valid(score, rc.verdict_threshold)
-            out.append(_Answer(score, self._accepts(valid, score), crop.T_map_place @ pol.T_target_source,
+            out.append(_Answer(score, self._accepts_fit(score), crop.T_map_place @ pol.T_target_source,
                                best.place, crop, probe=True))
         return out
 
