@@ -18,6 +18,17 @@ else:
 
 
 @pytest.fixture
+def torch_one_thread():
+    """One torch thread for the test: tiny models are faster so, and exact-resume comparisons are stable."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     """A seeded generator: every test that draws random data is deterministic."""
     random.seed(0)

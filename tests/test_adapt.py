@@ -21,12 +21,7 @@ from deepbbs_ros.train.pseudo import Labels, cycle_consistency, split_frames
 TINY = {"model.k": 6, "model.dgcnn_widths": [8, 16], "model.emb_dims": 16, "model.n_heads": 2, "model.ff_dims": 16}
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def test_split_keeps_a_gap_and_refuses_too_few_scans():

@@ -101,6 +101,16 @@ def scan(world: np.ndarray, T_world_lidar: np.ndarray, seed: int, n_points: int 
     return scan_at(world, T_world_lidar, np.random.default_rng(seed), n_points=n_points)
 
 
+def wait_for(cond, timeout: float = 30.0) -> bool:
+    """Poll ``cond()`` every 20 ms until it holds (True) or ``timeout`` s pass (False)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return False
+
+
 class Harness:
     """The node plus a client node (publishers of the inputs, subscribers of the outputs); ``node_kwargs``
     go to RegistrationNode (e.g. ``odometry_method``)."""
@@ -147,12 +157,7 @@ class Harness:
         self.pub[topic].publish(msg)
 
     def wait_for(self, cond, timeout: float = 30.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if cond():
-                return True
-            time.sleep(0.02)
-        return False
+        return wait_for(cond, timeout)
 
     def wait_processed(self, n: int, timeout: float = 30.0) -> None:
         s = self.node.stats

@@ -112,12 +112,7 @@ class Manager:
         return self.scans.get_subscription_count()
 
     def wait_for(self, cond, timeout: float = 30.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if cond():
-                return True
-            time.sleep(0.02)
-        return False
+        return test_node.wait_for(cond, timeout)
 
     def close(self) -> None:
         self.executor.shutdown()

@@ -16,8 +16,6 @@ have no moving cars here.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 
 from deepbbs_ros.datasets.base import APOLLO_LIDAR_FRAME, Scan
@@ -27,7 +25,12 @@ from deepbbs_ros.sim.mounts import MOUNTS, MountTrajectory
 from deepbbs_ros.sim.patterns import SolidStateConfig, driver_fields, make_sensor
 from deepbbs_ros.sim.places import PLACES, build_place
 from deepbbs_ros.sim.scene import ROAD_DZ, SCENES, World
-from deepbbs_ros.sim.simulator import ANCHOR_STEP, S_START, STAMP0_NS, DriveSimulator
+from deepbbs_ros.sim.simulator import (
+    ANCHOR_STEP,
+    S_START,
+    DriveSimulator,
+    Frames,
+)
 from deepbbs_ros.sim.solid_state import pattern_sweep
 
 ALL_PLACES = (*SCENES, *PLACES)
@@ -43,7 +46,7 @@ def make_simulator(place: str, seed: int, sensor: str | LidarConfig | SolidState
     return RigSimulator(place, seed, lidar, mount, **kw)
 
 
-class RigSimulator:
+class RigSimulator(Frames):
     """A reproducible recording of ``sensor`` carried by ``mount`` through ``place`` (see the module)."""
 
     def __init__(self, place: str, seed: int, sensor: LidarConfig | SolidStateConfig, mount: str, *,
@@ -83,21 +86,8 @@ class RigSimulator:
             self._ring_gain = np.random.default_rng([self.seed, 707]).uniform(0.85, 1.15, sensor.beams)
             self._col_time = np.arange(sensor.columns) * (self.period / sensor.columns)
 
-    def __len__(self) -> int:
-        return self.frames
-
-    def __iter__(self) -> Iterator[Scan]:
-        for k in range(self.frames):
-            yield self.scan_at(k)
-
     def T_world_lidar(self, t: np.ndarray | float) -> np.ndarray:
         return self.trajectory.poses(t)
-
-    def pose_at(self, frame: int) -> np.ndarray:
-        return self.T_world_lidar(frame * self.period)
-
-    def stamp_ns(self, frame: int) -> int:
-        return STAMP0_NS + int(round(frame * self.period * 1e9))
 
     def _static(self, xy: np.ndarray) -> tuple[RayCaster, np.ndarray]:
         if self.place not in SCENES:

@@ -39,7 +39,29 @@ ANCHOR_STEP = 40.0  # m of route length between rebuilds of the ray-casting scen
 S_START = 80.0  # m of road behind the start position
 
 
-class DriveSimulator:
+class Frames:
+    """A drive as frames: ``frames`` scans ``period`` s apart, frame k stamped ``STAMP0_NS + k period``; the
+    subclass gives ``T_world_lidar(t)`` and ``scan_at(k)``."""
+
+    frames: int
+    period: float
+
+    def __len__(self) -> int:
+        return self.frames
+
+    def __iter__(self) -> Iterator[Scan]:
+        for k in range(self.frames):
+            yield self.scan_at(k)
+
+    def pose_at(self, frame: int) -> np.ndarray:
+        """(4, 4) float64 ground-truth ``T_world_lidar`` at the stamp of ``frame`` (no ray casting)."""
+        return self.T_world_lidar(frame * self.period)
+
+    def stamp_ns(self, frame: int) -> int:
+        return STAMP0_NS + int(round(frame * self.period * 1e9))
+
+
+class DriveSimulator(Frames):
     """A reproducible simulated drive with random access to its frames.
 
     scene: one of :data:`SCENES`; seed: any int (same seed -> bit-identical frames);
@@ -111,24 +133,10 @@ class DriveSimulator:
         self._casters: OrderedDict[int, tuple[RayCaster, np.ndarray]] = OrderedDict()
         self.timings_s = {"build": 0.0, "cast": 0.0, "post": 0.0}
 
-    def __len__(self) -> int:
-        return self.frames
-
-    def __iter__(self) -> Iterator[Scan]:
-        for k in range(self.frames):
-            yield self.scan_at(k)
-
     # ---- poses ----------------------------------------------------------------------------------
     def T_world_lidar(self, t: np.ndarray | float) -> np.ndarray:
         """(..., 4, 4) float64 pose of the LiDAR at drive time ``t`` (s)."""
         return self.trajectory.poses(t) @ self.T_base_lidar
-
-    def pose_at(self, frame: int) -> np.ndarray:
-        """(4, 4) float64 ground-truth ``T_world_lidar`` at the stamp of ``frame`` (no ray casting)."""
-        return self.T_world_lidar(frame * self.period)
-
-    def stamp_ns(self, frame: int) -> int:
-        return STAMP0_NS + int(round(frame * self.period * 1e9))
 
     # ---- ray casting ------------------------------------------------------------------------------
     def _static_caster(self, t0: float) -> tuple[RayCaster, np.ndarray]:
