@@ -27,12 +27,13 @@ def coarse_start(first: np.ndarray, scan: np.ndarray, voxel: float, max_corr_dis
     import small_gicp
 
     T = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
+    first, scan = (np.ascontiguousarray(a, dtype=np.float64) for a in (first, scan))
     for m in PYRAMID:
         grid = 0.5 * m * voxel
-        tgt, _ = small_gicp.preprocess_points(np.ascontiguousarray(first, dtype=np.float64), downsampling_resolution=grid,
-                                              num_neighbors=neighbors, num_threads=threads)
-        src, _ = small_gicp.preprocess_points(np.ascontiguousarray(scan, dtype=np.float64), downsampling_resolution=grid,
-                                              num_neighbors=neighbors, num_threads=threads)
+        tgt, _ = small_gicp.preprocess_points(first, downsampling_resolution=grid, num_neighbors=neighbors,
+                                              num_threads=threads)
+        src, _ = small_gicp.preprocess_points(scan, downsampling_resolution=grid, num_neighbors=neighbors,
+                                              num_threads=threads)
         if tgt.size() < 10 or src.size() < 10:  # too coarse for this scan: the finer levels decide
             continue
         vmap = small_gicp.GaussianVoxelMap(m * voxel)

@@ -7,17 +7,18 @@
     prepare     crop, ``voxel_size / 2`` grid, covariances (small_gicp ``preprocess_points``)
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
-                voxels, least-recently-used voxels dropped) from the prediction
+                voxels, least-recently-used voxels dropped) from the prediction; the first motion, which has
+                none, from identity coarse to fine (core/first_motion.py)
     hold        along the directions the VGICP's Hessian cannot constrain (a corridor's axis, an open field's
                 plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
                 position is kept there (core/degeneracy.py)
     check       fit = share of scan points with a map correspondence; on a fit drop, a stamp gap longer
                 than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
                 motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
-                and the map alignment runs again from there; so does a step that deviates from the prediction
-                by more than ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's
-                adaptive threshold); the start with the clearly better fit wins
-                (first motion: the GICP-precise DeepBBS++ result itself, the map being the first scan)
+                and the map alignment runs again from there, and from the prediction refined coarse to fine
+                against the previous scan; so does a step that deviates from the prediction by more than
+                ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's adaptive
+                threshold); a start wins over the prediction's alignment only with a clearly better fit
     update      map, velocity
 
 Why: scan-to-map GICP is precise (per-frame errors of millimetres to centimetres where KISS-ICP's
@@ -101,9 +102,8 @@ class OdometryStep:
 
     T_first_k: (4, 4) float64 pose of the scan (at its stamp) in the first scan's frame.
     T_prev_k: (4, 4) float64 motion since the previous frame (``T_{k-1}_k``).
-    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (first motion: its fit
-        was not worse than identity's by more than ``odometry.fit_margin``; later: better than the
-        prediction's by more than that).
+    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (its alignment fit better than the
+        prediction's, at the first motion the coarse-to-fine start's, by more than ``odometry.fit_margin``).
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
     timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted; at the first scan: its preprocessing
         for the first motion's DeepBBS++), "total".
@@ -272,9 +272,9 @@ class DeepBBSOdometry:
         """The map voxel from the first scan: its median range / ``VOXEL_PER_RANGE``, at most ``max_range / 100``.
 
         A car's spinning sensor on a road (median ranges of 10-15 m) keeps the ``max_range / 100`` voxel (0.8 m at 80
-        m, KISS-ICP's; 1 m left centimetres on KITTI's 64-beam scans); indoors, in a garage or with a sensor looking down at the floor (median ranges of 3-4 m) a 1 m voxel
-        blurs the walls and GICP's steps wander: the voxel shrinks with the scene, as KISS-ICP's map follows its
-        range."""
+        m, KISS-ICP's; 1 m cost centimetres on KITTI's 64-beam scans); indoors, in a garage or with a sensor looking
+        down at the floor (median ranges of 3-4 m) a car's voxel blurs the walls and GICP's steps wander: the voxel
+        shrinks with the scene, as KISS-ICP's map follows its range."""
         rng = float(np.median(np.linalg.norm(frame, axis=1)))
         size = min(self.config.preprocess.max_range / VOXEL_PER_MAX_RANGE, rng / VOXEL_PER_RANGE)
         if np.isfinite(size) and size > 0 and size != self.voxel_size:
