@@ -447,7 +447,7 @@ class OdometryConfig:
     # DeepBBS++ re-initialises: auto (long stamp gap, fit drop, first motion) | always | never
     deepbbs_init: str = "auto"
     # m; local map voxel (VGICP); the scan grid is half of it; 0 = the first scan's median range / 10, at most
-    # preprocess.max_range / 80 (smaller indoors, where a car's 1 m voxel blurs the walls)
+    # preprocess.max_range / 100 (KISS-ICP's map voxel; smaller indoors, where a car's voxel blurs the walls)
     voxel_size: float = 0.0
     neighbors: int = 20  # neighbours for the scan's covariances
     max_corr_dist: float = 1.0  # m; GICP correspondence distance against the map
@@ -463,7 +463,7 @@ class OdometryConfig:
     gap_trust: float = 3.5
     fit_drop: float = 0.8  # fit = share of scan points with a map correspondence; below this x the median: DeepBBS++
     fit_window: int = 20  # frames in the running median of the fit (and in the gate's deviation, gate_sigmas)
-    fit_margin: float = 0.02  # fit difference deciding between the prediction (first motion: identity) and DeepBBS++
+    fit_margin: float = 0.02  # a start (DeepBBS++'s, a coarse-to-fine one) beats the prediction's fit by this to win
     threads: int = 0  # small_gicp threads; 0 = every core (deepbbs-replay: eval.threads unless that is 0)
     # degenerate place (corridor, tunnel, open field): a translation direction of the GICP Hessian with an eigenvalue
     # below this x the largest; along it the prediction's position is kept and /diagnostics warns; 0 = never

@@ -7,17 +7,18 @@
     prepare     crop, ``voxel_size / 2`` grid, covariances (small_gicp ``preprocess_points``)
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
-                voxels, least-recently-used voxels dropped) from the prediction
+                voxels, least-recently-used voxels dropped) from the prediction; the first motion, which has
+                none, from identity coarse to fine (core/first_motion.py)
     hold        along the directions the VGICP's Hessian cannot constrain (a corridor's axis, an open field's
                 plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
                 position is kept there (core/degeneracy.py)
     check       fit = share of scan points with a map correspondence; on a fit drop, a stamp gap longer
                 than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
                 motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
-                and the map alignment runs again from there; so does a step that deviates from the prediction
-                by more than ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's
-                adaptive threshold); the start with the clearly better fit wins
-                (first motion: the GICP-precise DeepBBS++ result itself, the map being the first scan)
+                and the map alignment runs again from there, and from the prediction refined coarse to fine
+                against the previous scan; so does a step that deviates from the prediction by more than
+                ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's adaptive
+                threshold); a start wins over the prediction's alignment only with a clearly better fit
     update      map, velocity
 
 Why: scan-to-map GICP is precise (per-frame errors of millimetres to centimetres where KISS-ICP's
@@ -44,6 +45,7 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
+from deepbbs_ros.core import first_motion as _first
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
@@ -52,8 +54,10 @@ from deepbbs_ros.reprs import short_repr
 
 #: the gate's floor, in map voxels: a perfectly predictable drive's centimetres are no jump
 GATE_FLOOR = 0.1
-#: the map voxel is at most the first scan's median range over this (odometry.voxel_size 0)
+#: the map voxel is at most the first scan's median range over this (odometry.voxel_size 0) ...
 VOXEL_PER_RANGE = 10.0
+#: ... and at most preprocess.max_range over this (KISS-ICP's map voxel: 0.8 m at 80 m)
+VOXEL_PER_MAX_RANGE = 100.0
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -98,9 +102,8 @@ class OdometryStep:
 
     T_first_k: (4, 4) float64 pose of the scan (at its stamp) in the first scan's frame.
     T_prev_k: (4, 4) float64 motion since the previous frame (``T_{k-1}_k``).
-    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (first motion: its fit
-        was not worse than identity's by more than ``odometry.fit_margin``; later: better than the
-        prediction's by more than that).
+    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (its alignment fit better than the
+        prediction's, at the first motion the coarse-to-fine start's, by more than ``odometry.fit_margin``).
     fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
     timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted; at the first scan: its preprocessing
         for the first motion's DeepBBS++), "total".
@@ -157,7 +160,7 @@ class DeepBBSOdometry:
         self.config = (config or Config()).validate()
         pp, oc = self.config.preprocess, self.config.odometry
         # map voxel, m; with odometry.voxel_size 0 the first scan sizes it (_size_voxels)
-        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / 80.0
+        self.voxel_size = oc.voxel_size if oc.voxel_size > 0 else pp.max_range / VOXEL_PER_MAX_RANGE
         self.threads = threads_or_all(oc.threads)
         self._reg = registration
         #: the driver that publishes the scans (``msg_adapters.layouts.recognise_driver``; the node sets it from its
@@ -214,9 +217,10 @@ class DeepBBSOdometry:
         clock.lap("prepare")
         if self.frames == 0:
             return self._first(frame, cloud, stamp_ns, clock, points, times)
-        # predict + align: GICP against the voxel map from the constant-velocity prediction
+        # predict + align: GICP against the voxel map from the constant-velocity prediction (the first motion, which
+        # has none, from identity coarse to fine: core/first_motion.py)
         prior = self.pose @ se3_power(self.delta, scale)
-        pose, fit = self._align(cloud, prior)
+        pose, fit = self._align(cloud, self._coarse_start(frame, prior) if self.frames == 1 else prior)
         gicp = self._gicp
         pose, deg = self._hold(pose, prior)
         clock.lap("align")
@@ -225,20 +229,21 @@ class DeepBBSOdometry:
         reason = self._suspect(scale, gap, fit, dev, limit)
         won, path = False, "gicp"
         if reason:
+            # the other starts: DeepBBS++'s (no prior needed) and, after the first motion (whose start already was),
+            # the prediction refined coarse to fine against the previous scan (a wider basin than the map's voxel);
+            # the constant-velocity track wins unless a start's alignment fits clearly better
+            starts = []
             T_prev_k = self._deepbbs(frame)
             if T_prev_k is not None:
-                init_b = self.pose @ T_prev_k
-                if self.frames == 1:  # the map is the first scan: DeepBBS++ (GICP-precise) is scan-to-map
-                    pose_b, fit_b = init_b, self._fit_at(cloud, init_b)
-                else:
-                    pose_b, fit_b = self._align(cloud, init_b)
+                starts.append((self.pose @ T_prev_k, True, self._deepbbs_path))
+            if self.frames > 1:
+                starts.append((self._coarse_start(frame, prior), False, "gicp"))
+            for init_b, deep, path_b in starts:
+                pose_b, fit_b = self._align(cloud, init_b)
                 gicp_b = self._gicp
                 pose_b, deg_b = self._hold(pose_b, init_b)
-                # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
-                # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
-                better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
-                if better:
-                    pose, fit, won, path, gicp, deg = pose_b, fit_b, True, self._deepbbs_path, gicp_b, deg_b
+                if fit_b > fit + oc.fit_margin:
+                    pose, fit, won, path, gicp, deg = pose_b, fit_b, deep, path_b, gicp_b, deg_b
             clock.lap("deepbbs")
         dev = _deg.deviation(pose, prior)
         if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
@@ -264,14 +269,14 @@ class DeepBBSOdometry:
 
     # -- stages ------------------------------------------------------------------------------------
     def _size_voxels(self, frame: np.ndarray) -> None:
-        """The map voxel from the first scan: its median range / ``VOXEL_PER_RANGE``, at most ``max_range / 80``.
+        """The map voxel from the first scan: its median range / ``VOXEL_PER_RANGE``, at most ``max_range / 100``.
 
-        A car's spinning sensor on a road (median ranges of 10-15 m) keeps the ``max_range / 80`` voxel (1 m at 80
-        m); indoors, in a garage or with a sensor looking down at the floor (median ranges of 3-4 m) a 1 m voxel
-        blurs the walls and GICP's steps wander: the voxel shrinks with the scene, as KISS-ICP's map follows its
-        range."""
+        A car's spinning sensor on a road (median ranges of 10-15 m) keeps the ``max_range / 100`` voxel (0.8 m at 80
+        m, KISS-ICP's; 1 m cost centimetres on KITTI's 64-beam scans); indoors, in a garage or with a sensor looking
+        down at the floor (median ranges of 3-4 m) a car's voxel blurs the walls and GICP's steps wander: the voxel
+        shrinks with the scene, as KISS-ICP's map follows its range."""
         rng = float(np.median(np.linalg.norm(frame, axis=1)))
-        size = min(self.config.preprocess.max_range / 80.0, rng / VOXEL_PER_RANGE)
+        size = min(self.config.preprocess.max_range / VOXEL_PER_MAX_RANGE, rng / VOXEL_PER_RANGE)
         if np.isfinite(size) and size > 0 and size != self.voxel_size:
             self.voxel_size = size
             self._map = self._new_map()
@@ -374,9 +379,12 @@ class DeepBBSOdometry:
             return pose, deg
         return _deg.hold(pose, start, deg.weak, limit), deg
 
-    def _fit_at(self, cloud: Any, pose: np.ndarray) -> float:
-        """The fit of the scan near ``pose`` (one GICP iteration)."""
-        return self._align(cloud, pose, iters=1)[1]
+    def _coarse_start(self, frame: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """``start`` (4, 4, the first scan's frame) refined on the coarse levels against the previous scan."""
+        oc = self.config.odometry
+        rel = _first.coarse_start(self._prev_points, frame, self.voxel_size, oc.max_corr_dist, oc.neighbors,
+                                  self.threads, np.linalg.inv(self.pose) @ start)
+        return self.pose @ rel
 
     def _suspect(self, scale: float, gap: bool, fit: float, dev: float = 0.0, limit: float = float("inf")) -> str:
         """Why DeepBBS++ should check this frame ("" = it should not).
