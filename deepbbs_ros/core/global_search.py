@@ -270,7 +270,7 @@ def _floor(st: Any, rc: Any) -> None:
 def sure(st: Any, rc: Any) -> bool:
     """A search answer ends the search: valid, and its probability reaches ``registration.verdict_sure`` (a
     symmetric place's flip can be valid; the search then tries its remaining starts and keeps the most probable)."""
-    if st.src_pc is None or st.tgt_pc is None:  # no precision stage: the probability is not calibrated, the score decides
+    if st.src_pc is None or st.tgt_pc is None:  # no precision stage: an uncalibrated probability, the score decides
         return bool(st.valid)
     return bool(st.valid and st.probability >= rc.verdict_sure)
 
