@@ -246,7 +246,7 @@ class RegistrationConfig:
     verdict_sure: float = 0.95
     # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
-    # 0.002-0.01 with probability 0.91-0.92; right poses on real nuScenes HDL-32E scored 0.28 and more)
+    # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)
     search_min_score: float = 0.1
     # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
     # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated

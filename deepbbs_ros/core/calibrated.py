@@ -6,9 +6,7 @@ mount and place (``scripts/calibrate_verdict.py``; right: within 1 degree / 0.3 
 coefficients ship in ``deepbbs_ros/resources/verdict_model.json``, read once: ``"good_start"``, for a spread
 subset of the source's GICP voxels (ground included), is the one the registration's verdicts use (the pair verdict
 and the good start); ``"pair"``, for the network's sampled non-ground points, is fitted beside it for comparison
-(it carried worse to real scans). ``plane_close`` has coefficient 0: it measures how rough the scene is as much as how
-tight the pose is, and real scenes are rougher than simulated ones (``plane_rel``, relative to the target's own
-planarity, carries the tightness). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+(it carried worse to real scans). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
 """
 
 from __future__ import annotations

@@ -17,9 +17,10 @@ Both verdicts judge a spread subset of the source's GICP voxels with the same co
 wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
 probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
 predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
-beyond 1 deg / 0.3 m; on real sets, ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are
-within 1 deg / 0.3 m of GICP started at the recorded truth (at the truth's resolution: the scans' own optimum is
-there, not at the recorded pose). ::
+beyond 1 deg / 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg /
+0.3 m of GICP started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's:
+the scans' own optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their
+largest errors (deg, m). ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
@@ -79,7 +80,8 @@ def sim_figures(pairs: int, seed: int, rc) -> dict:
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
         for f in ("dense", "sparse", "solid", "all"):
             m = np.ones(len(fam), bool) if f == "all" else fam == f
-            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar)
+            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
+                                         np.c_[data["rot"][m], data["trans"][m]])
     return out
 
 
@@ -123,8 +125,9 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 rows["pair"].append((y == 1, res.score, res.probability,
                                      cv.label(res.T_target_source, T_ref)[0] == 1, r, t))
                 y = y == 1
-                feats.append((name, "pair", y, *visibility.pose_features(ps.points, res.T_target_source,
-                                                                          pt.polish_cloud, rc.verdict_dist)))
+                f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
+                                             pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
+                feats.append((name, "pair", y, r, t, res.score, *f))
             for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
                 pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
                 if pol.applied:
@@ -133,7 +136,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     y = y == 1
                     rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
                                          cv.label(pol.T_target_source, T_ref)[0] == 1, r, t))
-                    feats.append((name, "good", y, *f))
+                    feats.append((name, "good", y, r, t, f[0], *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
             a = np.array(rows[key], float).reshape(-1, 6)
@@ -145,7 +148,8 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
               flush=True)
     if dump:
         np.savez(dump, set=np.array([f[0] for f in feats]), verdict=np.array([f[1] for f in feats]),
-                 y=np.array([f[2] for f in feats]), x=np.array([f[3:] for f in feats], float))
+                 y=np.array([f[2] for f in feats]), err=np.array([f[3:5] for f in feats], float),
+                 score=np.array([f[5] for f in feats], float), x=np.array([f[6:] for f in feats], float))
     return out
 
 
@@ -158,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
-    ap.add_argument("--dump", type=Path, help="also write the real poses' features here (.npz)")
+    ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
+                    "errors (deg, m) and scores here (.npz)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
@@ -177,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration)
         for k, v in figures["sim"].items():
-            print("sim", k, {kk: v[kk] for kk in list(v)[:9]}, v["reliability"], flush=True)
+            print("sim", k, {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
+                                                      "wrong_accepted_max_err"]}, v["reliability"], flush=True)
     if args.real or args.pair:
         figures["real"] = real_figures(args.real, args.pair, args.trials, reg, args.dump)
     _common.write_json(args.out, "verdict.json", figures)
