@@ -240,9 +240,10 @@ class RegistrationConfig:
     # fitness: share of the source's sampled points within verdict_dist of the target's precision-stage cloud
     verdict_dist: float = 0.5  # m
     verdict_probability: float = 0.7  # a result is valid when its probability of being right reaches this
-    # the global search's answers (other starts than the given one) end the search only from this probability; under
-    # it the remaining starts are tried and the most probable kept: a nearly symmetric place's flip can reach
-    # verdict_probability (simulated courtyard flips scored 0.91-0.92, their right poses 0.97-1.0)
+    # the global search's answers (other starts than the given one) end the search only from this probability; a valid
+    # one under it is weighed against the next best start's, the given start's GICP answer and its own 180-degree twin,
+    # the most probable kept: a nearly symmetric place's flip can reach verdict_probability (simulated courtyard
+    # flips scored 0.91-0.92, their right poses 0.97-1.0)
     verdict_sure: float = 0.95
     # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
@@ -265,8 +266,7 @@ class RegistrationConfig:
     # points (a farthest-point prefix: the same coverage, sparser); the start kept gets the remaining passes on all of
     # them (0 = all: rank on the full clouds)
     global_rank_points: int = 256
-    # none sure (verdict_sure) after the yaw starts: the best turned by 180 deg, starts this far and twice as far around
-    # both
+    # none valid after the yaw starts: the best turned by 180 deg, starts this far and twice as far around both
     global_shift: float = 8.0  # m; 0 = off
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
     # the last pose): GICP alone from it on the precision-stage clouds, judged by the verdict (its spread subset of the

@@ -7,11 +7,13 @@ source's z axis, is ranked by its fitness before the precision stage (:func:`dee
 at twice ``registration.verdict_dist``: the deep estimate is good to decimetres), and the
 ``registration.global_polish`` best get the precision stage and the verdict; the most probable result is kept. The
 search stops early only at an answer that is sure (``registration.verdict_sure``, above the validity bar): in a nearly
-symmetric place a flip can be valid, so an unsure answer lets the remaining starts run, its 180-degree twin
-included. The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
+symmetric place a flip can be valid, so a valid answer that is not sure is weighed against the next best start's,
+the given start's GICP answer and its own 180-degree twin (:func:`twin`), and the most probable kept; an answer from
+another start is valid only with a fitness of ``registration.search_min_score`` (a flip that lays the ground on the
+ground fits little else). The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
 (a prefix of the farthest-point order is a farthest-point sample itself: the same coverage at a quarter of the
-network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is sure, the
-starts are ranked again on all the points and the best finished. When still none is, the best pose turned by 180
+network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is valid, the
+starts are ranked again on all the points and the best finished. When still none passes, the best pose turned by 180
 degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
@@ -180,9 +182,10 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
 
 
 def retry(reg: Any, st: Any, clock: Any) -> Any:
-    """The answer still fails the verdict after the precision stage: the next best starts of the search (the
-    given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
-    verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+    """The answer still fails the verdict after the precision stage, or came from another start and is not sure
+    (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
+    precision stage and the verdict, then (still not sure) the given start's GICP answer and the best one's twin; the
+    most probable valid answer wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
@@ -211,13 +214,13 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
         best = _finish_best(reg, st, best, [st.T_start, twin(best.T, st.src_np)], _from_pose(reg))
     n = min(len(st.src_np), len(st.tgt_np))
-    if not sure(best, rc) and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
+    if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
         probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)
         with torch.inference_mode(), reg.network.torch_threads():
             before_precision(reg, probe, clock, force=True, full=True)
         if probe.replaced is not None:
             best = _finish_best(reg, st, best, [(probe.R, probe.t, probe.gamma)], from_tensors)
-    if not sure(best, rc) and rc.global_shift > 0:  # right yaw, slid along a road; or a flip: shifted, turned starts
+    if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
         best = _shift_retry(reg, best, st)
     clock.lap("global")
     return best
