@@ -240,6 +240,15 @@ class RegistrationConfig:
     # fitness: share of the source's sampled points within verdict_dist of the target's precision-stage cloud
     verdict_dist: float = 0.5  # m
     verdict_probability: float = 0.7  # a result is valid when its probability of being right reaches this
+    # the global search's answers (other starts than the given one) end the search only from this probability; a valid
+    # one under it is weighed against the next best start's, the given start's GICP answer and its own 180-degree twin,
+    # the most probable kept: a nearly symmetric place's flip can reach verdict_probability (simulated courtyard
+    # flips scored 0.91-0.92, their right poses 0.97-1.0)
+    verdict_sure: float = 0.95
+    # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
+    # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
+    # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)
+    search_min_score: float = 0.1
     # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
     # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated
     verdict_threshold: float = 0.35
@@ -257,8 +266,8 @@ class RegistrationConfig:
     # points (a farthest-point prefix: the same coverage, sparser); the start kept gets the remaining passes on all of
     # them (0 = all: rank on the full clouds)
     global_rank_points: int = 256
-    global_shift: float = 8.0  # m; none valid after the yaw starts: the best turned by 180 deg, starts this far and
-    # twice as far around both
+    # none valid after the yaw starts: the best turned by 180 deg, starts this far and twice as far around both
+    global_shift: float = 8.0  # m; 0 = off
     # register(..., good_start=True), the caller vouches for T_init (consecutive scans, a fixed mounting, a map from
     # the last pose): GICP alone from it on the precision-stage clouds, judged by the verdict (its spread subset of the
     # source's GICP voxels, ground included); the full pipeline (deep passes, search) runs only when that rejects
@@ -309,6 +318,8 @@ class RegistrationConfig:
         _check(self.verdict_dist > 0, "registration.verdict_dist", "must be > 0")
         _check(0 <= self.verdict_threshold <= 1, "registration.verdict_threshold", "must be in [0, 1]")
         _check(0 <= self.verdict_probability <= 1, "registration.verdict_probability", "must be in [0, 1]")
+        _check(0 <= self.verdict_sure <= 1, "registration.verdict_sure", "must be in [0, 1]")
+        _check(0 <= self.search_min_score <= 1, "registration.search_min_score", "must be in [0, 1]")
         _check(self.global_search in ("auto", "always", "off"), "registration.global_search",
                f"must be 'auto', 'always' or 'off', got {self.global_search!r}")
         _check(self.global_yaws >= 1, "registration.global_yaws", "must be >= 1 (1 = the given start only)")

@@ -80,3 +80,23 @@ def test_probability_is_empty_safe_and_the_setting_is_checked():
 
     with pytest.raises(ConfigError, match="registration.verdict_probability"):
         Config.from_dict({"registration": {"verdict_probability": 1.5}})
+
+
+def test_a_feature_left_out_of_the_fit_gets_no_weight():
+    """scripts/calibrate_verdict.py can leave features out of the fit (coefficient 0), and the shipped model is
+    fitted with scripts/calibrate_verdict.py's UNUSED ones left out."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import calibrate_verdict as cv
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(200, len(visibility.FEATURES)))
+    y = (X[:, 0] + 0.5 * X[:, 2] + rng.normal(0, 0.3, 200) > 0).astype(float)
+    coef, _ = cv.fit_logistic(X, y, unused=("plane_close",))
+    i = visibility.FEATURES.index("plane_close")
+    assert coef[i] == 0.0 and coef[0] > 0
+    for name in ("pair", "good_start"):
+        for f in cv.UNUSED:
+            assert calibrated.load()[name][0][visibility.FEATURES.index(f)] == 0.0

@@ -5,8 +5,12 @@ degrees). ``registration.global_yaws`` starts ``360 / global_yaws`` degrees apar
 the cone with margin) cover the whole circle: each runs the deep passes from the start guess turned about the
 source's z axis, is ranked by its fitness before the precision stage (:func:`deepbbs_ros.core.verdict.fitness`
 at twice ``registration.verdict_dist``: the deep estimate is good to decimetres), and the
-``registration.global_polish`` best get the precision stage and the verdict; the result with the best verdict
-score is kept. The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
+``registration.global_polish`` best get the precision stage and the verdict; the most probable result is kept. The
+search stops early only at an answer that is sure (``registration.verdict_sure``, above the validity bar): in a nearly
+symmetric place a flip can be valid, so a valid answer that is not sure is weighed against the next best start's,
+the given start's GICP answer and its own 180-degree twin (:func:`twin`), and the most probable kept; an answer from
+another start is valid only with a fitness of ``registration.search_min_score`` (a flip that lays the ground on the
+ground fits little else). The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
 (a prefix of the farthest-point order is a farthest-point sample itself: the same coverage at a quarter of the
 network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is valid, the
 starts are ranked again on all the points and the best finished. When still none passes, the best pose turned by 180
@@ -178,13 +182,16 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
 
 
 def retry(reg: Any, st: Any, clock: Any) -> Any:
-    """The answer still fails the verdict after the precision stage: the next best starts of the search (the
-    given one included, ``global_polish`` in all) through the precision stage and the verdict; the best
-    verdict score wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+    """The answer still fails the verdict after the precision stage, or came from another start and is not sure
+    (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
+    precision stage and the verdict, then (still not sure) the given start's GICP answer and the best one's twin; the
+    most probable valid answer wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
-    if (st.valid or rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep
-            or not rc.deep):
-        return st
+    if st.replaced is not None:
+        _floor(st, rc)  # the answer came from another start: the search's fitness floor
+    if ((st.valid and (st.replaced is None or sure(st, rc))) or rc.global_search == "off" or not st.yaw_search
+            or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep):
+        return st  # the given start's valid answer, or a search answer that is sure
 
     def tensors(out: Any) -> tuple:
         return tuple(torch.as_tensor(x, dtype=torch.float32, device=reg.device) for x in (out.R, out.t, out.gamma))
@@ -204,6 +211,8 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
         cand.R, cand.t, cand.gamma = start
 
     best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
+    if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
+        best = _finish_best(reg, st, best, [st.T_start, twin(best.T, st.src_np)], _from_pose(reg))
     n = min(len(st.src_np), len(st.tgt_np))
     if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
         probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)
@@ -219,19 +228,54 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
 def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
     """Each deep answer of ``starts`` (in order) set on a copy of ``st`` by ``apply(cand, start)``, then the
-    precision stage, the deskew stage and the verdict; the most probable so far is kept, and the first valid one
-    ends the loop."""
+    precision stage, the deskew stage and the verdict; the most probable so far is kept, and the first sure one
+    (:func:`sure`) ends the loop."""
     for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
         apply(cand, start)
         reg._polish(cand, Clock(reg.device))
         reg._deskew(cand, Clock(reg.device))
         reg._verdict(cand)
-        if (cand.probability, cand.score) > (best.probability, best.score):
+        _floor(cand, reg.config.registration)
+        if (cand.valid, cand.probability, cand.score) > (best.valid, best.probability, best.score):
             best = cand
-        if best.valid:
+        if sure(best, reg.config.registration):
             break
     return best
+
+
+def twin(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The pose T (4, 4) turned by 180 degrees about the vertical through the centroid of ``points`` (N, 3) (source
+    frame) moved by it: in a place symmetric about a vertical axis, a flip and the right pose are each other's
+    twin about the part of the place both scans see."""
+    pts = np.asarray(points, np.float64)
+    c = pts.mean(axis=0) @ T[:3, :3].T + T[:3, 3] if len(pts) else T[:3, 3]
+    S = np.diag([-1.0, -1.0, 1.0, 1.0])
+    S[:2, 3] = 2.0 * c[:2]  # p -> 2c - p horizontally: a half turn about c
+    return S @ np.asarray(T, np.float64)
+
+
+def _from_pose(reg: Any) -> Callable[[Any, np.ndarray], None]:
+    """``apply`` for :func:`_finish_best` from a pose (4, 4) metres: the precision stage starts there."""
+    def apply(cand: Any, T: np.ndarray) -> None:
+        cand.R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=reg.device)
+        cand.t = torch.as_tensor(T[:3, 3] * reg.model.scale, dtype=torch.float32, device=reg.device)
+    return apply
+
+
+def _floor(st: Any, rc: Any) -> None:
+    """A search answer (from another start than the given one) is valid only when its fitness also reaches
+    ``registration.search_min_score``: a flip that lays the ground on the ground but nothing else is not."""
+    if st.valid and st.score < rc.search_min_score:
+        st.valid = False
+
+
+def sure(st: Any, rc: Any) -> bool:
+    """A search answer ends the search: valid, and its probability reaches ``registration.verdict_sure`` (a
+    symmetric place's flip can be valid; the search then tries its remaining starts and keeps the most probable)."""
+    if st.src_pc is None or st.tgt_pc is None:  # no precision stage: an uncalibrated probability, the score decides
+        return bool(st.valid)
+    return bool(st.valid and st.probability >= rc.verdict_sure)
 
 
 def _shift_retry(reg: Any, best: Any, st: Any) -> Any:

@@ -17,7 +17,10 @@ Both verdicts judge a spread subset of the source's GICP voxels with the same co
 wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
 probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
 predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
-beyond 1 deg / 0.3 m. ::
+beyond 1 deg / 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg /
+0.3 m of GICP started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's:
+the scans' own optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their
+largest errors (deg, m). ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
@@ -41,20 +44,28 @@ FAMILY = {"hdl64": "dense", "ouster64": "dense", "os0_64": "dense", "os0_128": "
           "os1_128": "dense", "avia": "solid", "mid360": "solid"}  # every other simulated sensor: sparse
 
 
-def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar: float) -> dict:
-    """Counts and the reliability curve of one set of poses (labels y, fitness score, probability prob)."""
+def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar: float,
+            near_ref: np.ndarray | None = None, err: np.ndarray | None = None) -> dict:
+    """Counts and the reliability curve of one set of poses (labels y, fitness score, probability prob; ``near_ref``:
+    whether each is within 1 deg / 0.3 m of GICP started at the truth, the truth's resolution on real scans)."""
     y = np.asarray(y, bool)
     bins = []
     for lo in np.arange(0.0, 1.0, 0.1):
         m = (prob >= lo) & ((prob < lo + 0.1) | (lo >= 0.9))
         if m.any():
             bins.append({"p": f"{lo:.1f}-{lo + 0.1:.1f}", "n": int(m.sum()), "right": round(float(y[m].mean()), 3)})
-    return {"poses": int(len(y)), "right": int(y.sum()), "wrong": int((~y).sum()),
+    out = {"poses": int(len(y)), "right": int(y.sum()), "wrong": int((~y).sum()),
             "old_wrong_accepted": int(np.sum(~y & (score >= old))),
             "old_right_rejected": int(np.sum(y & (score < old))),
             "wrong_accepted": int(np.sum(~y & (prob >= bar))), "right_rejected": int(np.sum(y & (prob < bar))),
             "max_wrong_p": round(float(prob[~y].max()), 3) if (~y).any() else None,
             "min_right_p": round(float(prob[y].min()), 3) if y.any() else None, "reliability": bins}
+    if near_ref is not None:  # wrong by the recorded truth, right by GICP from it: at the truth's resolution
+        out["wrong_accepted_near_gicp_truth"] = int(np.sum(~y & (prob >= bar) & np.asarray(near_ref, bool)))
+    if err is not None and np.any(~y & (prob >= bar)):  # the largest errors of the wrong poses accepted (deg, m)
+        e = np.asarray(err, float)[~y & (prob >= bar)]
+        out["wrong_accepted_max_err"] = [round(float(e[:, 0].max()), 2), round(float(e[:, 1].max()), 2)]
+    return out
 
 
 def sim_figures(pairs: int, seed: int, rc) -> dict:
@@ -69,7 +80,8 @@ def sim_figures(pairs: int, seed: int, rc) -> dict:
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
         for f in ("dense", "sparse", "solid", "all"):
             m = np.ones(len(fam), bool) if f == "all" else fam == f
-            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar)
+            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
+                                         np.c_[data["rot"][m], data["trans"][m]])
     return out
 
 
@@ -105,28 +117,39 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 starts = [None]
                 ps = reg.preprocess(s.points, s.point_times(), s.stamp_ns)
                 pt = reg.preprocess(t.points, t.point_times(), t.stamp_ns)
+            ref = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, T_gt, rc)  # GICP from the truth
+            T_ref = ref.T_target_source if ref.applied else T_gt
             for T0 in starts:
                 res = reg.register(ps, pt, T_init=T0, preprocessed=True)
-                y = cv.label(res.T_target_source, T_gt)[0] == 1
-                rows["pair"].append((y, res.score, res.probability))
-                feats.append((name, "pair", y, *visibility.pose_features(ps.points, res.T_target_source,
-                                                                          pt.polish_cloud, rc.verdict_dist)))
+                y, r, t = cv.label(res.T_target_source, T_gt)
+                rows["pair"].append((y == 1, res.score, res.probability,
+                                     cv.label(res.T_target_source, T_ref)[0] == 1, r, t))
+                y = y == 1
+                f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
+                                             pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
+                feats.append((name, "pair", y, r, t, res.score, *f))
             for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
                 pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
                 if pol.applied:
                     f = cv.rows_of(ps, pt, pol.T_target_source, rc)[1]
-                    y = cv.label(pol.T_target_source, T_gt)[0] == 1
-                    rows["good"].append((y, f[0], calibrated.probability(f, "good_start")))
-                    feats.append((name, "good", y, *f))
+                    y, r, t = cv.label(pol.T_target_source, T_gt)
+                    y = y == 1
+                    rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
+                                         cv.label(pol.T_target_source, T_ref)[0] == 1, r, t))
+                    feats.append((name, "good", y, r, t, f[0], *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
-            a = np.array(rows[key], float).reshape(-1, 3)
-            out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar)
-        print(name, {k: {kk: v[kk] for kk in list(v)[:9]} for k, v in out.items() if k.endswith("/" + name)},
+            a = np.array(rows[key], float).reshape(-1, 6)
+            out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
+                                               a[:, 4:6])
+        print(name, {k: {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
+                                                  "wrong_accepted_max_err"]}
+                     for k, v in out.items() if k.endswith("/" + name)},
               flush=True)
     if dump:
         np.savez(dump, set=np.array([f[0] for f in feats]), verdict=np.array([f[1] for f in feats]),
-                 y=np.array([f[2] for f in feats]), x=np.array([f[3:] for f in feats], float))
+                 y=np.array([f[2] for f in feats]), err=np.array([f[3:5] for f in feats], float),
+                 score=np.array([f[5] for f in feats], float), x=np.array([f[6:] for f in feats], float))
     return out
 
 
@@ -139,19 +162,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
-    ap.add_argument("--dump", type=Path, help="also write the real poses' features here (.npz)")
+    ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
+                    "errors (deg, m) and scores here (.npz)")
+    ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
+                    "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
+    if args.model:
+        from deepbbs_ros.core import calibrated
+
+        calibrated.DEFAULT_PATH = args.model.resolve()
 
     from deepbbs_ros.config import Config
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
     reg = DeepBBSRegistration(Config())
     figures = {"thresholds": {"old": OLD, "pair": reg.config.registration.verdict_probability,
-                              "good_start": reg.config.registration.good_start_probability}}
+                              "good_start": reg.config.registration.good_start_probability},
+               "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration)
         for k, v in figures["sim"].items():
-            print("sim", k, {kk: v[kk] for kk in list(v)[:9]}, v["reliability"], flush=True)
+            print("sim", k, {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
+                                                      "wrong_accepted_max_err"]}, v["reliability"], flush=True)
     if args.real or args.pair:
         figures["real"] = real_figures(args.real, args.pair, args.trials, reg, args.dump)
     _common.write_json(args.out, "verdict.json", figures)
