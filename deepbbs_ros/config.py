@@ -550,6 +550,10 @@ class LocalizationConfig:
     # first answer's probability (min_probability's) is at least this; below, no pose at once (a scan outside the
     # map: the retries would double its time to "no pose"); 0 = always retry
     retry_probability: float = 0.05
+    # descriptor distance (0..1, descriptor_margin's) of the best-ranked place from which on a first round under
+    # retry_probability ends the search (the descriptor matches no place either: simulated and real in-map scans
+    # 0.13-0.51, scans from elsewhere 0.31-0.46); 0 = the probability alone
+    retry_descriptor: float = 0.35
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
     # the GICP of a candidate place (the precision stage of its registration, GICP alone, the probes) looks at its fit
@@ -641,6 +645,7 @@ class LocalizationConfig:
         _check(self.probe_voxel >= 0, "localization.probe_voxel", "must be >= 0 (0 = the scan's own GICP cloud)")
         _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
         _check(0 <= self.retry_probability <= 1, "localization.retry_probability", "must be in [0, 1]")
+        _check(0 <= self.retry_descriptor <= 1, "localization.retry_descriptor", "must be in [0, 1]")
         _check(self.far_probe >= 0, "localization.far_probe", "must be >= 0 (0 = no far probe)")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")

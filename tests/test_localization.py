@@ -318,13 +318,14 @@ def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
 
 def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
     """Every first answer's probability far below the bar (under localization.retry_probability): no pose at once,
-    without the retries (GICP alone, the opposite yaw, slid poses) that only a nearly right answer can profit from;
-    retry_probability 0 always retries."""
+    without the retries (GICP alone, the opposite yaw, slid poses) that only a nearly right answer can profit from
+    (retry_descriptor 0: whatever the descriptor's match); retry_probability 0 always retries."""
     _, _, _, other = world
     scan = other.scan_at(3).points
     old = localizer.config
     try:
-        res = localizer.localize(scan)  # the default
+        localizer.config = old.replace(**{"localization.retry_probability": 0.05, "localization.retry_descriptor": 0.0})
+        res = localizer.localize(scan)
         localizer.config = old.replace(**{"localization.retry_probability": 0.0})  # always retry
         slow = localizer.localize(scan)
     finally:

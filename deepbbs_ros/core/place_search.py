@@ -89,14 +89,16 @@ class PlaceSearch:
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
-        if not any(a.ok for a in answers) and not top.prob < lc.retry_probability:
-            # no place accepted: the failed starts again, unless even the best is far below (a scan outside the map)
+        outside = top.prob < lc.retry_probability and ranked[0][1] >= lc.retry_descriptor
+        if not any(a.ok for a in answers) and not outside:
+            # no place accepted: the failed starts again, unless the best answer is far below the bar and no place
+            # looks like the scan either (a scan outside the map)
             self._retry(src, answers, failed, timings)
         answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
             why = (f"best probability {best.prob:.2f} < {self._threshold:.2f}, score {best.score:.2f}"
-                   + (": scan outside the map?" if best.prob < lc.retry_probability else ""))
+                   + (": scan outside the map?" if outside else ""))
             return LocalizationResult(best.T, False, best.score, "global", f"no candidate place passed the verdict "
                                       f"({why})", candidates=n, path="deepbbs", place=best.place,
                                       probability=best.prob)
