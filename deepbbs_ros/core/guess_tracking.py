@@ -52,7 +52,9 @@ class GuessTracking:
             score, T_map_scan = ans.score, ans.T
             if ans.ok:
                 self._track_scores.append(ans.score)
-                return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+                res = self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+                res.probability = ans.prob
+                return res
         recent = float(np.median(self._track_scores)) if len(self._track_scores) >= 2 else float("nan")
         if np.isfinite(score) and score < lc.track_drop * recent:  # nan-safe: no recent scores, no shortcut
             # far below the recent scans' scores: not a poor fit but another place (a kidnap, the map's end); the
