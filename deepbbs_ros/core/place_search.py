@@ -90,10 +90,11 @@ class PlaceSearch:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
         outside = top.prob < lc.retry_probability and ranked[0][1] >= lc.retry_descriptor
-        if not any(a.ok for a in answers) and not outside:
-            # no place accepted: the failed starts again, unless the best answer is far below the bar and no place
-            # looks like the scan either (a scan outside the map)
-            self._retry(src, answers, failed, timings)
+        if not any(a.ok for a in answers):
+            # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
+            # early) when the best answer is far below the bar and no place looks like the scan either (outside the
+            # map?)
+            self._retry(src, answers, failed, timings, quick=outside)
         answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
@@ -125,19 +126,21 @@ class PlaceSearch:
                                   probability=best.prob)
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-               timings: dict[str, float]) -> None:
+               timings: dict[str, float], quick: bool = False) -> None:
         """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
         ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
         still none: the best once more with the registration's global search (the right place with a poor pose?); still
         none: GICP alone from far_probe m ahead of and behind the best pose and the best-ranked place's (:meth:`_slid`:
         a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
-        no outcome there, at 0.4 s a query), nor when the best first answer's probability is under
-        ``localization.retry_probability`` (:meth:`_global`)."""
+        no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
+        probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
         for k, _, T_init, _ in failed:
             answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+        if quick:
+            return
         if not any(a.ok for a in answers):
             for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:
