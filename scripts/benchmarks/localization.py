@@ -381,11 +381,11 @@ class MapLocalizerMethod:
         dt = time.perf_counter() - t0
         if self.exact is None:
             return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
-                          probability=float(r.probability))
+                          probability=float(getattr(r, "probability", np.nan)))
         t0 = time.perf_counter()
         r = self.exact.localize(scan)
         return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
-                      exact_time_s=time.perf_counter() - t0, probability=float(r.probability))
+                      exact_time_s=time.perf_counter() - t0, probability=float(getattr(r, "probability", np.nan)))
 
 
 class Isolated(_common.Isolated):
