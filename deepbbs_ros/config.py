@@ -547,22 +547,9 @@ class LocalizationConfig:
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
     # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
     confident_score: float = 0.8
-    # the verdict score an answer needs to be accepted (with registration.verdict_threshold): a map crop is complete,
-    # a true pose scores ~0.85-0.95 on it in a town (0.6-0.95 on a highway), a wrong place or pose up to ~0.6
-    min_score: float = 0.6
-    # a global answer under min_score (but valid by registration.verdict_threshold) is still accepted when it is sharp:
-    # of the scan points within sharp_dist of the map (those the map covers), this share lies within
-    # registration.verdict_dist; right poses under min_score scored 0.905-0.97, wrong candidates up to 0.872; it must
-    # then beat every other answer (any score) by ambiguity_margin and survive the probe. 0 = off
-    sharp_score: float = 0.9
-    sharp_dist: float = 1.0  # m; the scan points with the map this close count as covered (the sharp_score's base)
-    # a global answer under min_score and not sharp is still accepted when the answers of two candidate places agree on
-    # it (within 1 deg / 0.3 m: two starts, one basin), it is at least agree_sharp sharp, and every answer more than
-    # ambiguity_distance away scores at least agree_margin lower (a map that covers part of the scan: real KITTI
-    # scans on a map of 50 m scans score 0.59, sharpness 0.87-0.89, every other place under 0.26); it must then
-    # survive the rivals' check and the probe. 0 = off
-    agree_margin: float = 0.2
-    agree_sharp: float = 0.85  # see agree_margin
+    # every answer in a map (a search's, tracking's, a hint's) is accepted when the map verdict's probability that it
+    # is right (core/map_verdict.py, calibrated on simulated maps of every kind of place) reaches this
+    min_probability: float = 0.7
     # the registration's own global search (other start yaws, shifted starts) on each candidate: "off" (the
     # descriptor's yaw is good to a sector; the search costs ~1 s per wrong place) or "auto" (as configured)
     candidate_search: str = "off"
@@ -571,10 +558,13 @@ class LocalizationConfig:
     # 0 = never
     flip_starts: int = 4
     # the failed candidates are retried (GICP alone, the opposite yaw, poses slid along the road) only when the best
-    # first answer scores at least this; below, no pose at once. Scans from outside the map score 0.08-0.35 there and
-    # the retries double their time to "no pose", but real scans inside a map can too (nuScenes at 2 Hz: 0.08-0.17,
-    # then placed by the retries): 0 = always retry (the default)
-    retry_floor: float = 0.0
+    # first answer's probability (min_probability's) is at least this; below (and retry_descriptor), GICP alone only,
+    # then no pose (a scan outside the map: the other retries would double its time to "no pose"); 0 = always retry
+    retry_probability: float = 0.05
+    # descriptor distance (0..1, descriptor_margin's) of the best-ranked place from which on a first round under
+    # retry_probability ends the search (the descriptor matches no place either: simulated and real in-map scans
+    # 0.13-0.51, scans from elsewhere 0.31-0.46); 0 = the probability alone
+    retry_descriptor: float = 0.35
     candidate_separation: float = 12.0  # m; places closer than this count as one candidate (the best kept)
     crop_radius: float = 0.0  # m; map points within this of a place form its registration target; 0 = max_range
     # the GICP of a candidate place (the precision stage of its registration, GICP alone, the probes) looks at its fit
@@ -609,10 +599,6 @@ class LocalizationConfig:
     # pose then wins); when no place is accepted, the best answer from this far ahead and behind (a pose slid along
     # the road); 0 = none
     far_probe: float = 3.5
-    # a rival answer at another place ties only when it is also about as sharp (localization.sharp_score's measure):
-    # at most this much less sharp than the chosen pose (right poses measured 0.87-0.97, look-alike places on a
-    # highway up to 0.87 with their score within ambiguity_margin of the right pose's); 1 = score alone
-    ambiguity_sharp_margin: float = 0.04
     # m; the accepted pose is refined by a second GICP on the same clouds with this correspondence distance (the
     # registration's 2 m leaves 0.2-0.6 m along a road with few features: the far pairs pull); 0 = off
     refine_corr_dist: float = 0.5
@@ -654,11 +640,7 @@ class LocalizationConfig:
         _check(self.top_k >= 1, "localization.top_k", "must be >= 1")
         _check(self.rank_shortlist >= 0, "localization.rank_shortlist", "must be >= 0 (0 = every place)")
         _check(0 <= self.descriptor_margin <= 1, "localization.descriptor_margin", "must be in [0, 1]")
-        _check(0 <= self.min_score <= 1, "localization.min_score", "must be in [0, 1]")
-        _check(0 <= self.sharp_score <= 1, "localization.sharp_score", "must be in [0, 1]")
-        _check(0 <= self.agree_margin <= 1, "localization.agree_margin", "must be in [0, 1] (0 = off)")
-        _check(0 <= self.agree_sharp <= 1, "localization.agree_sharp", "must be in [0, 1]")
-        _check(self.sharp_dist > 0, "localization.sharp_dist", "must be > 0")
+        _check(0 <= self.min_probability <= 1, "localization.min_probability", "must be in [0, 1]")
         _check(0 <= self.confident_score <= 1, "localization.confident_score", "must be in [0, 1]")
         _check(self.candidate_search in ("off", "auto"), "localization.candidate_search",
                f"must be 'off' or 'auto', got {self.candidate_search!r}")
@@ -673,9 +655,9 @@ class LocalizationConfig:
         _check(0 <= self.ambiguity_probe_margin <= 1, "localization.ambiguity_probe_margin", "must be in [0, 1]")
         _check(self.probe_voxel >= 0, "localization.probe_voxel", "must be >= 0 (0 = the scan's own GICP cloud)")
         _check(self.flip_starts >= 0, "localization.flip_starts", "must be >= 0")
-        _check(0 <= self.retry_floor <= 1, "localization.retry_floor", "must be in [0, 1]")
+        _check(0 <= self.retry_probability <= 1, "localization.retry_probability", "must be in [0, 1]")
+        _check(0 <= self.retry_descriptor <= 1, "localization.retry_descriptor", "must be in [0, 1]")
         _check(self.far_probe >= 0, "localization.far_probe", "must be >= 0 (0 = no far probe)")
-        _check(0 <= self.ambiguity_sharp_margin <= 1, "localization.ambiguity_sharp_margin", "must be in [0, 1]")
         _check(self.track_search_radius >= 0, "localization.track_search_radius", "must be >= 0 (0 = none)")
         _check(self.refine_corr_dist >= 0, "localization.refine_corr_dist", "must be >= 0 (0 = off)")
         _check(0 <= self.track_drop <= 1, "localization.track_drop", "must be in [0, 1]")

@@ -140,7 +140,7 @@ def test_params_file_reaches_the_node_under_its_name(tmp_path):
     from rclpy.context import Context
 
     doc = yaml.safe_load(PARAMS.read_text())
-    doc[managed.NODE_NAME]["ros__parameters"]["localization"]["min_score"] = 0.65
+    doc[managed.NODE_NAME]["ros__parameters"]["localization"]["min_probability"] = 0.65
     path = tmp_path / "params.yaml"
     path.write_text(yaml.safe_dump(doc))
     ctx = Context()
@@ -149,7 +149,7 @@ def test_params_file_reaches_the_node_under_its_name(tmp_path):
         node = managed.LocalizerNode(context=ctx)
         try:
             assert node.get_name() == managed.NODE_NAME and node.parameter_warnings == []
-            assert node.get_parameter("localization.min_score").value == 0.65
+            assert node.get_parameter("localization.min_probability").value == 0.65
             assert node.get_parameter("node.target_mode").value == "localization"
         finally:
             node.destroy_node()

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core import acceptance, map_verdict
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud
 
 
@@ -51,7 +52,9 @@ class GuessTracking:
             score, T_map_scan = ans.score, ans.T
             if ans.ok:
                 self._track_scores.append(ans.score)
-                return self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+                res = self._tracked(src, crop, ans.T, ans.score, path, near, timings)
+                res.probability = ans.prob
+                return res
         recent = float(np.median(self._track_scores)) if len(self._track_scores) >= 2 else float("nan")
         if np.isfinite(score) and score < lc.track_drop * recent:  # nan-safe: no recent scores, no shortcut
             # far below the recent scans' scores: not a poor fit but another place (a kidnap, the map's end); the
@@ -67,7 +70,7 @@ class GuessTracking:
         path = getattr(reg, "path", "") or "deepbbs"
         if not (reg.score <= score):  # nan-safe: the better of the two
             score, T_map_scan = float(reg.score), crop.T_map_place @ reg.T_target_source
-        if self._accepts_fit(reg.score):
+        if self._accepts_at(src, crop, crop.T_map_place @ reg.T_target_source):
             return self._tracked(src, crop, crop.T_map_place @ reg.T_target_source, float(reg.score), path, near,
                                  timings)
         if lc.track_search_radius > 0:  # a local search among the places around the guess
@@ -95,10 +98,9 @@ class GuessTracking:
                     place: int) -> tuple[_Answer | None, float]:
         """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
         (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
-        (``good_start_points``) on the crop, accepted by the map's own bar (``localization.min_score``), as every
-        answer in a map: the verdict's probability is calibrated on scan-to-scan pairs, and on a map crop it runs
-        low for right poses (0.8-0.9 at fitness 0.92-0.96 on a simulated OS1-64 drive), which sent tracked scans
-        down the slow path and dropped the ones behind them.
+        (``good_start_points``) on the crop, judged by the map verdict (core/map_verdict.py) as every answer in a
+        map (the registration's good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran
+        low for right poses).
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
         GICP did not apply, the score at the guess itself when it did not, else nan)."""
         from deepbbs_ros.core import verdict
@@ -115,5 +117,6 @@ class GuessTracking:
             return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
         T = pol.T_target_source
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        ok = self._accepts(True, score)
-        return _Answer(score, ok, crop.T_map_place @ T, place, crop), float("nan")
+        prob = map_verdict.probability(map_verdict.features(pts, T, tpc, rc.verdict_dist))
+        return (_Answer(score, acceptance.accepts(self.config, prob), crop.T_map_place @ T, place, crop, prob=prob),
+                float("nan"))

@@ -18,24 +18,21 @@
                 map crop (the map within localization.crop_radius of the place: a view of the map's GICP cloud,
                 prepared once with the map (localization.shared_cloud), and the network's points sampled from it,
                 kept in an LRU) from the descriptor's yaw (GICP alone beside an answer under confident_score: a
-                lane off?); when no place is accepted (and the best scores localization.retry_floor or more), the
-                failed ones again with GICP alone (accepted only when sharp, below), then DeepBBS++ from the
-                opposite yaw (localization.flip_starts); the verdict (valid / score) chooses
-    ambiguity   two valid answers at places more than localization.ambiguity_distance apart with scores within
-                ambiguity_margin and sharpness within ambiguity_sharp_margin: no pose ("ambiguous"); the chosen pose
-                is also probed by GICP from starts ambiguity_probe m off and far_probe m ahead, behind and to either
-                side: a pose that slides (a featureless road) is ambiguous too, a better optimum nearby (the next
-                lane, the next repeat of a facade) replaces it (this rule and the next: core/acceptance.py)
-    sharp       when none reaches localization.min_score, the best (refined as below) is still accepted when it
-                is sharp (of the scan points within sharp_dist of the map, a share >= sharp_score within
-                verdict_dist: the right pose seen from another carriageway), or when two candidate places' answers
-                agree on it, it is agree_sharp sharp and nothing elsewhere comes within agree_margin (a map that
-                covers part of the scan); and it beats every other answer, accepted or not, by ambiguity_margin
+                lane off?); every answer is judged by the map verdict (core/map_verdict.py: the probability that
+                the pose is right, calibrated on simulated maps) against localization.min_probability; when no
+                place is accepted (and the best's probability is localization.retry_probability or more: else a
+                scan outside the map, no pose at once), the failed ones again with GICP alone, then DeepBBS++ from
+                the opposite yaw (localization.flip_starts), then GICP from poses slid along the road
+    ambiguity   two accepted answers at places more than localization.ambiguity_distance apart with scores within
+                ambiguity_margin: no pose ("ambiguous"); the chosen pose is also probed by GICP from starts
+                ambiguity_probe m off and far_probe m ahead, behind and to either side: a pose that slides (a
+                featureless road) is ambiguous too, a better optimum nearby (the next lane, the next repeat of a
+                facade) replaces it (core/acceptance.py)
     refine      a second GICP from the accepted pose with localization.refine_corr_dist (a tracked one too with
                 localization.refine_tracking)
 
 With a guess (tracking, core/guess_tracking.py): GICP of the scan on the crop of the place nearest the guess, from
-the guess, and the verdict (``DeepBBSRegistration.register(..., good_start=True)`` instead when the registration
+the guess, and the map verdict (``DeepBBSRegistration.register(..., good_start=True)`` instead when the registration
 offers it); DeepBBS++ from the guess when that is rejected, and the places within localization.track_search_radius
 (as above) when that is too.
 
@@ -427,7 +424,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
             best.candidates += 1
             T_map_scan = crop.T_map_place @ reg.T_target_source
-            if self._accepts_fit(reg.score):
+            if self._accepts_at(src, crop, T_map_scan):
                 res = self._tracked(src, crop, T_map_scan, float(reg.score), "deepbbs", near, timings)
                 res.mode, res.candidates = "hint", best.candidates
                 best = res
@@ -484,20 +481,9 @@ class MapLocalizer(GuessTracking, PlaceSearch):
     def _threshold(self) -> float:
         return acceptance.threshold(self.config)
 
-    def _accepts(self, valid: bool, score: float) -> bool:
-        return acceptance.accepts(self.config, valid, score)
-
-    def _accepts_fit(self, score: float) -> bool:
-        return acceptance.accepts_fit(self.config, score)
-
-    def _sharpness(self, src: Any, ans: _Answer) -> float:
-        return acceptance.sharpness(src, ans, self.config, self.registration)
-
-    def _sharp(self, src: Any, ans: _Answer) -> bool:
-        return acceptance.sharp(src, ans, self.config, self.registration)
-
-    def _agreed(self, src: Any, answers: list[_Answer], best: _Answer) -> bool:
-        return acceptance.agreed(src, answers, best, self.config, self.registration)
+    def _accepts_at(self, src: Any, crop: _Crop, T_map_scan: np.ndarray) -> bool:
+        """The map verdict accepts the scan at ``T_map_scan`` on ``crop``."""
+        return acceptance.accepts(self.config, acceptance.probability(src, crop, T_map_scan, self.config))
 
     # -- GICP: refine, covariance ----------------------------------------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:

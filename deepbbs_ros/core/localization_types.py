@@ -36,6 +36,8 @@ class LocalizationResult:
         crop: (M, 3) float32 the map points used (the chosen crop's GICP cloud), map frame; None when none.
         place: index into :attr:`MapLocalizer.places` of the crop that answered (-1: a crop at the guess / none).
         alternatives: [(x, y, score)] of the other valid answers of a global search (map frame, m).
+        probability: the map verdict's probability that ``T_map_scan`` is right (core/map_verdict.py; nan when not
+            judged).
         covariance: (6, 6) float64 covariance of ``T_map_scan`` for every valid pose (ROS order x, y, z, rot x, rot y,
             rot z; position error in the map frame, rotation error a left perturbation: core/covariance.py), from the
             GICP of the scan on the crop at the pose; None when not valid or none could be computed.
@@ -56,6 +58,7 @@ class LocalizationResult:
     place: int = -1
     alternatives: list[tuple[float, float, float]] = field(default_factory=list)
     covariance: np.ndarray | None = None
+    probability: float = float("nan")
 
 
 @dataclass
@@ -77,13 +80,13 @@ class _Crop:
 @dataclass
 class _Answer:
     score: float
-    ok: bool  # accepted by the verdict and localization.min_score
+    ok: bool  # accepted: the map verdict's probability reaches localization.min_probability
     T: np.ndarray  # T_map_scan
     place: int
     crop: _Crop
     probe: bool = False  # from the GICP probe around the best answer
     gicp: bool = False  # from GICP alone (the network's answer failed or scored low)
-    sharp: float | None = None  # MapLocalizer._sharpness, once measured
+    prob: float = 0.0  # the map verdict's probability that the pose is right (core/map_verdict.py)
     refined: bool = False  # MapLocalizer._refined has seen it
 
 

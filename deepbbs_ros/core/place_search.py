@@ -24,8 +24,21 @@ from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_clou
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 
 
+def _rank(a: _Answer) -> tuple[bool, float]:
+    """The order of answers, best first (``min``, ``sort``): accepted ones, then by the verdict's score (the fitness:
+    among right poses the closer fit; a probability saturates near 1)."""
+    return (not a.ok, -a.score)
+
+
 class PlaceSearch:
     """The global search of :class:`~deepbbs_ros.core.localization.MapLocalizer` (module docstring)."""
+
+    def _answer(self, score: float, T_map_scan: np.ndarray, place: int, crop: _Crop, src: Any,
+                **kw: bool) -> _Answer:
+        """An answer at ``T_map_scan`` on ``crop`` with the registration's ``score``, judged by the map verdict
+        (core/acceptance.py); ``kw``: ``probe``, ``gicp``."""
+        prob = acceptance.probability(src, crop, T_map_scan, self.config)
+        return _Answer(float(score), acceptance.accepts(self.config, prob), T_map_scan, place, crop, prob=prob, **kw)
 
     def _deep(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int, timings: dict[str, float],
               yaw_search: bool = True) -> _Answer:
@@ -33,8 +46,7 @@ class PlaceSearch:
         t = time.perf_counter()
         reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search)
         timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-        return _Answer(float(reg.score), self._accepts_fit(reg.score), crop.T_map_place @ reg.T_target_source,
-                       place, crop)
+        return self._answer(float(reg.score), crop.T_map_place @ reg.T_target_source, place, crop, src)
 
     def _global(self, pts: np.ndarray, src: Any, among: np.ndarray | None,
                 timings: dict[str, float]) -> LocalizationResult:
@@ -77,34 +89,26 @@ class PlaceSearch:
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
-        if (not any(a.ok for a in answers) and not top.score < lc.retry_floor and not self._sharp(src, top)
-                and not self._agreed(src, answers, top)):
-            self._retry(src, answers, failed, timings)  # no place accepted: the failed starts again
-        answers.sort(key=lambda a: -a.score)
+        outside = top.prob < lc.retry_probability and ranked[0][1] >= lc.retry_descriptor
+        if not any(a.ok for a in answers):
+            # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
+            # early) when the best answer is far below the bar and no place looks like the scan either (outside the
+            # map?)
+            self._retry(src, answers, failed, timings, quick=outside)
+        answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
-        # none passed min_score: a sharp pose (the scan's points the map covers fit it closely: a carriageway seen from
-        # the other side) is accepted all the same, against every answer as a rival (not only the accepted ones)
-        sharp = not best.ok and self._sharp(src, best)
-        agreed = not best.ok and not sharp and self._agreed(src, answers, best)
-        bar = lc.agree_sharp if agreed else lc.sharp_score  # the sharpness the pose must keep after the probe
-        sharp = sharp or agreed
-        if not best.ok and not sharp:
-            why = (f"best score {best.score:.2f} < {self._threshold:.2f}: scan outside the map?"
-                   if best.score < self._threshold or not best.gicp else
-                   f"best score {best.score:.2f} by GICP alone, not sharp: a look-alike stretch?")
+        if not best.ok:
+            why = (f"best probability {best.prob:.2f} < {self._threshold:.2f}, score {best.score:.2f}"
+                   + (": scan outside the map?" if outside else ""))
             return LocalizationResult(best.T, False, best.score, "global", f"no candidate place passed the verdict "
-                                      f"({why})", candidates=n, path="deepbbs", place=best.place)
+                                      f"({why})", candidates=n, path="deepbbs", place=best.place,
+                                      probability=best.prob)
         t = time.perf_counter()
         probes = self._probe(src, best)
         timings["probe"] = (time.perf_counter() - t) * 1e3
-        pool = sorted(answers + probes, key=lambda a: -a.score)
+        pool = sorted(answers + probes, key=_rank)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
-        if sharp and self._sharpness(src, best) < bar:
-            return LocalizationResult(best.T, False, best.score, "global",
-                                      f"no candidate place passed the verdict (best score {best.score:.2f} < "
-                                      f"{self._threshold:.2f}, not sharp)", candidates=n, path="deepbbs",
-                                      place=best.place)
-        rivals = acceptance.rivals(src, best, pool, sharp, self.config, self.registration)
+        rivals = acceptance.rivals(best, pool, self.config)
         alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
                         and np.linalg.norm(a.T[:3, 3] - best.T[:3, 3]) > lc.ambiguity_distance]
         if rivals:
@@ -114,44 +118,47 @@ class PlaceSearch:
             return LocalizationResult(best.T, False, best.score, "global",
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
-                                      alternatives=alternatives)
+                                      alternatives=alternatives, probability=best.prob)
         T, hessian = self._refine_gicp(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
-                                  covariance=self._covariance(src, best.crop, T, timings, hessian))
+                                  covariance=self._covariance(src, best.crop, T, timings, hessian),
+                                  probability=best.prob)
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-               timings: dict[str, float]) -> None:
-        """No place accepted and no sharp answer (``answers``, replaced and added to in place): the ``failed``
-        starts (index in ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray);
-        still none accepted or sharp: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street
-        looks alike both ways); still none: the best once more with the registration's global search (the right place
-        with a poor pose?); still none: GICP alone from far_probe m ahead of and behind the best pose and the
-        best-ranked place's (:meth:`_slid`: a pose slid along the road; only a sharp answer from there is accepted, as
-        GICP alone from a rough start lands on look-alike stretches with passing scores). Not when a place was
-        accepted: on the benchmark's queries these retries changed no outcome there, at 0.4 s a query."""
+               timings: dict[str, float], quick: bool = False) -> None:
+        """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
+        ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
+        accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
+        still none: the best once more with the registration's global search (the right place with a poor pose?); still
+        none: GICP alone from far_probe m ahead of and behind the best pose and the best-ranked place's (:meth:`_slid`:
+        a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
+        no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
+        probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
         for k, _, T_init, _ in failed:
             answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
-        if not any(a.ok for a in answers) and not self._sharp(src, self._refined(src, answers, timings)):
+        if quick:
+            return
+        if not any(a.ok for a in answers):
             for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:
                     answers[k] = self._flipped(src, answers[k], T_init, yaw, timings, search)
-        best = max(answers, key=lambda a: a.score)
-        if (not best.ok and not self._sharp(src, best) and not search and self._searchable
+        best = min(answers, key=_rank)
+        if (not best.ok and not search and self._searchable
                 and best.score >= self.config.registration.verdict_threshold):
             T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
             answers.append(self._deep(src, best.crop, T_init, best.place, timings))
-        best = max(answers, key=lambda a: a.score)
-        if not any(a.ok for a in answers) and not self._sharp(src, best) and lc.far_probe > 0:
+        best = min(answers, key=_rank)
+        if not any(a.ok for a in answers) and lc.far_probe > 0:
             # the best fit, and the best-ranked place (the right place whose pose slid away from it scores low)
             for ans in [best] if answers[0] is best else [best, answers[0]]:
                 answers.extend(self._slid(src, ans, timings))
 
     def _slid(self, src: Any, best: _Answer, timings: dict[str, float]) -> list[_Answer]:
         """GICP alone from ``far_probe`` m ahead of and behind the best answer's pose, along its heading: -> their
-        answers (accepted only when sharp, as GICP alone always is). The right place with its pose slid along a highway
+        answers (judged by the map verdict as every answer). The right place with its pose slid along a highway
         (2.7 m, score 0.33) comes back to the true pose from the start 3.5 m back."""
         T = np.linalg.inv(best.crop.T_map_place) @ best.T
         head = _heading(T)
@@ -167,16 +174,14 @@ class PlaceSearch:
         return out
 
     def _refined(self, src: Any, answers: list[_Answer], timings: dict[str, float]) -> _Answer:
-        """The best of ``answers`` (the first of the highest score); when it is under the map's bar but valid by the
-        registration's verdict, refined (:meth:`_refine`) and scored again, in place, when that fits better: its
-        sharpness (:meth:`_sharp`) is judged on the refined pose (a highway scan taken the other way: 0.44 m along the
-        road, sharpness 0.88; refined 0.01 m, 0.93). Still not accepted by its score alone (``localization.min_score``
-        is calibrated on the registration's answers)."""
+        """The best of ``answers`` (:func:`_rank`); when it is not accepted but fits by the registration's threshold
+        (``registration.verdict_threshold``), refined (:meth:`_refine`) and judged again, in place, when that fits
+        better (a highway scan taken the other way: 0.44 m along the road; refined 0.01 m)."""
         from deepbbs_ros.core import verdict
 
         rc = self.config.registration
-        ans = max(answers, key=lambda a: a.score)
-        if ans.ok or ans.refined or not ans.score >= rc.verdict_threshold or self.config.localization.sharp_score <= 0:
+        ans = min(answers, key=_rank)
+        if ans.ok or ans.refined or not ans.score >= rc.verdict_threshold:
             return ans
         ans.refined = True
         T = self._refine(src, ans.crop, ans.T, timings)
@@ -185,7 +190,8 @@ class PlaceSearch:
         score = verdict.fitness(src.points, ans.crop.pre.polish_cloud.tree, np.linalg.inv(ans.crop.T_map_place) @ T,
                                 rc.verdict_dist)
         if score >= ans.score:
-            ans.T, ans.score, ans.sharp = T, score, None
+            new = self._answer(score, T, ans.place, ans.crop, src)
+            ans.T, ans.score, ans.prob, ans.ok = T, score, new.prob, new.ok
         return ans
 
     def _better_gicp(self, src: Any, crop: _Crop, T_init: np.ndarray, place: int, ans: _Answer,
@@ -212,9 +218,9 @@ class PlaceSearch:
         return rc is not None and rc.global_search != "off"
 
     def _gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, place: int) -> _Answer | None:
-        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score;
-        accepted only when also sharp (``sharp_score``): GICP alone from a rough start settles on look-alike stretches
-        with a passing score (a highway 27 m along, 0.65), without the network's agreement only a sharp fit counts."""
+        """GICP of the scan's precision-stage cloud on the crop's from T_place_scan, with the verdict's score, judged
+        by the map verdict (GICP alone from a rough start settles on look-alike stretches with a passing fitness: a
+        highway 27 m along, 0.65; the probability and the rivals' check decide)."""
         from deepbbs_ros.core import verdict
 
         rc = self.config.registration
@@ -227,10 +233,7 @@ class PlaceSearch:
         if not pol.applied:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)
-        ans = _Answer(score, self._accepts_fit(score), crop.T_map_place @ pol.T_target_source, place, crop,
-                      gicp=True)
-        ans.ok = ans.ok and self._sharpness(src, ans) >= self.config.localization.sharp_score
-        return ans
+        return self._answer(score, crop.T_map_place @ pol.T_target_source, place, crop, src, gicp=True)
 
     def _probe(self, src: Any, best: _Answer) -> list[_Answer]:
         """GICP on the best answer's crop from starts ``ambiguity_probe`` m off its pose along +-x, +-y of the map
@@ -261,8 +264,7 @@ class PlaceSearch:
             if not pol.applied:
                 continue
             score = verdict.fitness(src.points, tgt_pc.tree, pol.T_target_source, rc.verdict_dist)
-            out.append(_Answer(score, self._accepts_fit(score), crop.T_map_place @ pol.T_target_source,
-                               best.place, crop, probe=True))
+            out.append(self._answer(score, crop.T_map_place @ pol.T_target_source, best.place, crop, src, probe=True))
         return out
 
     def _probe_cloud(self, pc: Any) -> Any:

@@ -328,6 +328,7 @@ class Answer:
     time_s: float = float("nan")
     timeout: bool = False
     exact_time_s: float = float("nan")  # MapLocalizer: the time of the twin that answered (GICP on one thread)
+    probability: float = float("nan")  # MapLocalizer: the map verdict's probability of its answer
 
 
 _REGISTRATION: dict = {}  # one DeepBBSRegistration (model loaded and warmed up once) shared by every map
@@ -379,11 +380,12 @@ class MapLocalizerMethod:
         r = self.loc.localize(scan)
         dt = time.perf_counter() - t0
         if self.exact is None:
-            return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt)
+            return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
+                          probability=float(getattr(r, "probability", np.nan)))
         t0 = time.perf_counter()
         r = self.exact.localize(scan)
         return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
-                      exact_time_s=time.perf_counter() - t0)
+                      exact_time_s=time.perf_counter() - t0, probability=float(getattr(r, "probability", np.nan)))
 
 
 class Isolated(_common.Isolated):
@@ -565,7 +567,7 @@ def judge(ans: Answer, q: Query) -> dict:
     row = {"place": q.place, "kind": q.kind, "s": q.s, "repetitive": q.repetitive, "valid": ans.valid,
            "reason": ans.reason, "time_s": ans.time_s, "exact_time_s": ans.exact_time_s, "timeout": ans.timeout,
            "rot_err_deg": None,
-           "trans_err_m": None}
+           "trans_err_m": None, "probability": ans.probability}
     close = False
     if ans.T_map_scan is not None and np.all(np.isfinite(ans.T_map_scan)):
         r, t = pair_errors(ans.T_map_scan[None], q.T_map_scan[None])
@@ -604,6 +606,19 @@ def summarize(rows: list[dict]) -> dict:
     if placed:
         out["placed_rot_err_deg_mean"] = float(np.mean([r["rot_err_deg"] for r in placed]))
         out["placed_trans_err_m_mean"] = float(np.mean([r["trans_err_m"] for r in placed]))
+    return out
+
+
+def reliability(rows: list[dict], edges=(0.0, 0.05, 0.2, 0.5, 0.7, 0.9, 1.0)) -> dict:
+    """The map verdict's reliability over ``rows``: per bin of the answer's probability, [answers, share right
+    (within 1 deg / 0.3 m of the truth, published or not)]."""
+    out = {}
+    p = np.array([r.get("probability", np.nan) for r in rows], np.float64)
+    right = np.array([r["close"] for r in rows], bool)
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        m = (p >= lo) & ((p < hi) | (hi >= 1.0) & (p <= 1.0))
+        if m.any():
+            out[f"{lo:g}-{hi:g}"] = [int(m.sum()), float(right[m].mean())]
     return out
 
 
@@ -697,6 +712,10 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
         if hasattr(m, "close"):
             m.close()
         s = summarize(rows)
+        if name == "maplocalizer":
+            s["reliability"] = reliability(rows)
+            log(f"  {data.name} map verdict reliability (answer's probability: queries, share right): "
+                + ", ".join(f"{k} {v[0]} {v[1]:.2f}" for k, v in s["reliability"].items()))
         if boot:
             s["boot"] = summarize(boot)
             fig.setdefault("boot_rows", {})[name] = boot
@@ -740,9 +759,10 @@ def evaluate_outside(data: MapData, outside: list[Query], args, config=None, log
     m = make_method("maplocalizer", data.points, data.trajectory, args, config)
     if isinstance(m, str):
         return {"note": m}
-    times, wrong = [], 0
+    times, wrong, probs = [], 0, []
     for n, q in enumerate(outside):
         ans = m(q.points)
+        probs.append(ans.probability)
         times.append(ans.time_s)
         wrong += bool(ans.valid)
         log(f"  {data.name} outside {n + 1}/{len(outside)} [{q.place}]: {'WRONG' if ans.valid else 'none'} "
@@ -750,7 +770,8 @@ def evaluate_outside(data: MapData, outside: list[Query], args, config=None, log
     t = np.array(times)
     return {"queries": len(outside), "none_share": 1.0 - wrong / max(len(outside), 1), "wrong_count": wrong,
             "time_s_p50": float(np.percentile(t, 50)), "time_s_p95": float(np.percentile(t, 95)),
-            "time_s_max": float(t.max())}
+            "time_s_max": float(t.max()), "probability_max": float(np.nanmax(probs)) if np.any(np.isfinite(probs))
+            else float("nan")}
 
 
 # ---- report ------------------------------------------------------------------------------------------------------

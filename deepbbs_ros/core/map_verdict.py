@@ -1,0 +1,110 @@
+"""The calibrated verdict of a scan in a prior map: the probability that a pose in the map is right (no ROS).
+
+A map crop is dense, complete and seen from many origins, and a map may cover only part of what a scan sees (a
+few metres of road seen from its end): the scan-to-scan verdict's probability (core/calibrated.py) means something
+else there. This one is fitted on simulated map localizations (``scripts/calibrate_map_verdict.py``: right answers,
+the search's own wrong answers at look-alike places, poses moved beyond 2 degrees / 0.5 m, scans from outside the
+map; every road scene and indoor place, several sensors and mounts).
+
+Its features (:data:`NAMES`) are those of core/visibility.py (:data:`~deepbbs_ros.core.visibility.FEATURES`) for a
+spread subset of the scan's GICP voxels (``registration.good_start_points``) against the crop's GICP cloud (its
+origin at the place, the crop's sensor), and two of this module's, normalised by what the map covers of the scan:
+
+* ``covered``: the share of those points within :data:`COVER_DIST` m of the map;
+* ``sharp``: among the covered, the share within ``registration.verdict_dist`` (a right pose fits closely wherever
+  the map covers the scan, whatever the share it covers).
+
+The coefficients ship in ``deepbbs_ros/resources/map_verdict_model.json`` (the features they use, by name, and a
+logistic regression on :func:`~deepbbs_ros.core.calibrated.design` of them), read once; a missing or damaged file,
+or one fitted for features that no longer exist, raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.core import calibrated, visibility
+from deepbbs_ros.errors import VerdictModelError
+
+DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "map_verdict_model.json"
+#: this module's features, after core/visibility.py's
+EXTRA = ("covered", "sharp")
+COVER_DIST = 1.0  # m; a scan point with the map this close counts as covered by the map
+
+
+def names() -> tuple[str, ...]:
+    """Every feature :func:`features` returns, in order: core/visibility.py's, then :data:`EXTRA`."""
+    return (*visibility.FEATURES, *EXTRA)
+
+
+def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: float, threads: int = 1) -> np.ndarray:
+    """The features (:func:`names`) of ``points`` (N, 3) (scan frame) under ``T_place_scan`` (4, 4) against a crop's
+    GICP cloud ``cloud`` (a ``core.polish.PolishCloud`` or view, in the place's frame; its k-d tree) with the
+    verdict's distance ``dist`` (m) -> (len(names()),) float64."""
+    vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads)
+    pts = np.asarray(points, np.float64)
+    if len(pts) == 0:
+        return np.r_[vis, 0.0, 0.0]
+    T = np.asarray(T_place_scan, np.float64)
+    moved = pts @ T[:3, :3].T + T[:3, 3]
+    _, sq = cloud.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    sq = np.asarray(sq, np.float64)
+    covered = int(np.sum(sq <= COVER_DIST ** 2))
+    close = int(np.sum(sq <= dist * dist))
+    return np.r_[vis, covered / len(pts), close / covered if covered else 0.0]
+
+
+def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, threads: int = 1) -> np.ndarray:
+    """:func:`features` of a localization answer: the scan's PreprocessResult ``src`` at ``T_map_scan`` (4, 4) on a
+    map crop (``_Crop``: ``T_map_place`` and its PreprocessResult); the scan's points are a spread subset of its GICP
+    voxels (``registration.good_start_points``). -> an all-zero row when either has no GICP cloud."""
+    from deepbbs_ros.core.registration import good_start_points
+
+    spc, tpc = getattr(src, "polish_cloud", None), getattr(crop.pre, "polish_cloud", None)
+    if spc is None or tpc is None:
+        return np.zeros(len(names()))
+    spc, tpc = spc.complete(threads=threads), tpc.complete(threads=threads)
+    rc = config.registration
+    T = np.linalg.inv(crop.T_map_place) @ np.asarray(T_map_scan, np.float64)
+    return features(good_start_points(spc, rc), T, tpc, rc.verdict_dist, threads)
+
+
+@functools.lru_cache(maxsize=4)
+def load(path: str | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """(the columns of :func:`names` the model uses (F,) int, coef (F,), intercept) from ``path`` (the shipped file
+    when None); read once."""
+    p = Path(path) if path else DEFAULT_PATH
+    try:
+        doc = json.loads(p.read_text())
+        if doc["transform"] != calibrated.TRANSFORM:
+            raise ValueError("fitted with another transform")
+        have = names()
+        missing = [n for n in doc["features"] if n not in have]
+        if missing:
+            raise ValueError(f"fitted for features that no longer exist: {', '.join(missing)}")
+        cols = np.array([have.index(n) for n in doc["features"]], np.int64)
+        coef = np.asarray(doc["coef"], np.float64)
+        if coef.shape != cols.shape or not np.all(np.isfinite(coef)) or not np.isfinite(doc["intercept"]):
+            raise ValueError(f"not {len(cols)} finite coefficients")
+        return cols, coef, float(doc["intercept"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise VerdictModelError(f"map verdict {p}: {e} (refit: python scripts/calibrate_map_verdict.py)") from None
+
+
+def probability(rows: np.ndarray, path: str | None = None) -> np.ndarray | float:
+    """P(right) of feature rows (K, len(names())) -> (K,), or of one row -> float."""
+    cols, coef, icpt = load(path)
+    z = calibrated.design(np.atleast_2d(rows)[:, cols]) @ coef + icpt
+    p = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
+    return float(p[0]) if np.ndim(rows) == 1 else p
+
+
+def answer_probability(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, threads: int = 1) -> float:
+    """P(right) of a localization answer (:func:`answer_features`); 0 when it has no features."""
+    row = answer_features(src, crop, T_map_scan, config, threads)
+    return probability(row) if row.any() else 0.0

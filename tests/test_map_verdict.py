@@ -1,0 +1,88 @@
+"""The map verdict (core/map_verdict.py): the probability that a scan's pose in a prior map is right, on known
+geometry: a simulated urban street's map (three noiseless HDL-64E scans at their true poses) and a scan of the same
+drive between them. The right pose is likely, a pose 2 m / 5 degrees off is not, and a short map that covers only a
+third of the scan leaves the right pose likely; the shipped coefficients load once, a damaged file is one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core import map_verdict
+from deepbbs_ros.errors import VerdictModelError
+
+
+@pytest.fixture(scope="module")
+def street():
+    from deepbbs_ros.core.polish import prepare_polish_cloud
+    from deepbbs_ros.core.registration import good_start_points
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    rc = Config().registration
+    sim = DriveSimulator("urban", 3, frames=70, motion_distortion=False)
+    parts = []
+    for k in (40, 52, 64):
+        s = sim.scan_at(k)
+        parts.append(s.points @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
+    world = np.concatenate(parts).astype(np.float64)
+    T_gt = sim.pose_at(46)
+    scan = sim.scan_at(46).points
+    spc = prepare_polish_cloud(scan, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    pts = good_start_points(spc, rc)
+
+    def cloud(local):
+        """A crop's GICP cloud of map points in the place's frame (the scan's own position, gravity-aligned)."""
+        return prepare_polish_cloud(local, rc.polish_voxel, rc.polish_neighbors, threads=1)
+
+    T_place_scan = np.eye(4)
+    T_place_scan[:3, :3] = T_gt[:3, :3]
+    return pts, cloud, world - T_gt[:3, 3], T_place_scan, rc.verdict_dist
+
+
+def _off(T: np.ndarray, metres: float, deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    D = np.eye(4)
+    D[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    D[:3, 3] = [metres, 0.0, 0.0]
+    return T @ D
+
+
+def test_right_pose_likely_wrong_pose_not(street):
+    pts, cloud, world, T, dist = street
+    tgt = cloud(world)
+    right = map_verdict.probability(map_verdict.features(pts, T, tgt, dist))
+    off = map_verdict.probability(map_verdict.features(pts, _off(T, 2.0, 5.0), tgt, dist))
+    assert right >= Config().localization.min_probability and off < 0.2, (right, off)
+    assert len(map_verdict.features(pts, T, tgt, dist)) == len(map_verdict.names())
+
+
+def test_a_short_map_covering_a_third_keeps_the_right_pose_likely(street):
+    """The map: only the part of the street in a 120-degree sector ahead of the scan (a few metres of road seen from
+    its end): a third of the scan is covered, its right pose stays likely, a wrong one does not."""
+    pts, cloud, world, T, dist = street
+    local = world @ T[:3, :3]  # the map in the scan's frame
+    sector = np.abs(np.arctan2(local[:, 1], local[:, 0])) < np.radians(60.0)
+    tgt = cloud(world[sector])
+    row = map_verdict.features(pts, T, tgt, dist)
+    covered = row[map_verdict.names().index("covered")]
+    assert 0.15 < covered < 0.6, covered  # the map covers a part of the scan only
+    right = map_verdict.probability(row)
+    off = map_verdict.probability(map_verdict.features(pts, _off(T, 2.0, 5.0), tgt, dist))
+    assert right >= Config().localization.min_probability and off < 0.2, (right, off)
+
+
+def test_model_file_errors_are_one_line(tmp_path):
+    cols, coef, _ = map_verdict.load()
+    assert len(cols) == len(coef) > 0
+    bad = tmp_path / "m.json"
+    for text in ("{", json.dumps({"features": ["nonexistent"], "transform": "logit(clip(x, 0.005, 0.995))",
+                                  "coef": [1.0], "intercept": 0.0})):
+        bad.write_text(text)
+        with pytest.raises(VerdictModelError) as e:
+            map_verdict.load(str(bad))
+        assert "\n" not in str(e.value) and "calibrate_map_verdict" in str(e.value)
+    with pytest.raises(VerdictModelError):
+        map_verdict.load(str(tmp_path / "missing.json"))
