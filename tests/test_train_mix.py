@@ -86,3 +86,23 @@ def test_fit_validates_each_folder_apart(tmp_path):
         assert g["plain"]["n"] == 2 and g["yaw"]["n"] == 2
     mean = np.mean([g[s]["success"] for g in rec["groups"].values() for s in ("plain", "yaw")]) * 2
     assert Trainer.score(rec)[0] == pytest.approx(mean)
+
+
+def test_evaluate_on_a_rig():
+    """deepbbs-train evaluate --rigs: a handheld Livox in a courtyard is a "scene" of the report; a malformed
+    rig is a one-line error."""
+    from deepbbs_ros.core.model import DeepBBSNet
+    from deepbbs_ros.errors import ConfigError
+    from deepbbs_ros.train.evaluate import evaluate
+
+    cfg = Config().replace(**{**TINY, "preprocess.num_points": 128})
+    torch.manual_seed(0)
+    report = evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["avia:handheld:courtyard"], drives_per_scene=1,
+                      frames=12, stride=10, yaw_deg=0.0, methods=["deepbbs", "gicp-gt"], progress=False)
+    s = report["summary"]["plain"]["gicp-gt"]
+    assert s["avia:handheld:courtyard"]["pairs"] == s["all"]["pairs"] >= 1
+    assert s["all"]["success"] == 1.0  # GICP from the truth stays there: the rig's ground truth is right
+    assert report["protocol"]["sensor"].startswith("the rigs")
+    with pytest.raises(ConfigError, match="sensor:mount:place"):
+        evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["avia:handheld"], drives_per_scene=1, frames=12,
+                 progress=False)
