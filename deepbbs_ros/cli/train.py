@@ -145,6 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--weights", default="", help="checkpoint (default: the shipped model)")
     e.add_argument("--device", help=f"auto | cpu | cuda | cuda:N (default: {config_default('registration.device')})")
     e.add_argument("--scenes", default=",".join(SCENES), help="scene types")
+    e.add_argument("--rigs", default="", help="sensor:mount:place list instead of --scenes (other sensors, "
+                   "mounts and places), e.g. avia:handheld:courtyard,os1_64:wheeled:hall")
     e.add_argument("--drives-per-scene", type=int, default=4, help="held-out drives per scene type")
     e.add_argument("--seed-base", type=int, default=None, help="first seed (default: the test split, 90000)")
     e.add_argument("--frames", type=int, default=60, help="frames per drive")
@@ -368,7 +370,7 @@ def _cmd_evaluate(args) -> int:
     report = evaluate(cfg, weights=args.weights, device=args.device, scenes=scenes,
                       drives_per_scene=args.drives_per_scene, seed_base=args.seed_base, frames=args.frames,
                       stride=args.stride, yaw_deg=args.yaw_deg, methods=methods, progress=not args.no_progress,
-                      raw_sweeps=args.raw_sweeps)
+                      raw_sweeps=args.raw_sweeps, rigs=[r.strip() for r in args.rigs.split(",") if r.strip()])
     print_report(report)
     if args.markdown:
         from deepbbs_ros.train.evaluate import markdown_report

@@ -135,7 +135,10 @@ def load_cache(dirs: str | Path | Iterable[str | Path]) -> list[Drive]:
         files = sorted(d.glob("*.npz"))
         if not files:
             raise DatasetError(f"training cache: {d} holds no drives (*.npz); build it with 'deepbbs-train cache'")
-        drives.extend(load_drive(f) for f in files)
+        for f in files:
+            drive = load_drive(f)
+            drive.meta.setdefault("cache", d.name)  # the folder: validation reports each folder apart
+            drives.append(drive)
     return drives
 
 
@@ -288,7 +291,10 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
         motion, compensate = u < 0.8, u < 0.5
     else:
         lidar, desc, motion, compensate = LidarConfig.hdl64(), {"preset": "hdl64"}, True, True
-    if spec.sensor is None and spec.mount == "car":  # the road drives the cache has always made
+    from deepbbs_ros.sim.scene import SCENES
+
+    # the road drives the cache has always made; a car in a garage or a courtyard goes through the rig
+    if spec.sensor is None and spec.mount == "car" and spec.scene in SCENES:
         scans = simulate_drive(spec.scene, spec.seed, spec.frames, lidar=lidar, motion_distortion=motion,
                                compensate=compensate)
     else:

@@ -244,24 +244,36 @@ class Trainer:
                                      corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
                 losses.append(float(terms.total) * len(src))
             rec["val_loss"] = sum(losses) / max(1, len(vs.plain))
+            folder = {d.name: str(d.meta.get("cache", "")) for d in self.val_drives}
+            groups: dict[str, dict[str, Any]] = {}
             for name, pairs in (("plain", vs.plain), ("yaw", vs.yaw)):
-                rot, trans = [], []
+                rot, trans, group = [], [], []
                 for p in pairs:
                     res = reg.register(p.source, p.target, preprocessed=True)
                     r, t = pair_errors(res.T_target_source, p.T_target_source)
                     rot.append(r)
                     trans.append(t)
+                    group.append(folder.get(p.ref.split(":")[0], ""))
                 rec[name] = summarize_errors(rot, trans, cfg.eval.success_rot_deg, cfg.eval.success_trans)
+                for g in sorted(set(group)):  # each validation folder apart (e.g. a sensor mix and HDL-64E roads)
+                    k = [i for i, x in enumerate(group) if x == g]
+                    groups.setdefault(g, {})[name] = summarize_errors(
+                        [rot[i] for i in k], [trans[i] for i in k], cfg.eval.success_rot_deg, cfg.eval.success_trans)
+            if len(groups) > 1:
+                rec["groups"] = groups
         self.model.train()
         rec["seconds"] = round(time.perf_counter() - t0, 2)
         return rec
 
     @staticmethod
     def score(rec: dict[str, Any]) -> list[float]:
-        """Higher is better: total success rate, then lower mean rotation and translation errors."""
-        p, y = rec["plain"], rec["yaw"]
-        return [p["success"] + y["success"], -(p["rot_mean_deg"] + y["rot_mean_deg"]),
-                -(p["trans_mean_m"] + y["trans_mean_m"])]
+        """Higher is better: total success rate, then lower mean rotation and translation errors. With
+        several validation folders each weighs the same (a mix of sensors cannot outvote HDL-64E roads)."""
+        parts = list(rec["groups"].values()) if rec.get("groups") else [rec]
+        n = len(parts)
+        return [sum(g[s]["success"] for g in parts for s in ("plain", "yaw")) / n,
+                -sum(g[s]["rot_mean_deg"] for g in parts for s in ("plain", "yaw")) / n,
+                -sum(g[s]["trans_mean_m"] for g in parts for s in ("plain", "yaw")) / n]
 
     # -- checkpoints ---------------------------------------------------------------------------
     def _model_meta(self, val: dict[str, Any] | None) -> dict[str, Any]:
@@ -517,7 +529,9 @@ def format_val(val: dict[str, Any]) -> str:
     return (f"val step {val['step']} (epoch {val['epoch']}): loss {val['val_loss']:.4g} | "
             f"plain rot {p['rot_mean_deg']:.3f} deg trans {p['trans_mean_m']:.3f} m success {100 * p['success']:.1f}% "
             f"| +yaw rot {y['rot_mean_deg']:.3f} deg trans {y['trans_mean_m']:.3f} m success "
-            f"{100 * y['success']:.1f}% ({val['seconds']:.0f} s)")
+            f"{100 * y['success']:.1f}% ({val['seconds']:.0f} s)"
+            + "".join(f" | {g} success {100 * v['plain']['success']:.1f}% / +yaw {100 * v['yaw']['success']:.1f}%"
+                      for g, v in val.get("groups", {}).items()))
 
 
 def run_report(run_dir: str | Path) -> str:

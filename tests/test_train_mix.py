@@ -1,0 +1,108 @@
+"""scripts/train_mix.sh: its cache and fit settings are valid, in seconds (one short drive, two steps of a
+tiny model), and the validation reports each validation folder apart."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.train.cache import SimDriveSpec, load_cache, load_drive, save_drive, simulate_cached_drive
+from deepbbs_ros.train.trainer import Trainer
+from tests.test_train import TINY, synthetic_drive
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "train_mix.sh"
+
+
+def _script() -> str:
+    return SCRIPT.read_text()
+
+
+def _var(name: str) -> str:
+    m = re.search(rf"^{name}=(\S+)$", _script(), re.M)
+    assert m, name
+    return m.group(1)
+
+
+def _sets() -> dict[str, str]:
+    return dict(re.findall(r"--set (train\.\w+)=(\S+?)[\s\"]", _script()))
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def test_schedule_is_a_valid_config():
+    sets = _sets()
+    assert {"train.epochs", "train.lr", "train.val_pairs", "train.num_points"} <= set(sets)
+    cfg = Config().replace(**{k: json.loads(v) for k, v in sets.items()}).validate()
+    assert cfg.train.num_points == 512 and cfg.train.epochs * cfg.train.steps_per_epoch > 0
+
+
+def test_mix_cache_command_on_one_short_drive(tmp_path):
+    from deepbbs_ros.cli.train import main
+
+    out = tmp_path / "mix"
+    assert main(["cache", "--out", str(out), "--split", "train", "--seeds", "20005:20006", "--frames", "2",
+                 "--cache-points", "256", "--scenes", _var("SCENES"), "--sensors", _var("SENSORS"), "--mounts",
+                 _var("MOUNTS"), "--no-progress", "--threads", "1"]) == 0
+    (drive,) = load_cache(out)
+    assert len(drive) == 2 and drive.has_gt and drive.meta["cache"] == "mix"
+    assert drive.scene == _var("SCENES").split(",")[0]
+
+
+def test_randomised_road_sensor_on_a_car_off_the_road(tmp_path):
+    """'random' sensor on a car in a courtyard: the rig simulator, not the road drive (which has no courtyard)."""
+    path = simulate_cached_drive(SimDriveSpec("courtyard", 20006, 2), tmp_path, Config().preprocess, 256)
+    d = load_drive(path)
+    assert len(d) == 2 and d.meta["sensor"]["mount"] == "car" and d.frame(0).shape[0] > 50
+
+
+def test_fit_validates_each_folder_apart(tmp_path):
+    sets = {k: json.loads(v) for k, v in _sets().items()}
+    cfg = Config().replace(**{**sets, **TINY, "train.num_points": 0, "train.epochs": 1, "train.val_every": 1,
+                              "train.val_pairs": 4})
+    val = {}
+    for folder, seed in (("mix_val", 5), ("worlds_val", 9)):
+        d = synthetic_drive(f"urban_{seed}", 12, seed=seed)
+        save_drive(tmp_path / folder / f"{d.name}.npz", [d.frame(i) for i in range(len(d))], d.T_world_lidar,
+                   d.stamps_ns, d.meta)
+        val[folder] = tmp_path / folder
+    tr = Trainer(cfg, tmp_path / "run", [synthetic_drive(frames=6)], load_cache(list(val.values())),
+                 progress=False, curves=False)
+    res = tr.fit(max_steps=2)
+    rec = res["best_val"]
+    assert tr.step == 2 and set(rec["groups"]) == {"mix_val", "worlds_val"}
+    for g in rec["groups"].values():
+        assert g["plain"]["n"] == 2 and g["yaw"]["n"] == 2
+    mean = np.mean([g[s]["success"] for g in rec["groups"].values() for s in ("plain", "yaw")]) * 2
+    assert Trainer.score(rec)[0] == pytest.approx(mean)
+
+
+def test_evaluate_on_a_rig():
+    """deepbbs-train evaluate --rigs: a handheld Livox in a courtyard is a "scene" of the report; a malformed
+    rig is a one-line error."""
+    from deepbbs_ros.core.model import DeepBBSNet
+    from deepbbs_ros.errors import ConfigError
+    from deepbbs_ros.train.evaluate import evaluate
+
+    cfg = Config().replace(**{**TINY, "preprocess.num_points": 128})
+    torch.manual_seed(0)
+    report = evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["avia:handheld:courtyard"], drives_per_scene=1,
+                      frames=12, stride=10, yaw_deg=0.0, methods=["deepbbs", "gicp-gt"], progress=False)
+    s = report["summary"]["plain"]["gicp-gt"]
+    assert s["avia:handheld:courtyard"]["pairs"] == s["all"]["pairs"] >= 1
+    assert s["all"]["success"] == 1.0  # GICP from the truth stays there: the rig's ground truth is right
+    assert report["protocol"]["sensor"].startswith("the rigs")
+    with pytest.raises(ConfigError, match="sensor:mount:place"):
+        evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["avia:handheld"], drives_per_scene=1, frames=12,
+                 progress=False)
