@@ -8,30 +8,28 @@ perturbation (target-frame axes, about the pose's own origin). For a pose at the
 perturbation would read a rotation about the map's origin).
 
 small_gicp linearises its cost ``E = 1/2 sum_i r_i^T M_i r_i`` (``r_i = b_i - T a_i``, ``M_i = (C_b + R C_a R^T)^-1``
-from the clouds' covariances) for a **right** perturbation ``T exp(xi)`` with ``xi = [rot (3), trans (3)]``: its
-result carries that Hessian ``H`` (6 x 6, Gauss-Newton ``J^T M J``), the cost ``e`` and the inlier count ``n`` at
-the last linearisation. Then:
+from the clouds' normalised covariances, eigenvalues (1e-3, 1, 1): a shape, not the residuals' variance) for a
+**right** perturbation ``T exp(xi)``, ``xi = [rot (3), trans (3)]``. The estimate's covariance is the M-estimator's
+"sandwich" ``H^-1 (sum_i g_i g_i^T) H^-1`` (``g_i = J_i^T M_i r_i``, ``H = sum J^T M J``), which needs no noise model;
+but neighbouring points' errors are not independent (the same surface, laser ring and voxel grid, map and scan
+sampled from other places), so the gradients are summed per cell of a grid of :data:`CLUSTER_CELL` m first and the
+outer products taken of the cells' sums (the cluster-robust covariance, :func:`sandwich_covariance`): correlated
+errors within a cell count once, as they move the pose. Then:
 
-1. reorder ``H`` to ``[trans, rot]`` and invert it;
-2. scale by the residual variance of unit weight, ``s^2 = 2 e / (3 n - 6)`` (small_gicp's point covariances are
-   normalised, eigenvalues (1e-3, 1, 1): only their shape is metric, so the scale has to come from the residuals);
-3. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, so ``Sigma = B Sigma_right B^T`` with
-   ``B = diag(R, R)``;
-4. inflate weak (degenerate) directions (:func:`calibrated`): along each eigen-direction of the translation block and
-   of the rotation block of the information, the variance times ``(lambda_max / lambda) ** exponent`` (a corridor, a
-   straight road with little beside it: along it GICP barely moves the pose and its error there is mostly where the
-   start left it, not residual noise; a synthetic 4 m wide corridor has a ratio ``lambda / lambda_max`` of 2e-3, a
-   simulated highway 1e-2 to 5e-2, a street 0.1 to 0.3);
-5. multiply the translation block by ``factors[0]`` and the rotation block by ``factors[1]`` (``D Sigma D``):
-   neighbouring voxels' residuals are not independent (the same surface, the same laser ring, the voxel grid's own
-   discretisation, map and scan sampled from other places), so ``n`` overstates the independent measurements; each
-   factor is the ratio of ``n`` to an effective sample size.
+1. a small-sample factor ``G / (G - 6)`` for ``G`` cells;
+2. along a weak translation direction (:data:`WEAK_RATIO`: a corridor, a straight road with little beside it) the
+   start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
+   anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
+3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
+   motion it missed, the root mean square of the recent deviations from the prediction over sqrt(12) per axis;
+4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
+   ``B = diag(R, R)``.
 
-The constants (:data:`LOCALIZATION_FACTORS`, :data:`ODOMETRY_FACTORS` and the exponents) were fitted on simulated
-drives only (``scripts/benchmarks/covariance.py --fit``: urban, suburban, highway and open-road scenes with HDL-64E
-and VLP-16 sensors; the pooled mean NEES of each block made 3) and checked on real scans; docs/node.md has the
-figures. The raw ``s^2 H^-1`` is far overconfident: on the simulated sets the median NEES of its localization poses
-was 16 to 209 and of its odometry steps 380 to 16,000 (chi2(6)'s: 5.35).
+One constant is fitted: :data:`LOCALIZATION_INFLATION` (``scripts/benchmarks/covariance.py --fit`` on simulated
+drives of three sensors and four road scenes) for what the residuals of a scan on a map crop cannot show; the cell
+and the floors are chosen from their meaning. docs/node.md has the figures. The raw ``s^2 H^-1``
+(:func:`gicp_covariance`) is far overconfident: on simulated drives its median NEES was 16 to 209 for the
+localization and 380 to 16,000 for the odometry's steps (chi2(6)'s: 5.35).
 """
 
 from __future__ import annotations
@@ -40,22 +38,29 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["adjoint", "calibrated", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance",
-           "pose_error", "scan_covariance", "skew"]
+__all__ = ["adjoint", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance", "matched_pairs",
+           "odometry_covariance", "pose_error", "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
 
-#: weak-direction exponent: the variance along an eigen-direction of a block of the information with ``lambda`` is
-#: multiplied by ``(lambda_max / lambda) ** exponent`` (chosen, not fitted: 1 for the localization, where a corridor
-#: needs it; 0 for the odometry, whose simulated drives' NEES spread more with it)
-LOCALIZATION_WEAK_EXPONENT_CHOSEN = 1.0
-ODOMETRY_WEAK_EXPONENT_CHOSEN = 0.0
-LOCALIZATION_WEAK_EXPONENT = LOCALIZATION_WEAK_EXPONENT_CHOSEN
-ODOMETRY_WEAK_EXPONENT = ODOMETRY_WEAK_EXPONENT_CHOSEN
-#: (translation, rotation) ratio of n to the effective sample size of the residuals of the localization's GICP on a
-#: map crop and of the odometry's VGICP on its local map (module docstring), fitted by ``scripts/benchmarks/
-#: covariance.py --fit`` on simulated drives only (urban, suburban, highway, open road; HDL-64E and VLP-16): the
-#: pooled mean NEES of each block made 3
-LOCALIZATION_FACTORS = (7.614, 6.109)
-ODOMETRY_FACTORS = (1089.1, 617.6)
+#: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
+#: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
+#: together); halved (down to 1 m) until a scan has :data:`MIN_CLUSTERS` cells (a small room). Chosen, not fitted:
+#: on simulated HDL-64E and VLP-16 drives the sets' mean NEES are closest to one another from 10 to 20 m
+CLUSTER_CELL = 12.0
+MIN_CLUSTERS = 24
+#: a translation direction is weak (:func:`sandwich_covariance`) where the Hessian's eigenvalue along it is below
+#: this share of the largest (a synthetic 4 m corridor: 2e-3 to 5e-3; a simulated highway 1e-2 to 5e-2)
+WEAK_RATIO = 0.01
+#: the one factor on the cluster-robust covariance of each estimator, fitted by ``scripts/benchmarks/covariance.py
+#: --fit`` on simulated drives only (the pooled mean NEES made 6): what the residuals cannot show (the map's and the
+#: scan's sampling of the same surfaces, a bias shared by every cell)
+LOCALIZATION_INFLATION = 1.0
+ODOMETRY_INFLATION = 1.0
+#: the sweep's model error (odometry): deskewed with the constant velocity, a sweep keeps the motion the prediction
+#: missed, growing from nothing to the step's deviation across the sweep; for firing times spread evenly over it the
+#: spread of that error is the deviation / sqrt(12), the floor's standard deviation per axis (not fitted)
+SWEEP_SPREAD = 12.0 ** -0.5
+#: steps whose deviations from the constant-velocity prediction make the floor's root mean square
+MOTION_WINDOW = 10
 #: variance floor, m^2 / rad^2 on the diagonal: noise-free synthetic scenes must not give a singular covariance
 VARIANCE_FLOOR = 1e-10
 
@@ -80,12 +85,10 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return Ad
 
 
-def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: np.ndarray, *,
-                    factors: tuple[float, float] = (1.0, 1.0), weak_exponent: float = 0.0) -> np.ndarray | None:
-    """(6, 6) covariance of ``T_target_source`` (the module's convention) from small_gicp's ``H``, ``e`` and
-    ``num_inliers`` at the solution (module docstring, steps 1-5); None when they cannot give one (fewer than 7
-    inliers, a singular or non-finite ``H``). ``factors``, ``weak_exponent``: see :func:`calibrated` (the defaults:
-    the raw ``s^2 H^-1``)."""
+def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: np.ndarray) -> np.ndarray | None:
+    """The raw ``s^2 H^-1`` (module convention) from small_gicp's ``H``, ``e`` and ``num_inliers`` at the solution:
+    what the residuals say when every pair is independent (far too confident: the module docstring); None when they
+    cannot give one (fewer than 7 inliers, a singular or non-finite ``H``)."""
     H = np.asarray(H, dtype=np.float64)
     n = int(num_inliers)
     if H.shape != (6, 6) or not np.isfinite(H).all() or n < 7 or not np.isfinite(e):
@@ -96,28 +99,10 @@ def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: 
     if w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
         return None
     s2 = max(2.0 * float(e) / (3 * n - 6), 1e-12)
-    cov_right = s2 * (V / w) @ V.T
     R = np.asarray(T_target_source, dtype=np.float64)[:3, :3]
     B = np.zeros((6, 6))
     B[:3, :3] = B[3:, 3:] = R
-    return calibrated(B @ cov_right @ B.T, factors, weak_exponent)
-
-
-def calibrated(cov: np.ndarray, factors: tuple[float, float], weak_exponent: float) -> np.ndarray:
-    """The raw covariance ``s^2 H^-1`` (module convention) made honest: along each eigen-direction of the translation
-    and of the rotation block of its information (eigenvalue ``lambda``, the block's largest ``lambda_max``) the
-    variance times ``(lambda_max / lambda) ** weak_exponent``, then the translation block times ``factors[0]`` and the
-    rotation block times ``factors[1]`` (correlations scaled along: ``D Sigma D``, positive definite as before)."""
-    cov = 0.5 * (cov + cov.T)
-    S = np.eye(6)
-    if weak_exponent:
-        info = np.linalg.inv(cov)
-        for sl in (slice(0, 3), slice(3, 6)):
-            w, V = np.linalg.eigh(0.5 * (info[sl, sl] + info[sl, sl].T))
-            g = (w[-1] / np.maximum(w, w[-1] * 1e-12)) ** (0.5 * weak_exponent)
-            S[sl, sl] = (V * g) @ V.T
-    D = np.diag(np.sqrt([factors[0]] * 3 + [factors[1]] * 3)) @ S
-    out = D @ cov @ D.T
+    out = B @ (s2 * (V / w) @ V.T) @ B.T
     out = 0.5 * (out + out.T)
     out[np.diag_indices(6)] += VARIANCE_FLOOR
     return out
@@ -178,6 +163,147 @@ def gicp_hessian(source: Any, target: Any, T_target_source: np.ndarray, *, max_c
     return np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers)
 
 
+def _skews(a: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) cross-product matrices."""
+    S = np.zeros((len(a), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
+    return S
+
+
+def _rot(R: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``R @ C[i] @ R.T`` for (n, 3, 3) ``C`` (two matrix products over the whole stack)."""
+    return np.tensordot(np.tensordot(C, R.T, axes=([2], [0])), R, axes=([1], [1])).transpose(0, 2, 1)
+
+
+def _inv3(S: np.ndarray) -> np.ndarray:
+    """Inverses of a stack (n, 3, 3) of symmetric matrices (the adjugate over the determinant)."""
+    a, b, c, d, e, f = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2], S[:, 1, 1], S[:, 1, 2], S[:, 2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    out = np.stack([A, B, C, B, D, E, C, E, F], axis=1).reshape(-1, 3, 3)
+    return out / det[:, None, None]
+
+
+def sandwich_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
+                   cell: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """GICP's Hessian and the cluster-robust "meat" of the pairs ``a`` (source points (n, 3), covariances ``Ca``
+    (n, 3, 3)) and ``b`` (their target points and ``Cb``) at ``T = T_target_source``, for small_gicp's right
+    perturbation ``[rot, trans]``: ``H = sum J^T M J`` and ``B = sum_c G_c G_c^T``, ``G_c`` the sum of the gradients
+    ``J^T M r`` of the pairs whose target point lies in the cell ``c`` of a ``cell``-m grid -> (H, B, cells)."""
+    R, t = T[:3, :3], T[:3, 3]
+    r = b - (a @ R.T + t)
+    Mp = _inv3(_rot(R.T, Cb) + Ca)  # R^T M R, M in the source's axes: J = R [skew(a), -I]
+    u = np.einsum("nij,nj->ni", Mp, r @ R)  # R^T M r
+    g = np.concatenate([np.cross(u, a), -u], axis=1)  # J^T M r
+    Sa = _skews(a)
+    MS = Mp @ Sa
+    H = np.empty((6, 6))
+    H[:3, :3] = np.einsum("nji,njk->ik", Sa, MS)
+    H[:3, 3:] = -np.einsum("nji,njk->ik", Sa, Mp)
+    H[3:, :3] = H[:3, 3:].T
+    H[3:, 3:] = Mp.sum(axis=0)
+    _, cluster = np.unique(_keys(np.floor(b / cell)), return_inverse=True)
+    cluster = cluster.ravel()
+    G = np.stack([np.bincount(cluster, weights=g[:, j]) for j in range(6)], axis=1)
+    return H, G.T @ G, len(G)
+
+
+def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray, inflation: float,
+                        cell: float | None = None, weak_sigma: float = 0.0) -> np.ndarray | None:
+    """(6, 6) covariance (the module's convention, axes of ``T_out``'s parent) of the GICP solution whose matched
+    pairs are ``pairs`` (:func:`matched_pairs`, :func:`voxel_pairs`): ``inflation * H^-1 B H^-1 * G / (G - 6)``
+    (:func:`sandwich_terms` on ``cell``-m cells, :data:`CLUSTER_CELL` halved down to 1 m until there are
+    :data:`MIN_CLUSTERS` of them; ``G`` the cells); along each weak translation direction (an eigen-direction of
+    the Hessian's translation block below :data:`WEAK_RATIO` of its largest: a corridor, a straight road with little
+    beside it) the variance grows by ``weak_sigma ** 2`` (m^2: the start's own uncertainty, where the answer along it
+    is where the start left it). None without pairs or with a singular Hessian."""
+    if pairs is None:
+        return None
+    a, Ca, b, Cb, T = pairs
+    cell = float(cell or CLUSTER_CELL)
+    H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
+    while G < MIN_CLUSTERS and cell > 1.0:
+        cell = max(1.0, cell / 2)
+        H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
+    H = 0.5 * (H + H.T)
+    w, V = np.linalg.eigh(H)
+    if G <= 6 or not np.isfinite(w).all() or w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
+        return None
+    Hi = (V / w) @ V.T
+    cov_right = (inflation * G / (G - 6)) * (Hi @ B @ Hi)
+    cov_right = cov_right[np.ix_(_PERM, _PERM)]
+    wt, Vt = np.linalg.eigh(H[3:, 3:])
+    weak = Vt[:, wt < WEAK_RATIO * wt[-1]]  # (3, K), the scan's frame
+    cov_right[:3, :3] += weak_sigma ** 2 * weak @ weak.T
+    R = np.asarray(T_out, dtype=np.float64)[:3, :3]
+    Bm = np.zeros((6, 6))
+    Bm[:3, :3] = Bm[3:, 3:] = R
+    out = Bm @ cov_right @ Bm.T
+    out = 0.5 * (out + out.T)
+    out[np.diag_indices(6)] += VARIANCE_FLOOR
+    return out
+
+
+def _plane_covs(normals: np.ndarray) -> np.ndarray:
+    """(n, 3) normals -> (n, 3, 3) small_gicp's normalised point covariances, eigenvalues (1e-3, 1, 1) with the
+    smallest along the normal: ``I - 0.999 n n^T`` (read from the normals: a cloud's ``covs()`` is a Python list)."""
+    return np.eye(3) - 0.999 * np.einsum("ni,nj->nij", normals, normals)
+
+
+def matched_pairs(source: Any, target: Any, T_target_source: np.ndarray, max_corr_dist: float,
+                  threads: int = 1) -> tuple[np.ndarray, ...] | None:
+    """GICP's pairs at ``T_target_source``: the source's points and covariances (n, 3), (n, 3, 3), their nearest
+    target points within ``max_corr_dist`` and those points' covariances, and the pose in the target cloud's own
+    frame. ``source``: a prepared small_gicp cloud (or one with a ``.cloud``); ``target``: a prepared cloud with
+    ``.cloud`` and ``.tree`` (a ``PolishView``: its base cloud, in the base's frame)."""
+    T = np.asarray(T_target_source, dtype=np.float64)
+    T_base = getattr(target, "T_base", None)
+    tree = target.tree if T_base is None else target.tree.base
+    T = T if T_base is None else np.asarray(T_base, dtype=np.float64) @ T
+    src = getattr(source, "cloud", source)
+    a = np.asarray(src.points(), dtype=np.float64)[:, :3]
+    idx, d2 = tree.batch_nearest_neighbor_search(a @ T[:3, :3].T + T[:3, 3], num_threads=max(1, int(threads)))
+    idx, d2 = np.asarray(idx, dtype=np.int64).ravel(), np.asarray(d2, dtype=np.float64).ravel()
+    keep = (idx >= 0) & (d2 <= max_corr_dist ** 2)
+    if keep.sum() < 7:
+        return None
+    tc = target.cloud
+    uniq, inv = np.unique(idx[keep], return_inverse=True)  # the target's cloud is a whole map: only these points
+    b = np.array([tc.point(int(i))[:3] for i in uniq])[inv.ravel()]
+    Cb = _plane_covs(np.array([tc.normal(int(i))[:3] for i in uniq]))[inv.ravel()]
+    Ca = _plane_covs(np.asarray(src.normals(), dtype=np.float64)[keep, :3])
+    return a[keep], Ca, b, Cb, T
+
+
+def _keys(cells: np.ndarray) -> np.ndarray:
+    """(n, 3) integer cells -> (n,) int64 keys (21 bits per axis: +-1e6 cells)."""
+    c = (cells.astype(np.int64) + (1 << 20)) & ((1 << 21) - 1)
+    return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+
+def voxel_pairs(source: Any, vmap: Any, T_map_source: np.ndarray, voxel_size: float) -> tuple[np.ndarray, ...] | None:
+    """:func:`matched_pairs` for VGICP on a ``small_gicp.GaussianVoxelMap`` of ``voxel_size``: each source point's
+    voxel (its mean and covariance), as VGICP pairs them."""
+    T = np.asarray(T_map_source, dtype=np.float64)
+    means = np.asarray(vmap.voxel_points(), dtype=np.float64)[:, :3]
+    if len(means) == 0:
+        return None
+    keys = _keys(np.floor(means / voxel_size))
+    order = np.argsort(keys)
+    a = np.asarray(source.points(), dtype=np.float64)[:, :3]
+    q = _keys(np.floor((a @ T[:3, :3].T + T[:3, 3]) / voxel_size))
+    pos = np.minimum(np.searchsorted(keys[order], q), len(order) - 1)
+    hit = keys[order][pos] == q
+    if hit.sum() < 7:
+        return None
+    idx = order[pos[hit]]
+    covs = np.asarray(vmap.voxel_covs(), dtype=np.float64).reshape(-1, 4, 4)
+    Ca = _plane_covs(np.asarray(source.normals(), dtype=np.float64)[hit, :3])
+    return a[hit], Ca, means[idx], covs[idx][:, :3, :3], T
+
+
 def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
     """Whether ``cov`` is a finite, symmetric, positive definite (6, 6) matrix with every diagonal below
     ``max_diagonal``."""
@@ -189,22 +315,58 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
     return bool(np.linalg.eigvalsh(c)[0] > 0 and np.all(np.diag(c) < max_diagonal))
 
 
+def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
+                        floor: tuple[float, float] = (0.0, 0.0)) -> np.ndarray | None:
+    """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
+    fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus ``floor``
+    (m, rad: standard deviations per axis of the position and of the rotation, :class:`MotionFloor`); along a weak
+    direction the pose is the prediction's (core/degeneracy.py), whose error is the whole deviation (``floor[0] /
+    SWEEP_SPREAD``)."""
+    cov = sandwich_covariance(voxel_pairs(cloud, vmap, T_map_scan, voxel_size), T_map_scan, ODOMETRY_INFLATION,
+                              weak_sigma=floor[0] / SWEEP_SPREAD)
+    if cov is not None:
+        cov[np.diag_indices(6)] += np.repeat(np.square(np.asarray(floor, dtype=np.float64)), 3)
+    return cov
+
+
+class MotionFloor:
+    """The odometry's sweep model error (:data:`SWEEP_SPREAD`): the root mean square of the last
+    :data:`MOTION_WINDOW` deviations of the pose from the constant-velocity prediction (position, m; rotation
+    angle, rad), as KISS-ICP's adaptive threshold measures its motion model's error."""
+
+    def __init__(self) -> None:
+        from collections import deque
+
+        self._devs: Any = deque(maxlen=MOTION_WINDOW)
+
+    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> tuple[float, float]:
+        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) -> the floor
+        (m, rad), standard deviations per axis."""
+        if prediction is not None:
+            from scipy.spatial.transform import Rotation
+
+            D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
+            self._devs.append((np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+        if not self._devs:
+            return 0.0, 0.0
+        rms = np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
+        return float(SWEEP_SPREAD * rms[0]), float(SWEEP_SPREAD * rms[1])
+
+
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,
                     threads: int = 1) -> np.ndarray | None:
     """The covariance of ``T_map_scan`` (the module's convention, map frame) from the precision-stage clouds: the
-    scan's ``source`` and a map crop's ``target`` (frame ``T_map_target``), linearised at the pose with the
+    scan's ``source`` and a map crop's ``target`` (frame ``T_map_target``), paired at the pose with the
     correspondence distance of the stage that gave it (``localization.refine_corr_dist`` when the refinement runs,
-    else ``registration.polish_max_corr_dist``); None without clouds or when the GICP gives none."""
-    from deepbbs_ros.core.polish import SMALL_GICP_TYPE
-
+    else ``registration.polish_max_corr_dist``); None without clouds or pairs."""
     rc, lc = config.registration, config.localization
     if source is None or target is None or rc.polish == "none":
         return None
     corr = lc.refine_corr_dist if lc.refine_corr_dist > 0 else rc.polish_max_corr_dist
     T_target_scan = np.linalg.solve(np.asarray(T_map_target, dtype=np.float64), np.asarray(T_map_scan, np.float64))
     try:
-        H, e, n = gicp_hessian(source, target, T_target_scan, max_corr_dist=corr,
-                               registration_type=SMALL_GICP_TYPE[rc.polish], threads=threads)
-    except (RuntimeError, ValueError):  # small_gicp on a cloud without covariances
+        pairs = matched_pairs(source, target, T_target_scan, corr, threads)
+    except (RuntimeError, ValueError, IndexError):  # a cloud without covariances
         return None
-    return gicp_covariance(H, e, n, T_map_scan, factors=LOCALIZATION_FACTORS, weak_exponent=LOCALIZATION_WEAK_EXPONENT)
+    # along a weak direction the answer is anywhere GICP's reach (``corr``) left it: uniform, corr / sqrt(3)
+    return sandwich_covariance(pairs, T_map_scan, LOCALIZATION_INFLATION, weak_sigma=corr / 3.0 ** 0.5)

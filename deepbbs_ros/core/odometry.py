@@ -185,6 +185,7 @@ class DeepBBSOdometry:
         self._gicp: tuple[np.ndarray, float, int] = (np.zeros((6, 6)), float("nan"), 0)  # the last VGICP's H, e, n
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
+        self._sweep = _cov.MotionFloor()  # the step covariance's model error
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
 
     @property
@@ -217,7 +218,6 @@ class DeepBBSOdometry:
         # predict + align: GICP against the voxel map from the constant-velocity prediction
         prior = self.pose @ se3_power(self.delta, scale)
         pose, fit = self._align(cloud, prior)
-        gicp = self._gicp
         pose, deg = self._hold(pose, prior)
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
@@ -232,13 +232,12 @@ class DeepBBSOdometry:
                     pose_b, fit_b = init_b, self._fit_at(cloud, init_b)
                 else:
                     pose_b, fit_b = self._align(cloud, init_b)
-                gicp_b = self._gicp
                 pose_b, deg_b = self._hold(pose_b, init_b)
                 # first motion: there is no prior yet (identity is a guess), DeepBBS++ wins unless clearly
                 # worse; later the constant-velocity track wins unless DeepBBS++ fits clearly better
                 better = fit_b + oc.fit_margin >= fit if self.frames == 1 else fit_b > fit + oc.fit_margin
                 if better:
-                    pose, fit, won, path, gicp, deg = pose_b, fit_b, True, self._deepbbs_path, gicp_b, deg_b
+                    pose, fit, won, path, deg = pose_b, fit_b, True, self._deepbbs_path, deg_b
             clock.lap("deepbbs")
         dev = _deg.deviation(pose, prior)
         if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
@@ -251,14 +250,14 @@ class DeepBBSOdometry:
             # the first velocity is known only now: deskew the first two scans with it and restart the map
             cloud, frame = self._restart_deskewed(points, times)
             clock.lap("prepare")
-        # update: map, velocity, previous scan
+        # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
+        floor = self._sweep.update(pose, prior if self.frames >= 2 else None)
+        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor)
         self._map.insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
-        cov = _cov.gicp_covariance(*gicp, pose, factors=_cov.ODOMETRY_FACTORS,
-                                   weak_exponent=_cov.ODOMETRY_WEAK_EXPONENT)
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
                             path, cov, deg.label, dev, limit)
 
