@@ -68,8 +68,6 @@ SWEEP_SPREAD = 12.0 ** -0.5
 ODOMETRY_MAX_POINTS = 2000
 #: steps whose deviations from the constant-velocity prediction make the floor's root mean square
 MOTION_WINDOW = 10
-#: real deviations before the first motion's stops standing in for them
-MIN_DEVIATIONS = 3
 #: variance floor, m^2 / rad^2 on the diagonal: noise-free synthetic scenes must not give a singular covariance
 VARIANCE_FLOOR = 1e-10
 
@@ -243,25 +241,20 @@ class MotionFloor:
         from collections import deque
 
         self._devs: Any = deque(maxlen=MOTION_WINDOW)
-        self._first: tuple[float, float] | None = None
 
     def update(self, pose: np.ndarray, prediction: np.ndarray | None, keep: bool = True) -> tuple[float, float]:
         """Add the deviation of ``pose`` from ``prediction`` (None: nothing to add) -> the floor (m, rad), standard
         deviations per axis. ``keep=False`` (the first motion, whose prediction, no motion, is a guess): that
-        deviation is not one of the window's; it stands in until :data:`MIN_DEVIATIONS` real ones are known (the
-        root mean square of one or two is no estimate)."""
+        deviation counts for this step only and is not kept for the next ones."""
+        devs = list(self._devs)
         if prediction is not None:
             from scipy.spatial.transform import Rotation
 
             D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
             dev = (np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec()))
+            devs.append(dev)
             if keep:
                 self._devs.append(dev)
-            else:
-                self._first = dev
-        devs = list(self._devs)
-        if len(devs) < MIN_DEVIATIONS and self._first is not None:
-            devs.append(self._first)
         if not devs:
             return 0.0, 0.0
         rms = np.sqrt(np.mean(np.square(np.asarray(devs)), axis=0))
