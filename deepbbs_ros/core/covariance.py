@@ -242,22 +242,17 @@ class MotionFloor:
 
         self._devs: Any = deque(maxlen=MOTION_WINDOW)
 
-    def update(self, pose: np.ndarray, prediction: np.ndarray | None, keep: bool = True) -> tuple[float, float]:
-        """Add the deviation of ``pose`` from ``prediction`` (None: nothing to add) -> the floor (m, rad), standard
-        deviations per axis. ``keep=False`` (the first motion, whose prediction, no motion, is a guess): that
-        deviation counts for this step only and is not kept for the next ones."""
-        devs = list(self._devs)
+    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> tuple[float, float]:
+        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) -> the floor
+        (m, rad), standard deviations per axis."""
         if prediction is not None:
             from scipy.spatial.transform import Rotation
 
             D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
-            dev = (np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec()))
-            devs.append(dev)
-            if keep:
-                self._devs.append(dev)
-        if not devs:
+            self._devs.append((np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+        if not self._devs:
             return 0.0, 0.0
-        rms = np.sqrt(np.mean(np.square(np.asarray(devs)), axis=0))
+        rms = np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
         return float(SWEEP_SPREAD * rms[0]), float(SWEEP_SPREAD * rms[1])
 
 

@@ -251,7 +251,7 @@ class DeepBBSOdometry:
             cloud, frame = self._restart_deskewed(points, times)
             clock.lap("prepare")
         # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
-        floor = self._sweep.update(pose, prior, keep=self.frames >= 2)
+        floor = self._sweep.update(pose, prior if self.frames >= 2 else None)
         cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor)
         self._map.insert(cloud, pose)
         self.pose = pose
