@@ -8,30 +8,28 @@ perturbation (target-frame axes, about the pose's own origin). For a pose at the
 perturbation would read a rotation about the map's origin).
 
 small_gicp linearises its cost ``E = 1/2 sum_i r_i^T M_i r_i`` (``r_i = b_i - T a_i``, ``M_i = (C_b + R C_a R^T)^-1``
-from the clouds' covariances) for a **right** perturbation ``T exp(xi)`` with ``xi = [rot (3), trans (3)]``: its
-result carries that Hessian ``H`` (6 x 6, Gauss-Newton ``J^T M J``), the cost ``e`` and the inlier count ``n`` at
-the last linearisation. Then:
+from the clouds' normalised covariances, eigenvalues (1e-3, 1, 1): a shape, not the residuals' variance) for a
+**right** perturbation ``T exp(xi)``, ``xi = [rot (3), trans (3)]``. The estimate's covariance is the M-estimator's
+"sandwich" ``H^-1 (sum_i g_i g_i^T) H^-1`` (``g_i = J_i^T M_i r_i``, ``H = sum J^T M J``), which needs no noise model;
+but neighbouring points' errors are not independent (the same surface, laser ring and voxel grid, map and scan
+sampled from other places), so the gradients are summed per cell of a grid of :data:`CLUSTER_CELL` m first and the
+outer products taken of the cells' sums (the cluster-robust covariance, :func:`sandwich_covariance`): correlated
+errors within a cell count once, as they move the pose. Then:
 
-1. reorder ``H`` to ``[trans, rot]`` and invert it;
-2. scale by the residual variance of unit weight, ``s^2 = 2 e / (3 n - 6)`` (small_gicp's point covariances are
-   normalised, eigenvalues (1e-3, 1, 1): only their shape is metric, so the scale has to come from the residuals);
-3. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, so ``Sigma = B Sigma_right B^T`` with
-   ``B = diag(R, R)``;
-4. inflate weak (degenerate) directions (:func:`calibrated`): along each eigen-direction of the translation block and
-   of the rotation block of the information, the variance times ``(lambda_max / lambda) ** exponent`` (a corridor, a
-   straight road with little beside it: along it GICP barely moves the pose and its error there is mostly where the
-   start left it, not residual noise; a synthetic 4 m wide corridor has a ratio ``lambda / lambda_max`` of 2e-3, a
-   simulated highway 1e-2 to 5e-2, a street 0.1 to 0.3);
-5. multiply the translation block by ``factors[0]`` and the rotation block by ``factors[1]`` (``D Sigma D``):
-   neighbouring voxels' residuals are not independent (the same surface, the same laser ring, the voxel grid's own
-   discretisation, map and scan sampled from other places), so ``n`` overstates the independent measurements; each
-   factor is the ratio of ``n`` to an effective sample size.
+1. a small-sample factor ``G / (G - 6)`` for ``G`` cells;
+2. along a weak translation direction (:data:`WEAK_RATIO`: a corridor, a straight road with little beside it) the
+   start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
+   anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
+3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
+   motion it missed, the root mean square of the recent deviations from the prediction over sqrt(12) per axis;
+4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
+   ``B = diag(R, R)``.
 
-The constants (:data:`LOCALIZATION_FACTORS`, :data:`ODOMETRY_FACTORS` and the exponents) were fitted on simulated
-drives only (``scripts/benchmarks/covariance.py --fit``: urban, suburban, highway and open-road scenes with HDL-64E
-and VLP-16 sensors; the pooled mean NEES of each block made 3) and checked on real scans; docs/node.md has the
-figures. The raw ``s^2 H^-1`` is far overconfident: on the simulated sets the median NEES of its localization poses
-was 16 to 209 and of its odometry steps 380 to 16,000 (chi2(6)'s: 5.35).
+One constant is fitted: :data:`LOCALIZATION_INFLATION` (``scripts/benchmarks/covariance.py --fit`` on simulated
+drives of three sensors and four road scenes) for what the residuals of a scan on a map crop cannot show; the cell
+and the floors are chosen from their meaning. docs/node.md has the figures. The raw ``s^2 H^-1``
+(:func:`gicp_covariance`) is far overconfident: on simulated drives its median NEES was 16 to 209 for the
+localization and 380 to 16,000 for the odometry's steps (chi2(6)'s: 5.35).
 """
 
 from __future__ import annotations
@@ -40,22 +38,36 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["adjoint", "calibrated", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance",
-           "pose_error", "scan_covariance", "skew"]
+from deepbbs_ros.core.gicp_pairs import matched_pairs, sandwich_terms, voxel_pairs
 
-#: weak-direction exponent: the variance along an eigen-direction of a block of the information with ``lambda`` is
-#: multiplied by ``(lambda_max / lambda) ** exponent`` (chosen, not fitted: 1 for the localization, where a corridor
-#: needs it; 0 for the odometry, whose simulated drives' NEES spread more with it)
-LOCALIZATION_WEAK_EXPONENT_CHOSEN = 1.0
-ODOMETRY_WEAK_EXPONENT_CHOSEN = 0.0
-LOCALIZATION_WEAK_EXPONENT = LOCALIZATION_WEAK_EXPONENT_CHOSEN
-ODOMETRY_WEAK_EXPONENT = ODOMETRY_WEAK_EXPONENT_CHOSEN
-#: (translation, rotation) ratio of n to the effective sample size of the residuals of the localization's GICP on a
-#: map crop and of the odometry's VGICP on its local map (module docstring), fitted by ``scripts/benchmarks/
-#: covariance.py --fit`` on simulated drives only (urban, suburban, highway, open road; HDL-64E and VLP-16): the
-#: pooled mean NEES of each block made 3
-LOCALIZATION_FACTORS = (7.614, 6.109)
-ODOMETRY_FACTORS = (1089.1, 617.6)
+__all__ = ["adjoint", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance", "matched_pairs",
+           "odometry_covariance", "pose_error", "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
+
+#: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
+#: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
+#: together); halved (down to 1 m) until a scan has :data:`MIN_CLUSTERS` cells (a small room). Chosen, not fitted:
+#: on simulated HDL-64E and VLP-16 drives the sets' mean NEES are closest to one another from 10 to 20 m
+CLUSTER_CELL = 12.0
+MIN_CLUSTERS = 24
+#: a translation direction is weak (:func:`sandwich_covariance`) where the Hessian's eigenvalue along it is below
+#: this share of the largest (a synthetic 4 m corridor: 2e-3 to 5e-3; a simulated highway 1e-2 to 5e-2)
+WEAK_RATIO = 0.01
+#: the factor on the localization's cluster-robust covariance for what the residuals of a scan on a map crop cannot
+#: show (the map's and the scan's sampling of the same surfaces, a bias shared by every cell): fitted by
+#: ``scripts/benchmarks/covariance.py --fit`` on simulated drives only (HDL-64E, VLP-16 and OS1-64 in four road
+#: scenes, seed 7: the pooled mean NEES made 6), checked on others (docs/node.md)
+LOCALIZATION_INFLATION = 1.156
+#: the odometry's: none (its floor, :data:`SWEEP_SPREAD`, is not fitted either)
+ODOMETRY_INFLATION = 1.0
+#: the sweep's model error (odometry): deskewed with the constant velocity, a sweep keeps the motion the prediction
+#: missed, growing from nothing to the step's deviation across the sweep; for firing times spread evenly over it the
+#: spread of that error is the deviation / sqrt(12), the floor's standard deviation per axis (not fitted)
+SWEEP_SPREAD = 12.0 ** -0.5
+#: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
+#: drives 2,000 points moved the mean NEES by under 6 %)
+ODOMETRY_MAX_POINTS = 2000
+#: steps whose deviations from the constant-velocity prediction make the floor's root mean square
+MOTION_WINDOW = 10
 #: variance floor, m^2 / rad^2 on the diagonal: noise-free synthetic scenes must not give a singular covariance
 VARIANCE_FLOOR = 1e-10
 
@@ -80,12 +92,10 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return Ad
 
 
-def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: np.ndarray, *,
-                    factors: tuple[float, float] = (1.0, 1.0), weak_exponent: float = 0.0) -> np.ndarray | None:
-    """(6, 6) covariance of ``T_target_source`` (the module's convention) from small_gicp's ``H``, ``e`` and
-    ``num_inliers`` at the solution (module docstring, steps 1-5); None when they cannot give one (fewer than 7
-    inliers, a singular or non-finite ``H``). ``factors``, ``weak_exponent``: see :func:`calibrated` (the defaults:
-    the raw ``s^2 H^-1``)."""
+def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: np.ndarray) -> np.ndarray | None:
+    """The raw ``s^2 H^-1`` (module convention) from small_gicp's ``H``, ``e`` and ``num_inliers`` at the solution:
+    what the residuals say when every pair is independent (far too confident: the module docstring); None when they
+    cannot give one (fewer than 7 inliers, a singular or non-finite ``H``)."""
     H = np.asarray(H, dtype=np.float64)
     n = int(num_inliers)
     if H.shape != (6, 6) or not np.isfinite(H).all() or n < 7 or not np.isfinite(e):
@@ -96,28 +106,10 @@ def gicp_covariance(H: np.ndarray, e: float, num_inliers: int, T_target_source: 
     if w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
         return None
     s2 = max(2.0 * float(e) / (3 * n - 6), 1e-12)
-    cov_right = s2 * (V / w) @ V.T
     R = np.asarray(T_target_source, dtype=np.float64)[:3, :3]
     B = np.zeros((6, 6))
     B[:3, :3] = B[3:, 3:] = R
-    return calibrated(B @ cov_right @ B.T, factors, weak_exponent)
-
-
-def calibrated(cov: np.ndarray, factors: tuple[float, float], weak_exponent: float) -> np.ndarray:
-    """The raw covariance ``s^2 H^-1`` (module convention) made honest: along each eigen-direction of the translation
-    and of the rotation block of its information (eigenvalue ``lambda``, the block's largest ``lambda_max``) the
-    variance times ``(lambda_max / lambda) ** weak_exponent``, then the translation block times ``factors[0]`` and the
-    rotation block times ``factors[1]`` (correlations scaled along: ``D Sigma D``, positive definite as before)."""
-    cov = 0.5 * (cov + cov.T)
-    S = np.eye(6)
-    if weak_exponent:
-        info = np.linalg.inv(cov)
-        for sl in (slice(0, 3), slice(3, 6)):
-            w, V = np.linalg.eigh(0.5 * (info[sl, sl] + info[sl, sl].T))
-            g = (w[-1] / np.maximum(w, w[-1] * 1e-12)) ** (0.5 * weak_exponent)
-            S[sl, sl] = (V * g) @ V.T
-    D = np.diag(np.sqrt([factors[0]] * 3 + [factors[1]] * 3)) @ S
-    out = D @ cov @ D.T
+    out = B @ (s2 * (V / w) @ V.T) @ B.T
     out = 0.5 * (out + out.T)
     out[np.diag_indices(6)] += VARIANCE_FLOOR
     return out
@@ -178,6 +170,42 @@ def gicp_hessian(source: Any, target: Any, T_target_source: np.ndarray, *, max_c
     return np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers)
 
 
+def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray, inflation: float,
+                        cell: float | None = None, weak_sigma: float = 0.0) -> np.ndarray | None:
+    """(6, 6) covariance (the module's convention, axes of ``T_out``'s parent) of the GICP solution whose matched
+    pairs are ``pairs`` (:func:`matched_pairs`, :func:`voxel_pairs`): ``inflation * H^-1 B H^-1 * G / (G - 6)``
+    (:func:`sandwich_terms` on ``cell``-m cells, :data:`CLUSTER_CELL` halved down to 1 m until there are
+    :data:`MIN_CLUSTERS` of them; ``G`` the cells); along each weak translation direction (an eigen-direction of
+    the Hessian's translation block below :data:`WEAK_RATIO` of its largest: a corridor, a straight road with little
+    beside it) the variance grows by ``weak_sigma ** 2`` (m^2: the start's own uncertainty, where the answer along it
+    is where the start left it). None without pairs or with a singular Hessian."""
+    if pairs is None:
+        return None
+    a, Ca, b, Cb, T = pairs
+    cell = float(cell or CLUSTER_CELL)
+    H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
+    while G < MIN_CLUSTERS and cell > 1.0:
+        cell = max(1.0, cell / 2)
+        H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
+    H = 0.5 * (H + H.T)
+    w, V = np.linalg.eigh(H)
+    if G <= 6 or not np.isfinite(w).all() or w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
+        return None
+    Hi = (V / w) @ V.T
+    cov_right = (inflation * G / (G - 6)) * (Hi @ B @ Hi)
+    cov_right = cov_right[np.ix_(_PERM, _PERM)]
+    wt, Vt = np.linalg.eigh(H[3:, 3:])
+    weak = Vt[:, wt < WEAK_RATIO * wt[-1]]  # (3, K), the scan's frame
+    cov_right[:3, :3] += weak_sigma ** 2 * weak @ weak.T
+    R = np.asarray(T_out, dtype=np.float64)[:3, :3]
+    Bm = np.zeros((6, 6))
+    Bm[:3, :3] = Bm[3:, 3:] = R
+    out = Bm @ cov_right @ Bm.T
+    out = 0.5 * (out + out.T)
+    out[np.diag_indices(6)] += VARIANCE_FLOOR
+    return out
+
+
 def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
     """Whether ``cov`` is a finite, symmetric, positive definite (6, 6) matrix with every diagonal below
     ``max_diagonal``."""
@@ -189,22 +217,59 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
     return bool(np.linalg.eigvalsh(c)[0] > 0 and np.all(np.diag(c) < max_diagonal))
 
 
+def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
+                        floor: tuple[float, float] = (0.0, 0.0)) -> np.ndarray | None:
+    """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
+    fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus ``floor``
+    (m, rad: standard deviations per axis of the position and of the rotation, :class:`MotionFloor`); along a weak
+    direction the pose is the prediction's (core/degeneracy.py), whose error is the whole deviation (``floor[0] /
+    SWEEP_SPREAD``)."""
+    pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
+    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION,
+                              weak_sigma=floor[0] / SWEEP_SPREAD)
+    if cov is not None:
+        cov[np.diag_indices(6)] += np.repeat(np.square(np.asarray(floor, dtype=np.float64)), 3)
+    return cov
+
+
+class MotionFloor:
+    """The odometry's sweep model error (:data:`SWEEP_SPREAD`): the root mean square of the last
+    :data:`MOTION_WINDOW` deviations of the pose from the constant-velocity prediction (position, m; rotation
+    angle, rad), as KISS-ICP's adaptive threshold measures its motion model's error."""
+
+    def __init__(self) -> None:
+        from collections import deque
+
+        self._devs: Any = deque(maxlen=MOTION_WINDOW)
+
+    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> tuple[float, float]:
+        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) -> the floor
+        (m, rad), standard deviations per axis."""
+        if prediction is not None:
+            from scipy.spatial.transform import Rotation
+
+            D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
+            self._devs.append((np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+        if not self._devs:
+            return 0.0, 0.0
+        rms = np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
+        return float(SWEEP_SPREAD * rms[0]), float(SWEEP_SPREAD * rms[1])
+
+
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,
                     threads: int = 1) -> np.ndarray | None:
     """The covariance of ``T_map_scan`` (the module's convention, map frame) from the precision-stage clouds: the
-    scan's ``source`` and a map crop's ``target`` (frame ``T_map_target``), linearised at the pose with the
+    scan's ``source`` and a map crop's ``target`` (frame ``T_map_target``), paired at the pose with the
     correspondence distance of the stage that gave it (``localization.refine_corr_dist`` when the refinement runs,
-    else ``registration.polish_max_corr_dist``); None without clouds or when the GICP gives none."""
-    from deepbbs_ros.core.polish import SMALL_GICP_TYPE
-
+    else ``registration.polish_max_corr_dist``); None without clouds or pairs."""
     rc, lc = config.registration, config.localization
     if source is None or target is None or rc.polish == "none":
         return None
     corr = lc.refine_corr_dist if lc.refine_corr_dist > 0 else rc.polish_max_corr_dist
     T_target_scan = np.linalg.solve(np.asarray(T_map_target, dtype=np.float64), np.asarray(T_map_scan, np.float64))
     try:
-        H, e, n = gicp_hessian(source, target, T_target_scan, max_corr_dist=corr,
-                               registration_type=SMALL_GICP_TYPE[rc.polish], threads=threads)
-    except (RuntimeError, ValueError):  # small_gicp on a cloud without covariances
+        pairs = matched_pairs(source, target, T_target_scan, corr, threads)
+    except (RuntimeError, ValueError, IndexError):  # a cloud without covariances
         return None
-    return gicp_covariance(H, e, n, T_map_scan, factors=LOCALIZATION_FACTORS, weak_exponent=LOCALIZATION_WEAK_EXPONENT)
+    # along a weak direction the answer is anywhere GICP's reach (``corr``) left it: uniform, corr / sqrt(3)
+    return sandwich_covariance(pairs, T_map_scan, LOCALIZATION_INFLATION, weak_sigma=corr / 3.0 ** 0.5)

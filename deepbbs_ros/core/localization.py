@@ -62,12 +62,7 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import acceptance
-from deepbbs_ros.core.covariance import (
-    LOCALIZATION_FACTORS,
-    LOCALIZATION_WEAK_EXPONENT,
-    gicp_covariance,
-    scan_covariance,
-)
+from deepbbs_ros.core.covariance import scan_covariance
 from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests reach the descriptor's helpers here)
     GROUND_WINDOW,
     _HeightGrid,
@@ -512,15 +507,11 @@ class MapLocalizer(GuessTracking, PlaceSearch):
 
     def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float],
                     hessian: Any = None) -> np.ndarray | None:
-        """The covariance of a valid ``T_map_scan`` (core/covariance.py), timed into ``covariance``: from ``hessian``
-        (:meth:`_refine_gicp`'s, when it refined to this pose), else from a GICP linearisation made here."""
+        """The covariance of a valid ``T_map_scan`` (core/covariance.py: cluster-robust, from the GICP pairs at the
+        pose, which ``hessian``, the refinement's last linearisation, does not carry), timed into ``covariance``."""
         t = time.perf_counter()
-        if hessian is not None:
-            cov = gicp_covariance(*hessian, T_map_scan, factors=LOCALIZATION_FACTORS,
-                                  weak_exponent=LOCALIZATION_WEAK_EXPONENT)
-        else:
-            cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan,
-                                  self.config, self.registration.gicp_threads())
+        cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan, self.config,
+                              self.registration.gicp_threads())
         timings["covariance"] = (time.perf_counter() - t) * 1e3
         return cov
 

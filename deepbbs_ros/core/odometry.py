@@ -188,6 +188,7 @@ class DeepBBSOdometry:
         self._gicp: tuple[np.ndarray, float, int] = (np.zeros((6, 6)), float("nan"), 0)  # the last VGICP's H, e, n
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
+        self._sweep = _cov.MotionFloor()  # the step covariance's model error
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
 
     @property
@@ -221,7 +222,6 @@ class DeepBBSOdometry:
         # has none, from identity coarse to fine: core/first_motion.py)
         prior = self.pose @ se3_power(self.delta, scale)
         pose, fit = self._align(cloud, self._coarse_start(frame, prior) if self.frames == 1 else prior)
-        gicp = self._gicp
         pose, deg = self._hold(pose, prior)
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect
@@ -240,10 +240,9 @@ class DeepBBSOdometry:
                 starts.append((self._coarse_start(frame, prior), False, "gicp"))
             for init_b, deep, path_b in starts:
                 pose_b, fit_b = self._align(cloud, init_b)
-                gicp_b = self._gicp
                 pose_b, deg_b = self._hold(pose_b, init_b)
                 if fit_b > fit + oc.fit_margin:
-                    pose, fit, won, path, gicp, deg = pose_b, fit_b, deep, path_b, gicp_b, deg_b
+                    pose, fit, won, path, deg = pose_b, fit_b, deep, path_b, deg_b
             clock.lap("deepbbs")
         dev = _deg.deviation(pose, prior)
         if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
@@ -256,14 +255,14 @@ class DeepBBSOdometry:
             # the first velocity is known only now: deskew the first two scans with it and restart the map
             cloud, frame = self._restart_deskewed(points, times)
             clock.lap("prepare")
-        # update: map, velocity, previous scan
+        # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
+        floor = self._sweep.update(pose, prior if self.frames >= 2 else None)
+        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor)
         self._map.insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
-        cov = _cov.gicp_covariance(*gicp, pose, factors=_cov.ODOMETRY_FACTORS,
-                                   weak_exponent=_cov.ODOMETRY_WEAK_EXPONENT)
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
                             path, cov, deg.label, dev, limit)
 

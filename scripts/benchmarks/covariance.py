@@ -18,9 +18,9 @@ the same for the position block alone (3 DoF).
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
 
-Calibration: ``--fit`` fits core/covariance.py's constants (``*_FACTORS``, ``*_WEAK_EXPONENT``) from the raw
-covariances (factors of 1, no weak inflation) of the simulated sets only (:func:`fit`), and scores every set, the real
-ones included (checked, not fitted), with them. Truth error: the real sets' ground truth is itself off by
+Calibration: ``--fit`` fits core/covariance.py's one fitted constant, ``LOCALIZATION_INFLATION``, from the raw
+cluster-robust covariances (inflation 1) of the simulated sets only (:func:`fit`), and scores every set with it (the
+odometry's covariance has no fitted constant). Truth error: the real sets' ground truth is itself off by
 centimetres (KITTI about 2 cm / 0.05 deg, nuScenes about 5 cm / 0.3 deg: the data's README); the "+truth" columns add
 that as an isotropic covariance (per axis) to the estimate's, the plain ones do not.
 
@@ -82,12 +82,12 @@ def perturbed(T: np.ndarray, rng, sigma: float) -> np.ndarray:
 # ---- data ---------------------------------------------------------------------------------------------------------
 def sim_sets(args):
     """(name, map points, map poses, [(points, T_map_scan)], drive of (points, times, stamp_ns, T) for odometry)."""
-    from deepbbs_ros.sim import LidarConfig
+    from deepbbs_ros.sim.patterns import make_sensor
     from deepbbs_ros.sim.simulator import DriveSimulator
 
     for scene in args.scenes:
         for lidar_name in args.lidars:
-            lidar = LidarConfig.preset(lidar_name)
+            lidar = make_sensor(lidar_name)  # a spinning sensor (sim/patterns.py: hdl64, vlp16, os1_64, xt32...)
             F = args.frames
             sim = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True)
             P = [sim.pose_at(k) for k in range(F)]
@@ -142,9 +142,11 @@ def localization_rows(points, keys, queries, config, args, log=print) -> tuple[l
 
     loc = MapLocalizer(points, config, trajectory=keys)
     rng = np.random.default_rng(args.seed)
-    rows, failed = [], 0
+    rows, failed, ms, share = [], 0, [], []
     for pts, T_true in queries:
         res = loc.localize(pts, perturbed(T_true, rng, args.start_sigma))
+        ms.append(res.timings_ms.get("covariance", np.nan))
+        share.append(ms[-1] / res.timings_ms.get("total", np.nan))
         if not res.valid:
             failed += 1
             continue
@@ -156,6 +158,7 @@ def localization_rows(points, keys, queries, config, args, log=print) -> tuple[l
             failed += 1
             continue
         rows.append((pose_error(T_true, res.T_map_scan), np.asarray(cov)))
+    log(f"    covariance: median {np.nanmedian(ms):.1f} ms a pose, {np.nanmedian(share):.0%} of the pose's time")
     return rows, failed
 
 
@@ -217,26 +220,10 @@ def accumulated(steps: list, chain: list, before: bool = False) -> list:
     return rows
 
 
-def fit(rows_by_set: dict, names: list[str], alpha: float) -> tuple[float, float]:
-    """The (translation, rotation) factors from raw rows (factors of 1, no weak inflation) of the simulated sets
-    ``names`` with the weak exponent ``alpha``: those that make the pooled mean NEES of each block 3 (chi2(3)'s mean,
-    the band's criterion; the medians then show the tails)."""
-    from deepbbs_ros.core.covariance import calibrated
-
-    rows = [(d, calibrated(c, (1.0, 1.0), alpha)) for n in names for d, c in rows_by_set[n]]
-    kt = float(np.mean([d[:3] @ np.linalg.solve(c[:3, :3], d[:3]) for d, c in rows]) / 3.0)
-    kr = float(np.mean([d[3:] @ np.linalg.solve(c[3:, 3:], d[3:]) for d, c in rows]) / 3.0)
-    return kt, kr
-
-
-def alpha_spread(rows_by_set: dict, names: list[str], alpha: float) -> float:
-    """The spread (standard deviation of the logs) of the sets' mean NEES with ``alpha`` and its fitted factors."""
-    from deepbbs_ros.core.covariance import calibrated
-
-    f = fit(rows_by_set, names, alpha)
-    means = [np.mean([float(d @ np.linalg.solve(c, d)) for d, c in
-                      ((d, calibrated(c, f, alpha)) for d, c in rows_by_set[n])]) for n in names]
-    return float(np.std(np.log(means)))
+def fit(rows_by_set: dict, names: list[str]) -> float:
+    """The localization's inflation from raw rows (inflation 1) of the simulated sets ``names``: the one factor
+    that makes the pooled mean NEES 6 (chi2(6)'s mean, the band's criterion; the medians then show the tails)."""
+    return float(np.mean([d @ np.linalg.solve(c, d) for n in names for d, c in rows_by_set[n]]) / 6.0)
 
 
 def save_rows(path: Path, loc_rows: dict, step_rows: dict, chains: dict, truth: dict) -> None:
@@ -284,7 +271,8 @@ def report(title: str, figs: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--scenes", nargs="*", default=["urban", "suburban", "highway", "open_road"])
-    ap.add_argument("--lidars", nargs="*", default=["hdl64", "vlp16"])
+    ap.add_argument("--lidars", nargs="*", default=["hdl64", "vlp16", "os1_64"],
+                    help="spinning sensors (sim/patterns.py)")
     ap.add_argument("--real", nargs="*", default=[], help="KITTI-layout folders with ground truth")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--frames", type=int, default=200, help="frames of each simulated map drive (10 Hz)")
@@ -294,8 +282,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
-    ap.add_argument("--fit", action="store_true", help="fit the constants on the simulated sets (raw covariances); the "
-                    "raw rows are kept in OUT/covariance_rows.npz")
+    ap.add_argument("--fit", action="store_true", help="fit the localization's inflation on the simulated sets (raw "
+                    "covariances); the raw rows are kept in OUT/covariance_rows.npz")
     ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
     ap.add_argument("--out", default="bench_out", help="figures: OUT/covariance.json")
     args = ap.parse_args(argv)
@@ -303,9 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     import deepbbs_ros.core.covariance as covmod
     from deepbbs_ros.config import Config
 
-    if args.fit:  # raw covariances: factors of 1, no weak inflation
-        covmod.LOCALIZATION_FACTORS = covmod.ODOMETRY_FACTORS = (1.0, 1.0)
-        covmod.LOCALIZATION_WEAK_EXPONENT = covmod.ODOMETRY_WEAK_EXPONENT = 0.0
+    if args.fit:  # raw cluster-robust covariances: inflation 1
+        covmod.LOCALIZATION_INFLATION = 1.0
     config = Config()
     loc_rows, step_rows, chains, truth, notes = {}, {}, {}, {}, {}
     t0 = time.perf_counter()
@@ -323,20 +310,13 @@ def main(argv: list[str] | None = None) -> int:
     figures: dict = {}
     if args.fit and not args.refit:
         save_rows(Path(args.out) / "covariance_rows.npz", loc_rows, step_rows, chains, truth)
-    if args.fit:
-        figures["fit"] = {}
-        for key, rows, alpha in (("localization", loc_rows, covmod.LOCALIZATION_WEAK_EXPONENT_CHOSEN),
-                                 ("odometry", step_rows, covmod.ODOMETRY_WEAK_EXPONENT_CHOSEN)):
-            sims = [n for n in rows if n.startswith("sim")]
-            if not sims:
-                continue
-            factors = fit(rows, sims, alpha)
-            spread = {a: alpha_spread(rows, sims, a) for a in (0.0, 0.5, 1.0, 1.5, 2.0, 2.5)}
-            figures["fit"][key] = {"factors": factors, "weak_exponent": alpha, "sets": sims,
-                                   "spread_of_log_mean_nees_by_exponent": spread}
-            for n in rows:
-                rows[n] = [(d, covmod.calibrated(c, factors, alpha)) for d, c in rows[n]]
-        print(f"\nfitted (simulated sets only; the tables below use them): {figures['fit']}")
+    if args.fit and loc_rows:
+        sims = [n for n in loc_rows if n.startswith("sim")]
+        k = fit(loc_rows, sims)
+        figures["fit"] = {"localization_inflation": k, "sets": sims}
+        for n in loc_rows:
+            loc_rows[n] = [(d, k * c) for d, c in loc_rows[n]]
+        print(f"\nfitted (simulated sets only; the tables below use it): LOCALIZATION_INFLATION = {k:.3f}")
     acc_rows = {n: accumulated(step_rows[n], chains[n], args.before) for n in step_rows}
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
     for key, rows in (("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)):

@@ -1,0 +1,138 @@
+"""GICP's pairs at a pose and the cluster-robust terms of its cost (no ROS import): what
+:mod:`deepbbs_ros.core.covariance` makes a covariance of.
+
+small_gicp's cost ``E = 1/2 sum_i r_i^T M_i r_i``, ``r_i = b_i - T a_i``, ``M_i = (C_b + R C_a R^T)^-1``, for a right
+perturbation ``T exp(xi)``, ``xi = [rot (3), trans (3)]``: ``J_i = R [skew(a_i), -I]``. The pairs are small_gicp's own
+(the nearest target point within the correspondence distance; for VGICP the source point's voxel), and the point
+covariances are read from the normals (small_gicp's are ``I - 0.999 n n^T``: a cloud's ``covs()`` is a slow list).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["matched_pairs", "sandwich_terms", "voxel_pairs"]
+
+
+def _skews(a: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) cross-product matrices."""
+    S = np.zeros((len(a), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
+    return S
+
+
+def _rot(R: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``R @ C[i] @ R.T`` for (n, 3, 3) ``C`` (two matrix products over the whole stack)."""
+    return np.tensordot(np.tensordot(C, R.T, axes=([2], [0])), R, axes=([1], [1])).transpose(0, 2, 1)
+
+
+def _inv3(S: np.ndarray) -> np.ndarray:
+    """Inverses of a stack (n, 3, 3) of symmetric matrices (the adjugate over the determinant)."""
+    a, b, c, d, e, f = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2], S[:, 1, 1], S[:, 1, 2], S[:, 2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    out = np.stack([A, B, C, B, D, E, C, E, F], axis=1).reshape(-1, 3, 3)
+    return out / det[:, None, None]
+
+
+def sandwich_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
+                   cell: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """GICP's Hessian and the cluster-robust "meat" of the pairs ``a`` (source points (n, 3), covariances ``Ca``
+    (n, 3, 3)) and ``b`` (their target points and ``Cb``) at ``T = T_target_source``, for small_gicp's right
+    perturbation ``[rot, trans]``: ``H = sum J^T M J`` and ``B = sum_c G_c G_c^T``, ``G_c`` the sum of the gradients
+    ``J^T M r`` of the pairs whose target point lies in the cell ``c`` of a ``cell``-m grid -> (H, B, cells)."""
+    R, t = T[:3, :3], T[:3, 3]
+    r = b - (a @ R.T + t)
+    Mp = _inv3(_rot(R.T, Cb) + Ca)  # R^T M R, M in the source's axes: J = R [skew(a), -I]
+    u = np.einsum("nij,nj->ni", Mp, r @ R)  # R^T M r
+    g = np.concatenate([np.cross(u, a), -u], axis=1)  # J^T M r
+    Sa = _skews(a)
+    MS = Mp @ Sa
+    H = np.empty((6, 6))
+    H[:3, :3] = np.einsum("nji,njk->ik", Sa, MS)
+    H[:3, 3:] = -np.einsum("nji,njk->ik", Sa, Mp)
+    H[3:, :3] = H[:3, 3:].T
+    H[3:, 3:] = Mp.sum(axis=0)
+    _, cluster = np.unique(_keys(np.floor(b / cell)), return_inverse=True)
+    cluster = cluster.ravel()
+    G = np.stack([np.bincount(cluster, weights=g[:, j]) for j in range(6)], axis=1)
+    return H, G.T @ G, len(G)
+
+
+def _plane_covs(normals: np.ndarray) -> np.ndarray:
+    """(n, 3) normals -> (n, 3, 3) small_gicp's normalised point covariances, eigenvalues (1e-3, 1, 1) with the
+    smallest along the normal: ``I - 0.999 n n^T`` (read from the normals: a cloud's ``covs()`` is a Python list)."""
+    return np.eye(3) - 0.999 * np.einsum("ni,nj->nij", normals, normals)
+
+
+_ARRAYS: dict[int, tuple[Any, np.ndarray, np.ndarray]] = {}
+
+
+def _arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
+    """A prepared cloud's points and normals (n, 3) float64, copied once per cloud (a map's: 48 bytes a voxel, about
+    a fifth of its GICP cloud) and kept for the last two clouds asked (the map, a newer map replacing it)."""
+    hit = _ARRAYS.get(id(cloud))
+    if hit is None or hit[0] is not cloud:
+        hit = (cloud, np.asarray(cloud.points(), dtype=np.float64)[:, :3].copy(),
+               np.asarray(cloud.normals(), dtype=np.float64)[:, :3].copy())
+        while len(_ARRAYS) >= 2:
+            _ARRAYS.pop(next(iter(_ARRAYS)))
+        _ARRAYS[id(cloud)] = hit
+    return hit[1], hit[2]
+
+
+def matched_pairs(source: Any, target: Any, T_target_source: np.ndarray, max_corr_dist: float,
+                  threads: int = 1) -> tuple[np.ndarray, ...] | None:
+    """GICP's pairs at ``T_target_source``: the source's points and covariances (n, 3), (n, 3, 3), their nearest
+    target points within ``max_corr_dist`` and those points' covariances, and the pose in the target cloud's own
+    frame. ``source``: a prepared small_gicp cloud (or one with a ``.cloud``); ``target``: a prepared cloud with
+    ``.cloud`` and ``.tree`` (a ``PolishView``: its base cloud, in the base's frame)."""
+    T = np.asarray(T_target_source, dtype=np.float64)
+    T_base = getattr(target, "T_base", None)
+    tree = target.tree if T_base is None else target.tree.base
+    T = T if T_base is None else np.asarray(T_base, dtype=np.float64) @ T
+    src = getattr(source, "cloud", source)
+    a = np.asarray(src.points(), dtype=np.float64)[:, :3]
+    idx, d2 = tree.batch_nearest_neighbor_search(a @ T[:3, :3].T + T[:3, 3], num_threads=max(1, int(threads)))
+    idx, d2 = np.asarray(idx, dtype=np.int64).ravel(), np.asarray(d2, dtype=np.float64).ravel()
+    keep = (idx >= 0) & (d2 <= max_corr_dist ** 2)
+    if keep.sum() < 7:
+        return None
+    tb, tn = _arrays(target.cloud)
+    b, Cb = tb[idx[keep]], _plane_covs(tn[idx[keep]])
+    Ca = _plane_covs(np.asarray(src.normals(), dtype=np.float64)[keep, :3])
+    return a[keep], Ca, b, Cb, T
+
+
+def _keys(cells: np.ndarray) -> np.ndarray:
+    """(n, 3) integer cells -> (n,) int64 keys (21 bits per axis: +-1e6 cells)."""
+    c = (cells.astype(np.int64) + (1 << 20)) & ((1 << 21) - 1)
+    return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+
+def voxel_pairs(source: Any, vmap: Any, T_map_source: np.ndarray, voxel_size: float,
+                max_points: int = 0) -> tuple[np.ndarray, ...] | None:
+    """:func:`matched_pairs` for VGICP on a ``small_gicp.GaussianVoxelMap`` of ``voxel_size``: each source point's
+    voxel (its mean and covariance), as VGICP pairs them; of every k-th source point when there are more than
+    ``max_points`` (> 0): the covariance of that thinner estimate, a little more cautious."""
+    T = np.asarray(T_map_source, dtype=np.float64)
+    means = np.asarray(vmap.voxel_points(), dtype=np.float64)[:, :3]
+    if len(means) == 0:
+        return None
+    keys = _keys(np.floor(means / voxel_size))
+    order = np.argsort(keys)
+    step = max(1, -(-source.size() // max_points)) if max_points > 0 else 1
+    a = np.asarray(source.points(), dtype=np.float64)[::step, :3]
+    q = _keys(np.floor((a @ T[:3, :3].T + T[:3, 3]) / voxel_size))
+    pos = np.minimum(np.searchsorted(keys[order], q), len(order) - 1)
+    hit = keys[order][pos] == q
+    if hit.sum() < 7:
+        return None
+    idx = order[pos[hit]]
+    covs = np.asarray(vmap.voxel_covs(), dtype=np.float64).reshape(-1, 4, 4)
+    Ca = _plane_covs(np.asarray(source.normals(), dtype=np.float64)[::step][hit, :3])
+    return a[hit], Ca, means[idx], covs[idx][:, :3, :3], T
