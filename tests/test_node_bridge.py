@@ -147,8 +147,8 @@ def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
 
 
 def test_tracked_covariance_reads_the_refinement(drive):
-    """A tracked pose's covariance comes from the refinement GICP's own last linearisation (no second one): the same
-    as linearising again at the pose (core/covariance.scan_covariance), to within 2 % of its largest entry."""
+    """A tracked pose's covariance is the cluster-robust one of the GICP pairs at the pose (core/covariance.py
+    scan_covariance, to within 2 % of its largest entry), for every tracked scan that the refinement handed on."""
     from deepbbs_ros.core.covariance import scan_covariance
     from deepbbs_ros.core.localization import MapLocalizer
     from deepbbs_ros.core.tracking import MapTracker
