@@ -253,8 +253,9 @@ class LocalMapOdometry:
     Covariances: the step covariance is that of scan k's VGICP on the local map (``OdometryStep.covariance``,
     :mod:`deepbbs_ros.core.covariance`: cluster-robust, from its GICP pairs, with the sweep's model error), moved
     into scan k-1's frame; without one, the point-to-point residual covariance of
-    :mod:`deepbbs_ros.node.covariance` of scan k against scan k-1 under the step's motion. The pose covariance accumulates it along ``T_odom_k = T_odom_{k-1} @
-    T_{k-1}_k`` as :class:`ScanToScanOdometry` does (independent steps: the drift of a chain).
+    :mod:`deepbbs_ros.node.covariance` of scan k against scan k-1 under the step's motion. The pose covariance
+    accumulates it along ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` as :class:`ScanToScanOdometry` does
+    (independent steps: the drift of a chain).
     """
 
     def __init__(self, config: Any, registration: Any, *, covariance: bool = True) -> None:
