@@ -112,6 +112,9 @@ def main(argv: list[str] | None = None) -> int:
 
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # Ctrl-C is KeyboardInterrupt even when the parent started us with SIGINT ignored (a job put in the background
+    # by a non-interactive shell), so that `kill -INT` stops the player too
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("deepbbs_play")
     try:
@@ -199,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         node.destroy_node()
         rclpy.try_shutdown()
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
     return 0
 
 

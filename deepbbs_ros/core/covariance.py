@@ -66,6 +66,8 @@ SWEEP_SPREAD = 12.0 ** -0.5
 #: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
 #: drives 2,000 points moved the mean NEES by under 6 %)
 ODOMETRY_MAX_POINTS = 2000
+#: the localization's pairs likewise: its covariance runs on every tracked scan, within the scan period
+LOCALIZATION_MAX_POINTS = 2000
 #: steps whose deviations from the constant-velocity prediction make the floor's root mean square
 MOTION_WINDOW = 10
 #: variance floor, m^2 / rad^2 on the diagonal: noise-free synthetic scenes must not give a singular covariance
@@ -268,7 +270,7 @@ def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_sc
     corr = lc.refine_corr_dist if lc.refine_corr_dist > 0 else rc.polish_max_corr_dist
     T_target_scan = np.linalg.solve(np.asarray(T_map_target, dtype=np.float64), np.asarray(T_map_scan, np.float64))
     try:
-        pairs = matched_pairs(source, target, T_target_scan, corr, threads)
+        pairs = matched_pairs(source, target, T_target_scan, corr, threads, LOCALIZATION_MAX_POINTS)
     except (RuntimeError, ValueError, IndexError):  # a cloud without covariances
         return None
     # along a weak direction the answer is anywhere GICP's reach (``corr``) left it: uniform, corr / sqrt(3)

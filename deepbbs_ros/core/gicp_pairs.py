@@ -86,17 +86,20 @@ def _arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def matched_pairs(source: Any, target: Any, T_target_source: np.ndarray, max_corr_dist: float,
-                  threads: int = 1) -> tuple[np.ndarray, ...] | None:
+                  threads: int = 1, max_points: int = 0) -> tuple[np.ndarray, ...] | None:
     """GICP's pairs at ``T_target_source``: the source's points and covariances (n, 3), (n, 3, 3), their nearest
     target points within ``max_corr_dist`` and those points' covariances, and the pose in the target cloud's own
     frame. ``source``: a prepared small_gicp cloud (or one with a ``.cloud``); ``target``: a prepared cloud with
-    ``.cloud`` and ``.tree`` (a ``PolishView``: its base cloud, in the base's frame)."""
+    ``.cloud`` and ``.tree`` (a ``PolishView``: its base cloud, in the base's frame). ``max_points`` (> 0): every
+    k-th source point only, at most that many (the covariance of that thinner estimate, a little more cautious)."""
     T = np.asarray(T_target_source, dtype=np.float64)
     T_base = getattr(target, "T_base", None)
     tree = target.tree if T_base is None else target.tree.base
     T = T if T_base is None else np.asarray(T_base, dtype=np.float64) @ T
     src = getattr(source, "cloud", source)
     a = np.asarray(src.points(), dtype=np.float64)[:, :3]
+    step = max(1, -(-len(a) // max_points)) if max_points > 0 else 1
+    a = a[::step]
     idx, d2 = tree.batch_nearest_neighbor_search(a @ T[:3, :3].T + T[:3, 3], num_threads=max(1, int(threads)))
     idx, d2 = np.asarray(idx, dtype=np.int64).ravel(), np.asarray(d2, dtype=np.float64).ravel()
     keep = (idx >= 0) & (d2 <= max_corr_dist ** 2)
@@ -104,7 +107,7 @@ def matched_pairs(source: Any, target: Any, T_target_source: np.ndarray, max_cor
         return None
     tb, tn = _arrays(target.cloud)
     b, Cb = tb[idx[keep]], _plane_covs(tn[idx[keep]])
-    Ca = _plane_covs(np.asarray(src.normals(), dtype=np.float64)[keep, :3])
+    Ca = _plane_covs(np.asarray(src.normals(), dtype=np.float64)[::step][keep, :3])
     return a[keep], Ca, b, Cb, T
 
 
