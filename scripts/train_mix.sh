@@ -20,15 +20,8 @@ BUDGET=${BUDGET:-0}
 DRIVES=${DRIVES:-256}
 T="$PY -m deepbbs_ros.cli.train"
 
-if [ "${1:-}" = "--save-state" ]; then
-  mkdir -p "$STATE"
-  for f in state_latest.pt model_best.pt val.csv curves.png config.yaml val_best.json log.jsonl; do
-    if [ -f "$RUN/$f" ]; then cp "$RUN/$f" "$STATE/$f"; fi
-  done
-  if [ -f "$RUN.log" ]; then tail -n 400 "$RUN.log" > "$STATE/train_tail.log"; fi
-  ls -la "$STATE"
-  exit 0
-fi
+. scripts/train_resume.sh
+if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 
 # 1. data. Training: DRIVES drives (seeds 20000 and up, two processes) x 25 frames; the scene types cycle
 #    over the eight places; each drive draws its sensor and mount from its seed: 'random' (the randomised
@@ -62,16 +55,7 @@ $T cache --out "$CACHE/worlds_train" --split train --seeds 10000:10064 --frames 
 SETS="--set train.epochs=16 --set train.steps_per_epoch=100 --set train.batch_size=8 --set train.lr=1e-4 \
   --set train.lr_step=5 --set train.lr_gamma=0.5 --set train.val_every=2 --set train.val_pairs=48 \
   --set train.checkpoint_minutes=10 --set train.trans_weight=5 --set train.seed=2 --set train.num_points=512"
-mkdir -p "$RUN"
-if [ -f "$RUN/state_latest.pt" ]; then
-  START="--resume"
-elif [ -f "$STATE/state_latest.pt" ]; then
-  START="--resume $STATE/state_latest.pt"
-else
-  git show 960ef7d:deepbbs_ros/models/deepbbspp_lidar.pt > "$RUN/init_shipped_model.pt"
-  START="--init $RUN/init_shipped_model.pt"
-fi
-if [ "$BUDGET" != 0 ]; then LIMIT="--time-budget-min $BUDGET"; else LIMIT=""; fi
+start_args 960ef7d init_shipped_model.pt
 # shellcheck disable=SC2086
 $T fit --cache "$CACHE/mix_train" --cache "$CACHE/worlds_train" --val-cache "$CACHE/mix_val" \
   --val-cache "$CACHE/worlds_val" --run "$RUN" --threads "$THREADS" --no-progress $SETS $START $LIMIT

@@ -18,15 +18,8 @@ THREADS=${THREADS:-1}
 BUDGET=${BUDGET:-0}
 T="$PY -m deepbbs_ros.cli.train"
 
-if [ "${1:-}" = "--save-state" ]; then
-  mkdir -p "$STATE"
-  for f in state_latest.pt model_best.pt val.csv curves.png config.yaml val_best.json log.jsonl; do
-    if [ -f "$RUN/$f" ]; then cp "$RUN/$f" "$STATE/$f"; fi
-  done
-  if [ -f "$RUN.log" ]; then tail -n 400 "$RUN.log" > "$STATE/train_tail.log"; fi
-  ls -la "$STATE"
-  exit 0
-fi
+. scripts/train_resume.sh
+if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 
 # 1. data: 64 training drives of the new worlds (seeds 10000-10063, scene types cycled, randomised
 #    sensor per drive: HDL-64/Ouster-64/HDL-32/VLP-16-like with perturbed beams, noise, dropouts and
@@ -46,16 +39,7 @@ $T cache --out runs/cache/worlds_val --split val --drives 8 --frames 30 --cache-
 SETS="--set train.epochs=60 --set train.steps_per_epoch=100 --set train.batch_size=8 --set train.lr=5e-4 \
   --set train.lr_step=10 --set train.lr_gamma=0.5 --set train.val_every=2 --set train.val_pairs=16 \
   --set train.checkpoint_minutes=10 --set train.trans_weight=5 --set train.seed=2 --set train.num_points=512"
-mkdir -p "$RUN"
-if [ -f "$RUN/state_latest.pt" ]; then
-  START="--resume"
-elif [ -f "$STATE/state_latest.pt" ]; then
-  START="--resume $STATE/state_latest.pt"
-else
-  git show 33e1383:deepbbs_ros/models/deepbbspp_lidar.pt > "$RUN/init_previous_model.pt"
-  START="--init $RUN/init_previous_model.pt"
-fi
-if [ "$BUDGET" != 0 ]; then LIMIT="--time-budget-min $BUDGET"; else LIMIT=""; fi
+start_args 33e1383 init_previous_model.pt
 # shellcheck disable=SC2086
 $T fit --cache runs/cache/worlds_train --val-cache runs/cache/worlds_val --run "$RUN" --threads "$THREADS" \
   --no-progress $SETS $START $LIMIT
