@@ -58,15 +58,7 @@ def courtyard():
     from deepbbs_ros.sim.rig import make_simulator
 
     sim = make_simulator("courtyard", 91375, "avia", "handheld", frames=300, compensate=True)
-    picks, last = [], None
-    for k in range(10, 300):
-        p = sim.pose_at(k)[:3, 3]
-        if last is None or np.linalg.norm(p - last) >= 1.0:
-            picks.append(k)
-            last = p
-        if len(picks) == 4:
-            break
-    return [(sim.scan_at(k).points, sim.pose_at(k)) for k in picks]
+    return [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 4, start=10)]
 
 
 @pytest.mark.parametrize("i", [1, 3])

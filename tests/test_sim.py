@@ -424,3 +424,14 @@ def test_second_drive_through_the_same_world():
     assert (n0 - n1) % 24 == 0
     with pytest.raises(SimulationError):
         DriveSimulator("urban", 1, lid, frames=5, world_frames=0)
+
+
+def test_frames_apart_are_spaced_by_ground_truth():
+    sim = DriveSimulator("urban", 7, LidarConfig.vlp16(), frames=60)
+    picks = sim.frames_apart(2.0, 5, start=3)
+    assert len(picks) == 5 and picks[0] == 3 and picks == sorted(picks)
+    pos = np.array([sim.pose_at(k)[:3, 3] for k in range(60)])
+    for a, b in zip(picks, picks[1:]):
+        assert np.linalg.norm(pos[b] - pos[a]) >= 2.0  # far enough from the last pick ...
+        assert np.all(np.linalg.norm(pos[a + 1:b] - pos[a], axis=1) < 2.0)  # ... and the first frame that is
+    assert sim.frames_apart(1e6, 5) == [0]

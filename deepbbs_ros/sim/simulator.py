@@ -60,6 +60,20 @@ class Frames:
     def stamp_ns(self, frame: int) -> int:
         return STAMP0_NS + int(round(frame * self.period * 1e9))
 
+    def frames_apart(self, spacing: float, count: int, start: int = 0) -> list[int]:
+        """Up to ``count`` frames from ``start`` on, each at least ``spacing`` m (ground truth) from the one
+        picked before it."""
+        picks: list[int] = []
+        last = None
+        for k in range(start, self.frames):
+            p = self.pose_at(k)[:3, 3]
+            if last is None or np.linalg.norm(p - last) >= spacing:
+                picks.append(k)
+                last = p
+                if len(picks) == count:
+                    break
+        return picks
+
 
 class DriveSimulator(Frames):
     """A reproducible simulated drive with random access to its frames.

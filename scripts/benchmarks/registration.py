@@ -88,14 +88,7 @@ def sim_sets(args) -> dict[str, list]:
     for d in range(args.sim_drives_per_scene * len(SCENES)):
         scene, seed = SCENES[d % len(SCENES)], TEST_SEED_BASE + d
         sim = DriveSimulator(scene, seed, frames=200, compensate=True)
-        picks, last = [], None
-        for k in range(20, 200):
-            p = sim.pose_at(k)[:3, 3]
-            if last is None or np.linalg.norm(p - last) >= 2.0:
-                picks.append(k)
-                last = p
-            if len(picks) == args.sim_frames:
-                break
+        picks = sim.frames_apart(2.0, args.sim_frames, start=20)
         sets[f"sim_{scene}_{seed}"] = [(sim.scan_at(k).points.astype(np.float32), sim.pose_at(k)) for k in picks]
     cache.parent.mkdir(parents=True, exist_ok=True)
     np.savez(cache, sets=np.array(sets, dtype=object))
