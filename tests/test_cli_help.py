@@ -22,8 +22,10 @@ def _parsers(name: str, module: str) -> list[tuple[str, argparse.ArgumentParser]
     mod = importlib.import_module(module)
     if hasattr(mod, "build_parser"):
         root = mod.build_parser()
-    else:  # the node: its parser is built by run_node
-        root = mod._parser(name, "description")
+    else:  # a node: its parser is built by run_node
+        from deepbbs_ros.node.run import _parser
+
+        root = _parser(name, "description")
     out, todo = [], [(name, root)]
     while todo:
         label, parser = todo.pop()

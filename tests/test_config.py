@@ -135,5 +135,5 @@ def test_node_and_config_share_the_did_you_mean():
     assert nearest_keys("node.mod", flat) == ["node.mode"]
     assert nearest_keys("base_frame", flat) == ["node.base_frame"]
     assert nearest_keys("qqqq.zzzz", flat) == []
-    node = pytest.importorskip("deepbbs_ros.node.registration_node")
+    node = pytest.importorskip("deepbbs_ros.node.parameters")
     assert node.nearest_parameter is nearest_keys

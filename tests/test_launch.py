@@ -18,7 +18,8 @@ from pathlib import Path
 import yaml
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.node import registration_node
+from deepbbs_ros.node import parameters, registration_node
+from deepbbs_ros.node import remaps as node_remaps
 from deepbbs_ros.node.dds import PROFILE_ENV_VARS, default_profile_path, profile_env
 
 REPO = Path(__file__).resolve().parents[1]
@@ -124,8 +125,8 @@ def test_launch_default_params_file_is_the_shipped_yaml():
                 flat[f"{prefix}{k}"] = v
 
     walk(doc["/**"]["ros__parameters"])
-    declared = {**registration_node.node_parameters(Config(), "odometry"),
-                **registration_node.node_parameters(Config(), "pair", "localization")}
+    declared = {**parameters.node_parameters(Config(), "odometry"),
+                **parameters.node_parameters(Config(), "pair", "localization")}
     unknown = sorted(set(flat) - set(declared))
     assert not unknown, f"{shipped.name} sets parameters the node does not declare: {unknown}"
     # the override dict sets node.mode and use_sim_time from launch arguments
@@ -137,7 +138,7 @@ def test_launch_remaps_the_node_inputs():
     declared = set(_declared())
     remaps = _kw(_node_call(), "remappings")
     pairs = {ast.literal_eval(t.elts[0]): ast.unparse(t.elts[1]) for t in remaps.elts}
-    inputs = (*registration_node.PAIR_INPUTS, registration_node.ODOM_INPUT)
+    inputs = (*node_remaps.PAIR_INPUTS, node_remaps.ODOM_INPUT)
     assert set(pairs) == set(inputs)
     for name in inputs:
         assert pairs[name] == f"LaunchConfiguration('{name}')" and name in declared

@@ -12,7 +12,8 @@ from pathlib import Path
 import yaml
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.node import managed, registration_node
+from deepbbs_ros.node import managed, parameters
+from deepbbs_ros.node import remaps as node_remaps
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / "launch" / "localization.launch.py"
@@ -92,7 +93,7 @@ def test_launch_starts_the_managed_node_and_the_lifecycle_manager():
     assert "'localization.map_path': ParameterValue(LaunchConfiguration('map'), value_type=str)" in override
     assert "'use_sim_time': use_sim_time" in override
     remaps = {ast.literal_eval(t.elts[0]): ast.unparse(t.elts[1]) for t in _kw(node, "remappings").elts}
-    assert remaps == {registration_node.PAIR_INPUTS[0]: "LaunchConfiguration('cloud')"}
+    assert remaps == {node_remaps.PAIR_INPUTS[0]: "LaunchConfiguration('cloud')"}
     assert ast.unparse(_kw(node, "additional_env")) == "profile_env()"
     assert "'--log-level', LaunchConfiguration('log_level')" in ast.unparse(_kw(node, "arguments"))
     # the lifecycle manager: Nav2's executable, the node by name, autostart, only where it is to be used
@@ -117,7 +118,7 @@ def test_params_file_is_nav2s_layout_and_loads_into_the_config(tmp_path):
     flat = _flat(doc[managed.NODE_NAME]["ros__parameters"])
     assert flat.pop("use_sim_time") is False
     cfg = managed.localizer_defaults()
-    declared = registration_node.node_parameters(cfg, cfg.node.mode, cfg.node.target_mode)
+    declared = parameters.node_parameters(cfg, cfg.node.mode, cfg.node.target_mode)
     unknown = sorted(set(flat) - set(declared))
     assert not unknown, f"{PARAMS.name} sets parameters the managed node does not declare: {unknown}"
     loaded = Config.from_flat({**Config().to_flat(), **flat})  # types and ranges checked (ConfigError otherwise)

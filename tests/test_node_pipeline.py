@@ -502,7 +502,7 @@ def test_node_deep_passes_replace_the_registrations_in_pair_mode_only():
     registration.max_deep_iters); odometry mode and the caller's config are left alone."""
     from deepbbs_ros.config import Config, NodeConfig, RegistrationConfig
     from deepbbs_ros.errors import ConfigError
-    from deepbbs_ros.node.registration_node import node_registration_config
+    from deepbbs_ros.node.parameters import node_registration_config
 
     cfg = Config(registration=RegistrationConfig(max_deep_iters=3), node=NodeConfig(mode="pair", deep_passes=1))
     out = node_registration_config(cfg)
@@ -519,7 +519,7 @@ def test_node_polish_max_voxels_caps_the_gicp_clouds_in_pair_mode_only():
     """node.polish_max_voxels (off by default) becomes registration.polish_max_voxels of the pair-mode node."""
     from deepbbs_ros.config import Config, NodeConfig
     from deepbbs_ros.errors import ConfigError
-    from deepbbs_ros.node.registration_node import node_registration_config
+    from deepbbs_ros.node.parameters import node_registration_config
 
     assert node_registration_config(Config()).registration.polish_max_voxels == 0
     out = node_registration_config(Config(node=NodeConfig(mode="pair", polish_max_voxels=9000)))

@@ -60,7 +60,7 @@ def _pair(street_pair, seed: int):
 @pytest.fixture(scope="module")
 def proxy():
     from deepbbs_ros.core.checkpoint import default_weights_path
-    from deepbbs_ros.node.registration_node import node_registration_config
+    from deepbbs_ros.node.parameters import node_registration_config
     from deepbbs_ros.node.registration_process import RegistrationProcess
 
     rp = RegistrationProcess(node_registration_config(_config()), default_weights_path())

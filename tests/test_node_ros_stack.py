@@ -142,7 +142,7 @@ def test_latched_map_target(ros, world, process):
     proc = None
     if process == "on":  # the node's own proxy needs a checkpoint file (the shipped one; the stages stay TINY's)
         from deepbbs_ros.core.checkpoint import default_weights_path
-        from deepbbs_ros.node.registration_node import node_registration_config
+        from deepbbs_ros.node.parameters import node_registration_config
         from deepbbs_ros.node.registration_process import RegistrationProcess
 
         proc = RegistrationProcess(node_registration_config(cfg), default_weights_path())

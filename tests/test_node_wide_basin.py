@@ -76,7 +76,8 @@ def test_wide_basin_live(ros, pair_client):
     import torch
 
     from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.node.registration_node import RegistrationNode, node_registration_config
+    from deepbbs_ros.node.parameters import node_registration_config
+    from deepbbs_ros.node.registration_node import RegistrationNode
     from deepbbs_ros.sim import simulate_drive
 
     threads = torch.get_num_threads()

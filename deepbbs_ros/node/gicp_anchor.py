@@ -22,7 +22,8 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
-from deepbbs_ros.node.registration_node import RegistrationNode, run_node
+from deepbbs_ros.node.registration_node import RegistrationNode
+from deepbbs_ros.node.run import run_node
 
 ANCHOR_NAME = "gicp_anchor"
 

@@ -39,12 +39,9 @@ from deepbbs_ros.errors import DeepBBSError
 from deepbbs_ros.node.bond import BondHeartbeat
 from deepbbs_ros.node.bond import available as bond_available
 from deepbbs_ros.node.outputs import TfBroadcaster
-from deepbbs_ros.node.registration_node import (
-    RegistrationNode,
-    _parser,  # noqa: F401 - the --help of deepbbs-localizer
-    node_parameters,
-    run_node,
-)
+from deepbbs_ros.node.parameters import node_parameters
+from deepbbs_ros.node.registration_node import RegistrationNode
+from deepbbs_ros.node.run import run_node
 
 NODE_NAME = "deepbbs_localizer"  # Nav2's naming: the name lifecycle_manager's node_names lists
 _ENTITIES = ("_publishers", "_subscriptions", "_services", "_clients", "_timers")

@@ -59,22 +59,16 @@ kind and period (``node.error_log_period``), nothing is published for it, and th
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import functools
-import signal
 import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -83,16 +77,20 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.config import nearest_keys as nearest_parameter  # one did-you-mean for node, CLIs and YAML
 from deepbbs_ros.entry import cli_entry
-from deepbbs_ros.errors import ConfigError, DeepBBSError, NodeError
-from deepbbs_ros.node.dds import apply_default_profile
+from deepbbs_ros.errors import ConfigError, NodeError
 from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
 from deepbbs_ros.node.drivers import describe as describe_driver
 from deepbbs_ros.node.drops import DropLog
 from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
+from deepbbs_ros.node.parameters import (
+    check_parameter_names,
+    load_registration,
+    node_parameters,
+    validate_frame,
+)
 from deepbbs_ros.node.pipeline import (
     LocalMapOdometry,
     MapTarget,
@@ -101,211 +99,22 @@ from deepbbs_ros.node.pipeline import (
     register_clouds,
     takes_good_start,
 )
+from deepbbs_ros.node.remaps import KISS_ICP_INPUT, ODOM_INPUT, PAIR_INPUTS, unmatched_remaps
 from deepbbs_ros.node.rep105 import Rep105
+from deepbbs_ros.node.run import run_node
 from deepbbs_ros.node.sync import ApproximateTimeSync
 from deepbbs_ros.node.tf_buffer import TransformBuffer
 from deepbbs_ros.node.worker import LatestSlotWorker
 
 NODE_NAME = "deepbbs_registration"
 ODOMETRY_METHODS = ("local_map", "scan_to_scan")
-PAIR_INPUTS = ("source_cloud", "target_cloud")
-ODOM_INPUT = "cloud"
-KISS_ICP_INPUT = "pointcloud_topic"  # KISS-ICP's input name: taken as the odometry input when remapped
-#: the node's other topics and services (remapping them is legitimate; parameter services are under ``~/``)
-NODE_TOPICS = ("~/pose", "~/transform", "~/odometry", "~/aligned_cloud", "~/reset", "~/relocalize", "/tf",
-               "~/pose_with_covariance", "/initialpose",
-               "/tf_static", "/diagnostics", "/clock", "/rosout", "/parameter_events")
 JUMP_BACK_S = 1.0  # s; odometry mode: a stamp this far before the last one is a time jump (reset)
-
-
-#: the config sections the node reads (declared as ROS parameters); ``odometry`` too in odometry mode,
-#: ``localization`` with ``node.target_mode: localization``. ``model`` comes from the checkpoint, ``train`` /
-#: ``eval`` belong to deepbbs-train / deepbbs-replay.
-NODE_SECTIONS = ("preprocess", "registration", "node")
-#: sections of one mode only: in the other modes a params file's keys of them are one note, not warnings
-MODE_SECTIONS = {"odometry": "used in node.mode odometry only",
-                 "localization": "used in node.target_mode localization only"}
-_NOT_NODE = {
-    "model": "the model section comes from the checkpoint (registration.weights)",
-    "train": "a deepbbs-train setting",
-    "eval": "a deepbbs-replay setting",
-    **MODE_SECTIONS,
-}
-
-
-def node_parameters(cfg: Config, mode: str, target_mode: str = "stamped") -> dict[str, Any]:
-    """The parameters the node declares (dotted name -> value of ``cfg``) for ``mode``: every key of
-    :data:`NODE_SECTIONS`, plus ``odometry.*`` in odometry mode and ``localization.*`` in pair mode with
-    ``target_mode`` localization. New keys of these sections are picked up."""
-    sections = NODE_SECTIONS + (("odometry",) if mode == "odometry" else ())
-    if mode == "pair" and target_mode == "localization":
-        sections += ("localization",)
-    return {k: v for k, v in cfg.to_flat().items() if k.partition(".")[0] in sections}
-
-
-def check_parameter_names(names: Any, used: dict[str, Any], flat: dict[str, Any],
-                          mode: str) -> tuple[list[str], list[str], list[str]]:
-    """(errors, warnings, notes) for parameter names given to the node that it does not declare.
-
-    A name in a declared section that is not a config key (``node.mod``) is an error; a config key of a
-    section the node does not use (``train.lr``) and any other unknown name (flat names such as ``mode``)
-    are warnings naming the nearest declared parameter; ``odometry.*`` / ``localization.*`` in another mode (a
-    params file for every mode) is one note per section. Flat names are not taken as aliases: ``voxel_size`` could
-    be ``preprocess.voxel_size`` or ``odometry.voxel_size``."""
-    sections = {k.partition(".")[0] for k in used}
-    errors, warnings = [], []
-    other_mode: dict[str, list[str]] = {}
-    for name in sorted(names):
-        if name in used:
-            continue
-        section = name.partition(".")[0]
-        near = nearest_parameter(name, used)
-        hint = f"; did you mean {' or '.join(near)}?" if near else ""
-        if name in flat and section in MODE_SECTIONS:  # a params file for every mode: one line per section
-            other_mode.setdefault(section, []).append(name)
-        elif name in flat:
-            why = _NOT_NODE.get(section, "not a node parameter")
-            warnings.append(f"parameter {name} is ignored: {why}")
-        elif "." in name and section in sections:
-            errors.append(f"unknown parameter {name}{hint}")
-        else:
-            warnings.append(f"unknown parameter {name} is ignored (the node's parameters are dotted, "
-                            f"e.g. node.mode){hint}")
-    notes = [f"{len(keys)} {section}.* parameter(s) not used: {MODE_SECTIONS[section]} (node.mode={mode})"
-             for section, keys in other_mode.items()]
-    return errors, warnings, notes
-
-
-def remap_rules(argv: Any) -> list[tuple[str, str, str]]:
-    """The topic remap rules of ``argv``'s ``--ros-args`` sections: ``(node, from, to)`` for each ``-r`` /
-    ``--remap [node:]from:=to`` (node '' when the rule is for every node); ``__node``, ``__ns`` and other
-    special names are left out."""
-    rules, in_ros, it = [], False, iter(argv or [])
-    for a in it:
-        if a == "--ros-args":
-            in_ros = True
-        elif in_ros and a == "--":
-            in_ros = False
-        elif in_ros and a in ("-r", "--remap"):
-            rule = next(it, "")
-            lhs, sep, to = rule.partition(":=")
-            node, _, name = lhs.rpartition(":")
-            if sep and name and not name.startswith("__"):
-                rules.append((node, name, to))
-    return rules
-
-
-def unmatched_remaps(rules: Any, mode: str, node_name: str, namespace: str) -> list[str]:
-    """Warnings for the remap rules (:func:`remap_rules`) whose name is none of the node's topics (the inputs of
-    ``mode``: ``source_cloud``, ``target_cloud`` or ``cloud`` / ``pointcloud_topic``; :data:`NODE_TOPICS`;
-    anything under ``~/``): rclpy ignores them, so a misspelt or other-mode input would leave the node waiting
-    on its default topic with no word. Each warning names the node's inputs."""
-    import difflib
-
-    from rclpy.expand_topic_name import expand_topic_name
-
-    def expand(name: str) -> str | None:
-        try:
-            return expand_topic_name(name, node_name, namespace)
-        except Exception:  # noqa: BLE001 - an invalid name: rclpy reports it itself
-            return None
-
-    inputs = PAIR_INPUTS if mode == "pair" else (ODOM_INPUT, KISS_ICP_INPUT)
-    names = ", ".join(inputs) if mode == "pair" else f"{ODOM_INPUT} (or {KISS_ICP_INPUT}, KISS-ICP's name)"
-    private = expand("~") or ""
-    known = {expand(n): n for n in (*inputs, *NODE_TOPICS)}
-    other_mode = {ODOM_INPUT: "odometry", KISS_ICP_INPUT: "odometry", **{n: "pair" for n in PAIR_INPUTS}}
-    out = []
-    for node, name, to in rules:
-        if node and node != node_name:
-            continue  # another node's rule
-        full = expand(name)
-        if full is None or full in known or full.startswith(private + "/") or full == expand(to):
-            continue  # one of the node's names, or a rule that changes nothing (the launch file's defaults)
-        leaf = name.rpartition("/")[2]
-        hint = ""
-        if leaf in other_mode and other_mode[leaf] != mode:
-            what = " (KISS-ICP's input name)" if leaf == KISS_ICP_INPUT else ""
-            hint = f"; {leaf}{what} is an input of node.mode {other_mode[leaf]} (-p node.mode:={other_mode[leaf]})"
-        else:
-            near = difflib.get_close_matches(leaf, list(inputs), n=1, cutoff=0.6)
-            hint = f"; did you mean {near[0]}:={to}?" if near else ""
-        out.append(f"remap {name}:={to} matches no topic of this node and is ignored: its inputs are "
-                   f"{names} (node.mode={mode}){hint}")
-    return out
 
 
 def _qos_text(qos: QoSProfile) -> str:
     """``reliable/5`` or ``best_effort/5`` (reliability / history depth)."""
     rel = "reliable" if qos.reliability == ReliabilityPolicy.RELIABLE else "best_effort"
     return f"{rel}/{qos.depth}"
-
-
-def _validate_frame(key: str, frame: str) -> None:
-    if frame and (frame.startswith("/") or any(c.isspace() for c in frame)):
-        raise NodeError(f"{key}: invalid frame id {frame!r} (no leading '/', no spaces)")
-
-
-def check_weights(cfg: Config) -> Path:
-    """The checkpoint the node will load; NodeError naming the path when it does not exist."""
-    if cfg.registration.weights:
-        path = Path(cfg.registration.weights).expanduser()
-        if not path.is_file():
-            raise NodeError(f"registration.weights: file not found: {path}")
-        return path
-    from deepbbs_ros.core.checkpoint import default_weights_path
-
-    path = Path(default_weights_path())
-    if not path.is_file():
-        raise NodeError(
-            f"registration.weights is '' (the shipped model) but {path} does not exist; "
-            "train one with deepbbs-train or set registration.weights"
-        )
-    return path
-
-
-def node_registration_config(cfg: Config) -> Config:
-    """The config the node's DeepBBS++ runs with: in pair mode ``node.deep_passes`` network passes (when > 0) in
-    place of ``registration.max_deep_iters`` and ``node.polish_max_voxels`` (when > 0) in place of
-    ``registration.polish_max_voxels``; ``cfg`` itself elsewhere (and with ``node.target_mode: localization``: the
-    global search is that of ``deepbbs-replay --mode localization``)."""
-    if cfg.node.mode != "pair" or cfg.node.target_mode == "localization":
-        return cfg
-    rc, changes = cfg.registration, {}
-    if cfg.node.deep_passes > 0 and cfg.node.deep_passes != rc.max_deep_iters:
-        changes["max_deep_iters"] = cfg.node.deep_passes
-    if cfg.node.polish_max_voxels > 0 and cfg.node.polish_max_voxels != rc.polish_max_voxels:
-        changes["polish_max_voxels"] = cfg.node.polish_max_voxels
-    if not changes:
-        return cfg
-    return dataclasses.replace(cfg, registration=dataclasses.replace(rc, **changes))
-
-
-def load_registration(cfg: Config, log: Callable[[str], None] | None = None) -> tuple[Any, str]:
-    """(registration, weights path) for the node: a DeepBBSRegistration, or in pair mode with
-    ``node.registration_process`` its proxy (:class:`~deepbbs_ros.node.registration_process.RegistrationProcess`,
-    the registration in a process of its own; ``log`` gets the line said if that process is lost). NodeError
-    naming the parameter on a bad device, a missing checkpoint, or a registration process that does not start."""
-    from deepbbs_ros.device import resolve_device
-    from deepbbs_ros.errors import ModelError
-    from deepbbs_ros.node import registration_process
-
-    try:
-        device = resolve_device(cfg.registration.device)
-    except ConfigError as err:
-        raise NodeError(str(err)) from err
-    weights = str(check_weights(cfg))
-    localization = cfg.node.mode == "pair" and cfg.node.target_mode == "localization"  # the localizer's: in-process
-    if not localization and registration_process.wanted(cfg.node.registration_process, cfg.node.mode, device.type):
-        try:
-            return registration_process.RegistrationProcess(node_registration_config(cfg), weights, log), weights
-        except ModelError as err:
-            raise NodeError(f"node.registration_process: {err}") from err
-    from deepbbs_ros.core.registration import DeepBBSRegistration
-
-    reg = DeepBBSRegistration(node_registration_config(cfg), weights=weights)
-    reg.warmup()  # the first registrations set up torch's kernels (seconds): before the first scan, not on it
-    return reg, weights
 
 
 class RegistrationNode(Node):
@@ -319,8 +128,9 @@ class RegistrationNode(Node):
         odometry_method: odometry mode's pipeline: ``"local_map"`` (default; DeepBBSOdometry, as
             ``deepbbs-replay --mode odometry --method deepbbs++``) or ``"scan_to_scan"`` (scan k registered
             against scan k-1 with ``registration``, chained; each scan preprocessed on arrival).
-        remaps: the command line's remap rules (:func:`remap_rules`, given by ``run_node``): those that match
-            none of the node's topics are logged as warnings (:attr:`remap_warnings`) before the model loads.
+        remaps: the command line's remap rules (:func:`~deepbbs_ros.node.remaps.remap_rules`, given by
+            ``run_node``): those that match none of the node's topics are logged as warnings
+            (:attr:`remap_warnings`) before the model loads.
         node_name, node_kwargs: passed to ``rclpy.node.Node``.
 
     Raises:
@@ -359,9 +169,9 @@ class RegistrationNode(Node):
         parts (the worker's thread). Returns the model's load time (s)."""
         self.cfg = self._declare_config(config)
         ncfg = self.cfg.node
-        _validate_frame("node.odom_frame", ncfg.odom_frame)
-        _validate_frame("node.base_frame", ncfg.base_frame)
-        _validate_frame("node.map_frame", ncfg.map_frame)
+        validate_frame("node.odom_frame", ncfg.odom_frame)
+        validate_frame("node.base_frame", ncfg.base_frame)
+        validate_frame("node.map_frame", ncfg.map_frame)
         if not ncfg.odom_frame:
             raise NodeError("node.odom_frame: must not be empty")
         if odometry_method not in ODOMETRY_METHODS:
@@ -1149,110 +959,10 @@ def _result_summary(result: Any) -> dict[str, float]:
     }
 
 
-def _parser(prog: str, description: str) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog=prog,
-        description=f"{description} ROS arguments go after --ros-args (remaps, -p name:=value, --params-file FILE).",
-    )
-    g = p.add_argument_group("configuration")
-    g.add_argument("--config", metavar="YAML", help="config file (plain sections or a ROS parameter file); "
-                   "ROS parameters given with --ros-args override it")
-    g = p.add_argument_group("transport")
-    g.add_argument("--no-shm-profile", action="store_true",
-                   help="do not apply the shipped Fast DDS shared-memory profile (resources/fastdds_shm.xml)")
-    return p
-
-
-def run_node(
-    argv: list[str] | None,
-    prog: str,
-    description: str,
-    make_node: Callable[[Config], Node],
-) -> int:
-    """Parse ``[--config YAML] [--ros-args ...]``, build the node with ``make_node(config)`` and spin it
-    until Ctrl-C / SIGTERM (the ROS 2 demos' skeleton). Shared by ``deepbbs-node`` and the GICP anchor."""
-    full = list(sys.argv) if argv is None else [prog, *argv]
-    args = _parser(prog, description).parse_args(_strip_ros_args(full)[1:])
-    defaults = Config.from_yaml(args.config) if args.config else Config()
-    if not args.no_shm_profile:
-        apply_default_profile()
-    # SIGINT / SIGTERM stop the spin and the node is destroyed (its last log line) while the context is still
-    # valid: rclpy's own handlers shut the context down first, and every log line after that printed "Failed to
-    # publish log message to rosout". A signal during start-up stops the node once it is built (a node cut
-    # halfway would leave its threads and processes behind); a second signal interrupts at once.
-    from rclpy.signals import SignalHandlerOptions
-
-    stop, spinning = threading.Event(), threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-        if not spinning.is_set():
-            print(f"{prog}: stopping once started (again to interrupt now)", file=sys.stderr, flush=True)
-
-    main_thread = threading.current_thread() is threading.main_thread()  # only there can handlers be set
-    sigs = (signal.SIGINT, signal.SIGTERM) if main_thread else ()
-    previous = {sig: signal.signal(sig, on_signal) for sig in sigs}
-    try:
-        try:
-            rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO if main_thread else None)
-        except Exception as err:  # rclpy's RCLError: bad --ros-args (remap rules, parameter syntax)
-            first = str(err).split(", at ")[0].replace("failed to initialize rcl: ", "")
-            raise NodeError(f"invalid ROS arguments: {first}") from err
-        return _spin_node(make_node, defaults, remap_rules(full), stop, spinning)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-def _spin_node(make_node: Callable[..., Node], defaults: Config, remaps: list, stop: threading.Event,
-               spinning: threading.Event) -> int:
-    node = None
-    try:
-        node = make_node(defaults, remaps=remaps) if remaps else make_node(defaults)
-        # one thread: every callback only hands off (the inputs and the registration have their own threads), and
-        # rclpy's multi-threaded executor cost ~2 ms more CPU per received 2.7 MB cloud (measured, paired runs)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spinning.set()
-        # the signal handler runs between two waits (Python runs handlers in the main thread, outside rcl_wait)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.2)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except DeepBBSError:
-        raise
-    except Exception:
-        # the context shut down by someone else (rclpy.shutdown from a thread) can land while the executor
-        # builds its wait set: RCLError ("context is not valid"). A clean stop; anything else is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        spinning.clear()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
-
 @cli_entry("deepbbs-node")
 def main(argv: list[str] | None = None) -> int:
     """``deepbbs-node [--config YAML] [--ros-args ...]``: run until Ctrl-C."""
     return run_node(argv, "deepbbs-node", "Live DeepBBS++ registration node.", RegistrationNode)
-
-
-def _strip_ros_args(argv: list[str]) -> list[str]:
-    """argv without the ``--ros-args ... [--]`` sections (rclpy's remove_ros_args, without a context)."""
-    out, in_ros = [], False
-    for a in argv:
-        if a == "--ros-args":
-            in_ros = True
-        elif in_ros and a == "--":
-            in_ros = False
-        elif not in_ros:
-            out.append(a)
-    return out
 
 
 if __name__ == "__main__":
