@@ -58,7 +58,7 @@ RIGS = (
     ("hdl32", "car", "urban", 2.0), ("vlp16", "car", "suburban", 2.0), ("os1_32", "car", "urban", 2.0),
     ("xt32", "car", "suburban", 2.0),
 )
-GAPS = (1, 3, 6, 10)  # frames between target and source (10 Hz)
+GAPS = (1, 3, 6, 10, 20)  # frames between target and source (10 Hz; 20: low overlap, fast turns in a hand)
 GAPS_SLOW = (1, 2)  # frames between target and source of the rigs recorded at a lower rate
 #: features left out of the fit (coefficient 0; none). plane_close measures how rough the scene's surfaces are as much
 #: as how tight the pose is, and real scenes are rougher than simulated ones (right poses on real nuScenes HDL-32E
@@ -227,14 +227,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=38)
     ap.add_argument("--out", type=Path, default=calibrated.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
+    ap.add_argument("--rows", type=Path, help="fit on these rows (a --dump) instead of simulating them again")
+    ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
+                    help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
-    data = collect(RIGS, args.seed, args.pairs)
+    data = dict(np.load(args.rows, allow_pickle=False)) if args.rows else collect(RIGS, args.seed, args.pairs)
     if args.dump:
         np.savez(args.dump, **data)
     models = {}
     for name, key in (("pair", "pair"), ("good_start", "good")):
         X, y = calibrated.design(data[key]), data["y"].astype(float)
-        coef, icpt = fit_logistic(X, y, unused=UNUSED)
+        coef, icpt = fit_logistic(X, y, unused=tuple(args.unused))
         p = 1.0 / (1.0 + np.exp(-(X @ coef + icpt)))
         models[name] = {"coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6)}
         print(f"{name}: {int(y.sum())} right, {int((1 - y).sum())} wrong; highest wrong p {p[y == 0].max():.3f}, "

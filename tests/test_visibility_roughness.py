@@ -48,3 +48,35 @@ def test_own_tolerance_follows_the_target_and_stays_bounded():
     assert visibility.own_tolerance(np.full(100, 3.0), 0.5) == 0.25  # trees never make everything fit
     assert abs(visibility.own_tolerance(np.linspace(0, 0.2, 101), 0.5) - 0.18) < 1e-9
     assert visibility.own_tolerance(np.zeros(0), 0.5) == 0.1
+
+
+def _rings(origin: np.ndarray, beams: int = 16) -> np.ndarray:
+    """A sparse spinning sensor at ``origin`` (1.8 m above a flat floor) in a 60 m long street with walls 8 m to
+    each side: its rings (-15 to +1 deg, 1 deg apart in azimuth), in the world frame."""
+    el = np.radians(np.linspace(-15.0, 1.0, beams))
+    az = np.radians(np.arange(-180.0, 180.0, 1.0))
+    E, A = np.meshgrid(el, az)
+    d = np.c_[(np.cos(E) * np.cos(A)).ravel(), (np.cos(E) * np.sin(A)).ravel(), np.sin(E).ravel()]
+    with np.errstate(divide="ignore"):
+        t_floor = np.where(d[:, 2] < 0, -1.8 / d[:, 2], np.inf)
+        t_wall = np.where(np.abs(d[:, 1]) > 1e-6, 8.0 / np.abs(d[:, 1]), np.inf)
+    t = np.minimum(np.minimum(t_floor, t_wall), 60.0)
+    return (d * t[:, None])[t < 60.0] + origin
+
+
+def test_a_sparse_ring_sensor_moved_along_the_road_does_not_violate_its_own_free_space():
+    """A right pose two metres further along: the source's floor returns fall between the target's rings, in
+    direction cells whose only target return is a farther ring; ``violations`` counts some of them, ``violations_nb``
+    (the neighbouring cells' nearest return) none, and still sees a wall put where the target saw through."""
+    rc = Config().registration
+    target = prepare_polish_cloud(_rings(np.zeros(3)), rc.polish_voxel, rc.polish_neighbors, threads=1)
+    source = _rings(np.array([2.0, 0.0, 0.0])) - np.array([2.0, 0.0, 0.0])  # its own frame
+    T = np.eye(4)
+    T[0, 3] = 2.0  # the truth
+    f = dict(zip(visibility.FEATURES, visibility.pose_features(source, T, target, rc.verdict_dist), strict=True))
+    assert f["violations_nb"] <= 0.005 and f["consistency_nb"] >= 0.99, f
+    assert f["violations"] >= 0.01 and f["violations"] > 2 * f["violations_nb"], f
+    W = np.eye(4)
+    W[1, 3] = 4.0  # 4 m sideways: the left wall in the middle of the street, where the target saw the far wall
+    w = dict(zip(visibility.FEATURES, visibility.pose_features(source, W, target, rc.verdict_dist), strict=True))
+    assert w["violations_nb"] > 0.05 and w["consistency_nb"] < 0.9, w

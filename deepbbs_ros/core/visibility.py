@@ -22,7 +22,7 @@ import numpy as np
 
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
-            "plane_own")
+            "plane_own", "violations_nb", "consistency_nb")
 _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
@@ -91,11 +91,14 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     that a rough real scene (trees, motion) is not taken for a loose fit; ``plane_own``: ``plane_close`` with the
     tolerance widened to the target's own roughness (``own_tol``: the residual of the target's own points to their
     neighbours' planes that :data:`_OWN_Q` of them stay within, from ``dist / 5`` to ``dist / 2``): a right pose on a
-    rough surface fits as its own points do, and scores as a right pose on a smooth one.
+    rough surface fits as its own points do, and scores as a right pose on a smooth one; ``violations_nb`` and
+    ``consistency_nb``: ``violations`` and ``consistency`` with a point violating only when it is also in front of
+    the nearest return of the 8 neighbouring direction cells (a sparse ring's cell holds the ground of one ring only:
+    a right source point on the ground a ring lower is closer than that return, not in the target's free space).
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
-        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
@@ -105,19 +108,35 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     own = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= tol)))
     cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
     un = ~seen
-    viol = 0
+    viol = viol_nb = 0
     if un.any():
         saz, sel, sr = _angles(np.asarray(moved, np.float64)[un])
         skey = _keys(saz, sel, cell)
         idx = np.clip(np.searchsorted(ukey, skey), 0, len(ukey) - 1)
         hit = ukey[idx] == skey
         margin = np.maximum(2.0 * dist, 0.05 * nearest[idx])  # clearly in front: noise and the cell's spread
-        viol = int(np.sum(hit & (sr < nearest[idx] - margin)))
-    judged = n_seen + viol
+        bad = hit & (sr < nearest[idx] - margin)
+        viol = int(bad.sum())
+        if viol:  # a subset of these (the neighbours' nearest return is no farther than the cell's own)
+            near = _around(ukey, nearest, skey[bad])
+            viol_nb = int(np.sum(sr[bad] < near - np.maximum(2.0 * dist, 0.05 * near)))
+    judged, judged_nb = n_seen + viol, n_seen + viol_nb
     plane_close = plane / max(n_seen, 1)
     rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
-                     judged / n, viol / n, rel, own / max(n_seen, 1)])
+                     judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
+                     n_seen / judged_nb if judged_nb else 0.0])
+
+
+def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarray:
+    """The nearest target return (m) in each of the cells ``skey`` and their 8 neighbours (inf where none)."""
+    out = np.full(len(skey), np.inf)
+    for di in (-100_000, 0, 100_000):
+        for dj in (-1, 0, 1):
+            k = skey + di + dj
+            idx = np.clip(np.searchsorted(ukey, k), 0, len(ukey) - 1)
+            out = np.where(ukey[idx] == k, np.minimum(out, nearest[idx]), out)
+    return out
 
 
 def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
