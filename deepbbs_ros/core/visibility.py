@@ -27,6 +27,7 @@ _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direc
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
 _PER_CELL = 3.0  # target returns a direction cell should hold on average
+_NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
 _OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
 
 
@@ -130,13 +131,9 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
 
 def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarray:
     """The nearest target return (m) in each of the cells ``skey`` and their 8 neighbours (inf where none)."""
-    out = np.full(len(skey), np.inf)
-    for di in (-100_000, 0, 100_000):
-        for dj in (-1, 0, 1):
-            k = skey + di + dj
-            idx = np.clip(np.searchsorted(ukey, k), 0, len(ukey) - 1)
-            out = np.where(ukey[idx] == k, np.minimum(out, nearest[idx]), out)
-    return out
+    k = (skey[None, :] + _NEIGHBOURS[:, None]).ravel()
+    idx = np.clip(np.searchsorted(ukey, k), 0, len(ukey) - 1)
+    return np.where(ukey[idx] == k, nearest[idx], np.inf).reshape(9, -1).min(axis=0)
 
 
 def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
