@@ -23,7 +23,9 @@ the scans' own optimum is there, and the precision stage cannot land closer), ``
 largest errors (deg, m). ``classes`` splits the poses in three, as the figures are counted against the goal:
 right (within 1 deg / 0.3 m), wrong (beyond 2 deg or 0.5 m) and in between (neither: shown apart, not counted as
 a success nor as a wrong pose accepted), each with its accepted / rejected count; the ``wrong`` and ``wrong_accepted``
-above it keep the older count (anything not right). ::
+above it keep the older count (anything not right). ``roughness/<set>``: how rough the targets' own surfaces are
+(core/visibility.py's ``roughness``: the distance 90 % of a target's points keep from their neighbour's tangent plane,
+and its ``self_planarity``; medians over the set's targets), to compare the simulation with real scans. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
