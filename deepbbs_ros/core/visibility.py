@@ -21,11 +21,14 @@ from __future__ import annotations
 import numpy as np
 
 #: the features :func:`features` returns, in order
-FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel")
+FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
+            "plane_own", "violations_nb", "consistency_nb")
 _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
 _PER_CELL = 3.0  # target returns a direction cell should hold on average
+_NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
+_OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
 
 
 def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -65,7 +68,8 @@ def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
-             plane_dist: np.ndarray | None = None, self_plane: float | None = None) -> np.ndarray:
+             plane_dist: np.ndarray | None = None, self_plane: float | None = None,
+             own_tol: float | None = None) -> np.ndarray:
     """The verdict's features of a pose -> (len(FEATURES),) float64.
 
     Args:
@@ -77,6 +81,7 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
         plane_dist: (N,) distance of each to its nearest target point's tangent plane (None: no normals).
         self_plane: the same share as ``plane_close`` for target points against their nearest other target point
             (:func:`self_planarity`): how close the target's own surfaces come to planes (None: 1).
+        own_tol: m, ``plane_own``'s tolerance (:func:`own_tolerance`; None: ``dist / 5``).
 
     ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
     among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
@@ -84,31 +89,51 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     ``observable``:
     (seen + violating) / N, the share the target could judge (the overlap); ``violations``: violating / N;
     ``plane_rel``: ``plane_close`` over ``self_plane`` (at most 1): as tight as the target's own surfaces allow, so
-    that a rough real scene (trees, motion) is not taken for a loose fit.
+    that a rough real scene (trees, motion) is not taken for a loose fit; ``plane_own``: ``plane_close`` with the
+    tolerance widened to the target's own roughness (``own_tol``: the residual of the target's own points to their
+    neighbours' planes that :data:`_OWN_Q` of them stay within, from ``dist / 5`` to ``dist / 2``): a right pose on a
+    rough surface fits as its own points do, and scores as a right pose on a smooth one; ``violations_nb`` and
+    ``consistency_nb``: ``violations`` and ``consistency`` with a point violating only when it is also in front of
+    the nearest return of the 8 neighbouring direction cells (a sparse ring's cell holds the ground of one ring only:
+    a right source point on the ground a ring lower is closer than that return, not in the target's free space).
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
-        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
     close = int(np.sum(sq <= 0.25 * dist * dist))
     plane = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= 0.2 * dist)))
+    tol = 0.2 * dist if own_tol is None else own_tol
+    own = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= tol)))
     cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
     un = ~seen
-    viol = 0
+    viol = viol_nb = 0
     if un.any():
         saz, sel, sr = _angles(np.asarray(moved, np.float64)[un])
         skey = _keys(saz, sel, cell)
         idx = np.clip(np.searchsorted(ukey, skey), 0, len(ukey) - 1)
         hit = ukey[idx] == skey
         margin = np.maximum(2.0 * dist, 0.05 * nearest[idx])  # clearly in front: noise and the cell's spread
-        viol = int(np.sum(hit & (sr < nearest[idx] - margin)))
-    judged = n_seen + viol
+        bad = hit & (sr < nearest[idx] - margin)
+        viol = int(bad.sum())
+        if viol:  # a subset of these (the neighbours' nearest return is no farther than the cell's own)
+            near = _around(ukey, nearest, skey[bad])
+            viol_nb = int(np.sum(sr[bad] < near - np.maximum(2.0 * dist, 0.05 * near)))
+    judged, judged_nb = n_seen + viol, n_seen + viol_nb
     plane_close = plane / max(n_seen, 1)
     rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
-                     judged / n, viol / n, rel])
+                     judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
+                     n_seen / judged_nb if judged_nb else 0.0])
+
+
+def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarray:
+    """The nearest target return (m) in each of the cells ``skey`` and their 8 neighbours (inf where none)."""
+    k = (skey[None, :] + _NEIGHBOURS[:, None]).ravel()
+    idx = np.clip(np.searchsorted(ukey, k), 0, len(ukey) - 1)
+    return np.where(ukey[idx] == k, nearest[idx], np.inf).reshape(9, -1).min(axis=0)
 
 
 def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
@@ -118,7 +143,7 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
-    tpts, table, own, normals = _target(target, dist)
+    tpts, table, own, normals, tol = _target(target, dist)
     if len(moved) == 0 or len(tpts) == 0:
         return features(moved, np.zeros(0), tpts, dist)
     if tree is None:
@@ -130,11 +155,12 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
         idx, sq = tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
     idx = np.asarray(idx, np.int64)
     plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
-    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own)
+    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own, tol)
 
 
 def _target(target, dist: float) -> tuple:
-    """(points (M, 3), :func:`directions`, :func:`self_planarity` or None, normals or None) of a target; kept on a
+    """(points (M, 3), :func:`directions`, :func:`self_planarity` or None, normals or None, :func:`own_tolerance` or
+    None) of a target; kept on a
     precision-stage cloud (its voxels never change), so that a cloud judged again (the good start, then the full
     pipeline; a scan that is the next pair's target) pays for them once."""
     cached = getattr(target, "_visibility", None)
@@ -146,21 +172,45 @@ def _target(target, dist: float) -> tuple:
     if tree is not None:
         nrm = np.asarray(target.cloud.normals())[:, :3]
         normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
-    own = None if normals is None or len(tpts) < 2 else self_planarity(tpts, tree, normals, dist)
-    out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals)
+    res = None if normals is None or len(tpts) < 2 else self_residuals(tpts, tree, normals, dist)
+    own = None if res is None else (float(np.mean(res <= 0.2 * dist)) if len(res) else 1.0)
+    tol = None if res is None else own_tolerance(res, dist)
+    out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals, tol)
     if tree is not None:
         target._visibility = (dist, out)
     return out
 
 
-def self_planarity(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> float:
-    """Of an even subset of the target's points, the share within ``dist / 5`` of their nearest other point's
-    tangent plane (among those with one within ``dist``): 1 for clean walls, lower for trees and smeared scans."""
+def self_residuals(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> np.ndarray:
+    """Of an even subset of the target's points (at most about ``_SELF_POINTS``), the distance (m) of each to its
+    nearest other point's tangent plane, for those with one within ``dist`` -> (K,): how rough the target is."""
     sub = tpts[:: max(1, len(tpts) // _SELF_POINTS)]
     idx, sq = tree.batch_knn_search(sub, 2, num_threads=1)
     j, sq = np.asarray(idx, np.int64)[:, 1], np.asarray(sq, np.float64)[:, 1]
     ok = (sq <= dist * dist) & (j >= 0) & (j < len(tpts))
-    if not ok.any():
-        return 1.0
-    res = np.einsum("ij,ij->i", sub[ok] - tpts[j[ok]], normals[j[ok]])
-    return float(np.mean(np.abs(res) <= 0.2 * dist))
+    return np.abs(np.einsum("ij,ij->i", sub[ok] - tpts[j[ok]], normals[j[ok]]))
+
+
+def own_tolerance(residuals: np.ndarray, dist: float) -> float:
+    """``plane_own``'s tolerance (m): the :data:`_OWN_Q` quantile of the target's :func:`self_residuals`, kept
+    within ``dist / 5`` (``plane_close``'s) and ``dist / 2`` (``fitness_close``'s: trees never make everything fit)."""
+    q = float(np.quantile(residuals, _OWN_Q)) if len(residuals) else 0.0
+    return float(np.clip(q, 0.2 * dist, 0.5 * dist))
+
+
+def self_planarity(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> float:
+    """Of an even subset of the target's points, the share within ``dist / 5`` of their nearest other point's
+    tangent plane (among those with one within ``dist``): 1 for clean walls, lower for trees and smeared scans."""
+    res = self_residuals(tpts, tree, normals, dist)
+    return float(np.mean(res <= 0.2 * dist)) if len(res) else 1.0
+
+
+def roughness(target, dist: float) -> tuple[float, float]:
+    """How rough a precision-stage cloud's surfaces are: (the :data:`_OWN_Q` quantile of its :func:`self_residuals`
+    (m, unclipped), its :func:`self_planarity`); (0, 1) without normals. For benchmarks: real scans against
+    simulated ones."""
+    tpts, _, own, normals, _ = _target(target, dist)
+    if normals is None:
+        return 0.0, 1.0
+    res = self_residuals(tpts, target.tree, normals, dist)
+    return (float(np.quantile(res, _OWN_Q)) if len(res) else 0.0), float(own)

@@ -20,7 +20,12 @@ predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A w
 beyond 1 deg / 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg /
 0.3 m of GICP started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's:
 the scans' own optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their
-largest errors (deg, m). ::
+largest errors (deg, m). ``classes`` splits the poses in three, as the figures are counted against the goal:
+right (within 1 deg / 0.3 m), wrong (beyond 2 deg or 0.5 m) and in between (neither: shown apart, not counted as
+a success nor as a wrong pose accepted), each with its accepted / rejected count; the ``wrong`` and ``wrong_accepted``
+above it keep the older count (anything not right). ``roughness/<set>``: how rough the targets' own surfaces are
+(core/visibility.py's ``roughness``: the distance 90 % of a target's points keep from their neighbour's tangent plane,
+and its ``self_planarity``; medians over the set's targets), to compare the simulation with real scans. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
@@ -54,12 +59,20 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
         m = (prob >= lo) & ((prob < lo + 0.1) | (lo >= 0.9))
         if m.any():
             bins.append({"p": f"{lo:.1f}-{lo + 0.1:.1f}", "n": int(m.sum()), "right": round(float(y[m].mean()), 3)})
-    out = {"poses": int(len(y)), "right": int(y.sum()), "wrong": int((~y).sum()),
+    out = {"poses": len(y), "right": int(y.sum()), "wrong": int((~y).sum()),
             "old_wrong_accepted": int(np.sum(~y & (score >= old))),
             "old_right_rejected": int(np.sum(y & (score < old))),
             "wrong_accepted": int(np.sum(~y & (prob >= bar))), "right_rejected": int(np.sum(y & (prob < bar))),
             "max_wrong_p": round(float(prob[~y].max()), 3) if (~y).any() else None,
             "min_right_p": round(float(prob[y].min()), 3) if y.any() else None, "reliability": bins}
+    if err is not None:  # three classes: right, wrong beyond 2 deg / 0.5 m, and in between (neither)
+        e = np.asarray(err, float).reshape(-1, 2)
+        far, acc = (e[:, 0] > 2.0) | (e[:, 1] > 0.5), prob >= bar
+        mid = ~y & ~far
+        out["classes"] = {"right": int(y.sum()), "right_rejected": int(np.sum(y & ~acc)),
+                          "in_between": int(mid.sum()), "in_between_accepted": int(np.sum(mid & acc)),
+                          "wrong": int(far.sum()), "wrong_accepted": int(np.sum(far & acc)),
+                          "max_wrong_p": round(float(prob[far].max()), 3) if far.any() else None}
     if near_ref is not None:  # wrong by the recorded truth, right by GICP from it: at the truth's resolution
         out["wrong_accepted_near_gicp_truth"] = int(np.sum(~y & (prob >= bar) & np.asarray(near_ref, bool)))
     if err is not None and np.any(~y & (prob >= bar)):  # the largest errors of the wrong poses accepted (deg, m)
@@ -82,6 +95,10 @@ def sim_figures(pairs: int, seed: int, rc) -> dict:
             m = np.ones(len(fam), bool) if f == "all" else fam == f
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
                                          np.c_[data["rot"][m], data["trans"][m]])
+    for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
+        m = np.ones(len(fam), bool) if f == "all" else fam == f
+        q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
+        out[f"roughness/{f}"] = {"self_residual_q90_m": round(float(q[0]), 3), "self_planarity": round(float(q[1]), 3)}
     return out
 
 
@@ -105,7 +122,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
         tgt, src, T_ref = _common.read_reference_pair(pair)
         sets.append((Path(pair).name, [("ref", src, tgt, T_ref)]))
     for name, pairs in sets:
-        rows = {"pair": [], "good": []}
+        rows, rough = {"pair": [], "good": []}, []
         for item in pairs:
             if item[0] == "ref":
                 _, sp, tp, T_gt = item
@@ -117,6 +134,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 starts = [None]
                 ps = reg.preprocess(s.points, s.point_times(), s.stamp_ns)
                 pt = reg.preprocess(t.points, t.point_times(), t.stamp_ns)
+            rough.append(visibility.roughness(pt.polish_cloud, rc.verdict_dist))
             ref = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, T_gt, rc)  # GICP from the truth
             T_ref = ref.T_target_source if ref.applied else T_gt
             for T0 in starts:
@@ -142,8 +160,12 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
             a = np.array(rows[key], float).reshape(-1, 6)
             out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
                                                a[:, 4:6])
+        q = np.median(np.array(rough).reshape(-1, 2), axis=0)
+        out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
+                                    "self_planarity": round(float(q[1]), 3)}
         print(name, {k: {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
-                                                  "wrong_accepted_max_err"]}
+                                                  "wrong_accepted_max_err", "classes", "self_residual_q90_m",
+                                                  "self_planarity"] if kk in v}
                      for k, v in out.items() if k.endswith("/" + name)},
               flush=True)
     if dump:
@@ -182,8 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration)
         for k, v in figures["sim"].items():
-            print("sim", k, {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
-                                                      "wrong_accepted_max_err"]}, v["reliability"], flush=True)
+            print("sim", k, v if k.startswith("roughness") else
+                  ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
+                                             "classes"]}, v["reliability"]), flush=True)
     if args.real or args.pair:
         figures["real"] = real_figures(args.real, args.pair, args.trials, reg, args.dump)
     _common.write_json(args.out, "verdict.json", figures)
