@@ -93,20 +93,31 @@ def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
 
 
 def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
-    """Starts slid 4 and 8 m along the road (facades repeat along it): the GICP-first path does not answer; the
-    full pipeline does, on the clouds already built, and its answer is right (or not valid)."""
+    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer. 4 m is
+    within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers, right, only with a sure verdict;
+    8 m is beyond it: the full pipeline answers, on the clouds already built, and its answer is right (or not valid)."""
+    from deepbbs_ros.core import coarse_rescue
+
     src, tgt, T_gt = drive
+    rc = reg.config.registration
     along = T_gt[:3, 3] / np.linalg.norm(T_gt[:3, 3])
+    assert 4.0 <= coarse_rescue.REACH * rc.good_start_max_trans < 8.0
     for d in (4.0, -8.0):
         T0 = T_gt.copy()
         T0[:3, 3] += d * along
         s, t = reg.preprocess(src, lazy=True), reg.preprocess(tgt, lazy=True)
         res = reg.register(s, t, T_init=T0, good_start=True)
-        assert res.path in ("deepbbs", "search") and res.good_start not in ("", "accepted"), res
-        assert s.sampled and t.sampled  # the fallback sampled the same clouds
         rot, tr = pair_errors(res.T_target_source, T_gt)
-        assert not res.valid or (rot < 1.0 and tr < 0.3), (d, rot, tr, res.good_start)
         assert res.timings_ms["good_start"] > 0 and res.timings_ms["total"] >= res.timings_ms["good_start"]
+        if d == 4.0:  # the second try from the start, coarse to fine: right and sure, nothing sampled
+            assert res.path == "gicp" and res.good_start.startswith("accepted after coarse to fine (GICP from"), res
+            assert res.valid and res.probability >= rc.verdict_sure and not s.sampled and not t.sampled
+            assert rot < 0.3 and tr < 0.1, (rot, tr)
+            continue
+        assert res.path in ("deepbbs", "search") and res.good_start not in ("", "accepted"), res
+        assert "coarse to fine: " in res.good_start, res.good_start
+        assert s.sampled and t.sampled  # the fallback sampled the same clouds
+        assert not res.valid or (rot < 1.0 and tr < 0.3), (d, rot, tr, res.good_start)
 
 
 def test_good_start_needs_a_start_and_precision_clouds(drive, reg):
