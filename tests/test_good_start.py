@@ -128,3 +128,30 @@ def test_good_start_needs_a_start_and_precision_clouds(drive, reg):
     a, b = reg.preprocess(src).points, reg.preprocess(tgt).points
     res = reg.register(a, b, T_init=np.eye(4), preprocessed=True, good_start=True)
     assert res.path == "deepbbs" and res.good_start.startswith("preprocessed arrays")
+
+
+def test_coarse_to_fine_second_try_stays_within_its_reach():
+    """core/coarse_rescue.py: from a start turned 12 degrees and 2.5 m off (outside GICP's fine basin at 10
+    iterations) the pyramid then GICP land on the truth, within the reach; from a start turned 30 degrees the truth
+    is beyond the reach (2x good_start_max_rot_deg): never taken, whatever GICP finds."""
+    from deepbbs_ros.core import coarse_rescue
+    from deepbbs_ros.core.registration import good_start_gicp
+    from deepbbs_ros.core.scans import polish_cloud
+    from deepbbs_ros.replay.synthetic import pose
+
+    cfg = Config()
+    rc = cfg.registration
+    tgt = _toy_scan(3)
+    T_gt = pose(1.0, 0.3, 0.0, np.radians(4.0))  # p_target = R p_source + t
+    src = ((tgt - T_gt[:3, 3]) @ T_gt[:3, :3]).astype(np.float32)
+    spc, tpc = (polish_cloud(cfg, p).complete(1) for p in (src, tgt))
+    assert coarse_rescue.moved(T_gt, T_gt @ pose(3.0, 4.0, 0.0, np.radians(30.0))) == pytest.approx((5.0, 30.0))
+    near = T_gt @ pose(2.0, -1.5, 0.0, np.radians(12.0))
+    assert not good_start_gicp(spc, tpc, near, rc).applied  # the first try does not converge from there
+    pol, why = coarse_rescue.coarse_then_fine(spc, tpc, near, rc, 1)
+    assert why == "" and pol.applied, why
+    rot, tr = pair_errors(pol.T_target_source, T_gt)
+    assert rot < 0.2 and tr < 0.05, (rot, tr)
+    far = T_gt @ pose(0.0, 0.0, 0.0, np.radians(30.0))
+    pol, why = coarse_rescue.coarse_then_fine(spc, tpc, far, rc, 1)
+    assert why != "", pol

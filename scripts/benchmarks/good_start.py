@@ -111,8 +111,9 @@ class Runner:
 def reason_kind(text: str) -> str:
     """``RegistrationResult.good_start`` in a word: accepted, coarse to fine (accepted on the second try), verdict, not
     converged, moved, or the text."""
-    for word, kind in (("accepted after coarse to fine", "coarse to fine"), ("accepted", "accepted"), ("verdict", "verdict"), ("not converged", "not converged"),
-                       ("moved", "moved"), ("turned", "moved")):
+    for word, kind in (("accepted after coarse to fine", "coarse to fine"), ("accepted", "accepted"),
+                       ("verdict", "verdict"), ("not converged", "not converged"), ("moved", "moved"),
+                       ("turned", "moved")):
         if word in text:
             return kind
     return text
