@@ -42,6 +42,23 @@ def test_lazy_sampling_gives_the_eager_numbers():
         assert "sample" in pre.timings_ms and "fps" in pre.timings_ms
 
 
+def test_lazy_sampling_of_a_sparse_scan_gives_the_eager_numbers():
+    """A scan too sparse for the shared grid (a Livox frame, a 16-beam scan in a corridor) is sampled on its own grid:
+    with lazy=True that waits too (a good start never pays its ground removal and FPS), with the same numbers."""
+    cfg, pts = Config(), _toy_scan(2, n=1500)
+    eager = prepare_scan(cfg, pts)
+    assert eager.polish_cloud.n_points < 2 * cfg.preprocess.min_candidates  # the scan's own grid
+    lazy = prepare_scan(cfg, pts, lazy=True)
+    assert not lazy.sampled
+    copied = pickle.loads(pickle.dumps(lazy))
+    for pre in (lazy, copied):
+        np.testing.assert_array_equal(pre.points, eager.points)
+        assert pre.sampled and (pre.n_voxels, pre.n_valid, pre.n_input) == (eager.n_voxels, eager.n_valid,
+                                                                             eager.n_input)
+        np.testing.assert_array_equal(pre.dense_points, eager.dense_points)
+        np.testing.assert_allclose(pre.ground_plane, eager.ground_plane)
+
+
 def test_spread_subset_is_order_independent():
     rng = np.random.default_rng(1)
     pts = np.round(rng.uniform(-50, 50, (5000, 3)) / 0.5) * 0.5 + 0.25  # voxel centroids

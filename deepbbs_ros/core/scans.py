@@ -115,6 +115,9 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
             res = preprocess(grid.astype(np.float32), pp, gridded=True)
         res.n_input, res.n_valid = len(points), pc.n_cropped
         return res
+    if lazy and pc is not None and not ordered:  # a sparse raw scan's own grid: sampled on first read from the scan
+        return PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
+                                pending_sample=(pp, pp.seed, np.asarray(points, np.float32)))
     return preprocess(points, pp)
 
 
