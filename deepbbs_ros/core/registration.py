@@ -296,7 +296,8 @@ class DeepBBSRegistration:
                 last pose): GICP alone from it on the precision-stage clouds, judged by a stricter verdict
                 (``registration.good_start_*``), answers at about GICP's price (``path`` "gicp"); when that verdict
                 rejects, GICP does not converge within ``good_start_max_iters`` or moves the start implausibly far,
-                the full pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
+                GICP coarse to fine from ``T_init`` tries again (core/coarse_rescue.py: taken when sure), then the full
+                pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
                 ``preprocessed`` arrays, which have no precision-stage clouds) it is the full pipeline.
             yaw_search: False: no other start yaws for this call (``registration.global_search`` as "off"), the
                 given start only; per call, so that callers sharing one registration on several threads do not
