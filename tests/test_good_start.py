@@ -42,6 +42,23 @@ def test_lazy_sampling_gives_the_eager_numbers():
         assert "sample" in pre.timings_ms and "fps" in pre.timings_ms
 
 
+def test_lazy_sampling_of_a_sparse_scan_gives_the_eager_numbers():
+    """A scan too sparse for the shared grid (a Livox frame, a 16-beam scan in a corridor) is sampled on its own grid:
+    with lazy=True that waits too (a good start never pays its ground removal and FPS), with the same numbers."""
+    cfg, pts = Config(), _toy_scan(2, n=1500)
+    eager = prepare_scan(cfg, pts)
+    assert eager.polish_cloud.n_points < 2 * cfg.preprocess.min_candidates  # the scan's own grid
+    lazy = prepare_scan(cfg, pts, lazy=True)
+    assert not lazy.sampled
+    copied = pickle.loads(pickle.dumps(lazy))
+    for pre in (lazy, copied):
+        np.testing.assert_array_equal(pre.points, eager.points)
+        assert pre.sampled and (pre.n_voxels, pre.n_valid, pre.n_input) == (eager.n_voxels, eager.n_valid,
+                                                                             eager.n_input)
+        np.testing.assert_array_equal(pre.dense_points, eager.dense_points)
+        np.testing.assert_allclose(pre.ground_plane, eager.ground_plane)
+
+
 def test_spread_subset_is_order_independent():
     rng = np.random.default_rng(1)
     pts = np.round(rng.uniform(-50, 50, (5000, 3)) / 0.5) * 0.5 + 0.25  # voxel centroids
@@ -93,20 +110,31 @@ def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
 
 
 def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
-    """Starts slid 4 and 8 m along the road (facades repeat along it): the GICP-first path does not answer; the
-    full pipeline does, on the clouds already built, and its answer is right (or not valid)."""
+    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer. 4 m is
+    within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers, right, only with a sure verdict;
+    8 m is beyond it: the full pipeline answers, on the clouds already built, and its answer is right (or not valid)."""
+    from deepbbs_ros.core import coarse_rescue
+
     src, tgt, T_gt = drive
+    rc = reg.config.registration
     along = T_gt[:3, 3] / np.linalg.norm(T_gt[:3, 3])
+    assert 4.0 <= coarse_rescue.REACH * rc.good_start_max_trans < 8.0
     for d in (4.0, -8.0):
         T0 = T_gt.copy()
         T0[:3, 3] += d * along
         s, t = reg.preprocess(src, lazy=True), reg.preprocess(tgt, lazy=True)
         res = reg.register(s, t, T_init=T0, good_start=True)
-        assert res.path in ("deepbbs", "search") and res.good_start not in ("", "accepted"), res
-        assert s.sampled and t.sampled  # the fallback sampled the same clouds
         rot, tr = pair_errors(res.T_target_source, T_gt)
-        assert not res.valid or (rot < 1.0 and tr < 0.3), (d, rot, tr, res.good_start)
         assert res.timings_ms["good_start"] > 0 and res.timings_ms["total"] >= res.timings_ms["good_start"]
+        if d == 4.0:  # the second try from the start, coarse to fine: right and sure, nothing sampled
+            assert res.path == "gicp" and res.good_start.startswith("accepted after coarse to fine (GICP from"), res
+            assert res.valid and res.probability >= rc.verdict_sure and not s.sampled and not t.sampled
+            assert rot < 0.3 and tr < 0.1, (rot, tr)
+            continue
+        assert res.path in ("deepbbs", "search") and res.good_start not in ("", "accepted"), res
+        assert "coarse to fine: " in res.good_start, res.good_start
+        assert s.sampled and t.sampled  # the fallback sampled the same clouds
+        assert not res.valid or (rot < 1.0 and tr < 0.3), (d, rot, tr, res.good_start)
 
 
 def test_good_start_needs_a_start_and_precision_clouds(drive, reg):
@@ -117,3 +145,30 @@ def test_good_start_needs_a_start_and_precision_clouds(drive, reg):
     a, b = reg.preprocess(src).points, reg.preprocess(tgt).points
     res = reg.register(a, b, T_init=np.eye(4), preprocessed=True, good_start=True)
     assert res.path == "deepbbs" and res.good_start.startswith("preprocessed arrays")
+
+
+def test_coarse_to_fine_second_try_stays_within_its_reach():
+    """core/coarse_rescue.py: from a start turned 12 degrees and 2.5 m off (outside GICP's fine basin at 10
+    iterations) the pyramid then GICP land on the truth, within the reach; from a start turned 30 degrees the truth
+    is beyond the reach (2x good_start_max_rot_deg): never taken, whatever GICP finds."""
+    from deepbbs_ros.core import coarse_rescue
+    from deepbbs_ros.core.registration import good_start_gicp
+    from deepbbs_ros.core.scans import polish_cloud
+    from deepbbs_ros.replay.synthetic import pose
+
+    cfg = Config()
+    rc = cfg.registration
+    tgt = _toy_scan(3)
+    T_gt = pose(1.0, 0.3, 0.0, np.radians(4.0))  # p_target = R p_source + t
+    src = ((tgt - T_gt[:3, 3]) @ T_gt[:3, :3]).astype(np.float32)
+    spc, tpc = (polish_cloud(cfg, p).complete(1) for p in (src, tgt))
+    assert coarse_rescue.moved(T_gt, T_gt @ pose(3.0, 4.0, 0.0, np.radians(30.0))) == pytest.approx((5.0, 30.0))
+    near = T_gt @ pose(2.0, -1.5, 0.0, np.radians(12.0))
+    assert not good_start_gicp(spc, tpc, near, rc).applied  # the first try does not converge from there
+    pol, why = coarse_rescue.coarse_then_fine(spc, tpc, near, rc, 1)
+    assert why == "" and pol.applied, why
+    rot, tr = pair_errors(pol.T_target_source, T_gt)
+    assert rot < 0.2 and tr < 0.05, (rot, tr)
+    far = T_gt @ pose(0.0, 0.0, 0.0, np.radians(30.0))
+    pol, why = coarse_rescue.coarse_then_fine(spc, tpc, far, rc, 1)
+    assert why != "", pol

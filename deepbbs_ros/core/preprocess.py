@@ -197,7 +197,8 @@ class PreprocessResult:
     ground_status: str = ""
     sensor: str = "auto"
     # (cfg, seed) while the sampling waits (``prepare_scan(..., lazy=True)``: on the grid of ``polish_cloud``, put in
-    # :func:`canonical_order`): the first read of a sampled field (:data:`SAMPLED_FIELDS`) runs it; None once sampled
+    # :func:`canonical_order`; (cfg, seed, raw scan (N, 3)) for a scan too sparse for that grid: on its own): the first
+    # read of a sampled field (:data:`SAMPLED_FIELDS`) runs it; None once sampled
     pending_sample: Any = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:
@@ -219,7 +220,8 @@ class PreprocessResult:
         return self.__dict__.get("pending_sample") is None
 
     def sample(self) -> PreprocessResult:
-        """Run a waiting sampling (ground removal, FPS on the precision stage's grid) now; no-op when done.
+        """Run a waiting sampling (ground removal, FPS on the precision stage's grid, or on a sparse scan's own grid)
+        now; no-op when done.
         Thread-safe (the node's registration thread and an input thread may both need it). Returns self."""
         if self.sampled:
             return self
@@ -227,11 +229,15 @@ class PreprocessResult:
             spec = self.__dict__.get("pending_sample")
             if spec is None:
                 return self
-            cfg, seed = spec
+            cfg, seed, *raw = spec
             t0 = time.perf_counter()
-            grid = canonical_order(self.polish_cloud.points()).astype(np.float32)
-            res = preprocess(grid, cfg, seed=seed, gridded=True)
             d = self.__dict__
+            if raw:  # a sparse scan: its own grid, from the raw scan, as prepare_scan would have sampled at once
+                res = preprocess(raw[0], cfg, seed=seed)
+                d["n_valid"] = res.n_valid
+            else:
+                grid = canonical_order(self.polish_cloud.points()).astype(np.float32)
+                res = preprocess(grid, cfg, seed=seed, gridded=True)
             for name in SAMPLED_FIELDS:
                 d["_" + name] = getattr(res, name)
             timings = dict(d.get("timings_ms") or {})

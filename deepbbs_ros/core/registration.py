@@ -22,7 +22,9 @@ last pose) a cheaper path runs first and answers alone when its stricter verdict
 
     gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
                 registration.good_start_max_iters, a verdict on a spread subset of the source's voxels
-                (registration.good_start_probability); rejected -> the stages above on the same clouds
+                (registration.good_start_probability)
+    coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
+                sure (registration.verdict_sure); else -> the stages above on the same clouds
 
 Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -49,7 +51,7 @@ import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import global_search, verdict
+from deepbbs_ros.core import coarse_rescue, global_search, verdict
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize, worker_share
 from deepbbs_ros.core.network_runner import NetworkRunner
@@ -107,7 +109,8 @@ class RegistrationResult:
         path: which path answered: "gicp" (``good_start``: GICP from the given start, accepted by its stricter
             verdict), "deepbbs" (the deep passes from the given start, then the precision stage) or "search" (the
             any-start search ran: other start yaws, then shifted starts).
-        good_start: ``good_start`` only: "accepted", or why the GICP-first path was not (then ``path`` is
+        good_start: ``good_start`` only: "accepted", "accepted after coarse to fine (why GICP from the start was
+            not)" (core/coarse_rescue.py), or why the GICP-first path was not (then ``path`` is
             "deepbbs" or "search" and ``timings_ms["good_start"]`` is what the attempt cost); "" otherwise.
     """
 
@@ -293,7 +296,8 @@ class DeepBBSRegistration:
                 last pose): GICP alone from it on the precision-stage clouds, judged by a stricter verdict
                 (``registration.good_start_*``), answers at about GICP's price (``path`` "gicp"); when that verdict
                 rejects, GICP does not converge within ``good_start_max_iters`` or moves the start implausibly far,
-                the full pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
+                GICP coarse to fine from ``T_init`` tries again (core/coarse_rescue.py: taken when sure), then the full
+                pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
                 ``preprocessed`` arrays, which have no precision-stage clouds) it is the full pipeline.
             yaw_search: False: no other start yaws for this call (``registration.global_search`` as "off"), the
                 given start only; per call, so that callers sharing one registration on several threads do not
@@ -355,19 +359,24 @@ class DeepBBSRegistration:
             return _GoodStart(src, tgt, reason="no precision-stage clouds (registration.polish none)")
         spc, tpc = src.polish_cloud.complete(self.gicp_threads()), tgt.polish_cloud.complete(self.gicp_threads())
         clock.lap("preprocess")
-        pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
-        if not pol.applied:
-            clock.lap("good_start")
-            why = pol.reason.replace("polish_max_", "registration.good_start_max_")
-            return _GoodStart(src, tgt, reason=f"GICP from the start: {why}")
-        T = pol.T_target_source
         pts = good_start_points(spc, rc)
+        pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
+        why = "" if pol.applied else pol.reason.replace("polish_max_", "registration.good_start_max_")
+        prob, bar = self._good_start_verdict(pol, why, pts, tpc, rc.good_start_probability)
+        accepted = "accepted"
+        if not verdict.is_valid(prob, bar):  # outside GICP's fine basin (or a wrong one): coarse to fine, when sure
+            first = f"GICP from the start: {why}" if why else (f"verdict {prob:.2f} < "
+                                                             f"registration.good_start_probability {bar}")
+            pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, self.gicp_threads())
+            prob, bar = self._good_start_verdict(pol, why, pts, tpc, max(rc.good_start_probability, rc.verdict_sure))
+            if not verdict.is_valid(prob, bar):
+                clock.lap("good_start")
+                then = why or f"verdict {prob:.2f} < registration.verdict_sure {bar}"
+                return _GoodStart(src, tgt, reason=f"{first}; coarse to fine: {then}")
+            accepted = f"accepted after coarse to fine ({first})"
+        T = pol.T_target_source
         score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        prob = verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")  # its own calibrated verdict
         clock.lap("good_start")
-        if not verdict.is_valid(prob, rc.good_start_probability):
-            return _GoodStart(src, tgt, reason=f"verdict {prob:.2f} < registration.good_start_probability "
-                                               f"{rc.good_start_probability}")
         self._searched.append(False)
         inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
         T, deskew, more = self._good_start_deskew(src, tgt, T)  # both scans deskewed (node.pair_deskew): again on them
@@ -376,12 +385,21 @@ class DeepBBSRegistration:
         tgt_pts = good_start_points(tpc, rc)
         timings = dict(clock.ms)
         timings["total"] = sum(timings.values())
-        return _GoodStart(src, tgt, "accepted", RegistrationResult(
+        return _GoodStart(src, tgt, accepted, RegistrationResult(
             T_target_source=T, converged=bool(pol.converged),
             iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
             gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
             source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", deskew=deskew,
-            valid=True, score=float(score), starts=1, path="gicp", good_start="accepted", probability=float(prob)))
+            valid=True, score=float(score), starts=1, path="gicp", good_start=accepted, probability=float(prob)))
+
+    def _good_start_verdict(self, pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud,
+                            bar: float) -> tuple[float, float]:
+        """(the good-start verdict's probability of the GICP result ``pol`` (0 when ``why`` says it is not taken),
+        the bar it must reach)."""
+        if why:
+            return 0.0, bar
+        dist = self.config.registration.verdict_dist
+        return verdict.probability(pts, pol.T_target_source, tpc, dist, "good_start"), bar
 
     def _good_start_deskew(self, a: PreprocessResult, b: PreprocessResult,
                            T: np.ndarray) -> tuple[np.ndarray, str, int]:

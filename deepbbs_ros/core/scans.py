@@ -28,7 +28,14 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.points import as_xyz
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishCloud, PolishView, prepare_polish_cloud, prepared_cloud
+from deepbbs_ros.core.polish import (
+    MIN_POLISH_POINTS,
+    SMALL_GICP_TYPE,
+    PolishCloud,
+    PolishView,
+    prepare_polish_cloud,
+    prepared_cloud,
+)
 from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_order, crop_mask, deskew, preprocess
 from deepbbs_ros.core.sensors import guess_sensor, resolve
 from deepbbs_ros.errors import RegistrationError
@@ -115,6 +122,11 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
             res = preprocess(grid.astype(np.float32), pp, gridded=True)
         res.n_input, res.n_valid = len(points), pc.n_cropped
         return res
+    if lazy and pc is not None and not ordered and pc.n_points >= MIN_POLISH_POINTS:
+        # a sparse raw scan's own grid: sampled on first read from the scan (one with nearly nothing in the crop
+        # fails here, as a scan should: at once)
+        return PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
+                                pending_sample=(pp, pp.seed, np.asarray(points, np.float32)))
     return preprocess(points, pp)
 
 

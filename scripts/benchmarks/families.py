@@ -195,10 +195,23 @@ def run_good(regs, src: np.ndarray, tgt: np.ndarray) -> dict:
     when that rejects (``path``)."""
     def call(reg):
         res = reg.register(src, tgt, T_init=np.eye(4), good_start=True)
-        return res.T_target_source, {"valid": bool(res.valid), "score": float(res.score), "path": res.path}
+        return res.T_target_source, {"valid": bool(res.valid), "score": float(res.score), "path": res.path,
+                                     "why": res.good_start, "stages_ms": {k: round(float(v), 1) for k, v in
+                                                                          res.timings_ms.items()}}
 
     (T, extra), ms, _ = _common.timed_then_answered(call, *regs)
     return {"ms": ms, "T": T, **extra}
+
+
+def _whys(texts: list[str]) -> dict[str, int]:
+    """Why the good-start path fell back, counted by the first try's reason and the coarse-to-fine try's."""
+    import good_start
+
+    out: dict[str, int] = {}
+    for t in texts:
+        k = " / ".join(good_start.reason_kind(part) for part in t.split("; coarse to fine: "))
+        out[k] = out.get(k, 0) + 1
+    return out
 
 
 def _key(case: dict) -> str:
@@ -226,6 +239,9 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
             cell["p50_ms"][m], cell["p95_ms"][m] = float(np.median(ms)), float(np.percentile(ms, 95))
             if m == GOOD:  # answered by GICP and the good-start verdict, or by the full pipeline after it rejected
                 cell["good_start"] = {"pairs": len(ran), "gicp_path": sum(x["path"] == "gicp" for x in ran),
+                                      "coarse_to_fine": sum("coarse to fine" in x.get("why", "") and x["path"] == "gicp"
+                                                            for x in ran),
+                                      "fallback_why": _whys([x.get("why", "") for x in ran if x["path"] != "gicp"]),
                                       "accepted_wrong": sum(x["valid"] and not x["ok"] for x in ran),
                                       "rejected_right": sum(x["ok"] and not x["valid"] for x in ran)}
         g50 = cell["p50_ms"].get("gicp")

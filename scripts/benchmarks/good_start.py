@@ -109,9 +109,13 @@ class Runner:
 
 
 def reason_kind(text: str) -> str:
-    """``RegistrationResult.good_start`` in a word: accepted, verdict, not converged, moved, or the text."""
-    for word, kind in (("accepted", "accepted"), ("verdict", "verdict"), ("not converged", "not converged"),
-                       ("moved", "moved"), ("turned", "moved")):
+    """``RegistrationResult.good_start`` in a word: accepted, coarse to fine (accepted on the second try), or why the
+    first try was not taken (verdict, not converged, moved), or the text."""
+    if not text.startswith("accepted"):
+        text = text.split("; coarse to fine: ")[0]
+    for word, kind in (("accepted after coarse to fine", "coarse to fine"), ("accepted", "accepted"),
+                       ("verdict", "verdict"), ("not converged", "not converged"), ("moved", "moved"),
+                       ("turned", "moved")):
         if word in text:
             return kind
     return text
