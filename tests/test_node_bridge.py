@@ -150,8 +150,12 @@ def test_tracked_covariance_is_the_sandwich_at_the_pose(drive):
     """A tracked pose's covariance is the cluster-robust sandwich of the GICP pairs of the scan on its crop at the
     pose it carries (core/covariance.py, computed here from the pairs directly: the localization's subsampling,
     inflation and weak-direction prior), for every tracked scan."""
-    from deepbbs_ros.core.covariance import (LOCALIZATION_INFLATION, LOCALIZATION_MAX_POINTS, matched_pairs,
-                                             sandwich_covariance)
+    from deepbbs_ros.core.covariance import (
+        LOCALIZATION_INFLATION,
+        LOCALIZATION_MAX_POINTS,
+        matched_pairs,
+        sandwich_covariance,
+    )
     from deepbbs_ros.core.localization import MapLocalizer
     from deepbbs_ros.core.tracking import MapTracker
 

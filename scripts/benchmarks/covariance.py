@@ -272,7 +272,7 @@ def report(title: str, figs: dict) -> None:
         print(f"{name:34s} {f['n']:4d} {p['mean']:10.2f} [{p['band'][0]:5.2f}, {p['band'][1]:5.2f}] "
               f"{p['median']:7.2f} {p['above_p95']:6.1%} | {q['mean']:9.2f} [{q['band'][0]:4.2f}, {q['band'][1]:4.2f}]"
               f" {q['above_p95']:6.1%}")
-    print(f"  per axis, median d^2 / var (chi2(1): 0.455)   x      y      z      roll   pitch  yaw   | first row")
+    print("  per axis, median d^2 / var (chi2(1): 0.455)   x      y      z      roll   pitch  yaw   | first row")
     for name, f in figs.items():
         if f.get("n"):
             print(f"  {name:44s}" + " ".join(f"{x:6.2f}" for x in f["axes_median"]) + f" | {f['first']:9.2f}")
