@@ -21,7 +21,9 @@ errors within a cell count once, as they move the pose. Then:
    start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
    anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
 3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
-   motion it missed, the root mean square of the recent deviations from the prediction over sqrt(12) per axis;
+   motion it missed, and a scan lands half of it off: per axis of the scan, sqrt(2) / 2 of the root mean square of
+   the recent deviations from the prediction (a step differences two scans); the first motion, with no prediction
+   to deviate from, the voxel map's quantisation (:func:`quantisation_floor`);
 4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
    ``B = diag(R, R)``.
 
@@ -232,7 +234,8 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     (core/degeneracy.py), whose error is the whole deviation (``|floor[:3]| / SWEEP_SPREAD``; without one, a voxel)."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
     if floor is None:
-        floor, weak = quantisation_floor(cloud, voxel_size), voxel_size
+        motion = float(np.linalg.norm(np.asarray(T_map_scan, dtype=np.float64)[:3, 3]))  # from the first scan
+        floor, weak = quantisation_floor(cloud, voxel_size, motion), voxel_size
     else:
         floor = np.asarray(floor, dtype=np.float64)
         weak = float(np.linalg.norm(floor[:3])) / SWEEP_SPREAD
@@ -245,15 +248,17 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     return cov
 
 
-def quantisation_floor(cloud: Any, voxel_size: float) -> np.ndarray:
+def quantisation_floor(cloud: Any, voxel_size: float, motion: float = 0.0) -> np.ndarray:
     """(6,) the first motion's model error, m and rad per axis: its start has no prediction to deviate from, so no
-    :class:`MotionFloor`; what it registers to is the first scan's voxel map, which places a surface only to within
-    its voxel: a uniform error over ``voxel_size`` (standard deviation ``voxel_size / sqrt(12)``) in position, and
-    that over the scan's mean range in rotation."""
+    :class:`MotionFloor`; what it registers to is the first scan's voxel map, and a turn of the scan by less than a
+    voxel's uniform error (``voxel_size / sqrt(12)``) at the scan's mean range is not told apart by it: that angle
+    per rotation axis (a car's first sweeps are off mostly in roll and pitch, the body's sway within the sweep);
+    the motion's direction is known to the same angle, so its ``motion`` m (the first motion's length) to that angle
+    times its length per position axis."""
     pts = np.asarray(cloud.points(), dtype=np.float64)[::16, :3]
     rng = float(np.mean(np.linalg.norm(pts, axis=1))) if len(pts) else 0.0
-    t = voxel_size * 12.0 ** -0.5
-    return np.array([t, t, t] + [t / max(rng, voxel_size)] * 3)
+    angle = voxel_size * 12.0 ** -0.5 / max(rng, voxel_size)
+    return np.array([angle * motion] * 3 + [angle] * 3)
 
 
 class MotionFloor:

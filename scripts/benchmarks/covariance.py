@@ -314,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
         if "localization" not in args.skip:
             loc_rows[name], failed = localization_rows(points, keys, queries, config, args)
             notes[name] = f"{failed} of {len(queries)} queries without a pose"
+            f = nees_stats(loc_rows[name]) if loc_rows[name] else {}
+            print(f"    localization: {notes[name]}; mean NEES {f.get('pose', {}).get('mean', float('nan')):.2f}"
+                  + (" (inflation 1)" if args.fit else ""), flush=True)
         if "odometry" not in args.skip:
             step_rows[name], chains[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
