@@ -167,23 +167,25 @@ def test_degenerate_corridor_is_uncertain_along_its_axis():
     assert along > 10 * float(well[0, 0])
 
 
-def test_motion_floor_is_the_deviation_over_sqrt12():
-    """The odometry's sweep floor: the root mean square of the recent deviations from the prediction over sqrt(12)
-    (position and rotation), nothing before the first prediction, the window forgetting old deviations."""
-    from scipy.spatial.transform import Rotation
-
+def test_motion_floor_is_the_deviation_per_axis_over_sqrt2():
+    """The odometry's sweep floor: per axis of the scan, the root mean square of the recent deviations from the
+    prediction times sqrt(2) / 2 (a scan lands half its sweep's missed motion off, a step is the difference of two
+    scans); nothing before the first prediction, a roll deviation only in roll, the window forgetting old ones."""
     f = MotionFloor()
-    assert f.update(np.eye(4), None) == (0.0, 0.0)
+    assert SWEEP_SPREAD == pytest.approx(np.sqrt(0.5))
+    assert f.update(np.eye(4), None) is None
     for dx, angle in ((0.03, 0.001), (0.04, 0.002)):
         P = np.eye(4)
-        P[:3, :3] = Rotation.from_rotvec([0.0, angle, 0.0]).as_matrix()
+        P[:3, :3] = Rotation.from_rotvec([angle, 0.0, 0.0]).as_matrix()
         P[:3, 3] = [dx, 0.0, 0.0]
-        t, r = f.update(P, np.eye(4))
-    assert t == pytest.approx(SWEEP_SPREAD * np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2))
-    assert r == pytest.approx(SWEEP_SPREAD * np.sqrt((0.001 ** 2 + 0.002 ** 2) / 2))
+        floor = f.update(P, np.eye(4))
+    want = np.zeros(6)
+    want[0] = SWEEP_SPREAD * np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2)
+    want[3] = SWEEP_SPREAD * np.sqrt((0.001 ** 2 + 0.002 ** 2) / 2)
+    np.testing.assert_allclose(floor, want, atol=1e-12)
     for _ in range(20):
-        t, r = f.update(np.eye(4), np.eye(4))
-    assert t == 0.0 and r == 0.0
+        floor = f.update(np.eye(4), np.eye(4))
+    np.testing.assert_array_equal(floor, np.zeros(6))
 
 
 def test_compose_matches_monte_carlo():

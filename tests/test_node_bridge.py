@@ -146,30 +146,40 @@ def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
     _check_pose(res.T_map_scan, T)
 
 
-def test_tracked_covariance_reads_the_refinement(drive):
-    """A tracked pose's covariance is the cluster-robust one of the GICP pairs at the pose (core/covariance.py
-    scan_covariance, to within 2 % of its largest entry), for every tracked scan that the refinement handed on."""
-    from deepbbs_ros.core.covariance import scan_covariance
+def test_tracked_covariance_is_the_sandwich_at_the_pose(drive):
+    """A tracked pose's covariance is the cluster-robust sandwich of the GICP pairs of the scan on its crop at the
+    pose it carries (core/covariance.py, computed here from the pairs directly: the localization's subsampling,
+    inflation and weak-direction prior), for every tracked scan."""
+    from deepbbs_ros.core.covariance import (
+        LOCALIZATION_INFLATION,
+        LOCALIZATION_MAX_POINTS,
+        matched_pairs,
+        sandwich_covariance,
+    )
     from deepbbs_ros.core.localization import MapLocalizer
     from deepbbs_ros.core.tracking import MapTracker
 
     sim, points, poses, scan = drive
     cfg = _config()
+    corr = cfg.localization.refine_corr_dist
+    assert corr > 0
     loc = MapLocalizer(points, cfg, registration=_registration(cfg), trajectory=poses)
     seen = []
     own = loc._covariance
 
-    def both(src, crop, T, timings, hessian=None):
-        reused = hessian is not None  # the refinement's, handed on with its pose
-        cov = own(src, crop, T, timings, hessian)
-        seen.append((reused, cov, scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T, cfg)))
-        return cov
+    def spy(src, crop, T, timings):
+        pairs = matched_pairs(src.polish_cloud, crop.pre.polish_cloud, np.linalg.solve(crop.T_map_place, T), corr,
+                              1, LOCALIZATION_MAX_POINTS)
+        seen.append((T, sandwich_covariance(pairs, T, LOCALIZATION_INFLATION, weak_sigma=corr / np.sqrt(3.0))))
+        return own(src, crop, T, timings)
 
-    loc._covariance = both
+    loc._covariance = spy
     tracker = MapTracker(loc, cfg)
     tracker.state, tracker._poses = "tracking", [(sim.stamp_ns(29), scan(29)[1])]
     for k in (30, 31, 32):
-        assert tracker.step(scan(k)[0], sim.stamp_ns(k)).valid
-    assert seen and all(reused for reused, *_ in seen)
-    for _, cov, again in seen:
-        assert np.abs(cov - again).max() <= 0.02 * np.abs(again).max()
+        res = tracker.step(scan(k)[0], sim.stamp_ns(k))
+        assert res.valid and res.path != "global", (res.reason, res.path)
+        T, want = seen[-1]
+        np.testing.assert_array_equal(res.T_map_scan, T)
+        np.testing.assert_allclose(res.covariance, want, rtol=1e-6, atol=1e-12)
+    assert len(seen) == 3

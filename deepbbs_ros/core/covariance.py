@@ -21,7 +21,9 @@ errors within a cell count once, as they move the pose. Then:
    start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
    anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
 3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
-   motion it missed, the root mean square of the recent deviations from the prediction over sqrt(12) per axis;
+   motion it missed, and a scan lands half of it off: per axis of the scan, sqrt(2) / 2 of the root mean square of
+   the recent deviations from the prediction (a step differences two scans); the first motion, with no prediction
+   to deviate from, the voxel map's quantisation (:func:`quantisation_floor`);
 4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
    ``B = diag(R, R)``.
 
@@ -41,7 +43,8 @@ import numpy as np
 from deepbbs_ros.core.gicp_pairs import matched_pairs, sandwich_terms, voxel_pairs
 
 __all__ = ["adjoint", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance", "matched_pairs",
-           "odometry_covariance", "pose_error", "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
+           "odometry_covariance", "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew",
+           "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -60,9 +63,11 @@ LOCALIZATION_INFLATION = 1.156
 #: the odometry's: none (its floor, :data:`SWEEP_SPREAD`, is not fitted either)
 ODOMETRY_INFLATION = 1.0
 #: the sweep's model error (odometry): deskewed with the constant velocity, a sweep keeps the motion the prediction
-#: missed, growing from nothing to the step's deviation across the sweep; for firing times spread evenly over it the
-#: spread of that error is the deviation / sqrt(12), the floor's standard deviation per axis (not fitted)
-SWEEP_SPREAD = 12.0 ** -0.5
+#: missed (about the step's deviation from it), and a scan deskewed with a velocity off by ``e`` lands ``e T / 2``
+#: off (core/odometry.py ``_deskew_delta``): half the missed motion; a step is the difference of two scans' poses,
+#: each off by its own sweep's half, so its standard deviation per axis is ``sqrt(2) / 2`` of the deviation's root
+#: mean square (derived, not fitted)
+SWEEP_SPREAD = 0.5 ** 0.5
 #: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
 #: drives 2,000 points moved the mean NEES by under 6 %)
 ODOMETRY_MAX_POINTS = 2000
@@ -220,42 +225,65 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
 
 
 def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
-                        floor: tuple[float, float] = (0.0, 0.0)) -> np.ndarray | None:
+                        floor: np.ndarray | None = None) -> np.ndarray | None:
     """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
-    fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus ``floor``
-    (m, rad: standard deviations per axis of the position and of the rotation, :class:`MotionFloor`); along a weak
-    direction the pose is the prediction's (core/degeneracy.py), whose error is the whole deviation (``floor[0] /
-    SWEEP_SPREAD``)."""
+    fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus the model error
+    ``floor`` (:class:`MotionFloor`: (6,) standard deviations, m and rad, along the scan's own axes x, y, z, roll,
+    pitch, yaw); None (no deviation from a prediction measured yet: the first motion, a restart) gives the voxel
+    map's quantisation instead (:func:`quantisation_floor`). Along a weak direction the pose is the prediction's
+    (core/degeneracy.py), whose error is the whole deviation (``|floor[:3]| / SWEEP_SPREAD``; without one, a voxel)."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
-    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION,
-                              weak_sigma=floor[0] / SWEEP_SPREAD)
+    if floor is None:
+        motion = float(np.linalg.norm(np.asarray(T_map_scan, dtype=np.float64)[:3, 3]))  # from the first scan
+        floor, weak = quantisation_floor(cloud, voxel_size, motion), voxel_size
+    else:
+        floor = np.asarray(floor, dtype=np.float64)
+        weak = float(np.linalg.norm(floor[:3])) / SWEEP_SPREAD
+    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=weak)
     if cov is not None:
-        cov[np.diag_indices(6)] += np.repeat(np.square(np.asarray(floor, dtype=np.float64)), 3)
+        R = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
+        Bm = np.zeros((6, 6))
+        Bm[:3, :3] = Bm[3:, 3:] = R
+        cov += Bm @ np.diag(np.square(floor)) @ Bm.T
     return cov
 
 
+def quantisation_floor(cloud: Any, voxel_size: float, motion: float = 0.0) -> np.ndarray:
+    """(6,) the first motion's model error, m and rad per axis: its start has no prediction to deviate from, so no
+    :class:`MotionFloor`; what it registers to is the first scan's voxel map, and a turn of the scan by less than a
+    voxel's uniform error (``voxel_size / sqrt(12)``) at the scan's mean range is not told apart by it: that angle
+    per rotation axis (a car's first sweeps are off mostly in roll and pitch, the body's sway within the sweep);
+    the motion's direction is known to the same angle, so its ``motion`` m (the first motion's length) to that angle
+    times its length per position axis."""
+    pts = np.asarray(cloud.points(), dtype=np.float64)[::16, :3]
+    rng = float(np.mean(np.linalg.norm(pts, axis=1))) if len(pts) else 0.0
+    angle = voxel_size * 12.0 ** -0.5 / max(rng, voxel_size)
+    return np.array([angle * motion] * 3 + [angle] * 3)
+
+
 class MotionFloor:
-    """The odometry's sweep model error (:data:`SWEEP_SPREAD`): the root mean square of the last
-    :data:`MOTION_WINDOW` deviations of the pose from the constant-velocity prediction (position, m; rotation
-    angle, rad), as KISS-ICP's adaptive threshold measures its motion model's error."""
+    """The odometry's sweep model error (:data:`SWEEP_SPREAD`) per axis of the scan (x, y, z, roll, pitch, yaw): the
+    root mean square of the last :data:`MOTION_WINDOW` deviations of the pose from the constant-velocity prediction
+    along each axis (m, rad), as KISS-ICP's adaptive threshold measures its motion model's error. Per axis: a car's
+    body vibrates in roll and pitch while its yaw follows the road smoothly, and an isotropic floor would spread the
+    one over the other."""
 
     def __init__(self) -> None:
         from collections import deque
 
         self._devs: Any = deque(maxlen=MOTION_WINDOW)
 
-    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> tuple[float, float]:
+    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> np.ndarray | None:
         """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) -> the floor
-        (m, rad), standard deviations per axis."""
+        (6,), standard deviations along the scan's axes (m, rad); None while no deviation was measured."""
         if prediction is not None:
             from scipy.spatial.transform import Rotation
 
             D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
-            self._devs.append((np.linalg.norm(D[:3, 3]), np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+            self._devs.append(np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()]))
         if not self._devs:
-            return 0.0, 0.0
-        rms = np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
-        return float(SWEEP_SPREAD * rms[0]), float(SWEEP_SPREAD * rms[1])
+            return None
+        return SWEEP_SPREAD * np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
 
 
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,

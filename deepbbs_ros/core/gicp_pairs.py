@@ -69,6 +69,11 @@ def _plane_covs(normals: np.ndarray) -> np.ndarray:
     return np.eye(3) - 0.999 * np.einsum("ni,nj->nij", normals, normals)
 
 
+def _stride(n: int, max_points: int) -> int:
+    """Every how many-th of ``n`` source points the pairs keep: at most ``max_points`` of them (> 0; 0 = all)."""
+    return max(1, -(-n // max_points)) if max_points > 0 else 1
+
+
 _ARRAYS: dict[int, tuple[Any, np.ndarray, np.ndarray]] = {}
 
 
@@ -98,7 +103,7 @@ def matched_pairs(source: Any, target: Any, T_target_source: np.ndarray, max_cor
     T = T if T_base is None else np.asarray(T_base, dtype=np.float64) @ T
     src = getattr(source, "cloud", source)
     a = np.asarray(src.points(), dtype=np.float64)[:, :3]
-    step = max(1, -(-len(a) // max_points)) if max_points > 0 else 1
+    step = _stride(len(a), max_points)
     a = a[::step]
     idx, d2 = tree.batch_nearest_neighbor_search(a @ T[:3, :3].T + T[:3, 3], num_threads=max(1, int(threads)))
     idx, d2 = np.asarray(idx, dtype=np.int64).ravel(), np.asarray(d2, dtype=np.float64).ravel()
@@ -128,7 +133,7 @@ def voxel_pairs(source: Any, vmap: Any, T_map_source: np.ndarray, voxel_size: fl
         return None
     keys = _keys(np.floor(means / voxel_size))
     order = np.argsort(keys)
-    step = max(1, -(-source.size() // max_points)) if max_points > 0 else 1
+    step = _stride(source.size(), max_points)
     a = np.asarray(source.points(), dtype=np.float64)[::step, :3]
     q = _keys(np.floor((a @ T[:3, :3].T + T[:3, 3]) / voxel_size))
     pos = np.minimum(np.searchsorted(keys[order], q), len(order) - 1)

@@ -87,12 +87,11 @@ class GuessTracking:
 
     def _tracked(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, score: float, path: str, place: int,
                  timings: dict[str, float]) -> LocalizationResult:
-        hessian = None
         if self.config.localization.refine_tracking:
-            T_map_scan, hessian = self._refine_gicp(src, crop, T_map_scan, timings)
+            T_map_scan = self._refine(src, crop, T_map_scan, timings)
         return LocalizationResult(T_map_scan, True, score, "tracking", "", candidates=1, path=path,
                                   crop=_crop_cloud(crop), place=place,
-                                  covariance=self._covariance(src, crop, T_map_scan, timings, hessian))
+                                  covariance=self._covariance(src, crop, T_map_scan, timings))
 
     def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
                     place: int) -> tuple[_Answer | None, float]:

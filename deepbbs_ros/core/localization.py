@@ -482,33 +482,25 @@ class MapLocalizer(GuessTracking, PlaceSearch):
 
     # -- GICP: refine, covariance ----------------------------------------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
-        """:meth:`_refine_gicp`'s pose alone (``T_map_scan`` itself when not refined)."""
-        return self._refine_gicp(src, crop, T_map_scan, timings)[0]
-
-    def _refine_gicp(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
-                     timings: dict[str, float]) -> tuple[np.ndarray, Any]:
         """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
         correspondence distance lets far pairs pull the pose along a road with few features); kept when it does not
-        converge or moves more than 1 m / 2 deg. -> (the pose, the converged GICP's last linearisation, which is the
-        covariance's at that pose (:meth:`_covariance`), or None when not refined)."""
+        converge or moves more than 1 m / 2 deg (and when there is no refinement)."""
         import dataclasses
 
         lc, rc = self.config.localization, self.config.registration
         if lc.refine_corr_dist <= 0 or rc.polish == "none" or src.polish_cloud is None or crop.pre.polish_cloud is None:
-            return T_map_scan, None
+            return T_map_scan
         t = time.perf_counter()
         cfg = dataclasses.replace(rc, polish_max_corr_dist=lc.refine_corr_dist, polish_max_trans=1.0,
                                   polish_max_rot_deg=2.0)
         pol = polish(src.polish_cloud, crop.pre.polish_cloud, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
         timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
-        if not pol.applied:
-            return T_map_scan, None
-        return crop.T_map_place @ pol.T_target_source, pol.hessian
+        return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
 
-    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float],
-                    hessian: Any = None) -> np.ndarray | None:
+    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
+                    timings: dict[str, float]) -> np.ndarray | None:
         """The covariance of a valid ``T_map_scan`` (core/covariance.py: cluster-robust, from the GICP pairs at the
-        pose, which ``hessian``, the refinement's last linearisation, does not carry), timed into ``covariance``."""
+        pose), timed into ``covariance``."""
         t = time.perf_counter()
         cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan, self.config,
                               self.registration.gicp_threads())

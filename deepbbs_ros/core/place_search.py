@@ -119,10 +119,10 @@ class PlaceSearch:
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
                                       alternatives=alternatives, probability=best.prob)
-        T, hessian = self._refine_gicp(src, best.crop, best.T, timings)
+        T = self._refine(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
-                                  covariance=self._covariance(src, best.crop, T, timings, hessian),
+                                  covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],

@@ -5,7 +5,8 @@ For every pose with a true pose: the error ``delta = [t_true - t, log(R_true R^T
 and its NEES ``delta^T Sigma^-1 delta``, which is chi-square with 6 degrees of freedom when the covariance is honest;
 per data set: N, the mean NEES and the 95 % band of the mean of N chi2(6) (``[chi2.ppf(0.025, 6N) / N,
 chi2.ppf(0.975, 6N) / N]``), the median (chi2(6)'s: 5.35), the share above chi2.ppf(0.95, 6) (5 % when honest), and
-the same for the position block alone (3 DoF).
+the same for the position block alone (3 DoF); per axis the median of ``d_i^2 / Sigma_ii`` (chi2(1)'s: 0.455) and
+the first row's NEES (for the odometry: its first step, which has no constant-velocity prediction).
 
 * localization: a map of a simulated drive (scans every ``--map-step`` m, true poses) and the scans of a second drive
   in another lane on another day (every ``--query-every`` th), tracked from their true pose moved by a start error
@@ -59,6 +60,11 @@ def nees_stats(rows: list[tuple[np.ndarray, np.ndarray]]) -> dict:
                      "band": [float(chi2.ppf(0.025, dof * n) / n), float(chi2.ppf(0.975, dof * n) / n)],
                      "above_p95": float(np.mean(v > chi2.ppf(0.95, dof)))}
         out[name]["inside"] = bool(out[name]["band"][0] <= out[name]["mean"] <= out[name]["band"][1])
+    # per axis (x, y, z, roll, pitch, yaw): the median of d_i^2 / Sigma_ii (chi2(1)'s: 0.455), and the first row's
+    # NEES (the odometry's first step: no prediction)
+    axes = np.array([np.square(d) / np.diag(c) for d, c in rows])
+    out["axes_median"] = [float(x) for x in np.median(axes, axis=0)]
+    out["first"] = float(rows[0][0] @ np.linalg.solve(rows[0][1], rows[0][0]))
     return out
 
 
@@ -266,6 +272,10 @@ def report(title: str, figs: dict) -> None:
         print(f"{name:34s} {f['n']:4d} {p['mean']:10.2f} [{p['band'][0]:5.2f}, {p['band'][1]:5.2f}] "
               f"{p['median']:7.2f} {p['above_p95']:6.1%} | {q['mean']:9.2f} [{q['band'][0]:4.2f}, {q['band'][1]:4.2f}]"
               f" {q['above_p95']:6.1%}")
+    print("  per axis, median d^2 / var (chi2(1): 0.455)   x      y      z      roll   pitch  yaw   | first row")
+    for name, f in figs.items():
+        if f.get("n"):
+            print(f"  {name:44s}" + " ".join(f"{x:6.2f}" for x in f["axes_median"]) + f" | {f['first']:9.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -304,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
         if "localization" not in args.skip:
             loc_rows[name], failed = localization_rows(points, keys, queries, config, args)
             notes[name] = f"{failed} of {len(queries)} queries without a pose"
+            f = nees_stats(loc_rows[name]) if loc_rows[name] else {}
+            print(f"    localization: {notes[name]}; mean NEES {f.get('pose', {}).get('mean', float('nan')):.2f}"
+                  + (" (inflation 1)" if args.fit else ""), flush=True)
         if "odometry" not in args.skip:
             step_rows[name], chains[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
