@@ -362,6 +362,30 @@ def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
     assert not slow.valid and len(calls) > quick + slow.candidates  # the retries ran, and changed nothing
 
 
+def test_a_first_round_far_below_the_bar_ends_whatever_the_descriptor(localizer, world):
+    """localization.retry_floor: a first round whose best probability is under it is a scan from elsewhere even where
+    the descriptor matches a place (retry_descriptor 1: no descriptor is far enough): DeepBBS++ on the first round's
+    places only; retry_floor 0 runs every retry again."""
+    _, _, _, other = world
+    scan = other.scan_at(3).points
+    old = localizer.config
+    calls = []
+    deep = localizer._deep
+    localizer._deep = lambda *a, **k: calls.append(1) or deep(*a, **k)
+    try:
+        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.01})
+        res = localizer.localize(scan)
+        quick = len(calls)
+        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.0})
+        slow = localizer.localize(scan)
+    finally:
+        localizer.config = old
+        del localizer._deep
+    assert not res.valid and "scan outside the map" in res.reason and res.probability < 0.01, res.reason
+    assert quick == res.candidates
+    assert not slow.valid and "outside" not in slow.reason and len(calls) > quick + slow.candidates
+
+
 def test_two_identical_places_are_ambiguous(localizer, world):
     """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
     from deepbbs_ros.core.localization import MapLocalizer
