@@ -180,6 +180,27 @@ def test_global_pose_in_a_map_without_its_trajectory(localizer, world):
     assert res.valid and ok, (err, res.reason)
 
 
+def test_a_one_scan_map_places_its_scan_and_no_other(localizer, world):
+    """A map of a single scan, points only: the sensor's blind spot and the walls close by leave no drivable column,
+    yet the map has places where the sensor stood (the ground coverage's peak, core/places.py); a scan of the same
+    drive a few metres on is placed there, a scan from another world is no pose."""
+    from deepbbs_ros.core.localization import MapLocalizer, voxel_downsample
+    from deepbbs_ros.sim.simulator import DriveSimulator
+
+    _, _, drive, other = world
+    clean = DriveSimulator("urban", 5, frames=100, motion_distortion=False)
+    s = clean.scan_at(54)
+    p = s.points[np.linalg.norm(s.points, axis=1) < 60.0]
+    one = voxel_downsample(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3], 0.25)
+    loc = MapLocalizer(one, localizer.config, registration=localizer.registration)
+    near = np.min(np.linalg.norm(loc.places[:, :2, 3] - s.T_world_lidar[:2, 3], axis=1))
+    assert near < 5.0, near
+    res = loc.localize(drive.scan_at(56).points)
+    ok, err = _ok(res.T_map_scan, drive.pose_at(56))
+    assert res.valid and ok, (err, res.reason)
+    assert not loc.localize(other.scan_at(3).points).valid
+
+
 def test_crops_are_views_of_the_map_cloud_prepared_once(localizer, world):
     """localization.shared_cloud (default): the map's GICP cloud is prepared once with the map and every crop is a
     view of it (nothing prepared per crop but the network's points), counted in nbytes; without it each crop prepares
@@ -339,6 +360,30 @@ def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
     assert not res.valid and "scan outside the map" in res.reason and res.score < 0.3, res.reason
     assert quick == res.candidates  # DeepBBS++ on the first round's places only: no flipped retry
     assert not slow.valid and len(calls) > quick + slow.candidates  # the retries ran, and changed nothing
+
+
+def test_a_first_round_far_below_the_bar_ends_whatever_the_descriptor(localizer, world):
+    """localization.retry_floor: a first round whose best probability is under it is a scan from elsewhere even where
+    the descriptor matches a place (retry_descriptor 1: no descriptor is far enough): DeepBBS++ on the first round's
+    places only; retry_floor 0 runs every retry again."""
+    _, _, _, other = world
+    scan = other.scan_at(3).points
+    old = localizer.config
+    calls = []
+    deep = localizer._deep
+    localizer._deep = lambda *a, **k: calls.append(1) or deep(*a, **k)
+    try:
+        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.01})
+        res = localizer.localize(scan)
+        quick = len(calls)
+        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.0})
+        slow = localizer.localize(scan)
+    finally:
+        localizer.config = old
+        del localizer._deep
+    assert not res.valid and "scan outside the map" in res.reason and res.probability < 0.01, res.reason
+    assert quick == res.candidates
+    assert not slow.valid and "outside" not in slow.reason and len(calls) > quick + slow.candidates
 
 
 def test_two_identical_places_are_ambiguous(localizer, world):

@@ -56,7 +56,7 @@ def test_ground_ignores_a_few_returns_below_the_road():
 def test_places_on_the_road_not_in_walls_cars_or_far_ground():
     pts = _street()
     origin, shape = _grid(pts)
-    free, dist, _ = drivable_columns(pts, origin, CELL, shape, 1.5, VOXEL)
+    free, dist, *_ = drivable_columns(pts, origin, CELL, shape, 1.5, VOXEL)
     places = grid_places(pts, origin, CELL, shape, 2.5, 1.5, 1.8, VOXEL)
     xy = places[:, :2, 3]
     assert len(places) > 20

@@ -5,7 +5,8 @@
     places      candidate places, built once: keyframes along the map's trajectory every localization.place_spacing
                 m and a lattice of localization.place_band_step m up to place_band m to either side of the drive
                 (other lanes, the other way; core/drive_places.py), or (no trajectory) a grid of
-                localization.grid_spacing over the map's drivable space (core/places.py)
+                localization.grid_spacing over the map's drivable space and its ground coverage's peaks away from it
+                (a drive's ends, a one-scan map; core/places.py)
     describe    a yaw-invariant place descriptor per place, built once from the map's height grid (Scan Context:
                 ring x sector max height above the local ground, localization.descriptor_*), and the same from
                 the scan (core/descriptors.py)

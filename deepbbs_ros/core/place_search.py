@@ -89,7 +89,8 @@ class PlaceSearch:
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         top = self._refined(src, answers, timings)
-        outside = top.prob < lc.retry_probability and ranked[0][1] >= lc.retry_descriptor
+        outside = top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor
+                                                        or top.prob < lc.retry_floor)
         if not any(a.ok for a in answers):
             # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
             # early) when the best answer is far below the bar and no place looks like the scan either (outside the
@@ -134,7 +135,8 @@ class PlaceSearch:
         none: GICP alone from far_probe m ahead of and behind the best pose and the best-ranked place's (:meth:`_slid`:
         a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
         no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
-        probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor``)."""
+        probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor`` or
+        the probability under ``retry_floor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
         for k, _, T_init, _ in failed:

@@ -16,6 +16,11 @@ read off the map itself::
                 ground seen from afar holds the rings' lines only), no obstacle and
                 ``clearance`` m to the nearest obstacle column
     places      one per ``spacing`` m square block of drivable columns, the column farthest from obstacles
+    peaks       where the map has no such place within GAP m (the ends of a drive, where the sensor's blind spot and
+                its own car's returns leave no column drivable; a map of a single scan), the peaks of its ground
+                coverage (the share of ground seen in a PEAK_WINDOW m square: highest where a sensor stood) reaching
+                PEAK_SHARE of the coverage at its drivable places (of its own highest peak without any) and PEAK_MIN,
+                the best-covered column of each PEAK_SEPARATION m square block
 
 A place's pose is gravity-aligned (map axes) at ``height`` m above its ground. The sensor's own height above the
 ground is measured from each query scan at search time (its ground plane), so the height here only names where the
@@ -26,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["OBSTACLE_BAND", "drivable_columns", "grid_places", "robust_ground"]
+__all__ = ["OBSTACLE_BAND", "coverage_peaks", "drivable_columns", "grid_places", "robust_ground"]
 
 # m above the ground: returns there make a column an obstacle (a wall, a parked car, a pole, a bush), unless the
 # column's ground is seen densely all the same (the mapping vehicle's own roof and body over the road, seen from a roof
@@ -40,6 +45,11 @@ GROUND_WINDOW = 5  # columns; the local ground is the lowest column ground withi
 # a place needs GROUND_COVERAGE of such columns around it
 GROUND_FILL, GROUND_COVERAGE = 0.5, 0.7
 SPARSE_QUANTILE = 0.9  # a sparse map's reference coverage: this quantile of its columns' (_close_coverage)
+# a map's stretches with no drivable place within GAP m get places at their ground coverage's peaks (PEAK_WINDOW m
+# squares reaching PEAK_SHARE of the coverage at the drivable places, one per PEAK_SEPARATION m): the drive's ends (the
+# search registers a scan taken up to ~5 m from a place), a one-scan map's sensor; and at least PEAK_MIN (a map of walls
+# alone: 0.04; the real one-scan HDL-32E map's peak: 0.38)
+GAP, PEAK_WINDOW, PEAK_SHARE, PEAK_SEPARATION, PEAK_MIN = 5.0, 7, 0.5, 5.0, 0.15
 
 
 def robust_ground(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int]) -> np.ndarray:
@@ -66,7 +76,8 @@ def robust_ground(points: np.ndarray, origin: np.ndarray, cell: float, shape: tu
 
 def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int],
                      clearance: float, voxel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(drivable (nx, ny) bool, clearance to the nearest obstacle (nx, ny) m, ground (nx, ny) m) of the grid over
+    """(drivable (nx, ny) bool, clearance to the nearest obstacle (nx, ny) m, ground (nx, ny) m, ground coverage
+    (nx, ny): :func:`_ground_coverage`) of the grid over
     ``points`` (N, 3) on a ``voxel`` m grid (module docstring; a map too sparse for any drivable column so is judged
     against its own typical column: :func:`_close_coverage`)."""
     from scipy.ndimage import distance_transform_edt, uniform_filter
@@ -80,14 +91,7 @@ def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape:
     with np.errstate(invalid="ignore"):
         in_band = (h > OBSTACLE_BAND[0]) & (h < OBSTACLE_BAND[1])
         on_ground = np.abs(h) <= OBSTACLE_BAND[0]
-    # where the mapping sensor passed its ground is seen densely: most of the column's ``voxel`` m sub-squares hold a
-    # ground return (ground seen from afar: the rings' lines only), whatever the sensor's density
-    sub = max(int(round(cell / voxel)), 1) if voxel > 0 else 5
-    sq = np.floor((points[on_ground, :2].astype(np.float64) - origin) * (sub / cell)).astype(np.int64)
-    ny = shape[1] * sub
-    key = np.unique(sq[:, 0] * ny + sq[:, 1])  # the occupied sub-squares, once each
-    cols = (key // ny) // sub * shape[1] + (key % ny) // sub  # the column of each
-    covered = np.bincount(cols, minlength=n).reshape(shape) / float(sub * sub)
+    covered = _ground_coverage(points[on_ground], origin, cell, shape, voxel)
     near_band = (np.bincount(flat[in_band], minlength=n) >= OBSTACLE_POINTS).reshape(shape)
 
     def free_of(full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,7 +104,37 @@ def drivable_columns(points: np.ndarray, origin: np.ndarray, cell: float, shape:
     free, dist = free_of(covered >= GROUND_FILL * _close_coverage(covered))
     if not free.any():  # a sparse map: ground coverage judged against its own typical column's
         free, dist = free_of(covered >= GROUND_FILL * _close_coverage(covered, sparse=True))
-    return free, dist, ground
+    return free, dist, ground, covered
+
+
+def _ground_coverage(on_ground: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int],
+                     voxel: float) -> np.ndarray:
+    """(nx, ny) the share of each column's ``voxel`` m sub-squares holding a ground return of ``on_ground`` (M, 3):
+    where the mapping sensor passed its ground is seen densely (ground seen from afar: the rings' lines only), whatever
+    the sensor's density."""
+    sub = max(int(round(cell / voxel)), 1) if voxel > 0 else 5
+    sq = np.floor((on_ground[:, :2].astype(np.float64) - origin) * (sub / cell)).astype(np.int64)
+    ny = shape[1] * sub
+    key = np.unique(sq[:, 0] * ny + sq[:, 1])  # the occupied sub-squares, once each
+    cols = (key // ny) // sub * shape[1] + (key % ny) // sub  # the column of each
+    return np.bincount(cols, minlength=shape[0] * shape[1]).reshape(shape) / float(sub * sub)
+
+
+def coverage_peaks(covered: np.ndarray, ground: np.ndarray, taken: np.ndarray, cell: float) -> np.ndarray:
+    """(K, 2) int the columns of the ground coverage's peaks (module docstring: ``peaks``) farther than GAP m from
+    every column of ``taken`` (nx, ny) bool (the drivable places), with a ground under them."""
+    from scipy.ndimage import distance_transform_edt, uniform_filter
+
+    dens = uniform_filter(covered.astype(np.float32), size=max(1, int(round(PEAK_WINDOW / cell))), mode="constant")
+    ref = float(np.median(dens[taken])) if taken.any() else float(dens.max())
+    far = distance_transform_edt(~taken) * cell > GAP if taken.any() else np.ones_like(taken)
+    cand = (dens >= max(PEAK_SHARE * ref, PEAK_MIN)) & far & np.isfinite(ground)
+    ix, iy = np.nonzero(cand)
+    step = max(1, int(round(PEAK_SEPARATION / cell)))
+    block = (ix // step) * (taken.shape[1] // step + 1) + iy // step
+    order = np.lexsort((-dens[ix, iy], block))  # by block, the best-covered column first
+    first = order[np.r_[True, block[order][1:] != block[order][:-1]]] if len(order) else order
+    return np.stack([ix[first], iy[first]], axis=1).astype(np.int64)
 
 
 def _close_coverage(covered: np.ndarray, sparse: bool = False) -> float:
@@ -117,17 +151,21 @@ def _close_coverage(covered: np.ndarray, sparse: bool = False) -> float:
 def grid_places(points: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int], spacing: float,
                 clearance: float, height: float, voxel: float) -> np.ndarray:
     """(P, 4, 4) float64 place poses ``T_map_place`` over the drivable columns of the grid over ``points`` (N, 3):
-    one per ``spacing`` m square block, the column farthest from obstacles, ``height`` m above its ground
-    (module docstring)."""
-    free, dist, ground = drivable_columns(points, origin, cell, shape, clearance, voxel)
+    one per ``spacing`` m square block, the column farthest from obstacles, then the ground coverage's peaks away from
+    them (:func:`coverage_peaks`), ``height`` m above its ground (module docstring)."""
+    free, dist, ground, covered = drivable_columns(points, origin, cell, shape, clearance, voxel)
     ix, iy = np.nonzero(free)
-    if len(ix) == 0:
-        return np.zeros((0, 4, 4))
     step = max(1, int(round(spacing / cell)))
     block = (ix // step) * (shape[1] // step + 1) + iy // step
     order = np.lexsort((-dist[ix, iy], block))  # by block, the clearest column first
-    first = order[np.r_[True, block[order][1:] != block[order][:-1]]]
+    first = order[np.r_[True, block[order][1:] != block[order][:-1]]] if len(order) else order
     ix, iy = ix[first], iy[first]
+    taken = np.zeros(shape, bool)
+    taken[ix, iy] = True
+    peaks = coverage_peaks(covered, ground, taken, cell)  # the drive's ends, a one-scan map
+    ix, iy = np.r_[ix, peaks[:, 0]].astype(np.int64), np.r_[iy, peaks[:, 1]].astype(np.int64)
+    if len(ix) == 0:
+        return np.zeros((0, 4, 4))
     out = np.repeat(np.eye(4)[None], len(ix), axis=0)
     out[:, :2, 3] = np.asarray(origin, np.float64) + (np.stack([ix, iy], axis=1) + 0.5) * cell
     out[:, 2, 3] = ground[ix, iy] + height

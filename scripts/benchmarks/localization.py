@@ -732,7 +732,7 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
         sub = set(baseline_subset(len(data.queries), args.baseline_every))
         fig["methods"]["maplocalizer"]["baseline_subset"] = summarize(
             [r for r in fig["rows"]["maplocalizer"] if r["query"] in sub])
-    if data.prefixes and "maplocalizer" in fig["rows"]:
+    if data.prefixes and args.scaling_queries > 0 and "maplocalizer" in fig["rows"]:
         shortest = min(data.prefixes)
         near = [i for i, q in enumerate(data.queries) if q.s <= shortest - 20.0][:args.scaling_queries]
         scaling = {}

@@ -3,7 +3,8 @@
 
 The map of ``--km`` km: the localization benchmark's cached 1 km simulated maps of the four scene types (built by
 ``localization.py``, same ``--cache``), tiled side by side, 1.4 km apart, each copy turned (a copy of a scene four
-maps on stands elsewhere and at another yaw). Measured in one process per size (the peak resident memory is the
+maps on stands elsewhere, at another yaw, and mirrored: no rigid motion puts a scan of the first copy on it, as on
+another town's streets). Measured in one process per size (the peak resident memory is the
 process's): the map's build (``MapLocalizer``: voxel grid, height grid, places, descriptors, GICP cloud) in seconds,
 the bytes it holds (``MapLocalizer.nbytes``) and the growth of the peak resident memory while it is built, the
 places, the time to describe and rank a query against every place (p50 of ``--queries`` scans of the first copy),
@@ -44,11 +45,12 @@ def tiled_map(km: int, args) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndar
     for i in range(km):
         scene = SCENES[i % len(SCENES)]
         d = bench.sim_map(scene, TEST_SEED_BASE + 500 + ALL.index(scene), gen)
+        pts = d.points * np.array([1.0, -1.0, 1.0], np.float32) if i >= len(SCENES) else d.points  # mirrored
         R = bench.yaw_move(0.7 * i, 0.0, 0.0)
-        lo = bench.transform(d.points, R)[:, :2].min(axis=0).astype(np.float64)
+        lo = bench.transform(pts, R)[:, :2].min(axis=0).astype(np.float64)
         slot = np.array([(i % cols) * SLOT, (i // cols) * SLOT])
         M = bench.yaw_move(0.0, *(slot - lo)) @ R
-        parts.append(bench.transform(d.points, M))
+        parts.append(bench.transform(pts, M))
         if i == 0:
             queries = [(q.points, M @ q.T_map_scan) for q in d.queries[:args.queries]]
     return np.concatenate(parts), queries
