@@ -100,3 +100,21 @@ def test_a_feature_left_out_of_the_fit_gets_no_weight():
     for name in ("pair", "good_start"):
         for f in cv.UNUSED:
             assert calibrated.load()[name][0][visibility.FEATURES.index(f)] == 0.0
+
+
+def test_low_overlap_pairs_let_the_target_judge_a_small_share_and_hold_a_right_pose():
+    """scripts/calibrate_verdict.py's low-overlap pairs (a sensor turned between the scans) have the overlap asked
+    for at the truth, and give right poses there as well as wrong ones."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import calibrate_verdict as cv
+
+    rig = cv.LOW_RIGS.index(("mid360", "legged", "courtyard"))
+    d = cv.collect(cv.LOW_RIGS[rig:rig + 1], 38, 2, low=True, rig0=len(cv.RIGS) + rig, log=lambda *_: None)
+    assert len(d["y"]) and np.all(d["rig"] == len(cv.RIGS) + rig)
+    right = d["y"] == 1
+    obs = d["good"][right, visibility.FEATURES.index("observable")]
+    assert right.any() and (~right).any()
+    assert np.all(obs <= cv.LOW_OVERLAP[1] + 0.1), obs  # right poses: about the truth's share

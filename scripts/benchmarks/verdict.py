@@ -6,7 +6,8 @@ and the good-start verdict (a spread subset of the GICP voxels):
 
 * ``sim``: simulated pairs of every sensor, mount and place (``scripts/calibrate_verdict.py``'s rigs and poses with
   another seed than the fit's: GICP answers from near and far starts, the truth moved beyond 2 deg / 0.5 m, another
-  place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360);
+  place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360), and with
+  ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) apart;
 * ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
   ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
@@ -81,22 +82,29 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
 
-    data = cv.collect(cv.RIGS, seed, pairs)
-    fam = np.array([FAMILY.get(cv.RIGS[r][0], "sparse") for r in data["rig"]])
+    parts = [cv.collect(cv.RIGS, seed, pairs)]
+    if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
+        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS)))
+    data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
+    rigs = cv.RIGS + cv.LOW_RIGS
+    fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
+    low = data["rig"] >= len(cv.RIGS)
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
-        for f in ("dense", "sparse", "solid", "all"):
-            m = np.ones(len(fam), bool) if f == "all" else fam == f
+        for f in ("dense", "sparse", "solid", "all", "low_overlap"):
+            m = low if f == "low_overlap" else ~low if f == "all" else (fam == f) & ~low
+            if not m.any():
+                continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
                                          np.c_[data["rot"][m], data["trans"][m]])
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
-        m = np.ones(len(fam), bool) if f == "all" else fam == f
+        m = ~low if f == "all" else (fam == f) & ~low
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
         out[f"roughness/{f}"] = {"self_residual_q90_m": round(float(q[0]), 3), "self_planarity": round(float(q[1]), 3)}
     return out
@@ -182,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pair", help="a reference pair folder (two .pcd and relative.txt)")
     ap.add_argument("--trials", type=int, default=10, help="perturbed starts of the reference pair (default 10)")
     ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
+    ap.add_argument("--sim-low-pairs", type=int, default=0,
+                    help="low-overlap simulated pairs per rig of the fit's low-overlap rigs, judged apart (default 0)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
@@ -202,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
                               "good_start": reg.config.registration.good_start_probability},
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
-        figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration)
+        figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
+                                     args.sim_low_pairs)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
