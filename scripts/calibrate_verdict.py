@@ -75,7 +75,7 @@ GAPS_SLOW = (1, 2)  # frames between target and source of the rigs recorded at a
 #: accepted 2 poses beyond 2 deg / 0.5 m (2.06 deg / 0.20 m, 0.55 deg / 0.78 m; p up to 0.90) whose target could judge
 #: 14-28 % of the points (observable), where no simulated pose is right: a wrong pose accepted weighs more, so they
 #: stay out until the simulation covers that
-UNUSED: tuple[str, ...] = ("plane_own", "violations_nb", "consistency_nb")
+UNUSED: tuple[str, ...] = ("plane_own", "violations_nb", "consistency_nb", "pinned")
 #: rigs whose pairs are made low-overlap (:func:`_low_overlap`: LOW_OVERLAP of the source judged at the truth, as on
 #: real handheld Livox pairs, right poses down to 20 %, where the other rigs have no right pose under 36 %): each scan
 #: cut to a sector of azimuth, the source's turned from the target's, as a narrow sensor turned between the scans.

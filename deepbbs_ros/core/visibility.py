@@ -22,13 +22,15 @@ import numpy as np
 
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
-            "plane_own", "violations_nb", "consistency_nb")
+            "plane_own", "violations_nb", "consistency_nb", "pinned")
 _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
 _PER_CELL = 3.0  # target returns a direction cell should hold on average
 _NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
 _OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
+_PIN_SCALE = np.array([0.3, 0.3, 0.3, *np.radians([1.0, 1.0, 1.0])])  # m, rad: ``pinned``'s units (a right pose's)
+_PIN_MIN = 6  # close plane matches ``pinned`` needs (fewer: 0)
 
 
 def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -69,7 +71,7 @@ def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
              plane_dist: np.ndarray | None = None, self_plane: float | None = None,
-             own_tol: float | None = None) -> np.ndarray:
+             own_tol: float | None = None, normals: np.ndarray | None = None) -> np.ndarray:
     """The verdict's features of a pose -> (len(FEATURES),) float64.
 
     Args:
@@ -82,6 +84,7 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
         self_plane: the same share as ``plane_close`` for target points against their nearest other target point
             (:func:`self_planarity`): how close the target's own surfaces come to planes (None: 1).
         own_tol: m, ``plane_own``'s tolerance (:func:`own_tolerance`; None: ``dist / 5``).
+        normals: (N, 3) the target's unit normal at each point's nearest target point (None: no normals).
 
     ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
     among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
@@ -95,16 +98,21 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     rough surface fits as its own points do, and scores as a right pose on a smooth one; ``violations_nb`` and
     ``consistency_nb``: ``violations`` and ``consistency`` with a point violating only when it is also in front of
     the nearest return of the 8 neighbouring direction cells (a sparse ring's cell holds the ground of one ring only:
-    a right source point on the ground a ring lower is closer than that return, not in the target's free space).
+    a right source point on the ground a ring lower is closer than that return, not in the target's free space);
+    ``pinned``: how well the points on the target's planes (``plane_close``'s) pin all six degrees of freedom
+    (:func:`pinned`): a pose that slides along a wall, a corridor or a floor and one wall fits as tightly as a right
+    one, but the fit does not tell where along them it is (1 without normals).
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
-        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0])
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
     close = int(np.sum(sq <= 0.25 * dist * dist))
-    plane = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= 0.2 * dist)))
+    on_plane = None if plane_dist is None else seen & (np.abs(plane_dist) <= 0.2 * dist)
+    plane = close if on_plane is None else int(on_plane.sum())
+    pin = 1.0 if on_plane is None or normals is None else pinned(moved[on_plane], normals[on_plane], 0.2 * dist)
     tol = 0.2 * dist if own_tol is None else own_tol
     own = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= tol)))
     cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
@@ -126,7 +134,36 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
                      judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
-                     n_seen / judged_nb if judged_nb else 0.0])
+                     n_seen / judged_nb if judged_nb else 0.0, pin])
+
+
+def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
+    """How well point-to-plane matches pin a pose: ``s^2 / (s^2 + tol^2)`` (its log-odds: ``2 log(s / tol)``).
+
+    ``s`` (m) is the root-mean-square change of the matches' point-to-plane residuals when the pose moves by one
+    unit along its weakest direction, a unit being a right pose's tolerance (0.3 m, 1 degree): the smallest eigenvalue
+    of the per-point information ``mean(a a^T)``, ``a = [n, p x n]`` (the target's normal ``n`` at the match, the moved
+    point ``p``), scaled to those units. Equivalently ``tol / s`` is the pose's uncertainty along that direction in
+    those units, when each residual is known to ``tol``. A single wall or a corridor leaves a direction free (near 0);
+    a box corner or a street with cross walls pins every one. Per point, so that it means the same for 3,000 points as
+    for 120,000; below :data:`_PIN_MIN` matches, 0.
+
+    Args:
+        points: (K, 3) the matched points moved into the target's frame, metres.
+        normals: (K, 3) the target's unit normals at their matches.
+        tol: m, the residual tolerance (``plane_close``'s, ``dist / 5``).
+    """
+    if len(points) < _PIN_MIN:
+        return 0.0
+    p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    a = np.empty((len(p), 6))
+    a[:, :3] = n
+    a[:, 3] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n
+    a[:, 4] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+    a[:, 5] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+    a *= _PIN_SCALE
+    s2 = max(float(np.linalg.eigvalsh(a.T @ a / len(a))[0]), 0.0)
+    return s2 / (s2 + tol * tol)
 
 
 def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarray:
@@ -155,7 +192,8 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
         idx, sq = tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
     idx = np.asarray(idx, np.int64)
     plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
-    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own, tol)
+    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own, tol,
+                    None if normals is None else normals[idx])
 
 
 def _target(target, dist: float) -> tuple:
