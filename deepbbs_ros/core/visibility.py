@@ -84,7 +84,7 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
         self_plane: the same share as ``plane_close`` for target points against their nearest other target point
             (:func:`self_planarity`): how close the target's own surfaces come to planes (None: 1).
         own_tol: m, ``plane_own``'s tolerance (:func:`own_tolerance`; None: ``dist / 5``).
-        normals: (N, 3) the target's unit normal at each point's nearest target point (None: no normals).
+        normals: (N, 3) the target's unit normal at each point's nearest target point (None: ``pinned`` is 1).
 
     ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
     among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
@@ -101,7 +101,8 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     a right source point on the ground a ring lower is closer than that return, not in the target's free space);
     ``pinned``: how well the points on the target's planes (``plane_close``'s) pin all six degrees of freedom
     (:func:`pinned`): a pose that slides along a wall, a corridor or a floor and one wall fits as tightly as a right
-    one, but the fit does not tell where along them it is (1 without normals).
+    one, but the fit does not tell where along them it is (without tangent plane distances, of the points within
+    ``dist / 2``).
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
@@ -112,7 +113,8 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     close = int(np.sum(sq <= 0.25 * dist * dist))
     on_plane = None if plane_dist is None else seen & (np.abs(plane_dist) <= 0.2 * dist)
     plane = close if on_plane is None else int(on_plane.sum())
-    pin = 1.0 if on_plane is None or normals is None else pinned(moved[on_plane], normals[on_plane], 0.2 * dist)
+    matched = seen & (sq <= 0.25 * dist * dist) if on_plane is None else on_plane  # no tangent planes: close points
+    pin = 1.0 if normals is None else pinned(moved[matched], normals[matched], 0.2 * dist)
     tol = 0.2 * dist if own_tol is None else own_tol
     own = close if plane_dist is None else int(np.sum(seen & (np.abs(plane_dist) <= tol)))
     cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
@@ -176,7 +178,8 @@ def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarr
 def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
     """:func:`features` of ``points`` (N, 3) (source frame) under ``T`` (4, 4) ``T_target_source`` against
     ``target``: a precision-stage cloud (``core.polish.PolishCloud``: its voxels, k-d tree and normals) or a
-    plain (M, 3) cloud (a ``scipy`` k-d tree is built, no normals)."""
+    plain (M, 3) cloud (a ``scipy`` k-d tree is built; no tangent planes: ``pinned`` takes the normals of the matched
+    points' 8 nearest neighbours)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
@@ -186,14 +189,28 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     if tree is None:
         from scipy.spatial import cKDTree
 
-        d, idx = cKDTree(tpts).query(moved, k=1)
+        ktree = cKDTree(tpts)
+        d, idx = ktree.query(moved, k=1)
         sq = d * d
+        normals = _pca_normals(tpts, ktree, idx)
     else:
         idx, sq = tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
     idx = np.asarray(idx, np.int64)
+    if tree is None:  # normals of a plain cloud's matched points (``pinned`` only)
+        return features(moved, np.asarray(sq, np.float64), table, dist, normals=normals)
     plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
     return features(moved, np.asarray(sq, np.float64), table, dist, plane, own, tol,
                     None if normals is None else normals[idx])
+
+
+def _pca_normals(tpts: np.ndarray, ktree, idx: np.ndarray, k: int = 8) -> np.ndarray:
+    """(len(idx), 3) the normal of a plain cloud at each of its points ``idx``: the least-spread direction of the
+    point's ``k`` nearest neighbours."""
+    u, inv = np.unique(idx, return_inverse=True)
+    _, nb = ktree.query(tpts[u], k=min(k, len(tpts)))
+    q = tpts[np.asarray(nb).reshape(len(u), -1)]
+    q = q - q.mean(axis=1, keepdims=True)
+    return np.linalg.eigh(np.einsum("kni,knj->kij", q, q))[1][:, :, 0][inv.ravel()]
 
 
 def _target(target, dist: float) -> tuple:
