@@ -66,3 +66,15 @@ def test_pinned_of_exact_planes():
     assert 0.1 < visibility.pinned(q, m, 0.1) < 1.0  # three orthogonal planes
     assert visibility.pinned(q, m, 0.05) > visibility.pinned(q, m, 0.1)  # a tighter residual pins more
     assert visibility.pinned(q[:5], m[:5], 0.1) == 0.0  # too few matches
+
+
+def test_a_plain_target_cloud_gets_its_normals_from_its_neighbours():
+    """Without a precision stage's normals, ``pinned`` takes them from the target's nearest points."""
+    rc = Config().registration
+
+    def pin(planes):
+        target = _scene(planes, np.random.default_rng(0), 3000)
+        f = visibility.pose_features(_scene(planes, np.random.default_rng(1), 400), np.eye(4), target, rc.verdict_dist)
+        return dict(zip(visibility.FEATURES, f, strict=True))["pinned"]
+
+    assert pin(_CORRIDOR) < 0.04 < 0.06 < pin(_CORNER), (pin(_CORRIDOR), pin(_CORNER))
