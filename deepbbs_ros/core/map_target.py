@@ -27,20 +27,23 @@ class MapTarget:
     Args:
         neighbors: map neighbours per covariance.
         threads: small_gicp threads.
+        radius: m; only the voxel means this close to the first alignment's start of a map version are kept (the
+            scan's reach: preprocess.max_range plus a margin; on a highway the map reaches 100 scans back).
     """
 
-    def __init__(self, neighbors: int, threads: int) -> None:
+    def __init__(self, neighbors: int, threads: int, radius: float = float("inf")) -> None:
         self.neighbors = neighbors
         self.threads = threads
+        self.radius = radius
         self._key: tuple[int, int] | None = None
         self._target: tuple[Any, Any] | None = None
 
-    def get(self, vmap: Any, version: int) -> tuple[Any, Any]:
-        """(cloud, tree) of ``vmap``'s voxel means (map frame), rebuilt when ``version`` (the caller's count of map
-        updates) or the map object changed."""
+    def get(self, vmap: Any, version: int, center: np.ndarray | None = None) -> tuple[Any, Any]:
+        """(cloud, tree) of ``vmap``'s voxel means (map frame) within ``radius`` of ``center`` (3,), rebuilt when
+        ``version`` (the caller's count of map updates) or the map object changed."""
         key = (id(vmap), int(version))
         if self._key != key or self._target is None:
-            self._target = build_target(vmap, self.neighbors, self.threads)
+            self._target = build_target(vmap, self.neighbors, self.threads, center, self.radius)
             self._key = key
         return self._target
 
@@ -49,17 +52,22 @@ class MapTarget:
         """GICP of ``cloud`` (sensor frame) against the map target from ``init`` (4, 4): small_gicp's result."""
         import small_gicp
 
-        target, tree = self.get(vmap, version)
+        target, tree = self.get(vmap, version, np.asarray(init)[:3, 3])
         return small_gicp.align(target, cloud, tree, init, registration_type="GICP",
                                 max_correspondence_distance=max_corr_dist, num_threads=self.threads,
                                 max_iterations=max_iters)
 
 
-def build_target(vmap: Any, neighbors: int, threads: int) -> tuple[Any, Any]:
-    """small_gicp (cloud, tree) of the voxel means of ``vmap`` with covariances from ``neighbors`` map neighbours."""
+def build_target(vmap: Any, neighbors: int, threads: int, center: np.ndarray | None = None,
+                 radius: float = float("inf")) -> tuple[Any, Any]:
+    """small_gicp (cloud, tree) of the voxel means of ``vmap`` (those within ``radius`` of ``center``) with covariances
+    from ``neighbors`` map neighbours."""
     import small_gicp
 
-    pts = np.ascontiguousarray(np.asarray(vmap.voxel_points(), dtype=np.float64)[:, :3])
+    pts = np.asarray(vmap.voxel_points(), dtype=np.float64)[:, :3]
+    if center is not None and np.isfinite(radius):
+        pts = pts[np.linalg.norm(pts - center, axis=1) <= radius]
+    pts = np.ascontiguousarray(pts)
     cloud = small_gicp.PointCloud(pts)
     tree = small_gicp.KdTree(cloud, num_threads=threads)
     small_gicp.estimate_covariances(cloud, tree, num_neighbors=neighbors, num_threads=threads)

@@ -60,6 +60,8 @@ GATE_FLOOR = 0.1
 VOXEL_PER_RANGE = 10.0
 #: ... and at most preprocess.max_range over this (KISS-ICP's map voxel: 0.8 m at 80 m)
 VOXEL_PER_MAX_RANGE = 100.0
+#: odometry.map_covariances: the map target keeps the voxel means within this x preprocess.max_range of the start
+TARGET_REACH = 1.1
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -191,7 +193,9 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
-        self._target = MapTarget(self.config.odometry.neighbors, self.threads)  # odometry.map_covariances
+        # odometry.map_covariances: the map's voxel means within the scan's reach (and a margin for the other starts)
+        self._target = MapTarget(self.config.odometry.neighbors, self.threads,
+                                 TARGET_REACH * self.config.preprocess.max_range + self.config.odometry.max_corr_dist)
         self._map_version = 0  # map updates so far (the map target is rebuilt after each)
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
 
