@@ -482,6 +482,10 @@ class OdometryConfig:
     # DeepBBS++ also checks a step that deviates from the constant-velocity prediction by more than this x the rms of
     # the last fit_window steps' deviations (at least a quarter of the map voxel); 0 = off
     gate_sigmas: float = 4.0
+    # GICP against the map's voxel means with covariances fitted through their map neighbours (many sweeps: the
+    # surface's plane) instead of the voxel map's mean of each scan's own covariances (on a sparse sensor a point's
+    # neighbours in its scan lie on one line and the plane through them points anywhere)
+    map_covariances: bool = False
 
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",

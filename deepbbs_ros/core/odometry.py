@@ -8,7 +8,8 @@
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
                 voxels, least-recently-used voxels dropped) from the prediction; the first motion, which has
-                none, from identity coarse to fine (core/first_motion.py)
+                none, from identity coarse to fine (core/first_motion.py); with ``odometry.map_covariances`` GICP
+                against the map's voxel means, covariances from their map neighbours (core/map_target.py)
     hold        along the directions the VGICP's Hessian cannot constrain (a corridor's axis, an open field's
                 plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
                 position is kept there (core/degeneracy.py)
@@ -46,6 +47,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
 from deepbbs_ros.core import first_motion as _first
+from deepbbs_ros.core.map_target import MapTarget
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
@@ -58,6 +60,8 @@ GATE_FLOOR = 0.1
 VOXEL_PER_RANGE = 10.0
 #: ... and at most preprocess.max_range over this (KISS-ICP's map voxel: 0.8 m at 80 m)
 VOXEL_PER_MAX_RANGE = 100.0
+#: odometry.map_covariances: the map target keeps the voxel means within this x preprocess.max_range of the start
+TARGET_REACH = 1.1
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "se3_power", "deskew"]
 
@@ -189,6 +193,10 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
+        # odometry.map_covariances: the map's voxel means within the scan's reach (and a margin for the other starts)
+        self._target = MapTarget(self.config.odometry.neighbors, self.threads,
+                                 TARGET_REACH * self.config.preprocess.max_range + self.config.odometry.max_corr_dist)
+        self._map_version = 0  # map updates so far (the map target is rebuilt after each)
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
 
     @property
@@ -258,7 +266,7 @@ class DeepBBSOdometry:
         # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
         floor = self._sweep.update(pose, prior if self.frames >= 2 else None)
         cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor)
-        self._map.insert(cloud, pose)
+        self._insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
@@ -288,6 +296,10 @@ class DeepBBSOdometry:
         vmap = small_gicp.GaussianVoxelMap(self.voxel_size)
         vmap.set_lru(self.config.odometry.lru_horizon, self.config.odometry.lru_clear_cycle)
         return vmap
+
+    def _insert(self, cloud: Any, pose: np.ndarray) -> None:
+        self._map.insert(cloud, pose)
+        self._map_version += 1  # the map target (odometry.map_covariances) is rebuilt on the next alignment
 
     def _time_scale(self, stamp_ns: int | None) -> tuple[float, bool]:
         """(dt / nominal period, stamp gap?) from the stamps; (1, False) without stamps."""
@@ -364,8 +376,12 @@ class DeepBBSOdometry:
         import small_gicp
 
         oc = self.config.odometry
-        res = small_gicp.align(self._map, cloud, init, max_correspondence_distance=oc.max_corr_dist,
-                               num_threads=self.threads, max_iterations=iters or oc.max_iters)
+        if oc.map_covariances:  # GICP against the voxel means, covariances from map neighbours (core/map_target.py)
+            res = self._target.align(self._map, self._map_version, cloud, init, oc.max_corr_dist,
+                                     iters or oc.max_iters)
+        else:
+            res = small_gicp.align(self._map, cloud, init, max_correspondence_distance=oc.max_corr_dist,
+                                   num_threads=self.threads, max_iterations=iters or oc.max_iters)
         self._gicp = (np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers))  # covariance
         return np.asarray(res.T_target_source, dtype=np.float64), float(res.num_inliers) / max(1, cloud.size())
 
@@ -442,13 +458,13 @@ class DeepBBSOdometry:
         raw0, times0 = self._first_raw
         self._first_raw = None
         self._map = self._new_map()
-        self._map.insert(self._prepare(self._deskew(raw0, times0, 1.0, self.delta)), np.eye(4))
+        self._insert(self._prepare(self._deskew(raw0, times0, 1.0, self.delta)), np.eye(4))
         frame = self._deskew(points, times, 1.0, self.delta)
         return self._prepare(frame), frame
 
     def _first(self, frame, cloud, stamp_ns, clock, points=None, times=None) -> OdometryStep:
         self._first_raw = (np.asarray(points), np.asarray(times)) if self._has_times(times) else None
-        self._map.insert(cloud, np.eye(4))
+        self._insert(cloud, np.eye(4))
         self._remember(frame, stamp_ns, False)
         self.frames = 1
         if self.config.odometry.deepbbs_init != "never":
