@@ -152,6 +152,9 @@ class NodeLocalization:
         self.search_delay_s = 0.0
         self.last_bridge = ""  # the last bridge's log line (bridge())
         self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
+        # a search placed its scan and bridge() has not started yet: the scans arriving in between (while the found
+        # pose is published) are kept too, else the worker's slot keeps only the newest of them
+        self._bridge_pending = False
         self._followed = 0
 
     # -- the map -----------------------------------------------------------------------------------------------
@@ -245,7 +248,7 @@ class NodeLocalization:
     def keeps_arrivals(self) -> bool:
         """Whether the scans arriving now are kept for :meth:`bridge` (a search or a bridge runs,
         ``localization.bridge_scans``): their fate is counted there (followed, or :attr:`dropped`)."""
-        return self._bridge.size > 0 and (self.searching or self._bridging)
+        return self._bridge.size > 0 and (self.searching or self._bridging or self._bridge_pending)
 
     @property
     def searching(self) -> bool:
@@ -279,6 +282,8 @@ class NodeLocalization:
         """
         from deepbbs_ros.errors import LocalizationError
 
+        if not self._bridging:
+            self._bridge_pending = False  # a found pose that no bridge() followed: keep arrivals no longer
         self._take_requests(cloud)
         tracker = self.tracker
         if tracker is None:
@@ -324,6 +329,7 @@ class NodeLocalization:
                         f"{_pose_text(T)} in {self.map.frame_id!r} after {self._search_scans + 1} scan(s), "
                         f"{took:.2f} s (score {res.score:.2f}, {res.candidates} candidate place(s))")
                 self._search_t0 = None
+                self._bridge_pending = not self._bridging
         else:
             self.rejected += 1
             self.last_reason = res.reason or "rejected"
@@ -352,9 +358,10 @@ class NodeLocalization:
         like any tracked scan); ends when none is left or the tracker lost the pose. One log line, on the last."""
         self.last_bridge = ""
         if found.result.event not in ("found", "relocalized") or self.tracker is None:
+            self._bridge_pending = False
             return
         t0 = time.perf_counter()
-        self._bridging = True
+        self._bridging, self._bridge_pending = True, False
         try:
             yield from self._follow(stamp_ns)
         finally:
