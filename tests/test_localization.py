@@ -337,26 +337,34 @@ def test_elsewhere_is_no_pose_with_a_reason(localizer, world):
     assert not res.valid and res.mode == "global" and res.reason and "\n" not in res.reason
 
 
-def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
-    """Every first answer's probability far below the bar (under localization.retry_probability; retry_descriptor 0:
-    whatever the descriptor's match): no pose at once, after GICP alone on the failed places (cheap) but without the
-    other retries (DeepBBS++ from the opposite yaw, slid poses) that only a nearly right answer can profit from;
-    retry_probability 0 always runs them."""
-    _, _, _, other = world
-    scan = other.scan_at(3).points
+def _quick_then_slow(localizer, scan, quick_cfg: dict, slow_cfg: dict):
+    """``scan`` localized under ``quick_cfg`` then ``slow_cfg`` (config overrides), counting DeepBBS++ calls:
+    -> (first result, second result, calls during the first, calls list after both)."""
     old = localizer.config
     calls = []
     deep = localizer._deep
     localizer._deep = lambda *a, **k: calls.append(1) or deep(*a, **k)
     try:
-        localizer.config = old.replace(**{"localization.retry_probability": 0.05, "localization.retry_descriptor": 0.0})
+        localizer.config = old.replace(**quick_cfg)
         res = localizer.localize(scan)
         quick = len(calls)
-        localizer.config = old.replace(**{"localization.retry_probability": 0.0})  # always retry
+        localizer.config = old.replace(**slow_cfg)
         slow = localizer.localize(scan)
     finally:
         localizer.config = old
         del localizer._deep
+    return res, slow, quick, calls
+
+
+def test_a_scan_outside_the_map_gets_no_pose_without_retries(localizer, world):
+    """Every first answer's probability far below the bar (under localization.retry_probability; retry_descriptor 0:
+    whatever the descriptor's match): no pose at once, after GICP alone on the failed places (cheap) but without the
+    other retries (DeepBBS++ from the opposite yaw, slid poses) that only a nearly right answer can profit from;
+    retry_probability 0 always runs them."""
+    res, slow, quick, calls = _quick_then_slow(
+        localizer, world[3].scan_at(3).points,
+        {"localization.retry_probability": 0.05, "localization.retry_descriptor": 0.0},
+        {"localization.retry_probability": 0.0})  # always retry
     assert not res.valid and "scan outside the map" in res.reason and res.score < 0.3, res.reason
     assert quick == res.candidates  # DeepBBS++ on the first round's places only: no flipped retry
     assert not slow.valid and len(calls) > quick + slow.candidates  # the retries ran, and changed nothing
@@ -366,21 +374,10 @@ def test_a_first_round_far_below_the_bar_ends_whatever_the_descriptor(localizer,
     """localization.retry_floor: a first round whose best probability is under it is a scan from elsewhere even where
     the descriptor matches a place (retry_descriptor 1: no descriptor is far enough): DeepBBS++ on the first round's
     places only; retry_floor 0 runs every retry again."""
-    _, _, _, other = world
-    scan = other.scan_at(3).points
-    old = localizer.config
-    calls = []
-    deep = localizer._deep
-    localizer._deep = lambda *a, **k: calls.append(1) or deep(*a, **k)
-    try:
-        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.01})
-        res = localizer.localize(scan)
-        quick = len(calls)
-        localizer.config = old.replace(**{"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.0})
-        slow = localizer.localize(scan)
-    finally:
-        localizer.config = old
-        del localizer._deep
+    res, slow, quick, calls = _quick_then_slow(
+        localizer, world[3].scan_at(3).points,
+        {"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.01},
+        {"localization.retry_descriptor": 1.0, "localization.retry_floor": 0.0})
     assert not res.valid and "scan outside the map" in res.reason and res.probability < 0.01, res.reason
     assert quick == res.candidates
     assert not slow.valid and "outside" not in slow.reason and len(calls) > quick + slow.candidates
