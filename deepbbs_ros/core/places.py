@@ -130,11 +130,16 @@ def coverage_peaks(covered: np.ndarray, ground: np.ndarray, taken: np.ndarray, c
     far = distance_transform_edt(~taken) * cell > GAP if taken.any() else np.ones_like(taken)
     cand = (dens >= max(PEAK_SHARE * ref, PEAK_MIN)) & far & np.isfinite(ground)
     ix, iy = np.nonzero(cand)
-    step = max(1, int(round(PEAK_SEPARATION / cell)))
-    block = (ix // step) * (taken.shape[1] // step + 1) + iy // step
-    order = np.lexsort((-dens[ix, iy], block))  # by block, the best-covered column first
-    first = order[np.r_[True, block[order][1:] != block[order][:-1]]] if len(order) else order
+    first = _best_per_block(ix, iy, dens[ix, iy], max(1, int(round(PEAK_SEPARATION / cell))), taken.shape[1])
     return np.stack([ix[first], iy[first]], axis=1).astype(np.int64)
+
+
+def _best_per_block(ix: np.ndarray, iy: np.ndarray, score: np.ndarray, step: int, ny: int) -> np.ndarray:
+    """Indices into the columns ``(ix, iy)`` (K,) of the highest-``score`` column of each ``step`` x ``step`` block of
+    a grid ``ny`` columns wide, in block order."""
+    block = (ix // step) * (ny // step + 1) + iy // step
+    order = np.lexsort((-score, block))  # by block, the best column first
+    return order[np.r_[True, block[order][1:] != block[order][:-1]]] if len(order) else order
 
 
 def _close_coverage(covered: np.ndarray, sparse: bool = False) -> float:
@@ -155,10 +160,7 @@ def grid_places(points: np.ndarray, origin: np.ndarray, cell: float, shape: tupl
     them (:func:`coverage_peaks`), ``height`` m above its ground (module docstring)."""
     free, dist, ground, covered = drivable_columns(points, origin, cell, shape, clearance, voxel)
     ix, iy = np.nonzero(free)
-    step = max(1, int(round(spacing / cell)))
-    block = (ix // step) * (shape[1] // step + 1) + iy // step
-    order = np.lexsort((-dist[ix, iy], block))  # by block, the clearest column first
-    first = order[np.r_[True, block[order][1:] != block[order][:-1]]] if len(order) else order
+    first = _best_per_block(ix, iy, dist[ix, iy], max(1, int(round(spacing / cell))), shape[1])  # the clearest
     ix, iy = ix[first], iy[first]
     taken = np.zeros(shape, bool)
     taken[ix, iy] = True
