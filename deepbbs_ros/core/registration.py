@@ -362,13 +362,16 @@ class DeepBBSRegistration:
         pts = good_start_points(spc, rc)
         pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
         why = "" if pol.applied else pol.reason.replace("polish_max_", "registration.good_start_max_")
-        prob, bar = self._good_start_verdict(pol, why, pts, tpc, rc.good_start_probability)
+        prob = self._good_start_verdict(pol, why, pts, tpc)
         accepted = "accepted"
-        if not verdict.is_valid(prob, bar):  # outside GICP's fine basin (or a wrong one): coarse to fine, when sure
-            first = f"GICP from the start: {why}" if why else (f"verdict {prob:.2f} < "
-                                                             f"registration.good_start_probability {bar}")
+        if not verdict.is_valid(prob, rc.good_start_probability):  # outside GICP's fine basin (or a wrong one)
+            # coarse to fine, taken when sure
+            if why:
+                first = f"GICP from the start: {why}"
+            else:
+                first = f"verdict {prob:.2f} < registration.good_start_probability {rc.good_start_probability}"
             pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, self.gicp_threads())
-            prob, bar = self._good_start_verdict(pol, why, pts, tpc, max(rc.good_start_probability, rc.verdict_sure))
+            prob, bar = self._good_start_verdict(pol, why, pts, tpc), max(rc.good_start_probability, rc.verdict_sure)
             if not verdict.is_valid(prob, bar):
                 clock.lap("good_start")
                 then = why or f"verdict {prob:.2f} < registration.verdict_sure {bar}"
@@ -392,14 +395,12 @@ class DeepBBSRegistration:
             source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", deskew=deskew,
             valid=True, score=float(score), starts=1, path="gicp", good_start=accepted, probability=float(prob)))
 
-    def _good_start_verdict(self, pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud,
-                            bar: float) -> tuple[float, float]:
-        """(the good-start verdict's probability of the GICP result ``pol`` (0 when ``why`` says it is not taken),
-        the bar it must reach)."""
+    def _good_start_verdict(self, pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud) -> float:
+        """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken."""
         if why:
-            return 0.0, bar
+            return 0.0
         dist = self.config.registration.verdict_dist
-        return verdict.probability(pts, pol.T_target_source, tpc, dist, "good_start"), bar
+        return verdict.probability(pts, pol.T_target_source, tpc, dist, "good_start")
 
     def _good_start_deskew(self, a: PreprocessResult, b: PreprocessResult,
                            T: np.ndarray) -> tuple[np.ndarray, str, int]:
