@@ -189,7 +189,7 @@ class DeepBBSOdometry:
         self.deepbbs_calls = 0
         self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
         self._deepbbs_path = "deepbbs"  # the path of DeepBBS++'s last answer (RegistrationResult.path)
-        self._gicp: tuple[np.ndarray, float, int] = (np.zeros((6, 6)), float("nan"), 0)  # the last VGICP's H, e, n
+        self._hessian = np.zeros((6, 6))  # the last VGICP's H (the degeneracy check's)
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
@@ -382,13 +382,13 @@ class DeepBBSOdometry:
         else:
             res = small_gicp.align(self._map, cloud, init, max_correspondence_distance=oc.max_corr_dist,
                                    num_threads=self.threads, max_iterations=iters or oc.max_iters)
-        self._gicp = (np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers))  # covariance
+        self._hessian = np.asarray(res.H, dtype=np.float64)
         return np.asarray(res.T_target_source, dtype=np.float64), float(res.num_inliers) / max(1, cloud.size())
 
     def _hold(self, pose: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, _deg.Degeneracy]:
         """The last VGICP's degeneracy at ``pose`` and ``pose`` held to ``start`` along its weak directions (not on
         the first motion: its start, identity, is no prediction)."""
-        deg = _deg.analyse(self._gicp[0], pose[:3, :3], self.config.odometry.degenerate_ratio)
+        deg = _deg.analyse(self._hessian, pose[:3, :3], self.config.odometry.degenerate_ratio)
         limit = self._gate.limit()
         if self.frames < 2 or not np.isfinite(limit):
             return pose, deg
