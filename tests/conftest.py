@@ -132,3 +132,29 @@ def _pair_client(node, name: str):
     executor.add_node(client)
     threading.Thread(target=executor.spin, daemon=True).start()
     return client, poses, pubs, executor
+
+
+MAPPING_FRAMES = 24  # the mapping drive: 19 m along the road at 8 m/s, 10 Hz
+
+
+@pytest.fixture(scope="session")
+def day1(tmp_path_factory):
+    """The mapping drive (with ground truth) as an mcap recording, and its scans (read only: shared by the modules
+    that map or localize in it)."""
+    from deepbbs_ros.datasets import write_scans
+    from deepbbs_ros.replay.synthetic import synthetic_drive
+
+    scans = synthetic_drive(MAPPING_FRAMES, seed=0, keep=0.25)
+    out = tmp_path_factory.mktemp("day1") / "day1"
+    write_scans(scans, out, "mcap")
+    return out, scans
+
+
+@pytest.fixture(scope="session")
+def site_map(day1, tmp_path_factory):
+    """``deepbbs-bag map`` of the mapping drive: site.pcd with its .tum and .png beside it (read only)."""
+    from deepbbs_ros.cli.bag import main as bag_main
+
+    out = tmp_path_factory.mktemp("map") / "site.pcd"
+    assert bag_main(["map", str(day1[0]), str(out), "--quiet"]) == 0
+    return out

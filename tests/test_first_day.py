@@ -22,7 +22,7 @@ from deepbbs_ros.metrics import read_tum
 from deepbbs_ros.replay.checks import frame_offset
 from deepbbs_ros.replay.synthetic import synthetic_drive
 
-FRAMES = 24  # 19 m at 8 m/s, 10 Hz
+FRAMES = 24  # the shared mapping drive (conftest.py: day1, site_map): 19 m at 8 m/s, 10 Hz
 
 
 def _rz(yaw: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -30,21 +30,6 @@ def _rz(yaw: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
     T[:3, 3] = t
     return T
-
-
-@pytest.fixture(scope="module")
-def day1(tmp_path_factory):
-    scans = synthetic_drive(FRAMES, seed=0, keep=0.25)
-    out = tmp_path_factory.mktemp("day1") / "day1"
-    write_scans(scans, out, "mcap")
-    return out, scans
-
-
-@pytest.fixture(scope="module")
-def site_map(day1, tmp_path_factory):
-    out = tmp_path_factory.mktemp("map") / "site.pcd"
-    assert bag_main(["map", str(day1[0]), str(out), "--quiet", "--no-plot"]) == 0
-    return out
 
 
 def _moved(site_map, tmp_path, M: np.ndarray, with_tum: bool = True):

@@ -31,23 +31,7 @@ try:  # the end-to-end run needs the map tracker
 except ImportError:
     HAVE_LOCALIZATION = False
 
-FRAMES = 24  # the mapping drive: 19 m along the road at 8 m/s, 10 Hz
-
-
-@pytest.fixture(scope="module")
-def day1(tmp_path_factory):
-    """The mapping drive (with ground truth) as an mcap recording, and its scans."""
-    scans = synthetic_drive(FRAMES, seed=0, keep=0.25)
-    out = tmp_path_factory.mktemp("day1") / "day1"
-    write_scans(scans, out, "mcap")
-    return out, scans
-
-
-@pytest.fixture(scope="module")
-def site_map(day1, tmp_path_factory):
-    out = tmp_path_factory.mktemp("map") / "site.pcd"
-    assert bag_main(["map", str(day1[0]), str(out), "--quiet"]) == 0
-    return out
+FRAMES = 24  # the shared mapping drive (conftest.py: day1, site_map): 19 m along the road at 8 m/s, 10 Hz
 
 
 def test_bag_map_from_ground_truth(day1, site_map, capsys):
