@@ -20,7 +20,6 @@ from deepbbs_ros.datasets.maps import read_map, write_map
 from deepbbs_ros.errors import ConfigError, LocalizationError
 from deepbbs_ros.metrics import read_tum
 from deepbbs_ros.replay.checks import frame_offset
-from deepbbs_ros.replay.synthetic import synthetic_drive
 
 FRAMES = 24  # the shared mapping drive (conftest.py: day1, site_map): 19 m at 8 m/s, 10 Hz
 

@@ -22,7 +22,7 @@ from deepbbs_ros.errors import DatasetError
 from deepbbs_ros.metrics import read_tum
 from deepbbs_ros.replay import report
 from deepbbs_ros.replay.runner import LocalizationResults, run_localization
-from deepbbs_ros.replay.synthetic import drive_poses, scan_at, structured_world, synthetic_drive
+from deepbbs_ros.replay.synthetic import drive_poses, scan_at, structured_world
 
 try:  # the end-to-end run needs the map tracker
     import deepbbs_ros.core.localization  # noqa: F401
