@@ -97,12 +97,21 @@ def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any)
     return verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
 
 
+def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:
+    """:func:`core.verdict.fitness` of ``pts`` under ``T`` at each of ``dists`` m, from one nearest-neighbour search."""
+    if len(pts) == 0:
+        return [0.0 for _ in dists]
+    moved = np.asarray(pts, np.float64) @ np.asarray(T, np.float64)[:3, :3].T + np.asarray(T, np.float64)[:3, 3]
+    _, sq = tpc.tree.batch_nearest_neighbor_search(moved, num_threads=1)
+    sq = np.asarray(sq, np.float64)
+    return [float(np.mean(sq <= d * d)) for d in dists]
+
+
 def _result(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, pts: np.ndarray, tpc: PolishCloud,
             rc: Any, text: str, clock: Any) -> RegistrationResult:
     """The good start's answer: GICP's pose (again on both scans deskewed, when they are), its verdict."""
     T = pol.T_target_source
-    score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-    inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
+    score, inliers = _shares(pts, tpc, T, (rc.verdict_dist, rc.inlier_dist))
     clock.lap("good_start")
     T, deskew, more = pair_deskew.again(src, tgt, T, rc)  # both scans deskewed (node.pair_deskew): again on them
     if more:
