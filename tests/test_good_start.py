@@ -207,3 +207,28 @@ def test_a_good_start_in_a_box_scene_takes_the_gicp_path_and_is_right(reg):
     assert res.iterations["deep"] == 0
     rot, tr = pair_errors(res.T_target_source, T_gt)
     assert rot < 0.2 and tr < 0.05, (rot, tr)
+
+
+def test_gicp_converged_beyond_the_limits_within_reach_is_taken_when_sure():
+    """GICP from the start converged further than registration.good_start_max_trans but within the coarse try's reach
+    (core/coarse_rescue.py REACH times it): taken at once when the verdict is sure, right; beyond the reach: never."""
+    from deepbbs_ros.core import coarse_rescue
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.replay.synthetic import pose
+
+    cfg = Config().replace(**{"registration.network_process": "off", "registration.good_start_max_trans": 0.5})
+    reg = DeepBBSRegistration(cfg)
+    tgt = _toy_scan(6)
+    try:
+        for dist, taken in ((0.8, True), (0.5 * coarse_rescue.REACH + 0.3, False)):
+            T_gt = pose(dist, 0.0, 0.0, np.radians(1.0))
+            src = ((tgt - T_gt[:3, 3]) @ T_gt[:3, :3]).astype(np.float32)
+            res = reg.register(src, tgt, T_init=np.eye(4), good_start=True)
+            assert res.good_start.startswith("accepted, sure, within the coarse try's reach") == taken, res.good_start
+            if taken:
+                assert res.path == "gicp" and res.valid and res.probability >= cfg.registration.verdict_sure
+                assert "moved 0.80 m > registration.good_start_max_trans 0.5 m" in res.good_start
+                rot, tr = pair_errors(res.T_target_source, T_gt)
+                assert rot < 0.2 and tr < 0.05, (rot, tr)
+    finally:
+        reg.close()

@@ -5,6 +5,9 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
     gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
                 registration.good_start_max_iters, judged by the verdict on a spread subset of the source's voxels
                 (registration.good_start_probability)
+    reach       converged beyond registration.good_start_max_trans / _rot_deg but within the coarse try's reach
+                (core/coarse_rescue.py REACH times them): taken when the verdict is sure (registration.verdict_sure),
+                as the coarse try's answer would be (a car at 2 Hz moving 3-4.5 m, scans a few apart)
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure)
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
@@ -39,12 +42,13 @@ class Attempt:
     result: RegistrationResult | None = None
 
 
-def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
-    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``
-    in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation orthonormalised when applied
-    (``register(..., good_start=True)`` and the localization's tracking)."""
-    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
-                              polish_max_rot_deg=rc.good_start_max_rot_deg)
+def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any, reach: float = 1.0) -> Any:
+    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``,
+    times ``reach``, in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation
+    orthonormalised when applied (``register(..., good_start=True)`` and the localization's tracking)."""
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
+                              polish_max_trans=reach * rc.good_start_max_trans,
+                              polish_max_rot_deg=reach * rc.good_start_max_rot_deg)
     pol = polish(src_pc, tgt_pc, T_init, cfg)
     if pol.applied:
         pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
@@ -72,15 +76,19 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     spc, tpc = src.polish_cloud.complete(reg.gicp_threads()), tgt.polish_cloud.complete(reg.gicp_threads())
     clock.lap("preprocess")
     pts = good_start_points(spc, rc)
-    pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
-    why = "" if pol.applied else pol.reason.replace("polish_max_", "registration.good_start_max_")
-    prob = _probability(pol, why, pts, tpc, rc)
+    # from the vouched start, iterations capped (a fallback stays cheap); converged beyond the good start's limits but
+    # within the coarse try's reach, its answer is kept: the coarse try's bar (sure) takes it without the pyramid
+    pol = good_start_gicp(spc, tpc, T0, rc, reach=coarse_rescue.REACH)
+    why = _limits(pol, rc)
+    prob, sure = _probability(pol, "", pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
     accepted = "accepted"
-    if not verdict.is_valid(prob, rc.good_start_probability):  # outside GICP's fine basin (or a wrong one)
+    if why and pol.applied and verdict.is_valid(prob, sure):
+        accepted = f"accepted, sure, within the coarse try's reach (GICP from the start: {why})"
+    elif why or not verdict.is_valid(prob, rc.good_start_probability):  # outside GICP's fine basin (or a wrong one)
         first = f"GICP from the start: {why}" if why else \
             f"verdict {prob:.2f} < registration.good_start_probability {rc.good_start_probability}"
         pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, reg.gicp_threads())  # coarse to fine, when sure
-        prob, bar = _probability(pol, why, pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
+        prob, bar = _probability(pol, why, pts, tpc, rc), sure
         if not verdict.is_valid(prob, bar):
             clock.lap("good_start")
             then = why or f"verdict {prob:.2f} < registration.verdict_sure {bar}"
@@ -90,9 +98,23 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     return Attempt(src, tgt, accepted, _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock))
 
 
+def _limits(pol: Any, rc: Any) -> str:
+    """Why GICP from the start (run within the coarse try's reach) is not the good start's answer as it is: "" when it
+    converged within ``registration.good_start_max_*``, else the text :func:`core.polish.polish` gives with them."""
+    if pol.applied or pol.reason.startswith(("moved", "turned")):
+        if pol.delta_trans_m > rc.good_start_max_trans:
+            return f"moved {pol.delta_trans_m:.2f} m > registration.good_start_max_trans {rc.good_start_max_trans} m"
+        if pol.delta_rot_deg > rc.good_start_max_rot_deg:
+            return (f"turned {pol.delta_rot_deg:.2f} deg > registration.good_start_max_rot_deg "
+                    f"{rc.good_start_max_rot_deg} deg")
+        return ""
+    return pol.reason.replace("polish_max_", "registration.good_start_max_")
+
+
 def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any) -> float:
-    """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken."""
-    if why:
+    """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken (or GICP
+    did not converge within its limits)."""
+    if why or not pol.applied:
         return 0.0
     return verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
 
