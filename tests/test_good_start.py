@@ -110,9 +110,10 @@ def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
 
 
 def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
-    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer. 4 m is
-    within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers, right, only with a sure verdict;
-    8 m is beyond it: the full pipeline answers, on the clouds already built, and its answer is right (or not valid)."""
+    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer within the
+    good start's limits. 4 m is within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers (or
+    GICP going on from the start reaches as far), right, only with a sure verdict; 8 m is beyond it: the full pipeline
+    answers, on the clouds already built, and its answer is right (or not valid)."""
     from deepbbs_ros.core import coarse_rescue
 
     src, tgt, T_gt = drive
@@ -127,7 +128,8 @@ def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
         rot, tr = pair_errors(res.T_target_source, T_gt)
         assert res.timings_ms["good_start"] > 0 and res.timings_ms["total"] >= res.timings_ms["good_start"]
         if d == 4.0:  # the second try from the start, coarse to fine: right and sure, nothing sampled
-            assert res.path == "gicp" and res.good_start.startswith("accepted after coarse to fine (GICP from"), res
+            assert res.path == "gicp" and res.good_start.startswith((
+                "accepted after coarse to fine (GICP from", "accepted, sure, within the coarse try's reach (GICP from")), res
             assert res.valid and res.probability >= rc.verdict_sure and not s.sampled and not t.sampled
             assert rot < 0.3 and tr < 0.1, (rot, tr)
             continue

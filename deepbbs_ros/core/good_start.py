@@ -6,8 +6,9 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 registration.good_start_max_iters, judged by the verdict on a spread subset of the source's voxels
                 (registration.good_start_probability)
     reach       converged beyond registration.good_start_max_trans / _rot_deg but within the coarse try's reach
-                (core/coarse_rescue.py REACH times them): taken when the verdict is sure (registration.verdict_sure),
-                as the coarse try's answer would be (a car at 2 Hz moving 3-4.5 m, scans a few apart)
+                (core/coarse_rescue.py REACH times them), or only after good_start_max_iters, within as many again
+                (GICP goes on from where it stopped): taken when the verdict is sure (registration.verdict_sure), as
+                the coarse try's answer would be (a car at 2 Hz moving 3-4.5 m, scans a few apart)
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure)
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
@@ -42,14 +43,17 @@ class Attempt:
     result: RegistrationResult | None = None
 
 
-def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any, reach: float = 1.0) -> Any:
+def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any, reach: float = 1.0,
+                    more: int = 0) -> Any:
     """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``,
     times ``reach``, in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation
-    orthonormalised when applied (``register(..., good_start=True)`` and the localization's tracking)."""
-    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters,
+    orthonormalised when applied (``register(..., good_start=True)`` and the localization's tracking). ``more``: not
+    converged within ``good_start_max_iters``, GICP goes on from where it stopped for up to this many iterations
+    (then the result's ``check_score`` is finite: :func:`core.polish.polish`'s check)."""
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters + more,
                               polish_max_trans=reach * rc.good_start_max_trans,
                               polish_max_rot_deg=reach * rc.good_start_max_rot_deg)
-    pol = polish(src_pc, tgt_pc, T_init, cfg)
+    pol = polish(src_pc, tgt_pc, T_init, cfg, check=(rc.good_start_max_iters, 0.0) if more > 0 else None)
     if pol.applied:
         pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
     return pol
@@ -76,9 +80,10 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     spc, tpc = src.polish_cloud.complete(reg.gicp_threads()), tgt.polish_cloud.complete(reg.gicp_threads())
     clock.lap("preprocess")
     pts = good_start_points(spc, rc)
-    # from the vouched start, iterations capped (a fallback stays cheap); converged beyond the good start's limits but
-    # within the coarse try's reach, its answer is kept: the coarse try's bar (sure) takes it without the pyramid
-    pol = good_start_gicp(spc, tpc, T0, rc, reach=coarse_rescue.REACH)
+    # from the vouched start, iterations capped (a fallback stays cheap); converged beyond the good start's limits, or
+    # only in up to as many iterations again, but within the coarse try's reach: the coarse try's bar (sure) takes it
+    # without the pyramid
+    pol = good_start_gicp(spc, tpc, T0, rc, reach=coarse_rescue.REACH, more=rc.good_start_max_iters)
     why = _limits(pol, rc)
     prob, sure = _probability(pol, "", pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
     accepted = "accepted"
@@ -99,8 +104,12 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
 
 
 def _limits(pol: Any, rc: Any) -> str:
-    """Why GICP from the start (run within the coarse try's reach) is not the good start's answer as it is: "" when it
-    converged within ``registration.good_start_max_*``, else the text :func:`core.polish.polish` gives with them."""
+    """Why GICP from the start (run within the coarse try's reach, with a second leg) is not the good start's answer as
+    it is: "" when it converged within ``registration.good_start_max_*``, else the text :func:`core.polish.polish`
+    gives with them, or that it converged only in the second leg."""
+    if pol.applied and np.isfinite(pol.check_score):  # the first leg did not converge, the second did
+        return (f"not converged in registration.good_start_max_iters {rc.good_start_max_iters} iterations "
+                f"(converged going on, {pol.iterations} in all)")
     if pol.applied or pol.reason.startswith(("moved", "turned")):
         if pol.delta_trans_m > rc.good_start_max_trans:
             return f"moved {pol.delta_trans_m:.2f} m > registration.good_start_max_trans {rc.good_start_max_trans} m"
