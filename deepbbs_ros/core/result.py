@@ -47,8 +47,9 @@ class RegistrationResult:
         path: which path answered: "gicp" (``good_start``: GICP from the given start, accepted by its stricter
             verdict), "deepbbs" (the deep passes from the given start, then the precision stage) or "search" (the
             any-start search ran: other start yaws, then shifted starts).
-        good_start: ``good_start`` only: "accepted", "accepted after coarse to fine (why GICP from the start was
-            not)" (core/coarse_rescue.py), or why the GICP-first path was not (then ``path`` is
+        good_start: ``good_start`` only: "accepted", "accepted, sure, within the coarse try's reach (...)" (GICP
+            converged beyond the good start's limits, core/good_start.py), "accepted after coarse to fine (why GICP
+            from the start was not)" (core/coarse_rescue.py), or why the GICP-first path was not (then ``path`` is
             "deepbbs" or "search" and ``timings_ms["good_start"]`` is what the attempt cost); "" otherwise.
     """
 
