@@ -71,8 +71,11 @@ def test_summary_and_its_tables():
     text = "\n".join(_families_doc.families(doc, ["Measured by x."], "not run"))
     assert "| Velodyne VLP-16 | simulated, wheeled, hall | 3 | 0.80 | 66.7 % (3) | 100.0 % (3) | - |" in text
     assert "1 / 1 (of 4)" in text and "x2.00" in text and "overlap 0.80" in text
-    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "coarse_to_fine": 0, "fallback_why": {},
-                               "accepted_wrong": 0, "rejected_right": 0}
+    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "coarse_to_fine": 0, "fallback_why": {}, "within_reach": 0,
+                               "stages_p50_ms": {}, "accepted_wrong": 0, "rejected_right": 0}
+    assert families._stages([{"stages_ms": {"preprocess": 4.0, "good_start": 2.0, "total": 6.0}},
+                             {"stages_ms": {"preprocess": 6.0, "good_start": 3.0, "global": 90.0, "total": 99.0}}]) == {
+        "global": 45.0, "good_start": 2.5, "preprocess": 5.0, "total": 52.5}
     assert families._whys(["GICP from the start: not converged in 9 iterations; coarse to fine: verdict 0.8 < x",
                            "verdict 0.42 < registration.good_start_probability 0.7"]) == {
         "not converged / verdict": 1, "verdict": 1}

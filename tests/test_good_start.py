@@ -110,9 +110,10 @@ def test_good_start_answers_on_the_gicp_path_without_sampling(drive, reg):
 
 
 def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
-    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer. 4 m is
-    within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers, right, only with a sure verdict;
-    8 m is beyond it: the full pipeline answers, on the clouds already built, and its answer is right (or not valid)."""
+    """Starts slid 4 and 8 m along the road (facades repeat along it): GICP from the start does not answer within the
+    good start's limits. 4 m is within the coarse-to-fine second try's reach (core/coarse_rescue.py): it answers (or
+    GICP going on from the start reaches as far), right, only with a sure verdict; 8 m is beyond it: the full pipeline
+    answers, on the clouds already built, and its answer is right (or not valid)."""
     from deepbbs_ros.core import coarse_rescue
 
     src, tgt, T_gt = drive
@@ -127,7 +128,8 @@ def test_a_start_slid_along_the_corridor_falls_back(drive, reg):
         rot, tr = pair_errors(res.T_target_source, T_gt)
         assert res.timings_ms["good_start"] > 0 and res.timings_ms["total"] >= res.timings_ms["good_start"]
         if d == 4.0:  # the second try from the start, coarse to fine: right and sure, nothing sampled
-            assert res.path == "gicp" and res.good_start.startswith("accepted after coarse to fine (GICP from"), res
+            sure_answers = ("accepted after coarse to fine (GICP from", "accepted, sure, within the coarse try's reach")
+            assert res.path == "gicp" and res.good_start.startswith(sure_answers), res
             assert res.valid and res.probability >= rc.verdict_sure and not s.sampled and not t.sampled
             assert rot < 0.3 and tr < 0.1, (rot, tr)
             continue
@@ -172,3 +174,63 @@ def test_coarse_to_fine_second_try_stays_within_its_reach():
     far = T_gt @ pose(0.0, 0.0, 0.0, np.radians(30.0))
     pol, why = coarse_rescue.coarse_then_fine(spc, tpc, far, rc, 1)
     assert why != "", pol
+
+
+def test_the_good_starts_score_and_inlier_ratio_are_the_verdicts_fitness():
+    """core/good_start.py scores its answer with one nearest-neighbour search for both shares: the same numbers as
+    core.verdict.fitness at registration.verdict_dist and registration.inlier_dist."""
+    from deepbbs_ros.core import good_start
+    from deepbbs_ros.core.scans import polish_cloud
+    from deepbbs_ros.replay.synthetic import pose
+
+    cfg = Config()
+    rc = cfg.registration
+    tgt = _toy_scan(4)
+    src = _toy_scan(5)
+    spc, tpc = (polish_cloud(cfg, p).complete(1) for p in (src, tgt))
+    pts = good_start.good_start_points(spc, rc)
+    for T in (np.eye(4), pose(0.7, -0.4, 0.1, np.radians(3.0))):
+        got = good_start._shares(pts, tpc, T, (rc.verdict_dist, rc.inlier_dist))
+        assert got == [verdict.fitness(pts, tpc.tree, T, rc.verdict_dist), verdict.fitness(pts, tpc.tree, T,
+                                                                                            rc.inlier_dist)]
+    assert good_start._shares(pts[:0], tpc, np.eye(4), (0.5,)) == [0.0]
+
+
+def test_a_good_start_in_a_box_scene_takes_the_gicp_path_and_is_right(reg):
+    """Walls and boxes round the sensor, the source moved 0.8 m and turned 3 degrees: GICP from identity answers
+    (path "gicp", accepted on the first try), within 0.2 deg / 0.05 m of the truth, the network never ran."""
+    from deepbbs_ros.replay.synthetic import pose
+
+    tgt = _toy_scan(6)
+    T_gt = pose(0.8, 0.2, 0.0, np.radians(3.0))
+    src = ((tgt - T_gt[:3, 3]) @ T_gt[:3, :3]).astype(np.float32)
+    res = reg.register(src, tgt, T_init=np.eye(4), good_start=True)
+    assert res.path == "gicp" and res.good_start == "accepted" and res.valid, res
+    assert res.iterations["deep"] == 0
+    rot, tr = pair_errors(res.T_target_source, T_gt)
+    assert rot < 0.2 and tr < 0.05, (rot, tr)
+
+
+def test_gicp_converged_beyond_the_limits_within_reach_is_taken_when_sure():
+    """GICP from the start converged further than registration.good_start_max_trans but within the coarse try's reach
+    (core/coarse_rescue.py REACH times it): taken at once when the verdict is sure, right; beyond the reach: never."""
+    from deepbbs_ros.core import coarse_rescue
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.replay.synthetic import pose
+
+    cfg = Config().replace(**{"registration.network_process": "off", "registration.good_start_max_trans": 0.5})
+    reg = DeepBBSRegistration(cfg)
+    tgt = _toy_scan(6)
+    try:
+        for dist, taken in ((0.8, True), (0.5 * coarse_rescue.REACH + 0.3, False)):
+            T_gt = pose(dist, 0.0, 0.0, np.radians(1.0))
+            src = ((tgt - T_gt[:3, 3]) @ T_gt[:3, :3]).astype(np.float32)
+            res = reg.register(src, tgt, T_init=np.eye(4), good_start=True)
+            assert res.good_start.startswith("accepted, sure, within the coarse try's reach") == taken, res.good_start
+            if taken:
+                assert res.path == "gicp" and res.valid and res.probability >= cfg.registration.verdict_sure
+                assert "moved 0.80 m > registration.good_start_max_trans 0.5 m" in res.good_start
+                rot, tr = pair_errors(res.T_target_source, T_gt)
+                assert rot < 0.2 and tr < 0.05, (rot, tr)
+    finally:
+        reg.close()

@@ -44,7 +44,7 @@ def coarse_then_fine(src_pc: Any, tgt_pc: Any, T_init: np.ndarray, rc: Any, thre
     """GICP on the pyramid from ``T_init`` (4, 4), then the good start's GICP from where it ended, on the
     precision-stage clouds ``src_pc`` / ``tgt_pc`` (``core.polish.PolishCloud``). -> (the :func:`core.polish.polish`
     result, "" when it is within the rescue's reach of ``T_init``, else why not: then it must not be taken)."""
-    from deepbbs_ros.core.registration import good_start_gicp
+    from deepbbs_ros.core.good_start import good_start_gicp
 
     n = min(src_pc.n_points, tgt_pc.n_points)
     voxel = VOXEL_FACTORS[n >= DENSE] * (rc.polish_voxel or 0.5)

@@ -18,13 +18,8 @@
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
 With ``good_start=True`` (the caller vouches for ``T_init``: consecutive scans, a fixed mounting, a map from the
-last pose) a cheaper path runs first and answers alone when its stricter verdict accepts::
-
-    gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
-                registration.good_start_max_iters, a verdict on a spread subset of the source's voxels
-                (registration.good_start_probability)
-    coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
-                sure (registration.verdict_sure); else -> the stages above on the same clouds
+last pose) GICP from ``T_init`` runs first and answers alone when the verdict accepts (then coarse to fine, taken when
+sure); else the stages above run on the same clouds (core/good_start.py).
 
 Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -39,7 +34,6 @@ between calls) is in core/pair.py.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 from collections import deque
 from collections.abc import Iterator
@@ -51,7 +45,8 @@ import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import coarse_rescue, global_search, verdict
+from deepbbs_ros.core import global_search, pair_deskew, verdict
+from deepbbs_ros.core.good_start import attempt, good_start_gicp, good_start_points
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, orthonormalize, worker_share
 from deepbbs_ros.core.network_runner import NetworkRunner
@@ -60,79 +55,12 @@ from deepbbs_ros.core.polish import PolishCloud, polish, threads_or_all
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import NeighbourSearch, refine
+from deepbbs_ros.core.result import RegistrationResult
 from deepbbs_ros.core.scans import deskew_prepared, polish_cloud, prepare_scan
-from deepbbs_ros.reprs import short_repr
 
-__all__ = ["RegistrationResult", "DeepBBSRegistration"]
+__all__ = ["RegistrationResult", "DeepBBSRegistration", "good_start_gicp", "good_start_points"]
 
 _log = logging.getLogger(__name__)
-
-
-# a scan's own velocity (its stream's) agrees with the pair's mean motion within these (m/s + share of the
-# speed, rad/s): a pair up to 5 m apart spans ~0.5 s, over which braking at 2.5 m/s^2 changes the speed ~1 m/s
-DESKEW_TOL_SPEED, DESKEW_TOL_REL, DESKEW_TOL_TURN = 1.5, 0.1, np.radians(10.0)
-
-
-@dataclass
-class RegistrationResult:
-    """The outcome of one registration.
-
-    Attributes:
-        T_target_source: (4, 4) float64, p_target = R p_source + t (metres).
-        converged: the last stage that ran stopped on its tolerances (not on its iteration cap).
-        iterations: {"deep": network passes, "refine": refinement iterations, "dense": dense
-            refinement iterations (0 when it did not run), "polish": small_gicp iterations (0 when it
-            did not run; counted also when the polish was rejected)}.
-        gamma: (N,) float32 confidence of every (preprocessed) source point, from the last stage.
-        inlier_ratio: fraction of source points within ``registration.inlier_dist`` metres of a
-            target point after alignment.
-        temperature: T of the first deep pass (scaled units; 0 when the deep stage is off).
-        timings_ms: wall time per stage ("preprocess", "embed", "match", "solve", "refine", "total",
-            and "dense" when the dense refinement ran, "polish" / "deskew" when those stages ran).
-            "startup": the first call on a CPU starts the network process (seconds: a Python process
-            importing torch and loading the checkpoint; :meth:`DeepBBSRegistration.warmup` pays it up front);
-            it is reported on its own and not counted in "total", the registration's own time.
-        polish: why the polish was accepted ("ok") or rejected, "" when it did not run
-            (``registration.polish`` "none", or no dense points).
-        deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
-            else why the raw clouds were kept; "" when neither scan was deskewed.
-        source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32: the sampled points;
-            on the "gicp" path the spread subsets of the GICP clouds that its verdict scores.
-        valid: the verdict: the pose can be trusted (``probability >= registration.verdict_probability``; on the
-            "gicp" path ``registration.good_start_probability``).
-        score: the pose's fitness (core/verdict.py): share of the sampled source points within
-            ``registration.verdict_dist`` of the target's precision-stage cloud under the pose (on the "gicp" path:
-            of its spread subset of the source's GICP voxels).
-        probability: the verdict: the calibrated probability (0..1) that the pose is within 1 degree / 0.3 m of
-            the truth (core/verdict.py: fitted on simulated pairs of every sensor, mount and place).
-        starts: start yaws tried (1: the given start; more when the global search ran, core/global_search.py).
-        path: which path answered: "gicp" (``good_start``: GICP from the given start, accepted by its stricter
-            verdict), "deepbbs" (the deep passes from the given start, then the precision stage) or "search" (the
-            any-start search ran: other start yaws, then shifted starts).
-        good_start: ``good_start`` only: "accepted", "accepted after coarse to fine (why GICP from the start was
-            not)" (core/coarse_rescue.py), or why the GICP-first path was not (then ``path`` is
-            "deepbbs" or "search" and ``timings_ms["good_start"]`` is what the attempt cost); "" otherwise.
-    """
-
-    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
-
-    T_target_source: np.ndarray
-    converged: bool
-    iterations: dict[str, int]
-    gamma: np.ndarray
-    inlier_ratio: float
-    temperature: float
-    timings_ms: dict[str, float]
-    source: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
-    target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
-    polish: str = ""
-    deskew: str = ""
-    valid: bool = False
-    score: float = float("nan")
-    starts: int = 1
-    path: str = "deepbbs"
-    good_start: str = ""
-    probability: float = float("nan")
 
 
 class DeepBBSRegistration:
@@ -312,7 +240,7 @@ class DeepBBSRegistration:
         """
         clock = Clock(self.device)
         if good_start and T_init is not None:
-            first = self._gicp_first(source, target, T_init, preprocessed, clock)  # GICP from the start, strict verdict
+            first = attempt(self, source, target, T_init, preprocessed, clock)  # GICP from the start first
             if first.result is not None:
                 return first.result
             source, target = first.source, first.target  # rejected: the full pipeline on the clouds already built
@@ -341,91 +269,6 @@ class DeepBBSRegistration:
         if good_start and T_init is not None:
             result.good_start = first.reason
         return result
-
-    # -- the good-start path -----------------------------------------------------------------------
-    def _gicp_first(self, source: Any, target: Any, T_init: np.ndarray, preprocessed: bool,
-                    clock: Clock) -> _GoodStart:
-        """``register(..., good_start=True)``: the precision-stage clouds only (raw scans preprocessed with their
-        sampling waiting), GICP from ``T_init`` with ``registration.good_start_max_iters``, and the stricter verdict
-        on a spread subset of the source's voxels. -> :class:`_GoodStart` with the result when accepted, else why
-        not and the clouds built (PreprocessResults) for the full pipeline."""
-        rc = self.config.registration
-        T0 = as_transform(T_init)
-        if preprocessed and not (isinstance(source, PreprocessResult) and isinstance(target, PreprocessResult)):
-            return _GoodStart(source, target, reason="preprocessed arrays: no precision-stage clouds")
-        src = self._lazy_cloud(source, "source")
-        tgt = self._lazy_cloud(target, "target")
-        if rc.polish == "none" or src.polish_cloud is None or tgt.polish_cloud is None:
-            return _GoodStart(src, tgt, reason="no precision-stage clouds (registration.polish none)")
-        spc, tpc = src.polish_cloud.complete(self.gicp_threads()), tgt.polish_cloud.complete(self.gicp_threads())
-        clock.lap("preprocess")
-        pts = good_start_points(spc, rc)
-        pol = good_start_gicp(spc, tpc, T0, rc)  # from the vouched start, iterations capped: a fallback stays cheap
-        why = "" if pol.applied else pol.reason.replace("polish_max_", "registration.good_start_max_")
-        prob = self._good_start_verdict(pol, why, pts, tpc)
-        accepted = "accepted"
-        if not verdict.is_valid(prob, rc.good_start_probability):  # outside GICP's fine basin (or a wrong one)
-            # coarse to fine, taken when sure
-            if why:
-                first = f"GICP from the start: {why}"
-            else:
-                first = f"verdict {prob:.2f} < registration.good_start_probability {rc.good_start_probability}"
-            pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, self.gicp_threads())
-            prob, bar = self._good_start_verdict(pol, why, pts, tpc), max(rc.good_start_probability, rc.verdict_sure)
-            if not verdict.is_valid(prob, bar):
-                clock.lap("good_start")
-                then = why or f"verdict {prob:.2f} < registration.verdict_sure {bar}"
-                return _GoodStart(src, tgt, reason=f"{first}; coarse to fine: {then}")
-            accepted = f"accepted after coarse to fine ({first})"
-        T = pol.T_target_source
-        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        clock.lap("good_start")
-        self._searched.append(False)
-        inliers = verdict.fitness(pts, tpc.tree, T, rc.inlier_dist)
-        T, deskew, more = self._good_start_deskew(src, tgt, T)  # both scans deskewed (node.pair_deskew): again on them
-        if more:
-            clock.lap("deskew")
-        tgt_pts = good_start_points(tpc, rc)
-        timings = dict(clock.ms)
-        timings["total"] = sum(timings.values())
-        return _GoodStart(src, tgt, accepted, RegistrationResult(
-            T_target_source=T, converged=bool(pol.converged),
-            iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
-            gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
-            source=pts.astype(np.float32), target=tgt_pts.astype(np.float32), polish="ok", deskew=deskew,
-            valid=True, score=float(score), starts=1, path="gicp", good_start=accepted, probability=float(prob)))
-
-    def _good_start_verdict(self, pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud) -> float:
-        """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken."""
-        if why:
-            return 0.0
-        dist = self.config.registration.verdict_dist
-        return verdict.probability(pts, pol.T_target_source, tpc, dist, "good_start")
-
-    def _good_start_deskew(self, a: PreprocessResult, b: PreprocessResult,
-                           T: np.ndarray) -> tuple[np.ndarray, str, int]:
-        """The deskew stage of the good-start path (as :meth:`_deskew`): GICP again from ``T`` on both scans'
-        ``deskewed_cloud`` s when both have one and their velocities agree with ``T``. -> (T, what happened (the
-        result's ``deskew``), GICP iterations spent)."""
-        if a.deskewed_cloud is None and b.deskewed_cloud is None:
-            return T, "", 0
-        if a.deskewed_cloud is None or b.deskewed_cloud is None:
-            return T, "one scan has no velocity yet: raw clouds", 0
-        off = _velocity_off(a, b, T)
-        if off:
-            return T, off, 0
-        pol = polish(a.deskewed_cloud, b.deskewed_cloud, T, self.config.registration)
-        if not pol.applied:
-            return T, f"precision stage on the deskewed clouds rejected ({pol.reason}): raw clouds", pol.iterations
-        T = pol.T_target_source
-        T[:3, :3] = orthonormalize(T[:3, :3])
-        return T, "deskewed", pol.iterations
-
-    def _lazy_cloud(self, points: Any, name: str) -> PreprocessResult:
-        """A raw scan preprocessed with its sampling waiting (a PreprocessResult as it is)."""
-        if isinstance(points, PreprocessResult):
-            return points
-        return self.preprocess(as_xyz(points, name), lazy=True)
 
     # -- the stages of register() ------------------------------------------------------------------
     def _start(self, source: Any, target: Any, T_init: np.ndarray | None, preprocessed: bool) -> _State:
@@ -556,32 +399,15 @@ class DeepBBSRegistration:
 
     def _deskew(self, st: _State, clock: Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
-        stage runs again, from its result, on their ``deskewed_cloud`` s when each velocity agrees with the
-        pair's mean motion over the stamp gap (a velocity biased by traffic moving with the sensor does
-        not); both or neither, since one deskewed scan against a raw one adds distortion. ``st.deskew``
-        says what happened."""
-        a, b = st.src_pre, st.tgt_pre
-        if a is None or b is None or (a.deskewed_cloud is None and b.deskewed_cloud is None):
+        stage again, from its result, on their ``deskewed_cloud`` s when each velocity agrees with the pair's mean
+        motion (core/pair_deskew.py); ``st.deskew`` says what happened."""
+        if st.src_pre is None or st.tgt_pre is None:
             return
-        if a.deskewed_cloud is None or b.deskewed_cloud is None:
-            st.deskew = "one scan has no velocity yet: raw clouds"
-            return
-        if st.polish_reason != "ok":
-            st.deskew = "precision stage not applied: raw clouds"
-            return
-        off = _velocity_off(a, b, st.T)
-        if off:
-            st.deskew = off
-            return
-        pol = polish(a.deskewed_cloud, b.deskewed_cloud, st.T, self.config.registration)
-        st.iters["polish"] += pol.iterations
-        if not pol.applied:
-            st.deskew = f"precision stage on the deskewed clouds rejected ({pol.reason}): raw clouds"
-            return
-        st.T = pol.T_target_source
-        st.T[:3, :3] = orthonormalize(st.T[:3, :3])
-        st.deskew = "deskewed"
-        clock.lap("deskew")
+        st.T, st.deskew, n = pair_deskew.again(st.src_pre, st.tgt_pre, st.T, self.config.registration,
+                                               st.polish_reason == "ok")
+        st.iters["polish"] += n
+        if st.deskew == "deskewed":
+            clock.lap("deskew")
 
     def _polish(self, st: _State, clock: Clock) -> None:
         """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
@@ -660,35 +486,6 @@ class DeepBBSRegistration:
         )
 
 
-def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
-    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``
-    in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation orthonormalised when applied
-    (``register(..., good_start=True)`` and the localization's tracking)."""
-    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
-                              polish_max_rot_deg=rc.good_start_max_rot_deg)
-    pol = polish(src_pc, tgt_pc, T_init, cfg)
-    if pol.applied:
-        pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
-    return pol
-
-
-def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
-    """The points the good start's stricter verdict scores: a spread, order-independent subset of the cloud's GICP
-    voxels (``registration.good_start_points``; :func:`core.verdict.spread_subset`)."""
-    return verdict.spread_subset(pc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
-
-
-@dataclass
-class _GoodStart:
-    """The GICP-first attempt of ``register(..., good_start=True)``: the clouds it built (reused by the full
-    pipeline), why it was not accepted ("accepted" when it was) and its result (None when not accepted)."""
-
-    source: Any
-    target: Any
-    reason: str = ""
-    result: RegistrationResult | None = None
-
-
 @dataclass
 class _State:
     """What the stages of one ``register`` call share: the clouds (numpy, and scaled (1, N, 3) tensors on
@@ -742,27 +539,6 @@ def _answer_read(st: _State) -> Iterator[None]:
         NetworkRunner.discard(pending)  # read and dropped; speculative passes after it (if any) stopped
         spec, st.spec = st.spec, None
         NetworkRunner.drop(spec)
-
-
-def _velocity_off(a: PreprocessResult, b: PreprocessResult, T: np.ndarray) -> str:
-    """"" when both scans' own velocities agree with the pair's mean motion ``T`` (4, 4) over their stamp gap (equal
-    stamps: two sensors, no check), else which one is off and by how much."""
-    dt = (a.stamp_ns - b.stamp_ns) * 1e-9
-    if abs(dt) <= 1e-3:
-        return ""
-    mean = _twist(T, dt)
-    for name, pre in (("source", a), ("target", b)):
-        dv, dw = np.linalg.norm((_twist(*pre.velocity) - mean).reshape(2, 3), axis=1)
-        if dv > DESKEW_TOL_SPEED + DESKEW_TOL_REL * np.linalg.norm(mean[:3]) or dw > DESKEW_TOL_TURN:
-            return f"{name} velocity off the pair's by {dv:.1f} m/s, {np.degrees(dw):.1f} deg/s: raw clouds"
-    return ""
-
-
-def _twist(T: np.ndarray, dt: float) -> np.ndarray:
-    """(6,) mean velocity (v m/s, w rad/s; body frame, first order) of the motion T (4, 4) over dt s."""
-    from scipy.spatial.transform import Rotation
-
-    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()]) / dt
 
 
 def _overlap(

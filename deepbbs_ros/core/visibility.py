@@ -52,9 +52,20 @@ def cell_size(az: np.ndarray, el: np.ndarray) -> float:
     step = max(1, -(-len(az) // _SHAPE_POINTS))
     az, el = az[::step], el[::step]
     for cell in _CELLS:
-        if len(az) and len(az) * step / len(np.unique(_keys(az, el, cell))) >= _PER_CELL:
+        if len(az) and len(az) * step / np.count_nonzero(_occupied(az, el, cell)[0]) >= _PER_CELL:
             return float(cell)
     return float(_CELLS[-1])
+
+
+def _occupied(az: np.ndarray, el: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The direction cells of a ``cell`` rad grid as a flat table (no sort: a few hundred thousand bytes at most):
+    (True where a direction falls (the table), each direction's index in it, the elevation cells per azimuth cell);
+    index ``k`` is :func:`_keys`' ``(k // rows) * 100_000 + k % rows``."""
+    rows = int(np.pi / cell) + 2
+    idx = np.floor((az + np.pi) / cell).astype(np.int64) * rows + np.floor((el + np.pi / 2) / cell).astype(np.int64)
+    table = np.zeros((int(2 * np.pi / cell) + 2) * rows, bool)
+    table[idx] = True
+    return table, idx, rows
 
 
 def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -62,11 +73,11 @@ def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     in each (m))."""
     taz, tel, tr = _angles(np.asarray(target, np.float64))
     cell = cell_size(taz, tel)
-    tkey = _keys(taz, tel, cell)
-    order = np.argsort(tkey)
-    tkey, tr = tkey[order], tr[order]
-    starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
-    return cell, tkey[starts], np.minimum.reduceat(tr, starts)
+    table, idx, rows = _occupied(taz, tel, cell)
+    nearest = np.full(len(table), np.inf)
+    np.minimum.at(nearest, idx, tr)
+    occupied = np.flatnonzero(table)  # in the order of _keys: the same sorted keys as a sort of them
+    return cell, (occupied // rows) * 100_000 + occupied % rows, nearest[occupied]
 
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,

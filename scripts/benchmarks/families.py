@@ -214,6 +214,13 @@ def _whys(texts: list[str]) -> dict[str, int]:
     return out
 
 
+def _stages(ran: list[dict]) -> dict[str, float]:
+    """The good start's time per stage of ``register()`` (``timings_ms``: preprocess, good_start, the network's, global,
+    ...), the median over the pairs (0 where a stage did not run): where the time goes."""
+    names = sorted({k for x in ran for k in x.get("stages_ms", {}) if k != "startup"})
+    return {k: float(np.median([x.get("stages_ms", {}).get(k, 0.0) for x in ran])) for k in names}
+
+
 def _key(case: dict) -> str:
     """A case's identity in families_cases.jsonl: a rerun runs only the cases it lacks (delete a set's lines to run
     that set again)."""
@@ -242,6 +249,9 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
                                       "coarse_to_fine": sum("coarse to fine" in x.get("why", "") and x["path"] == "gicp"
                                                             for x in ran),
                                       "fallback_why": _whys([x.get("why", "") for x in ran if x["path"] != "gicp"]),
+                                      "within_reach": sum("within the coarse try's reach" in x.get("why", "")
+                                                          for x in ran),
+                                      "stages_p50_ms": _stages(ran),
                                       "accepted_wrong": sum(x["valid"] and not x["ok"] for x in ran),
                                       "rejected_right": sum(x["ok"] and not x["valid"] for x in ran)}
         g50 = cell["p50_ms"].get("gicp")
