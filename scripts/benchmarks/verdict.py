@@ -143,6 +143,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 ps = reg.preprocess(s.points, s.point_times(), s.stamp_ns)
                 pt = reg.preprocess(t.points, t.point_times(), t.stamp_ns)
             rough.append(visibility.roughness(pt.polish_cloud, rc.verdict_dist))
+            motion = (*cv.label(T_gt, np.eye(4))[1:], len(ps.polish_cloud.points()), len(pt.polish_cloud.points()))
             ref = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, T_gt, rc)  # GICP from the truth
             T_ref = ref.T_target_source if ref.applied else T_gt
             for T0 in starts:
@@ -153,7 +154,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 y = y == 1
                 f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
                                              pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
-                feats.append((name, "pair", y, r, t, res.score, *f))
+                feats.append((name, "pair", y, r, t, res.score, *motion, *f))
             for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
                 pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
                 if pol.applied:
@@ -162,7 +163,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     y = y == 1
                     rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
                                          cv.label(pol.T_target_source, T_ref)[0] == 1, r, t))
-                    feats.append((name, "good", y, r, t, f[0], *f))
+                    feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
             a = np.array(rows[key], float).reshape(-1, 6)
@@ -179,7 +180,8 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
     if dump:
         np.savez(dump, set=np.array([f[0] for f in feats]), verdict=np.array([f[1] for f in feats]),
                  y=np.array([f[2] for f in feats]), err=np.array([f[3:5] for f in feats], float),
-                 score=np.array([f[5] for f in feats], float), x=np.array([f[6:] for f in feats], float))
+                 score=np.array([f[5] for f in feats], float), motion=np.array([f[6:10] for f in feats], float),
+                 x=np.array([f[10:] for f in feats], float))
     return out
 
 
@@ -195,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
-                    "errors (deg, m) and scores here (.npz)")
+                    "errors (deg, m), scores, the pairs' motion (deg, m) and GICP voxels (source, target) here (.npz)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
