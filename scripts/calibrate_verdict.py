@@ -187,10 +187,12 @@ class _Scans:
         return self.reg.preprocess(pts[np.abs(off) <= width / 2], driver=self.driver), s.T_world_lidar
 
 
-def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: int, truth: bool = False) -> None:
+def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: int, truth: bool = False,
+               reg=None) -> None:
     """Append to ``out`` the rows of the poses of one pair (``pair``: the target's and the source's (prepared scan,
     T_world_lidar); ``far()``: the same for a scan of another place; see the module). ``truth``: also the truth
-    moved a little (within 0.5 deg / 0.1 m), a right pose where GICP may not find one."""
+    moved a little (within 0.5 deg / 0.1 m), a right pose where GICP may not find one; ``reg``: also the whole
+    pipeline's answer from identity (``DeepBBSRegistration.register``), right or its own local minimum."""
     (tgt, Tt), (src, Ts) = pair
     T_gt = np.linalg.inv(Tt) @ Ts
     ref = good_start_gicp(src.polish_cloud, tgt.polish_cloud, T_gt, rc)  # where GICP settles from the truth
@@ -204,6 +206,8 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
     poses.append(("moved", perturb(rng, (0, 2), (0.6, 1.5)) @ T_gt))
     if truth:
         poses.append(("truth", perturb(rng, (0, 0.5), (0, 0.1), 0.2) @ T_gt))
+    if reg is not None:
+        poses.append(("pipeline", reg.register(src, tgt, preprocessed=True).T_target_source))
     other, To = far()
     if np.linalg.norm(To[:3, 3] - Tt[:3, 3]) > 8.0:  # another place: any answer is wrong
         pol = good_start_gicp(other.polish_cloud, tgt.polish_cloud, np.eye(4), rc)
@@ -290,7 +294,8 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
             pair = _low_overlap(scan, i, j, rng, rc) if low else _turned(scan, i, rng, rc) if turned else \
                 (scan(i), scan(j))
             if pair is not None:
-                _pair_rows(pair, partial(scan, min(frames - 1, i + FAR)), rng, rc, out, ri, truth=low or turned)
+                _pair_rows(pair, partial(scan, min(frames - 1, i + FAR)), rng, rc, out, ri, truth=low,
+                           reg=reg if turned else None)
         n = sum(1 for r in out["rig"] if r == ri)
         log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
             f"{time.perf_counter() - t0:.1f} s")

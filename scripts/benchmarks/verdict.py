@@ -7,7 +7,8 @@ and the good-start verdict (a spread subset of the GICP voxels):
 * ``sim``: simulated pairs of every sensor, mount and place (``scripts/calibrate_verdict.py``'s rigs and poses with
   another seed than the fit's: GICP answers from near and far starts, the truth moved beyond 2 deg / 0.5 m, another
   place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360), and with
-  ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) apart;
+  ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) and with
+  ``--sim-turned-pairs`` the turned pairs (``turned``: a solid-state sensor turned and moved between its scans) apart;
 * ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
   ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
@@ -82,7 +83,7 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
@@ -90,15 +91,19 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0) -> dict:
     parts = [cv.collect(cv.RIGS, seed, pairs)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
         parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS)))
+    if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
+        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS)))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
-    rigs = cv.RIGS + cv.LOW_RIGS
+    rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
     fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
     low = data["rig"] >= len(cv.RIGS)
+    turned = data["rig"] >= len(cv.RIGS) + len(cv.LOW_RIGS)
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
-        for f in ("dense", "sparse", "solid", "all", "low_overlap"):
-            m = low if f == "low_overlap" else ~low if f == "all" else (fam == f) & ~low
+        for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned"):
+            m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
+                (fam == f) & ~low
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
@@ -194,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
     ap.add_argument("--sim-low-pairs", type=int, default=0,
                     help="low-overlap simulated pairs per rig of the fit's low-overlap rigs, judged apart (default 0)")
+    ap.add_argument("--sim-turned-pairs", type=int, default=0,
+                    help="turned simulated pairs per rig of the fit's turned rigs, judged apart (default 0)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
@@ -215,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs)
+                                     args.sim_low_pairs, args.sim_turned_pairs)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
