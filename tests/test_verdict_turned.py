@@ -68,9 +68,17 @@ def test_calibration_turned_pairs_have_the_overlap_they_state():
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     import calibrate_verdict as cv
 
-    rig = cv.TURNED_RIGS.index(("avia", "handheld", "hall"))
-    d = cv.collect(cv.TURNED_RIGS[rig:rig + 1], 38, 2, turned=True, rig0=100, log=lambda *_: None)
-    truth = d["kind"] == "truth"
-    assert truth.any() and np.all(d["y"][truth] == 1) and (d["y"] == 0).any()
-    obs = d["good"][truth, visibility.FEATURES.index("observable")]
-    assert np.all((obs >= cv.TURNED_OVERLAP[0] - 0.1) & (obs <= cv.TURNED_OVERLAP[1])), obs
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_points
+    from deepbbs_ros.sim.patterns import avia, driver_of
+
+    reg, rng = DeepBBSRegistration(Config()), np.random.default_rng(4)
+    rc = reg.config.registration
+    sim = RigSimulator("hall", 38, avia(), "handheld", frames=100)
+    scan = cv._Scans(sim, reg, driver_of("avia"), rng, None, False)
+    got = [cv._turned(scan, 0, rng, rc)]
+    assert any(g is not None for g in got)
+    for (tgt, Tt), (src, Ts) in (g for g in got if g is not None):
+        f = visibility.pose_features(good_start_points(src.polish_cloud, rc), np.linalg.inv(Tt) @ Ts,
+                                     tgt.polish_cloud, rc.verdict_dist)
+        assert cv.TURNED_OVERLAP[0] <= f[visibility.FEATURES.index("observable")] <= cv.TURNED_OVERLAP[1]
