@@ -99,7 +99,8 @@ LOW_OVERLAP = (0.10, 0.40)  # the observable share at the truth a low-overlap pa
 #: pose: plane_own 0.91, pinned 0.011, medians). Not in the shipped fit: with them (--pairs 12 --turned-pairs 12, seed
 #: 38) right real Livox poses rejected fell 4 / 7 -> 1 / 2 of 46 / 53 (pair / good start) with no real pose beyond
 #: 2 deg / 0.5 m accepted, but simulated wrong poses accepted rose (seed 39: solid-state 1 -> 2, low-overlap 0 -> 1,
-#: turned pairs 1 -> 6 of 83, mostly a Mid-360 slid 1.7-2.3 m along a corridor, pinned 0.008)
+#: turned pairs 1 -> 6 of 83, mostly a Mid-360 slid 1.7-2.3 m along a corridor, pinned 0.008; benchmarks/verdict.py
+#: --model, end to end)
 TURNED_RIGS = (
     ("avia", "handheld", "courtyard"), ("avia", "handheld", "hall"), ("avia", "handheld", "corridor"),
     ("avia", "handheld", "garage"), ("avia", "legged", "courtyard"), ("mid360", "handheld", "corridor"),
