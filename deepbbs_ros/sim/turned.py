@@ -1,11 +1,11 @@
 """Pairs of scans of a sensor turned and moved between them, as a hand-held walk takes them (no ROS).
 
 A narrow sensor (a Livox Avia's 70 degrees) carried by hand sees a different part of the place after each turn of
-the walker: consecutive keyframes are typically 0.3-1.3 m and 8-33 degrees apart and overlap in part only. A pair
-here renders both scans from a recording's place at two poses of the walk (``frame`` and a later frame
-``move`` metres on), the second turned about the vertical so that the relative heading is ``yaw_deg``: the
-overlap follows from the place and the sensor (measure it; nothing cuts the scans). Each scan is cast from one
-pose (no motion skew), so the truth ``T_target_source`` is exact.
+the walker: on a real hand-held Avia walk, keyframes four apart are 0.3-1.3 m and 8-33 degrees apart (10-90 %) and
+overlap in part only. A pair here renders both scans from a recording's place at two poses of the walk (``frame``
+and a later frame ``move`` metres on), the second turned about the vertical so that the relative heading is
+``yaw_deg``: the overlap follows from the place and the sensor (measure it; nothing cuts the scans). Each scan is
+cast from one pose (no motion skew), so the truth ``T_target_source`` is exact.
 """
 
 from __future__ import annotations
