@@ -7,7 +7,8 @@ and the good-start verdict (a spread subset of the GICP voxels):
 * ``sim``: simulated pairs of every sensor, mount and place (``scripts/calibrate_verdict.py``'s rigs and poses with
   another seed than the fit's: GICP answers from near and far starts, the truth moved beyond 2 deg / 0.5 m, another
   place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360), and with
-  ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) apart;
+  ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) and with
+  ``--sim-turned-pairs`` the turned pairs (``turned``: a solid-state sensor turned and moved between its scans) apart;
 * ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
   ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
@@ -82,7 +83,7 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
@@ -90,15 +91,19 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0) -> dict:
     parts = [cv.collect(cv.RIGS, seed, pairs)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
         parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS)))
+    if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
+        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS)))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
-    rigs = cv.RIGS + cv.LOW_RIGS
+    rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
     fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
     low = data["rig"] >= len(cv.RIGS)
+    turned = data["rig"] >= len(cv.RIGS) + len(cv.LOW_RIGS)
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
-        for f in ("dense", "sparse", "solid", "all", "low_overlap"):
-            m = low if f == "low_overlap" else ~low if f == "all" else (fam == f) & ~low
+        for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned"):
+            m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
+                (fam == f) & ~low
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
@@ -143,6 +148,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 ps = reg.preprocess(s.points, s.point_times(), s.stamp_ns)
                 pt = reg.preprocess(t.points, t.point_times(), t.stamp_ns)
             rough.append(visibility.roughness(pt.polish_cloud, rc.verdict_dist))
+            motion = (*cv.label(T_gt, np.eye(4))[1:], len(ps.polish_cloud.points()), len(pt.polish_cloud.points()))
             ref = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, T_gt, rc)  # GICP from the truth
             T_ref = ref.T_target_source if ref.applied else T_gt
             for T0 in starts:
@@ -153,7 +159,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 y = y == 1
                 f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
                                              pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
-                feats.append((name, "pair", y, r, t, res.score, *f))
+                feats.append((name, "pair", y, r, t, res.score, *motion, *f))
             for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
                 pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
                 if pol.applied:
@@ -162,7 +168,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     y = y == 1
                     rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
                                          cv.label(pol.T_target_source, T_ref)[0] == 1, r, t))
-                    feats.append((name, "good", y, r, t, f[0], *f))
+                    feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
             a = np.array(rows[key], float).reshape(-1, 6)
@@ -179,7 +185,8 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
     if dump:
         np.savez(dump, set=np.array([f[0] for f in feats]), verdict=np.array([f[1] for f in feats]),
                  y=np.array([f[2] for f in feats]), err=np.array([f[3:5] for f in feats], float),
-                 score=np.array([f[5] for f in feats], float), x=np.array([f[6:] for f in feats], float))
+                 score=np.array([f[5] for f in feats], float), motion=np.array([f[6:10] for f in feats], float),
+                 x=np.array([f[10:] for f in feats], float))
     return out
 
 
@@ -192,10 +199,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-pairs", type=int, default=4, help="simulated pairs per rig (0: none; default 4)")
     ap.add_argument("--sim-low-pairs", type=int, default=0,
                     help="low-overlap simulated pairs per rig of the fit's low-overlap rigs, judged apart (default 0)")
+    ap.add_argument("--sim-turned-pairs", type=int, default=0,
+                    help="turned simulated pairs per rig of the fit's turned rigs, judged apart (default 0)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
-                    "errors (deg, m) and scores here (.npz)")
+                    "errors (deg, m), scores, the pairs' motion (deg, m) and GICP voxels (source, target) here (.npz)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
@@ -213,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs)
+                                     args.sim_low_pairs, args.sim_turned_pairs)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
