@@ -17,13 +17,16 @@ outer products taken of the cells' sums (the cluster-robust covariance, :func:`s
 errors within a cell count once, as they move the pose. Then:
 
 1. a small-sample factor ``G / (G - 6)`` for ``G`` cells;
-2. along a weak translation direction (:data:`WEAK_RATIO`: a corridor, a straight road with little beside it) the
-   start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
-   anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
+2. along a weak translation direction (a corridor, a straight road with little beside it) the start's uncertainty
+   is added: there GICP's answer is where the start left it, not a measurement (localization: directions below
+   :data:`WEAK_RATIO`, anywhere within the correspondence distance; odometry: the directions its own degeneracy
+   check holds, core/degeneracy.py, with the motion model's deviations along them, :meth:`MotionFloor.weak_sigma`);
 3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
    motion it missed, and a scan lands half of it off: per axis of the scan, sqrt(2) / 2 of the root mean square of
-   the recent deviations from the prediction (a step differences two scans); the first motion, with no prediction
-   to deviate from, the voxel map's quantisation (:func:`quantisation_floor`);
+   the recent deviations from the prediction (a step differences two scans), and per rotation axis at least that of
+   the rotation the deskew missed within the sweep (twice the registered motion's deviation from the deskew's: a
+   body's roll and pitch sway); the first motion, with no prediction to deviate from, the voxel map's quantisation
+   (:func:`quantisation_floor`);
 4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
    ``B = diag(R, R)``.
 
