@@ -87,6 +87,9 @@ def test_corridor_covariance_along_the_axis_is_the_motion_models():
         model.update(np.eye(4), np.eye(4), held=True)
     sigma = model.weak_sigma(weak[0])
     assert sigma == pytest.approx(0.2 * np.sqrt(3), rel=1e-6)
+    held_only = MotionFloor()
+    held_only.update(np.eye(4), np.eye(4), held=True)
+    assert np.isnan(held_only.weak_sigma(weak[0]))  # never measured along it: the caller's default stands
     cov = sandwich_covariance(pairs, Te, 1.0, weak_sigma=sigma, weak=weak)
     alone = sandwich_covariance(pairs, Te, 1.0, weak=np.zeros((0, 3)))  # the Hessian's only
     x = np.array([1.0, 0.0, 0.0])

@@ -256,7 +256,8 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
         sigma = float(np.linalg.norm(floor[:3])) / SWEEP_SPREAD
     weak_scan = None if weak is None else np.asarray(weak, dtype=np.float64).reshape(-1, 3) @ R
     if weak_scan is not None and len(weak_scan) and model is not None and not first:
-        sigma = np.array([model.weak_sigma(d) for d in weak_scan])
+        known = np.array([model.weak_sigma(d) for d in weak_scan])
+        sigma = np.where(np.isfinite(known), known, sigma)
     cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=sigma, weak=weak_scan)
     if cov is not None:
         Bm = np.zeros((6, 6))
@@ -330,11 +331,11 @@ class MotionFloor:
     def weak_sigma(self, direction: np.ndarray) -> float:
         """m: the prediction's standard deviation along the unit ``direction`` (3,), the scan's axes: the root mean
         square along it of the deviations of the steps not held (a held step's is the prediction's own, zero), times
-        the square root of the steps held in a row (at least one)."""
-        devs = self._free or self._devs
-        if not devs:
-            return 0.0
-        var = np.mean(np.square(np.asarray(devs) @ np.asarray(direction, dtype=np.float64)[:len(devs[0])]))
+        the square root of the steps held in a row (at least one); NaN before any step that was not held (the
+        motion model never measured the direction: :func:`odometry_covariance` keeps its default)."""
+        if not self._free:
+            return float("nan")
+        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
         return float(np.sqrt(max(1, self._held) * var))
 
 
