@@ -227,8 +227,8 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
             T0_true = T_true
         T_prev, prev_points, Tp_true = T, out.points, T_true
     if cov_ms:
-        print(f"    odometry covariance: median {np.median(cov_ms):.1f} ms a scan, {np.median(share):.0%} of the scan's "
-              "time", flush=True)
+        print(f"    odometry covariance: median {np.median(cov_ms):.1f} ms a scan, "
+              f"{np.median(share):.0%} of the scan's time", flush=True)
     return steps, chain
 
 
