@@ -17,13 +17,16 @@ outer products taken of the cells' sums (the cluster-robust covariance, :func:`s
 errors within a cell count once, as they move the pose. Then:
 
 1. a small-sample factor ``G / (G - 6)`` for ``G`` cells;
-2. along a weak translation direction (:data:`WEAK_RATIO`: a corridor, a straight road with little beside it) the
-   start's uncertainty is added: there GICP's answer is where the start left it, not a measurement (localization:
-   anywhere within the correspondence distance; odometry: the constant-velocity prediction's observed error);
+2. along a weak translation direction (a corridor, a straight road with little beside it) the start's uncertainty
+   is added: there GICP's answer is where the start left it, not a measurement (localization: directions below
+   :data:`WEAK_RATIO`, anywhere within the correspondence distance; odometry: the directions its own degeneracy
+   check holds, core/degeneracy.py, with the motion model's deviations along them, :meth:`MotionFloor.weak_sigma`);
 3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
    motion it missed, and a scan lands half of it off: per axis of the scan, sqrt(2) / 2 of the root mean square of
-   the recent deviations from the prediction (a step differences two scans); the first motion, with no prediction
-   to deviate from, the voxel map's quantisation (:func:`quantisation_floor`);
+   the recent deviations from the prediction (a step differences two scans), and per rotation axis at least that of
+   the rotation the deskew missed within the sweep (twice the registered motion's deviation from the deskew's: a
+   body's roll and pitch sway); the first motion, with no prediction to deviate from, the voxel map's quantisation
+   (:func:`quantisation_floor`);
 4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
    ``B = diag(R, R)``.
 
@@ -178,14 +181,17 @@ def gicp_hessian(source: Any, target: Any, T_target_source: np.ndarray, *, max_c
 
 
 def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray, inflation: float,
-                        cell: float | None = None, weak_sigma: float = 0.0) -> np.ndarray | None:
+                        cell: float | None = None, weak_sigma: Any = 0.0,
+                        weak: np.ndarray | None = None) -> np.ndarray | None:
     """(6, 6) covariance (the module's convention, axes of ``T_out``'s parent) of the GICP solution whose matched
     pairs are ``pairs`` (:func:`matched_pairs`, :func:`voxel_pairs`): ``inflation * H^-1 B H^-1 * G / (G - 6)``
     (:func:`sandwich_terms` on ``cell``-m cells, :data:`CLUSTER_CELL` halved down to 1 m until there are
     :data:`MIN_CLUSTERS` of them; ``G`` the cells); along each weak translation direction (an eigen-direction of
     the Hessian's translation block below :data:`WEAK_RATIO` of its largest: a corridor, a straight road with little
     beside it) the variance grows by ``weak_sigma ** 2`` (m^2: the start's own uncertainty, where the answer along it
-    is where the start left it). None without pairs or with a singular Hessian."""
+    is where the start left it; ``weak``: (K, 3) unit directions in the scan's frame found weak by the caller, the
+    odometry's degeneracy check, instead of that test, with ``weak_sigma`` one value or (K,) per direction). None
+    without pairs or with a singular Hessian."""
     if pairs is None:
         return None
     a, Ca, b, Cb, T = pairs
@@ -201,9 +207,12 @@ def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray,
     Hi = (V / w) @ V.T
     cov_right = (inflation * G / (G - 6)) * (Hi @ B @ Hi)
     cov_right = cov_right[np.ix_(_PERM, _PERM)]
-    wt, Vt = np.linalg.eigh(H[3:, 3:])
-    weak = Vt[:, wt < WEAK_RATIO * wt[-1]]  # (3, K), the scan's frame
-    cov_right[:3, :3] += weak_sigma ** 2 * weak @ weak.T
+    if weak is None:
+        wt, Vt = np.linalg.eigh(H[3:, 3:])
+        weak = Vt[:, wt < WEAK_RATIO * wt[-1]].T  # (K, 3), the scan's frame
+    weak = np.asarray(weak, dtype=np.float64).reshape(-1, 3)
+    sig2 = np.square(np.broadcast_to(np.asarray(weak_sigma, dtype=np.float64), (len(weak),)))
+    cov_right[:3, :3] += (weak.T * sig2) @ weak
     R = np.asarray(T_out, dtype=np.float64)[:3, :3]
     Bm = np.zeros((6, 6))
     Bm[:3, :3] = Bm[3:, 3:] = R
@@ -225,23 +234,32 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
 
 
 def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
-                        floor: np.ndarray | None = None) -> np.ndarray | None:
+                        floor: np.ndarray | None = None, weak: np.ndarray | None = None,
+                        model: MotionFloor | None = None) -> np.ndarray | None:
     """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
     fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus the model error
     ``floor`` (:class:`MotionFloor`: (6,) standard deviations, m and rad, along the scan's own axes x, y, z, roll,
     pitch, yaw); None (no deviation from a prediction measured yet: the first motion, a restart) gives the voxel
-    map's quantisation instead (:func:`quantisation_floor`). Along a weak direction the pose is the prediction's
-    (core/degeneracy.py), whose error is the whole deviation (``|floor[:3]| / SWEEP_SPREAD``; without one, a voxel)."""
+    map's quantisation instead (:func:`quantisation_floor`). ``weak``: (K, 3) unit directions, map frame, that the
+    odometry's degeneracy check found weak (core/degeneracy.py ``analyse``, ``odometry.degenerate_ratio``; None: the
+    Hessian's own test at :data:`WEAK_RATIO`): along each the pose is the prediction's, and its variance is what the
+    motion model knows there (``model.weak_sigma``: the deviations along it, growing with the steps held in a row;
+    without a model or a deviation, the whole deviation ``|floor[:3]| / SWEEP_SPREAD``, or a voxel)."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
-    if floor is None:
+    R = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
+    first = floor is None
+    if first:
         motion = float(np.linalg.norm(np.asarray(T_map_scan, dtype=np.float64)[:3, 3]))  # from the first scan
-        floor, weak = quantisation_floor(cloud, voxel_size, motion), voxel_size
+        floor, sigma = quantisation_floor(cloud, voxel_size, motion), voxel_size
     else:
         floor = np.asarray(floor, dtype=np.float64)
-        weak = float(np.linalg.norm(floor[:3])) / SWEEP_SPREAD
-    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=weak)
+        sigma = float(np.linalg.norm(floor[:3])) / SWEEP_SPREAD
+    weak_scan = None if weak is None else np.asarray(weak, dtype=np.float64).reshape(-1, 3) @ R
+    if weak_scan is not None and len(weak_scan) and model is not None and not first:
+        known = np.array([model.weak_sigma(d) for d in weak_scan])
+        sigma = np.where(np.isfinite(known), known, sigma)
+    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=sigma, weak=weak_scan)
     if cov is not None:
-        R = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
         Bm = np.zeros((6, 6))
         Bm[:3, :3] = Bm[3:, 3:] = R
         cov += Bm @ np.diag(np.square(floor)) @ Bm.T
@@ -262,28 +280,70 @@ def quantisation_floor(cloud: Any, voxel_size: float, motion: float = 0.0) -> np
 
 
 class MotionFloor:
-    """The odometry's sweep model error (:data:`SWEEP_SPREAD`) per axis of the scan (x, y, z, roll, pitch, yaw): the
-    root mean square of the last :data:`MOTION_WINDOW` deviations of the pose from the constant-velocity prediction
-    along each axis (m, rad), as KISS-ICP's adaptive threshold measures its motion model's error. Per axis: a car's
-    body vibrates in roll and pitch while its yaw follows the road smoothly, and an isotropic floor would spread the
-    one over the other."""
+    """The odometry's model error per axis of the scan (x, y, z, roll, pitch, yaw), from what the motion model is
+    observed to miss, as KISS-ICP's adaptive threshold measures it; per axis because a car's body vibrates in roll
+    and pitch while its yaw follows the road smoothly, and an isotropic floor would spread the one over the other.
+
+    * prediction: :data:`SWEEP_SPREAD` times the root mean square of the last :data:`MOTION_WINDOW` deviations of
+      the pose from the constant-velocity prediction (m, rad);
+    * sweep (rotation axes): the deskew turns each point with the mean velocity of the last motions, and a body that
+      sways faster within the sweep (roll and pitch at 0.5-3 Hz) keeps the rotation the deskew missed, which no
+      residual shows (the scan is self-consistent, only bent). The registered motion lands halfway: the scan's pose
+      takes half of the missed rotation as error and shows the other half as the motion's deviation from the
+      deskew's, so the missed rotation is twice that deviation, and a step's standard deviation :data:`SWEEP_SPREAD`
+      of it (derived, not fitted; on simulated VLP-16 drives the roll step error was 0.6 of the true missed roll,
+      correlation 0.83). Only the rotation: the position's deviation from the deskew's motion is mostly GICP's own
+      noise, which the pairs already count;
+    * weak directions (:meth:`weak_sigma`): where the odometry held the prediction's position (core/degeneracy.py),
+      the step along the direction is the prediction's, whose error is one whole deviation per held step, summed
+      over the steps held in a row (the velocity along it is not measured again meanwhile)."""
 
     def __init__(self) -> None:
         from collections import deque
 
         self._devs: Any = deque(maxlen=MOTION_WINDOW)
+        self._swept: Any = deque(maxlen=MOTION_WINDOW)
+        self._free: Any = deque(maxlen=MOTION_WINDOW)  # position deviations of the steps not held
+        self._held = 0
 
-    def update(self, pose: np.ndarray, prediction: np.ndarray | None) -> np.ndarray | None:
-        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) -> the floor
-        (6,), standard deviations along the scan's axes (m, rad); None while no deviation was measured."""
+    def update(self, pose: np.ndarray, prediction: np.ndarray | None, motion: np.ndarray | None = None,
+               swept: np.ndarray | None = None, held: bool = False) -> np.ndarray | None:
+        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) and of the
+        registered ``motion`` per period (4, 4) from ``swept``, the motion per period the sweep was deskewed with
+        (None: not deskewed, no per-point times); ``held``: the odometry held the prediction along a weak direction
+        -> the floor (6,), standard deviations along the scan's axes (m, rad); None while no deviation was
+        measured."""
         if prediction is not None:
-            from scipy.spatial.transform import Rotation
-
-            D = np.linalg.solve(np.asarray(prediction, dtype=np.float64), np.asarray(pose, dtype=np.float64))
-            self._devs.append(np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()]))
+            self._devs.append(_log(np.linalg.solve(np.asarray(prediction, dtype=np.float64), pose)))
+            if not held:
+                self._free.append(self._devs[-1][:3])
+            if motion is not None and swept is not None:
+                self._swept.append(_log(np.linalg.solve(np.asarray(swept, dtype=np.float64), motion))[3:])
+        self._held = self._held + 1 if held and self._devs else 0
         if not self._devs:
             return None
-        return SWEEP_SPREAD * np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
+        floor = SWEEP_SPREAD * np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
+        if self._swept:
+            sweep = SWEEP_SPREAD * 2.0 * np.sqrt(np.mean(np.square(np.asarray(self._swept)), axis=0))
+            floor[3:] = np.maximum(floor[3:], sweep)
+        return floor
+
+    def weak_sigma(self, direction: np.ndarray) -> float:
+        """m: the prediction's standard deviation along the unit ``direction`` (3,), the scan's axes: the root mean
+        square along it of the deviations of the steps not held (a held step's is the prediction's own, zero), times
+        the square root of the steps held in a row (at least one); NaN before any step that was not held (the
+        motion model never measured the direction: :func:`odometry_covariance` keeps its default)."""
+        if not self._free:
+            return float("nan")
+        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
+        return float(np.sqrt(max(1, self._held) * var))
+
+
+def _log(D: np.ndarray) -> np.ndarray:
+    """(6,) ``[t, rotvec]`` of a (4, 4) motion."""
+    from scipy.spatial.transform import Rotation
+
+    return np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()])
 
 
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,

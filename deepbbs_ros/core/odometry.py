@@ -193,6 +193,7 @@ class DeepBBSOdometry:
         oc = self.config.odometry
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
+        self.swept: np.ndarray | None = None  # the motion per period the last scan was deskewed with (None: not)
         # odometry.map_covariances: the map's voxel means within the scan's reach (and a margin for the other starts)
         self._target = MapTarget(self.config.odometry.neighbors, self.threads,
                                  TARGET_REACH * self.config.preprocess.max_range + self.config.odometry.max_corr_dist)
@@ -264,8 +265,8 @@ class DeepBBSOdometry:
             cloud, frame = self._restart_deskewed(points, times)
             clock.lap("prepare")
         # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
-        floor = self._sweep.update(pose, prior if self.frames >= 2 else None)
-        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor)
+        floor = self._sweep.update(pose, prior if self.frames >= 2 else None, self.delta, self.swept, bool(deg.axes))
+        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, deg.weak, self._sweep)
         self._insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
@@ -335,11 +336,13 @@ class DeepBBSOdometry:
         pts = as_xyz(points, "odometry", dtype=np.float64)  # (N, 3) only (core/points.py)
         if delta is None and self.frames >= 2 and self.period > 0:
             delta = self._deskew_delta()
+        self.swept = None
         if delta is not None and self._has_times(times):
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
             if len(tt) == len(pts):
                 ok = np.isfinite(pts).all(axis=1)
                 pts = deskew(pts[ok], tt[ok], delta, self.period)
+                self.swept = delta
         frame = pts[crop_mask(pts, pp)]
         if len(frame) < 10:
             raise RegistrationError(f"odometry: only {len(frame)} valid points within the crop range")

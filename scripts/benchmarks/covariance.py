@@ -14,7 +14,9 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   ``--real`` folder, the odd ones localized from a start error as well.
 * odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
   scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
-  node publishes on ``~/odometry`` (the steps composed along the chain).
+  node publishes on ``~/odometry`` (the steps composed along the chain). Per simulated drive the ``sweep:`` line
+  shows the sweep floor's premise: how the step's rotation error follows the true rotation the deskew missed within
+  the sweep (correlation and slope per axis), and the covariance's time per scan.
 
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
@@ -181,16 +183,40 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
     scans with a step covariance."""
     from kiss_icp.voxelization import voxel_down_sample
 
+    import deepbbs_ros.core.odometry as odomod
     from deepbbs_ros.core.covariance import pose_error
     from deepbbs_ros.core.odometry import DeepBBSOdometry
     from deepbbs_ros.node.covariance import alignment_quality
 
     odo = DeepBBSOdometry(config)
-    steps, chain = [], []
+    steps, chain, cov_ms, share = [], [], [], []
     T_prev, prev_points, T0_true, Tp_true = None, None, None, None
-    for pts, times, stamp, T_true in drive:
-        out = odo.register_frame(pts, times, stamp)
+    own = odomod._cov.odometry_covariance
+
+    def timed(*a, **k):  # the covariance's time within the scan's
+        t = time.perf_counter()
+        try:
+            return own(*a, **k)
+        finally:
+            cov_ms.append((time.perf_counter() - t) * 1e3)
+
+    odomod._cov.odometry_covariance = timed
+    try:
+        outs, swept = [], []
+        for pts, times, stamp, _ in drive:
+            t0, n0 = time.perf_counter(), len(cov_ms)
+            outs.append(odo.register_frame(pts, times, stamp))
+            swept.append(None if odo.swept is None else odo.swept.copy())  # the motion the deskew turned it with
+            if len(cov_ms) > n0:
+                share.append(cov_ms[-1] / ((time.perf_counter() - t0) * 1e3))
+    finally:
+        odomod._cov.odometry_covariance = own
+    missed = []  # (the step's rotation error, the true rotation the deskew missed within the sweep)
+    for (_, _, _, T_true), out, sw in zip(drive, outs, swept):
         T = out.T_first_k
+        if T_prev is not None and sw is not None:
+            true_step = np.linalg.inv(Tp_true) @ T_true
+            missed.append((pose_error(true_step, out.T_prev_k)[3:], pose_error(true_step, sw)[3:]))
         if T_prev is not None:
             if args.before:  # node/pipeline.py's point-to-point step covariance as it was
                 src = np.asarray(voxel_down_sample(out.points, odo.voxel_size * 1.5))
@@ -207,6 +233,16 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
         else:
             T0_true = T_true
         T_prev, prev_points, Tp_true = T, out.points, T_true
+    if cov_ms:
+        print(f"    odometry covariance: median {np.median(cov_ms):.1f} ms a scan, "
+              f"{np.median(share):.0%} of the scan's time", flush=True)
+    if len(missed) >= 5:  # the sweep floor's premise: the step's rotation error follows the rotation the deskew missed
+        err, miss = (np.array(x) for x in zip(*missed))
+        fit = [(np.corrcoef(miss[:, i], err[:, i])[0, 1], np.polyfit(miss[:, i], err[:, i], 1)[0]) for i in range(3)]
+        print("    sweep: step rotation error vs the true rotation the deskew missed (roll, pitch, yaw): correlation "
+              + ", ".join(f"{c:.2f}" for c, _ in fit) + "; slope " + ", ".join(f"{b:.2f}" for _, b in fit)
+              + "; missed rms deg " + ", ".join(f"{x:.3f}" for x in np.degrees(np.sqrt(np.mean(miss ** 2, 0)))),
+              flush=True)
     return steps, chain
 
 
