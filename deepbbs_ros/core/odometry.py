@@ -47,6 +47,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
 from deepbbs_ros.core import first_motion as _first
+from deepbbs_ros.core.line_share import line_share
 from deepbbs_ros.core.map_target import MapTarget
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
@@ -194,10 +195,13 @@ class DeepBBSOdometry:
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
         # odometry.map_covariances: the map's voxel means within the scan's reach (and a margin for the other starts)
-        self._target = MapTarget(self.config.odometry.neighbors, self.threads,
-                                 TARGET_REACH * self.config.preprocess.max_range + self.config.odometry.max_corr_dist)
-        self._map_version = 0  # map updates so far (the map target is rebuilt after each)
+        self._target = MapTarget(oc.neighbors, self.threads, TARGET_REACH * self.config.preprocess.max_range
+                                 + oc.max_corr_dist, self.voxel_size, oc.map_refresh)
+        self._map_version = 0  # map updates so far (the map target checks what changed after each)
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
+        self._planes = False  # this scan aligns against the map's planes (map_covariances or line_share)
+        self.plane_frames = 0  # frames aligned against the map's planes
+        self._tree: Any = None  # the k-d tree of the last prepared scan
 
     @property
     def registration(self) -> Any:
@@ -223,6 +227,7 @@ class DeepBBSOdometry:
             self._size_voxels(frame)
         clock.lap("deskew")
         cloud = self._prepare(frame)
+        self._planes = self._map_planes(cloud)
         clock.lap("prepare")
         if self.frames == 0:
             return self._first(frame, cloud, stamp_ns, clock, points, times)
@@ -256,6 +261,7 @@ class DeepBBSOdometry:
         if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
             self._gate.update(_deg.deviation(_deg.hold(pose, prior, deg.weak), prior))
         self.degenerate_frames += bool(deg.axes)
+        self.plane_frames += self._planes
         T_prev_k = np.linalg.inv(self.pose) @ pose
         self.delta = se3_power(T_prev_k, 1.0 / scale) if scale != 1.0 else T_prev_k
         self._deltas.append(self.delta)
@@ -285,7 +291,7 @@ class DeepBBSOdometry:
         rng = float(np.median(np.linalg.norm(frame, axis=1)))
         size = min(self.config.preprocess.max_range / VOXEL_PER_MAX_RANGE, rng / VOXEL_PER_RANGE)
         if np.isfinite(size) and size > 0 and size != self.voxel_size:
-            self.voxel_size = size
+            self.voxel_size = self._target.voxel = size
             self._map = self._new_map()
             self._gate = _deg.MotionGate(self.config.odometry.gate_sigmas, self.config.odometry.fit_window,
                                          GATE_FLOOR * size)
@@ -299,7 +305,7 @@ class DeepBBSOdometry:
 
     def _insert(self, cloud: Any, pose: np.ndarray) -> None:
         self._map.insert(cloud, pose)
-        self._map_version += 1  # the map target (odometry.map_covariances) is rebuilt on the next alignment
+        self._map_version += 1  # the map target (odometry.map_covariances) checks what changed on the next alignment
 
     def _time_scale(self, stamp_ns: int | None) -> tuple[float, bool]:
         """(dt / nominal period, stamp gap?) from the stamps; (1, False) without stamps."""
@@ -321,6 +327,15 @@ class DeepBBSOdometry:
             self._deltas = deque((se3_power(d, scale) for d in self._deltas), maxlen=self._deltas.maxlen)
             return 1.0, False
         return max(scale, 1e-3), scale > self.config.odometry.gap_factor
+
+    def _map_planes(self, cloud: Any) -> bool:
+        """Align against the map's planes: ``odometry.map_covariances``, or more than ``odometry.line_share`` of the
+        scan's neighbourhoods are lines (core/line_share.py)."""
+        oc = self.config.odometry
+        if oc.map_covariances or oc.line_share >= 1:
+            return oc.map_covariances
+        share = line_share(np.asarray(cloud.points()), self._tree, oc.neighbors, threads=self.threads)
+        return bool(share > oc.line_share)
 
     def _has_times(self, times: np.ndarray | None) -> bool:
         return bool(self.config.odometry.deskew and times is not None and len(times) and np.ptp(times) > 0)
@@ -364,7 +379,7 @@ class DeepBBSOdometry:
         """small_gicp cloud of the scan: ``voxel_size / 2`` grid, covariances from ``odometry.neighbors``."""
         import small_gicp
 
-        cloud, _ = small_gicp.preprocess_points(
+        cloud, self._tree = small_gicp.preprocess_points(
             np.ascontiguousarray(frame), downsampling_resolution=0.5 * self.voxel_size,
             num_neighbors=self.config.odometry.neighbors, num_threads=self.threads)
         if cloud.size() < 10:
@@ -376,7 +391,7 @@ class DeepBBSOdometry:
         import small_gicp
 
         oc = self.config.odometry
-        if oc.map_covariances:  # GICP against the voxel means, covariances from map neighbours (core/map_target.py)
+        if self._planes:  # GICP against the voxel means, covariances from map neighbours (core/map_target.py)
             res = self._target.align(self._map, self._map_version, cloud, init, oc.max_corr_dist,
                                      iters or oc.max_iters)
         else:
