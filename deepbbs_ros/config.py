@@ -486,10 +486,11 @@ class OdometryConfig:
     # surface's plane) instead of the voxel map's mean of each scan's own covariances (on a sparse sensor a point's
     # neighbours in its scan lie on one line and the plane through them points anywhere)
     map_covariances: bool = False
-    # with map_covariances off, a scan aligns against the map's planes all the same when more than this share of its
-    # points have line-like neighbourhoods (narrower than a tenth of their length: a sparse sensor's scan lines, whose
-    # plane is undetermined; 0.23-0.30 on a 16-beam sensor on a road, at most 0.06 on 32 beams and more); 1 = never
-    line_share: float = 0.15
+    # with map_covariances off, a scan aligns against the map's planes all the same when more than this share of the
+    # last fit_window scans' points have line-like neighbourhoods (narrower than a tenth of their length: a sparse
+    # sensor's scan lines, whose plane is undetermined; medians 0.12-0.29 a drive with a 16-beam sensor on a road,
+    # at most 0.05 with 32 beams and more); 1 = never
+    line_share: float = 0.1
     # map_covariances (or line_share): the map target (voxel means, their k-d tree and covariances) is rebuilt once more than this
     # share of the voxel means around the scan are new or moved by more than 5 % of a voxel since it was built;
     # 0 = after every scan

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MapTarget", "TOL", "build_target"]
+__all__ = ["TOL", "MapTarget", "build_target"]
 
 #: a voxel mean that moved by more than this many voxels since the target was built counts as changed
 TOL = 0.05
@@ -53,6 +53,7 @@ class MapTarget:
         self.stale = 0.0  # the share of changed voxel means the target was last used with
         self._key: tuple[int, int] | None = None
         self._target: tuple[Any, Any] | None = None
+        self._map: Any = None  # the map it was built from
         self._means: np.ndarray = np.zeros((0, 3))  # the target's voxel means, sorted by _keys
         self._keys: np.ndarray = np.zeros(0, dtype=np.int64)
 
@@ -61,17 +62,17 @@ class MapTarget:
         map object changed or, after ``version`` (the caller's count of map updates) changed, more than ``refresh``
         of its voxel means there changed."""
         key = (id(vmap), int(version))
-        if self._key == key and self._target is not None:
+        if self._map is vmap and self._key == key and self._target is not None:
             return self._target
         pts = _crop(np.asarray(vmap.voxel_points(), dtype=np.float64)[:, :3], center, self.radius)
-        same_map = self._key is not None and self._key[0] == key[0] and self._target is not None
+        same_map = self._map is vmap and self._target is not None
         if same_map and self.refresh > 0 and self.voxel > 0:
             self.stale = self._changed_share(pts)
             if self.stale <= self.refresh:
                 self._key = key
                 return self._target
         self._target = _build(pts, self.neighbors, self.threads)
-        self._key, self.stale, self.builds = key, 0.0, self.builds + 1
+        self._key, self._map, self.stale, self.builds = key, vmap, 0.0, self.builds + 1
         if self.voxel > 0:
             self._keys, self._means = _keyed(pts, self.voxel)
         return self._target
