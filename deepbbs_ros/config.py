@@ -484,7 +484,8 @@ class OdometryConfig:
     gate_sigmas: float = 4.0
     # GICP against the map's voxel means with covariances fitted through their map neighbours (many sweeps: the
     # surface's plane) instead of the voxel map's mean of each scan's own covariances (on a sparse sensor a point's
-    # neighbours in its scan lie on one line and the plane through them points anywhere)
+    # neighbours in its scan lie on one line and the plane through them points anywhere), on every scan; off: on the
+    # scans line_share picks
     map_covariances: bool = False
     # with map_covariances off, a scan aligns against the map's planes all the same when more than this share of the
     # last fit_window scans' points have line-like neighbourhoods (narrower than a tenth of their length: a sparse

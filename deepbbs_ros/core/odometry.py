@@ -7,14 +7,16 @@
     prepare     crop, ``voxel_size / 2`` grid, covariances (small_gicp ``preprocess_points``)
     predict     constant velocity scaled to the stamp gap: T_map_k = T_map_{k-1} @ delta^(dt / period)
     align       VGICP of the scan against the local map (small_gicp ``GaussianVoxelMap``, ``voxel_size``
-                voxels, least-recently-used voxels dropped) from the prediction; the first motion, which has
-                none, from identity coarse to fine (core/first_motion.py); with ``odometry.map_covariances`` GICP
+                voxels, least-recently-used voxels dropped; core/local_map.py) from the prediction
+                (core/motion_model.py); the first motion, which has none, from identity coarse to fine
+                (core/first_motion.py); where the scans' own neighbourhoods are lines (``odometry.line_share``,
+                core/line_share.py: a sparse sensor's scan lines) or with ``odometry.map_covariances`` GICP
                 against the map's voxel means, covariances from their map neighbours (core/map_target.py)
     hold        along the directions the VGICP's Hessian cannot constrain (a corridor's axis, an open field's
                 plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
                 position is kept there (core/degeneracy.py)
-    check       fit = share of scan points with a map correspondence; on a fit drop, a stamp gap longer
-                than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
+    check       fit = share of scan points with a map correspondence (core/odometry_check.py); on a fit drop, a
+                stamp gap longer than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
                 motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
                 and the map alignment runs again from there, and from the prediction refined coarse to fine
                 against the previous scan; so does a step that deviates from the prediction by more than
