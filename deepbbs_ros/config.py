@@ -488,9 +488,9 @@ class OdometryConfig:
     # scans line_share picks
     map_covariances: bool = False
     # with map_covariances off, a scan aligns against the map's planes all the same when more than this share of the
-    # last fit_window scans' points have line-like neighbourhoods (narrower than a tenth of their length: a sparse
-    # sensor's scan lines, whose plane is undetermined; medians 0.12-0.29 a drive with a 16-beam sensor on a road,
-    # at most 0.05 with 32 beams and more); 1 = never
+    # points have line-like neighbourhoods (narrower than a tenth of their length: a sparse sensor's scan lines, whose
+    # plane is undetermined), measured every 4th scan and averaged over the last fit_window scans; medians 0.12-0.29 a
+    # drive with a 16-beam sensor on a road, at most 0.05 with 32 beams and more; 1 = never
     line_share: float = 0.1
     # map_covariances (or line_share): the map target (voxel means, their k-d tree and covariances) is rebuilt once more than this
     # share of the voxel means around the scan are new or moved by more than 5 % of a voxel since it was built;

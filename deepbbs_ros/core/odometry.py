@@ -49,7 +49,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
 from deepbbs_ros.core import first_motion as _first
-from deepbbs_ros.core.line_share import line_share
+from deepbbs_ros.core import line_share as _lines
 from deepbbs_ros.core.local_map import LocalMap
 from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_check import suspect
@@ -155,7 +155,7 @@ class DeepBBSOdometry:
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
         self._planes = False  # this scan aligns against the map's planes (map_covariances or line_share)
         self.plane_frames = 0  # frames aligned against the map's planes
-        self._shares: deque[float] = deque(maxlen=max(1, oc.fit_window))  # the last scans' line shares
+        self._shares: deque[float] = deque(maxlen=max(1, oc.fit_window // _lines.EVERY))  # the last line shares
         self._tree: Any = None  # the k-d tree of the last prepared scan
 
     # the local map's and the motion model's state, under the names callers use
@@ -265,14 +265,15 @@ class DeepBBSOdometry:
 
     def _map_planes(self, cloud: Any) -> bool:
         """Align against the map's planes: ``odometry.map_covariances``, or more than ``odometry.line_share`` of the
-        last ``odometry.fit_window`` scans' neighbourhoods are lines (core/line_share.py; one scan's share varies by
-        a third with the place)."""
+        scans' neighbourhoods are lines, measured on every ``EVERY``-th scan and averaged over the last
+        ``odometry.fit_window`` scans (core/line_share.py; one scan's share varies by a third with the place)."""
         oc = self.config.odometry
         if oc.map_covariances or oc.line_share >= 1:
             return oc.map_covariances
-        share = line_share(np.asarray(cloud.points()), self._tree, oc.neighbors, threads=self.threads)
-        if np.isfinite(share):
-            self._shares.append(share)
+        if self.frames % _lines.EVERY == 0 or not self._shares:
+            share = _lines.line_share(np.asarray(cloud.points()), self._tree, oc.neighbors, threads=self.threads)
+            if np.isfinite(share):
+                self._shares.append(share)
         return bool(self._shares and np.mean(self._shares) > oc.line_share)
 
     def _has_times(self, times: np.ndarray | None) -> bool:
