@@ -492,9 +492,9 @@ class OdometryConfig:
     # plane is undetermined), measured every 4th scan and averaged over the last fit_window scans; medians 0.12-0.29 a
     # drive with a 16-beam sensor on a road, at most 0.05 with 32 beams and more; 1 = never
     line_share: float = 0.1
-    # map_covariances (or line_share): the map target (voxel means, their k-d tree and covariances) is rebuilt once more than this
-    # share of the voxel means around the scan are new or moved by more than 5 % of a voxel since it was built;
-    # 0 = after every scan
+    # the map's planes (voxel means, their k-d tree and covariances) are rebuilt once more than this share of the
+    # voxel means within the scan's reach are new or moved by more than 5 % of a voxel since the last build; 0 = after
+    # every scan
     map_refresh: float = 0.2
 
     def validate(self) -> None:

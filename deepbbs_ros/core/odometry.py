@@ -16,8 +16,8 @@
                 plane: ``odometry.degenerate_ratio``) a slide beyond the gate (below) is undone: the prediction's
                 position is kept there (core/degeneracy.py)
     check       fit = share of scan points with a map correspondence (core/odometry_check.py); on a fit drop, a
-                stamp gap longer than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or the first
-                motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
+                stamp gap longer than ``odometry.gap_trust`` periods (shorter ones: only when the fit drops) or
+                the first motion DeepBBS++ registers the scan against the previous one (wide basin, no prior)
                 and the map alignment runs again from there, and from the prediction refined coarse to fine
                 against the previous scan; so does a step that deviates from the prediction by more than
                 ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's adaptive
