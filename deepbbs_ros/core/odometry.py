@@ -38,9 +38,7 @@ frame; ``T_{k-1}_k = inv(T_first_{k-1}) @ T_first_k``. Map, registration and vox
 
 from __future__ import annotations
 
-import time
 from collections import deque
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -53,65 +51,18 @@ from deepbbs_ros.core import line_share as _lines
 from deepbbs_ros.core.local_map import LocalMap
 from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_check import suspect
+from deepbbs_ros.core.odometry_step import Laps as _Laps
+from deepbbs_ros.core.odometry_step import OdometryStep
+from deepbbs_ros.core.odometry_step import cloud_points as _cloud_points
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
 from deepbbs_ros.errors import RegistrationError
-from deepbbs_ros.reprs import short_repr
 
 #: the gate's floor, in map voxels: a perfectly predictable drive's centimetres are no jump
 GATE_FLOOR = 0.1
 
 __all__ = ["DeepBBSOdometry", "OdometryStep", "deskew", "se3_power"]
-
-
-@dataclass
-class OdometryStep:
-    """One frame of :class:`DeepBBSOdometry`.
-
-    T_first_k: (4, 4) float64 pose of the scan (at its stamp) in the first scan's frame.
-    T_prev_k: (4, 4) float64 motion since the previous frame (``T_{k-1}_k``).
-    deepbbs: DeepBBS++ was consulted (why in ``reason``); won: its start was kept (its alignment fit better than the
-        prediction's, at the first motion the coarse-to-fine start's, by more than ``odometry.fit_margin``).
-    fit: share of the scan's points with a map correspondence (``odometry.max_corr_dist``) after alignment.
-    timings_ms: "deskew", "prepare", "align", "deepbbs" (only when consulted; at the first scan: its preprocessing
-        for the first motion's DeepBBS++), "total".
-    points: (M, 3) float64 the scan as it was registered (deskewed, cropped, on the ``voxel_size / 2`` grid),
-        sensor frame: what a caller needs to score the step (the node's covariance) without redoing it.
-    path: which path answered: "gicp" (GICP against the local map from the prediction, DeepBBS++ not consulted or
-        not kept), "deepbbs" or "search" (DeepBBS++'s answer kept: its deep passes, or its any-start search);
-        "" at the first scan.
-    covariance: (6, 6) float64 covariance of ``T_first_k`` against the local map (the map held fixed), from the
-        VGICP's Hessian and residuals at the pose (core/covariance.py: position error in the first scan's frame,
-        rotation error a left perturbation); None at the first scan or when the VGICP gives none.
-    degenerate: "" in a well-constrained place, else what the VGICP's Hessian says, e.g. "corridor-like, weak axis x
-        (ratio 2.1e-03)" (the scan's axes; core/degeneracy.py): along it the prediction's position was kept.
-    deviation: metres between the pose and the constant-velocity prediction; gate: the gate's limit then (inf while
-        it has too few steps or is off).
-    """
-
-    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
-
-    T_first_k: np.ndarray
-    T_prev_k: np.ndarray
-    deepbbs: bool = False
-    won: bool = False
-    reason: str = ""
-    fit: float = float("nan")
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    points: np.ndarray | None = None
-    path: str = ""
-    covariance: np.ndarray | None = None
-    degenerate: str = ""
-    deviation: float = float("nan")
-    gate: float = float("inf")
-
-
-def _cloud_points(cloud: Any) -> np.ndarray | None:
-    try:
-        return np.asarray(cloud.points(), dtype=np.float64)[:, :3]
-    except Exception:  # noqa: BLE001 - a cloud type without points(): the caller does without
-        return None
 
 
 class DeepBBSOdometry:
@@ -386,18 +337,3 @@ class DeepBBSOdometry:
         self._prev_pp = self._cur_pp if consulted else None
         self._cur_pp = None
         self._motion.prev_stamp = None if stamp_ns is None else int(stamp_ns)
-
-
-class _Laps:
-    def __init__(self) -> None:
-        self.t0 = self.t = time.perf_counter()
-        self.ms: dict[str, float] = {}
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        self.ms[name] = self.ms.get(name, 0.0) + (now - self.t) * 1e3
-        self.t = now
-
-    def done(self) -> dict[str, float]:
-        self.ms["total"] = (time.perf_counter() - self.t0) * 1e3
-        return self.ms
