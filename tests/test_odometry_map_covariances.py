@@ -9,18 +9,19 @@ import numpy as np
 import pytest
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.map_target import MapTarget
+from deepbbs_ros.core.line_share import line_share
+from deepbbs_ros.core.map_target import MapTarget, build_target
 from deepbbs_ros.core.odometry import DeepBBSOdometry
 
 STEP = 1.87  # m per scan along x (a car at 67 km/h, 10 Hz)
 VOXEL = 0.8  # m, the odometry's map voxel for an 80 m range
 
 
-def _road() -> list[tuple[np.ndarray, np.ndarray]]:
-    """Axis-aligned boxes: two walls along x at y = +-10 m and six 0.3 m posts 5-8 m beside the road."""
+def _road(wall: float = 10.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Axis-aligned boxes: two walls along x at y = +-``wall`` m and six 0.3 m posts 5-8 m beside the road."""
     rng = np.random.default_rng(0)
-    boxes = [(np.array([-200, 10, 0.0]), np.array([300, 11, 3.0])),
-             (np.array([-200, -11, 0.0]), np.array([300, -10, 3.0]))]
+    boxes = [(np.array([-200, wall, 0.0]), np.array([300, wall + 1, 3.0])),
+             (np.array([-200, -wall - 1, 0.0]), np.array([300, -wall, 3.0]))]
     for i in range(6):
         x0, y0 = -40 + i * 25 + rng.uniform(0, 2), (1 if i % 2 else -1) * rng.uniform(5, 8)
         boxes.append((np.array([x0, y0, 0.0]), np.array([x0 + 0.3, y0 + 0.3, 4.0])))
@@ -95,9 +96,67 @@ def test_map_covariances_recover_the_known_step(road, offset):
 def test_the_odometry_uses_the_map_target_and_rebuilds_it_after_each_scan():
     boxes, rng = _road(), np.random.default_rng(1)
     cfg = Config().replace(**{"odometry.threads": 1, "odometry.deepbbs_init": "never",
-                              "odometry.map_covariances": True})
+                              "odometry.map_covariances": True, "odometry.map_refresh": 0.0})
     odom = DeepBBSOdometry(cfg)
     for k in range(3):
         odom.register_frame(_ring_scan(k * STEP, boxes, rng))
     assert odom._map_version == 3 and odom._target._key == (id(odom._map), 2)  # built for the map before scan 2
     assert np.abs(odom.pose[1:3, 3]).max() < 0.1  # across the road and height: fixed by the walls and ground
+
+
+def _same_target(a, b) -> None:
+    np.testing.assert_array_equal(a[0].points(), b[0].points())
+    np.testing.assert_array_equal(np.asarray(a[0].covs()), np.asarray(b[0].covs()))
+
+
+def test_the_map_target_is_rebuilt_once_enough_of_the_map_changed_and_then_equals_a_full_rebuild():
+    """The target is reused while at most ``refresh`` of the voxel means around the scan are new or moved; the scan
+    that crosses it gets a target identical to a full rebuild of the map as it is then."""
+    import small_gicp
+
+    boxes, rng = _road(), np.random.default_rng(2)
+    vmap = small_gicp.GaussianVoxelMap(VOXEL)
+    target = MapTarget(20, 1, 60.0, VOXEL, refresh=0.2)
+    shares, rebuilt = [], []
+    for k in range(8):
+        cloud, _ = small_gicp.preprocess_points(_ring_scan(k * STEP, boxes, rng), VOXEL / 2, 20)
+        T = np.eye(4)
+        T[0, 3] = k * STEP
+        vmap.insert(cloud, T)
+        before = target.builds
+        got = target.get(vmap, k, T[:3, 3])
+        shares.append(target.stale)
+        rebuilt.append(target.builds > before)
+        if rebuilt[-1]:  # a rebuild is the full rebuild of the map now
+            _same_target(got, build_target(vmap, 20, 1, T[:3, 3], 60.0))
+    assert rebuilt[0] and 2 <= sum(rebuilt) < len(rebuilt), rebuilt  # reused in between, not after every scan
+    assert max(shares) <= 0.2 and all(s == 0.0 for s, r in zip(shares, rebuilt) if r), shares
+    n, stale = target.builds, target.stale  # the same map again: the same share, the same target
+    assert target.get(vmap, 99, T[:3, 3]) is got and target.builds == n and target.stale == stale
+    other = small_gicp.GaussianVoxelMap(VOXEL)
+    other.insert(cloud, T)
+    n = target.builds
+    target.get(other, 0, T[:3, 3])
+    assert target.builds == n + 1
+
+
+def _dense_scan(x: float, boxes, rng) -> np.ndarray:
+    return _ring_scan(x, boxes, rng, beams=128)
+
+
+@pytest.mark.parametrize(("scan", "line_like"), [(_ring_scan, True), (_dense_scan, False)])
+def test_line_share_tells_ring_bound_neighbourhoods(scan, line_like):
+    """On a wide road (walls 30 m away) a 16-beam scan's neighbourhoods (on the odometry's grid) lie on its rings:
+    lines, their plane undetermined (measured share 0.28); 128 beams over the same field give planes (0.07). The
+    odometry aligns the first against the map's planes, the second against its voxel map."""
+    import small_gicp
+
+    boxes, rng = _road(wall=30.0), np.random.default_rng(3)
+    cloud, tree = small_gicp.preprocess_points(scan(0.0, boxes, rng), VOXEL / 2, 20)
+    share = line_share(np.asarray(cloud.points()), tree, 20)
+    assert (share > 0.2) if line_like else (share < 0.1), share
+    odom = DeepBBSOdometry(Config().replace(**{"odometry.threads": 1, "odometry.deepbbs_init": "never",
+                                               "odometry.voxel_size": VOXEL}))
+    for k in range(3):
+        odom.register_frame(scan(k * STEP, boxes, rng))
+    assert odom.plane_frames == (2 if line_like else 0)

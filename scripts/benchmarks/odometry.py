@@ -15,6 +15,7 @@ recording (any folder or bag deepbbs-replay reads) and, per sensor family, simul
     python scripts/benchmarks/odometry.py --frames 0 --real PATH/TO/livox_avia_loop PATH/TO/nuscenes_hdl32 \
         --rigs corridor:vlp16:wheeled,garage:avia:handheld,hall:os0_64:legged,courtyard:mid360:handheld
     python scripts/benchmarks/odometry.py --frames 300 --variants clean -- --device cuda   # after --: deepbbs-replay
+    python scripts/benchmarks/odometry.py --timing --seed 7 --rig-frames 40 --rigs highway:vlp16:car   # ms per scan
 
 Extra arguments after ``--`` go to every deepbbs-replay run.
 """
@@ -122,6 +123,47 @@ def replay_run(source: Path, out: Path, methods: str, extra: list[str]) -> dict 
     return json.loads(path.read_text()) if path.exists() else None
 
 
+#: --timing: the odometry's variants, timed against KISS-ICP on the same scans
+TIMED = {"voxel map alone": {"odometry.line_share": 1.0}, "default": {},
+         "map's planes rebuilt every scan": {"odometry.map_covariances": True, "odometry.map_refresh": 0.0}}
+
+
+def cpu_timing(source: Path, repeats: int = 3) -> dict:
+    """Processor ms per scan (one thread, DeepBBS++ off: every variant runs the same stages), the median over the drive
+    and the least of ``repeats`` runs, of each ``TIMED`` variant and KISS-ICP (``eval.threads`` 1) on the same scans in
+    one process; with each one's ratio to KISS-ICP's."""
+    import time
+
+    import numpy as np
+
+    from deepbbs_ros.baselines import KissICPOdometry
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.odometry import DeepBBSOdometry
+    from deepbbs_ros.datasets import open_source
+
+    scans = list(open_source(source))
+    runs: dict[str, list[float]] = {}
+    for _ in range(repeats):
+        for name, over in TIMED.items():
+            odo = DeepBBSOdometry(Config().replace(**{"odometry.threads": 1, "odometry.deepbbs_init": "never", **over}))
+            step = lambda sc, o=odo: o.register_frame(sc.points, sc.point_times(), sc.stamp_ns)  # noqa: E731
+            runs.setdefault(name, []).append(_median_ms(scans, step, time.process_time, np))
+        kiss = KissICPOdometry(Config().replace(**{"eval.threads": 1}))
+        step = lambda sc, k=kiss: k.register(sc.points, sc.point_times())  # noqa: E731
+        runs.setdefault("kiss-icp", []).append(_median_ms(scans, step, time.process_time, np))
+    best = {k: min(v) for k, v in runs.items()}
+    return {k: {"ms": v, "x_kiss_icp": v / best["kiss-icp"]} for k, v in best.items()}
+
+
+def _median_ms(scans, step, clock, np) -> float:
+    ms = []
+    for sc in scans:
+        t0 = clock()
+        step(sc)
+        ms.append((clock() - t0) * 1e3)
+    return float(np.median(ms[2:]))  # the first motion aside
+
+
 def summary(doc: dict) -> dict:
     M = doc["methods"]
     kiss = (M.get("kiss-icp") or {}).get("fps")
@@ -179,7 +221,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cache", default=None, help="cache root for simulated drives")
     p.add_argument("--out", default="results/benchmarks", help="folder for odometry.json, odometry.png, odometry/")
     p.add_argument("--config", default=None, help="config YAML passed to deepbbs-replay")
+    p.add_argument("--timing", action="store_true",
+                   help="instead of the runs: processor ms per scan of the odometry's variants and KISS-ICP on each "
+                        "--kitti, --real and --rigs recording (one thread, least of 3 runs)")
     args = p.parse_args(argv)
+    if args.timing:
+        sources = [Path(x) for x in args.kitti + args.real]
+        sources += [ensure_rig(args, r) for r in args.rigs.split(",") if r]
+        timing = {}
+        for src in sources:
+            timing[src.name] = t = cpu_timing(src)
+            print(f"{src.name}: " + " | ".join(f"{k} {v['ms']:.1f} ms (x{v['x_kiss_icp']:.2f})" for k, v in t.items()))
+        _common.write_json(Path(args.out), "odometry_timing.json", {"timing": timing})
+        return 0
 
     out = Path(args.out)
     extra = (["--config", args.config] if args.config else []) + passthrough
