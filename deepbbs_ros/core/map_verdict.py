@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import calibrated, visibility
+from deepbbs_ros.core.polish import PolishView
 from deepbbs_ros.errors import VerdictModelError
 
 DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "map_verdict_model.json"
@@ -46,17 +47,69 @@ def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: flo
     """The features (:func:`names`) of ``points`` (N, 3) (scan frame) under ``T_place_scan`` (4, 4) against a crop's
     GICP cloud ``cloud`` (a ``core.polish.PolishCloud`` or view, in the place's frame; its k-d tree) with the
     verdict's distance ``dist`` (m) -> (len(names()),) float64."""
-    vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads)
     pts = np.asarray(points, np.float64)
-    if len(pts) == 0:
-        return np.r_[vis, 0.0, 0.0]
     T = np.asarray(T_place_scan, np.float64)
     moved = pts @ T[:3, :3].T + T[:3, 3]
-    _, sq = cloud.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    if isinstance(cloud, PolishView) and len(pts) and len(cloud.local):
+        vis, sq = _view_features(moved, cloud, dist, threads)
+    else:
+        vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads)
+        if len(pts) == 0:
+            return np.r_[vis, 0.0, 0.0]
+        _, sq = cloud.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
     sq = np.asarray(sq, np.float64)
     covered = int(np.sum(sq <= COVER_DIST ** 2))
     close = int(np.sum(sq <= dist * dist))
     return np.r_[vis, covered / len(pts), close / covered if covered else 0.0]
+
+
+def _base_arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(points (M, 3), unit normals (M, 3)) float32 of a map's whole GICP cloud (the base of its crops' views, its
+    frame), read once per map (the last map's kept: a node holds one)."""
+    hit = _BASE.get("cloud")
+    if hit is not cloud:
+        _BASE.clear()
+        _BASE.update(cloud=cloud, arrays=(np.asarray(cloud.points())[:, :3].astype(np.float32),
+                                          np.asarray(cloud.normals())[:, :3].astype(np.float32)))
+    return _BASE["arrays"]
+
+
+_BASE: dict[str, Any] = {}
+
+
+def _view_target(view: PolishView, dist: float) -> tuple:
+    """A crop view's visibility target, kept on the view: (its direction cells (core/visibility.py
+    ``directions``), self planarity, ``plane_own``'s tolerance), the last two from an even subset of the crop's points
+    against their nearest other map point's tangent plane (visibility's ``self_residuals`` on the map's cloud)."""
+    kept = getattr(view, "_map_verdict", None)
+    if kept is not None and kept[0] == dist:
+        return kept[1]
+    local = np.asarray(view.local, np.float64)
+    P, N = _base_arrays(view.cloud)
+    R, t = view.tree.R, view.tree.t
+    sub = local[:: max(1, len(local) // visibility._SELF_POINTS)] @ R.T + t
+    idx, sq = view.tree.base.batch_knn_search(sub, 2, num_threads=1)
+    j, sq = np.asarray(idx, np.int64)[:, 1], np.asarray(sq, np.float64)[:, 1]
+    ok = (sq <= dist * dist) & (j >= 0) & (j < len(P))
+    res = np.abs(np.einsum("ij,ij->i", sub[ok] - P[j[ok]], N[j[ok]]))
+    out = (visibility.directions(local), float(np.mean(res <= 0.2 * dist)) if len(res) else 1.0,
+           visibility.own_tolerance(res, dist))
+    view._map_verdict = (dist, out)
+    return out
+
+
+def _view_features(moved: np.ndarray, view: PolishView, dist: float, threads: int) -> tuple[np.ndarray, np.ndarray]:
+    """core/visibility.py's features of ``moved`` (N, 3) (the place's frame) against a crop that is a view of the
+    map's GICP cloud, with the map's tangent planes and normals (the view's own cloud is the whole map's: its normals
+    do not line up with the crop's points) -> (features, squared distances (N,))."""
+    table, own, tol = _view_target(view, dist)
+    P, N = _base_arrays(view.cloud)
+    R, t = view.tree.R, view.tree.t
+    at = moved @ R.T + t  # the map's frame
+    idx, sq = view.tree.base.batch_nearest_neighbor_search(at, num_threads=max(1, threads))
+    idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
+    plane = np.einsum("ij,ij->i", at - P[idx], N[idx])
+    return visibility.features(moved, sq, table, dist, plane, own, tol, N[idx].astype(np.float64) @ R), sq
 
 
 def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, threads: int = 1) -> np.ndarray:
