@@ -7,7 +7,8 @@ scores poses with known truth of the scans in between (most degraded like real o
 scan only, the carrier's body; ``scripts/calibrate_verdict.py``'s :func:`degrade`):
 
 * GICP on the nearest place's crop from the truth moved a little (right, mostly) and far (GICP's local minima);
-* the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one);
+* the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one), and slid 0.6-1.5 m along the
+  direction its fit pins least (along a wall, a corridor, a road: it fits as tightly as the right one);
 * the search's own answers: GICP from the descriptor's start on the places the ranking puts first (the right place,
   and look-alike places: wrong);
 * scans from outside the map (another rig's): the same search, every answer wrong;
@@ -59,6 +60,7 @@ MAP_EVERY = 3
 MAP_RANGE = 50.0  # m, a map scan's points kept this close
 QUERIES = 6  # scans in between the map's per rig
 FEATURES_USED = map_verdict.names()  # the model's inputs (every feature)
+_RC = Config().registration
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -87,6 +89,25 @@ def _searched(loc: MapLocalizer, prep, places: int = 3) -> list[tuple[np.ndarray
         pol = polish(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(), T_init, rc)
         out.append((crop.T_map_place @ (pol.T_target_source if pol.applied else T_init), crop))
     return out
+
+
+def _weakest(prep, crop, T_map_scan: np.ndarray, dist: float) -> np.ndarray:
+    """(3,) the unit direction (map axes) along which the scan's points that fit the crop's planes at ``T_map_scan``
+    pin its position least (the smallest eigenvector of ``mean(n n^T)`` over their matches' normals: along a wall,
+    a corridor, a road with few cross features)."""
+    from deepbbs_ros.core.registration import good_start_points
+
+    spc, tpc = prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete()
+    pts = good_start_points(spc, _RC)
+    T = np.linalg.inv(crop.T_map_place) @ T_map_scan
+    moved = _moved(pts, T)
+    P, N = map_verdict._base_arrays(tpc.cloud)
+    at = moved @ tpc.tree.R.T + tpc.tree.t
+    idx, sq = tpc.tree.base.batch_nearest_neighbor_search(at, num_threads=1)
+    n = N[np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist]].astype(np.float64) @ tpc.tree.R
+    if len(n) < 6:
+        return np.array([1.0, 0.0, 0.0])
+    return np.linalg.eigh(n.T @ n / len(n))[1][:, 0]
 
 
 def _nearest_crop(loc: MapLocalizer, T: np.ndarray):
@@ -141,6 +162,10 @@ def collect(rigs, seed: int, log=print) -> dict[str, np.ndarray]:
                     add(ri, kind, loc, prep, crop.T_map_place @ pol.T_target_source, crop, T_gt)
             add(ri, "moved", loc, prep, T_gt @ perturb(rng, (2, 15), (0.5, 3.0)), crop, T_gt)
             add(ri, "moved", loc, prep, T_gt @ perturb(rng, (0, 2), (0.6, 1.5)), crop, T_gt)
+            T_slid = T_gt.copy()  # slid along the direction the scan's fit pins least (a wall, a corridor, a road)
+            T_slid[:3, 3] += (rng.choice([-1.0, 1.0]) * rng.uniform(0.6, 1.5)
+                              * _weakest(prep, crop, T_gt, rc.verdict_dist))
+            add(ri, "slid", loc, prep, T_slid, crop, T_gt)
             for T, c in _searched(loc, prep):
                 add(ri, "search", loc, prep, T, c, T_gt)
         for pts in outside[:3]:  # scans from elsewhere: every answer is wrong

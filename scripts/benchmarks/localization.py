@@ -875,7 +875,7 @@ def plot(fig: dict, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"],
+    p.add_argument("--scenes", nargs="*", default=["urban", "suburban", "highway", "open_road"],
                    help="simulated scene types, one 1 km map each")
     p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders (velodyne/, poses.txt, "
                    "calib.txt) pooled into the real map, e.g. PATH/TO/kitti/00 PATH/TO/kitti/02")
