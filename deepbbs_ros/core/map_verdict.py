@@ -3,12 +3,15 @@
 A map crop is dense, complete and seen from many origins, and a map may cover only part of what a scan sees (a
 few metres of road seen from its end): the scan-to-scan verdict's probability (core/calibrated.py) means something
 else there. This one is fitted on simulated map localizations (``scripts/calibrate_map_verdict.py``: right answers,
-the search's own wrong answers at look-alike places, poses moved beyond 2 degrees / 0.5 m, scans from outside the
-map; every road scene and indoor place, several sensors and mounts).
+the search's own wrong answers at look-alike places, poses moved beyond 2 degrees / 0.5 m, poses slid along the
+direction their fit pins least, scans from outside the map; every road scene and indoor place, several sensors and
+mounts).
 
-Its features (:data:`NAMES`) are those of core/visibility.py (:data:`~deepbbs_ros.core.visibility.FEATURES`) for a
-spread subset of the scan's GICP voxels (``registration.good_start_points``) against the crop's GICP cloud (its
-origin at the place, the crop's sensor), and two of this module's, normalised by what the map covers of the scan:
+Its features (:func:`names`) are those of core/visibility.py (:data:`~deepbbs_ros.core.visibility.FEATURES`, among
+them ``pinned``: how well the fit pins all six degrees of freedom) for a spread subset of the scan's GICP voxels
+(``registration.good_start_points``) against the crop's GICP cloud (its origin at the place, the crop's sensor; a
+crop that is a view of the map's cloud is judged with the map's normals and tangent planes), and two of this
+module's, normalised by what the map covers of the scan:
 
 * ``covered``: the share of those points within :data:`COVER_DIST` m of the map;
 * ``sharp``: among the covered, the share within ``registration.verdict_dist`` (a right pose fits closely wherever
