@@ -129,7 +129,7 @@ def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndar
         y, r, t = label(T, T_gt) if T_gt is not None else (0, float("nan"), float("nan"))
         if y < 0:
             return
-        x = map_verdict.answer_features(prep.pre, crop, T, cfg)
+        x = map_verdict.answer_features(prep.pre, crop, T, cfg, map_normals=True)
         for k, v in (("x", x), ("y", y), ("rot", r), ("trans", t), ("rig", ri), ("kind", kind)):
             out[k].append(v)
 
@@ -236,12 +236,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{p[m & (y == 0)].max() if (m & (y == 0)).any() else float('nan'):.3f}")
     print("reliability (fitted rows):")
     print("\n".join(reliability(p, y)))
-    doc = {"features": list(FEATURES_USED), "transform": calibrated.TRANSFORM,
+    doc = {"features": list(FEATURES_USED), "transform": calibrated.TRANSFORM, "map_normals": True,
            "coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6),
            "fitted_on": f"{len(y)} simulated poses in maps, {len(RIGS)} rigs (sensor/mount/place), seed {args.seed}",
            "command": "python scripts/calibrate_map_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
     map_verdict.load.cache_clear()
+    map_verdict.uses_map_normals.cache_clear()
     print(f"wrote {args.out}")
     return 0
 

@@ -46,14 +46,19 @@ def names() -> tuple[str, ...]:
     return (*visibility.FEATURES, *EXTRA)
 
 
-def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: float, threads: int = 1) -> np.ndarray:
+def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: float, threads: int = 1,
+             map_normals: bool | None = None) -> np.ndarray:
     """The features (:func:`names`) of ``points`` (N, 3) (scan frame) under ``T_place_scan`` (4, 4) against a crop's
     GICP cloud ``cloud`` (a ``core.polish.PolishCloud`` or view, in the place's frame; its k-d tree) with the
-    verdict's distance ``dist`` (m) -> (len(names()),) float64."""
+    verdict's distance ``dist`` (m) -> (len(names()),) float64. ``map_normals``: a view is judged with the map's
+    normals (else as a cloud without normals: the plane shares are ``fitness_close``'s, ``pinned`` 1); None: as the
+    shipped coefficients were fitted (:func:`uses_map_normals`)."""
     pts = np.asarray(points, np.float64)
     T = np.asarray(T_place_scan, np.float64)
     moved = pts @ T[:3, :3].T + T[:3, 3]
-    if isinstance(cloud, PolishView) and len(pts) and len(cloud.local):
+    if map_normals is None:
+        map_normals = uses_map_normals()
+    if map_normals and isinstance(cloud, PolishView) and len(pts) and len(cloud.local):
         vis, sq = _view_features(moved, cloud, dist, threads)
     else:
         vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads)
@@ -115,7 +120,8 @@ def _view_features(moved: np.ndarray, view: PolishView, dist: float, threads: in
     return visibility.features(moved, sq, table, dist, plane, own, tol, N[idx].astype(np.float64) @ R), sq
 
 
-def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, threads: int = 1) -> np.ndarray:
+def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, threads: int = 1,
+                    map_normals: bool | None = None) -> np.ndarray:
     """:func:`features` of a localization answer: the scan's PreprocessResult ``src`` at ``T_map_scan`` (4, 4) on a
     map crop (``_Crop``: ``T_map_place`` and its PreprocessResult); the scan's points are a spread subset of its GICP
     voxels (``registration.good_start_points``). -> an all-zero row when either has no GICP cloud."""
@@ -127,7 +133,7 @@ def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, th
     spc, tpc = spc.complete(threads=threads), tpc.complete(threads=threads)
     rc = config.registration
     T = np.linalg.inv(crop.T_map_place) @ np.asarray(T_map_scan, np.float64)
-    return features(good_start_points(spc, rc), T, tpc, rc.verdict_dist, threads)
+    return features(good_start_points(spc, rc), T, tpc, rc.verdict_dist, threads, map_normals)
 
 
 @functools.lru_cache(maxsize=4)
@@ -150,6 +156,15 @@ def load(path: str | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         return cols, coef, float(doc["intercept"])
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise VerdictModelError(f"map verdict {p}: {e} (refit: python scripts/calibrate_map_verdict.py)") from None
+
+
+@functools.lru_cache(maxsize=4)
+def uses_map_normals(path: str | None = None) -> bool:
+    """The coefficients at ``path`` (the shipped file when None) were fitted on features of crop views with the map's
+    normals (``"map_normals": true``; :func:`features`)."""
+    load(path)  # a damaged file: VerdictModelError
+    p = Path(path) if path else DEFAULT_PATH
+    return bool(json.loads(p.read_text()).get("map_normals", False))
 
 
 def probability(rows: np.ndarray, path: str | None = None) -> np.ndarray | float:
