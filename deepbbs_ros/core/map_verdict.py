@@ -3,15 +3,15 @@
 A map crop is dense, complete and seen from many origins, and a map may cover only part of what a scan sees (a
 few metres of road seen from its end): the scan-to-scan verdict's probability (core/calibrated.py) means something
 else there. This one is fitted on simulated map localizations (``scripts/calibrate_map_verdict.py``: right answers,
-the search's own wrong answers at look-alike places, poses moved beyond 2 degrees / 0.5 m, poses slid along the
-direction their fit pins least, scans from outside the map; every road scene and indoor place, several sensors and
+the search's own wrong answers at look-alike places, poses moved beyond 2 degrees / 0.5 m (optionally slid along the
+direction their fit pins least), scans from outside the map; every road scene and indoor place, several sensors and
 mounts).
 
 Its features (:func:`names`) are those of core/visibility.py (:data:`~deepbbs_ros.core.visibility.FEATURES`, among
 them ``pinned``: how well the fit pins all six degrees of freedom) for a spread subset of the scan's GICP voxels
 (``registration.good_start_points``) against the crop's GICP cloud (its origin at the place, the crop's sensor; a
-crop that is a view of the map's cloud is judged with the map's normals and tangent planes), and two of this
-module's, normalised by what the map covers of the scan:
+crop that is a view of the map's cloud is judged with the map's normals and tangent planes when the coefficients were
+fitted so, :func:`uses_map_normals`), and two of this module's, normalised by what the map covers of the scan:
 
 * ``covered``: the share of those points within :data:`COVER_DIST` m of the map;
 * ``sharp``: among the covered, the share within ``registration.verdict_dist`` (a right pose fits closely wherever
@@ -74,15 +74,16 @@ def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: flo
 def _base_arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
     """(points (M, 3), unit normals (M, 3)) float32 of a map's whole GICP cloud (the base of its crops' views, its
     frame), read once per map (the last map's kept: a node holds one)."""
-    hit = _BASE.get("cloud")
-    if hit is not cloud:
-        _BASE.clear()
-        _BASE.update(cloud=cloud, arrays=(np.asarray(cloud.points())[:, :3].astype(np.float32),
-                                          np.asarray(cloud.normals())[:, :3].astype(np.float32)))
-    return _BASE["arrays"]
+    global _BASE
+    kept = _BASE  # one assignment below: a thread beside this one sees the old pair or the new one
+    if kept[0] is not cloud:
+        kept = (cloud, (np.asarray(cloud.points())[:, :3].astype(np.float32),
+                        np.asarray(cloud.normals())[:, :3].astype(np.float32)))
+        _BASE = kept
+    return kept[1]
 
 
-_BASE: dict[str, Any] = {}
+_BASE: tuple[Any, Any] = (None, None)  # (the map's GICP cloud, its points and normals)
 
 
 def _view_target(view: PolishView, dist: float) -> tuple:
