@@ -7,7 +7,8 @@ scores poses with known truth of the scans in between (most degraded like real o
 scan only, the carrier's body; ``scripts/calibrate_verdict.py``'s :func:`degrade`):
 
 * GICP on the nearest place's crop from the truth moved a little (right, mostly) and far (GICP's local minima);
-* the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one);
+* the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one); with ``--slid``, also slid 0.6-1.5 m
+  along the direction its fit pins least (along a wall, a corridor, a road: it fits as tightly as the right one);
 * the search's own answers: GICP from the descriptor's start on the places the ranking puts first (the right place,
   and look-alike places: wrong);
 * scans from outside the map (another rig's): the same search, every answer wrong;
@@ -59,6 +60,7 @@ MAP_EVERY = 3
 MAP_RANGE = 50.0  # m, a map scan's points kept this close
 QUERIES = 6  # scans in between the map's per rig
 FEATURES_USED = map_verdict.names()  # the model's inputs (every feature)
+_RC = Config().registration
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -89,13 +91,33 @@ def _searched(loc: MapLocalizer, prep, places: int = 3) -> list[tuple[np.ndarray
     return out
 
 
+def _weakest(prep, crop, T_map_scan: np.ndarray, dist: float) -> np.ndarray:
+    """(3,) the unit direction (map axes) along which the scan's points that fit the crop's planes at ``T_map_scan``
+    pin its position least (the smallest eigenvector of ``mean(n n^T)`` over their matches' normals: along a wall,
+    a corridor, a road with few cross features)."""
+    from deepbbs_ros.core.registration import good_start_points
+
+    spc, tpc = prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete()
+    pts = good_start_points(spc, _RC)
+    T = np.linalg.inv(crop.T_map_place) @ T_map_scan
+    moved = _moved(pts, T)
+    P, N = map_verdict._base_arrays(tpc.cloud)
+    at = moved @ tpc.tree.R.T + tpc.tree.t
+    idx, sq = tpc.tree.base.batch_nearest_neighbor_search(at, num_threads=1)
+    n = N[np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist]].astype(np.float64) @ tpc.tree.R
+    if len(n) < 6:
+        return np.array([1.0, 0.0, 0.0])
+    return np.linalg.eigh(n.T @ n / len(n))[1][:, 0]
+
+
 def _nearest_crop(loc: MapLocalizer, T: np.ndarray):
     d = np.linalg.norm(loc.places[:, :2, 3] - T[:2, 3], axis=1)
     return loc._crop(int(np.argmin(d)))
 
 
-def collect(rigs, seed: int, log=print) -> dict[str, np.ndarray]:
-    """Feature rows of poses in simulated maps (see the module): {"x", "y", "rot", "trans", "rig", "kind"}."""
+def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndarray]:
+    """Feature rows of poses in simulated maps (see the module; ``slid``: with the slid poses) -> {"x", "y", "rot",
+    "trans", "rig", "kind"}."""
     cfg = Config()
     reg = DeepBBSRegistration(cfg)
     rc = cfg.registration
@@ -107,7 +129,7 @@ def collect(rigs, seed: int, log=print) -> dict[str, np.ndarray]:
         y, r, t = label(T, T_gt) if T_gt is not None else (0, float("nan"), float("nan"))
         if y < 0:
             return
-        x = map_verdict.answer_features(prep.pre, crop, T, cfg)
+        x = map_verdict.answer_features(prep.pre, crop, T, cfg, map_normals=True)
         for k, v in (("x", x), ("y", y), ("rot", r), ("trans", t), ("rig", ri), ("kind", kind)):
             out[k].append(v)
 
@@ -141,6 +163,11 @@ def collect(rigs, seed: int, log=print) -> dict[str, np.ndarray]:
                     add(ri, kind, loc, prep, crop.T_map_place @ pol.T_target_source, crop, T_gt)
             add(ri, "moved", loc, prep, T_gt @ perturb(rng, (2, 15), (0.5, 3.0)), crop, T_gt)
             add(ri, "moved", loc, prep, T_gt @ perturb(rng, (0, 2), (0.6, 1.5)), crop, T_gt)
+            if slid:  # slid along the direction the scan's fit pins least (a wall, a corridor, a road)
+                T_slid = T_gt.copy()
+                T_slid[:3, 3] += (rng.choice([-1.0, 1.0]) * rng.uniform(0.6, 1.5)
+                                  * _weakest(prep, crop, T_gt, rc.verdict_dist))
+                add(ri, "slid", loc, prep, T_slid, crop, T_gt)
             for T, c in _searched(loc, prep):
                 add(ri, "search", loc, prep, T, c, T_gt)
         for pts in outside[:3]:  # scans from elsewhere: every answer is wrong
@@ -188,9 +215,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--rigs", type=int, default=len(RIGS), help="the first this many rigs only (a quick try)")
     ap.add_argument("--rows", type=Path, help="refit from rows written by --dump (no simulation)")
+    ap.add_argument("--slid", action="store_true", help="also poses slid along their weakest direction (wrong); the "
+                    "shipped fit is without them (with them, right poses on straight highways are rejected)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    data = dict(np.load(args.rows, allow_pickle=False)) if args.rows else collect(RIGS[:args.rigs], args.seed)
+    data = dict(np.load(args.rows, allow_pickle=False)) if args.rows else collect(RIGS[:args.rigs], args.seed,
+                                                                                         slid=args.slid)
     if args.dump:
         np.savez(args.dump, **data)
     cols = [map_verdict.names().index(n) for n in FEATURES_USED]
@@ -206,12 +236,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{p[m & (y == 0)].max() if (m & (y == 0)).any() else float('nan'):.3f}")
     print("reliability (fitted rows):")
     print("\n".join(reliability(p, y)))
-    doc = {"features": list(FEATURES_USED), "transform": calibrated.TRANSFORM,
+    doc = {"features": list(FEATURES_USED), "transform": calibrated.TRANSFORM, "map_normals": True,
            "coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6),
            "fitted_on": f"{len(y)} simulated poses in maps, {len(RIGS)} rigs (sensor/mount/place), seed {args.seed}",
            "command": "python scripts/calibrate_map_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
     map_verdict.load.cache_clear()
+    map_verdict.uses_map_normals.cache_clear()
     print(f"wrote {args.out}")
     return 0
 

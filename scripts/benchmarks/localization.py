@@ -316,6 +316,25 @@ def real_map(args) -> MapData | None:
     return MapData("real", voxel_down(np.concatenate(pts), args.map_voxel), np.array(traj), queries)
 
 
+def livox_map(args) -> MapData | None:
+    """A map of a handheld recording's every other keyframe at its pose (``--livox``: a KITTI-layout folder, read
+    from it, never copied), its other keyframes, every ``--livox-every``-th, as queries ("livox-odd")."""
+    from deepbbs_ros.datasets import open_source
+
+    if not args.livox:
+        return None
+    pts, traj, queries = [], [], []
+    for i, s in enumerate(open_source(args.livox)):
+        p, T = np.asarray(s.points, np.float32), np.asarray(s.T_world_lidar, np.float64)
+        if i % 2 == 0:
+            r = np.linalg.norm(p, axis=1)
+            pts.append(transform(p[(r > 1.0) & (r < args.map_range)], T))
+            traj.append(T)
+        elif (i // 2) % args.livox_every == 0:
+            queries.append(Query(p, T, "livox", "livox-odd"))
+    return MapData("livox", voxel_down(np.concatenate(pts), args.map_voxel), np.array(traj), queries)
+
+
 # ---- methods -----------------------------------------------------------------------------------------------------
 @dataclass
 class Answer:
@@ -856,13 +875,17 @@ def plot(fig: dict, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=["urban", "suburban", "highway", "open_road"],
+    p.add_argument("--scenes", nargs="*", default=["urban", "suburban", "highway", "open_road"],
                    help="simulated scene types, one 1 km map each")
     p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry sequence folders (velodyne/, poses.txt, "
                    "calib.txt) pooled into the real map, e.g. PATH/TO/kitti/00 PATH/TO/kitti/02")
     p.add_argument("--kitti-scans", type=int, default=10, help="the first scans of each KITTI sequence")
     p.add_argument("--pair", default=None, help="optional folder with a real pair: two .pcd files (target, source in "
                    "name order) and relative.txt (T_target_source); the target goes into the real map")
+    p.add_argument("--livox", default=None, help="optional KITTI-layout folder of a handheld recording's keyframes: a "
+                   "map of every other one at its pose, the others localized in it (a map of its own)")
+    p.add_argument("--livox-every", type=int, default=8, help="with --livox: every n-th of the other keyframes is "
+                   "a query")
     p.add_argument("--out", default="results/benchmarks", help="folder for localization.json")
     p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the generated maps and queries")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma list of {','.join(METHODS)}")
@@ -926,6 +949,9 @@ def main(argv: list[str] | None = None) -> int:
     real = real_map(args)
     if real is not None:
         maps["real"] = real
+    livox = livox_map(args)
+    if livox is not None:
+        maps["livox"] = livox
     t_gen = time.perf_counter() - t_start
     print(f"data ready in {t_gen:.0f} s: " + ", ".join(f"{k} {len(v.points)} pts / {len(v.queries)} queries"
                                                       for k, v in maps.items()))
