@@ -52,7 +52,7 @@ from deepbbs_ros.core.local_map import LocalMap
 from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_check import suspect
 from deepbbs_ros.core.odometry_step import Laps as _Laps
-from deepbbs_ros.core.odometry_step import OdometryStep
+from deepbbs_ros.core.odometry_step import OdometryStep, floor_covariance
 from deepbbs_ros.core.odometry_step import cloud_points as _cloud_points
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.polish import threads_or_all
@@ -186,7 +186,7 @@ class DeepBBSOdometry:
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
-                            path, cov, deg.label, dev, limit)
+                            path, cov, deg.label, dev, limit, floor_covariance(floor, pose, cov))
 
     # -- stages ------------------------------------------------------------------------------------
     def _other_starts(self, frame: np.ndarray, cloud: Any, prior: np.ndarray, pose: np.ndarray, fit: float,

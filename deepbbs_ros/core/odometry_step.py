@@ -10,7 +10,7 @@ import numpy as np
 
 from deepbbs_ros.reprs import short_repr
 
-__all__ = ["Laps", "OdometryStep", "cloud_points"]
+__all__ = ["Laps", "OdometryStep", "cloud_points", "floor_covariance"]
 
 
 @dataclass
@@ -36,6 +36,10 @@ class OdometryStep:
         (ratio 2.1e-03)" (the scan's axes; core/degeneracy.py): along it the prediction's position was kept.
     deviation: metres between the pose and the constant-velocity prediction; gate: the gate's limit then (inf while
         it has too few steps or is off).
+    covariance_floor: (6, 6) float64 the part of ``covariance`` that is the sweep's model error (core/covariance.py
+        ``MotionFloor``: this scan's own error, which the next step undoes), in the same frame; the rest is the
+        GICP's and accumulates along the chain. None when ``covariance`` is None or has no such part (the first
+        motion: the voxel map's quantisation).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -53,6 +57,17 @@ class OdometryStep:
     degenerate: str = ""
     deviation: float = float("nan")
     gate: float = float("inf")
+    covariance_floor: np.ndarray | None = None
+
+
+def floor_covariance(floor: np.ndarray | None, T_map_scan: np.ndarray, cov: np.ndarray | None) -> np.ndarray | None:
+    """(6, 6) the sweep floor's term of the odometry covariance ``cov`` (core/covariance.py ``odometry_covariance``):
+    ``floor`` (6,) standard deviations along the scan's axes, rotated into the map frame; None without either."""
+    if floor is None or cov is None:
+        return None
+    B = np.zeros((6, 6))
+    B[:3, :3] = B[3:, 3:] = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
+    return B @ np.diag(np.square(np.asarray(floor, dtype=np.float64))) @ B.T
 
 
 def cloud_points(cloud: Any) -> np.ndarray | None:

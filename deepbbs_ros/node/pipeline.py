@@ -28,11 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core.covariance import compose
+from deepbbs_ros.core.covariance import SWEEP_SPREAD, compose
 from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.node.covariance import alignment_quality, twist_covariance, twist_from_delta
 from deepbbs_ros.node.inputs import BadInput, Cloud
 
+#: the share of a step's sweep floor (``OdometryStep.covariance_floor``) that is the scan's own pose error: the floor
+#: is a step's, the difference of two scans each off by its own sweep's error, so twice one scan's variance
+#: (core/covariance.py ``SWEEP_SPREAD``: sqrt(2) / 2 of the deviations' root mean square)
+SCAN_FLOOR_SHARE = SWEEP_SPREAD ** 2
 #: twist covariance when the velocity is unknown (first scan, or two clouds of the same instant)
 UNKNOWN_TWIST_COV = 1e6
 
@@ -254,8 +258,10 @@ class LocalMapOdometry:
     :mod:`deepbbs_ros.core.covariance`: cluster-robust, from its GICP pairs, with the sweep's model error), moved
     into scan k-1's frame; without one, the point-to-point residual covariance of
     :mod:`deepbbs_ros.node.covariance` of scan k against scan k-1 under the step's motion. The pose covariance
-    accumulates it along ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` as :class:`ScanToScanOdometry` does
-    (independent steps: the drift of a chain).
+    composes the steps' GICP parts along ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` (independent steps: the drift of a
+    chain) and adds the current scan's own sweep error once (its share :data:`SCAN_FLOOR_SHARE` of the step's floor
+    ``OdometryStep.covariance_floor``): that error belongs to the scan, and the next step undoes it rather than
+    adding to it.
     """
 
     def __init__(self, config: Any, registration: Any, *, covariance: bool = True) -> None:
@@ -275,6 +281,7 @@ class LocalMapOdometry:
         self._prev_stamp: int | None = None
         self._T_odom = np.eye(4)
         self._cov_odom = np.zeros((6, 6))
+        self._cov_chain = np.zeros((6, 6))  # the GICP parts composed: the pose covariance less the scan's own floor
         self._prev_grid: Any = None  # scan k-1 for the covariance: (N, 3) map grid, or the raw Cloud at the origin
 
     def step(self, cloud: Cloud) -> OdometryEstimate:
@@ -299,7 +306,7 @@ class LocalMapOdometry:
         timings.update({f"register.{k}": float(v) for k, v in out.timings_ms.items() if k != "total"})
         prev_stamp, self._prev_stamp = self._prev_stamp, cloud.stamp_ns
         if prev_stamp is None:  # the origin: pose known exactly, velocity unknown
-            self._T_odom, self._cov_odom = np.eye(4), np.zeros((6, 6))
+            self._T_odom, self._cov_odom, self._cov_chain = np.eye(4), np.zeros((6, 6)), np.zeros((6, 6))
             self._prev_grid = (cloud if out.points is None else out.points) if self.covariance else None
             return OdometryEstimate(np.eye(4), np.zeros((6, 6)), np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV)
         self.consulted += int(out.deepbbs)
@@ -309,7 +316,12 @@ class LocalMapOdometry:
         if self.covariance:
             t1 = time.perf_counter()
             cov_step = self._step_covariance(cloud, T_step, dt, out.points, getattr(out, "covariance", None))
-            self._cov_odom = compose(self._T_odom, self._cov_odom, T_step, cov_step)
+            floor = getattr(out, "covariance_floor", None) if getattr(out, "covariance", None) is not None else None
+            floor = np.zeros((6, 6)) if floor is None else np.asarray(floor, dtype=np.float64)  # odometry frame
+            B = np.zeros((6, 6))
+            B[:3, :3] = B[3:, 3:] = self._T_odom[:3, :3].T  # -> scan k-1's frame, as cov_step
+            self._cov_chain = compose(self._T_odom, self._cov_chain, T_step, cov_step - B @ floor @ B.T)
+            self._cov_odom = self._cov_chain + SCAN_FLOOR_SHARE * floor
             twist, twist_cov = motion_twist(T_step, cov_step, dt)
             timings["covariance"] = (time.perf_counter() - t1) * 1e3
         self._T_odom = T

@@ -14,7 +14,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   ``--real`` folder, the odd ones localized from a start error as well.
 * odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
   scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
-  node publishes on ``~/odometry`` (the steps composed along the chain). Per simulated drive the ``sweep:`` line
+  node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
+  sweep error once: node/pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
+  "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
+  whole floor added) and "chain" (the GICP parts alone, no floor), and the lag-1 correlation of consecutive step
+  errors per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for independent
+  steps). Per simulated drive the ``sweep:`` line
   shows the sweep floor's premise: how the step's rotation error follows the true rotation the deskew missed within
   the sweep (correlation and slope per axis), and the covariance's time per scan.
 
@@ -178,9 +183,9 @@ def _before_localization(res, pts) -> np.ndarray:
     return q.covariance
 
 
-def odometry_rows(drive, config, args) -> tuple[list, list]:
-    """(step rows [(delta, step covariance)], chain [(T_odom_{k-1}, T_{k-1}_k, T_odom_k, true T_first_k)]) of the
-    scans with a step covariance."""
+def odometry_rows(drive, config, args) -> tuple[list, list, list]:
+    """(step rows [(delta, step covariance)], chain [(T_odom_{k-1}, T_{k-1}_k, T_odom_k, true T_first_k)], floors
+    [the step's sweep floor term, odometry frame, zeros without one]) of the scans with a step covariance."""
     from kiss_icp.voxelization import voxel_down_sample
 
     import deepbbs_ros.core.odometry as odomod
@@ -189,7 +194,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
     from deepbbs_ros.node.covariance import alignment_quality
 
     odo = DeepBBSOdometry(config)
-    steps, chain, cov_ms, share = [], [], [], []
+    steps, chain, floors, cov_ms, share = [], [], [], [], []
     T_prev, prev_points, T0_true, Tp_true = None, None, None, None
     own = odomod._cov.odometry_covariance
 
@@ -230,12 +235,19 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
             if step_cov is not None:
                 steps.append((pose_error(np.linalg.inv(Tp_true) @ T_true, out.T_prev_k), step_cov))
                 chain.append((T_prev, out.T_prev_k, T, np.linalg.inv(T0_true) @ T_true))
+                fl = None if args.before else getattr(out, "covariance_floor", None)
+                floors.append(np.zeros((6, 6)) if fl is None else np.asarray(fl))
         else:
             T0_true = T_true
         T_prev, prev_points, Tp_true = T, out.points, T_true
     if cov_ms:
         print(f"    odometry covariance: median {np.median(cov_ms):.1f} ms a scan, "
               f"{np.median(share):.0%} of the scan's time", flush=True)
+    if args.pose and len(steps) >= 5:  # do the steps' errors undo one another (a scan's own error in two steps)?
+        e = np.array([d for d, _ in steps])
+        lag = [np.corrcoef(e[1:, i], e[:-1, i])[0, 1] for i in range(6)]
+        print("    step errors, lag-1 correlation (x, y, z, roll, pitch, yaw): " + ", ".join(f"{c:.2f}" for c in lag),
+              flush=True)
     if len(missed) >= 5:  # the sweep floor's premise: the step's rotation error follows the rotation the deskew missed
         err, miss = (np.array(x) for x in zip(*missed))
         fit = [(np.corrcoef(miss[:, i], err[:, i])[0, 1], np.polyfit(miss[:, i], err[:, i], 1)[0]) for i in range(3)]
@@ -243,22 +255,34 @@ def odometry_rows(drive, config, args) -> tuple[list, list]:
               + ", ".join(f"{c:.2f}" for c, _ in fit) + "; slope " + ", ".join(f"{b:.2f}" for _, b in fit)
               + "; missed rms deg " + ", ".join(f"{x:.3f}" for x in np.degrees(np.sqrt(np.mean(miss ** 2, 0)))),
               flush=True)
-    return steps, chain
+    return steps, chain, floors
 
 
-def accumulated(steps: list, chain: list, before: bool = False) -> list:
-    """The accumulated rows [(delta of T_odom_k, its covariance)]: the step covariances composed along the chain as
-    the node does (``before``: the SE(3)-adjoint sum the node had)."""
+def accumulated(steps: list, chain: list, before: bool = False, floors: list | None = None,
+                model: str = "node") -> list:
+    """The accumulated rows [(delta of T_odom_k, its covariance)] (``before``: the SE(3)-adjoint sum of the whole
+    step covariances the node had before the GICP covariance). ``model``: "node" (node/pipeline.py: the steps'
+    GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain, plus the current
+    scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
+    step covariances composed), "chain" (the GICP parts alone)."""
     from deepbbs_ros.core.covariance import adjoint, compose, pose_error
+    from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
+    floors = floors or [np.zeros((6, 6))] * len(steps)
     rows, cov = [], np.zeros((6, 6))
-    for (_, step_cov), (T_prev, T_step, T, T_true) in zip(steps, chain):
+    for (_, step_cov), (T_prev, T_step, T, T_true), fl in zip(steps, chain, floors):
         if before:
             Ad = adjoint(T_prev)
             cov = cov + Ad @ step_cov @ Ad.T
-        else:
-            cov = compose(T_prev, cov, T_step, step_cov)
-        rows.append((pose_error(T_true, T), cov.copy()))
+            rows.append((pose_error(T_true, T), cov.copy()))
+            continue
+        # the floor in scan k-1's frame, as the step covariance (odometry frame -> k-1's: the rotation of T_prev)
+        B = np.zeros((6, 6))
+        B[:3, :3] = B[3:, 3:] = T_prev[:3, :3].T
+        own = B @ fl @ B.T
+        cov = compose(T_prev, cov, T_step, step_cov if model == "walk" else step_cov - own)
+        share = {"node": SCAN_FLOOR_SHARE, "once": 1.0}.get(model, 0.0)
+        rows.append((pose_error(T_true, T), cov + share * fl))
     return rows
 
 
@@ -327,6 +351,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--odometry-frames", type=int, default=60, help="frames of each simulated odometry drive")
     ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
+    ap.add_argument("--pose", action="store_true", help="also the accumulated pose's NEES under the other models: "
+                    "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone)")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--fit", action="store_true", help="fit the localization's inflation on the simulated sets (raw "
                     "covariances); the raw rows are kept in OUT/covariance_rows.npz")
@@ -340,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.fit:  # raw cluster-robust covariances: inflation 1
         covmod.LOCALIZATION_INFLATION = 1.0
     config = Config()
-    loc_rows, step_rows, chains, truth, notes = {}, {}, {}, {}, {}
+    loc_rows, step_rows, chains, floors, truth, notes = {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
         loc_rows, step_rows, chains, truth = load_rows(args.refit)
@@ -354,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    localization: {notes[name]}; mean NEES {f.get('pose', {}).get('mean', float('nan')):.2f}"
                   + (" (inflation 1)" if args.fit else ""), flush=True)
         if "odometry" not in args.skip:
-            step_rows[name], chains[name] = odometry_rows(drive, config, args)
+            step_rows[name], chains[name], floors[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     figures: dict = {}
     if args.fit and not args.refit:
@@ -366,9 +392,13 @@ def main(argv: list[str] | None = None) -> int:
         for n in loc_rows:
             loc_rows[n] = [(d, k * c) for d, c in loc_rows[n]]
         print(f"\nfitted (simulated sets only; the tables below use it): LOCALIZATION_INFLATION = {k:.3f}")
-    acc_rows = {n: accumulated(step_rows[n], chains[n], args.before) for n in step_rows}
+    acc_rows = {n: accumulated(step_rows[n], chains[n], args.before, floors.get(n)) for n in step_rows}
+    tables = [("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)]
+    if args.pose and not args.before:
+        tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m)
+                                                  for n in step_rows}) for m in ("walk", "once", "chain")]
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
-    for key, rows in (("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)):
+    for key, rows in tables:
         figures[key] = {}
         for name, r in rows.items():
             figures[key][name] = nees_stats(r)
