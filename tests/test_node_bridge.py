@@ -31,9 +31,14 @@ drive = test_node_localization.drive  # the module fixture: the simulated drive 
 PERIOD = 0.1  # s: 10 Hz
 
 
-def _harness(drive_data, tmp_path, name: str, **extra) -> Harness:
+def _harness(drive_data, tmp_path, name: str, trajectory: bool = True, **extra) -> Harness:
+    from deepbbs_ros.datasets.maps import write_map
+
     sim, points, poses, _ = drive_data
-    _write_map(tmp_path / "map.pcd", points, poses)
+    if trajectory:
+        _write_map(tmp_path / "map.pcd", points, poses)
+    else:  # the map alone (from another tool): the node's places come from its free space
+        write_map(tmp_path / "map.pcd", points, None, None)
     cfg = _config(**{"localization.map_path": str(tmp_path / "map.pcd"), "node.localization_odom": "none",
                      "node.base_frame": "", **extra})
     return Harness(cfg, name, registration=_registration(cfg))
@@ -50,12 +55,15 @@ def _stream(h: Harness, sim, scan, frames) -> dict[int, float]:
     return sent
 
 
-def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd):
+@pytest.mark.parametrize("trajectory", [True, False], ids=["with_trajectory", "map_alone"])
+def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, trajectory):
     """The first search takes > 1 s (10+ scans arrive meanwhile): once it places its scan, the node follows the pose
     through the scans that arrived (their poses published, right), and every scan sent after the first pose is
-    answered with the right pose; never lost, one 'followed' line."""
+    answered with the right pose; never lost, one 'followed' line; the scans the bridge passed over are counted and
+    said in one line at most. The same with a map given without its trajectory (a robot that boots anywhere in a map
+    from another tool: the whole map's free space searched)."""
     sim, _, _, scan = drive
-    h = _harness(drive, tmp_path, "bridge_node")
+    h = _harness(drive, tmp_path, "bridge_node", trajectory, **{"node.error_log_period": 60.0})
     try:
         h.node.localization.search_delay_s = 1.2
         frames = list(range(12, 42))  # 3 s of driving at 10 Hz
@@ -81,6 +89,10 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd):
         log = capfd.readouterr().err
         assert log.count("localization found") == 1 and log.count("followed the pose through") == 1, log
         assert "localization lost" not in log, log
+        assert ("a grid over its free space" in log) != trajectory, log  # the map alone: places from its free space
+        dropped = int(h.diagnostics().get("localization.scans dropped unanswered", "0"))
+        lines = [ln for ln in log.splitlines() if "dropped unanswered" in ln]
+        assert len(lines) == (dropped > 0) and (not lines or "dropped so far" in lines[0]), (dropped, lines)
     finally:
         h.close()
 
