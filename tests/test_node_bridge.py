@@ -132,6 +132,10 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     assert b.dropped == 25 - 1 - 1 - BRIDGE_MAX  # all but the found scan (4), those taken and the newest (24)
     assert [c.stamp_ns for c in b.take(23)] == [] and len(b) == 1  # the newest stays (the worker's next job)
     assert ScanBridge(0).take(0) == [] and np.isfinite(len(ScanBridge(0)))
+    c = ScanBridge(30)  # the node's rounds take the newest too (the worker's slot may lose it to the next arrival)
+    for s in range(10):
+        c.add(SimpleNamespace(stamp_ns=s))
+    assert [x.stamp_ns for x in c.take(4, leave_newest=False)] == [5, 6, 7, 8, 9] and len(c) == 0 and c.dropped == 4
 
 
 def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):

@@ -153,6 +153,7 @@ class NodeLocalization:
         #: says every drop (node/drops.py; set by the node)
         self.drop_sink: Callable[[str, int, int], None] | None = None
         self._drops_said = 0  # of self._bridge.dropped
+        self.last_arrival: int | None = None  # the stamp of the last scan handed to arrived() (the worker's slot)
         self.skipped = 0  # scans the worker got after the bridge had answered them (not registered twice)
         #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
         #: can make a search outlast the scan period on a tiny map; 0 in use
@@ -276,8 +277,15 @@ class NodeLocalization:
 
     def arrived(self, cloud: Cloud) -> None:
         """A scan on its way to the worker (input thread): kept for :meth:`bridge` while :attr:`keeps_arrivals`."""
+        self.last_arrival = cloud.stamp_ns
         if self.keeps_arrivals:
             self._bridge.add(cloud)
+
+    def answered(self, stamp_ns: int | None) -> bool:
+        """Whether the scan stamped ``stamp_ns`` has a pose already (the bridge tracked it: the worker skips it)."""
+        tracker = self.tracker
+        last = tracker.last_stamp_ns if tracker is not None and tracker.state == "tracking" else None
+        return stamp_ns is not None and last is not None and stamp_ns <= last
 
     def step(self, cloud: Cloud) -> LocalizedScan | None:
         """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread; None for a scan
@@ -384,7 +392,9 @@ class NodeLocalization:
         done = rounds = self._followed = 0
         t0 = time.perf_counter()
         while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
-            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns)
+            # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
+            # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
+            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False)
             if not scans:
                 break
             rounds += 1

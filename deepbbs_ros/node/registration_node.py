@@ -588,8 +588,10 @@ class RegistrationNode(Node):
             self._last_pair_t = time.monotonic()
         self.localization.prepare(cloud)  # its GICP cloud on this input thread, on arrival (as the other modes)
         cloud.t_ready = time.perf_counter()
+        slot = self.localization.last_arrival  # the scan a submit replaces (the worker keeps one), if it still waits
         self.localization.arrived(cloud)  # kept while a search runs: its pose is carried through them (bridge.py)
-        if self.worker.submit(("localize", cloud, None)) and not self.localization.keeps_arrivals:
+        if (self.worker.submit(("localize", cloud, None)) and not self.localization.keeps_arrivals
+                and not self.localization.answered(slot)):  # one the bridge answered already is no loss
             self._drops.dropped("waiting for the registration: a newer scan replaced it (the registration of a scan "
                                 "took longer than the scan period)", cloud.stamp_ns, self.inputs[0].topic)
 
