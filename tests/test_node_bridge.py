@@ -31,9 +31,14 @@ drive = test_node_localization.drive  # the module fixture: the simulated drive 
 PERIOD = 0.1  # s: 10 Hz
 
 
-def _harness(drive_data, tmp_path, name: str, **extra) -> Harness:
+def _harness(drive_data, tmp_path, name: str, trajectory: bool = True, **extra) -> Harness:
+    from deepbbs_ros.datasets.maps import write_map
+
     sim, points, poses, _ = drive_data
-    _write_map(tmp_path / "map.pcd", points, poses)
+    if trajectory:
+        _write_map(tmp_path / "map.pcd", points, poses)
+    else:  # the map alone (from another tool): the node's places come from its free space
+        write_map(tmp_path / "map.pcd", points, None, None)
     cfg = _config(**{"localization.map_path": str(tmp_path / "map.pcd"), "node.localization_odom": "none",
                      "node.base_frame": "", **extra})
     return Harness(cfg, name, registration=_registration(cfg))
@@ -50,12 +55,15 @@ def _stream(h: Harness, sim, scan, frames) -> dict[int, float]:
     return sent
 
 
-def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd):
+@pytest.mark.parametrize("trajectory", [True, False], ids=["with_trajectory", "map_alone"])
+def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, trajectory):
     """The first search takes > 1 s (10+ scans arrive meanwhile): once it places its scan, the node follows the pose
     through the scans that arrived (their poses published, right), and every scan sent after the first pose is
-    answered with the right pose; never lost, one 'followed' line."""
+    answered with the right pose; never lost, one 'followed' line; the scans the bridge passed over are counted and
+    said in one line at most. The same with a map given without its trajectory (a robot that boots anywhere in a map
+    from another tool: the whole map's free space searched)."""
     sim, _, _, scan = drive
-    h = _harness(drive, tmp_path, "bridge_node")
+    h = _harness(drive, tmp_path, "bridge_node", trajectory, **{"node.error_log_period": 60.0})
     try:
         h.node.localization.search_delay_s = 1.2
         frames = list(range(12, 42))  # 3 s of driving at 10 Hz
@@ -81,6 +89,10 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd):
         log = capfd.readouterr().err
         assert log.count("localization found") == 1 and log.count("followed the pose through") == 1, log
         assert "localization lost" not in log, log
+        assert ("a grid over its free space" in log) != trajectory, log  # the map alone: places from its free space
+        dropped = int(h.diagnostics().get("localization.scans dropped unanswered", "0"))
+        lines = [ln for ln in log.splitlines() if "dropped unanswered" in ln]
+        assert len(lines) == (dropped > 0) and (not lines or "dropped so far" in lines[0]), (dropped, lines)
     finally:
         h.close()
 
@@ -120,6 +132,10 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     assert b.dropped == 25 - 1 - 1 - BRIDGE_MAX  # all but the found scan (4), those taken and the newest (24)
     assert [c.stamp_ns for c in b.take(23)] == [] and len(b) == 1  # the newest stays (the worker's next job)
     assert ScanBridge(0).take(0) == [] and np.isfinite(len(ScanBridge(0)))
+    c = ScanBridge(30)  # the node's rounds take the newest too (the worker's slot may lose it to the next arrival)
+    for s in range(10):
+        c.add(SimpleNamespace(stamp_ns=s))
+    assert [x.stamp_ns for x in c.take(4, leave_newest=False)] == [5, 6, 7, 8, 9] and len(c) == 0 and c.dropped == 4
 
 
 def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):

@@ -4,11 +4,12 @@ A search of the whole map takes seconds; at 10 Hz tens of scans arrive meanwhile
 only the newest. The pose the search finds is that of an old scan, and the tracker's prediction from it would be
 stale by the time the next scan is registered (a car at 10 m/s is 20 m further after 2 s). :class:`ScanBridge` keeps
 the newest ``localization.bridge_scans`` scans that arrived (decoded and prepared on their input thread); when the
-search places scan k, :meth:`ScanBridge.take` hands back the scans stamped after k, all but the newest (the worker's
-next job), thinned to at most :data:`BRIDGE_MAX`: the first two (the tracker's velocity) and then evenly spread. The
-node tracks them in stamp order (GICP from the constant-velocity prediction on the map crop, the tracker's usual
-step), so the pose reaches the newest scan with a fresh prediction. Scans stamped at or before the last answered one
-are forgotten (:meth:`ScanBridge.forget_until`).
+search places scan k, :meth:`ScanBridge.take` hands back the scans stamped after k, the newest among them (the node
+takes it too: the worker's slot, which holds it as well, may lose it to the next arrival before the bridge ends),
+thinned to at most :data:`BRIDGE_MAX`: the first two (the tracker's velocity) and then evenly spread. The node
+tracks them in stamp order (GICP from the constant-velocity prediction on the map crop, the tracker's usual step),
+round after round while more arrive, so the pose reaches the newest scan with a fresh prediction. Scans stamped at
+or before the last answered one are forgotten (:meth:`ScanBridge.forget_until`).
 """
 
 from __future__ import annotations
@@ -73,12 +74,13 @@ class ScanBridge:
             self._scans.clear()
             self._scans.extend(kept)
 
-    def take(self, after_ns: int, most: int = BRIDGE_MAX) -> list[Any]:
+    def take(self, after_ns: int, most: int = BRIDGE_MAX, leave_newest: bool = True) -> list[Any]:
         """The scans to register to carry a pose at ``after_ns`` forward: those stamped after it in stamp order, less
-        the newest (the worker's next job, tracked as usual), at most ``most`` of them (the first two, then evenly
-        spread, the last always); every scan up to the last one taken is forgotten."""
+        the newest (the worker's next job, tracked as usual) unless ``leave_newest`` is false, at most ``most`` of them
+        (the first two, then evenly spread, the last always); every scan up to the last one taken is forgotten."""
         with self._lock:
-            later = sorted((s for s in self._scans if s.stamp_ns > after_ns), key=lambda s: s.stamp_ns)[:-1]
+            later = sorted((s for s in self._scans if s.stamp_ns > after_ns), key=lambda s: s.stamp_ns)
+            later = later[:-1] if leave_newest else later
             if not later:
                 return []
             if len(later) > most:

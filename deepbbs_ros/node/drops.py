@@ -34,19 +34,23 @@ class DropLog:
         with self._lock:
             return sum(self.counts.values())
 
-    def dropped(self, why: str, stamp_ns: int, topic: str) -> None:
-        """One scan (``stamp_ns`` on ``topic``) dropped unanswered, ``why`` in words (the reason's counter key)."""
+    def dropped(self, why: str, stamp_ns: int, topic: str, n: int = 1) -> None:
+        """``n`` scans (the last stamped ``stamp_ns``, on ``topic``) dropped unanswered, ``why`` in words (the
+        reason's counter key)."""
+        if n <= 0:
+            return
         now = time.monotonic()
         with self._lock:
-            self.counts[why] = self.counts.get(why, 0) + 1
+            self.counts[why] = self.counts.get(why, 0) + n
             total = sum(self.counts.values())
-            self._since += 1
+            self._since += n
             first = self._last is None
             if not first and now - self._last < self.period:
                 return
             since, self._since, self._last = self._since, 0, now
         if first:
-            line = (f"{topic}: scan at {stamp_ns} ns dropped unanswered {why} (1 dropped so far; later drops are "
+            what = f"scan at {stamp_ns} ns" if n == 1 else f"{n} scans up to the one at {stamp_ns} ns"
+            line = (f"{topic}: {what} dropped unanswered {why} ({total} dropped so far; later drops are "
                     f"counted on /diagnostics and summarised here at most every {self.period:g} s)")
         else:
             line = f"{topic}: {since} more scan(s) dropped unanswered ({total} in all), the last {why}"

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,10 +38,13 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_ROUNDS, ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_MAX, BRIDGE_ROUNDS, ScanBridge
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
+#: why the scans kept during a search and not followed by the bridge were dropped (node/drops.py's counter key first)
+BRIDGE_DROP = (f"after a search: passed over by the bridge (it follows at most {BRIDGE_MAX} of the scans that arrived "
+               f"meanwhile a round, for at most {BRIDGE_BUDGET_S:g} s, and a scan older than one answered)")
 #: the tracker's states, as /diagnostics shows them
 STATES = ("searching", "tracking", "lost")
 PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
@@ -146,6 +149,11 @@ class NodeLocalization:
         self._last_search_log = 0.0
         self._bridge = ScanBridge(config.localization.bridge_scans)
         self.bridged = 0  # scans answered by the bridge after a search (their poses published)
+        #: (why, the last one's stamp, how many): the scans the bridge kept and never answered, said where the node
+        #: says every drop (node/drops.py; set by the node)
+        self.drop_sink: Callable[[str, int, int], None] | None = None
+        self._drops_said = 0  # of self._bridge.dropped
+        self.last_arrival: int | None = None  # the stamp of the last scan handed to arrived() (the worker's slot)
         self.skipped = 0  # scans the worker got after the bridge had answered them (not registered twice)
         #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
         #: can make a search outlast the scan period on a tiny map; 0 in use
@@ -269,8 +277,15 @@ class NodeLocalization:
 
     def arrived(self, cloud: Cloud) -> None:
         """A scan on its way to the worker (input thread): kept for :meth:`bridge` while :attr:`keeps_arrivals`."""
+        self.last_arrival = cloud.stamp_ns
         if self.keeps_arrivals:
             self._bridge.add(cloud)
+
+    def answered(self, stamp_ns: int | None) -> bool:
+        """Whether the scan stamped ``stamp_ns`` has a pose already (the bridge tracked it: the worker skips it)."""
+        tracker = self.tracker
+        last = tracker.last_stamp_ns if tracker is not None and tracker.state == "tracking" else None
+        return stamp_ns is not None and last is not None and stamp_ns <= last
 
     def step(self, cloud: Cloud) -> LocalizedScan | None:
         """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread; None for a scan
@@ -349,6 +364,8 @@ class NodeLocalization:
             if ahead is not None:
                 self._prefetch.submit((self.localizer, ahead))
         self._bridge.forget_until(cloud.stamp_ns)
+        if not self._bridging:
+            self._say_drops(cloud.stamp_ns)
         reg = Registered(T, res, timings)
         return LocalizedScan(res, reg, getattr(res, "crop", None), self.map.frame_id, line)
 
@@ -366,6 +383,7 @@ class NodeLocalization:
             yield from self._follow(stamp_ns)
         finally:
             self._bridging = False
+        self._say_drops(self.tracker.last_stamp_ns or stamp_ns)
         if self._followed:
             self.last_bridge = (f"localization: followed the pose through {self._followed} scan(s) that arrived during "
                                 f"the search in {(time.perf_counter() - t0):.2f} s; tracking from the newest")
@@ -374,7 +392,9 @@ class NodeLocalization:
         done = rounds = self._followed = 0
         t0 = time.perf_counter()
         while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
-            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns)
+            # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
+            # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
+            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False)
             if not scans:
                 break
             rounds += 1
@@ -391,6 +411,13 @@ class NodeLocalization:
                 yield cloud, loc
                 if not loc.result.valid or time.perf_counter() - t0 > BRIDGE_BUDGET_S:
                     return  # the worker's next scan goes on from the last good pose (the rest: dropped)
+
+    def _say_drops(self, stamp_ns: int) -> None:
+        """Hand the scans the bridge dropped since the last call to :attr:`drop_sink` (counted and said once)."""
+        n = self._bridge.dropped - self._drops_said
+        if n > 0 and self.drop_sink is not None:
+            self._drops_said += n
+            self.drop_sink(BRIDGE_DROP, stamp_ns, n)
 
     def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
         localizer, T = job

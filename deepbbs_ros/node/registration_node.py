@@ -224,6 +224,8 @@ class RegistrationNode(Node):
         self._pair_start.enabled = ncfg.good_start and ncfg.mode == "pair" and takes_good_start(registration)
         #: node.target_mode localization: the tracker in the prior map (node/localization.py), else None
         self.localization = NodeLocalization(self.cfg, registration) if localization else None
+        if localization:  # the scans its bridge passes over: counted and said with the others
+            self.localization.drop_sink = lambda why, stamp, n: self._drops.dropped(why, stamp, self.inputs[0].topic, n)
         if map_file is not None:
             self.get_logger().info(self.localization.build(map_file))
             if self.localization.map_warning:
@@ -586,8 +588,10 @@ class RegistrationNode(Node):
             self._last_pair_t = time.monotonic()
         self.localization.prepare(cloud)  # its GICP cloud on this input thread, on arrival (as the other modes)
         cloud.t_ready = time.perf_counter()
+        slot = self.localization.last_arrival  # the scan a submit replaces (the worker keeps one), if it still waits
         self.localization.arrived(cloud)  # kept while a search runs: its pose is carried through them (bridge.py)
-        if self.worker.submit(("localize", cloud, None)) and not self.localization.keeps_arrivals:
+        if (self.worker.submit(("localize", cloud, None)) and not self.localization.keeps_arrivals
+                and not self.localization.answered(slot)):  # one the bridge answered already is no loss
             self._drops.dropped("waiting for the registration: a newer scan replaced it (the registration of a scan "
                                 "took longer than the scan period)", cloud.stamp_ns, self.inputs[0].topic)
 
@@ -875,8 +879,7 @@ class RegistrationNode(Node):
             values["odometry: scans in degenerate places"] = s["degenerate_frames"]
         if self.localization is not None:
             values.update({f"localization.{k}": v for k, v in self.localization.diagnostics().items()})
-            drops = self._drops.diagnostics()
-            drops["scans dropped unanswered"] += self.localization.dropped  # kept during a search, not answered
+            drops = self._drops.diagnostics()  # the bridge's drops among them (localization.drop_sink)
             values.update({f"localization.{k}": v for k, v in drops.items()})
             values.update({f"localization.{k}": v for k, v in self.rep105.diagnostics().items()})
         for kind, n in sorted(s["errors"].items()):

@@ -93,6 +93,7 @@ STAMP0_NS = 1_000 * SEC
 METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
     "deepbbs": ("deepbbs_ros.node.registration_node", "deepbbs_registration"),
     "gicp": ("deepbbs_ros.node.gicp_anchor", "gicp_anchor"),
+    "managed": ("deepbbs_ros.node.managed", "deepbbs_localizer"),  # the lifecycle node: configured, then activated
 }
 ANCHOR = "gicp"
 STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
@@ -355,6 +356,13 @@ class RunResult:
     cpu_ms: float = float("nan")  # CPU ms per period, every process of the node together (cpu_total)
     first_pose_s: float = float("nan")  # localization: first scan published -> first pose received (s)
     after_first: tuple[int, int] = (0, 0)  # localization: scans published after the first pose: (answered, all)
+    ready_s: float = float("nan")  # node process started -> its input subscribed (plain node: map built; managed:
+    #: the configure and activate transitions requested as soon as its services answer)
+    configure_s: float = float("nan")  # managed node: the configure transition (the map and the model loaded)
+    activate_s: float = float("nan")  # managed node: the activate transition (subscribed)
+    published: dict[int, float] = field(default_factory=dict)  # localization: every stamp -> s after the first scan
+    poses: dict[int, float] = field(default_factory=dict)  # localization: answered stamp -> s after the first scan
+    xyz: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # answered stamp -> the pose's position
 
     @property
     def answered(self) -> float:
@@ -428,6 +436,39 @@ def _busy_process() -> subprocess.Popen:
                             stderr=subprocess.DEVNULL)  # fmt: skip
 
 
+class _Lifecycle:
+    """Plays nav2_lifecycle_manager for the managed node: configure once its services answer, then activate, each
+    transition timed (:meth:`step`, called while waiting for the node to come up)."""
+
+    def __init__(self, node, name: str) -> None:
+        from lifecycle_msgs.srv import ChangeState
+
+        self.client = node.create_client(ChangeState, f"/{name}/change_state")
+        self.todo = ["configure", "activate"]
+        self.future, self.t0 = None, 0.0
+
+    def step(self, res: RunResult) -> bool:
+        """Request the next transition, or time the one that answered; False when one failed."""
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        if self.future is not None and self.future.done():
+            ok = bool(self.future.result() and self.future.result().success)
+            took = time.perf_counter() - self.t0
+            if self.todo.pop(0) == "configure":
+                res.configure_s = took
+            else:
+                res.activate_s = took
+            self.future = None
+            if not ok:
+                return False
+        if self.future is None and self.todo and self.client.service_is_ready():
+            tid = Transition.TRANSITION_CONFIGURE if self.todo[0] == "configure" else Transition.TRANSITION_ACTIVATE
+            self.t0 = time.perf_counter()
+            self.future = self.client.call_async(ChangeState.Request(transition=Transition(id=tid)))
+        return True
+
+
 def run_method(args, method: str, stream: Stream) -> RunResult:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -460,7 +501,7 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
                 # no robot here (no /tf_static mounting, no odometry on /tf): the scan's own pose, as the anchor's,
                 # without the first scan's wait for transforms that never come
                 "-p", "node.localization_odom:=none", "-p", "node.base_frame:=''"]
-    if method == "deepbbs":
+    if method != ANCHOR:
         cmd += ["-p", f"registration.device:={args.device}"]
         if args.threads is not None:
             cmd += ["-p", f"registration.threads:={args.threads}"]
@@ -470,9 +511,11 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             cmd += ["-p", p]
     # not a pipe: a chatty node must never block on a full one; kept under --out (the last run's of each node)
     log = (args.out / f"node_{method}.log").open("w+") if args.out is not None else tempfile.TemporaryFile("w+")
+    t_start = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, text=True)
     node = rclpy.create_node(f"bench_{method}")
     res = RunResult()
+    lifecycle = _Lifecycle(node, name) if method == "managed" else None
     sent: dict[int, float] = {}  # stamp -> publication time of the source cloud (measured pairs only)
     diags: list[DiagnosticArray] = []
     boot: dict[int, float] = {}  # localization: every stamp -> its publication time
@@ -483,6 +526,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         t = time.perf_counter()
         s = stamp_to_ns(msg.header.stamp)
         answered.add(s)
+        res.poses.setdefault(s, t)
+        res.xyz.setdefault(s, (msg.pose.position.x, msg.pose.position.y, msg.pose.position.z))
         if not first:
             first.append(t)
         if s in sent:
@@ -505,7 +550,14 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             if proc.poll() is not None or time.monotonic() > deadline:
                 res.error = "node exited" if proc.poll() is not None else "node did not come up in time"
                 return res
+            if lifecycle is not None and not lifecycle.step(res):
+                res.error = "a lifecycle transition failed"
+                return res
             rclpy.spin_once(node, timeout_sec=0.1)
+        res.ready_s = time.perf_counter() - t_start
+        while lifecycle is not None and lifecycle.future is not None and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)  # subscribed: the activate transition's answer (timed) is next
+            lifecycle.step(res)
         n_total = n_warm + int(round(args.seconds * args.rate))
         t0 = time.perf_counter()
         cpu0, cpu_self0 = {}, 0.0
@@ -539,6 +591,10 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
             res.first_pose_s = first[0] - min(boot.values())
             after = [s for s, t in boot.items() if t > first[0]]
             res.after_first = (sum(s in answered for s in after), len(after))
+        if localization and boot:
+            t_first = min(boot.values())
+            res.published = {s: t - t_first for s, t in boot.items()}
+            res.poses = {s: t - t_first for s, t in res.poses.items()}
         cpu1 = cpu_snapshot(proc.pid)
         res.cpu, res.cpu_ms = cpu_line(cpu0, cpu1, periods), cpu_total(cpu0, cpu1, periods)
         if res.cpu:
