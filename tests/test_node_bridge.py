@@ -136,6 +136,12 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     for s in range(10):
         c.add(SimpleNamespace(stamp_ns=s))
     assert [x.stamp_ns for x in c.take(4, leave_newest=False)] == [5, 6, 7, 8, 9] and len(c) == 0 and c.dropped == 4
+    d = ScanBridge(30)  # the scans received once the pose was found are never thinned: only the search's are
+    for s in range(25):
+        d.add(SimpleNamespace(stamp_ns=s, t_recv=float(s)))
+    got = [x.stamp_ns for x in d.take(4, leave_newest=False, keep_since=21.5)]
+    assert got[:2] == [5, 6] and got[-3:] == [22, 23, 24] and len(got) == BRIDGE_MAX and got == sorted(got), got
+    assert got[-4] == 21  # the last of the search's time kept too (the velocity into the new ones)
 
 
 def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):

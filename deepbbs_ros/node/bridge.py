@@ -6,7 +6,8 @@ stale by the time the next scan is registered (a car at 10 m/s is 20 m further a
 the newest ``localization.bridge_scans`` scans that arrived (decoded and prepared on their input thread); when the
 search places scan k, :meth:`ScanBridge.take` hands back the scans stamped after k, the newest among them (the node
 takes it too: the worker's slot, which holds it as well, may lose it to the next arrival before the bridge ends),
-thinned to at most :data:`BRIDGE_MAX`: the first two (the tracker's velocity) and then evenly spread. The node
+those of the search's time thinned to at most :data:`BRIDGE_MAX`: the first two (the tracker's velocity) and then
+evenly spread; those received after the pose was found are all kept. The node
 tracks them in stamp order (GICP from the constant-velocity prediction on the map crop, the tracker's usual step),
 round after round while more arrive, so the pose reaches the newest scan with a fresh prediction. Scans stamped at
 or before the last answered one are forgotten (:meth:`ScanBridge.forget_until`).
@@ -22,9 +23,9 @@ from typing import Any
 import numpy as np
 
 #: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one, in
-#: each of at most BRIDGE_ROUNDS rounds (the scans that arrive while it bridges are the next round's), for at most
+#: rounds (the scans that arrive while it bridges are the next round's) until none is left, for at most
 #: BRIDGE_BUDGET_S s in all (then the newest scan is tracked from the last pose followed: the bridge never runs away)
-BRIDGE_MAX, BRIDGE_ROUNDS, BRIDGE_BUDGET_S = 12, 6, 2.0
+BRIDGE_MAX, BRIDGE_BUDGET_S = 12, 2.0
 
 
 class ArrivalGate:
@@ -74,18 +75,25 @@ class ScanBridge:
             self._scans.clear()
             self._scans.extend(kept)
 
-    def take(self, after_ns: int, most: int = BRIDGE_MAX, leave_newest: bool = True) -> list[Any]:
+    def take(self, after_ns: int, most: int = BRIDGE_MAX, leave_newest: bool = True,
+             keep_since: float | None = None) -> list[Any]:
         """The scans to register to carry a pose at ``after_ns`` forward: those stamped after it in stamp order, less
         the newest (the worker's next job, tracked as usual) unless ``leave_newest`` is false, at most ``most`` of them
-        (the first two, then evenly spread, the last always); every scan up to the last one taken is forgotten."""
+        (the first two, then evenly spread, the last always); every scan up to the last one taken is forgotten.
+        ``keep_since``: scans received (``t_recv``, ``time.perf_counter()``) at or after it, those that arrived once
+        the pose was found, are all taken; only the ones before them are thinned."""
         with self._lock:
             later = sorted((s for s in self._scans if s.stamp_ns > after_ns), key=lambda s: s.stamp_ns)
             later = later[:-1] if leave_newest else later
             if not later:
                 return []
             if len(later) > most:
-                pick = {0, *np.linspace(1, len(later) - 1, max(most - 1, 1)).round().astype(int).tolist()}
-                later = [later[i] for i in sorted(pick)]  # 0, 1, ..., the last: at most `most`
+                new = 0 if keep_since is None else sum(getattr(s, "t_recv", -np.inf) >= keep_since for s in later)
+                old = len(later) - new  # the scans of the search's time, thinned (at least two: the velocity)
+                room = max(most - new, 2)
+                pick = {0, *np.linspace(1, max(old - 1, 0), max(room - 1, 1)).round().astype(int).tolist()}
+                pick = {i for i in pick if i < old} | set(range(old, len(later)))
+                later = [later[i] for i in sorted(pick)]  # 0, 1, ..., the last: at most `most` besides the new ones
             last = later[-1].stamp_ns
             kept = [s for s in self._scans if s.stamp_ns > last]
             self.dropped += len(self._scans) - len(kept) - len(later) - sum(s.stamp_ns == after_ns for s in self._scans)

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_MAX, BRIDGE_ROUNDS, ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_MAX, ScanBridge
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
@@ -149,6 +149,7 @@ class NodeLocalization:
         self._last_search_log = 0.0
         self._bridge = ScanBridge(config.localization.bridge_scans)
         self.bridged = 0  # scans answered by the bridge after a search (their poses published)
+        self._found_t: float | None = None  # perf_counter() when the last search placed its scan (bridge.take)
         #: (why, the last one's stamp, how many): the scans the bridge kept and never answered, said where the node
         #: says every drop (node/drops.py; set by the node)
         self.drop_sink: Callable[[str, int, int], None] | None = None
@@ -345,6 +346,7 @@ class NodeLocalization:
                         f"{took:.2f} s (score {res.score:.2f}, {res.candidates} candidate place(s))")
                 self._search_t0 = None
                 self._bridge_pending = not self._bridging
+                self._found_t = time.perf_counter()  # the scans received from now on are all bridged
         else:
             self.rejected += 1
             self.last_reason = res.reason or "rejected"
@@ -389,15 +391,17 @@ class NodeLocalization:
                                 f"the search in {(time.perf_counter() - t0):.2f} s; tracking from the newest")
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
-        done = rounds = self._followed = 0
+        done = self._followed = 0
         t0 = time.perf_counter()
-        while rounds < BRIDGE_ROUNDS and self.tracker.state == "tracking":  # scans keep arriving meanwhile
+        # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
+        # last arrivals to the worker's one-scan slot, where all but the newest are lost) or the budget is spent
+        while self.tracker.state == "tracking" and time.perf_counter() - t0 <= BRIDGE_BUDGET_S:
             # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
             # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
-            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False)
+            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False,
+                                      keep_since=self._found_t)  # those since the pose was found: every one
             if not scans:
                 break
-            rounds += 1
             for cloud in scans:
                 try:
                     loc = self.step(cloud)
