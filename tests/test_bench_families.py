@@ -90,3 +90,36 @@ def test_sensor_defaults_table_names_every_sensor_row():
     text = "\n".join(_families_doc.sensor_defaults())
     assert all(f"`{name}`" in text for name in SENSORS)
     assert "`preprocess.voxel_size`: 0.2 (default 0.3)" in text
+
+
+def _good_rec(gicp_ok, path, why, ms, ok=True, valid=True):
+    return {"set": "sim_a", "i": 1, "j": 0, "level": 0, "overlap": 0.8, "dist": 1.0,
+            "gicp": {"ok": gicp_ok, "ms": 10.0, "cpu_ms": 15.0},
+            "deepbbs++good": {"ok": ok, "valid": valid, "ms": ms, "cpu_ms": 1.5 * ms, "path": path, "why": why}}
+
+
+def test_good_start_where_the_start_lies_in_gicps_basin():
+    """families.in_basin: the good-start pairs whose start is good by a physical criterion (GICP from it is right) are
+    summarised apart: how many and how many not, the p50 ratio over them (wall and CPU), the path each took."""
+    recs = [_good_rec(True, "gicp", "accepted", 12.0),
+            _good_rec(True, "gicp", "accepted, sure, within the coarse try's reach (GICP from the start: moved)", 14.0),
+            _good_rec(True, "search", "GICP from the start: turned 24 deg; coarse to fine: verdict 0.5 < x", 400.0),
+            _good_rec(False, "search", "GICP from the start: not converged in 18 iterations; coarse to fine: x", 900.0,
+                      ok=False, valid=False),
+            _good_rec(False, "gicp", "accepted after coarse to fine (GICP from the start: moved)", 30.0)]
+    b = families.in_basin(recs)
+    assert b["pairs"] == 3 and b["others"] == 2
+    assert b["p50_ms"] == {"deepbbs++good": 14.0, "gicp": 10.0} and b["p50_over_gicp"] == 1.4
+    assert b["cpu_p50_over_gicp"] == 1.5 * 14.0 / 15.0
+    assert b["paths"] == {"gicp": 1, "within reach": 1, "search": 1}
+    assert b["fallback_why"] == {"moved / verdict": 1} and b["accepted_wrong"] == 0 and b["rejected_right"] == 0
+    assert families.in_basin(recs[3:]) == {"pairs": 0, "others": 2}
+    sets = {"sim_a": {"sensor": "vlp16", "source": "sim", "mount": "wheeled", "place": "hall",
+                      "frames": [(_cloud(), np.eye(4))] * 2}}
+    c = families.summarise(recs, sets, ["deepbbs++good", "gicp"])["sim_a"]
+    assert c["good_start_in_basin"] == b and c["p50_over_gicp"]["deepbbs++good"] == 3.0  # all pairs: 30 / 10
+    assert c["cpu_p50_over_gicp"]["deepbbs++good"] == 45.0 / 15.0
+    doc = {"command": "x", "figures": {"sets": {"sim_a": c}, "basin": families.BASIN}}
+    text = "\n".join(_families_doc.families(doc, [], "not run"))
+    row = next(line for line in text.splitlines() if "VLP-16" in line and "of 5" in line)
+    assert row.endswith("| 3 of 5 | 3 (2) | x1.40 | gicp 1, search 1, within reach 1 |"), row

@@ -12,7 +12,8 @@ METHODS = ("deepbbs++", "gicp", "kiss-matcher+gicp")
 HEADER = ["LiDAR", "data", "pairs", "overlap p50", "DeepBBS++", "GICP", "KISS-Matcher + GICP",
           "errors where both are right, deg / m: DeepBBS++; GICP", "verdict: wrong accepted / right rejected",
           "DeepBBS++ p50 / p95 ms", "p50 / GICP's", "`good_start=True`: success", "its p50 / GICP's",
-          "its GICP path accepted"]
+          "its GICP path accepted", "start in GICP's basin: pairs (others)", "there: its p50 / GICP's",
+          "there: its paths"]
 GOOD = "deepbbs++good"
 
 
@@ -45,16 +46,30 @@ def _row(name: str, c: dict) -> list[str]:
     return [SENSOR_LABELS.get(c["sensor"], c["sensor"]), data_label(name, c), str(n), f"{c['overlap_median']:.2f}",
             *(_pct(s.get(m), n) for m in METHODS), f"{_err(b, 'deepbbs++')}; {_err(b, 'gicp')} ({b.get('pairs', 0)})",
             f"{v.get('accepted_wrong', '-')} / {v.get('rejected_right', '-')} (of {v.get('cases', '-')})",
-            f"{c['p50_ms']['deepbbs++']:.0f} / {c['p95_ms']['deepbbs++']:.0f}",
+            _ms(c, "deepbbs++"),
             "-" if ratio is None else f"x{ratio:.2f}", *_good(c)]
+
+
+def _ms(c: dict, m: str) -> str:
+    return "-" if m not in c["p50_ms"] else f"{c['p50_ms'][m]:.0f} / {c['p95_ms'][m]:.0f}"
 
 
 def _good(c: dict) -> list[str]:
     g, ratio = c.get("good_start"), (c.get("p50_over_gicp") or {}).get(GOOD)
     if not g:
-        return ["-", "-", "-"]
+        return ["-"] * 6
     return [_pct(c["success_pct"][GOOD], g["pairs"]), "-" if ratio is None else f"x{ratio:.2f}",
-            f"{g['gicp_path']} of {g['pairs']}"]
+            f"{g['gicp_path']} of {g['pairs']}", *_basin(c.get("good_start_in_basin"))]
+
+
+def _basin(b: dict | None) -> list[str]:
+    """The good start over the pairs whose start lies in GICP's basin (families.in_basin): how many (and how many
+    not), its p50 over GICP's there, the paths that answered."""
+    if not b:
+        return ["-", "-", "-"]
+    ratio = b.get("p50_over_gicp")
+    paths = ", ".join(f"{k} {v}" for k, v in sorted((b.get("paths") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
+    return [f"{b['pairs']} ({b['others']})", "-" if ratio is None else f"x{ratio:.2f}", paths or "-"]
 
 
 def _missed(name: str, c: dict) -> list[str]:
@@ -79,7 +94,13 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
                      "(pairs in brackets), overlap = share of source points within 0.5 m of the target at the truth; "
                      "the verdict's counts are over every start of the set. `good_start=True`: DeepBBS++ told that "
                      "the start is good (`register(..., good_start=True)`, as the node does with `node.good_start`): "
-                     "GICP from it, accepted by a stricter verdict, else the full pipeline.", ""]
+                     "GICP from it, accepted by a stricter verdict, else the full pipeline. Start in GICP's basin: "
+                     "the pairs whose start is good by a physical criterion, GICP from it lands within 1 deg / 0.3 m "
+                     "(in brackets the pairs where it does not, from which GICP alone fails); there, the p50 of "
+                     "`good_start=True` over GICP's on the same pairs, and the path that answered: `gicp` (GICP "
+                     "from the start within the good start's limits), `within reach` (converged beyond them, taken "
+                     "as the verdict was sure), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
+                     "`search`) when neither was taken.", ""]
     out += ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(_row(n, fig[n])) + " |" for n in _order(fig)]
     missed = [line for n in _order(fig) for line in _missed(n, fig[n])]

@@ -8,8 +8,11 @@ good start (the source as recorded: neighbouring scans) and from starts moved by
 10 m (the basin): success (within 1 deg / 0.3 m), the pairs DeepBBS++ misses with their overlap (the share of
 source points within 0.5 m of the target at the truth), the median errors of DeepBBS++ and GICP on the pairs both
 get right, the verdict's accepted wrong poses and rejected right ones, and p50 / p95 time per raw pair (both scans
-preprocessed) with the ratio to GICP's p50 in the same run. Real pairs follow ``deepbbs-replay --mode pairs``
-(``--stride``, ``--max-dist``). Answers are exact as in registration.py (``--inexact``: not).
+preprocessed) with the ratio to GICP's p50 in the same run (and of the CPU times: this process and its children).
+``good_start=True`` (DeepBBS++ told that the start is good) is also summarised over the pairs whose start is good by
+a physical criterion, GICP from it lands within 1 deg / 0.3 m (the start lies in GICP's basin), with the path each
+took (``good_start_in_basin``). Real pairs follow ``deepbbs-replay --mode pairs`` (``--stride``, ``--max-dist``).
+Answers are exact as in registration.py (``--inexact``: not).
 
     python scripts/benchmarks/families.py --quick --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --pair PATH/TO/hdl32_pair \
         --nuscenes PATH/TO/nuscenes_hdl32 --livox PATH/TO/livox_avia_loop --out results/benchmarks
@@ -171,7 +174,7 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
             rec = by_key.get(_key(case)) or {**case, "overlap": overlaps[key],
                                              "dist": float(np.linalg.norm(T_gt[:3, 3]))}
             for m in (m for m in _applicable(case, names) if m not in rec):
-                r = run_good(regs[m], src, tgt) if m == GOOD else _reg.run_case(m, regs[m], src, tgt)
+                r = run_good(regs[m], src, tgt) if m == GOOD else run_case(m, regs[m], src, tgt)
                 rot, tr = pair_errors(r.pop("T") @ P, T_gt)
                 rec[m] = {**r, "rot": float(rot), "trans": float(tr), "ok": bool(rot <= 1.0 and tr <= 0.3)}
             fh.write(json.dumps(rec) + "\n")
@@ -190,6 +193,13 @@ def _applicable(case: dict, names: list[str]) -> list[str]:
     return [m for m in names if m != GOOD or case["level"] == 0]
 
 
+def run_case(m: str, regs, src: np.ndarray, tgt: np.ndarray) -> dict:
+    """One method on one pair (registration.py's ``run_case``), with its CPU time as well (``cpu_ms``: this process
+    and its children, the network process included)."""
+    (T, extra), ms, cpu = _common.timed_then_answered(lambda reg: _reg._register(m, reg, src, tgt), *regs)
+    return {"ms": ms, "cpu_ms": cpu, "T": T, **extra}
+
+
 def run_good(regs, src: np.ndarray, tgt: np.ndarray) -> dict:
     """DeepBBS++ told that the start (identity) is good: GICP first, its stricter verdict, the full pipeline only
     when that rejects (``path``)."""
@@ -199,8 +209,8 @@ def run_good(regs, src: np.ndarray, tgt: np.ndarray) -> dict:
                                      "why": res.good_start, "stages_ms": {k: round(float(v), 1) for k, v in
                                                                           res.timings_ms.items()}}
 
-    (T, extra), ms, _ = _common.timed_then_answered(call, *regs)
-    return {"ms": ms, "T": T, **extra}
+    (T, extra), ms, cpu = _common.timed_then_answered(call, *regs)
+    return {"ms": ms, "cpu_ms": cpu, "T": T, **extra}
 
 
 def _whys(texts: list[str]) -> dict[str, int]:
@@ -219,6 +229,45 @@ def _stages(ran: list[dict]) -> dict[str, float]:
     ...), the median over the pairs (0 where a stage did not run): where the time goes."""
     names = sorted({k for x in ran for k in x.get("stages_ms", {}) if k != "startup"})
     return {k: float(np.median([x.get("stages_ms", {}).get(k, 0.0) for x in ran])) for k in names}
+
+
+def path_taken(x: dict) -> str:
+    """Which path answered one ``good_start=True`` call: "gicp" (GICP from the start within the good start's limits),
+    "within reach" (converged beyond them, within the coarse try's reach, taken as the verdict was sure), "coarse to
+    fine" (core/coarse_rescue.py), or the full pipeline after the good start was not taken ("deepbbs", "search")."""
+    why = x.get("why", "")
+    if x.get("path") != "gicp":
+        return x.get("path", "?")
+    if "coarse to fine" in why:
+        return "coarse to fine"
+    return "within reach" if "within the coarse try's reach" in why else "gicp"
+
+
+def in_basin(good: list[dict]) -> dict:
+    """The good-start pairs whose start is good by a physical criterion: GICP from the start (the ``gicp`` method on
+    the same pair) converges within 1 deg / 0.3 m of the truth, the start lies in GICP's basin. -> {"pairs", "others"
+    (the pairs where it does not), and over the pairs: "p50_ms" of the good start and GICP, "p50_over_gicp",
+    "cpu_p50_over_gicp" (when CPU times were recorded), "paths" (:func:`path_taken`), "fallback_why",
+    "accepted_wrong", "rejected_right"}."""
+    ran = [r for r in good if GOOD in r and "gicp" in r]
+    inside = [r for r in ran if r["gicp"]["ok"]]
+    out: dict = {"pairs": len(inside), "others": len(ran) - len(inside)}
+    if not inside:
+        return out
+    ms = {m: float(np.median([r[m]["ms"] for r in inside])) for m in (GOOD, "gicp")}
+    out["p50_ms"], out["p50_over_gicp"] = ms, ms[GOOD] / ms["gicp"]
+    if all("cpu_ms" in r[m] for r in inside for m in (GOOD, "gicp")):
+        cpu = {m: float(np.median([r[m]["cpu_ms"] for r in inside])) for m in (GOOD, "gicp")}
+        out["cpu_p50_ms"], out["cpu_p50_over_gicp"] = cpu, cpu[GOOD] / cpu["gicp"]
+    paths: dict[str, int] = {}
+    for r in inside:
+        k = path_taken(r[GOOD])
+        paths[k] = paths.get(k, 0) + 1
+    out["paths"] = paths
+    out["fallback_why"] = _whys([r[GOOD].get("why", "") for r in inside if r[GOOD]["path"] != "gicp"])
+    out["accepted_wrong"] = sum(r[GOOD]["valid"] and not r[GOOD]["ok"] for r in inside)
+    out["rejected_right"] = sum(r[GOOD]["ok"] and not r[GOOD]["valid"] for r in inside)
+    return out
 
 
 def _key(case: dict) -> str:
@@ -256,6 +305,12 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
                                       "rejected_right": sum(x["ok"] and not x["valid"] for x in ran)}
         g50 = cell["p50_ms"].get("gicp")
         cell["p50_over_gicp"] = {m: v / g50 for m, v in cell["p50_ms"].items()} if g50 else {}
+        cpu = {m: float(np.median([r[m]["cpu_ms"] for r in good if m in r])) for m in names
+               if any(m in r for r in good) and all("cpu_ms" in r[m] for r in good if m in r)}
+        if cpu.get("gicp"):  # CPU of this process and its children (the network process): less the machine's load
+            cell["cpu_p50_over_gicp"] = {m: v / cpu["gicp"] for m, v in cpu.items()}
+        if GOOD in names and "gicp" in names:
+            cell["good_start_in_basin"] = in_basin(good)
         if "deepbbs++" in names:
             frames = s["frames"]
             cell["missed"] = [{"i": r["i"], "j": r["j"], "overlap": r["overlap"], "dist_m": r["dist"],
@@ -294,6 +349,12 @@ def report(fig: dict, names: list[str]) -> None:
                   "GICP from the truth moves {:.2f} deg / {:.2f} m".format(*x["truth_gicp_deg_m"]))
         if "verdict" in c:
             print(f"   both right: {c['both_right']}; verdict: {c['verdict']}; good start: {c.get('good_start')}")
+        b = c.get("good_start_in_basin")
+        if b:
+            ratio = "-" if "p50_over_gicp" not in b else f"x{b['p50_over_gicp']:.2f}"
+            cpu = "" if "cpu_p50_over_gicp" not in b else f" (CPU x{b['cpu_p50_over_gicp']:.2f})"
+            print(f"   good start where GICP from the start is right ({b['pairs']} pairs, {b['others']} others): "
+                  f"p50 / GICP's {ratio}{cpu}; paths {b.get('paths', {})}; fallbacks {b.get('fallback_why', {})}")
         print("   basin: " + "; ".join(f"{b['yaw_deg']:.0f} deg/{b['shift_m']:.0f} m " + "/".join(
             f"{v:.0f}" for v in b["success_pct"].values()) for b in c["basin"]))
 
