@@ -24,7 +24,10 @@ from deepbbs_ros.core.first_motion import coarse_start
 
 __all__ = ["DENSE", "REACH", "VOXEL_FACTORS", "coarse_then_fine", "moved"]
 
-#: the rescue's answer stays within this many times registration.good_start_max_trans / good_start_max_rot_deg
+#: the rescue's answer stays within this many times registration.good_start_max_trans / good_start_max_rot_deg: how far
+#: a vouched start may plausibly be off, not GICP's basin, which reaches further than the scan's range suggests (GICP
+#: from the start lands right, the verdict sure, 11-24 degrees and 4.6 m away on real scans whose median range puts
+#: polish_max_corr_dist at 4.6-9.5 degrees of turn)
 REACH = 2.0
 #: the pyramid's base voxel in multiples of registration.polish_voxel (its levels: grids of 2x and 1x the base): for
 #: clouds of fewer than DENSE voxels (a Livox frame, a 16-beam scan) and for denser ones, where the finer base costs
