@@ -42,12 +42,23 @@ from deepbbs_ros.sim.placement import CHUNK
 from deepbbs_ros.sim.road import RoadSurfaces
 from deepbbs_ros.sim.roadside import Roadside
 from deepbbs_ros.sim.route import Route, _plan_route
-from deepbbs_ros.sim.styles import ALB_VERGE, CURB_DZ, ROAD_DZ, SCENES, STYLES, Style
+from deepbbs_ros.sim.styles import (
+    ALB_CURB,
+    ALB_MARK,
+    ALB_ROAD,
+    ALB_VERGE,
+    ALB_WALK,
+    CURB_DZ,
+    ROAD_DZ,
+    SCENES,
+    STYLES,
+    Style,
+)
 from deepbbs_ros.sim.terrain import TILE, TILE_RES, Terrain
 
 __all__ = [  # the public names, wherever they live
-    "CHUNK", "CURB_DZ", "EGO_HALF_SIZE", "ROAD_DZ", "SCENES", "STYLES", "TILE", "TILE_RES", "Route", "Style",
-    "Terrain", "World",
+    "ALB_CURB", "ALB_MARK", "ALB_ROAD", "ALB_VERGE", "ALB_WALK", "CHUNK", "CURB_DZ", "EGO_HALF_SIZE", "ROAD_DZ",
+    "SCENES", "STYLES", "TILE", "TILE_RES", "Route", "Style", "Terrain", "World",
 ]
 
 EGO_HALF_SIZE = (2.5, 1.0)  # m, half the ego vehicle's length and width about its sensor: moving cars keep out
