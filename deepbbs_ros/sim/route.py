@@ -51,7 +51,7 @@ class Route:
         return float(np.min(d))
 
 
-def _plan_route(style: Style, rng: np.random.Generator, length: float):
+def plan_route(style: Style, rng: np.random.Generator, length: float):
     """-> kappa array, intersections [(s, is_turn)], stops [(s, dwell)]."""
     ds = Route.DS
     kap: list[np.ndarray] = []

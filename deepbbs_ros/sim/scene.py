@@ -41,7 +41,7 @@ from deepbbs_ros.sim.geometry import MeshBuilder
 from deepbbs_ros.sim.placement import CHUNK
 from deepbbs_ros.sim.road import RoadSurfaces
 from deepbbs_ros.sim.roadside import Roadside
-from deepbbs_ros.sim.route import Route, _plan_route
+from deepbbs_ros.sim.route import Route, plan_route
 from deepbbs_ros.sim.styles import (
     ALB_CURB,
     ALB_MARK,
@@ -78,14 +78,13 @@ class World(Roadside, RoadSurfaces):
             raise SimulationError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
         self.scene, self.seed = scene, int(seed)
         self.day = None if day is None else int(day)
-        sid_ = SCENES.index(scene)
-        # the day's own randomness: never drawn from the world's generators, so the rest stays identical
-        self._day_rng = None if day is None else np.random.default_rng([self.seed, sid_, 909, self.day])
-        self.style = st = STYLES[scene]
         sid = SCENES.index(scene)
+        # the day's own randomness: never drawn from the world's generators, so the rest stays identical
+        self._day_rng = None if day is None else np.random.default_rng([self.seed, sid, 909, self.day])
+        self.style = st = STYLES[scene]
         rng = np.random.default_rng([self.seed, sid, 101])
         self.terrain = Terrain(rng, st.terrain_amp)
-        kappa, self.intersections, self.stops = _plan_route(st, rng, float(length))
+        kappa, self.intersections, self.stops = plan_route(st, rng, float(length))
         self.route = Route(kappa, heading0=float(rng.uniform(-np.pi, np.pi)))
         self._occ: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
         self._chunks: dict[int, MeshBuilder] = {}
