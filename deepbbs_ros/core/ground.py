@@ -1,6 +1,6 @@
 """The floor of a scan from any mount: a plausibility check of a ground plane, and a floor search at any tilt.
 
-The upright ground fit (:func:`deepbbs_ros.core.preprocess.fit_ground_plane`) assumes a car roof: a plane under the
+The upright ground fit (:func:`deepbbs_ros.core.ground_plane.fit_ground_plane`) assumes a car roof: a plane under the
 sensor whose normal is within ``ground_max_tilt_deg`` of the sensor's +z. A handheld or tilted sensor sees the floor
 at any angle in its own frame, a low robot sees it 0.3 m below, indoors the ceiling is a plane too, and on stairs
 there may be no dominant floor at all. This module adds two things (no ROS import):
@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from deepbbs_ros.config import PreprocessConfig
+from deepbbs_ros.core.ground_plane import triple_normals
 
 _SAMPLES = 4096  # the search runs on at most this many points (a seeded subset)
 _TOL = 0.15  # m; inlier band of a floor hypothesis
@@ -124,10 +125,7 @@ def find_floor(points: np.ndarray, cfg: PreprocessConfig, *, seed: int = 0,
     low = p64[h <= np.median(h)]
     iters = 4 * cfg.ground_ransac_iters
     tri = low[rng.integers(0, len(low), size=(iters, 3))]
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(normals, axis=1)
-    ok = norm > 1e-9
-    normals[ok] /= norm[ok, None]
+    normals, ok = triple_normals(tri)
     d = -np.einsum("hj,hj->h", normals, tri[:, 0])
     flip = d < 0  # turn each normal towards the sensor: d = the sensor's height above the plane
     normals[flip] *= -1.0
