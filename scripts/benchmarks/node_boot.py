@@ -140,7 +140,8 @@ def steady_s(r: nl.RunResult) -> float:
     return float("nan")
 
 
-def record(label: str, method: str, r: nl.RunResult, truth: list[np.ndarray], period_ns: int, anchor_cpu: float):
+def record(label: str, method: str, r: nl.RunResult, truth: list[np.ndarray], period_ns: int, anchor_cpu: float,
+           pairs: list[tuple[int, int]] | None = None):
     d = r.diagnostics
     err = float("nan")
     if r.poses:
@@ -157,6 +158,11 @@ def record(label: str, method: str, r: nl.RunResult, truth: list[np.ndarray], pe
             "cpu_vs_anchor": r.cpu_ms / anchor_cpu if anchor_cpu > 0 else float("nan"),
             "latency_p50_ms": r.pct(50), "latency_p99_ms": r.pct(99),
             "unanswered_after_first_s": [round(t, 2) for s, t in sorted(r.published.items(), key=lambda kv: kv[1])
+                                         if s not in r.poses and t > r.first_pose_s],
+            # the same scans as (published index k, the stream's frame): KITTI's ten scans turn back every 9
+            "unanswered_after_first_k": [[int((s - nl.STAMP0_NS) // period_ns), int(pairs[((s - nl.STAMP0_NS) //
+                                          period_ns) % len(pairs)][0]) if pairs else -1]
+                                         for s, t in sorted(r.published.items(), key=lambda kv: kv[1])
                                          if s not in r.poses and t > r.first_pose_s],
             "stages": nl.stage_line(d) if d and not r.error else "", "cpu_threads": r.cpu}
 
@@ -198,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
             anchor = results.get(nl.ANCHOR)
             a_cpu = anchor.cpu_ms if anchor is not None and not anchor.error else float("nan")
             for method in these:
-                rows.append(record(label, method, results[method], truth, int(nl.SEC / args.rate), a_cpu))
+                rows.append(record(label, method, results[method], truth, int(nl.SEC / args.rate), a_cpu,
+                                   st.pairs))
                 print(json.dumps(rows[-1], default=float), flush=True)
     finally:
         rclpy.try_shutdown()
