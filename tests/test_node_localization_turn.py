@@ -6,7 +6,6 @@ tests/test_node_localization.py's, every second frame (2.3 m a scan at 10 Hz), f
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from deepbbs_ros.node.dds import apply_default_profile
