@@ -194,8 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     import rclpy
 
     ns = argparse.Namespace(mode="localization", config=None, warmup=args.warmup, seconds=args.seconds,
-                            rate=args.rate, play=args.play, repeat_sources=False, startup_timeout=args.startup_timeout, device="cpu",
-                            threads=None, weights="", param=args.param, out=args.out)
+                            rate=args.rate, play=args.play, repeat_sources=False,
+                            startup_timeout=args.startup_timeout, device="cpu", threads=None, weights="",
+                            param=args.param, out=args.out)
     rows = []
     rclpy.init()
     try:
