@@ -137,7 +137,8 @@ class MapTracker:
             # the last pose at rest beside the constant-velocity prediction: a sensor that stopped or turned back, or a
             # prediction across a gap, is tracked by GICP from whichever of the two the scan fits better (measured on
             # the map: core/guess_tracking.py), not by the slower DeepBBS++ path
-            starts = [self._poses[-1][1]] if len(self._poses) >= 2 else []
+            last = self._poses[-1][1]
+            starts = [last] if len(self._poses) >= 2 and not np.array_equal(guess, last) else []
             res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion, starts=starts)
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False
