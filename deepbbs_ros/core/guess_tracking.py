@@ -2,7 +2,10 @@
 :class:`~deepbbs_ros.core.localization.MapLocalizer` that registers a scan from a predicted pose.
 
 GICP of the scan on the crop of the place nearest the guess (the crop tracked last while it still serves; off the
-places, a crop at the guess), from the guess, with register()'s good-start verdict; DeepBBS++ from the guess when that
+places, a crop at the guess), from the guess, with register()'s good-start verdict; other starts (the tracker's last
+pose at rest) are ranked with it by how much of the scan lies on the map there (the verdict's fitness, a k-d tree query
+of a few hundred points), GICP from each in that order until one is accepted: a sensor that stopped or turned back is
+tracked by GICP from the start nearest it, not by DeepBBS++; DeepBBS++ from the best-fitting start when every GICP
 is rejected, and a search among the places within ``localization.track_search_radius`` when that is too, unless the
 score fell far below the recent scans' (``track_drop``: a kidnap, the global search decides). A mixin: it works on
 the localizer's places, crops, registration and configuration. :class:`~deepbbs_ros.core.tracking.MapTracker` drives it.
@@ -22,7 +25,8 @@ from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Cr
 class GuessTracking:
     """Tracking from a guess for :class:`~deepbbs_ros.core.localization.MapLocalizer` (module docstring)."""
 
-    def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float]) -> LocalizationResult:
+    def _track(self, pts: np.ndarray, src: Any, guess: np.ndarray, timings: dict[str, float],
+               starts: Any = ()) -> LocalizationResult:
         lc = self.config.localization
         t = time.perf_counter()
         xy = self._places[:, :2, 3]
@@ -41,12 +45,15 @@ class GuessTracking:
                 T[:3, 3] = guess[:3, 3]
                 crop = self._guess_crop = self._crop(-1, T)
         timings["crop"] = (time.perf_counter() - t) * 1e3
-        T_guess = np.linalg.inv(crop.T_map_place) @ guess  # T_place_scan
+        C_inv = np.linalg.inv(crop.T_map_place)
+        T_guess = C_inv @ guess  # T_place_scan
         t = time.perf_counter()
         # GICP from the guess (the GICP anchor's work) and the verdict on a spread subset of the scan's voxels, as
-        # register(..., good_start=True) does, but here: its score decides whether the scan is worth a retry
-        ans, at_guess = self._track_gicp(src, crop, T_guess, near)
+        # register(..., good_start=True) does, but here: its score decides whether the scan is worth a retry; the
+        # other starts ranked with it by their fitness, GICP from each in turn until one is accepted
+        ans, at_guess, T_guess = self._track_gicp(src, crop, [T_guess, *(C_inv @ s for s in starts)], near)
         timings["gicp"] = (time.perf_counter() - t) * 1e3
+        guess = crop.T_map_place @ T_guess  # the best-fitting start: the DeepBBS++ path's
         score, T_map_scan, path = at_guess, guess, "gicp"
         if ans is not None:
             score, T_map_scan = ans.score, ans.T
@@ -93,29 +100,44 @@ class GuessTracking:
                                   crop=_crop_cloud(crop), place=place,
                                   covariance=self._covariance(src, crop, T_map_scan, timings))
 
-    def _track_gicp(self, src: Any, crop: _Crop, T_place_scan: np.ndarray,
-                    place: int) -> tuple[_Answer | None, float]:
-        """Tracking's GICP from the guess T_place_scan (4, 4) with register()'s good-start limits
-        (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP voxels
-        (``good_start_points``) on the crop, judged by the map verdict (core/map_verdict.py) as every answer in a
-        map (the registration's good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran
-        low for right poses).
-        Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the answer or None when
-        GICP did not apply, the score at the guess itself when it did not, else nan)."""
+    def _track_gicp(self, src: Any, crop: _Crop, starts: list[np.ndarray],
+                    place: int) -> tuple[_Answer | None, float, np.ndarray]:
+        """Tracking's GICP from the starts T_place_scan (4, 4) (the prediction first) with register()'s good-start
+        limits (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP
+        voxels (``good_start_points``) on the crop, judged by the map verdict (core/map_verdict.py) as every answer in
+        a map (the registration's good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran
+        low for right poses). With more than one start, they are tried in the order of their fitness (the share of
+        those voxels on the crop at the start itself; a tie keeps the prediction first) until one is accepted.
+        Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the accepted answer, else
+        the best-scoring one, or None when GICP applied from no start; the fitness at the best start when GICP did not
+        apply, else nan; the best-fitting start)."""
         from deepbbs_ros.core import verdict
         from deepbbs_ros.core.registration import good_start_gicp, good_start_points
 
         rc = self.config.registration
         if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
-            return None, float("nan")
+            return None, float("nan"), starts[0]
         th = self.registration.gicp_threads()
         spc, tpc = src.polish_cloud.complete(threads=th), crop.pre.polish_cloud.complete(threads=th)
         pts = good_start_points(spc, rc)
-        pol = good_start_gicp(spc, tpc, T_place_scan, rc)  # as register()'s good start
-        if not pol.applied:  # GICP moved the guess too far or did not converge: how well does the guess itself fit?
-            return None, verdict.fitness(pts, tpc.tree, T_place_scan, rc.verdict_dist)
-        T = pol.T_target_source
-        score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
-        prob = map_verdict.probability(map_verdict.features(pts, T, tpc, rc.verdict_dist))
-        return (_Answer(score, acceptance.accepts(self.config, prob), crop.T_map_place @ T, place, crop, prob=prob),
-                float("nan"))
+        fits = [verdict.fitness(pts, tpc.tree, T, rc.verdict_dist) for T in starts] if len(starts) > 1 else [np.nan]
+        order = sorted(range(len(starts)), key=lambda i: -fits[i])  # stable: the prediction first on a tie
+        best: _Answer | None = None
+        for i in order:
+            pol = good_start_gicp(spc, tpc, starts[i], rc)  # as register()'s good start
+            if not pol.applied:  # GICP moved the start too far or did not converge
+                continue
+            T = pol.T_target_source
+            score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
+            prob = map_verdict.probability(map_verdict.features(pts, T, tpc, rc.verdict_dist))
+            ans = _Answer(score, acceptance.accepts(self.config, prob), crop.T_map_place @ T, place, crop, prob=prob)
+            if ans.ok:
+                return ans, float("nan"), starts[i]
+            if best is None or ans.score > best.score:
+                best = ans
+        T0 = starts[order[0]]
+        if best is not None:
+            return best, float("nan"), T0
+        # no GICP applied: how well does the best start itself fit?
+        at = fits[order[0]] if np.isfinite(fits[order[0]]) else verdict.fitness(pts, tpc.tree, T0, rc.verdict_dist)
+        return None, at, T0

@@ -356,7 +356,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
 
     def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
                  stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None,
-                 among: np.ndarray | None = None) -> LocalizationResult:
+                 among: np.ndarray | None = None, starts: Any = ()) -> LocalizationResult:
         """The pose of ``scan`` in the map.
 
         Args:
@@ -370,6 +370,8 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             times, stamp_ns, motion: per-point times (N,) s since the stamp and the sensor's known motion
                 (``T_prev_cur``, seconds) for deskewing (``DeepBBSRegistration.preprocess``); optional.
             among: with no guess, the places (indices into :attr:`places`) searched instead of all (a pose hint's).
+            starts: with a guess, other (4, 4) starts for its GICP (the tracker's last pose at rest), tried in the
+                order of their fit with it (core/guess_tracking.py).
 
         Raises:
             LocalizationError: a scan that is not (N, 3) numbers, with too few finite points, a bad guess.
@@ -384,7 +386,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         pts, src = prepared.points, prepared.pre
         timings["preprocess"] = prepared.preprocess_ms if prepared is scan else (time.perf_counter() - t0) * 1e3
         if guess is not None:
-            res = self._track(pts, src, guess, timings)
+            res = self._track(pts, src, guess, timings, starts)
         else:
             res = self._global(pts, src, among, timings)
         res.timings_ms = timings

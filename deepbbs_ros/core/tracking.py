@@ -1,10 +1,11 @@
 """Tracking a scan stream in a prior map (no ROS): :class:`MapTracker`, the state machine around
 :class:`~deepbbs_ros.core.localization.MapLocalizer` shared by the node and the replay.
 
-Constant-velocity prediction from the last accepted poses, tracking from it (``MapLocalizer.localize`` with a
-guess), lost after ``localization.lost_after`` rejected scans (or an implausible speed), then the global search
-until found again; a pose hint (:meth:`MapTracker.hint`) searches near it first. ``MapTracker.motion`` gives the
-sensor's recent motion for deskewing the next scan.
+Constant-velocity prediction from the last accepted poses, tracking from it or from the last pose at rest, whichever
+the scan fits better (``MapLocalizer.localize`` with a guess and that start), lost after ``localization.lost_after``
+rejected scans (or an implausible speed), then the global search until found again; a pose hint
+(:meth:`MapTracker.hint`) searches near it first. ``MapTracker.motion`` gives the sensor's recent motion for deskewing
+the next scan.
 """
 
 from __future__ import annotations
@@ -133,13 +134,12 @@ class MapTracker:
         if self.state == "tracking":
             guess = self.predict(stamp_ns)
             motion = self.motion() if times is not None else None
-            res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion)
-            if not res.valid and res.path == "gicp" and len(self._poses) >= 2:
-                # rejected at once from the constant-velocity prediction (its GICP far below the recent scores): the
-                # sensor stopped, turned back or the prediction spans a gap; once more from the last pose, at rest
-                still = self.localizer.localize(scan, self._poses[-1][1], times=times, stamp_ns=stamp_ns, motion=motion)
-                if still.valid:
-                    res = still
+            # the last pose at rest beside the constant-velocity prediction: a sensor that stopped or turned back, or a
+            # prediction across a gap, is tracked by GICP from whichever of the two the scan fits better (measured on
+            # the map: core/guess_tracking.py), not by the slower DeepBBS++ path
+            last = self._poses[-1][1]
+            starts = [last] if len(self._poses) >= 2 and not np.array_equal(guess, last) else []
+            res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion, starts=starts)
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False
                 res.reason = f"implausible motion (faster than {lc.max_speed:.0f} m/s)"

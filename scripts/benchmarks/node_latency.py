@@ -562,7 +562,8 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
         t0 = time.perf_counter()
         cpu0, cpu_self0 = {}, 0.0
         for k in range(n_total):
-            due = t0 + k / args.rate
+            # a bag played slower (node_boot.py --play): the stamps keep the sensor's rate, the wall clock slows
+            due = t0 + k / (args.rate * getattr(args, "play", 1.0))
             while (now := time.perf_counter()) < due:
                 rclpy.spin_once(node, timeout_sec=due - now)  # returns on a pose (timed at once) or when due
             stamp = STAMP0_NS + k * int(SEC / args.rate)

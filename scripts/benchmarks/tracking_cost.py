@@ -16,6 +16,10 @@ Drives, forwards only (the order a vehicle drives them):
   ``--map-every``-th scan at its true pose, voxelised, without its trajectory (``--trajectory``: with it);
 * ``--sim-frames N`` (0: none): a simulated urban drive (HDL-32E), the same way.
 
+``--back-and-forth N``: N scans of each drive played forwards and back instead (0, 1, .., n-1, n-2, .., 1, 0, 1, ..,
+every scan stamped a period after the last: node_boot.py's KITTI stream), so that the tracker meets the turns (its
+constant-velocity prediction two scans off there); the scans at the turns are timed apart as well.
+
     python scripts/benchmarks/tracking_cost.py --kitti PATH/TO/kitti/00 PATH/TO/kitti/02 --sim-frames 150
 """
 
@@ -43,6 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--map-every", type=int, default=2, help="every k-th scan goes into the map")
     p.add_argument("--map-voxel", type=float, default=0.2, help="the map's voxel grid (m)")
     p.add_argument("--trajectory", action="store_true", help="give the localizer the map's trajectory")
+    p.add_argument("--back-and-forth", type=int, default=0, metavar="N",
+                   help="N scans played forwards and back (the turns of node_boot.py's KITTI stream); 0: forwards once")
     return p
 
 
@@ -81,6 +87,14 @@ def measure(name: str, scans, poses, stamps, args, registration, config) -> dict
     rows = {"ours.prepare": [], "ours.track": [], "anchor.prepare": [], "anchor.register": []}
     stages: dict[str, list[float]] = {}
     right = 0
+    order = list(range(len(scans)))
+    if args.back_and_forth > 0:  # 0, 1, .., n-1, n-2, .., 1, 0, 1, ..: stamped a period apart
+        cycle = order + order[-2:0:-1]
+        order = [cycle[i % len(cycle)] for i in range(args.back_and_forth)]
+        period = int(np.median(np.diff(stamps)))
+        stamps = [stamps[0] + i * period for i in range(len(order))]
+        scans, poses = [scans[i] for i in order], [poses[i] for i in order]
+    turns = [i for i in range(1, len(order) - 1) if (order[i + 1] - order[i]) * (order[i] - order[i - 1]) < 0]
     for k in range(1, len(scans)):
         t0 = time.perf_counter()
         prepared = loc.prepare(scans[k], None, stamps[k])
@@ -114,6 +128,12 @@ def measure(name: str, scans, poses, stamps, args, registration, config) -> dict
     for a, b in (("ours.prepare", "anchor.prepare"), ("ours.track", "anchor.register"), ("ours", "anchor")):
         print(f"  {a:13s} p50 / p95 {q[a][0]:6.1f} / {q[a][1]:6.1f} ms   {b:15s} {q[b][0]:6.1f} / {q[b][1]:6.1f} ms   "
               f"ratio x{q[a][0] / q[b][0]:.2f} / x{q[a][1] / q[b][1]:.2f}")
+    if turns:  # the scan after each turn (the prediction two scans off)
+        at = [k - 1 for k in (t + 1 for t in turns) if k < len(scans)]
+        o = [rows["ours.prepare"][i] + rows["ours.track"][i] for i in at]
+        a = [rows["anchor.prepare"][i] + rows["anchor.register"][i] for i in at]
+        print(f"  the {len(at)} scans after a turn: ours p50 / max {np.median(o):6.1f} / {max(o):6.1f} ms, anchor "
+              f"{np.median(a):6.1f} / {max(a):6.1f} ms, ratio of the sums x{sum(o) / sum(a):.2f}")
     print("  localization stages, median ms: " + ", ".join(f"{s} {np.median(v):.1f}" for s, v in sorted(stages.items())
                                                           if s != "total"))
     return q
