@@ -306,8 +306,7 @@ class NodeLocalization:
             raise BadInput("no_target", "no map yet (localization.map_path is empty and nothing arrived on the map "
                                         "topic, latched: transient_local, reliable)")
         state_before = tracker.state
-        last = tracker.last_stamp_ns
-        if state_before == "tracking" and last is not None and cloud.stamp_ns <= last:
+        if self.answered(cloud.stamp_ns):
             self.skipped += 1
             return None
         if state_before != "tracking" and self._search_t0 is None:
