@@ -28,7 +28,7 @@ DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "verdict_mode
 TRANSFORM = "logit(clip(x, 0.005, 0.995))"
 _EPS = 0.005
 _PINNED = FEATURES.index("pinned")
-_FLOORS: dict[str, float] = {}  # the floor on ``pinned`` of each file :func:`load` read
+_FLOORS: dict[str | None, float] = {}  # the floor on ``pinned`` of each ``path`` :func:`load` read
 
 
 def design(rows: np.ndarray) -> np.ndarray:
@@ -57,7 +57,7 @@ def load(path: str | None = None) -> dict[str, tuple[np.ndarray, float]]:
         floor = float(doc.get("min_pinned", 0.0))
         if not 0.0 <= floor < 1.0:
             raise ValueError(f"min_pinned {floor} is not within [0, 1)")
-        _FLOORS[str(p)] = floor
+        _FLOORS[path] = floor  # keyed as load's cache is
         return out
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise VerdictModelError(f"calibrated verdict {p}: {e} (refit: python scripts/calibrate_verdict.py)") from None
@@ -67,7 +67,7 @@ def min_pinned(path: str | None = None) -> float:
     """The floor on ``pinned`` of the coefficients at ``path`` (the shipped file when None): 0 when the file sets
     none."""
     load(path)
-    return _FLOORS[str(Path(path) if path else DEFAULT_PATH)]
+    return _FLOORS[path]
 
 
 def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None) -> np.ndarray | float:
