@@ -74,6 +74,28 @@ def test_shipped_coefficients_load_and_a_damaged_file_is_one_line(tmp_path):
         calibrated.load(str(bad))
 
 
+def test_a_floor_on_pinned_vetoes_a_pose_the_fit_leaves_free(tmp_path):
+    """A coefficients file may set ``min_pinned``: a pose pinned less has probability 0; others are unchanged."""
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    floored = tmp_path / "floored.json"
+    floored.write_text(json.dumps({**doc, "min_pinned": 0.02}))
+    unfloored = tmp_path / "unfloored.json"
+    unfloored.write_text(json.dumps({**doc, "min_pinned": 0.0}))
+    rows = np.full((2, len(visibility.FEATURES)), 0.95)
+    rows[0, visibility.FEATURES.index("pinned")] = 0.019
+    rows[1, visibility.FEATURES.index("pinned")] = 0.021
+    p = calibrated.probability(rows, "good_start", str(floored))
+    plain = calibrated.probability(rows, "good_start", str(unfloored))
+    assert p[0] == 0.0 and plain[0] > 0.0 and p[1] == plain[1] > 0.0
+    assert calibrated.probability(rows[1], "good_start", str(floored)) == pytest.approx(p[1])
+    assert calibrated.min_pinned(str(floored)) == 0.02 and calibrated.min_pinned(str(unfloored)) == 0.0
+    assert calibrated.min_pinned() == doc.get("min_pinned", 0.0)
+    bad = tmp_path / "bad_floor.json"
+    bad.write_text(json.dumps({**doc, "min_pinned": 1.5}))
+    with pytest.raises(VerdictModelError, match="min_pinned"):
+        calibrated.load(str(bad))
+
+
 def test_probability_is_empty_safe_and_the_setting_is_checked():
     assert verdict.probability(np.zeros((0, 3)), np.eye(4), np.ones((5, 3)), 0.5) == 0.0
     from deepbbs_ros.config import Config

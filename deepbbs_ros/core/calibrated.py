@@ -6,7 +6,10 @@ mount and place (``scripts/calibrate_verdict.py``; right: within 1 degree / 0.3 
 coefficients ship in ``deepbbs_ros/resources/verdict_model.json``, read once: ``"good_start"``, for a spread
 subset of the source's GICP voxels (ground included), is the one the registration's verdicts use (the pair verdict
 and the good start); ``"pair"``, for the network's sampled non-ground points, is fitted beside it for comparison
-(it carried worse to real scans). A missing or damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+(it carried worse to real scans). The file may set ``"min_pinned"``: a pose whose ``pinned`` (core/visibility.py: how
+well the fit pins its weakest direction) is under it has probability 0, whatever the regression says (the fit leaves
+it free by more than ``sqrt(1 / min_pinned - 1)`` tolerances: 0.02, seven, about 2 m or 7 degrees). A missing or
+damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "verdict_mode
 #: how the features enter the regression: shares as log-odds (clipped), so that 0.9 -> 0.99 weighs like 0.5 -> 0.9
 TRANSFORM = "logit(clip(x, 0.005, 0.995))"
 _EPS = 0.005
+_PINNED = FEATURES.index("pinned")
+_FLOORS: dict[str | None, float] = {}  # the floor on ``pinned`` of each ``path`` :func:`load` read
 
 
 def design(rows: np.ndarray) -> np.ndarray:
@@ -34,7 +39,8 @@ def design(rows: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=4)
 def load(path: str | None = None) -> dict[str, tuple[np.ndarray, float]]:
-    """The coefficients {verdict: (coef (F,), intercept)} from ``path`` (the shipped file when None); read once."""
+    """The coefficients {verdict: (coef (F,), intercept)} from ``path`` (the shipped file when None); read once
+    (:func:`min_pinned`: the file's floor on ``pinned``)."""
     p = Path(path) if path else DEFAULT_PATH
     try:
         doc = json.loads(p.read_text())
@@ -48,15 +54,28 @@ def load(path: str | None = None) -> dict[str, tuple[np.ndarray, float]]:
             out[name] = (coef, float(m["intercept"]))
         if not {"pair", "good_start"} <= set(out):
             raise ValueError("needs the 'pair' and 'good_start' models")
+        floor = float(doc.get("min_pinned", 0.0))
+        if not 0.0 <= floor < 1.0:
+            raise ValueError(f"min_pinned {floor} is not within [0, 1)")
+        _FLOORS[path] = floor  # keyed as load's cache is
         return out
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise VerdictModelError(f"calibrated verdict {p}: {e} (refit: python scripts/calibrate_verdict.py)") from None
 
 
+def min_pinned(path: str | None = None) -> float:
+    """The floor on ``pinned`` of the coefficients at ``path`` (the shipped file when None): 0 when the file sets
+    none."""
+    load(path)
+    return _FLOORS[path]
+
+
 def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None) -> np.ndarray | float:
     """P(right) of feature rows (K, F) -> (K,), or of one row (F,) -> float, by the ``verdict`` model
-    ("pair" or "good_start")."""
+    ("pair" or "good_start"); 0 for a row whose ``pinned`` is under :func:`min_pinned`."""
     coef, icpt = load(path)[verdict]
-    z = design(rows) @ coef + icpt
+    x = np.atleast_2d(np.asarray(rows, np.float64))
+    z = design(x) @ coef + icpt
     p = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
+    p = np.where(x[:, _PINNED] < min_pinned(path), 0.0, p)
     return float(p[0]) if np.ndim(rows) == 1 else p

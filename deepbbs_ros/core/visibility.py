@@ -22,7 +22,7 @@ import numpy as np
 
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
-            "plane_own", "violations_nb", "consistency_nb", "pinned")
+            "plane_own", "violations_nb", "consistency_nb", "pinned", "in_view", "observable_rel")
 _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
@@ -31,6 +31,7 @@ _NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 
 _OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
 _PIN_SCALE = np.array([0.3, 0.3, 0.3, *np.radians([1.0, 1.0, 1.0])])  # m, rad: ``pinned``'s units (a right pose's)
 _PIN_MIN = 6  # close plane matches ``pinned`` needs (fewer: 0)
+_VIEW_CELL = np.radians(5.0)  # rad; ``in_view``'s direction cells: the target's field of view at this resolution
 
 
 def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,11 +114,15 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     ``pinned``: how well the points on the target's planes (``plane_close``'s) pin all six degrees of freedom
     (:func:`pinned`): a pose that slides along a wall, a corridor or a floor and one wall fits as tightly as a right
     one, but the fit does not tell where along them it is (without tangent plane distances, of the points within
-    ``dist / 2``).
+    ``dist / 2``); ``in_view``: the share of the points whose direction from the target's sensor falls in the target's
+    field of view (:func:`in_view`: the overlap the pose itself expects; a narrow sensor turned by half its view
+    between the scans: about one half, a pose slid along a corridor: about one); ``observable_rel``: ``observable``
+    over ``in_view`` (at most 1): the overlap measured against the one expected, so that a right pose of a sensor
+    that turned is not taken for a loose one.
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
-        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
@@ -145,9 +150,10 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     judged, judged_nb = n_seen + viol, n_seen + viol_nb
     plane_close = plane / max(n_seen, 1)
     rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
+    view = in_view(moved, cell, ukey)
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
                      judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
-                     n_seen / judged_nb if judged_nb else 0.0, pin])
+                     n_seen / judged_nb if judged_nb else 0.0, pin, view, min(1.0, judged / n / view) if view else 0.0])
 
 
 def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
@@ -280,3 +286,27 @@ def roughness(target, dist: float) -> tuple[float, float]:
         return 0.0, 1.0
     res = self_residuals(tpts, target.tree, normals, dist)
     return (float(np.quantile(res, _OWN_Q)) if len(res) else 0.0), float(own)
+
+
+_VIEW: tuple = (None, 0.0, np.zeros(0, bool))  # (a target's direction keys, their cell, :func:`in_view`'s table)
+
+
+def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray) -> float:
+    """The share of ``moved`` (N, 3) (the target's sensor frame) whose direction falls in the target's field of view:
+    the :data:`_VIEW_CELL` direction cells (a whole multiple of ``cell``) holding a target return, from the target's
+    :func:`directions` keys ``ukey`` (``cell`` rad). Measured on the target's returns (no sensor's constants): a
+    70-degree view turned by 35 degrees keeps about half of the source in it, a 360-degree one all of it."""
+    if len(moved) == 0 or len(ukey) == 0 or cell <= 0:
+        return 0.0
+    global _VIEW
+    f = max(1, int(round(_VIEW_CELL / cell)))
+    rows = int(np.pi / cell) // f + 2  # the coarse cells as a flat table (no sort), as :func:`_occupied`
+    kept = _VIEW  # the last target's table (a target is judged several times in a row); one assignment below
+    if kept[0] is not ukey or kept[1] != cell:
+        table = np.zeros((int(2 * np.pi / cell) // f + 2) * rows, bool)
+        table[(ukey // 100_000 // f) * rows + ukey % 100_000 // f] = True
+        kept = _VIEW = (ukey, cell, table)
+    table = kept[2]
+    az, el, _ = _angles(np.asarray(moved, np.float64))
+    k = _keys(az, el, cell)
+    return float(np.mean(table[(k // 100_000 // f) * rows + k % 100_000 // f]))
