@@ -556,12 +556,14 @@ class LocalizationConfig:
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
-    # places; in a map with more candidate places than this (over about 1 km of road without its trajectory) the
+    # places; in a map with more candidate places than this (over about 250 m of road without its trajectory) the
     # scan's descriptor about its sensor alone ranks every place first, and the descriptors about the points around it
-    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place); 0 = all
-    rank_shortlist: int = 10000
+    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place; the same
+    # candidates as with every place for every query of the localization benchmark's 1 km maps); 0 = all
+    rank_shortlist: int = 2000
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
-    # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
+    # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?),
+    # unless the map verdict is sure of it (registration.verdict_sure): then only the look-alike places are
     confident_score: float = 0.8
     # every answer in a map (a search's, tracking's, a hint's) is accepted when the map verdict's probability that it
     # is right (core/map_verdict.py, calibrated on simulated maps of every kind of place) reaches this
@@ -574,8 +576,9 @@ class LocalizationConfig:
     # 0 = never
     flip_starts: int = 4
     # the failed candidates are retried (GICP alone, the opposite yaw, poses slid along the road) only when the best
-    # first answer's probability (min_probability's) is at least this; below (and retry_descriptor), GICP alone only,
-    # then no pose (a scan outside the map: the other retries would double its time to "no pose"); 0 = always retry
+    # first answer's probability (min_probability's) is at least this; below (and retry_descriptor), no pose at once (a
+    # scan outside the map), asked after every candidate of the first round as well; 0 = always every candidate and
+    # every retry
     retry_probability: float = 0.05
     # descriptor distance (0..1, descriptor_margin's) of the best-ranked place from which on a first round under
     # retry_probability ends the search (the descriptor matches no place either: simulated and real in-map scans

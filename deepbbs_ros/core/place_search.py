@@ -63,6 +63,7 @@ class PlaceSearch:
         accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         search = lc.candidate_search != "off"
+        sure = self.config.registration.verdict_sure
         for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
             if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
                 break  # the rest look less alike than the margin: not a rival
@@ -83,19 +84,20 @@ class PlaceSearch:
             if not ans.ok:
                 failed.append((len(answers), rank_i, T_init, yaw))
             answers.append(ans)
-            if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
-                accepted_dist = dist
+            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
+                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
+            if not ans.ok and accepted_dist is None and self._outside(src, answers, ranked, timings):
+                break  # no place so far, and the first round's bar says the scan is not in the map: the rest neither
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
-        top = self._refined(src, answers, timings)
-        outside = top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor
-                                                        or top.prob < lc.retry_floor)
-        if not any(a.ok for a in answers):
-            # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
-            # early) when the best answer is far below the bar and no place looks like the scan either (outside the
-            # map?)
-            self._retry(src, answers, failed, timings, quick=outside)
+        outside = self._outside(src, answers, ranked, timings)
+        if not any(a.ok for a in answers) and not outside:
+            # no place accepted: the failed starts again; none when the best answer is far below the bar and no place
+            # looks like the scan either (outside the map?): GICP alone on the failed places there cost as much as the
+            # first round's registrations and placed no scan of the benchmark's maps (scripts/benchmarks/
+            # search_profile.py)
+            self._retry(src, answers, failed, timings)
         answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
@@ -126,8 +128,17 @@ class PlaceSearch:
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
 
+    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
+        """The answers so far say the scan is not in the map: the best one (refined, :meth:`_refined`) under
+        ``localization.retry_probability``, and the best-ranked place's descriptor distance at least
+        ``retry_descriptor`` (no place looks like the scan) or that probability under ``retry_floor``. Asked after
+        each rejected candidate of the first round (it then ends there) and after the round (no retries then)."""
+        lc = self.config.localization
+        top = self._refined(src, answers, timings)
+        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
+
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-               timings: dict[str, float], quick: bool = False) -> None:
+               timings: dict[str, float]) -> None:
         """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
         ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
@@ -141,8 +152,6 @@ class PlaceSearch:
         search = lc.candidate_search != "off"
         for k, _, T_init, _ in failed:
             answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
-        if quick:
-            return
         if not any(a.ok for a in answers):
             for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:
