@@ -62,6 +62,7 @@ class PlaceSearch:
         answers: list[_Answer] = []
         accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
+        retried: set[int] = set()  # failed starts (index in answers) retried with GICP alone already
         search = lc.candidate_search != "off"
         sure = self.config.registration.verdict_sure
         for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
@@ -87,17 +88,21 @@ class PlaceSearch:
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
             if not ans.ok and accepted_dist is None and self._outside(src, answers, ranked, timings):
-                break  # no place so far, and the first round's bar says the scan is not in the map: the rest neither
+                # no place so far and the round's bar says the scan is not in the map: the quick retry (GICP alone) on
+                # the places tried; none accepted, the rest of the round neither
+                self._gicp_again(src, answers, [f for f in failed if f[0] not in retried], timings)
+                retried.update(f[0] for f in failed)
+                if not any(a.ok for a in answers):
+                    break
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
         outside = self._outside(src, answers, ranked, timings)
-        if not any(a.ok for a in answers) and not outside:
-            # no place accepted: the failed starts again; none when the best answer is far below the bar and no place
-            # looks like the scan either (outside the map?): GICP alone on the failed places there cost as much as the
-            # first round's registrations and placed no scan of the benchmark's maps (scripts/benchmarks/
-            # search_profile.py)
-            self._retry(src, answers, failed, timings)
+        if not any(a.ok for a in answers):
+            # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
+            # early) when the best answer is far below the bar and no place looks like the scan either (outside the
+            # map?)
+            self._retry(src, answers, failed, timings, quick=outside, retried=retried)
         answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
@@ -132,13 +137,21 @@ class PlaceSearch:
         """The answers so far say the scan is not in the map: the best one (refined, :meth:`_refined`) under
         ``localization.retry_probability``, and the best-ranked place's descriptor distance at least
         ``retry_descriptor`` (no place looks like the scan) or that probability under ``retry_floor``. Asked after
-        each rejected candidate of the first round (it then ends there) and after the round (no retries then)."""
+        each rejected candidate of the first round (then, unless GICP alone on the failed places finds one, the round
+        ends there) and after it (the quick retry only)."""
         lc = self.config.localization
         top = self._refined(src, answers, timings)
         return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
 
+    def _gicp_again(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
+                    timings: dict[str, float]) -> None:
+        """The ``failed`` starts (index in ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's
+        pass went astray), the better answer kept in ``answers``."""
+        for k, _, T_init, _ in failed:
+            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-               timings: dict[str, float]) -> None:
+               timings: dict[str, float], quick: bool = False, retried: set[int] | None = None) -> None:
         """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
         ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
@@ -147,11 +160,12 @@ class PlaceSearch:
         a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
         no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
         probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor`` or
-        the probability under ``retry_floor``)."""
+        the probability under ``retry_floor``). ``retried``: the failed starts retried with GICP alone already."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-        for k, _, T_init, _ in failed:
-            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+        self._gicp_again(src, answers, [f for f in failed if f[0] not in (retried or ())], timings)
+        if quick:
+            return
         if not any(a.ok for a in answers):
             for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:

@@ -370,9 +370,9 @@ def _registration(config):
 
 def cpu_seconds(loc) -> float:
     """CPU seconds used so far by this process and by the network process of ``loc``'s registration (when it has
-    one): a search's CPU time is the difference around it, about its time on a quiet machine whatever the load."""
+    one): a search's CPU time is the difference around it, a figure the machine's load hardly changes."""
     cpu = time.process_time()
-    proc = getattr(getattr(loc.registration, "runner", None), "worker", None)
+    proc = getattr(getattr(getattr(loc, "registration", None), "runner", None), "worker", None)
     if proc is not None:
         try:
             fields = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
