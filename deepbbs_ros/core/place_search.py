@@ -87,12 +87,12 @@ class PlaceSearch:
             answers.append(ans)
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
-            if not ans.ok and accepted_dist is None and self._outside(src, answers, ranked, timings):
-                # no place so far and the round's bar says the scan is not in the map: the quick retry (GICP alone) on
-                # the places tried; none accepted, the rest of the round neither
+            if not ans.ok and accepted_dist is None and self._outside(src, answers, ranked, timings, floor=False):
+                # no place so far, none looks like the scan and the best answer is far below the bar: the quick retry
+                # (GICP alone) on the places tried; still so, the rest of the round is not tried (a scan from elsewhere)
                 self._gicp_again(src, answers, [f for f in failed if f[0] not in retried], timings)
                 retried.update(f[0] for f in failed)
-                if not any(a.ok for a in answers):
+                if not any(a.ok for a in answers) and self._outside(src, answers, ranked, timings, floor=False):
                     break
         n = len(answers)
         if not answers:
@@ -133,15 +133,18 @@ class PlaceSearch:
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
 
-    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
+    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float],
+                 floor: bool = True) -> bool:
         """The answers so far say the scan is not in the map: the best one (refined, :meth:`_refined`) under
         ``localization.retry_probability``, and the best-ranked place's descriptor distance at least
-        ``retry_descriptor`` (no place looks like the scan) or that probability under ``retry_floor``. Asked after
-        each rejected candidate of the first round (then, unless GICP alone on the failed places finds one, the round
-        ends there) and after it (the quick retry only)."""
+        ``retry_descriptor`` (no place looks like the scan) or (``floor``) that probability under ``retry_floor``.
+        Asked after the first round (then the quick retry only) and, without the floor, after each of its rejected
+        candidates (then, unless GICP alone on the places tried changes it, the round ends there: the floor alone
+        ended highway queries there that a later candidate places)."""
         lc = self.config.localization
         top = self._refined(src, answers, timings)
-        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
+        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor
+                                                    or (floor and top.prob < lc.retry_floor))
 
     def _gicp_again(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                     timings: dict[str, float]) -> None:
