@@ -577,9 +577,7 @@ class LocalizationConfig:
     flip_starts: int = 4
     # the failed candidates are retried (GICP alone, the opposite yaw, poses slid along the road) only when the best
     # first answer's probability (min_probability's) is at least this; below (and retry_descriptor), GICP alone only,
-    # then no pose (a scan outside the map: the other retries would double its time to "no pose"); with
-    # retry_descriptor also asked after every rejected candidate of the first round (the rest of it then not tried);
-    # 0 = always every candidate and every retry
+    # then no pose (a scan outside the map: the other retries would double its time to "no pose"); 0 = always retry
     retry_probability: float = 0.05
     # descriptor distance (0..1, descriptor_margin's) of the best-ranked place from which on a first round under
     # retry_probability ends the search (the descriptor matches no place either: simulated and real in-map scans

@@ -1,31 +1,10 @@
-"""The global search's first round ends early: a scan from elsewhere after the candidate that says so, an in-map scan
-once the map verdict is sure of a place (only look-alike places are registered after it)."""
+"""The global search's first round ends early once the map verdict is sure of a place: only look-alike places are
+registered after it."""
 
 from __future__ import annotations
 
 import numpy as np
-from test_localization import _ok, _quick_then_slow, localizer, world  # noqa: F401  (fixtures)
-
-
-def test_a_scan_from_elsewhere_ends_the_first_round_early(localizer, world):  # noqa: F811
-    """retry_descriptor 0 (the probability alone decides): a scan of another map is 'no pose' after its first
-    candidate (DeepBBS++ once); retry_probability 0 registers every candidate and runs every retry."""
-    _, _, _, other = world
-    ranked = localizer.rank(localizer.describe(other.scan_at(3).points, localizer.description_centres), None,
-                            localizer.description_centres)
-    res, slow, quick, calls = _quick_then_slow(
-        localizer, other.scan_at(3).points, {"localization.retry_descriptor": 0.0},
-        {"localization.retry_probability": 0.0})
-    assert len(ranked) > 1
-    assert not res.valid and "scan outside the map" in res.reason and res.probability < 0.05, res.reason
-    assert quick == res.candidates == 1  # the first round ended at its first candidate
-    assert not slow.valid and slow.candidates == len(ranked) and len(calls) > quick + slow.candidates
-
-
-def test_the_early_end_still_places_an_in_map_scan(localizer, world):  # noqa: F811
-    _, _, drive, _ = world
-    res = localizer.localize(drive.scan_at(50).points)
-    assert res.valid and _ok(res.T_map_scan, drive.pose_at(50))[0], res.reason
+from test_localization import _quick_then_slow, localizer, world  # noqa: F401  (fixtures)
 
 
 def test_a_sure_answer_registers_only_look_alike_places_after_it(localizer, world):  # noqa: F811

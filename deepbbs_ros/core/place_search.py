@@ -62,7 +62,6 @@ class PlaceSearch:
         answers: list[_Answer] = []
         accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
-        retried: set[int] = set()  # failed starts (index in answers) retried with GICP alone already
         search = lc.candidate_search != "off"
         sure = self.config.registration.verdict_sure
         for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
@@ -87,13 +86,6 @@ class PlaceSearch:
             answers.append(ans)
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
-            if not ans.ok and accepted_dist is None and self._outside(src, answers, ranked, timings, floor=False):
-                # no place so far, none looks like the scan and the best answer is far below the bar: the quick retry
-                # (GICP alone) on the places tried; still so, the rest of the round is not tried (a scan from elsewhere)
-                self._gicp_again(src, answers, [f for f in failed if f[0] not in retried], timings)
-                retried.update(f[0] for f in failed)
-                if not any(a.ok for a in answers) and self._outside(src, answers, ranked, timings, floor=False):
-                    break
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
@@ -102,7 +94,7 @@ class PlaceSearch:
             # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
             # early) when the best answer is far below the bar and no place looks like the scan either (outside the
             # map?)
-            self._retry(src, answers, failed, timings, quick=outside, retried=retried)
+            self._retry(src, answers, failed, timings, quick=outside)
         answers.sort(key=_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
@@ -133,28 +125,19 @@ class PlaceSearch:
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
 
-    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float],
-                 floor: bool = True) -> bool:
-        """The answers so far say the scan is not in the map: the best one (refined, :meth:`_refined`) under
-        ``localization.retry_probability``, and the best-ranked place's descriptor distance at least
-        ``retry_descriptor`` (no place looks like the scan) or (``floor``) that probability under ``retry_floor``.
-        Asked after the first round (then the quick retry only) and, without the floor, after each of its rejected
-        candidates (then, unless GICP alone on the places tried changes it, the round ends there: the floor alone
-        ended highway queries there that a later candidate places)."""
+    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
+        """The first round's answers say the scan is not in the map (then the quick retry only): the best one
+        (refined, :meth:`_refined`) under ``localization.retry_probability``, and the best-ranked place's descriptor
+        distance at least ``retry_descriptor`` (no place looks like the scan) or that probability under
+        ``retry_floor``. Not asked before the round's end: after its first candidate, scans a later candidate places
+        look the same (highway: descriptor 0.25, first answer 0.000-0.001; the real map: 0.42, 0.000) as scans from
+        elsewhere (0.33-0.52, under 0.05)."""
         lc = self.config.localization
         top = self._refined(src, answers, timings)
-        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor
-                                                    or (floor and top.prob < lc.retry_floor))
-
-    def _gicp_again(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-                    timings: dict[str, float]) -> None:
-        """The ``failed`` starts (index in ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's
-        pass went astray), the better answer kept in ``answers``."""
-        for k, _, T_init, _ in failed:
-            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
-               timings: dict[str, float], quick: bool = False, retried: set[int] | None = None) -> None:
+               timings: dict[str, float], quick: bool = False) -> None:
         """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
         ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
@@ -163,10 +146,11 @@ class PlaceSearch:
         a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
         no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
         probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor`` or
-        the probability under ``retry_floor``). ``retried``: the failed starts retried with GICP alone already."""
+        the probability under ``retry_floor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-        self._gicp_again(src, answers, [f for f in failed if f[0] not in (retried or ())], timings)
+        for k, _, T_init, _ in failed:
+            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
         if quick:
             return
         if not any(a.ok for a in answers):
