@@ -556,12 +556,14 @@ class LocalizationConfig:
     # distinct places (best descriptor matches) registered per global search, best first; once one is accepted, the
     # rest only while their descriptor distance is within descriptor_margin of its (places that look alike)
     top_k: int = 4
-    # places; in a map with more candidate places than this (over about 1 km of road without its trajectory) the
+    # places; in a map with more candidate places than this (over about 250 m of road without its trajectory) the
     # scan's descriptor about its sensor alone ranks every place first, and the descriptors about the points around it
-    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place); 0 = all
-    rank_shortlist: int = 10000
+    # (descriptor_shift) are matched with the best this many only (a ninth of the ranking's time per place; the same
+    # candidates as with every place for every query of the localization benchmark's 1 km maps); 0 = all
+    rank_shortlist: int = 2000
     descriptor_margin: float = 0.04  # descriptor distance (0..1) within which two places look alike
-    # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?)
+    # an accepted answer scoring below this does not stop the search early: all top_k places are registered (rivals?),
+    # unless the map verdict is sure of it (registration.verdict_sure): then only the look-alike places are
     confident_score: float = 0.8
     # every answer in a map (a search's, tracking's, a hint's) is accepted when the map verdict's probability that it
     # is right (core/map_verdict.py, calibrated on simulated maps of every kind of place) reaches this

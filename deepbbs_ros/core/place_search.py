@@ -63,6 +63,7 @@ class PlaceSearch:
         accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         search = lc.candidate_search != "off"
+        sure = self.config.registration.verdict_sure
         for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
             if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
                 break  # the rest look less alike than the margin: not a rival
@@ -83,14 +84,12 @@ class PlaceSearch:
             if not ans.ok:
                 failed.append((len(answers), rank_i, T_init, yaw))
             answers.append(ans)
-            if ans.ok and accepted_dist is None and ans.score >= lc.confident_score:
-                accepted_dist = dist
+            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
+                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
-        top = self._refined(src, answers, timings)
-        outside = top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor
-                                                        or top.prob < lc.retry_floor)
+        outside = self._outside(src, answers, ranked, timings)
         if not any(a.ok for a in answers):
             # no place accepted: the failed starts again; only GICP alone (cheap: on a wrong place its check stops it
             # early) when the best answer is far below the bar and no place looks like the scan either (outside the
@@ -125,6 +124,17 @@ class PlaceSearch:
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
+
+    def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
+        """The first round's answers say the scan is not in the map (then the quick retry only): the best one
+        (refined, :meth:`_refined`) under ``localization.retry_probability``, and the best-ranked place's descriptor
+        distance at least ``retry_descriptor`` (no place looks like the scan) or that probability under
+        ``retry_floor``. Not asked before the round's end: after its first candidate, scans a later candidate places
+        look the same (highway: descriptor 0.25, first answer 0.000-0.001; the real map: 0.42, 0.000) as scans from
+        elsewhere (0.33-0.52, under 0.05)."""
+        lc = self.config.localization
+        top = self._refined(src, answers, timings)
+        return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
 
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float], quick: bool = False) -> None:

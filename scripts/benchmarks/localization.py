@@ -48,6 +48,7 @@ beside it: placed / wrong / no pose and the time p50 / p95 per map and method.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -347,6 +348,8 @@ class Answer:
     time_s: float = float("nan")
     timeout: bool = False
     exact_time_s: float = float("nan")  # MapLocalizer: the time of the twin that answered (GICP on one thread)
+    cpu_s: float = float("nan")  # MapLocalizer: the timed call's CPU time (this process and its network process)
+    exact_cpu_s: float = float("nan")  # the twin's CPU time
     probability: float = float("nan")  # MapLocalizer: the map verdict's probability of its answer
 
 
@@ -363,6 +366,20 @@ def _registration(config):
         reg.warmup()
         _REGISTRATION[key] = reg
     return _REGISTRATION[key]
+
+
+def cpu_seconds(loc) -> float:
+    """CPU seconds used so far by this process and by the network process of ``loc``'s registration (when it has
+    one): a search's CPU time is the difference around it, a figure the machine's load hardly changes."""
+    cpu = time.process_time()
+    proc = getattr(getattr(getattr(loc, "registration", None), "runner", None), "worker", None)
+    if proc is not None:
+        try:
+            fields = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            cpu += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+        except (OSError, ValueError, IndexError):
+            pass
+    return cpu
 
 
 class MapLocalizerMethod:
@@ -395,16 +412,17 @@ class MapLocalizerMethod:
         return MapLocalizer(points, config, registration=_registration(config), trajectory=trajectory)
 
     def __call__(self, scan: np.ndarray) -> Answer:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu_seconds(self.loc)
         r = self.loc.localize(scan)
-        dt = time.perf_counter() - t0
+        dt, cpu = time.perf_counter() - t0, cpu_seconds(self.loc) - c0
         if self.exact is None:
-            return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
+            return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt, cpu_s=cpu,
                           probability=float(getattr(r, "probability", np.nan)))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu_seconds(self.exact)
         r = self.exact.localize(scan)
-        return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt,
-                      exact_time_s=time.perf_counter() - t0, probability=float(getattr(r, "probability", np.nan)))
+        return Answer(np.asarray(r.T_map_scan, np.float64), bool(r.valid), str(r.reason), dt, cpu_s=cpu,
+                      exact_time_s=time.perf_counter() - t0, exact_cpu_s=cpu_seconds(self.exact) - c0,
+                      probability=float(getattr(r, "probability", np.nan)))
 
 
 class Isolated(_common.Isolated):
@@ -585,6 +603,7 @@ def judge(ans: Answer, q: Query) -> dict:
 
     row = {"place": q.place, "kind": q.kind, "s": q.s, "repetitive": q.repetitive, "valid": ans.valid,
            "reason": ans.reason, "time_s": ans.time_s, "exact_time_s": ans.exact_time_s, "timeout": ans.timeout,
+           "cpu_s": ans.cpu_s, "exact_cpu_s": ans.exact_cpu_s,
            "rot_err_deg": None,
            "trans_err_m": None, "probability": ans.probability}
     close = False
@@ -618,6 +637,11 @@ def summarize(rows: list[dict]) -> dict:
     te = te[np.isfinite(te)]
     if len(te):  # MapLocalizer's exact twin (GICP on one thread)
         out["exact_time_s_p50"], out["exact_time_s_p95"] = float(np.percentile(te, 50)), float(np.percentile(te, 95))
+    for k in ("cpu_s", "exact_cpu_s"):  # CPU time per query (this process and its network process)
+        c = np.array([r.get(k, np.nan) for r in rows], dtype=np.float64)
+        c = c[np.isfinite(c)]
+        if len(c):
+            out[f"{k}_p50"], out[f"{k}_p95"] = float(np.percentile(c, 50)), float(np.percentile(c, 95))
     tp = np.array([r["time_s"] for r in rows if r["outcome"] == "placed"])
     if len(tp):
         out["placed_time_s_p50"], out["placed_time_s_p95"] = float(np.percentile(tp, 50)), float(np.percentile(tp, 95))
@@ -725,8 +749,9 @@ def evaluate_map(data: MapData, methods: list[str], args, config=None, log=print
             row["query"] = i
             rows.append(row)
             err = "" if row["rot_err_deg"] is None else f" {row['rot_err_deg']:.2f} deg {row['trans_err_m']:.2f} m"
+            cpu = f" (CPU {row['cpu_s']:.2f} s)" if np.isfinite(row["cpu_s"]) else ""
             log(f"  {data.name} {name} {n + 1}/{len(idx)} [{q.kind}{' ' + q.repetitive if q.repetitive else ''}]: "
-                f"{row['outcome']}{err} {row['time_s']:.2f} s {row['reason'][:80]}")
+                f"{row['outcome']}{err} {row['time_s']:.2f} s{cpu} {row['reason'][:80]}")
         boot = boot_rows(m, rows, [data.queries[i] for i in idx], log, data.name) if name == "maplocalizer" else []
         if hasattr(m, "close"):
             m.close()
@@ -778,17 +803,19 @@ def evaluate_outside(data: MapData, outside: list[Query], args, config=None, log
     m = make_method("maplocalizer", data.points, data.trajectory, args, config)
     if isinstance(m, str):
         return {"note": m}
-    times, wrong, probs = [], 0, []
+    times, cpus, wrong, probs = [], [], 0, []
     for n, q in enumerate(outside):
         ans = m(q.points)
         probs.append(ans.probability)
         times.append(ans.time_s)
+        cpus.append(ans.cpu_s)
         wrong += bool(ans.valid)
         log(f"  {data.name} outside {n + 1}/{len(outside)} [{q.place}]: {'WRONG' if ans.valid else 'none'} "
-            f"{ans.time_s:.2f} s {ans.reason[:70]}")
-    t = np.array(times)
+            f"{ans.time_s:.2f} s (CPU {ans.cpu_s:.2f} s) {ans.reason[:70]}")
+    t, c = np.array(times), np.array(cpus)
     return {"queries": len(outside), "none_share": 1.0 - wrong / max(len(outside), 1), "wrong_count": wrong,
             "time_s_p50": float(np.percentile(t, 50)), "time_s_p95": float(np.percentile(t, 95)),
+            "cpu_s_p50": float(np.nanpercentile(c, 50)), "cpu_s_p95": float(np.nanpercentile(c, 95)),
             "time_s_max": float(t.max()), "probability_max": float(np.nanmax(probs)) if np.any(np.isfinite(probs))
             else float("nan")}
 
@@ -800,7 +827,7 @@ def report(figs: dict, methods: list[str]) -> None:
 
     table = Table(title="Global localization from no guess (placed: valid and within 1 deg / 0.3 m)")
     for col in ("map", "method", "queries", "placed", "wrong", "no pose", "ambiguous", "timeouts", "p50 s",
-                "p95 s", "build s"):
+                "p95 s", "CPU p50 s", "CPU p95 s", "build s"):
         table.add_column(col, justify="right")
 
     def pct(v):
@@ -810,7 +837,7 @@ def report(figs: dict, methods: list[str]) -> None:
         for name in methods:
             s = fig["methods"].get(name, {})
             if "note" in s:
-                table.add_row(mapname, name, s["note"][:40], *[""] * 8)
+                table.add_row(mapname, name, s["note"][:40], *[""] * 10)
                 continue
             for label, x in ((name, s), (f"{name} (repetitive)", s.get("repetitive"))):
                 if not x or not x.get("queries"):
@@ -818,6 +845,7 @@ def report(figs: dict, methods: list[str]) -> None:
                 table.add_row(mapname, label, str(x["queries"]), pct(x.get("placed_share")), str(x.get("wrong_count")),
                               pct(x.get("none_share")), pct(x.get("ambiguous_share")), str(x.get("timeout_count")),
                               f"{x.get('time_s_p50', float('nan')):.2f}", f"{x.get('time_s_p95', float('nan')):.2f}",
+                              f"{x.get('cpu_s_p50', float('nan')):.2f}", f"{x.get('cpu_s_p95', float('nan')):.2f}",
                               f"{s.get('build_s', float('nan')):.1f}" if x is s else "")
     Console(width=150).print(table)
 
@@ -969,7 +997,8 @@ def main(argv: list[str] | None = None) -> int:
             o = figs[name]["outside"]
             print(f"{name}: outside the map, {o.get('queries')} scans: no pose {100 * o.get('none_share', 0):.0f} %, "
                   f"wrong {o.get('wrong_count')}, p50 {o.get('time_s_p50', float('nan')):.2f} s, "
-                  f"p95 {o.get('time_s_p95', float('nan')):.2f} s")
+                  f"p95 {o.get('time_s_p95', float('nan')):.2f} s (CPU {o.get('cpu_s_p50', float('nan')):.2f} / "
+                  f"{o.get('cpu_s_p95', float('nan')):.2f} s, load {os.getloadavg()[0]:.1f})")
     fig = {"maps": figs, "pooled": aggregate(figs, methods), "labels": LABELS,
            "tolerance": {"rot_deg": ROT_OK_DEG, "trans_m": TRANS_OK_M},
            "settings": {k: v for k, v in vars(args).items()},
