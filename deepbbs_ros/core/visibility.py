@@ -58,14 +58,20 @@ def _cell_table(az: np.ndarray, el: np.ndarray) -> tuple[float, tuple | None]:
     if len(az) and step >= _PER_CELL:
         return float(_CELLS[0]), None
     az, el = az[::step], el[::step]
-    occupied = None
-    for cell in _CELLS:
-        if not len(az):
-            break
-        occupied = _occupied(az, el, cell)
-        if len(az) * step / np.count_nonzero(occupied[0]) >= _PER_CELL:
-            return float(cell), occupied if step == 1 else None
-    return float(_CELLS[-1]), occupied if step == 1 else None
+    if not len(az):
+        return float(_CELLS[-1]), None
+    # every cell's _occupied table at once, side by side in one array (the same keys: the same operations)
+    rows = (np.pi / _CELLS).astype(np.int64) + 2
+    sizes = ((2 * np.pi / _CELLS).astype(np.int64) + 2) * rows
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    idx = (np.floor((az + np.pi) / _CELLS[:, None]).astype(np.int64) * rows[:, None]
+           + np.floor((el + np.pi / 2) / _CELLS[:, None]).astype(np.int64))
+    tables = np.zeros(int(sizes.sum()), bool)
+    tables[(idx + starts[:, None]).ravel()] = True
+    for k, cell in enumerate(_CELLS):
+        table = tables[starts[k]:starts[k] + sizes[k]]
+        if len(az) * step / np.count_nonzero(table) >= _PER_CELL or k == len(_CELLS) - 1:
+            return float(cell), (table, idx[k], int(rows[k])) if step == 1 else None
 
 
 #: the features :func:`features` returns, in order
