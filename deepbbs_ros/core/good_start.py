@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, verdict
+from deepbbs_ros.core import coarse_rescue, pair_deskew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, polish
@@ -129,11 +129,13 @@ def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any)
 
 
 def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:
-    """:func:`core.verdict.fitness` of ``pts`` under ``T`` at each of ``dists`` m, from one nearest-neighbour search."""
+    """:func:`core.verdict.fitness` of ``pts`` under ``T`` at each of ``dists`` m, from one nearest-neighbour search
+    (the verdict's on the same pose: kept on the cloud)."""
     if len(pts) == 0:
         return [0.0 for _ in dists]
-    moved = np.asarray(pts, np.float64) @ np.asarray(T, np.float64)[:3, :3].T + np.asarray(T, np.float64)[:3, 3]
-    _, sq = tpc.tree.batch_nearest_neighbor_search(moved, num_threads=1)
+    T = np.asarray(T, np.float64)
+    moved = np.asarray(pts, np.float64) @ T[:3, :3].T + T[:3, 3]  # as the verdict moved them: its search's answer
+    _, sq = visibility._nearest(tpc, moved, 1)
     sq = np.asarray(sq, np.float64)
     return [float(np.mean(sq <= d * d)) for d in dists]
 

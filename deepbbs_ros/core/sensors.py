@@ -57,7 +57,12 @@ def azimuth_coverage(points: np.ndarray) -> float:
     """Fraction of the 36 ten-degree azimuth bins (sensor frame, around +z) holding at least 0.2 % of the
     finite points of ``points`` (N, 3): about 1 for a spinning sensor, about 0.2 for a Livox Avia."""
     pts = np.asarray(points)[:: max(1, len(points) // _MAX_SHAPE_POINTS)]
-    pts = pts[np.isfinite(pts).all(axis=1)]
+    if pts.ndim == 2 and pts.shape[1] == 3:  # column by column: a quarter of the time of a row-wise all()
+        finite = np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & np.isfinite(pts[:, 2])
+    else:
+        finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():  # a copy only when some rows are missing returns
+        pts = pts[finite]
     if len(pts) == 0:
         return 0.0
     az = np.arctan2(pts[:, 1], pts[:, 0])
