@@ -297,20 +297,21 @@ class DeepBBSOdometry:
 
     def _hold(self, pose: np.ndarray, start: np.ndarray, cloud: Any) -> tuple[np.ndarray, _deg.Degeneracy]:
         """The last VGICP's degeneracy at ``pose`` and ``pose`` held to ``start`` beyond the gate along its weak
-        directions (the Hessian's ratio test, core/degeneracy.py) and along those the data pin less than the prediction
-        does (core/odometry_hold.py); not on the first motion (its start, identity, is no prediction)."""
+        directions (the Hessian's ratio test, core/degeneracy.py), and along those the data pin less than the
+        prediction does moved to the two's weighted mean (core/odometry_hold.py); not on the first motion (its start,
+        identity, is no prediction)."""
         H = self._local.hessian
         deg = _deg.analyse(H, pose[:3, :3], self.config.odometry.degenerate_ratio)
         limit = self._gate.limit()
         if self.frames < 2 or not np.isfinite(limit):
             return pose, deg
         R = pose[:3, :3]
-        held, _ = _held.held_directions(
+        held, sigmas = _held.held_directions(
             pose, start, _held.translation_directions(H, R), limit,
             lambda: _cov.gicp_part(cloud, self._map, pose, self.voxel_size),
             lambda d: self._sweep.weak_sigma(R.T @ d))
-        deg = _held.merged(deg, held, R)
-        return _deg.hold(pose, start, deg.weak, limit), deg
+        pose = _deg.hold(_held.blend(pose, start, held, sigmas), start, deg.weak, limit)
+        return pose, _held.merged(deg, held, R)
 
     def _coarse_start(self, frame: np.ndarray, start: np.ndarray) -> np.ndarray:
         """``start`` (4, 4, the first scan's frame) refined on the coarse levels against the previous scan."""
