@@ -347,6 +347,13 @@ class MotionFloor:
             floor[3:] = np.maximum(floor[3:], sweep)
         return floor
 
+    def last_deviation(self, direction: np.ndarray) -> float:
+        """m: the last step's deviation from its prediction along the unit ``direction`` (3,), the scan's axes (the
+        constant velocity carries it into the next prediction); NaN before any."""
+        if not self._devs:
+            return float("nan")
+        return float(abs(np.asarray(self._devs[-1][:3]) @ np.asarray(direction, dtype=np.float64)))
+
     def weak_sigma(self, direction: np.ndarray) -> float:
         """m: the prediction's standard deviation along the unit ``direction`` (3,), the scan's axes: the root mean
         square along it of the deviations of the steps not held (a held step's is the prediction's own, zero), times

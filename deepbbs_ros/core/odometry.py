@@ -309,7 +309,7 @@ class DeepBBSOdometry:
         held, sigmas = _held.held_directions(
             pose, start, _held.translation_directions(H, R), limit,
             lambda: _cov.gicp_part(cloud, self._map, pose, self.voxel_size),
-            lambda d: self._sweep.weak_sigma(R.T @ d))
+            lambda d: np.fmax(self._sweep.weak_sigma(R.T @ d), self._sweep.last_deviation(R.T @ d)))
         pose = _deg.hold(_held.blend(pose, start, held, sigmas), start, deg.weak, limit)
         return pose, _held.merged(deg, held, R)
 
