@@ -45,9 +45,9 @@ import numpy as np
 
 from deepbbs_ros.core.gicp_pairs import matched_pairs, sandwich_terms, voxel_pairs
 
-__all__ = ["adjoint", "compose", "conjugated", "gicp_covariance", "gicp_hessian", "is_covariance", "matched_pairs",
-           "odometry_covariance", "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew",
-           "voxel_pairs"]
+__all__ = ["adjoint", "compose", "conjugated", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part",
+           "is_covariance", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
+           "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -235,7 +235,7 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
 
 def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
                         floor: np.ndarray | None = None, weak: np.ndarray | None = None,
-                        model: MotionFloor | None = None) -> np.ndarray | None:
+                        model: MotionFloor | None = None, weak_sigma: Any = None) -> np.ndarray | None:
     """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
     fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus the model error
     ``floor`` (:class:`MotionFloor`: (6,) standard deviations, m and rad, along the scan's own axes x, y, z, roll,
@@ -244,7 +244,9 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     odometry's degeneracy check found weak (core/degeneracy.py ``analyse``, ``odometry.degenerate_ratio``; None: the
     Hessian's own test at :data:`WEAK_RATIO`): along each the pose is the prediction's, and its variance is what the
     motion model knows there (``model.weak_sigma``: the deviations along it, growing with the steps held in a row;
-    without a model or a deviation, the whole deviation ``|floor[:3]| / SWEEP_SPREAD``, or a voxel)."""
+    without a model or a deviation, the whole deviation ``|floor[:3]| / SWEEP_SPREAD``, or a voxel); ``weak_sigma``:
+    (K,) m per weak direction given by the caller (NaN: as above), e.g. the first motion's spread of places along its
+    weakest direction (core/odometry_first.py)."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
     R = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
     first = floor is None
@@ -258,12 +260,29 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     if weak_scan is not None and len(weak_scan) and model is not None and not first:
         known = np.array([model.weak_sigma(d) for d in weak_scan])
         sigma = np.where(np.isfinite(known), known, sigma)
+    if weak_scan is not None and weak_sigma is not None:
+        given = np.asarray(weak_sigma, dtype=np.float64).reshape(-1)
+        sigma = np.where(np.isfinite(given), given, np.broadcast_to(sigma, given.shape))
     cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=sigma, weak=weak_scan)
     if cov is not None:
-        Bm = np.zeros((6, 6))
-        Bm[:3, :3] = Bm[3:, 3:] = R
-        cov += Bm @ np.diag(np.square(floor)) @ Bm.T
+        cov += floor_term(floor, T_map_scan)
     return cov
+
+
+def floor_term(floor: np.ndarray, T_map_scan: np.ndarray) -> np.ndarray:
+    """(6, 6) the model error ``floor`` (6,) (standard deviations along the scan's axes x, y, z, roll, pitch, yaw, m
+    and rad) as a covariance in the module's convention: rotated into the map frame by ``T_map_scan``'s rotation."""
+    B = np.zeros((6, 6))
+    B[:3, :3] = B[3:, 3:] = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
+    return B @ np.diag(np.square(np.asarray(floor, dtype=np.float64))) @ B.T
+
+
+def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float) -> np.ndarray | None:
+    """(6, 6) the GICP part of the odometry's covariance at ``T_map_scan`` (the module's convention, map frame): the
+    cluster-robust covariance of the scan's VGICP pairs on ``vmap``, nothing added along weak directions and no floor
+    (the data's own uncertainty, core/odometry_hold.py); None without pairs."""
+    pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
+    return sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak=np.zeros((0, 3)))
 
 
 def quantisation_floor(cloud: Any, voxel_size: float, motion: float = 0.0) -> np.ndarray:
@@ -327,6 +346,13 @@ class MotionFloor:
             sweep = SWEEP_SPREAD * 2.0 * np.sqrt(np.mean(np.square(np.asarray(self._swept)), axis=0))
             floor[3:] = np.maximum(floor[3:], sweep)
         return floor
+
+    def last_deviation(self, direction: np.ndarray) -> float:
+        """m: the last step's deviation from its prediction along the unit ``direction`` (3,), the scan's axes (the
+        constant velocity carries it into the next prediction); NaN before any."""
+        if not self._devs:
+            return float("nan")
+        return float(abs(np.asarray(self._devs[-1][:3]) @ np.asarray(direction, dtype=np.float64)))
 
     def weak_sigma(self, direction: np.ndarray) -> float:
         """m: the prediction's standard deviation along the unit ``direction`` (3,), the scan's axes: the root mean

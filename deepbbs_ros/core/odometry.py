@@ -48,6 +48,8 @@ from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
 from deepbbs_ros.core import first_motion as _first
 from deepbbs_ros.core import line_share as _lines
+from deepbbs_ros.core import odometry_first as _search
+from deepbbs_ros.core import odometry_hold as _held
 from deepbbs_ros.core.local_map import LocalMap
 from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_check import suspect
@@ -157,7 +159,7 @@ class DeepBBSOdometry:
         # has none, from identity coarse to fine: core/first_motion.py)
         prior = self._motion.predict(self.pose, scale)
         pose, fit = self._align(cloud, self._coarse_start(frame, prior) if self.frames == 1 else prior)
-        pose, deg = self._hold(pose, prior)
+        pose, deg = self._hold(pose, prior, cloud)
         clock.lap("align")
         # check: DeepBBS++ where the prior is suspect, and the other starts
         dev, limit = _deg.deviation(pose, prior), self._gate.limit()
@@ -166,6 +168,10 @@ class DeepBBSOdometry:
         if reason:
             pose, fit, won, path, deg = self._other_starts(frame, cloud, prior, pose, fit, deg)
             clock.lap("deepbbs")
+        along = None
+        if self.frames == 1:  # the first motion along the direction its data pin least (core/odometry_first.py)
+            pose, fit, deg, along = self._along(frame, cloud, pose, fit, deg)
+            clock.lap("align")
         dev = _deg.deviation(pose, prior)
         if self.frames >= 3:  # the motion model's own error (not the first motion's): where the place measures it
             self._gate.update(_deg.deviation(_deg.hold(pose, prior, deg.weak), prior))
@@ -179,7 +185,10 @@ class DeepBBSOdometry:
             clock.lap("prepare")
         # update: map (the covariance's pairs first: the map without this scan), velocity, previous scan
         floor = self._sweep.update(pose, prior if self.frames >= 2 else None, self.delta, self.swept, bool(deg.axes))
-        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, deg.weak, self._sweep)
+        weak, weak_sigma = deg.weak, None
+        if along is not None and along.sigma > 0:  # the first motion's places along the direction: its uncertainty
+            weak, weak_sigma = np.vstack([deg.weak, along.direction]), [np.nan] * len(deg.weak) + [along.sigma]
+        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, weak, self._sweep, weak_sigma)
         self._local.insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
@@ -204,10 +213,28 @@ class DeepBBSOdometry:
             starts.append((self._coarse_start(frame, prior), False, "gicp"))
         for init_b, deep, path_b in starts:
             pose_b, fit_b = self._align(cloud, init_b)
-            pose_b, deg_b = self._hold(pose_b, init_b)
+            pose_b, deg_b = self._hold(pose_b, init_b, cloud)
             if fit_b > fit + self.config.odometry.fit_margin:
                 pose, fit, won, path, deg = pose_b, fit_b, deep, path_b, deg_b
         return pose, fit, won, path, deg
+
+    def _along(self, frame: np.ndarray, cloud: Any, pose: np.ndarray, fit: float,
+               deg: _deg.Degeneracy) -> tuple[np.ndarray, float, _deg.Degeneracy, Any]:
+        """The first motion searched along the weakest direction of its alignment, above the floor
+        (core/odometry_first.py): -> (pose, fit, degeneracy, the search)."""
+        oc = self.config.odometry
+        self._align(cloud, pose, 1)  # the Hessian at the answer so far
+        w, V = np.linalg.eigh(0.5 * (self._local.hessian[3:, 3:] + self._local.hessian[3:, 3:].T))
+        if not (np.isfinite(w).all() and w[-1] > 0):
+            return pose, fit, deg, None
+        reach = _search.TOP_SPEED * (self.period if self.period > 0 else 0.1)
+        res = _search.search_along(_search.above_floor(self._prev_points, self.config.preprocess),
+                                  _search.above_floor(frame, self.config.preprocess), pose, pose[:3, :3] @ V[:, 0],
+                                  reach, self.voxel_size, oc.max_corr_dist, oc.fit_margin, oc.neighbors, self.threads)
+        if res.won:
+            pose, fit = self._align(cloud, res.pose)
+            deg = _deg.analyse(self._local.hessian, pose[:3, :3], oc.degenerate_ratio)
+        return pose, fit, deg, res
 
     def _size_voxels(self, frame: np.ndarray) -> None:
         """The map voxel from the first scan (core/local_map.py); the gate's floor follows it."""
@@ -268,14 +295,23 @@ class DeepBBSOdometry:
         """The scan against the local map from ``init`` -> (pose (4, 4), fit = inlier share)."""
         return self._local.align(cloud, init, self._planes, iters)
 
-    def _hold(self, pose: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, _deg.Degeneracy]:
-        """The last VGICP's degeneracy at ``pose`` and ``pose`` held to ``start`` along its weak directions (not on
-        the first motion: its start, identity, is no prediction)."""
-        deg = _deg.analyse(self._local.hessian, pose[:3, :3], self.config.odometry.degenerate_ratio)
+    def _hold(self, pose: np.ndarray, start: np.ndarray, cloud: Any) -> tuple[np.ndarray, _deg.Degeneracy]:
+        """The last VGICP's degeneracy at ``pose`` and ``pose`` held to ``start`` beyond the gate along its weak
+        directions (the Hessian's ratio test, core/degeneracy.py), and along those the data pin less than the
+        prediction does moved to the two's weighted mean (core/odometry_hold.py); not on the first motion (its start,
+        identity, is no prediction)."""
+        H = self._local.hessian
+        deg = _deg.analyse(H, pose[:3, :3], self.config.odometry.degenerate_ratio)
         limit = self._gate.limit()
         if self.frames < 2 or not np.isfinite(limit):
             return pose, deg
-        return _deg.hold(pose, start, deg.weak, limit), deg
+        R = pose[:3, :3]
+        held, sigmas = _held.held_directions(
+            pose, start, _held.translation_directions(H, R), limit,
+            lambda: _cov.gicp_part(cloud, self._map, pose, self.voxel_size),
+            lambda d: np.fmax(self._sweep.weak_sigma(R.T @ d), self._sweep.last_deviation(R.T @ d)))
+        pose = _deg.hold(_held.blend(pose, start, held, sigmas), start, deg.weak, limit)
+        return pose, _held.merged(deg, held, R)
 
     def _coarse_start(self, frame: np.ndarray, start: np.ndarray) -> np.ndarray:
         """``start`` (4, 4, the first scan's frame) refined on the coarse levels against the previous scan."""

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.covariance import floor_term
 from deepbbs_ros.reprs import short_repr
 
 __all__ = ["Laps", "OdometryStep", "cloud_points", "floor_covariance"]
@@ -63,11 +64,7 @@ class OdometryStep:
 def floor_covariance(floor: np.ndarray | None, T_map_scan: np.ndarray, cov: np.ndarray | None) -> np.ndarray | None:
     """(6, 6) the sweep floor's term of the odometry covariance ``cov`` (core/covariance.py ``odometry_covariance``):
     ``floor`` (6,) standard deviations along the scan's axes, rotated into the map frame; None without either."""
-    if floor is None or cov is None:
-        return None
-    B = np.zeros((6, 6))
-    B[:3, :3] = B[3:, 3:] = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
-    return B @ np.diag(np.square(np.asarray(floor, dtype=np.float64))) @ B.T
+    return None if floor is None or cov is None else floor_term(floor, T_map_scan)
 
 
 def cloud_points(cloud: Any) -> np.ndarray | None:
