@@ -218,8 +218,25 @@ def cpu_seconds() -> float:
     process only)."""
     if not Path("/proc/self/task").is_dir():
         return time.process_time()
+    return _tree_cpu_seconds([os.getpid()])
+
+
+def children_cpu_seconds() -> float:
+    """CPU seconds (user + system, to the clock tick) of every process below this one (a network process), without
+    this process's own (Linux /proc; elsewhere 0)."""
+    kids = []
+    for task in Path("/proc/self/task").glob("*"):
+        try:
+            kids += [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, ValueError):
+            continue
+    return _tree_cpu_seconds(kids)
+
+
+def _tree_cpu_seconds(pids: list[int]) -> float:
+    """CPU seconds (user + system, to the clock tick) of the processes ``pids`` and every process below them."""
     tick = os.sysconf("SC_CLK_TCK")
-    total, todo, seen = 0.0, [os.getpid()], set()
+    total, todo, seen = 0.0, list(pids), set()
     while todo:
         p = todo.pop()
         if p in seen:

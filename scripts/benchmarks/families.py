@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 import zlib
@@ -197,26 +196,7 @@ def _applicable(case: dict, names: list[str]) -> list[str]:
 
 def _cpu() -> tuple[float, float]:
     """(this process's CPU seconds, to the nanosecond; its children's (the network process), to the clock tick)."""
-    tick, total = os.sysconf("SC_CLK_TCK"), 0.0
-    todo = [int(c) for t in Path("/proc/self/task").glob("*") for c in _read(t / "children").split()]
-    seen: set[int] = set()
-    while todo:
-        pid = todo.pop()
-        if pid in seen:
-            continue
-        seen.add(pid)
-        for task in Path(f"/proc/{pid}/task").glob("*"):
-            f = _read(task / "stat").rsplit(")", 1)[-1].split()
-            total += (int(f[11]) + int(f[12])) / tick if len(f) > 12 else 0.0
-            todo += [int(c) for c in _read(task / "children").split()]
-    return time.process_time(), total
-
-
-def _read(path: Path) -> str:
-    try:
-        return path.read_text()
-    except OSError:
-        return ""
+    return time.process_time(), _common.children_cpu_seconds()
 
 
 def timed(call, timed_reg, answering=None) -> tuple:
