@@ -123,3 +123,36 @@ def test_good_start_where_the_start_lies_in_gicps_basin():
     text = "\n".join(_families_doc.families(doc, [], "not run"))
     row = next(line for line in text.splitlines() if "VLP-16" in line and "of 5" in line)
     assert row.endswith("| 3 of 5 | 3 (2) | x1.40 | gicp 1, search 1, within reach 1 |"), row
+
+
+class _Timed:
+    """A registration stand-in that records the order it is called in."""
+
+    def __init__(self, name, calls):
+        self.name, self.calls = name, calls
+
+    def register(self, src, tgt, T_init=None, good_start=False):
+        self.calls.append(self.name)
+        return None
+
+
+def test_good_start_and_gicp_are_timed_again_alternately(monkeypatch):
+    """families.alternate: the good start and GICP timed on the same pair in alternating order (neither always in
+    the other's wake); in_basin gives the ratio of their medians beside the first timings', and the table shows it
+    with the first timings' in brackets."""
+    calls = []
+    monkeypatch.setattr(families._reg, "_register", lambda m, reg, s, t: reg.register(s, t))
+    out = families.alternate(_Timed("good", calls), _Timed("gicp", calls), _cloud(), _cloud(), 3)
+    assert calls == ["gicp", "good", "good", "gicp", "gicp", "good"]
+    assert sorted(out) == ["gicp_cpu_ms", "gicp_ms", "good_cpu_ms", "good_ms"] and all(len(v) == 3 for v in out.values())
+    recs = [_good_rec(True, "gicp", "accepted", 12.0), _good_rec(True, "gicp", "accepted", 14.0)]
+    recs[0]["timing"] = {"good_ms": [11.0, 30.0, 12.0], "gicp_ms": [10.0, 10.0, 11.0], "good_cpu_ms": [11.0] * 3,
+                         "gicp_cpu_ms": [10.0] * 3}
+    assert "alternated" not in families.in_basin(recs)  # one pair without them: none
+    recs[1]["timing"] = {"good_ms": [13.0] * 3, "gicp_ms": [12.0] * 3, "good_cpu_ms": [14.0] * 3,
+                         "gicp_cpu_ms": [12.0] * 3}
+    b = families.in_basin(recs)
+    assert b["alternated"] == {"repeats": 3, "p50_ms": {"deepbbs++good": 12.5, "gicp": 11.0},
+                               "p50_over_gicp": 12.5 / 11.0, "cpu_p50_over_gicp": 12.5 / 11.0}
+    assert b["p50_over_gicp"] == 1.3  # the first timings' (13 / 10)
+    assert _families_doc._basin(b)[1] == "x1.14 (first timings x1.30)"

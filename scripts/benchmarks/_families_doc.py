@@ -67,9 +67,12 @@ def _basin(b: dict | None) -> list[str]:
     not), its p50 over GICP's there, the paths that answered."""
     if not b:
         return ["-", "-", "-"]
-    ratio = b.get("p50_over_gicp")
+    ratio, alt = b.get("p50_over_gicp"), b.get("alternated")
+    text = "-" if ratio is None else f"x{ratio:.2f}"
+    if alt:  # timed again alternately (families.alternate): that ratio, the first timings' beside it
+        text = f"x{alt['p50_over_gicp']:.2f} (first timings {text})"
     paths = ", ".join(f"{k} {v}" for k, v in sorted((b.get("paths") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
-    return [f"{b['pairs']} ({b['others']})", "-" if ratio is None else f"x{ratio:.2f}", paths or "-"]
+    return [f"{b['pairs']} ({b['others']})", text, paths or "-"]
 
 
 def _missed(name: str, c: dict) -> list[str]:
@@ -97,7 +100,9 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
                      "GICP from it, accepted by a stricter verdict, else the full pipeline. Start in GICP's basin: "
                      "the pairs whose start is good by a physical criterion, GICP from it lands within 1 deg / 0.3 m "
                      "(in brackets the pairs where it does not, from which GICP alone fails); there, the p50 of "
-                     "`good_start=True` over GICP's on the same pairs, and the path that answered: `gicp` (GICP "
+                     "`good_start=True` over GICP's on the same pairs (both timed again on each pair, alternately, "
+                     "the medians' ratio; in brackets that of the first timings, the good start's right after the "
+                     "full pipeline's), and the path that answered: `gicp` (GICP "
                      "from the start within the good start's limits), `within reach` (converged beyond them, taken "
                      "as the verdict was sure), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
                      "`search`) when neither was taken.", ""]
