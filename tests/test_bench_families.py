@@ -144,7 +144,8 @@ def test_good_start_and_gicp_are_timed_again_alternately(monkeypatch):
     monkeypatch.setattr(families._reg, "_register", lambda m, reg, s, t: reg.register(s, t))
     out = families.alternate(_Timed("good", calls), _Timed("gicp", calls), _cloud(), _cloud(), 3)
     assert calls == ["gicp", "good", "good", "gicp", "gicp", "good"]
-    assert sorted(out) == ["gicp_cpu_ms", "gicp_ms", "good_cpu_ms", "good_ms"] and all(len(v) == 3 for v in out.values())
+    assert sorted(out) == ["gicp_cpu_ms", "gicp_ms", "good_cpu_ms", "good_ms"]
+    assert all(len(v) == 3 for v in out.values())
     recs = [_good_rec(True, "gicp", "accepted", 12.0), _good_rec(True, "gicp", "accepted", 14.0)]
     recs[0]["timing"] = {"good_ms": [11.0, 30.0, 12.0], "gicp_ms": [10.0, 10.0, 11.0], "good_cpu_ms": [11.0] * 3,
                          "gicp_cpu_ms": [10.0] * 3}
