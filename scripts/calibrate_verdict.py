@@ -85,7 +85,7 @@ GAPS_SLOW = (1, 2)  # frames between target and source of the rigs recorded at a
 #: well no more simulated wrong poses are accepted than with these coefficients (seeds 39 and 40, end to end), but
 #: every right pose of a legged OS0-64 in a corridor is rejected (families.py --quick: 13 of 13; these: 0 of 14), and
 #: right ones rejected rise on seed 40 (sparse 2 -> 6 of 57, turned 1 -> 7 of 35)
-UNUSED: tuple[str, ...] = ("plane_close", "in_view", "observable_rel")
+UNUSED: tuple[str, ...] = ("plane_close", "in_view", "observable_rel", "anchored", "anchored_far")
 #: rigs whose pairs are made low-overlap (:func:`_low_overlap`: LOW_OVERLAP of the source judged at the truth, as on
 #: real handheld Livox pairs, right poses down to 20 %, where the other rigs have no right pose under 36 %): each scan
 #: cut to a sector of azimuth, the source's turned from the target's, as a narrow sensor turned between the scans.

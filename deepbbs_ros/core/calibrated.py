@@ -70,6 +70,13 @@ def min_pinned(path: str | None = None) -> float:
     return _FLOORS[path]
 
 
+def weighs(names: tuple[str, ...], verdict: str = "pair", path: str | None = None) -> bool:
+    """Whether the ``verdict`` model at ``path`` (the shipped file when None) gives any of the features ``names`` a
+    coefficient other than 0 (a feature it does not weigh need not be measured)."""
+    coef = load(path)[verdict][0]
+    return bool(any(coef[FEATURES.index(n)] != 0.0 for n in names))
+
+
 def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None) -> np.ndarray | float:
     """P(right) of feature rows (K, F) -> (K,), or of one row (F,) -> float, by the ``verdict`` model
     ("pair" or "good_start"); 0 for a row whose ``pinned`` is under :func:`min_pinned`."""
