@@ -5,10 +5,12 @@ points when moved along that direction; a pose slid along the same planes loses 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import anchoring, calibrated, verdict, visibility
 from deepbbs_ros.core.polish import prepare_polish_cloud
+from deepbbs_ros.errors import VerdictModelError
 
 _WALL = [(0, 5.0, (-10, 10), (-1, 2))]
 _FLOOR = [(2, -1.0, (-10, 10), (-10, 10))]
@@ -79,3 +81,25 @@ def test_information_is_the_pinned_units():
     assert np.allclose(info, info.T) and np.all(np.linalg.eigvalsh(info) >= -1e-12)
     s2 = np.linalg.eigvalsh(info)[0]
     assert np.isclose(visibility.pinned(p, n, 0.1), s2 / (s2 + 0.1 * 0.1), rtol=1e-12, atol=0)
+
+
+def test_the_floor_on_pinned_spares_a_pose_something_else_anchors(tmp_path):
+    """With ``min_anchored_far`` the floor on ``pinned`` vetoes only a pose that nothing anchors either."""
+    import json
+
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    path = tmp_path / "held.json"
+    path.write_text(json.dumps({**doc, "min_pinned": 0.02, "min_anchored_far": 0.05}))
+    rows = np.full((3, len(visibility.FEATURES)), 0.95)
+    k, h = visibility.FEATURES.index("pinned"), visibility.FEATURES.index("anchored_far")
+    rows[:, k] = [0.01, 0.01, 0.03]
+    rows[:, h] = [0.04, 0.06, 0.0]
+    p = calibrated.probability(rows, "good_start", str(path))
+    plain = calibrated.probability(rows, "good_start")
+    assert p[0] == 0.0 and p[1] == plain[1] > 0.0 and p[2] == plain[2] > 0.0, (p, plain)
+    assert calibrated.min_anchored_far(str(path)) == 0.05 and calibrated.min_anchored_far() == 1.0
+    assert calibrated.weighs(("anchored_far",), "good_start", str(path))  # the floor reads it: measured
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**doc, "min_anchored_far": 0.0}))
+    with pytest.raises(VerdictModelError, match="min_anchored_far"):
+        calibrated.load(str(bad))
