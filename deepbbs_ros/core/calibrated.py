@@ -8,8 +8,10 @@ subset of the source's GICP voxels (ground included), is the one the registratio
 and the good start); ``"pair"``, for the network's sampled non-ground points, is fitted beside it for comparison
 (it carried worse to real scans). The file may set ``"min_pinned"``: a pose whose ``pinned`` (core/visibility.py: how
 well the fit pins its weakest direction) is under it has probability 0, whatever the regression says (the fit leaves
-it free by more than ``sqrt(1 / min_pinned - 1)`` tolerances: 0.02, seven, about 2 m or 7 degrees). A missing or
-damaged file raises :class:`~deepbbs_ros.errors.VerdictModelError`.
+it free by more than ``sqrt(1 / min_pinned - 1)`` tolerances: 0.02, seven, about 2 m or 7 degrees); with
+``"min_anchored_far"`` as well, only where nothing else holds it either (its ``anchored_far``, core/anchoring.py, is
+under that: moved 1.5 m or 5 degrees along that direction it keeps as many close points). A missing or damaged file
+raises :class:`~deepbbs_ros.errors.VerdictModelError`.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "verdict_mode
 TRANSFORM = "logit(clip(x, 0.005, 0.995))"
 _EPS = 0.005
 _PINNED = FEATURES.index("pinned")
-_FLOORS: dict[str | None, float] = {}  # the floor on ``pinned`` of each ``path`` :func:`load` read
+_ANCHORED_FAR = FEATURES.index("anchored_far")
+_FLOORS: dict[str | None, tuple[float, float]] = {}  # the floors (pinned, anchored_far) of each ``path`` load read
 
 
 def design(rows: np.ndarray) -> np.ndarray:
@@ -54,10 +57,12 @@ def load(path: str | None = None) -> dict[str, tuple[np.ndarray, float]]:
             out[name] = (coef, float(m["intercept"]))
         if not {"pair", "good_start"} <= set(out):
             raise ValueError("needs the 'pair' and 'good_start' models")
-        floor = float(doc.get("min_pinned", 0.0))
+        floor, held = float(doc.get("min_pinned", 0.0)), float(doc.get("min_anchored_far", 1.0))
         if not 0.0 <= floor < 1.0:
             raise ValueError(f"min_pinned {floor} is not within [0, 1)")
-        _FLOORS[path] = floor  # keyed as load's cache is
+        if not 0.0 < held <= 1.0:
+            raise ValueError(f"min_anchored_far {held} is not within (0, 1]")
+        _FLOORS[path] = (floor, held)  # keyed as load's cache is
         return out
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise VerdictModelError(f"calibrated verdict {p}: {e} (refit: python scripts/calibrate_verdict.py)") from None
@@ -67,15 +72,30 @@ def min_pinned(path: str | None = None) -> float:
     """The floor on ``pinned`` of the coefficients at ``path`` (the shipped file when None): 0 when the file sets
     none."""
     load(path)
-    return _FLOORS[path]
+    return _FLOORS[path][0]
+
+
+def min_anchored_far(path: str | None = None) -> float:
+    """The bound on ``anchored_far`` under which :func:`min_pinned` applies (1 when the file sets none: always)."""
+    load(path)
+    return _FLOORS[path][1]
+
+
+def weighs(names: tuple[str, ...], verdict: str = "pair", path: str | None = None) -> bool:
+    """Whether the ``verdict`` model at ``path`` (the shipped file when None) gives any of the features ``names`` a
+    coefficient other than 0, or its floor reads it (a feature it does not read need not be measured)."""
+    coef = load(path)[verdict][0]
+    floor = "anchored_far" in names and min_pinned(path) > 0 and min_anchored_far(path) < 1
+    return bool(floor or any(coef[FEATURES.index(n)] != 0.0 for n in names))
 
 
 def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None) -> np.ndarray | float:
     """P(right) of feature rows (K, F) -> (K,), or of one row (F,) -> float, by the ``verdict`` model
-    ("pair" or "good_start"); 0 for a row whose ``pinned`` is under :func:`min_pinned`."""
+    ("pair" or "good_start"); 0 for a row whose ``pinned`` is under :func:`min_pinned` (and ``anchored_far`` under
+    :func:`min_anchored_far`)."""
     coef, icpt = load(path)[verdict]
     x = np.atleast_2d(np.asarray(rows, np.float64))
     z = design(x) @ coef + icpt
     p = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
-    p = np.where(x[:, _PINNED] < min_pinned(path), 0.0, p)
+    p = np.where((x[:, _PINNED] < min_pinned(path)) & (x[:, _ANCHORED_FAR] < min_anchored_far(path)), 0.0, p)
     return float(p[0]) if np.ndim(rows) == 1 else p

@@ -61,7 +61,7 @@ def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: flo
     if map_normals and isinstance(cloud, PolishView) and len(pts) and len(cloud.local):
         vis, sq = _view_features(moved, cloud, dist, threads)
     else:
-        vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads)
+        vis = visibility.pose_features(points, T_place_scan, cloud, dist, threads=threads, anchor=False)
         if len(pts) == 0:
             return np.r_[vis, 0.0, 0.0]
         _, sq = cloud.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))

@@ -65,7 +65,8 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
 
     if len(points) == 0:
         return 0.0
-    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads), model)
+    anchor = calibrated.weighs(("anchored", "anchored_far"), model)  # two searches more, only where they count
+    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, anchor), model)
 
 
 def is_valid(score: float, threshold: float) -> bool:

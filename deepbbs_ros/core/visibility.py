@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from deepbbs_ros.core import anchoring
+
 
 def _quantile(x: np.ndarray, q: float) -> float:
     """``np.quantile(x, q)`` (its default, linear method) of a non-empty 1-D float64 array, to the last bit, without
@@ -76,14 +78,14 @@ def _cell_table(az: np.ndarray, el: np.ndarray) -> tuple[float, tuple | None]:
 
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
-            "plane_own", "violations_nb", "consistency_nb", "pinned", "in_view", "observable_rel")
+            "plane_own", "violations_nb", "consistency_nb", "pinned", "in_view", "observable_rel", "anchored",
+            "anchored_far")
 _CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
 _SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
 _SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
 _PER_CELL = 3.0  # target returns a direction cell should hold on average
 _NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
 _OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
-_PIN_SCALE = np.array([0.3, 0.3, 0.3, *np.radians([1.0, 1.0, 1.0])])  # m, rad: ``pinned``'s units (a right pose's)
 _PIN_MIN = 6  # close plane matches ``pinned`` needs (fewer: 0)
 _VIEW_CELL = np.radians(5.0)  # rad; ``in_view``'s direction cells: the target's field of view at this resolution
 
@@ -132,7 +134,8 @@ def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
              plane_dist: np.ndarray | None = None, self_plane: float | None = None,
-             own_tol: float | None = None, normals: np.ndarray | None = None) -> np.ndarray:
+             own_tol: float | None = None, normals: np.ndarray | None = None,
+             anchored: tuple[float, float] | None = None) -> np.ndarray:
     """The verdict's features of a pose -> (len(FEATURES),) float64.
 
     Args:
@@ -146,6 +149,8 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
             (:func:`self_planarity`): how close the target's own surfaces come to planes (None: 1).
         own_tol: m, ``plane_own``'s tolerance (:func:`own_tolerance`; None: ``dist / 5``).
         normals: (N, 3) the target's unit normal at each point's nearest target point (None: ``pinned`` is 1).
+        anchored: ``anchored`` and ``anchored_far`` (core/anchoring.py: how firmly the pose is held along its weakest
+            direction, moved by a wrong pose's distance and by a slide's; None: 1, 1).
 
     ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
     among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
@@ -171,7 +176,7 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     """
     n = len(moved)
     if n == 0 or len(target) == 0 or (isinstance(target, tuple) and len(target[1]) == 0):
-        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+        return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     sq = np.asarray(sq_dist, np.float64)
     seen = sq <= dist * dist
     n_seen = int(seen.sum())
@@ -202,7 +207,8 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     view = in_view(moved, cell, ukey)
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
                      judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
-                     n_seen / judged_nb if judged_nb else 0.0, pin, view, min(1.0, judged / n / view) if view else 0.0])
+                     n_seen / judged_nb if judged_nb else 0.0, pin, view, min(1.0, judged / n / view) if view else 0.0,
+                     *((1.0, 1.0) if anchored is None else anchored)])
 
 
 def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
@@ -223,14 +229,7 @@ def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
     """
     if len(points) < _PIN_MIN:
         return 0.0
-    p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    a = np.empty((len(p), 6))
-    a[:, :3] = n
-    a[:, 3] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n
-    a[:, 4] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
-    a[:, 5] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
-    a *= _PIN_SCALE
-    s2 = max(float(np.linalg.eigvalsh(a.T @ a / len(a))[0]), 0.0)
+    s2 = max(float(np.linalg.eigvalsh(anchoring.information(points, normals))[0]), 0.0)
     return s2 / (s2 + tol * tol)
 
 
@@ -241,11 +240,13 @@ def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarr
     return np.where(ukey[idx] == k, nearest[idx], np.inf).reshape(9, -1).min(axis=0)
 
 
-def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1) -> np.ndarray:
+def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1,
+                  anchor: bool = True) -> np.ndarray:
     """:func:`features` of ``points`` (N, 3) (source frame) under ``T`` (4, 4) ``T_target_source`` against
     ``target``: a precision-stage cloud (``core.polish.PolishCloud``: its voxels, k-d tree and normals) or a
     plain (M, 3) cloud (a ``scipy`` k-d tree is built; no tangent planes: ``pinned`` takes the normals of the matched
-    points' 8 nearest neighbours)."""
+    points' 8 nearest neighbours). ``anchor``: measure ``anchored`` and ``anchored_far`` (two more nearest-neighbour
+    searches each, against a precision-stage cloud; else 1, as without one)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
@@ -264,9 +265,13 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     idx = np.asarray(idx, np.int64)
     if tree is None:  # normals of a plain cloud's matched points (``pinned`` only)
         return features(moved, np.asarray(sq, np.float64), table, dist, normals=normals)
-    plane = None if normals is None else np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
-    return features(moved, np.asarray(sq, np.float64), table, dist, plane, own, tol,
-                    None if normals is None else normals[idx])
+    sq = np.asarray(sq, np.float64)
+    if normals is None:
+        return features(moved, sq, table, dist, None, own, tol)
+    plane = np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
+    held = anchoring.anchored(moved, sq, tree, moved[m], normals[idx[m]], dist, threads) if anchor else None
+    return features(moved, sq, table, dist, plane, own, tol, normals[idx], held)
 
 
 def _pca_normals(tpts: np.ndarray, ktree, idx: np.ndarray, k: int = 8) -> np.ndarray:
