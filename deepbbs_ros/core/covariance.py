@@ -23,7 +23,8 @@ errors within a cell count once, as they move the pose. Then:
    check holds, core/degeneracy.py, with the motion model's deviations along them, :meth:`MotionFloor.weak_sigma`);
 3. the odometry adds the sweep's model error (:class:`MotionFloor`): deskewing with the constant velocity leaves the
    motion it missed, and a scan lands half of it off: per axis of the scan, sqrt(2) / 2 of the root mean square of
-   the recent deviations from the prediction (a step differences two scans), and per rotation axis at least that of
+   the recent deviations from the prediction (a step differences two scans) less the registration noise in them
+   (which the GICP part counts), and per rotation axis at least that of
    the rotation the deskew missed within the sweep (twice the registered motion's deviation from the deskew's: a
    body's roll and pitch sway); the first motion, with no prediction to deviate from, the voxel map's quantisation
    (:func:`quantisation_floor`);
@@ -44,10 +45,11 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.gicp_pairs import matched_pairs, sandwich_terms, voxel_pairs
+from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFloor, floor_term, quantisation_floor
 
-__all__ = ["adjoint", "compose", "conjugated", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part",
-           "is_covariance", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
-           "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
+__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "compose", "conjugated", "floor_term",
+           "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance", "matched_pairs", "odometry_covariance",
+           "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -65,19 +67,11 @@ WEAK_RATIO = 0.01
 LOCALIZATION_INFLATION = 1.156
 #: the odometry's: none (its floor, :data:`SWEEP_SPREAD`, is not fitted either)
 ODOMETRY_INFLATION = 1.0
-#: the sweep's model error (odometry): deskewed with the constant velocity, a sweep keeps the motion the prediction
-#: missed (about the step's deviation from it), and a scan deskewed with a velocity off by ``e`` lands ``e T / 2``
-#: off (core/odometry.py ``_deskew_delta``): half the missed motion; a step is the difference of two scans' poses,
-#: each off by its own sweep's half, so its standard deviation per axis is ``sqrt(2) / 2`` of the deviation's root
-#: mean square (derived, not fitted)
-SWEEP_SPREAD = 0.5 ** 0.5
 #: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
 #: drives 2,000 points moved the mean NEES by under 6 %)
 ODOMETRY_MAX_POINTS = 2000
 #: the localization's pairs likewise: its covariance runs on every tracked scan, within the scan period
 LOCALIZATION_MAX_POINTS = 2000
-#: steps whose deviations from the constant-velocity prediction make the floor's root mean square
-MOTION_WINDOW = 10
 #: variance floor, m^2 / rad^2 on the diagonal: noise-free synthetic scenes must not give a singular covariance
 VARIANCE_FLOOR = 1e-10
 
@@ -192,6 +186,19 @@ def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray,
     is where the start left it; ``weak``: (K, 3) unit directions in the scan's frame found weak by the caller, the
     odometry's degeneracy check, instead of that test, with ``weak_sigma`` one value or (K,) per direction). None
     without pairs or with a singular Hessian."""
+    robust = _robust(pairs, inflation, cell)
+    if robust is None:
+        return None
+    cov_right, H = robust
+    _add_weak(cov_right, H, weak_sigma, weak)
+    return _to_parent(cov_right, T_out)
+
+
+def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float,
+            cell: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The cluster-robust covariance of :func:`sandwich_covariance` in the scan's axes, ROS order, nothing added
+    along weak directions, and small_gicp's Hessian ``H`` (6, 6, ``[rot, trans]``); None without pairs or with a
+    singular Hessian."""
     if pairs is None:
         return None
     a, Ca, b, Cb, T = pairs
@@ -206,13 +213,21 @@ def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray,
         return None
     Hi = (V / w) @ V.T
     cov_right = (inflation * G / (G - 6)) * (Hi @ B @ Hi)
-    cov_right = cov_right[np.ix_(_PERM, _PERM)]
+    return cov_right[np.ix_(_PERM, _PERM)], H
+
+
+def _add_weak(cov_right: np.ndarray, H: np.ndarray, weak_sigma: Any, weak: np.ndarray | None) -> None:
+    """:func:`sandwich_covariance`'s weak directions added to ``cov_right`` (scan axes, ROS order) in place."""
     if weak is None:
         wt, Vt = np.linalg.eigh(H[3:, 3:])
         weak = Vt[:, wt < WEAK_RATIO * wt[-1]].T  # (K, 3), the scan's frame
     weak = np.asarray(weak, dtype=np.float64).reshape(-1, 3)
     sig2 = np.square(np.broadcast_to(np.asarray(weak_sigma, dtype=np.float64), (len(weak),)))
     cov_right[:3, :3] += (weak.T * sig2) @ weak
+
+
+def _to_parent(cov_right: np.ndarray, T_out: np.ndarray) -> np.ndarray:
+    """``cov_right`` (scan axes, ROS order) in the axes of ``T_out``'s parent, symmetric, with the variance floor."""
     R = np.asarray(T_out, dtype=np.float64)[:3, :3]
     Bm = np.zeros((6, 6))
     Bm[:3, :3] = Bm[3:, 3:] = R
@@ -263,18 +278,14 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     if weak_scan is not None and weak_sigma is not None:
         given = np.asarray(weak_sigma, dtype=np.float64).reshape(-1)
         sigma = np.where(np.isfinite(given), given, np.broadcast_to(sigma, given.shape))
-    cov = sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak_sigma=sigma, weak=weak_scan)
-    if cov is not None:
-        cov += floor_term(floor, T_map_scan)
-    return cov
-
-
-def floor_term(floor: np.ndarray, T_map_scan: np.ndarray) -> np.ndarray:
-    """(6, 6) the model error ``floor`` (6,) (standard deviations along the scan's axes x, y, z, roll, pitch, yaw, m
-    and rad) as a covariance in the module's convention: rotated into the map frame by ``T_map_scan``'s rotation."""
-    B = np.zeros((6, 6))
-    B[:3, :3] = B[3:, 3:] = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
-    return B @ np.diag(np.square(np.asarray(floor, dtype=np.float64))) @ B.T
+    robust = _robust(pairs, ODOMETRY_INFLATION)
+    if robust is None:
+        return None
+    cov_right, H = robust
+    if model is not None:  # the registration noise its next deviations from the prediction carry
+        model.add_noise(np.diag(cov_right))
+    _add_weak(cov_right, H, sigma, weak_scan)
+    return _to_parent(cov_right, T_map_scan) + floor_term(floor, T_map_scan)
 
 
 def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float) -> np.ndarray | None:
@@ -283,93 +294,6 @@ def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float) 
     (the data's own uncertainty, core/odometry_hold.py); None without pairs."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
     return sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak=np.zeros((0, 3)))
-
-
-def quantisation_floor(cloud: Any, voxel_size: float, motion: float = 0.0) -> np.ndarray:
-    """(6,) the first motion's model error, m and rad per axis: its start has no prediction to deviate from, so no
-    :class:`MotionFloor`; what it registers to is the first scan's voxel map, and a turn of the scan by less than a
-    voxel's uniform error (``voxel_size / sqrt(12)``) at the scan's mean range is not told apart by it: that angle
-    per rotation axis (a car's first sweeps are off mostly in roll and pitch, the body's sway within the sweep);
-    the motion's direction is known to the same angle, so its ``motion`` m (the first motion's length) to that angle
-    times its length per position axis."""
-    pts = np.asarray(cloud.points(), dtype=np.float64)[::16, :3]
-    rng = float(np.mean(np.linalg.norm(pts, axis=1))) if len(pts) else 0.0
-    angle = voxel_size * 12.0 ** -0.5 / max(rng, voxel_size)
-    return np.array([angle * motion] * 3 + [angle] * 3)
-
-
-class MotionFloor:
-    """The odometry's model error per axis of the scan (x, y, z, roll, pitch, yaw), from what the motion model is
-    observed to miss, as KISS-ICP's adaptive threshold measures it; per axis because a car's body vibrates in roll
-    and pitch while its yaw follows the road smoothly, and an isotropic floor would spread the one over the other.
-
-    * prediction: :data:`SWEEP_SPREAD` times the root mean square of the last :data:`MOTION_WINDOW` deviations of
-      the pose from the constant-velocity prediction (m, rad);
-    * sweep (rotation axes): the deskew turns each point with the mean velocity of the last motions, and a body that
-      sways faster within the sweep (roll and pitch at 0.5-3 Hz) keeps the rotation the deskew missed, which no
-      residual shows (the scan is self-consistent, only bent). The registered motion lands halfway: the scan's pose
-      takes half of the missed rotation as error and shows the other half as the motion's deviation from the
-      deskew's, so the missed rotation is twice that deviation, and a step's standard deviation :data:`SWEEP_SPREAD`
-      of it (derived, not fitted; on simulated VLP-16 drives the roll step error was 0.6 of the true missed roll,
-      correlation 0.83). Only the rotation: the position's deviation from the deskew's motion is mostly GICP's own
-      noise, which the pairs already count;
-    * weak directions (:meth:`weak_sigma`): where the odometry held the prediction's position (core/degeneracy.py),
-      the step along the direction is the prediction's, whose error is one whole deviation per held step, summed
-      over the steps held in a row (the velocity along it is not measured again meanwhile)."""
-
-    def __init__(self) -> None:
-        from collections import deque
-
-        self._devs: Any = deque(maxlen=MOTION_WINDOW)
-        self._swept: Any = deque(maxlen=MOTION_WINDOW)
-        self._free: Any = deque(maxlen=MOTION_WINDOW)  # position deviations of the steps not held
-        self._held = 0
-
-    def update(self, pose: np.ndarray, prediction: np.ndarray | None, motion: np.ndarray | None = None,
-               swept: np.ndarray | None = None, held: bool = False) -> np.ndarray | None:
-        """Add the deviation of ``pose`` from ``prediction`` (None: no prediction, the first motion) and of the
-        registered ``motion`` per period (4, 4) from ``swept``, the motion per period the sweep was deskewed with
-        (None: not deskewed, no per-point times); ``held``: the odometry held the prediction along a weak direction
-        -> the floor (6,), standard deviations along the scan's axes (m, rad); None while no deviation was
-        measured."""
-        if prediction is not None:
-            self._devs.append(_log(np.linalg.solve(np.asarray(prediction, dtype=np.float64), pose)))
-            if not held:
-                self._free.append(self._devs[-1][:3])
-            if motion is not None and swept is not None:
-                self._swept.append(_log(np.linalg.solve(np.asarray(swept, dtype=np.float64), motion))[3:])
-        self._held = self._held + 1 if held and self._devs else 0
-        if not self._devs:
-            return None
-        floor = SWEEP_SPREAD * np.sqrt(np.mean(np.square(np.asarray(self._devs)), axis=0))
-        if self._swept:
-            sweep = SWEEP_SPREAD * 2.0 * np.sqrt(np.mean(np.square(np.asarray(self._swept)), axis=0))
-            floor[3:] = np.maximum(floor[3:], sweep)
-        return floor
-
-    def last_deviation(self, direction: np.ndarray) -> float:
-        """m: the last step's deviation from its prediction along the unit ``direction`` (3,), the scan's axes (the
-        constant velocity carries it into the next prediction); NaN before any."""
-        if not self._devs:
-            return float("nan")
-        return float(abs(np.asarray(self._devs[-1][:3]) @ np.asarray(direction, dtype=np.float64)))
-
-    def weak_sigma(self, direction: np.ndarray) -> float:
-        """m: the prediction's standard deviation along the unit ``direction`` (3,), the scan's axes: the root mean
-        square along it of the deviations of the steps not held (a held step's is the prediction's own, zero), times
-        the square root of the steps held in a row (at least one); NaN before any step that was not held (the
-        motion model never measured the direction: :func:`odometry_covariance` keeps its default)."""
-        if not self._free:
-            return float("nan")
-        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
-        return float(np.sqrt(max(1, self._held) * var))
-
-
-def _log(D: np.ndarray) -> np.ndarray:
-    """(6,) ``[t, rotvec]`` of a (4, 4) motion."""
-    from scipy.spatial.transform import Rotation
-
-    return np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()])
 
 
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,

@@ -15,7 +15,7 @@ road, a corridor). The two standard deviations along ``d`` tell them apart:
   ``sigma_strong`` the covariance's standard deviation along the best-pinned direction (``lambda_max``). In a
   synthetic featureless corridor the sandwich's own figure along the axis was 5 mm and the slide it allowed 0.12 m;
   the bias term made it 7.5 cm;
-* the prediction's: what the motion model is observed to miss by along ``d`` (core/covariance.py ``MotionFloor``
+* the prediction's: what the motion model is observed to miss by along ``d`` (core/motion_floor.py ``MotionFloor``
   ``weak_sigma``: the root mean square along ``d`` of the recent deviations of the steps not held, growing with
   the steps held in a row), and at least the last step's deviation along ``d`` (``last_deviation``: the constant
   velocity carries it into this prediction; without it a slide the velocity had absorbed was held against the next

@@ -37,10 +37,10 @@ class OdometryStep:
         (ratio 2.1e-03)" (the scan's axes; core/degeneracy.py): along it the prediction's position was kept.
     deviation: metres between the pose and the constant-velocity prediction; gate: the gate's limit then (inf while
         it has too few steps or is off).
-    covariance_floor: (6, 6) float64 the part of ``covariance`` that is the sweep's model error (core/covariance.py
-        ``MotionFloor``: this scan's own error, which the next step undoes), in the same frame; the rest is the
-        GICP's and accumulates along the chain. None when ``covariance`` is None or has no such part (the first
-        motion: the voxel map's quantisation).
+    covariance_floor: (6, 6) float64 the part of ``covariance`` that is the sweep's model error
+        (core/motion_floor.py ``MotionFloor``: this scan's own error, which the next step undoes), in the same
+        frame; the rest is the GICP's and accumulates along the chain. None when ``covariance`` is None or has no
+        such part (the first motion: the voxel map's quantisation).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)

@@ -354,6 +354,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pose", action="store_true", help="also the accumulated pose's NEES under the other models: "
                     "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone)")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
+    ap.add_argument("--all-pairs", action="store_true", help="the localization's covariance from every pair of the "
+                    "scan, not at most LOCALIZATION_MAX_POINTS (the pose comes from every point)")
     ap.add_argument("--fit", action="store_true", help="fit the localization's inflation on the simulated sets (raw "
                     "covariances); the raw rows are kept in OUT/covariance_rows.npz")
     ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
@@ -365,6 +367,8 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.fit:  # raw cluster-robust covariances: inflation 1
         covmod.LOCALIZATION_INFLATION = 1.0
+    if args.all_pairs:
+        covmod.LOCALIZATION_MAX_POINTS = 0
     config = Config()
     loc_rows, step_rows, chains, floors, truth, notes = {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
