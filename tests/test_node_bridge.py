@@ -144,6 +144,35 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     assert got[-4] == 21  # the last of the search's time kept too (the velocity into the new ones)
 
 
+def test_bridge_follows_while_it_gains_on_the_stream():
+    """gains(): a round of the bridge goes on while fewer scans arrived during it than it holds (tracking is faster
+    than the stream: the next round is smaller) and ends once as many arrived (the backlog cannot shrink: a machine too
+    slow for the stream), whatever the wall-clock time; ScanBridge counts the arrivals, and the scans a round handed out
+    and did not follow go back (restore), counted as dropped once a later scan is answered."""
+    from types import SimpleNamespace
+
+    from deepbbs_ros.node.bridge import ScanBridge, gains
+
+    assert gains(12, 0) and gains(12, 11) and not gains(12, 12) and not gains(1, 1) and not gains(0, 0)
+    rounds, cost, period = [12], 60, 100  # ms: a tracker faster than the stream: each round the last one's arrivals
+    while rounds[-1] and gains(rounds[-1], rounds[-1] * cost // period):
+        rounds.append(rounds[-1] * cost // period)
+    assert rounds == [12, 7, 4, 2, 1, 0], rounds  # caught up: strictly fewer each round
+    slow = 150  # ms: slower than the stream: cut within the first round, once 12 arrived (8 followed)
+    assert [gains(12, k * slow // period) for k in (7, 8)] == [True, False]
+    b = ScanBridge(30)
+    for s in range(10):
+        b.add(SimpleNamespace(stamp_ns=s))
+    assert b.arrived == 10
+    got = b.take(2, leave_newest=False)
+    assert [x.stamp_ns for x in got] == list(range(3, 10)) and len(b) == 0
+    b.restore(got[3:])  # the round ended after 3, 4, 5: 6..9 back
+    b.add(SimpleNamespace(stamp_ns=10))
+    dropped = b.dropped
+    b.forget_until(10)  # the worker answered scan 10: 6..9 were dropped
+    assert b.dropped - dropped == 4 and len(b) == 0 and b.arrived == 11
+
+
 def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
     """MapTracker: a scan rejected at once from the constant-velocity prediction (25 m ahead: the sensor stopped) is
     registered once more by GICP from the last pose at rest and placed right (without: rejected, 'no local search')."""

@@ -38,13 +38,13 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_MAX, ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_MAX, ScanBridge, gains
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
 #: why the scans kept during a search and not followed by the bridge were dropped (node/drops.py's counter key first)
 BRIDGE_DROP = (f"after a search: passed over by the bridge (it follows at most {BRIDGE_MAX} of the scans that arrived "
-               f"meanwhile a round, for at most {BRIDGE_BUDGET_S:g} s, and a scan older than one answered)")
+               "meanwhile, then round after round while it gains on the stream, and a scan older than one answered)")
 #: the tracker's states, as /diagnostics shows them
 STATES = ("searching", "tracking", "lost")
 PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
@@ -391,17 +391,18 @@ class NodeLocalization:
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
         done = self._followed = 0
-        t0 = time.perf_counter()
         # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
-        # last arrivals to the worker's one-scan slot, where all but the newest are lost) or the budget is spent
-        while self.tracker.state == "tracking" and time.perf_counter() - t0 <= BRIDGE_BUDGET_S:
+        # last arrivals to the worker's one-scan slot, where all but the newest are lost) while the bridge gains on the
+        # stream (node/bridge.py gains(): fewer scans arrived during a round than it holds; else it ends there)
+        while self.tracker.state == "tracking":
             # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
             # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
             scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False,
                                       keep_since=self._found_t)  # those since the pose was found: every one
             if not scans:
                 break
-            for cloud in scans:
+            since = self._bridge.arrived
+            for i, cloud in enumerate(scans):
                 try:
                     loc = self.step(cloud)
                 except BadInput:
@@ -412,8 +413,9 @@ class NodeLocalization:
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                if not loc.result.valid or time.perf_counter() - t0 > BRIDGE_BUDGET_S:
-                    return  # the worker's next scan goes on from the last good pose (the rest: dropped)
+                if not loc.result.valid or not gains(len(scans), self._bridge.arrived - since):
+                    self._bridge.restore(scans[i + 1:])  # dropped (counted) once the worker answers a later scan
+                    return  # the worker's next scan goes on from the last good pose
 
     def _say_drops(self, stamp_ns: int) -> None:
         """Hand the scans the bridge dropped since the last call to :attr:`drop_sink` (counted and said once)."""
