@@ -97,6 +97,36 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
         h.close()
 
 
+def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, capfd):
+    """Tracking slower than the scan period (the test hook ``track_delay_s``: 0.15 s a scan at 10 Hz): the bridge
+    cannot catch up, so it does not try to: its first round ends once as many scans arrived as it holds (node/bridge.py
+    gains()), long before it would have followed them all, and the log line says so; every pose published is right."""
+    import re
+
+    sim, _, _, scan = drive
+    h = _harness(drive, tmp_path, "slow_bridge_node", **{"node.error_log_period": 60.0})
+    try:
+        h.node.localization.search_delay_s = 1.2
+        h.node.localization.track_delay_s = 0.15
+        frames = list(range(12, 72))  # 6 s of driving at 10 Hz: scans still arrive when the first round would end
+        _stream(h, sim, scan, frames)
+        assert h.wait_for(lambda: h.node.localization.last_bridge != "" and not h.node.worker.busy, 60.0), (
+            h.node.localization.diagnostics())
+        line = h.node.localization.last_bridge
+        m = re.search(r"(\d+) scan\(s\) arrived while it followed (\d+) of a round of (\d+)", line)
+        assert m, line
+        arrived, followed, size = map(int, m.groups())
+        assert arrived >= size > followed >= 1, line  # cut within its first round
+        assert h.node.localization.bridged == followed, (h.node.localization.bridged, line)
+        assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
+        truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
+        for msg in h.poses:
+            _check_pose(pose_stamped_to_matrix(msg)[0], truth[pose_stamped_to_matrix(msg)[1]])
+        assert "fell behind the stream" in capfd.readouterr().err
+    finally:
+        h.close()
+
+
 def test_drops_are_said_once_and_counted(ros, drive, tmp_path, capfd):
     """Without the bridge (``localization.bridge_scans`` 0), the scans that wait for a long search are dropped: the
     first drop is one log line naming why and the counter, later ones are only counted (/diagnostics)."""

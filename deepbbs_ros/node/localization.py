@@ -159,12 +159,16 @@ class NodeLocalization:
         #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
         #: can make a search outlast the scan period on a tiny map; 0 in use
         self.search_delay_s = 0.0
+        #: a test hook: seconds every tracked scan (one with a pose to track from) waits before its registration, so
+        #: that a test can make tracking slower than the scan period; 0 in use
+        self.track_delay_s = 0.0
         self.last_bridge = ""  # the last bridge's log line (bridge())
         self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
         # a search placed its scan and bridge() has not started yet: the scans arriving in between (while the found
         # pose is published) are kept too, else the worker's slot keeps only the newest of them
         self._bridge_pending = False
         self._followed = 0
+        self._behind = ""  # why the last bridge ended before it caught up ("" when it did)
 
     # -- the map -----------------------------------------------------------------------------------------------
     def build(self, data: MapData) -> str:
@@ -313,6 +317,8 @@ class NodeLocalization:
             self._search_t0, self._search_scans = cloud.t_recv, 0
         if state_before != "tracking" and self.search_delay_s > 0:
             time.sleep(self.search_delay_s)
+        if state_before == "tracking" and self.track_delay_s > 0:
+            time.sleep(self.track_delay_s)
         t0 = time.perf_counter()
         try:
             pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None
@@ -387,10 +393,13 @@ class NodeLocalization:
         self._say_drops(self.tracker.last_stamp_ns or stamp_ns)
         if self._followed:
             self.last_bridge = (f"localization: followed the pose through {self._followed} scan(s) that arrived during "
-                                f"the search in {(time.perf_counter() - t0):.2f} s; tracking from the newest")
+                                f"the search in {(time.perf_counter() - t0):.2f} s; "
+                                + (f"it fell behind the stream ({self._behind}): tracking from the newest scan"
+                                   if self._behind else "tracking from the newest"))
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
         done = self._followed = 0
+        self._behind = ""
         # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
         # last arrivals to the worker's one-scan slot, where all but the newest are lost) while the bridge gains on the
         # stream (node/bridge.py gains(): fewer scans arrived during a round than it holds; else it ends there)
@@ -413,7 +422,10 @@ class NodeLocalization:
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                if not loc.result.valid or not gains(len(scans), self._bridge.arrived - since):
+                arrived = self._bridge.arrived - since
+                if not loc.result.valid or not gains(len(scans), arrived):
+                    if loc.result.valid:
+                        self._behind = f"{arrived} scan(s) arrived while it followed {i + 1} of a round of {len(scans)}"
                     self._bridge.restore(scans[i + 1:])  # dropped (counted) once the worker answers a later scan
                     return  # the worker's next scan goes on from the last good pose
 
