@@ -103,6 +103,8 @@ def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, ca
     gains()), long before it would have followed them all, and the log line says so; every pose published is right."""
     import re
 
+    from deepbbs_ros.node.bridge import BRIDGE_MAX
+
     sim, _, _, scan = drive
     h = _harness(drive, tmp_path, "slow_bridge_node", **{"node.error_log_period": 60.0})
     try:
@@ -113,10 +115,10 @@ def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, ca
         assert h.wait_for(lambda: h.node.localization.last_bridge != "" and not h.node.worker.busy, 60.0), (
             h.node.localization.diagnostics())
         line = h.node.localization.last_bridge
-        m = re.search(r"(\d+) scan\(s\) arrived while it followed (\d+) of a round of (\d+)", line)
+        m = re.search(r"(\d+) scan\(s\) arrived while it followed the last (\d+)\)", line)
         assert m, line
-        arrived, followed, size = map(int, m.groups())
-        assert arrived >= size > followed >= 1, line  # cut within its first round
+        arrived, followed = map(int, m.groups())
+        assert arrived >= BRIDGE_MAX > followed >= 1, line  # cut within its first window
         assert h.node.localization.bridged == followed, (h.node.localization.bridged, line)
         assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
         truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
@@ -184,11 +186,17 @@ def test_bridge_follows_while_it_gains_on_the_stream():
     from deepbbs_ros.node.bridge import ScanBridge, gains
 
     assert gains(12, 0) and gains(12, 11) and not gains(12, 12) and not gains(1, 1) and not gains(0, 0)
-    rounds, cost, period = [12], 60, 100  # ms: a tracker faster than the stream: each round the last one's arrivals
-    while rounds[-1] and gains(rounds[-1], rounds[-1] * cost // period):
-        rounds.append(rounds[-1] * cost // period)
-    assert rounds == [12, 7, 4, 2, 1, 0], rounds  # caught up: strictly fewer each round
-    slow = 150  # ms: slower than the stream: cut within the first round, once 12 arrived (8 followed)
+    # a tracker faster than the stream (60 ms a scan, 100 ms apart), 12 scans behind: over every 12 it follows, 7 or 8
+    # arrive (the phase of the first), so the backlog shrinks until it is caught up
+    cost, period, backlog, t, starts = 60, 100, 12, 0, []
+    while backlog:
+        starts.append(t)
+        t += cost
+        backlog += (t // period - (t - cost) // period) - 1  # arrivals during this scan, less the scan followed
+        w = starts[-12:]
+        assert gains(12, t // period - w[0] // period), (len(starts), backlog)
+    assert len(starts) == 28  # about 12 / (1 - 0.6): caught up, within the bound of 12 a scan of backlog
+    slow = 150  # ms: slower than the stream: 12 arrived once it followed 8 (cut there, within its first window)
     assert [gains(12, k * slow // period) for k in (7, 8)] == [True, False]
     b = ScanBridge(30)
     for s in range(10):

@@ -24,18 +24,20 @@ from typing import Any
 import numpy as np
 
 #: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one, in
-#: rounds (the scans that arrive while it bridges are the next round's) until none is left, while it gains (gains())
+#: rounds (the scans that arrive while it bridges are the next round's) until none is left, while it gains (gains());
+#: also the fewest followed scans over which it judges that
 BRIDGE_MAX = 12
 
 
-def gains(round_size: int, arrived: int) -> bool:
-    """Whether a round of the bridge (``round_size`` scans taken) still gains on the stream when ``arrived`` scans
-    arrived since it began: fewer than it holds, so that the next round, the scans that arrived during this one, is
-    smaller (tracking a scan costs less than the period between arrivals: the backlog shrinks). Once as many arrived,
-    the backlog cannot shrink (the machine is too slow for the stream): the bridge ends there and the newest scan is
-    tracked from the last pose followed. Each round smaller than the last and cut after ``round_size`` arrivals: the
-    bridge never runs away (at most ``round_size`` scan periods a round, fewer rounds than the first one's scans)."""
-    return arrived < round_size
+def gains(window: int, arrived: int) -> bool:
+    """Whether the bridge still gains on the stream when ``arrived`` scans arrived while it followed its last
+    ``window`` scans (all of them while it has followed fewer): fewer than ``window``, so tracking a scan costs less
+    than the period between arrivals and the backlog shrinks. The node's window is the first round's size, at least
+    ``BRIDGE_MAX`` (the rate judged over a dozen scans, not over the phase of one or two arrivals). Once as many
+    arrived, the backlog cannot shrink (the machine is too slow for the stream): the bridge ends there and the newest
+    scan is tracked from the last pose followed. The bridge never runs away: cut within ``window`` scan periods while it
+    falls behind, and gaining, its backlog shrinks by a scan or more every ``window`` scans it follows."""
+    return arrived < window
 
 
 class ArrivalGate:

@@ -402,7 +402,10 @@ class NodeLocalization:
         self._behind = ""
         # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
         # last arrivals to the worker's one-scan slot, where all but the newest are lost) while the bridge gains on the
-        # stream (node/bridge.py gains(): fewer scans arrived during a round than it holds; else it ends there)
+        # stream (node/bridge.py gains(): fewer scans arrived while it followed its last `window` than that; else it
+        # ends there)
+        marks: list[int] = []  # the arrivals counted when each followed scan began
+        window = 0
         while self.tracker.state == "tracking":
             # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
             # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
@@ -410,22 +413,25 @@ class NodeLocalization:
                                       keep_since=self._found_t)  # those since the pose was found: every one
             if not scans:
                 break
-            since = self._bridge.arrived
+            window = window or max(len(scans), BRIDGE_MAX)
             for i, cloud in enumerate(scans):
+                marks.append(self._bridge.arrived)
                 try:
                     loc = self.step(cloud)
                 except BadInput:
-                    continue
+                    loc = None
                 if loc is None:
+                    marks.pop()
                     continue
                 done += 1
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                arrived = self._bridge.arrived - since
-                if not loc.result.valid or not gains(len(scans), arrived):
+                arrived = self._bridge.arrived - marks[max(len(marks) - window, 0)]
+                if not loc.result.valid or not gains(window, arrived):
                     if loc.result.valid:
-                        self._behind = f"{arrived} scan(s) arrived while it followed {i + 1} of a round of {len(scans)}"
+                        self._behind = (f"{arrived} scan(s) arrived while it followed the last "
+                                        f"{min(len(marks), window)}")
                     self._bridge.restore(scans[i + 1:])  # dropped (counted) once the worker answers a later scan
                     return  # the worker's next scan goes on from the last good pose
 
