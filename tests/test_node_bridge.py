@@ -99,8 +99,9 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
 
 def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, capfd):
     """Tracking slower than the scan period (the test hook ``track_delay_s``: 0.15 s a scan at 10 Hz): the bridge
-    cannot catch up, so it does not try to: its first round ends once as many scans arrived as it holds (node/bridge.py
-    gains()), long before it would have followed them all, and the log line says so; every pose published is right."""
+    cannot catch up, so it does not try to: it ends once as many scans arrived as its window holds (node/bridge.py
+    gains()), long before it would have followed them all, and the log line says so; the worker goes on from the last
+    pose followed, never lost, to the last scan sent; every pose published is right."""
     import re
 
     from deepbbs_ros.node.bridge import BRIDGE_MAX
@@ -120,6 +121,11 @@ def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, ca
         arrived, followed = map(int, m.groups())
         assert arrived >= BRIDGE_MAX > followed >= 1, line  # cut within its first window
         assert h.node.localization.bridged == followed, (h.node.localization.bridged, line)
+        # the worker goes on from the last pose followed (its slot: the newest scan each time) and keeps the pose
+        assert h.wait_for(lambda: h.node.localization.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
+                          and not h.node.worker.busy, 60.0), h.node.localization.diagnostics()
+        loc = h.node.localization
+        assert loc.state == "tracking" and loc.events.get("lost", 0) == 0, loc.diagnostics()
         assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
         truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
         for msg in h.poses:
