@@ -97,6 +97,44 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
         h.close()
 
 
+def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, capfd):
+    """Tracking slower than the scan period (the test hook ``track_delay_s``: 0.15 s a scan at 10 Hz): the bridge
+    cannot catch up, so it does not try to: it ends once as many scans arrived as its window holds (node/bridge.py
+    gains()), long before it would have followed them all, and the log line says so; the worker goes on from the last
+    pose followed, never lost, to the last scan sent; every pose published is right."""
+    import re
+
+    from deepbbs_ros.node.bridge import BRIDGE_MAX
+
+    sim, _, _, scan = drive
+    h = _harness(drive, tmp_path, "slow_bridge_node", **{"node.error_log_period": 60.0})
+    try:
+        h.node.localization.search_delay_s = 1.2
+        h.node.localization.track_delay_s = 0.15
+        frames = list(range(12, 72))  # 6 s of driving at 10 Hz: scans still arrive when the first round would end
+        _stream(h, sim, scan, frames)
+        assert h.wait_for(lambda: h.node.localization.last_bridge != "" and not h.node.worker.busy, 60.0), (
+            h.node.localization.diagnostics())
+        line = h.node.localization.last_bridge
+        m = re.search(r"(\d+) scan\(s\) arrived while it followed the last (\d+)\)", line)
+        assert m, line
+        arrived, followed = map(int, m.groups())
+        assert arrived >= BRIDGE_MAX > followed >= 1, line  # cut within its first window
+        assert h.node.localization.bridged == followed, (h.node.localization.bridged, line)
+        # the worker goes on from the last pose followed (its slot: the newest scan each time) and keeps the pose
+        assert h.wait_for(lambda: h.node.localization.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
+                          and not h.node.worker.busy, 60.0), h.node.localization.diagnostics()
+        loc = h.node.localization
+        assert loc.state == "tracking" and loc.events.get("lost", 0) == 0, loc.diagnostics()
+        assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
+        truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
+        for msg in h.poses:
+            _check_pose(pose_stamped_to_matrix(msg)[0], truth[pose_stamped_to_matrix(msg)[1]])
+        assert "fell behind the stream" in capfd.readouterr().err
+    finally:
+        h.close()
+
+
 def test_drops_are_said_once_and_counted(ros, drive, tmp_path, capfd):
     """Without the bridge (``localization.bridge_scans`` 0), the scans that wait for a long search are dropped: the
     first drop is one log line naming why and the counter, later ones are only counted (/diagnostics)."""
@@ -142,6 +180,41 @@ def test_scan_bridge_takes_the_first_two_then_spread():
     got = [x.stamp_ns for x in d.take(4, leave_newest=False, keep_since=21.5)]
     assert got[:2] == [5, 6] and got[-3:] == [22, 23, 24] and len(got) == BRIDGE_MAX and got == sorted(got), got
     assert got[-4] == 21  # the last of the search's time kept too (the velocity into the new ones)
+
+
+def test_bridge_follows_while_it_gains_on_the_stream():
+    """gains(): a round of the bridge goes on while fewer scans arrived during it than it holds (tracking is faster
+    than the stream: the next round is smaller) and ends once as many arrived (the backlog cannot shrink: a machine too
+    slow for the stream), whatever the wall-clock time; ScanBridge counts the arrivals, and the scans a round handed out
+    and did not follow go back (restore), counted as dropped once a later scan is answered."""
+    from types import SimpleNamespace
+
+    from deepbbs_ros.node.bridge import ScanBridge, gains
+
+    assert gains(12, 0) and gains(12, 11) and not gains(12, 12) and not gains(1, 1) and not gains(0, 0)
+    # a tracker faster than the stream (60 ms a scan, 100 ms apart), 12 scans behind: over every 12 it follows, 7 or 8
+    # arrive (the phase of the first), so the backlog shrinks until it is caught up
+    cost, period, backlog, t, starts = 60, 100, 12, 0, []
+    while backlog:
+        starts.append(t)
+        t += cost
+        backlog += (t // period - (t - cost) // period) - 1  # arrivals during this scan, less the scan followed
+        w = starts[-12:]
+        assert gains(12, t // period - w[0] // period), (len(starts), backlog)
+    assert len(starts) == 28  # about 12 / (1 - 0.6): caught up, within the bound of 12 a scan of backlog
+    slow = 150  # ms: slower than the stream: 12 arrived once it followed 8 (cut there, within its first window)
+    assert [gains(12, k * slow // period) for k in (7, 8)] == [True, False]
+    b = ScanBridge(30)
+    for s in range(10):
+        b.add(SimpleNamespace(stamp_ns=s))
+    assert b.arrived == 10
+    got = b.take(2, leave_newest=False)
+    assert [x.stamp_ns for x in got] == list(range(3, 10)) and len(b) == 0
+    b.restore(got[3:])  # the round ended after 3, 4, 5: 6..9 back
+    b.add(SimpleNamespace(stamp_ns=10))
+    dropped = b.dropped
+    b.forget_until(10)  # the worker answered scan 10: 6..9 were dropped
+    assert b.dropped - dropped == 4 and len(b) == 0 and b.arrived == 11
 
 
 def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):

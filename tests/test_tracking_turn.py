@@ -51,3 +51,44 @@ def test_turn_back_is_tracked_by_gicp_from_rest(drive, tracked, back):
     res = tracker.step(pts, s0 + 200_000_000)
     assert res.valid and res.path == "gicp" and not calls, (res.reason, res.path, len(calls))
     _check_pose(res.T_map_scan, T)
+
+
+def test_tracker_offers_rest_and_the_mirrored_prediction():
+    """MapTracker hands the localizer, beside the constant-velocity prediction, the last pose at rest and the prediction
+    mirrored (the same step backwards: a sensor that turned back retraces its path), each scaled to the scan's time;
+    none after a gap too long for a velocity (the prediction is then the last pose)."""
+    from types import SimpleNamespace
+
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.localization_types import LocalizationResult
+    from deepbbs_ros.core.tracking import MapTracker
+
+    seen = []
+
+    def localize(scan, guess, **kw):
+        seen.append((guess, kw["starts"]))
+        return LocalizationResult(guess, False, float("nan"), "tracking", "test")
+
+    tracker = MapTracker(SimpleNamespace(localize=localize, config=Config()), Config())
+    yaw = np.radians(10.0)
+    step = np.eye(4)
+    step[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+    step[:3, 3] = [2.0, 0.5, 0.0]
+    T0 = np.eye(4)
+    T0[:3, 3] = [5.0, -3.0, 1.0]
+    T1 = T0 @ step
+    tracker.state, tracker._poses = "tracking", [(0, T0), (100_000_000, T1)]
+    tracker.step(np.zeros((10, 3)), 200_000_000)
+    guess, starts = seen[-1]
+    assert np.allclose(guess, T1 @ step) and len(starts) == 2
+    assert np.allclose(starts[0], T1) and np.allclose(starts[1], T0)  # at rest; turned back: the pose a step before
+    tracker.state, tracker._poses = "tracking", [(0, T0), (100_000_000, T1)]
+    tracker.step(np.zeros((10, 3)), 150_000_000)  # half a period: half a step either way
+    guess, starts = seen[-1]
+    half_fwd, half_back = np.linalg.inv(T1) @ guess, np.linalg.inv(T1) @ starts[1]
+    assert np.allclose(half_fwd @ half_back, np.eye(4), atol=1e-9) and np.allclose(half_fwd[:3, 3] * 2, step[:3, 3],
+                                                                                   atol=1e-9)
+    tracker.state, tracker._poses = "tracking", [(0, T0), (100_000_000, T1)]
+    tracker.step(np.zeros((10, 3)), 100_000_000 + 10 * 100_000_000)  # a gap of ten steps: no velocity
+    guess, starts = seen[-1]
+    assert np.allclose(guess, T1) and starts == []

@@ -370,7 +370,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             times, stamp_ns, motion: per-point times (N,) s since the stamp and the sensor's known motion
                 (``T_prev_cur``, seconds) for deskewing (``DeepBBSRegistration.preprocess``); optional.
             among: with no guess, the places (indices into :attr:`places`) searched instead of all (a pose hint's).
-            starts: with a guess, other (4, 4) starts for its GICP (the tracker's last pose at rest), tried in the
+            starts: with a guess, other (4, 4) starts for its GICP (the tracker's last pose at rest, mirrored), in the
                 order of their fit with it (core/guess_tracking.py).
 
         Raises:

@@ -1,11 +1,11 @@
 """Tracking a scan stream in a prior map (no ROS): :class:`MapTracker`, the state machine around
 :class:`~deepbbs_ros.core.localization.MapLocalizer` shared by the node and the replay.
 
-Constant-velocity prediction from the last accepted poses, tracking from it or from the last pose at rest, whichever
-the scan fits better (``MapLocalizer.localize`` with a guess and that start), lost after ``localization.lost_after``
-rejected scans (or an implausible speed), then the global search until found again; a pose hint
-(:meth:`MapTracker.hint`) searches near it first. ``MapTracker.motion`` gives the sensor's recent motion for deskewing
-the next scan.
+Constant-velocity prediction from the last accepted poses, tracking from it, from the last pose at rest or from the
+prediction mirrored (turned back), whichever the scan fits best (``MapLocalizer.localize`` with a guess and those
+starts), lost after ``localization.lost_after`` rejected scans (or an implausible speed), then the global search until
+found again; a pose hint (:meth:`MapTracker.hint`) searches near it first. ``MapTracker.motion`` gives the sensor's
+recent motion for deskewing the next scan.
 """
 
 from __future__ import annotations
@@ -109,13 +109,18 @@ class MapTracker:
         with one; None with none)."""
         if not self._poses:
             return None
-        s1, T1 = self._poses[-1]
+        step = self._step_to(stamp_ns)
+        return self._poses[-1][1] @ step if step is not None else self._poses[-1][1].copy()
+
+    def _step_to(self, stamp_ns: int) -> np.ndarray | None:
+        """The motion T_last_scan (4, 4) from the last accepted pose to ``stamp_ns`` under constant velocity (the last
+        step scaled to the time); None with fewer than two poses or a gap of more than five steps (no velocity)."""
         if len(self._poses) < 2:
-            return T1.copy()
-        s0, T0 = self._poses[-2]
+            return None
+        (s0, T0), (s1, T1) = self._poses[-2], self._poses[-1]
         dt0, dt1 = (s1 - s0) * 1e-9, (stamp_ns - s1) * 1e-9
         if dt0 <= 0 or dt1 < 0 or dt1 > 5.0 * max(dt0, 0.05):
-            return T1.copy()
+            return None
         from scipy.spatial.transform import Rotation
 
         step = np.linalg.inv(T0) @ T1
@@ -123,7 +128,7 @@ class MapTracker:
         out = np.eye(4)
         out[:3, :3] = Rotation.from_rotvec(Rotation.from_matrix(step[:3, :3]).as_rotvec() * k).as_matrix()
         out[:3, 3] = step[:3, 3] * k
-        return T1 @ out
+        return out
 
     def step(self, scan: Any, stamp_ns: int, times: np.ndarray | None = None) -> LocalizationResult:
         """Localize one scan (N, 3) (sensor frame, metres; or its :class:`PreparedScan`, deskewed already) stamped
@@ -134,11 +139,14 @@ class MapTracker:
         if self.state == "tracking":
             guess = self.predict(stamp_ns)
             motion = self.motion() if times is not None else None
-            # the last pose at rest beside the constant-velocity prediction: a sensor that stopped or turned back, or a
-            # prediction across a gap, is tracked by GICP from whichever of the two the scan fits better (measured on
-            # the map: core/guess_tracking.py), not by the slower DeepBBS++ path
-            last = self._poses[-1][1]
+            # beside the constant-velocity prediction, the same velocity's other two signs: the last pose at rest (a
+            # sensor that stopped, or a prediction across a gap) and the prediction mirrored (a sensor that turned back
+            # and retraces its path); GICP from whichever of them the scan fits best (measured on the map, a few
+            # hundred points each: core/guess_tracking.py), not the slower DeepBBS++ path
+            last, step = self._poses[-1][1], self._step_to(stamp_ns)
             starts = [last] if len(self._poses) >= 2 and not np.array_equal(guess, last) else []
+            if starts and step is not None:
+                starts.append(last @ np.linalg.inv(step))
             res = self.localizer.localize(scan, guess, times=times, stamp_ns=stamp_ns, motion=motion, starts=starts)
             if res.valid and not self._plausible(res.T_map_scan, stamp_ns):
                 res.valid = False

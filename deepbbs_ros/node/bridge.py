@@ -9,8 +9,9 @@ takes it too: the worker's slot, which holds it as well, may lose it to the next
 those of the search's time thinned to at most :data:`BRIDGE_MAX`: the first two (the tracker's velocity) and then
 evenly spread; those received after the pose was found are all kept. The node
 tracks them in stamp order (GICP from the constant-velocity prediction on the map crop, the tracker's usual step),
-round after round while more arrive, so the pose reaches the newest scan with a fresh prediction. Scans stamped at
-or before the last answered one are forgotten (:meth:`ScanBridge.forget_until`).
+round after round while more arrive, so the pose reaches the newest scan with a fresh prediction, for as long as it
+gains on the stream (:func:`gains`). Scans stamped at or before the last answered one are forgotten
+(:meth:`ScanBridge.forget_until`).
 """
 
 from __future__ import annotations
@@ -23,9 +24,20 @@ from typing import Any
 import numpy as np
 
 #: at most this many of the scans that arrived during a search are registered to carry its pose to the newest one, in
-#: rounds (the scans that arrive while it bridges are the next round's) until none is left, for at most
-#: BRIDGE_BUDGET_S s in all (then the newest scan is tracked from the last pose followed: the bridge never runs away)
-BRIDGE_MAX, BRIDGE_BUDGET_S = 12, 2.0
+#: rounds (the scans that arrive while it bridges are the next round's) until none is left, while it gains (gains());
+#: also the fewest followed scans over which it judges that
+BRIDGE_MAX = 12
+
+
+def gains(window: int, arrived: int) -> bool:
+    """Whether the bridge still gains on the stream when ``arrived`` scans arrived while it followed its last
+    ``window`` scans (all of them while it has followed fewer): fewer than ``window``, so tracking a scan costs less
+    than the period between arrivals and the backlog shrinks. The node's window is the first round's size, at least
+    ``BRIDGE_MAX`` (the rate judged over a dozen scans, not over the phase of one or two arrivals). Once as many
+    arrived, the backlog cannot shrink (the machine is too slow for the stream): the bridge ends there and the newest
+    scan is tracked from the last pose followed. The bridge never runs away: cut within ``window`` scan periods while it
+    falls behind, and gaining, its backlog shrinks by a scan or more every ``window`` scans it follows."""
+    return arrived < window
 
 
 class ArrivalGate:
@@ -51,6 +63,7 @@ class ScanBridge:
         self._lock = threading.Lock()
         self._scans: deque[Any] = deque(maxlen=max(self.size, 1))
         self.dropped = 0  # scans kept and then forgotten or passed over unanswered (full, thinned, older)
+        self.arrived = 0  # scans added so far (the stream's pace, measured while the bridge follows: gains())
 
     def __len__(self) -> int:
         with self._lock:
@@ -60,8 +73,18 @@ class ScanBridge:
         """Keep ``scan`` (the oldest kept one goes when full). Called on the input thread."""
         if self.size:
             with self._lock:
+                self.arrived += 1
                 self.dropped += len(self._scans) == self._scans.maxlen
                 self._scans.append(scan)
+
+    def restore(self, scans: list[Any]) -> None:
+        """Keep again scans :meth:`take` handed out and the bridge did not follow (it ended before them): counted as
+        dropped once a later scan is answered (:meth:`forget_until`), not lost uncounted."""
+        if self.size:
+            with self._lock:
+                for scan in scans:
+                    self.dropped += len(self._scans) == self._scans.maxlen
+                    self._scans.append(scan)
 
     def clear(self) -> None:
         with self._lock:

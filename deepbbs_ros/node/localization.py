@@ -38,13 +38,13 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_BUDGET_S, BRIDGE_MAX, ScanBridge
+from deepbbs_ros.node.bridge import BRIDGE_MAX, ScanBridge, gains
 from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import Registered
 
 #: why the scans kept during a search and not followed by the bridge were dropped (node/drops.py's counter key first)
 BRIDGE_DROP = (f"after a search: passed over by the bridge (it follows at most {BRIDGE_MAX} of the scans that arrived "
-               f"meanwhile a round, for at most {BRIDGE_BUDGET_S:g} s, and a scan older than one answered)")
+               "meanwhile, then round after round while it gains on the stream, and a scan older than one answered)")
 #: the tracker's states, as /diagnostics shows them
 STATES = ("searching", "tracking", "lost")
 PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
@@ -159,12 +159,16 @@ class NodeLocalization:
         #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
         #: can make a search outlast the scan period on a tiny map; 0 in use
         self.search_delay_s = 0.0
+        #: a test hook: seconds every tracked scan (one with a pose to track from) waits before its registration, so
+        #: that a test can make tracking slower than the scan period; 0 in use
+        self.track_delay_s = 0.0
         self.last_bridge = ""  # the last bridge's log line (bridge())
         self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
         # a search placed its scan and bridge() has not started yet: the scans arriving in between (while the found
         # pose is published) are kept too, else the worker's slot keeps only the newest of them
         self._bridge_pending = False
         self._followed = 0
+        self._behind = ""  # why the last bridge ended before it caught up ("" when it did)
 
     # -- the map -----------------------------------------------------------------------------------------------
     def build(self, data: MapData) -> str:
@@ -313,6 +317,8 @@ class NodeLocalization:
             self._search_t0, self._search_scans = cloud.t_recv, 0
         if state_before != "tracking" and self.search_delay_s > 0:
             time.sleep(self.search_delay_s)
+        if state_before == "tracking" and self.track_delay_s > 0:
+            time.sleep(self.track_delay_s)
         t0 = time.perf_counter()
         try:
             pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None
@@ -387,33 +393,47 @@ class NodeLocalization:
         self._say_drops(self.tracker.last_stamp_ns or stamp_ns)
         if self._followed:
             self.last_bridge = (f"localization: followed the pose through {self._followed} scan(s) that arrived during "
-                                f"the search in {(time.perf_counter() - t0):.2f} s; tracking from the newest")
+                                f"the search in {(time.perf_counter() - t0):.2f} s; "
+                                + (f"it fell behind the stream ({self._behind}): tracking from the newest scan"
+                                   if self._behind else "tracking from the newest"))
 
     def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
         done = self._followed = 0
-        t0 = time.perf_counter()
+        self._behind = ""
         # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
-        # last arrivals to the worker's one-scan slot, where all but the newest are lost) or the budget is spent
-        while self.tracker.state == "tracking" and time.perf_counter() - t0 <= BRIDGE_BUDGET_S:
+        # last arrivals to the worker's one-scan slot, where all but the newest are lost) while the bridge gains on the
+        # stream (node/bridge.py gains(): fewer scans arrived while it followed its last `window` than that; else it
+        # ends there)
+        marks: list[int] = []  # the arrivals counted when each followed scan began
+        window = 0
+        while self.tracker.state == "tracking":
             # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
             # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
             scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False,
                                       keep_since=self._found_t)  # those since the pose was found: every one
             if not scans:
                 break
-            for cloud in scans:
+            window = window or max(len(scans), BRIDGE_MAX)
+            for i, cloud in enumerate(scans):
+                marks.append(self._bridge.arrived)
                 try:
                     loc = self.step(cloud)
                 except BadInput:
-                    continue
+                    loc = None
                 if loc is None:
+                    marks.pop()
                     continue
                 done += 1
                 self._followed = done
                 self.bridged += bool(loc.result.valid)
                 yield cloud, loc
-                if not loc.result.valid or time.perf_counter() - t0 > BRIDGE_BUDGET_S:
-                    return  # the worker's next scan goes on from the last good pose (the rest: dropped)
+                arrived = self._bridge.arrived - marks[max(len(marks) - window, 0)]
+                if not loc.result.valid or not gains(window, arrived):
+                    if loc.result.valid:
+                        self._behind = (f"{arrived} scan(s) arrived while it followed the last "
+                                        f"{min(len(marks), window)}")
+                    self._bridge.restore(scans[i + 1:])  # dropped (counted) once the worker answers a later scan
+                    return  # the worker's next scan goes on from the last good pose
 
     def _say_drops(self, stamp_ns: int) -> None:
         """Hand the scans the bridge dropped since the last call to :attr:`drop_sink` (counted and said once)."""
