@@ -6,16 +6,36 @@
 
 from __future__ import annotations
 
+import threading
 import time
 import traceback
 from pathlib import Path
 from typing import Any
 
+from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
+from deepbbs_ros.node.drops import DropLog
 from deepbbs_ros.node.pipeline import LocalMapOdometry
 
 
 class NodeDiagnostics:
     """The node's counters, /diagnostics and error reports."""
+
+    def _init_counters(self, log_period: float) -> None:
+        """The counters, the latency per stage and the rate-limited logs (``log_period`` s: ``node.error_log_period``)
+        of a node being configured."""
+        self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), log_period)
+        # conditions of the graph, not of a message: an input that never pairs, a target not there yet
+        self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), log_period)
+        # localization: a scan dropped unanswered is said once, later ones summarised (node/drops.py)
+        self._drops = DropLog(lambda text: self.get_logger().info(text), log_period)
+        self._stages = StageTimes()
+        self._lock = threading.Lock()
+        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0, "time_jumps": 0, "untrusted": 0}
+        self._last_result: dict[str, float] = {}
+        self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
+        self._gap_seen: float | None = None  # the last pair's time when a check last found the inputs' stamps apart
+        self._last_pair_t = time.monotonic()
+        self._paths = {"gicp": 0, "deepbbs": 0, "search": 0}  # pair mode: which registration path answered
 
     def stats(self) -> dict[str, Any]:
         """Counters of the node, its inputs, the synchroniser and the worker (also on /diagnostics)."""

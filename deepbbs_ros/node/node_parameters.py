@@ -11,7 +11,7 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError, NodeError
-from deepbbs_ros.node.parameters import check_parameter_names, node_parameters
+from deepbbs_ros.node.parameters import check_parameter_names, node_parameters, validate_frame
 
 
 class NodeParameters:
@@ -52,3 +52,12 @@ class NodeParameters:
         if ours:
             return SetParametersResult(successful=False, reason=f"restart the node to change {', '.join(ours)}")
         return SetParametersResult(successful=True)
+
+
+def check_frames(ncfg) -> None:
+    """The frame ids of the ``node`` section (``ncfg``) are valid and ``node.odom_frame`` is not empty (NodeError)."""
+    validate_frame("node.odom_frame", ncfg.odom_frame)
+    validate_frame("node.base_frame", ncfg.base_frame)
+    validate_frame("node.map_frame", ncfg.map_frame)
+    if not ncfg.odom_frame:
+        raise NodeError("node.odom_frame: must not be empty")

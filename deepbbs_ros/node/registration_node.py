@@ -71,20 +71,17 @@ from std_srvs.srv import Trigger
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import NodeError
-from deepbbs_ros.node.diagnostics import RateLimitedErrors, StageTimes
-from deepbbs_ros.node.drops import DropLog
 from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.node_diagnostics import NodeDiagnostics, stop_line
 from deepbbs_ros.node.node_inputs import InputHandlers
 from deepbbs_ros.node.node_jobs import JUMP_BACK_S, RegistrationJobs, _result_summary, _step_line  # noqa: F401
-from deepbbs_ros.node.node_parameters import NodeParameters
+from deepbbs_ros.node.node_parameters import NodeParameters, check_frames
 from deepbbs_ros.node.node_services import NodeServices
 from deepbbs_ros.node.node_tf import NodeTf
 from deepbbs_ros.node.outputs import Outputs, TfBroadcaster
 from deepbbs_ros.node.parameters import (
     load_registration,
-    validate_frame,
 )
 from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, PairStart, ScanToScanOdometry, takes_good_start
 from deepbbs_ros.node.qos import input_qos, qos_text
@@ -156,11 +153,7 @@ class RegistrationNode(NodeParameters, InputHandlers, RegistrationJobs, NodeDiag
         parts (the worker's thread). Returns the model's load time (s)."""
         self.cfg = self._declare_config(config)
         ncfg = self.cfg.node
-        validate_frame("node.odom_frame", ncfg.odom_frame)
-        validate_frame("node.base_frame", ncfg.base_frame)
-        validate_frame("node.map_frame", ncfg.map_frame)
-        if not ncfg.odom_frame:
-            raise NodeError("node.odom_frame: must not be empty")
+        check_frames(ncfg)
         if odometry_method not in ODOMETRY_METHODS:
             raise NodeError(f"odometry_method must be one of {', '.join(ODOMETRY_METHODS)}, got {odometry_method!r}")
         self.odometry_method = odometry_method
@@ -169,23 +162,11 @@ class RegistrationNode(NodeParameters, InputHandlers, RegistrationJobs, NodeDiag
         if localization and self.cfg.localization.map_path:  # read (and refused) before the model loads
             map_file = load_map_file(self.cfg.localization.map_path, ncfg.map_frame)
         self._choose_inputs(remaps, map_file is not None)
-        self._errors = RateLimitedErrors(lambda text: self.get_logger().error(text), ncfg.error_log_period)
-        # conditions of the graph, not of a message: an input that never pairs, a target not there yet
-        self._warnings = RateLimitedErrors(lambda text: self.get_logger().warning(text), ncfg.error_log_period)
-        # localization: a scan dropped unanswered is said once, later ones summarised (node/drops.py)
-        self._drops = DropLog(lambda text: self.get_logger().info(text), ncfg.error_log_period)
-        self._stages = StageTimes()
-        self._lock = threading.Lock()
+        self._init_counters(ncfg.error_log_period)
         self._odom_lock = threading.Lock()  # the odometry state: worker thread vs ~/reset
-        self._counts = {"received": 0, "pairs": 0, "processed": 0, "rejected": 0, "time_jumps": 0, "untrusted": 0}
-        self._last_result: dict[str, float] = {}
         self._last_odom_stamp: int | None = None  # odometry mode: a stamp far before it is a time jump (reset)
-        self._arrivals: dict[int, tuple[float, int]] = {}  # input index -> (monotonic arrival, stamp ns)
-        self._gap_seen: float | None = None  # the last pair's time when a check last found the inputs' stamps apart
-        self._last_pair_t = time.monotonic()
         self._map_target = MapTarget(self.cfg) if ncfg.mode == "pair" and ncfg.target_mode == "latched" else None
         self._pair_start = PairStart(ncfg.good_start_max_gap, False)  # stamped pairs: the last valid answer (below)
-        self._paths = {"gicp": 0, "deepbbs": 0, "search": 0}  # pair mode: which registration path answered
 
         # the model: device and weights checked first, with errors naming the parameter
         self._owns_reg = registration is None  # closed with the node (its network process)
