@@ -34,34 +34,34 @@ back as a RegistrationError with its one-line message. If the worker dies or sto
 logs one line, loads the registration in the node's process, and runs every request there from then on
 (a handle of the dead worker is preprocessed again from its points: nothing is lost but time). A
 ``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish.py).
+
+Here: the proxy the node calls. The worker's side is :mod:`deepbbs_ros.node.registration_worker`, the connection
+between them (requests, answers, releases) :mod:`deepbbs_ros.node.registration_link`.
 """
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
 import threading
 import time
 import weakref
-from collections import OrderedDict, deque
 from collections.abc import Callable
-from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.core.scans import prepare_scan
-from deepbbs_ros.errors import DeepBBSError, ModelError, RegistrationError
+from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.node.registration_link import RESULT_TIMEOUT_S, WorkerLink, _Lost  # noqa: F401 - RESULT_TIMEOUT_S
+from deepbbs_ros.node.registration_worker import MAX_SCANS, _Expired  # noqa: F401 - MAX_SCANS: imported from here
 
 __all__ = ["RegistrationProcess", "ScanHandle", "wanted"]
 
 _log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 180.0  # importing torch, loading the checkpoint, starting the network process, warming up
-RESULT_TIMEOUT_S = 60.0  # one request (a registration with its global search on a busy machine)
-MAX_SCANS = 16  # scans kept by the worker (the node releases the ones it drops; this bounds a leak)
 
 
 def wanted(setting: str, mode: str, device_type: str) -> bool:
@@ -104,14 +104,6 @@ class ScanHandle:
         return f"ScanHandle({where}, {len(self.xyz)} points, stamp {self.stamp_ns})"
 
 
-class _Lost(RegistrationError):
-    """The worker died, stopped answering or could not be reached."""
-
-
-class _Expired(RegistrationError):
-    """A scan the worker no longer keeps (more than :data:`MAX_SCANS` held by the node)."""
-
-
 class _RemoteStreamDeskew:
     """``core.deskew.StreamDeskew`` of one input topic, run in the worker (``apply`` / ``reset``)."""
 
@@ -145,32 +137,20 @@ class RegistrationProcess:
     defers_precision = True  # the worker decides (its own DeepBBSRegistration.defers_precision)
 
     def __init__(self, config: Any, weights: str | Path, log: Callable[[str], None] | None = None) -> None:
-        from deepbbs_ros.core.worker_process import handshake, spawn_worker
-
         self.config, self.weights = config, str(weights)
         self.device = "cpu"  # the worker's, once it is ready
         self._log = log or _log.warning
-        self._ids = itertools.count(1)
-        self._futures: dict[int, Future] = {}
-        self._futures_lock = threading.Lock()
-        self._send_lock = threading.Lock()
-        self._released: deque[int] = deque()  # handles dropped by the node, sent with the next request
         self._local: Any = None  # the DeepBBSRegistration of the fallback
         self._local_lock = threading.Lock()
         self._state = "starting"
         self._net_state = "not started yet"  # the worker's network process, as it last said
-        self._proc, self._conn = spawn_worker("deepbbs_ros.node.registration_process", "registration process")
-        self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
-        try:
-            msg = handshake(self._conn, self._proc, (self.weights, config.to_flat()), "registration process",
-                            START_TIMEOUT_S)
-        except ModelError:
-            self.close()
-            raise
-        self._net_state, self.device = msg[1], msg[2]
+        self._link = WorkerLink("deepbbs_ros.node.registration_process", "registration process",
+                                (self.weights, config.to_flat()), START_TIMEOUT_S)  # ModelError: it is stopped
+        self._proc, self._ids, self._released = self._link.proc, self._link.ids, self._link.released
+        self._call = self._link.call
+        self._net_state, self.device = self._link.hello[1], self._link.hello[2]
         self._state = "running"
-        self._reader = threading.Thread(target=self._read, name="deepbbs-regproc-reader", daemon=True)
-        self._reader.start()
+        self._link.start_reader()
 
     # -- state ---------------------------------------------------------------------------------------
     @property
@@ -198,8 +178,7 @@ class RegistrationProcess:
     @property
     def handles(self) -> int:
         """Requests waiting for their answer (0 when idle)."""
-        with self._futures_lock:
-            return len(self._futures)
+        return self._link.waiting
 
     # -- the interface the node uses ----------------------------------------------------------------
     def preprocess(self, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -282,7 +261,7 @@ class RegistrationProcess:
         network process."""
         if self._state == "running":
             self._state = "stopped"
-        self._finalizer()
+        self._link.stop()
         with self._local_lock:
             if self._local is not None:
                 self._local.close()
@@ -340,75 +319,9 @@ class RegistrationProcess:
                                        driver=h.driver)
         return h.local
 
-    def _call(self, msg: tuple) -> Any:
-        """Send one request from this thread's lane and wait for its answer.
-
-        Raises:
-            _Lost: the worker is gone or did not answer in time (it is then stopped).
-            RegistrationError: the worker raised one (its message).
-        """
-        rid = next(self._ids)
-        fut: Future = Future()
-        with self._futures_lock:
-            self._futures[rid] = fut
-        released = []
-        while self._released:
-            released.append(self._released.popleft())
-        lane = threading.current_thread().name
-        try:
-            with self._send_lock:
-                if released:
-                    self._conn.send(("release", released))
-                self._conn.send((rid, lane, msg))
-        except (OSError, ValueError) as err:
-            with self._futures_lock:
-                self._futures.pop(rid, None)
-            code = self._proc.poll()
-            raise _Lost(f"registration process died (exit code {code})" if code is not None
-                        else f"registration process: request failed ({err})") from err
-        try:
-            status, value = fut.result(timeout=RESULT_TIMEOUT_S)
-        except TimeoutError as err:
-            with self._futures_lock:
-                self._futures.pop(rid, None)
-            raise _Lost(f"registration process: no answer within {RESULT_TIMEOUT_S:.0f} s") from err
-        if status == "ok":
-            return value
-        if status == "lost":
-            raise _Lost(value)
-        if status == "expired":
-            raise _Expired(value)
-        if status == "registration_error":
-            raise RegistrationError(value)
-        raise DeepBBSError(f"registration process: {value}")  # a bug there: the node logs it and goes on
-
     def _send_quiet(self, msg: tuple) -> None:
-        if self._state != "running":
-            return
-        try:
-            with self._send_lock:
-                self._conn.send(msg)
-        except (OSError, ValueError):
-            pass  # the next request finds out
-
-    def _read(self) -> None:
-        """The answers, to the waiting requests; the worker's end to every request still waiting."""
-        why = "registration process: connection closed"
-        while True:
-            try:
-                rid, status, value = self._conn.recv()
-            except (EOFError, OSError, ValueError):
-                code = self._proc.poll()
-                why = f"registration process died (exit code {code})" if code is not None else why
-                break
-            with self._futures_lock:
-                fut = self._futures.pop(rid, None)
-            if fut is not None:
-                fut.set_result((status, value))
-        with self._futures_lock:
-            waiting, self._futures = list(self._futures.values()), {}
-        for fut in waiting:
-            fut.set_result(("lost", why))
+        if self._state == "running":
+            self._link.send_quiet(msg)  # a failure: the next request finds out
 
     def _failed(self, err: Exception) -> None:
         """Log once, stop the worker and register in this process from now on."""
@@ -419,7 +332,7 @@ class RegistrationProcess:
             self._state = "failed"
         if not stopping:
             self._log(f"{err}: registering in the node's process from now on")
-        self._finalizer()
+        self._link.stop()
 
     def _fallback(self) -> Any:
         """The DeepBBSRegistration of this process (built once, on the first request after a failure)."""
@@ -436,175 +349,9 @@ class RegistrationProcess:
             return self._local
 
 
-def _shutdown(conn, proc) -> None:
-    try:
-        conn.send(("stop",))
-    except (OSError, ValueError):
-        pass
-    try:
-        proc.wait(timeout=5.0)
-    except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
-        proc.kill()
-        proc.wait(timeout=2.0)
-    conn.close()
-
-
-# -- the worker ----------------------------------------------------------------------------------------
-class _Worker:
-    """The registration and the scans it keeps, served on one thread per lane (the node's threads)."""
-
-    def __init__(self, conn: Any, reg: Any) -> None:
-        self.conn, self.reg = conn, reg
-        self.send_lock = threading.Lock()
-        self.scans: OrderedDict[int, Any] = OrderedDict()
-        self.scans_lock = threading.Lock()
-        self.streams: dict[str, Any] = {}
-        self.lanes: dict[str, deque] = {}
-        self.cond = threading.Condition()
-        self.stopping = False
-
-    def put(self, hid: int, pre: Any) -> None:
-        with self.scans_lock:
-            self.scans[hid] = pre
-            while len(self.scans) > MAX_SCANS:
-                self.scans.popitem(last=False)
-
-    def get(self, hid: int) -> Any:
-        with self.scans_lock:
-            pre = self.scans.get(hid)
-            if pre is not None:
-                self.scans.move_to_end(hid)
-        if pre is None:
-            raise _Expired(str(hid))
-        return pre
-
-    def release(self, ids: list[int]) -> None:
-        with self.scans_lock:
-            for hid in ids:
-                self.scans.pop(hid, None)
-
-    def submit(self, rid: int, lane: str, msg: tuple) -> None:
-        with self.cond:
-            q = self.lanes.get(lane)
-            if q is None:
-                q = self.lanes[lane] = deque()
-                threading.Thread(target=self._serve, args=(q, lane), name=f"lane-{lane}", daemon=True).start()
-            q.append((rid, msg))
-            self.cond.notify_all()
-
-    def stop(self) -> None:
-        with self.cond:
-            self.stopping = True
-            self.cond.notify_all()
-
-    def _serve(self, q: deque, lane: str) -> None:
-        from deepbbs_ros.node.worker import _name_os_thread
-
-        _name_os_thread(lane.removeprefix("deepbbs-"))  # as the node's thread is named (top -H, the benchmark)
-        while True:
-            with self.cond:
-                self.cond.wait_for(lambda: q or self.stopping)
-                if self.stopping:
-                    return
-                rid, msg = q.popleft()
-            try:
-                answer = (rid, "ok", self.run(msg))
-            except _Expired as err:
-                answer = (rid, "expired", str(err))
-            except RegistrationError as err:
-                answer = (rid, "registration_error", str(err))
-            except Exception as err:  # noqa: BLE001 - a bug: one line to the node, which goes on
-                answer = (rid, "error", f"{type(err).__name__}: {err}")
-            try:
-                with self.send_lock:
-                    self.conn.send(answer)
-            except (OSError, ValueError):
-                return
-
-    @staticmethod
-    def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet
-        points = pre.points if getattr(pre, "sampled", True) else None
-        return {"points": points, "timings_ms": dict(pre.timings_ms), "deskew": pre.deskew,
-                "sensor": getattr(pre, "sensor", "auto")}
-
-    def run(self, msg: tuple) -> Any:
-        op = msg[0]
-        if op == "adopt":  # a scan the node preprocessed: its GICP cloud's k-d tree and covariances are built here
-            _, hid, pre = msg
-            if self.reg.config.node.good_start and pre.polish_cloud is not None:
-                # pairs from a good start run GICP alone (no network to overlap the k-d tree and covariances with, in
-                # register): built now, on this input's lane, while the registration lane works on the last pair
-                t0 = time.perf_counter()
-                pre.polish_cloud.complete(self.reg.gicp_threads())
-                pre.timings_ms["polish_prepare"] = pre.timings_ms.get("polish_prepare", 0.0) + (
-                    time.perf_counter() - t0) * 1e3
-            self.put(hid, pre)
-            return self._reply(pre)
-        if op == "deskew":
-            _, key, hid, new_id = msg
-            stream = self.streams.get(key)
-            if stream is None:
-                from deepbbs_ros.core.deskew import StreamDeskew
-
-                stream = self.streams[key] = StreamDeskew(self.reg)
-            pre = stream.apply(self.get(hid))
-            self.put(new_id, pre)
-            return self._reply(pre)
-        if op == "register":
-            _, src_id, tgt_id, T_init, good_start = msg
-            t0 = time.perf_counter()
-            result = self.reg.register(self.get(src_id), self.get(tgt_id), T_init=T_init, good_start=good_start)
-            return result, self.reg.network_process_state, (time.perf_counter() - t0) * 1e3
-        if op == "kept":
-            with self.scans_lock:
-                return len(self.scans)
-        raise ValueError(f"unknown request {op!r}")
-
-
-def _worker_main(fd: int) -> int:
-    """Read (weights, flat config), build and warm up the registration, answer ``("ready", network process
-    state, device)``, then serve ``(request id, lane, request)`` messages (and ``("release", ids)``,
-    ``("reset_stream", key)``) until ``("stop",)`` or until the node is gone (EOF)."""
-    from multiprocessing.connection import Connection
-
-    conn = Connection(fd)
-    try:
-        weights, flat_config = conn.recv()
-        from deepbbs_ros.config import Config
-        from deepbbs_ros.core.registration import DeepBBSRegistration
-
-        reg = DeepBBSRegistration(Config.from_flat(flat_config), weights=weights)
-        reg.warmup()
-    except (EOFError, OSError):
-        return 0
-    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
-        conn.send(("error", f"{type(err).__name__}: {err}"))
-        return 1
-    conn.send(("ready", reg.network_process_state, str(reg.device)))
-    worker = _Worker(conn, reg)
-    try:
-        while True:
-            try:
-                msg = conn.recv()
-            except (EOFError, OSError):
-                break
-            if msg[0] == "stop":
-                break
-            if msg[0] == "release":
-                worker.release(msg[1])
-            elif msg[0] == "reset_stream":
-                stream = worker.streams.get(msg[1])
-                if stream is not None:
-                    stream.reset()
-            else:
-                worker.submit(*msg)
-    finally:
-        worker.stop()
-        reg.close()
-    return 0
-
-
-if __name__ == "__main__":
+if __name__ == "__main__":  # the worker (registration_worker.py), started under this module's name
     import sys
+
+    from deepbbs_ros.node.registration_worker import _worker_main
 
     sys.exit(_worker_main(int(sys.argv[1])))
