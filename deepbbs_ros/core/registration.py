@@ -50,7 +50,8 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import global_search
 from deepbbs_ros.core.good_start import attempt, good_start_gicp, good_start_points
 from deepbbs_ros.core.model import DeepBBSNet
-from deepbbs_ros.core.network import Clock, DeepBBSNetwork
+from deepbbs_ros.core.network import DeepBBSNetwork
+from deepbbs_ros.core.network_output import Clock
 from deepbbs_ros.core.network_runner import NetworkRunner
 from deepbbs_ros.core.registration_inputs import RegistrationInputs
 from deepbbs_ros.core.registration_network import NetworkStages

@@ -12,7 +12,8 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import global_search
 from deepbbs_ros.core.model import DeepBBSNet
-from deepbbs_ros.core.network import Clock, DeepBBSNetwork, NetworkOutput, matrix, worker_share
+from deepbbs_ros.core.network import DeepBBSNetwork
+from deepbbs_ros.core.network_output import Clock, NetworkOutput, matrix, worker_share
 from deepbbs_ros.core.network_runner import NetworkRunner
 from deepbbs_ros.core.registration_state import State
 

@@ -11,7 +11,7 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import pair_deskew
 from deepbbs_ros.core.model import DeepBBSNet
-from deepbbs_ros.core.network import Clock, matrix, orthonormalize
+from deepbbs_ros.core.network_output import Clock, matrix, orthonormalize
 from deepbbs_ros.core.polish import polish
 from deepbbs_ros.core.registration_state import State
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepbbs_ros.core.network import Clock
+from deepbbs_ros.core.network_output import Clock
 from deepbbs_ros.core.network_runner import NetworkRunner
 from deepbbs_ros.core.polish import PolishCloud
 from deepbbs_ros.core.preprocess import PreprocessResult
