@@ -10,8 +10,10 @@ network's worker process (``core/network_process.py``) run::
                 recent clouds: a fixed map target, or the last source that becomes the next target
 
 Everything here runs in scaled coordinates (``model.scale`` times metres); the numpy entry points
-(:meth:`DeepBBSNetwork.network_np`, :meth:`DeepBBSNetwork.starts_np`) take metres. The small helpers the
-registration stages share with it (:func:`matrix`, :func:`orthonormalize`, :class:`Clock`) live here too.
+(:meth:`DeepBBSNetwork.network_np`, :meth:`DeepBBSNetwork.starts_np`) take metres. Its parts: the passes from
+K starts as one batch (core/network_batch.py), the numpy entry points (core/network_np.py); what it gives back and
+the helpers the registration stages share (:func:`matrix`, :func:`orthonormalize`, :class:`Clock`):
+core/network_output.py.
 """
 
 from __future__ import annotations
@@ -19,12 +21,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import threading
-import time
 import warnings
 import zlib
 from collections import OrderedDict
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,81 +34,16 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
+from deepbbs_ros.core.network_batch import BatchedPasses
+from deepbbs_ros.core.network_np import NumpyEntryPoints
+from deepbbs_ros.core.network_output import Clock, NetworkOutput, matrix, orthonormalize, worker_share
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import rotation_angle_deg
 from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError
 
-__all__ = ["Clock", "DeepBBSNetwork", "NetworkOutput", "matrix", "orthonormalize"]
-
-
-@dataclass
-class NetworkOutput:
-    """What the network passes give back (scaled units, see ModelConfig.scale).
-
-    R: (3, 3) float32, t: (3,) float32 (scaled) with p_target = R p_source + t; gamma: (N,) float32;
-    temperature: T of the first pass; iterations: passes run; converged: the last increment was below the
-    tolerances; ms: {"embed", "match", "solve"} wall time of the passes where they ran."""
-
-    R: np.ndarray
-    t: np.ndarray
-    gamma: np.ndarray
-    temperature: float
-    iterations: int
-    converged: bool
-    ms: dict[str, float] = field(default_factory=dict)
-
-
-class Clock:
-    """Accumulates wall time per stage; synchronises CUDA so GPU stages are timed, not queued."""
-
-    def __init__(self, device: torch.device) -> None:
-        self.cuda = device.type == "cuda"
-        self.ms: dict[str, float] = {}
-        self._t = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        if self.cuda:
-            torch.cuda.synchronize()
-        now = time.perf_counter()
-        self.ms[stage] = self.ms.get(stage, 0.0) + (now - self._t) * 1e3
-        self._t = now
-
-
-def orthonormalize(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation (float64) to a float32-accumulated one."""
-    u, _, vt = np.linalg.svd(R)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return u @ np.diag([1.0, 1.0, d]) @ vt
-
-
-def matrix(R: Any, t: Any, scale: float) -> np.ndarray:
-    """(4, 4) float64 metres from R (3, 3) and t (3,) in scaled units (tensors or arrays; rotation
-    re-orthonormalised)."""
-    T = np.eye(4)
-    T[:3, :3] = orthonormalize(torch.as_tensor(R).double().cpu().numpy())
-    T[:3, 3] = torch.as_tensor(t).double().cpu().numpy() / scale
-    return T
-
-
-def worker_share(n: int) -> int:
-    """How many of ``n`` starts the network process runs while the caller runs the others (it has the given
-    start's target state already; a batch of k costs a little less than k single passes)."""
-    return (n + 1) // 2
-
-
-def _expand(cache: TargetCache, k: int) -> TargetCache:
-    """A target state of batch 1 broadcast to batch ``k`` (views; the memory's keys/values are (2, B, ...))."""
-    if k == 1:
-        return cache
-    f = cache.f_tgt.expand(k, *cache.f_tgt.shape[1:])
-    if cache.memory_kv is None:
-        return TargetCache(f)
-    kv = [m.expand(m.shape[0], k, *m.shape[2:]) for m in cache.memory_kv]
-    tgt_self = None if cache.tgt_self is None else cache.tgt_self.expand(k, *cache.tgt_self.shape[1:])
-    tgt_q = None if cache.tgt_q is None else cache.tgt_q.expand(k, *cache.tgt_q.shape[1:])
-    return TargetCache(f, kv, tgt_self, tgt_q)
+__all__ = ["Clock", "DeepBBSNetwork", "NetworkOutput", "matrix", "orthonormalize", "worker_share"]
 
 
 def cloud_key(cloud: torch.Tensor) -> tuple:
@@ -116,11 +51,7 @@ def cloud_key(cloud: torch.Tensor) -> tuple:
     return tuple(cloud.shape), zlib.crc32(cloud.detach().cpu().numpy().tobytes())
 
 
-class _Stopped(Exception):
-    """The caller of :meth:`DeepBBSNetwork.speculate_np` no longer wants the passes."""
-
-
-class DeepBBSNetwork:
+class DeepBBSNetwork(BatchedPasses, NumpyEntryPoints):
     """The network of one checkpoint (or of a model object) with the registration config's deep-pass settings.
 
     Args:
@@ -257,63 +188,6 @@ class DeepBBSNetwork:
         return NetworkOutput(R.cpu().numpy(), t.cpu().numpy(), gamma.float().cpu().numpy(), temperature, k + 1,
                              bool(converged))
 
-    def starts(self, src: torch.Tensor, tgt: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-               n_passes: int | None = None, lap: Callable[[str], None] | None = None) -> list[NetworkOutput]:
-        """:meth:`passes` from K starts at once: src (1, N, 3), tgt (1, M, 3) scaled, R (K, 3, 3), t (K, 3) scaled.
-
-        The source moved K ways goes through the network as one batch of K against the target's state computed
-        once (broadcast to the batch); a start whose increment is small leaves the batch (as :meth:`passes`
-        stops), so every output equals the one of :meth:`passes` from that start (to float round-off).
-        -> K :class:`NetworkOutput` s in the order of the starts."""
-        rc, scale = self.config.registration, self.model.scale
-        lap = lap or (lambda _stage: None)
-        n_deep = self.n_deep if n_passes is None else n_passes
-        n_starts = int(R.shape[0])
-        tgt_cache = self.target_state(tgt)
-        R, t = R.clone(), t.clone()
-        gamma = src.new_ones(n_starts, src.shape[1])
-        temperature = [0.0] * n_starts
-        iterations, converged = [0] * n_starts, [False] * n_starts
-        active = list(range(n_starts))  # the starts still in the batch
-        knn = None
-        lap("embed")
-        for k in range(n_deep):
-            b = len(active)
-            idx = torch.as_tensor(active, device=self.device)
-            Ra, ta = R[idx], t[idx]
-            moved = apply_transform(src.expand(b, *src.shape[1:]), Ra, ta)
-            f_src, knn = self.model.point_features(moved, knn)
-            phi_src, phi_tgt = self.model.cross_cached(f_src, _expand(tgt_cache, b))
-            temp = self.model.predict_temperature(phi_src, phi_tgt)
-            lap("embed")
-            sb = self.model.match_inference(phi_src, phi_tgt)
-            lap("match")
-            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(-1).expand(b)
-            dR, dt, _, g = solve_transform_inference(
-                moved, tgt.expand(b, *tgt.shape[1:]), sb, temp_k, use_gamma=rc.use_gamma,
-                spatial_gamma=rc.spatial_gamma,
-            )
-            R[idx] = dR @ Ra
-            t[idx] = (dR @ ta[:, :, None])[:, :, 0] + dt
-            gamma[idx] = g
-            keep = []
-            for j, i in enumerate(active):
-                if k == 0:
-                    temperature[i] = float(temp[j])
-                iterations[i] = k + 1
-                converged[i] = (rotation_angle_deg(dR[j]) < rc.deep_rot_tol_deg
-                                and float(dt[j].norm()) / scale < rc.deep_trans_tol)
-                if not converged[i]:
-                    keep.append(j)
-            lap("solve")
-            if not keep:
-                break
-            active = [active[j] for j in keep]
-            knn = knn[torch.as_tensor(keep, device=knn.device)]
-        return [NetworkOutput(R[i].cpu().numpy(), t[i].cpu().numpy(), gamma[i].float().cpu().numpy(), temperature[i],
-                              iterations[i], bool(converged[i])) for i in range(n_starts)]
-
     # -- the kept target states --------------------------------------------------------------------
     def target_state(self, tgt: torch.Tensor) -> TargetCache:
         """The network's target-only state for tgt (1, M, 3) (scaled), reused when the same points (byte for
@@ -342,75 +216,3 @@ class DeepBBSNetwork:
             self._target_memo[key] = (cloud.clone(), state)
             while len(self._target_memo) > 3:
                 self._target_memo.popitem(last=False)
-
-    # -- numpy entry points (the network process) ----------------------------------------------------
-    def prepare_target_np(self, target: np.ndarray) -> None:
-        """Compute and keep the network state of a preprocessed target (M, 3) float32 metres (what the
-        network process does with a target sent ahead of its registration)."""
-        tgt = self.scaled(self._check(target, "target"))
-        with torch.inference_mode(), self.torch_threads():
-            self.target_state(tgt)
-
-    def network_np(self, source: np.ndarray, target: np.ndarray, T_init: np.ndarray) -> NetworkOutput:
-        """The deep passes alone on preprocessed clouds (N, 3), (M, 3) float32 metres from T_init (4, 4):
-        what the network process runs (``core/network_process.py``); ``ms`` holds the stage times."""
-        clock = Clock(self.device)
-        src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
-        R, t = self.start_tensors(T_init)
-        with torch.inference_mode(), self.torch_threads():
-            out = self.passes(src, tgt, R, t, clock.lap)
-        out.ms = dict(clock.ms)
-        return out
-
-    def starts_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray,
-                  n_passes: int | None = None) -> list[NetworkOutput]:
-        """:meth:`starts` on preprocessed clouds (N, 3), (M, 3) float32 metres from K starts (K, 4, 4): what the
-        network process runs for the global search; the first output's ``ms`` holds the stage times."""
-        clock = Clock(self.device)
-        src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
-        T = np.asarray(T_starts, dtype=np.float64).reshape(-1, 4, 4)
-        R = torch.as_tensor(T[:, :3, :3], dtype=torch.float32, device=self.device)
-        t = torch.as_tensor(T[:, :3, 3] * self.model.scale, dtype=torch.float32, device=self.device)
-        with torch.inference_mode(), self.torch_threads():
-            outs = self.starts(src, tgt, R, t, n_passes, clock.lap)
-        if outs:
-            outs[0].ms = dict(clock.ms)
-        return outs
-
-    def speculate_np(self, source: np.ndarray, target: np.ndarray, T_starts: np.ndarray,
-                     stop: Callable[[], bool]) -> list[NetworkOutput]:
-        """One deep pass from each of the starts (K, 4, 4) in turn (preprocessed clouds, metres) until ``stop()``
-        (checked after every network stage) says the caller does not want them: -> the outputs done, in order."""
-        src, tgt = self.scaled(self._check(source, "source")), self.scaled(self._check(target, "target"))
-        outs: list[NetworkOutput] = []
-
-        def lap(_stage: str) -> None:
-            if stop():
-                raise _Stopped
-
-        with torch.inference_mode(), self.torch_threads():
-            try:
-                for T in np.asarray(T_starts, dtype=np.float64).reshape(-1, 4, 4):
-                    if stop():
-                        break
-                    outs.append(self.passes(src, tgt, *self.start_tensors(T), lap, n_passes=1))
-            except _Stopped:
-                pass
-        return outs
-
-    def warmup(self, rounds: int = 2, batches: Sequence[int] = (), rank_points: int = 0) -> None:
-        """The deep passes on two random clouds of ``preprocess.num_points`` points ``rounds`` times, and from
-        as many starts at once as each of ``batches`` says (also on the first ``rank_points`` of them, the global
-        search's ranking passes, with one start and with each batch, when that is fewer): torch's CPU kernels
-        pick and cache their primitives on the first calls with a new shape."""
-        rng = np.random.default_rng(0)
-        pts = rng.uniform(-30.0, 30.0, (self.config.preprocess.num_points, 3)).astype(np.float32)
-        for _ in range(rounds):
-            self.network_np(pts, pts[::-1].copy(), np.eye(4))
-        for k in sorted(set(batches)):
-            if k > 1:
-                self.starts_np(pts, pts[::-1].copy(), np.repeat(np.eye(4)[None], k, axis=0), 1)
-        if 0 < rank_points < len(pts):  # the ranking prefix: one start (the speculative passes) and each batch
-            for k in sorted({1, *batches}):
-                self.starts_np(pts[:rank_points], pts[::-1][:rank_points].copy(),
-                               np.repeat(np.eye(4)[None], k, axis=0), 1)

@@ -1,0 +1,59 @@
+"""The precision stage of one ``DeepBBSRegistration.register`` call (no ROS): small_gicp GICP on the dense scans
+from the estimate (core/polish.py), then again on both scans deskewed with their own velocities when they agree
+(core/pair_deskew.py)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core import pair_deskew
+from deepbbs_ros.core.model import DeepBBSNet
+from deepbbs_ros.core.network_output import Clock, matrix, orthonormalize
+from deepbbs_ros.core.polish import polish
+from deepbbs_ros.core.registration_state import State
+
+__all__ = ["PrecisionStages"]
+
+
+class PrecisionStages:
+    """Part of :class:`~deepbbs_ros.core.registration.DeepBBSRegistration`: the precision stage."""
+
+    # what it reads of the DeepBBSRegistration it is part of
+    config: Config
+    model: DeepBBSNet
+    device: torch.device
+    _inlier_ratio: Callable[..., float]  # RefineStages._inlier_ratio
+
+    def _deskew(self, st: State, clock: Clock) -> None:
+        """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
+        stage again, from its result, on their ``deskewed_cloud`` s when each velocity agrees with the pair's mean
+        motion (core/pair_deskew.py); ``st.deskew`` says what happened."""
+        if st.src_pre is None or st.tgt_pre is None:
+            return
+        st.T, st.deskew, n = pair_deskew.again(st.src_pre, st.tgt_pre, st.T, self.config.registration,
+                                               st.polish_reason == "ok")
+        st.iters["polish"] += n
+        if st.deskew == "deskewed":
+            clock.lap("deskew")
+
+    def _polish(self, st: State, clock: Clock) -> None:
+        """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
+        their ``polish_cloud``; rejected results keep the estimate)."""
+        rc = self.config.registration
+        st.T = matrix(st.R, st.t, self.model.scale)
+        if rc.polish == "none" or st.src_pc is None or st.tgt_pc is None:
+            return
+        pol = polish(st.src_pc, st.tgt_pc, st.T, rc, check=st.polish_check)
+        st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
+        if pol.applied:
+            st.T = pol.T_target_source
+            st.T[:3, :3] = orthonormalize(st.T[:3, :3])
+            with torch.inference_mode():
+                Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
+                tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
+                st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
+            st.converged = pol.converged
+        clock.lap("polish")
