@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from plane_scenes import FLOOR as _FLOOR
+from plane_scenes import STREET as _STREET
+from plane_scenes import scene as _scene
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import anchoring, calibrated, verdict, visibility
@@ -13,21 +16,8 @@ from deepbbs_ros.core.polish import prepare_polish_cloud
 from deepbbs_ros.errors import VerdictModelError
 
 _WALL = [(0, 5.0, (-10, 10), (-1, 2))]
-_FLOOR = [(2, -1.0, (-10, 10), (-10, 10))]
-_STREET = [(0, 6.0, (-30, 30), (-1, 4)), (0, -6.0, (-30, 30), (-1, 4)), (2, -1.0, (-6, 6), (-30, 30)),
-           (1, 20.0, (-6, 6), (-1, 4)), (1, -25.0, (-6, 6), (-1, 4))]
 _CORRIDOR = [(0, 2.0, (-60, 60), (-1, 2)), (0, -2.0, (-60, 60), (-1, 2)), (2, -1.0, (-2, 2), (-60, 60))]
 
-
-def _scene(planes, rng: np.random.Generator, per: int) -> np.ndarray:
-    out = []
-    for axis, offset, (a0, a1), (b0, b1) in planes:
-        other = [i for i in range(3) if i != axis]
-        p = np.empty((per, 3))
-        p[:, axis] = offset + rng.normal(0.0, 0.01, per)
-        p[:, other[0]], p[:, other[1]] = rng.uniform(a0, a1, per), rng.uniform(b0, b1, per)
-        out.append(p)
-    return np.vstack(out)
 
 
 def _features(planes, shift: float = 0.0) -> dict[str, float]:

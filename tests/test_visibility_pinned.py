@@ -5,6 +5,9 @@ geometry with planes facing every way (a box corner, a street with cross walls) 
 from __future__ import annotations
 
 import numpy as np
+from plane_scenes import FLOOR as _FLOOR
+from plane_scenes import STREET as _STREET
+from plane_scenes import scene as _scene
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import visibility
@@ -12,22 +15,9 @@ from deepbbs_ros.core.polish import prepare_polish_cloud
 
 # planes as (axis, offset, (lo, hi) of the two other axes): points with coordinate ``axis`` = offset
 _WALL = [(0, 5.0, (-10, 10), (-1, 2))]
-_FLOOR = [(2, -1.0, (-10, 10), (-10, 10))]
 _CORRIDOR = [(0, 2.0, (-15, 15), (-1, 2)), (0, -2.0, (-15, 15), (-1, 2)), (2, -1.0, (-2, 2), (-15, 15))]
 _CORNER = [(0, 5.0, (-6, 6), (-1, 2)), (1, 6.0, (-5, 5), (-1, 2)), (2, -1.0, (-5, 5), (-6, 6))]
-_STREET = [(0, 6.0, (-30, 30), (-1, 4)), (0, -6.0, (-30, 30), (-1, 4)), (2, -1.0, (-6, 6), (-30, 30)),
-           (1, 20.0, (-6, 6), (-1, 4)), (1, -25.0, (-6, 6), (-1, 4))]
 
-
-def _scene(planes, rng: np.random.Generator, per: int) -> np.ndarray:
-    out = []
-    for axis, offset, (a0, a1), (b0, b1) in planes:
-        other = [i for i in range(3) if i != axis]
-        p = np.empty((per, 3))
-        p[:, axis] = offset + rng.normal(0.0, 0.01, per)
-        p[:, other[0]], p[:, other[1]] = rng.uniform(a0, a1, per), rng.uniform(b0, b1, per)
-        out.append(p)
-    return np.vstack(out)
 
 
 def _features(planes, T: np.ndarray = np.eye(4)) -> dict[str, float]:
