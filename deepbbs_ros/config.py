@@ -593,6 +593,9 @@ class LocalizationConfig:
     # GICP wanders on it for its whole budget, ~5 ms an iteration); 0 = no check
     polish_check_iters: int = 10
     polish_check_score: float = 0.3  # the verdict's score (0..1) under which polish_check_iters stops a GICP
+    # a candidate's GICP (not the accepted pose's probes) that has not converged after polish_check_iters stops there,
+    # rejected, when the map verdict's probability of its pose there is under this (0 = no such check)
+    polish_check_probability: float = 0.0
     # the map's GICP cloud (voxel grid, k-d tree, covariances) is prepared once when the map is loaded (about 0.6 s and
     # 60 MB per km of road) and every crop is a view of it (a crop costs ~20 ms instead of ~115 ms); false: each crop
     # prepares its own cloud (less memory for a very large map)
@@ -670,6 +673,7 @@ class LocalizationConfig:
         _check(self.crop_cache >= 1, "localization.crop_cache", "must be >= 1")
         _check(self.polish_check_iters >= 0, "localization.polish_check_iters", "must be >= 0 (0 = no check)")
         _check(0 <= self.polish_check_score <= 1, "localization.polish_check_score", "must be in [0, 1]")
+        _check(0 <= self.polish_check_probability <= 1, "localization.polish_check_probability", "must be in [0, 1]")
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")
