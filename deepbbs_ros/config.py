@@ -595,8 +595,9 @@ class LocalizationConfig:
     polish_check_score: float = 0.3  # the verdict's score (0..1) under which polish_check_iters stops a GICP
     # a global search's candidate GICP (DeepBBS++'s precision stage, GICP alone; not the accepted pose's probes) not
     # converged after polish_check_iters also stops there, rejected, when the map verdict gives its pose there a
-    # probability under this (retry_floor's "not here"; a right pose still converging: 0.003-1 there; a wrong place
-    # wanders on for ~200 ms); the failed start is retried by GICP alone as any failed place; 0 = no such check
+    # probability under this (retry_floor's "not here": 85 % of wrong places, which GICP wanders on for up to ~200 ms);
+    # a right pose still converging can score under it there (0.0001-0.003 on 7 of 27 right answers still converging):
+    # its place fails like a wrong one and is retried by GICP alone from the descriptor's start; 0 = no such check
     polish_check_probability: float = 0.01
     # the map's GICP cloud (voxel grid, k-d tree, covariances) is prepared once when the map is loaded (about 0.6 s and
     # 60 MB per km of road) and every crop is a view of it (a crop costs ~20 ms instead of ~115 ms); false: each crop
