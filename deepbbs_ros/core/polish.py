@@ -281,7 +281,7 @@ class PolishResult:
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
-           cfg: RegistrationConfig, check: tuple[int, float] | None = None) -> PolishResult:
+           cfg: RegistrationConfig, check: tuple | None = None) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
 
     Args:
