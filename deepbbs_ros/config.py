@@ -593,6 +593,12 @@ class LocalizationConfig:
     # GICP wanders on it for its whole budget, ~5 ms an iteration); 0 = no check
     polish_check_iters: int = 10
     polish_check_score: float = 0.3  # the verdict's score (0..1) under which polish_check_iters stops a GICP
+    # a global search's candidate GICP (DeepBBS++'s precision stage, GICP alone; not the accepted pose's probes) not
+    # converged after polish_check_iters also stops there, rejected, when the map verdict gives its pose there a
+    # probability under this (retry_floor's "not here": 85 % of wrong places, which GICP wanders on for up to ~200 ms);
+    # a right pose still converging can score under it there (0.0001-0.003 on 7 of 27 right answers still converging):
+    # its place fails like a wrong one and is retried by GICP alone from the descriptor's start; 0 = no such check
+    polish_check_probability: float = 0.01
     # the map's GICP cloud (voxel grid, k-d tree, covariances) is prepared once when the map is loaded (about 0.6 s and
     # 60 MB per km of road) and every crop is a view of it (a crop costs ~20 ms instead of ~115 ms); false: each crop
     # prepares its own cloud (less memory for a very large map)
@@ -670,6 +676,7 @@ class LocalizationConfig:
         _check(self.crop_cache >= 1, "localization.crop_cache", "must be >= 1")
         _check(self.polish_check_iters >= 0, "localization.polish_check_iters", "must be >= 0 (0 = no check)")
         _check(0 <= self.polish_check_score <= 1, "localization.polish_check_score", "must be in [0, 1]")
+        _check(0 <= self.polish_check_probability <= 1, "localization.polish_check_probability", "must be in [0, 1]")
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")

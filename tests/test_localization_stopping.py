@@ -6,6 +6,9 @@ from __future__ import annotations
 import numpy as np
 from test_localization import _quick_then_slow, localizer, world  # noqa: F401  (fixtures)
 
+from deepbbs_ros.config import Config
+from deepbbs_ros.metrics import pair_errors
+
 
 def test_a_sure_answer_registers_only_look_alike_places_after_it(localizer, world):  # noqa: F811
     """No answer scores confident_score 1: a first answer the verdict is sure of (registration.verdict_sure) ends the
@@ -20,3 +23,47 @@ def test_a_sure_answer_registers_only_look_alike_places_after_it(localizer, worl
     assert sure.valid and unsure.valid and sure.probability >= 0.95, (sure.reason, sure.probability)
     assert n_sure == sure.candidates == 1 < unsure.candidates == len(calls) - n_sure
     assert np.allclose(sure.T_map_scan, unsure.T_map_scan, atol=1e-6)
+
+
+def _gicps(loc, scan, overrides: dict, monkeypatch):
+    """``scan`` localized under the config ``overrides``, every GICP of the search recorded: -> (result, the
+    PolishResults of the candidates' GICP, DeepBBS++'s precision stage and GICP alone)."""
+    from deepbbs_ros.core import place_search, registration
+
+    seen = []
+    for mod in (place_search, registration):
+        def rec(*a, _f=mod.polish, **k):
+            r = _f(*a, **k)
+            seen.append(r)
+            return r
+        monkeypatch.setattr(mod, "polish", rec)
+    old = loc.config
+    try:
+        loc.config = old.replace(**overrides)
+        res = loc.localize(scan)
+    finally:
+        loc.config = old
+        monkeypatch.undo()
+    return res, seen
+
+
+def test_a_candidate_the_map_verdict_calls_hopeless_stops_its_gicp_at_the_check(localizer, world, monkeypatch):  # noqa: F811
+    """localization.polish_check_probability: a candidate's GICP not converged after polish_check_iters whose pose
+    there the map verdict gives less than that probability stops there. A scan from another world: no pose either
+    way, the judged GICPs stopped at the check, fewer GICP iterations in all; a scan of the map: the same pose."""
+    _, _, drive, other = world
+    scan = other.scan_at(3).points
+    base = {"localization.retry_probability": 0.0}  # every retry: many GICPs on wrong places
+    off, off_gicps = _gicps(localizer, scan, {**base, "localization.polish_check_probability": 0.0}, monkeypatch)
+    on, on_gicps = _gicps(localizer, scan, {**base, "localization.polish_check_probability": 0.01}, monkeypatch)
+    assert not off.valid and not on.valid, (off.reason, on.reason)
+    judged = [g for g in on_gicps if "judged hopeless" in g.reason]
+    iters = Config().localization.polish_check_iters
+    assert judged and all(g.iterations <= iters and not g.applied for g in judged)
+    assert not any("judged hopeless" in g.reason for g in off_gicps)
+    assert sum(g.iterations for g in on_gicps) < sum(g.iterations for g in off_gicps)
+    inside = drive.scan_at(48).points
+    a, _ = _gicps(localizer, inside, {"localization.polish_check_probability": 0.0}, monkeypatch)
+    b, _ = _gicps(localizer, inside, {"localization.polish_check_probability": 0.01}, monkeypatch)
+    assert a.valid and b.valid and np.allclose(a.T_map_scan, b.T_map_scan, atol=1e-6)
+    assert pair_errors(b.T_map_scan, drive.pose_at(48))[1] < 0.3

@@ -321,3 +321,24 @@ def test_the_check_stops_a_gicp_that_wanders_and_spares_one_that_converges(pair)
     assert stopped.reason.startswith(f"stopped after {stopped.iterations} iterations"), stopped.reason
     lenient = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0))  # any score passes the check
     assert lenient.iterations > 3 and lenient.check_score >= 0.0
+
+
+def test_the_checks_judge_stops_a_gicp_it_calls_hopeless_and_only_that(pair):
+    """polish(..., check=(k, score, judge)): at the check, a pose the judge calls hopeless (False) stops there,
+    rejected and saying so; a judge that lets it go on gives the pose of the check without one, bit for bit. The
+    judge sees the pose after k iterations in the target's frame."""
+    src, tgt, T = pair
+    cfg = _cfg(**{"registration.exact_gicp": True, "registration.polish_max_iters": 50})
+    far = T @ _offset(trans=(9.0, 6.0, 0.0), yaw_deg=40.0)  # another place: GICP wanders past the check
+    plain = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0))
+    seen = []
+    going = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0, lambda P: seen.append(P) or True))
+    assert plain.iterations > 3 and np.array_equal(plain.T_target_source, going.T_target_source)
+    assert len(seen) == 1 and seen[0].shape == (4, 4) and not np.allclose(seen[0], far)
+    stopped = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0, lambda P: False))
+    assert not stopped.applied and stopped.iterations <= 3 and "judged hopeless" in stopped.reason, stopped.reason
+    assert np.array_equal(stopped.T_target_source, far)
+    near = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg)  # converges before the check: no judge
+    judged = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg,
+                    check=(near.iterations + 1, 0.3, lambda P: False))
+    assert near.applied and np.array_equal(near.T_target_source, judged.T_target_source)

@@ -463,16 +463,32 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             return None
         return float(g[3] / g[2])
 
-    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, yaw_search: bool = True) -> Any:
-        """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only."""
+    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, yaw_search: bool = True,
+                  judged: bool = False) -> Any:
+        """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only;
+        ``judged``: its GICP checked by the map verdict too (a global search's candidate, :meth:`_check_at`)."""
         return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search,
-                                          polish_check=self._check)
+                                          polish_check=self._check_at(src, crop) if judged else self._check)
 
     @property
     def _check(self) -> tuple[int, float] | None:
         """The GICP check of a candidate place (``localization.polish_check_*``; core.polish.polish's ``check``)."""
         lc = self.config.localization
         return (lc.polish_check_iters, lc.polish_check_score) if lc.polish_check_iters > 0 else None
+
+    def _check_at(self, src: Any, crop: _Crop) -> tuple | None:
+        """:attr:`_check` with the map verdict as its judge on ``crop`` (``localization.polish_check_probability``)."""
+        check = self._check
+        judge = self._judge(src, crop)
+        return check if check is None or judge is None else (*check, judge)
+
+    def _judge(self, src: Any, crop: _Crop) -> Any:
+        """The GICP check's judge of a candidate's pose (T_place_scan (4, 4) -> go on?): the map verdict's probability
+        at least ``localization.polish_check_probability``; None when that is 0."""
+        bar = self.config.localization.polish_check_probability
+        if bar <= 0:
+            return None
+        return lambda T: acceptance.probability(src, crop, crop.T_map_place @ T, self.config) >= bar
 
     # -- acceptance (core/acceptance.py) ---------------------------------------------------------------------------
     @property

@@ -44,7 +44,7 @@ class PlaceSearch:
               yaw_search: bool = True) -> _Answer:
         """:meth:`_register` as a global search's answer (map frame, the map's bar), timed into ``register``."""
         t = time.perf_counter()
-        reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search)
+        reg = self._register(src, crop, T_place_scan, yaw_search=yaw_search, judged=True)
         timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
         return self._answer(float(reg.score), crop.T_map_place @ reg.T_target_source, place, crop, src)
 
@@ -241,7 +241,7 @@ class PlaceSearch:
         for pc in (src.polish_cloud, crop.pre.polish_cloud):
             if getattr(pc, "pending", None) is not None:
                 pc.complete(threads=self.registration.gicp_threads())
-        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc, check=self._check)
+        pol = polish(src.polish_cloud, crop.pre.polish_cloud, T_place_scan, rc, check=self._check_at(src, crop))
         if not pol.applied:
             return None
         score = verdict.fitness(src.points, crop.pre.polish_cloud.tree, pol.T_target_source, rc.verdict_dist)

@@ -281,7 +281,7 @@ class PolishResult:
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
-           cfg: RegistrationConfig, check: tuple[int, float] | None = None) -> PolishResult:
+           cfg: RegistrationConfig, check: tuple | None = None) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
 
     Args:
@@ -290,9 +290,11 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         target: (M, 3) float target points or a :class:`PolishCloud`, same conventions.
         T_init: (4, 4) float64 initial ``T_target_source`` (the DeepBBS++ estimate).
         cfg: ``registration.polish*`` keys; ``cfg.polish`` must be "gicp" or "plane_icp".
-        check: (iterations, score): a polish not converged after that many iterations whose pose then scores under
-            ``score`` (the verdict's fitness at ``verdict_dist`` of a spread subset of the source's voxels) stops there,
-            rejected (GICP on a wrong place wanders for its whole budget); None: no check.
+        check: (iterations, score) or (iterations, score, judge): a polish not converged after that many iterations
+            whose pose then scores under ``score`` (the verdict's fitness at ``verdict_dist`` of a spread subset of the
+            source's voxels), or that ``judge(T_target_source)`` (the pose there, (4, 4) in the target's frame) calls
+            hopeless (False), stops there, rejected (GICP on a wrong place wanders for its whole budget); None: no
+            check.
 
     Returns:
         :class:`PolishResult`; ``T_target_source`` is ``T_init`` unless the polish was accepted.
@@ -328,6 +330,7 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         )  # fmt: skip
 
     start = T_init if T_base is None else T_base @ T_init
+    stopped = judged = False  # the check stopped it (judge: its judge did)
     if check is None or not 0 < check[0] < cfg.polish_max_iters:
         res, check_score = align(start, cfg.polish_max_iters), float("nan")
         iterations = int(res.iterations)
@@ -338,9 +341,14 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
         iterations, check_score = int(res.iterations), float("nan")
         if not res.converged:
             pts = spread_subset(clouds[0].points(), CHECK_POINTS, CHECK_CELL)
-            check_score = fitness(pts, tree, np.asarray(res.T_target_source), cfg.verdict_dist)
-            if check_score >= check[1]:
-                res = align(np.asarray(res.T_target_source), cfg.polish_max_iters - check[0])
+            T_now = np.asarray(res.T_target_source)
+            check_score = fitness(pts, tree, T_now, cfg.verdict_dist)
+            stopped = not check_score >= check[1]  # nan-safe
+            if not stopped and len(check) > 2 and check[2] is not None:
+                stopped = not check[2](T_now if T_base is None else np.linalg.solve(T_base, T_now))
+                judged = stopped
+            if not stopped:
+                res = align(T_now, cfg.polish_max_iters - check[0])
                 iterations += int(res.iterations)
     t2 = time.perf_counter()
     T = np.asarray(res.T_target_source, dtype=np.float64).copy()
@@ -349,7 +357,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     dT = np.linalg.inv(T_init) @ T
     d_trans = float(np.linalg.norm(T[:3, 3] - T_init[:3, 3]))
     d_rot = float(np.degrees(np.arccos(np.clip((np.trace(dT[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
-    if check is not None and not res.converged and check_score < check[1]:  # nan-safe: the check stopped it
+    if judged:
+        reason = f"stopped after {iterations} iterations: judged hopeless there (score {check_score:.2f})"
+    elif stopped:
         reason = f"stopped after {iterations} iterations: score {check_score:.2f} < {check[1]:.2f}"
     elif not res.converged:
         reason = f"not converged in {iterations} iterations"
