@@ -18,8 +18,11 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import acceptance
+from deepbbs_ros.core.descriptors import levelling
+from deepbbs_ros.core.ground_plane import _FIT_TOL as GROUND_FIT_TOL
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud, _heading, _rz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
+from deepbbs_ros.errors import LocalizationError
 
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 
@@ -58,34 +61,20 @@ class PlaceSearch:
         t = time.perf_counter()
         ranked = self.rank(desc, among, centres)
         timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
-        h_scan = self._sensor_height(src)
         answers: list[_Answer] = []
-        accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
-        search = lc.candidate_search != "off"
-        sure = self.config.registration.verdict_sure
-        for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
-            if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
-                break  # the rest look less alike than the margin: not a rival
+        self._round(src, ranked, None, answers, failed, timings)
+        level = self._levelling(src)
+        if level is not None and not any(a.ok for a in answers):
+            # a tilted sensor (a car rolled on a kerb): its low side sees the road close by only; described levelled,
+            # compared on the bins it saw, started with its tilt
             t = time.perf_counter()
-            crop = self._crop(place)
-            timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
-            T_init = _rz(yaw)
-            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
-            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
-                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
-                if np.isfinite(g):
-                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
-            ans = self._deep(src, crop, T_init, place, timings, yaw_search=search)
-            if ans.ok and ans.score < lc.confident_score:
-                # the network's pass settled on a poor optimum (a lane off)? GICP alone from the descriptor's start
-                # (good to ~2 m), the better of the two kept
-                ans = self._better_gicp(src, crop, T_init, place, ans, timings)
-            if not ans.ok:
-                failed.append((len(answers), rank_i, T_init, yaw))
-            answers.append(ans)
-            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
-                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
+            scan = pts @ level[:3, :3].T
+            again = self.rank(self.describe(scan, centres), among, centres, seen=self.seen(scan))
+            timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
+            first = len(answers)
+            self._round(src, again, level, answers, failed, timings)
+            self._recentred(src, answers[first:], answers, timings)
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
@@ -124,6 +113,72 @@ class PlaceSearch:
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
+
+    def _round(self, src: Any, ranked: list, level: np.ndarray | None, answers: list[_Answer],
+               failed: list[tuple[int, int, np.ndarray, float]], timings: dict[str, float]) -> None:
+        """One round of the search: DeepBBS++ on each ``ranked`` place from the descriptor's yaw (turned by
+        ``level``, (4, 4) or None, the scan's levelling) until an accepted answer ends it; ``answers`` and
+        ``failed`` (index in answers, rank, T_init, yaw) are added to in place."""
+        lc = self.config.localization
+        h_scan = self._sensor_height(src)
+        accepted_dist = None  # descriptor distance of the first accepted candidate
+        search = lc.candidate_search != "off"
+        sure = self.config.registration.verdict_sure
+        for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
+            if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
+                break  # the rest look less alike than the margin: not a rival
+            t = time.perf_counter()
+            crop = self._crop(place)
+            timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
+            T_init = _rz(yaw)
+            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
+            if level is not None:
+                T_init = T_init @ level
+            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
+                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
+                if np.isfinite(g):
+                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
+            ans = self._deep(src, crop, T_init, place, timings, yaw_search=search)
+            if ans.ok and ans.score < lc.confident_score:
+                # the network's pass settled on a poor optimum (a lane off)? GICP alone from the descriptor's start
+                # (good to ~2 m), the better of the two kept
+                ans = self._better_gicp(src, crop, T_init, place, ans, timings)
+            if not ans.ok:
+                failed.append((len(answers), rank_i, T_init, yaw))
+            answers.append(ans)
+            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
+                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
+
+    def _recentred(self, src: Any, round_answers: list[_Answer], answers: list[_Answer],
+                   timings: dict[str, float]) -> None:
+        """None of ``round_answers`` accepted, the best fitting by the registration's threshold: GICP from its pose
+        on a crop centred there (the place's crop reaches less of what a tilted scan sees), added to ``answers``."""
+        best = min(round_answers, key=_rank, default=None)
+        if best is None or best.ok or not best.score >= self.config.registration.verdict_threshold:
+            return
+        T_place = np.eye(4)
+        T_place[:3, 3] = best.T[:3, 3]
+        try:
+            crop = self._crop(-1, T_place)
+        except LocalizationError:
+            return
+        t = time.perf_counter()
+        alt = self._gicp(src, crop, np.linalg.inv(T_place) @ best.T, best.place)
+        timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
+        if alt is not None:
+            answers.append(alt)
+
+    def _levelling(self, src: Any) -> np.ndarray | None:
+        """(4, 4) the rotation that levels the scan by its ground plane (core/descriptors.py ``levelling``, the band
+        and radius of the ground fit: core/ground_plane.py), None when upright within the fit's resolution."""
+        pc = self.config.preprocess
+        R = levelling(getattr(src, "ground_plane", None), min(pc.ground_layer / 2.0, GROUND_FIT_TOL),
+                      pc.ground_seed_radius)
+        if R is None:
+            return None
+        T = np.eye(4)
+        T[:3, :3] = R
+        return T
 
     def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
         """The first round's answers say the scan is not in the map (then the quick retry only): the best one
