@@ -18,11 +18,9 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import acceptance
-from deepbbs_ros.core.descriptors import levelling
-from deepbbs_ros.core.ground_plane import _FIT_TOL as GROUND_FIT_TOL
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud, _heading, _rz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
-from deepbbs_ros.errors import LocalizationError
+from deepbbs_ros.core.tilted_search import TiltedSearch
 
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 
@@ -33,7 +31,7 @@ def _rank(a: _Answer) -> tuple[bool, float]:
     return (not a.ok, -a.score)
 
 
-class PlaceSearch:
+class PlaceSearch(TiltedSearch):
     """The global search of :class:`~deepbbs_ros.core.localization.MapLocalizer` (module docstring)."""
 
     def _answer(self, score: float, T_map_scan: np.ndarray, place: int, crop: _Crop, src: Any,
@@ -64,17 +62,8 @@ class PlaceSearch:
         answers: list[_Answer] = []
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         self._round(src, ranked, None, answers, failed, timings)
-        level = self._levelling(src)
-        if level is not None and not any(a.ok for a in answers):
-            # a tilted sensor (a car rolled on a kerb): its low side sees the road close by only; described levelled,
-            # compared on the bins it saw, started with its tilt
-            t = time.perf_counter()
-            scan = pts @ level[:3, :3].T
-            again = self.rank(self.describe(scan, centres), among, centres, seen=self.seen(scan))
-            timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
-            first = len(answers)
-            self._round(src, again, level, answers, failed, timings)
-            self._recentred(src, answers[first:], answers, timings)
+        if not any(a.ok for a in answers):
+            self._levelled_round(pts, src, among, centres, answers, failed, timings)  # core/tilted_search.py
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
@@ -148,37 +137,6 @@ class PlaceSearch:
             answers.append(ans)
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
-
-    def _recentred(self, src: Any, round_answers: list[_Answer], answers: list[_Answer],
-                   timings: dict[str, float]) -> None:
-        """None of ``round_answers`` accepted, the best fitting by the registration's threshold: GICP from its pose
-        on a crop centred there (the place's crop reaches less of what a tilted scan sees), added to ``answers``."""
-        best = min(round_answers, key=_rank, default=None)
-        if best is None or best.ok or not best.score >= self.config.registration.verdict_threshold:
-            return
-        T_place = np.eye(4)
-        T_place[:3, 3] = best.T[:3, 3]
-        try:
-            crop = self._crop(-1, T_place)
-        except LocalizationError:
-            return
-        t = time.perf_counter()
-        alt = self._gicp(src, crop, np.linalg.inv(T_place) @ best.T, best.place)
-        timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
-        if alt is not None:
-            answers.append(alt)
-
-    def _levelling(self, src: Any) -> np.ndarray | None:
-        """(4, 4) the rotation that levels the scan by its ground plane (core/descriptors.py ``levelling``, the band
-        and radius of the ground fit: core/ground_plane.py), None when upright within the fit's resolution."""
-        pc = self.config.preprocess
-        R = levelling(getattr(src, "ground_plane", None), min(pc.ground_layer / 2.0, GROUND_FIT_TOL),
-                      pc.ground_seed_radius)
-        if R is None:
-            return None
-        T = np.eye(4)
-        T[:3, :3] = R
-        return T
 
     def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
         """The first round's answers say the scan is not in the map (then the quick retry only): the best one
