@@ -14,6 +14,24 @@ import numpy as np
 GROUND_WINDOW = 5  # cells; the local ground of a cell is the lowest point within this window around it
 
 
+def levelling(plane: np.ndarray | None, band: float, radius: float) -> np.ndarray | None:
+    """The rotation (3, 3) that turns a scan's fitted ground plane ``[a, b, c, d]`` (sensor frame, unit normal) level,
+    or None when its tilt is within what the fit itself can tell from level: ``atan(band / radius)``, the fit's inlier
+    band (m) across its seed radius (m). The descriptor assumes an upright sensor; a rolled or pitched one (a car
+    tilted 14 degrees) sees its low side's ground close by and heights shifted, so it is described levelled."""
+    if plane is None:
+        return None
+    n = np.asarray(plane[:3], np.float64)
+    n = n / np.linalg.norm(n)
+    tilt = float(np.arccos(np.clip(n[2], -1.0, 1.0)))
+    if n[2] <= 0 or tilt <= np.arctan2(band, radius):
+        return None
+    axis = np.cross(n, [0.0, 0.0, 1.0])  # rotate n onto +z about n x z (Rodrigues)
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(tilt) * K + (1 - np.cos(tilt)) * K @ K
+
+
 class _HeightGrid:
     """A 2D grid (cell ``cell`` m) over points (N, 3): per cell the highest point above the local ground (the lowest
     point within GROUND_WINDOW cells), 0 where empty; ``ground`` the local ground (nan where nothing lies near).
@@ -89,6 +107,34 @@ class _PolarTemplate:
             iy = np.clip(cy[a:a + 64, None] + self.dy[None] + 1, 0, grid.shape[1] + 1)
             out[a:a + 64] = np.maximum.reduceat(padded[ix, iy], self.starts, axis=1)
         return out.reshape(len(centres), self.rings, self.sectors)
+
+    def observed(self, grid: _HeightGrid, centre: np.ndarray) -> np.ndarray:
+        """(rings, sectors) bool: the bins about ``centre`` (2,) holding any point of the grid (a scan's seen bins)."""
+        cx, cy, _ = grid.index(np.asarray(centre, np.float64)[None])
+        padded = np.pad(grid.count > 0, 1)
+        ix = np.clip(cx[0] + self.dx + 1, 0, grid.shape[0] + 1)
+        iy = np.clip(cy[0] + self.dy + 1, 0, grid.shape[1] + 1)
+        return np.maximum.reduceat(padded[ix, iy], self.starts).reshape(self.rings, self.sectors)
+
+
+def _match_observed(places: np.ndarray, query: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_match` on the bins the query saw only (``seen`` (R, S) bool): a place's bins facing the scan's unseen
+    ones (beyond a tilted sensor's low-side horizon) are left out. Brute force over the shifts: for a shortlist."""
+    P, _, S = places.shape
+    q = np.where(seen, query, 0.0).astype(np.float32)
+    qn = np.linalg.norm(q, axis=0)  # (S,)
+    best = np.full(P, -np.inf)
+    shift = np.zeros(P, np.int64)
+    for k in range(S):
+        pk = np.roll(places, -k, axis=2) * seen[None]  # place column (s + k) against query column s
+        pn = np.linalg.norm(pk, axis=1)  # (P, S)
+        dot = np.einsum("prs,rs->ps", pk, q)
+        both = (pn > 1e-6) & (qn[None] > 1e-6)
+        either = ((pn > 1e-6) | (qn[None] > 1e-6)).sum(axis=1)
+        sim = np.where(both, dot / np.where(both, pn * qn[None], 1.0), 0.0).sum(axis=1) / np.maximum(either, 1)
+        better = sim > best
+        best[better], shift[better] = sim[better], k
+    return 1.0 - best, shift
 
 
 def _normalise_columns(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

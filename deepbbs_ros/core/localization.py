@@ -69,6 +69,7 @@ from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests re
     _HeightGrid,
     _match,
     _match_many,
+    _match_observed,
     _normalise_columns,
     _PolarTemplate,
     _spectra,
@@ -282,6 +283,13 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             out[~sensor] = self.template.describe(grid, cs[~sensor])
         return out
 
+    def seen(self, scan: np.ndarray) -> np.ndarray:
+        """(R, S) bool, the bins of :meth:`describe`'s descriptor about the sensor that hold any point of the scan."""
+        lc = self.config.localization
+        pts = scan[np.isfinite(scan).all(axis=1)]
+        own = pts[np.hypot(pts[:, 0], pts[:, 1]) <= lc.descriptor_radius + lc.descriptor_cell]
+        return self.template.observed(_HeightGrid(own, lc.descriptor_cell, pad=lc.descriptor_radius), np.zeros(2))
+
     @property
     def description_centres(self) -> np.ndarray:
         """(K, 2) the points of the scan's frame (m) :meth:`_global` describes a scan about: the sensor first, then
@@ -293,11 +301,13 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
 
     def rank(self, desc: np.ndarray, among: np.ndarray | None = None,
-             centres: np.ndarray | None = None) -> list[tuple[int, float, float, np.ndarray]]:
+             centres: np.ndarray | None = None,
+             seen: np.ndarray | None = None) -> list[tuple[int, float, float, np.ndarray]]:
         """[(place, descriptor distance, yaw of the scan in the map (rad), the point of the scan's frame (2,) that
         stands on the place)] best first, at most ``top_k`` places at least ``candidate_separation`` m apart, among the
         places ``among`` (indices; None: all). ``desc``: (R, S) about the sensor, or (K, R, S) about ``centres``
-        (K, 2) (:meth:`describe`): each place keeps its best match over them (the first of equals)."""
+        (K, 2) (:meth:`describe`): each place keeps its best match over them (the first of equals). ``seen`` (R, S)
+        (:meth:`seen`, a levelled scan): the sensor's descriptor compared on the bins it saw only, on the shortlist."""
         lc = self.config.localization
         idx = np.arange(len(self._places)) if among is None else np.asarray(among, dtype=np.int64)
         if len(idx) == 0:
@@ -316,6 +326,8 @@ class MapLocalizer(GuessTracking, PlaceSearch):
             among = idx
         spectra = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
         dists, shifts = _match_many(spectra, descs[:, skip:])  # (K, P)
+        if seen is not None and len(idx) <= max(lc.rank_shortlist, 1):
+            dists[0], shifts[0] = _match_observed(self.descriptors[idx, skip:], descs[0, skip:], seen[skip:])
         which = np.argmin(dists, axis=0)  # the first of equals: the sensor's own first
         cols = np.arange(dists.shape[1])
         dist, shift = dists[which, cols], shifts[which, cols]

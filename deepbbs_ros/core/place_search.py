@@ -20,6 +20,7 @@ import numpy as np
 from deepbbs_ros.core import acceptance
 from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud, _heading, _rz
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
+from deepbbs_ros.core.tilted_search import TiltedSearch
 
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 
@@ -30,7 +31,7 @@ def _rank(a: _Answer) -> tuple[bool, float]:
     return (not a.ok, -a.score)
 
 
-class PlaceSearch:
+class PlaceSearch(TiltedSearch):
     """The global search of :class:`~deepbbs_ros.core.localization.MapLocalizer` (module docstring)."""
 
     def _answer(self, score: float, T_map_scan: np.ndarray, place: int, crop: _Crop, src: Any,
@@ -58,34 +59,11 @@ class PlaceSearch:
         t = time.perf_counter()
         ranked = self.rank(desc, among, centres)
         timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
-        h_scan = self._sensor_height(src)
         answers: list[_Answer] = []
-        accepted_dist = None  # descriptor distance of the first accepted candidate
         failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
-        search = lc.candidate_search != "off"
-        sure = self.config.registration.verdict_sure
-        for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
-            if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
-                break  # the rest look less alike than the margin: not a rival
-            t = time.perf_counter()
-            crop = self._crop(place)
-            timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
-            T_init = _rz(yaw)
-            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
-            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
-                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
-                if np.isfinite(g):
-                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
-            ans = self._deep(src, crop, T_init, place, timings, yaw_search=search)
-            if ans.ok and ans.score < lc.confident_score:
-                # the network's pass settled on a poor optimum (a lane off)? GICP alone from the descriptor's start
-                # (good to ~2 m), the better of the two kept
-                ans = self._better_gicp(src, crop, T_init, place, ans, timings)
-            if not ans.ok:
-                failed.append((len(answers), rank_i, T_init, yaw))
-            answers.append(ans)
-            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
-                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
+        self._round(src, ranked, None, answers, failed, timings)
+        if not any(a.ok for a in answers):
+            self._levelled_round(pts, src, among, centres, answers, failed, timings)  # core/tilted_search.py
         n = len(answers)
         if not answers:
             return LocalizationResult(np.eye(4), False, float("nan"), "global", "no candidate place in reach")
@@ -124,6 +102,41 @@ class PlaceSearch:
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
                                   covariance=self._covariance(src, best.crop, T, timings),
                                   probability=best.prob)
+
+    def _round(self, src: Any, ranked: list, level: np.ndarray | None, answers: list[_Answer],
+               failed: list[tuple[int, int, np.ndarray, float]], timings: dict[str, float]) -> None:
+        """One round of the search: DeepBBS++ on each ``ranked`` place from the descriptor's yaw (turned by
+        ``level``, (4, 4) or None, the scan's levelling) until an accepted answer ends it; ``answers`` and
+        ``failed`` (index in answers, rank, T_init, yaw) are added to in place."""
+        lc = self.config.localization
+        h_scan = self._sensor_height(src)
+        accepted_dist = None  # descriptor distance of the first accepted candidate
+        search = lc.candidate_search != "off"
+        sure = self.config.registration.verdict_sure
+        for rank_i, (place, dist, yaw, centre) in enumerate(ranked):
+            if accepted_dist is not None and dist > accepted_dist + lc.descriptor_margin:
+                break  # the rest look less alike than the margin: not a rival
+            t = time.perf_counter()
+            crop = self._crop(place)
+            timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
+            T_init = _rz(yaw)
+            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
+            if level is not None:
+                T_init = T_init @ level
+            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
+                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
+                if np.isfinite(g):
+                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
+            ans = self._deep(src, crop, T_init, place, timings, yaw_search=search)
+            if ans.ok and ans.score < lc.confident_score:
+                # the network's pass settled on a poor optimum (a lane off)? GICP alone from the descriptor's start
+                # (good to ~2 m), the better of the two kept
+                ans = self._better_gicp(src, crop, T_init, place, ans, timings)
+            if not ans.ok:
+                failed.append((len(answers), rank_i, T_init, yaw))
+            answers.append(ans)
+            if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
+                accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
 
     def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
         """The first round's answers say the scan is not in the map (then the quick retry only): the best one

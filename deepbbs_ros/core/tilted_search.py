@@ -1,0 +1,78 @@
+"""The search's second round for a tilted sensor (no ROS): :class:`TiltedSearch`, a mixin of
+:class:`~deepbbs_ros.core.place_search.PlaceSearch`.
+
+The place descriptor assumes an upright sensor. A scan whose own ground plane tilts more than the ground fit can tell
+from level (a car rolled 14 degrees on a road's edge) sees its low side's road close by only and its heights shifted:
+upright, its descriptor ranks look-alike places first. When the upright round accepts no place, such a scan is
+described levelled by its ground plane, compared on the descriptor bins it saw only (on the shortlist), and its
+candidates start with its tilt. Works on the localizer's map, crops and configuration as ``PlaceSearch`` does.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from deepbbs_ros.core.descriptors import levelling
+from deepbbs_ros.core.ground_plane import _FIT_TOL as GROUND_FIT_TOL
+from deepbbs_ros.core.localization_types import _Answer
+from deepbbs_ros.errors import LocalizationError
+
+
+def _rank(a: _Answer) -> tuple[bool, float]:
+    """The order of answers, best first (as core/place_search.py's)."""
+    return (not a.ok, -a.score)
+
+
+class TiltedSearch:
+    """The levelled round of the global search (module docstring)."""
+
+    def _levelled_round(self, pts: np.ndarray, src: Any, among: np.ndarray | None, centres: np.ndarray,
+                        answers: list[_Answer], failed: list, timings: dict[str, float]) -> None:
+        """The upright round accepted no place: when the scan is tilted (:meth:`_levelling`), a second round on the
+        scan described levelled, compared on the bins it saw (``MapLocalizer.seen``), started with its tilt
+        (``PlaceSearch._round``), its best answer tried again on a crop centred at its pose (:meth:`_recentred`);
+        ``answers`` and ``failed`` (as ``_round``'s) added to in place."""
+        level = self._levelling(src)
+        if level is None:
+            return
+        t = time.perf_counter()
+        scan = pts @ level[:3, :3].T
+        again = self.rank(self.describe(scan, centres), among, centres, seen=self.seen(scan))
+        timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
+        first = len(answers)
+        self._round(src, again, level, answers, failed, timings)
+        self._recentred(src, answers[first:], answers, timings)
+
+    def _recentred(self, src: Any, round_answers: list[_Answer], answers: list[_Answer],
+                   timings: dict[str, float]) -> None:
+        """None of ``round_answers`` accepted, the best fitting by the registration's threshold: GICP from its pose
+        on a crop centred there (the place's crop reaches less of what a tilted scan sees), added to ``answers``."""
+        best = min(round_answers, key=_rank, default=None)
+        if best is None or best.ok or not best.score >= self.config.registration.verdict_threshold:
+            return
+        T_place = np.eye(4)
+        T_place[:3, 3] = best.T[:3, 3]
+        try:
+            crop = self._crop(-1, T_place)
+        except LocalizationError:
+            return
+        t = time.perf_counter()
+        alt = self._gicp(src, crop, np.linalg.inv(T_place) @ best.T, best.place)
+        timings["gicp"] = timings.get("gicp", 0.0) + (time.perf_counter() - t) * 1e3
+        if alt is not None:
+            answers.append(alt)
+
+    def _levelling(self, src: Any) -> np.ndarray | None:
+        """(4, 4) the rotation that levels the scan by its ground plane (core/descriptors.py ``levelling``, the band
+        and radius of the ground fit: core/ground_plane.py), None when upright within the fit's resolution."""
+        pc = self.config.preprocess
+        R = levelling(getattr(src, "ground_plane", None), min(pc.ground_layer / 2.0, GROUND_FIT_TOL),
+                      pc.ground_seed_radius)
+        if R is None:
+            return None
+        T = np.eye(4)
+        T[:3, :3] = R
+        return T
