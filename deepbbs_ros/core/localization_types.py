@@ -90,6 +90,12 @@ class _Answer:
     refined: bool = False  # MapLocalizer._refined has seen it
 
 
+def answer_rank(a: _Answer) -> tuple[bool, float]:
+    """The order of answers, best first (``min``, ``sort``): accepted ones, then by the verdict's score (the fitness:
+    among right poses the closer fit; a probability saturates near 1)."""
+    return (not a.ok, -a.score)
+
+
 def _crop_cloud(crop: _Crop) -> np.ndarray | None:
     """(M, 3) float32 the crop's GICP cloud in the map frame (kept with the crop)."""
     if crop.map_cloud is None:

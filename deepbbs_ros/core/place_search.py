@@ -18,17 +18,19 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import acceptance
-from deepbbs_ros.core.localization_types import LocalizationResult, _Answer, _Crop, _crop_cloud, _heading, _rz
+from deepbbs_ros.core.localization_types import (
+    LocalizationResult,
+    _Answer,
+    _Crop,
+    _crop_cloud,
+    _heading,
+    _rz,
+    answer_rank,
+)
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
 from deepbbs_ros.core.tilted_search import TiltedSearch
 
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
-
-
-def _rank(a: _Answer) -> tuple[bool, float]:
-    """The order of answers, best first (``min``, ``sort``): accepted ones, then by the verdict's score (the fitness:
-    among right poses the closer fit; a probability saturates near 1)."""
-    return (not a.ok, -a.score)
 
 
 class PlaceSearch(TiltedSearch):
@@ -73,7 +75,7 @@ class PlaceSearch(TiltedSearch):
             # early) when the best answer is far below the bar and no place looks like the scan either (outside the
             # map?)
             self._retry(src, answers, failed, timings, quick=outside)
-        answers.sort(key=_rank)
+        answers.sort(key=answer_rank)
         best = self._refined(src, answers, timings)
         if not best.ok:
             why = (f"best probability {best.prob:.2f} < {self._threshold:.2f}, score {best.score:.2f}"
@@ -84,7 +86,7 @@ class PlaceSearch(TiltedSearch):
         t = time.perf_counter()
         probes = self._probe(src, best)
         timings["probe"] = (time.perf_counter() - t) * 1e3
-        pool = sorted(answers + probes, key=_rank)
+        pool = sorted(answers + probes, key=answer_rank)
         best = pool[0]  # a probe may land on a better pose than the registration's (a local optimum nearby)
         rivals = acceptance.rivals(best, pool, self.config)
         alternatives = [(float(a.T[0, 3]), float(a.T[1, 3]), a.score) for a in answers if a.ok and a is not best
@@ -170,12 +172,12 @@ class PlaceSearch(TiltedSearch):
             for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:
                     answers[k] = self._flipped(src, answers[k], T_init, yaw, timings, search)
-        best = min(answers, key=_rank)
+        best = min(answers, key=answer_rank)
         if (not best.ok and not search and self._searchable
                 and best.score >= self.config.registration.verdict_threshold):
             T_init = np.linalg.inv(best.crop.T_map_place) @ best.T
             answers.append(self._deep(src, best.crop, T_init, best.place, timings))
-        best = min(answers, key=_rank)
+        best = min(answers, key=answer_rank)
         if not any(a.ok for a in answers) and lc.far_probe > 0:
             # the best fit, and the best-ranked place (the right place whose pose slid away from it scores low)
             for ans in [best] if answers[0] is best else [best, answers[0]]:
@@ -199,13 +201,13 @@ class PlaceSearch(TiltedSearch):
         return out
 
     def _refined(self, src: Any, answers: list[_Answer], timings: dict[str, float]) -> _Answer:
-        """The best of ``answers`` (:func:`_rank`); when it is not accepted but fits by the registration's threshold
+        """The best of ``answers`` (``answer_rank``); when it is not accepted but fits by the registration's threshold
         (``registration.verdict_threshold``), refined (:meth:`_refine`) and judged again, in place, when that fits
         better (a highway scan taken the other way: 0.44 m along the road; refined 0.01 m)."""
         from deepbbs_ros.core import verdict
 
         rc = self.config.registration
-        ans = min(answers, key=_rank)
+        ans = min(answers, key=answer_rank)
         if ans.ok or ans.refined or not ans.score >= rc.verdict_threshold:
             return ans
         ans.refined = True

@@ -17,13 +17,8 @@ import numpy as np
 
 from deepbbs_ros.core.descriptors import levelling
 from deepbbs_ros.core.ground_plane import _FIT_TOL as GROUND_FIT_TOL
-from deepbbs_ros.core.localization_types import _Answer
+from deepbbs_ros.core.localization_types import _Answer, answer_rank
 from deepbbs_ros.errors import LocalizationError
-
-
-def _rank(a: _Answer) -> tuple[bool, float]:
-    """The order of answers, best first (as core/place_search.py's)."""
-    return (not a.ok, -a.score)
 
 
 class TiltedSearch:
@@ -50,7 +45,7 @@ class TiltedSearch:
                    timings: dict[str, float]) -> None:
         """None of ``round_answers`` accepted, the best fitting by the registration's threshold: GICP from its pose
         on a crop centred there (the place's crop reaches less of what a tilted scan sees), added to ``answers``."""
-        best = min(round_answers, key=_rank, default=None)
+        best = min(round_answers, key=answer_rank, default=None)
         if best is None or best.ok or not best.score >= self.config.registration.verdict_threshold:
             return
         T_place = np.eye(4)
