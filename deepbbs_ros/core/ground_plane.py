@@ -20,6 +20,12 @@ _FIT_TOL = 0.25  # m; widest inlier band of the ground-plane fit
 _MIN_SUPPORT = 0.10  # a RANSAC ground plane must hold this fraction of the points near the sensor
 
 
+def fit_band(cfg: PreprocessConfig) -> float:
+    """The ground-plane fit's inlier band (m): the removed half-layer, but never wider than ``_FIT_TOL`` so that a
+    thick removal layer does not let wall bottoms into the fit."""
+    return min(cfg.ground_layer / 2.0, _FIT_TOL)
+
+
 def fit_ground_plane(points: np.ndarray, cfg: PreprocessConfig, *, seed: int | None = None) -> np.ndarray:
     """Robust ground plane of a scan.
 
@@ -48,9 +54,7 @@ def fit_ground_plane(points: np.ndarray, cfg: PreprocessConfig, *, seed: int | N
         near_idx = np.sort(rng.choice(near_idx, _FIT_SAMPLES, replace=False))
     near = np.take(pts, near_idx, axis=0).astype(np.float64)
     min_nz = float(np.cos(np.deg2rad(cfg.ground_max_tilt_deg)))
-    # Inlier band of the fit: the removed half-layer, but never wider than _FIT_TOL so that a
-    # thick removal layer does not let wall bottoms into the fit.
-    tol = min(cfg.ground_layer / 2.0, _FIT_TOL)
+    tol = fit_band(cfg)
     if cfg.ground_method == "ransac":
         plane = _ransac_plane(near, tol, min_nz, cfg.ground_ransac_iters, rng)
     else:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.descriptors import levelling
-from deepbbs_ros.core.ground_plane import _FIT_TOL as GROUND_FIT_TOL
+from deepbbs_ros.core.ground_plane import fit_band
 from deepbbs_ros.core.localization_types import _Answer, answer_rank
 from deepbbs_ros.errors import LocalizationError
 
@@ -64,8 +64,7 @@ class TiltedSearch:
         """(4, 4) the rotation that levels the scan by its ground plane (core/descriptors.py ``levelling``, the band
         and radius of the ground fit: core/ground_plane.py), None when upright within the fit's resolution."""
         pc = self.config.preprocess
-        R = levelling(getattr(src, "ground_plane", None), min(pc.ground_layer / 2.0, GROUND_FIT_TOL),
-                      pc.ground_seed_radius)
+        R = levelling(getattr(src, "ground_plane", None), fit_band(pc), pc.ground_seed_radius)
         if R is None:
             return None
         T = np.eye(4)
