@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sim_maps import world_points
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError, LocalizationError
@@ -28,12 +29,7 @@ def world():
     if not default_weights_path().is_file():
         pytest.skip("shipped weights missing")
     clean = DriveSimulator("urban", 5, frames=100, motion_distortion=False)
-    parts = []
-    for k in MAP_FRAMES:
-        s = clean.scan_at(k)
-        p = s.points[np.linalg.norm(s.points, axis=1) < 60.0]
-        parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
-    map_points = voxel_downsample(np.concatenate(parts), 0.25)
+    map_points = voxel_downsample(world_points(clean, MAP_FRAMES, 60.0), 0.25)
     trajectory = np.stack([clean.pose_at(k) for k in range(30, 100)])
     drive = DriveSimulator("urban", 5, frames=100, compensate=True)
     other = DriveSimulator("highway", 11, frames=12, compensate=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sim_maps import world_points
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.metrics import pair_errors
@@ -25,16 +26,12 @@ def straight():
     if not default_weights_path().is_file():
         pytest.skip("shipped weights missing")
     fwd = DriveSimulator("highway", 11, frames=30, motion_distortion=False, world_frames=WORLD_FRAMES)
-    parts = []
-    for k in MAP_FRAMES:
-        s = fwd.scan_at(k)
-        p = s.points[np.linalg.norm(s.points, axis=1) < 50.0]
-        parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
+    world = world_points(fwd, MAP_FRAMES, 50.0)
     tr = fwd.trajectory
     s_end = float(np.interp(MAP_FRAMES[-1] * fwd.period, tr.t_grid, tr.s_grid))
     back = DriveSimulator("highway", 11, frames=20, compensate=True, world_frames=WORLD_FRAMES, reverse=True,
                           s_start=s_end, day=1)
-    return voxel_downsample(np.concatenate(parts), 0.25), fwd, back
+    return voxel_downsample(world, 0.25), fwd, back
 
 
 def test_a_scan_taken_the_other_way_is_placed(straight):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sim_maps import world_points
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.metrics import pair_errors
@@ -34,12 +35,7 @@ def street():
     if not default_weights_path().is_file():
         pytest.skip("shipped weights missing")
     sim = DriveSimulator("suburban", 12, frames=30, motion_distortion=False)
-    parts = []
-    for k in MAP_FRAMES:
-        s = sim.scan_at(k)
-        p = s.points[np.linalg.norm(s.points, axis=1) < 50.0]
-        parts.append(p @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
-    return voxel_downsample(np.concatenate(parts), 0.25), sim
+    return voxel_downsample(world_points(sim, MAP_FRAMES, 50.0), 0.25), sim
 
 
 def test_levelling_turns_the_fitted_ground_level():

@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from sim_maps import world_points
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import map_verdict
@@ -23,11 +24,7 @@ def street():
 
     rc = Config().registration
     sim = DriveSimulator("urban", 3, frames=70, motion_distortion=False)
-    parts = []
-    for k in (40, 52, 64):
-        s = sim.scan_at(k)
-        parts.append(s.points @ s.T_world_lidar[:3, :3].T + s.T_world_lidar[:3, 3])
-    world = np.concatenate(parts).astype(np.float64)
+    world = world_points(sim, (40, 52, 64)).astype(np.float64)
     T_gt = sim.pose_at(46)
     scan = sim.scan_at(46).points
     spc = prepare_polish_cloud(scan, rc.polish_voxel, rc.polish_neighbors, threads=1)
