@@ -74,8 +74,7 @@ class ScanBridge:
         if self.size:
             with self._lock:
                 self.arrived += 1
-                self.dropped += len(self._scans) == self._scans.maxlen
-                self._scans.append(scan)
+                self._keep(scan)
 
     def restore(self, scans: list[Any]) -> None:
         """Keep again scans :meth:`take` handed out and the bridge did not follow (it ended before them): counted as
@@ -83,8 +82,12 @@ class ScanBridge:
         if self.size:
             with self._lock:
                 for scan in scans:
-                    self.dropped += len(self._scans) == self._scans.maxlen
-                    self._scans.append(scan)
+                    self._keep(scan)
+
+    def _keep(self, scan: Any) -> None:
+        """Append ``scan`` (lock held); the oldest kept one goes when full, counted as dropped."""
+        self.dropped += len(self._scans) == self._scans.maxlen
+        self._scans.append(scan)
 
     def clear(self) -> None:
         with self._lock:
