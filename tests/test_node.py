@@ -133,7 +133,8 @@ class Harness:
         self.executor = MultiThreadedExecutor(num_threads=3)
         self.executor.add_node(self.node)
         self.executor.add_node(c)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.spin_error = ""  # the traceback that ended the executor's spin thread, if one did
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
         topics = ("source_cloud", "cloud") if cfg.node.mode == "pair" else ("cloud",)
         deadline = time.monotonic() + 10
@@ -141,6 +142,13 @@ class Harness:
             if any(self.pub[t].get_subscription_count() > 0 for t in topics) and c.count_publishers(f"/{name}/pose"):
                 break
             time.sleep(0.05)
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except BaseException:
+            self.spin_error = traceback.format_exc()
+            raise
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         if msg.status and msg.status[0].name.startswith(self.node.get_name() + ":"):
@@ -157,7 +165,10 @@ class Harness:
         self.pub[topic].publish(msg)
 
     def wait_for(self, cond, timeout: float = 30.0) -> bool:
-        return wait_for(cond, timeout)
+        """``wait_for``; a spin thread that died says so (nothing more can arrive), with its traceback."""
+        ok = wait_for(cond, timeout)
+        assert ok or not self.spin_error, f"the executor's spin thread died:\n{self.spin_error}"
+        return ok
 
     def wait_processed(self, n: int, timeout: float = 30.0) -> None:
         s = self.node.stats

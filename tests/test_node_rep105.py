@@ -66,7 +66,8 @@ class TfTree:
 
     def __init__(self, node) -> None:
         self.items: list[tuple[str, str, int, np.ndarray, bool]] = []
-        node.create_subscription(TFMessage, "/tf", lambda m: self._add(m, False), 200)
+        # the odometry stand-in floods /tf at 40 Hz: a deep queue, so that a loaded machine's slow executor drops none
+        node.create_subscription(TFMessage, "/tf", lambda m: self._add(m, False), 5000)
         node.create_subscription(TFMessage, "/tf_static", lambda m: self._add(m, True), STATIC)
 
     def _add(self, msg, static: bool) -> None:
@@ -146,7 +147,7 @@ def test_map_to_odom_beside_a_drifting_odometry(ros, drive, tmp_path):
         # every scan's map -> odom (stamped its scan's stamp + the tolerance); the re-broadcasts between scans are
         # stamped with the clock, so counting the edge's transforms could be satisfied before the last scan's arrived
         assert h.wait_for(lambda: all(sim.stamp_ns(k) + TOLERANCE_NS in h.tf.edge("map", "odom") for k in FRAMES),
-                          5.0), sorted(h.tf.edge("map", "odom"))
+                          30.0), sorted(h.tf.edge("map", "odom"))
         parents = _one_parent(h)
         assert parents["odom"] == {"map"} and parents["base_link"] == {"odom"} and parents["lidar"] == {"base_link"}
         map_odom, odom_base = h.tf.edge("map", "odom"), h.tf.edge("odom", "base_link")
@@ -159,7 +160,7 @@ def test_map_to_odom_beside_a_drifting_odometry(ros, drive, tmp_path):
             assert frame == "map"
             _check_pose(T, truth[s])
         assert h.odoms and all(m.child_frame_id == "base_link" for m in h.odoms)
-        assert h.wait_for(lambda: h.pwc, 5.0)
+        assert h.wait_for(lambda: h.pwc, 30.0)
         last = h.pwc[-1]
         assert last.header.frame_id == "map" and stamp_to_ns(last.header.stamp) == sim.stamp_ns(FRAMES[-1])
         _check_pose(pose_to_matrix(last.pose.pose), truth[sim.stamp_ns(FRAMES[-1])])
@@ -167,7 +168,7 @@ def test_map_to_odom_beside_a_drifting_odometry(ros, drive, tmp_path):
         assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0) and np.allclose(cov, cov.T), np.diag(cov)
         # between scans the last map -> odom goes out again (node.map_odom_period)
         n = len(h.tf.edge("map", "odom"))
-        assert h.wait_for(lambda: len(h.tf.edge("map", "odom")) > n, 3.0)
+        assert h.wait_for(lambda: len(h.tf.edge("map", "odom")) > n, 30.0)
         d = h.diagnostics()
         assert d.get("localization.map -> odom") == "ok", d
     finally:
