@@ -1,10 +1,10 @@
-"""The parameter tables of the docs, generated from the config schema (``deepbbs_ros/config.py``).
+"""The parameter tables of the docs, generated from the config schema (``deepbbs_ros/config/``).
 
 Every field of a section is one row: its dotted name, type, default and description. The description is the
-field's comment in ``config.py``: the comment on its line, then the comment lines right above it (a blank line
-keeps a comment about a group of fields out); comment lines below a field that lead to no other field continue
-its description. A field without any comment is an
-error, so a new parameter cannot reach the docs undocumented.
+field's comment in its section's module (``config/node.py``, ...): the comment on its line, then the comment lines
+right above it (a blank line keeps a comment about a group of fields out); comment lines below a field that lead to no
+other field continue its description. A field without any comment is an error, so a new parameter cannot reach the
+docs undocumented.
 
 The tables live in Markdown pages between ``<!-- params:SECTION[,SECTION...] -->`` and ``<!-- /params -->``
 markers::
@@ -25,7 +25,6 @@ import tokenize
 import typing
 from pathlib import Path
 
-from deepbbs_ros import config as config_module
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError
 
@@ -100,12 +99,12 @@ def parameter_table(sections: list[str]) -> str:
         if section not in classes:
             raise ConfigError(f"config: unknown section {section!r} (known: {', '.join(classes)})")
         cls = classes[section]
-        hints = typing.get_type_hints(cls, vars(config_module))
+        hints = typing.get_type_hints(cls)
         notes = field_comments(cls)
         for f in dataclasses.fields(cls):
             note = notes.get(f.name, "")
             if not note:
-                raise ConfigError(f"config: {section}.{f.name} has no comment in deepbbs_ros/config.py "
+                raise ConfigError(f"config: {section}.{f.name} has no comment in {cls.__module__} "
                                   "(write what it does, with its unit, on its line)")
             value = getattr(getattr(defaults, section), f.name)
             rows.append(f"| `{section}.{f.name}` | {_type_name(hints[f.name])} | `{_default(value)}` | "
