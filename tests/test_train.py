@@ -233,7 +233,7 @@ def test_validation_checkpoints_and_curves(tmp_path):
     assert ckpt_cfg.model.emb_dims == 16 and meta["step"] == 2 and meta["validation"]["plain"]["n"] == 2
     for k, v in model.state_dict().items():
         torch.testing.assert_close(v, tr.model.state_dict()[k])
-    from deepbbs_ros.train.trainer import run_report
+    from deepbbs_ros.train.run_log import run_report
 
     text = run_report(run)
     assert "2 steps" in text and "| 2 | 1 |" in text and "model_best.pt" in text

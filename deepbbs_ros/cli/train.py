@@ -263,7 +263,8 @@ def _cmd_fit(args) -> int:
 def _fit(args, main_rank: bool) -> int:
     from deepbbs_ros.config import Config
     from deepbbs_ros.train.cache import load_cache
-    from deepbbs_ros.train.trainer import STATE_FILE, Trainer
+    from deepbbs_ros.train.run_state import STATE_FILE
+    from deepbbs_ros.train.trainer import Trainer
 
     run = Path(args.run)
     saved_args = run / "fit_args.json"
@@ -326,7 +327,7 @@ def _fit(args, main_rank: bool) -> int:
     print(f"deepbbs-train: stopped at step {res['step']} (epoch {res['epoch']}), "
           f"{res['train_seconds'] / 60:.1f} min of training; checkpoints in {run}")
     if best:
-        from deepbbs_ros.train.trainer import format_val
+        from deepbbs_ros.train.validation import format_val
 
         print("best " + format_val(best))
     return 0
@@ -339,7 +340,7 @@ def _state_model_config(path) -> dict:
 
     path = Path(path)
     if path.is_dir():
-        from deepbbs_ros.train.trainer import STATE_FILE
+        from deepbbs_ros.train.run_state import STATE_FILE
 
         path = path / STATE_FILE
     try:
@@ -395,7 +396,7 @@ def _sigterm(signum, frame):
 
 
 def _cmd_report(args) -> int:
-    from deepbbs_ros.train.trainer import run_report
+    from deepbbs_ros.train.run_log import run_report
 
     print(run_report(args.run))
     return 0

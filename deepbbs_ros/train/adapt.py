@@ -142,7 +142,8 @@ def fine_tune(config: Config, out: Path, rec: Recording, labels: Labels, *, step
     trained with (their checkpoint's ``train`` section), but for ``train_overrides`` (``train.*`` keys, the user's
     ``--set``), ``train.lr`` from ``config`` and no learning-rate decay; epochs of up to 50 steps make ``steps``."""
     from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
-    from deepbbs_ros.train.trainer import LATEST_MODEL, Trainer
+    from deepbbs_ros.train.run_state import LATEST_MODEL
+    from deepbbs_ros.train.trainer import Trainer
 
     weights = config.registration.weights or str(default_weights_path())
     model, init_cfg, _ = load_checkpoint(weights)
@@ -176,7 +177,7 @@ def label_summary(rec: Recording, labels: Labels, counts: dict[str, int]) -> dic
 
 def check_out(out: Path, resume: bool) -> None:
     """A fresh folder for a new adaptation; the previous one's for ``--resume``."""
-    from deepbbs_ros.train.trainer import STATE_FILE
+    from deepbbs_ros.train.run_state import STATE_FILE
 
     if resume and not (out / STATE_FILE).exists():
         raise ConfigError(f"adapt --resume: no adaptation state in {out}")

@@ -22,79 +22,30 @@ generator (seeded with the seed and its rank), gradients are averaged, and every
 saves (time budget, periodic checkpoints, a non-finite loss) is rank 0's, taken by all at the same step.
 Rank 0 alone validates and writes files; the state file holds every rank's generators (``ranks``), so a
 resume with the same number of processes continues exactly.
+
+The loop is here; the state file, checkpoints and resume are :mod:`deepbbs_ros.train.run_state`'s, the logs and the
+report :mod:`deepbbs_ros.train.run_log`'s, the held-out pairs, errors and score :mod:`deepbbs_ros.train.validation`'s.
 """
 
 from __future__ import annotations
 
-import csv
-import json
 import math
 import random
 import sys
 import time
 import traceback
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.errors import ModelError
 from deepbbs_ros.train.cache import Drive
 from deepbbs_ros.train.loss import deepbbs_loss
-from deepbbs_ros.train.pairs import AugmentConfig, Pair, PairSampler, collate, validation_pairs
-
-STATE_FILE = "state_latest.pt"
-LATEST_MODEL = "model_latest.pt"
-BEST_MODEL = "model_best.pt"
-
-
-def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
-    """arccos((trace(R_gt^T R) - 1) / 2) in degrees (CONVENTIONS.md)."""
-    c = (np.trace(R_gt.T @ R_est) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
-def pair_errors(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
-    """(rot_err_deg, trans_err_m) of one estimate against the ground truth."""
-    return rotation_error_deg(T_est[:3, :3], T_gt[:3, :3]), float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3]))
-
-
-def summarize_errors(rot: list[float], trans: list[float], rot_thr: float, trans_thr: float) -> dict[str, float]:
-    """Mean / median / p95 / max of both errors and the success rate (both within thresholds)."""
-    r, t = np.asarray(rot, dtype=np.float64), np.asarray(trans, dtype=np.float64)
-    if len(r) == 0:
-        return {"n": 0}
-    ok = (r <= rot_thr) & (t <= trans_thr)
-    return {
-        "n": int(len(r)),
-        "rot_mean_deg": float(r.mean()), "rot_median_deg": float(np.median(r)),
-        "rot_p95_deg": float(np.percentile(r, 95)), "rot_max_deg": float(r.max()),
-        "trans_mean_m": float(t.mean()), "trans_median_m": float(np.median(t)),
-        "trans_p95_m": float(np.percentile(t, 95)), "trans_max_m": float(t.max()),
-        "success": float(ok.mean()),
-    }
-
-
-@dataclass
-class ValidationSet:
-    """Fixed held-out pairs: as they come (``plain``) and with an extra random yaw (``yaw``)."""
-
-    plain: list[Pair]
-    yaw: list[Pair]
-    yaw_deg: float
-
-    @classmethod
-    def build(cls, drives: list[Drive], config: Config, num_points: int, *, max_pairs: int = 32,
-              stride: int = 10) -> ValidationSet:
-        tc = config.train
-        per_drive = max(1, math.ceil(max_pairs / max(1, len(drives))))
-        plain = validation_pairs(drives, num_points, stride=stride, max_dist=tc.max_dist, seed=tc.seed,
-                                 per_drive=per_drive)[:max_pairs]
-        yaw = validation_pairs(drives, num_points, stride=stride, max_dist=tc.max_dist, yaw_deg=tc.yaw_aug_deg,
-                               seed=tc.seed + 1, per_drive=per_drive)[:max_pairs]
-        return cls(plain, yaw, tc.yaw_aug_deg)
+from deepbbs_ros.train.pairs import AugmentConfig, Pair, PairSampler, collate
+from deepbbs_ros.train.run_log import append_log, write_val_csv
+from deepbbs_ros.train.run_state import STATE_FILE, restore_state, save_state
+from deepbbs_ros.train.validation import ValidationSet, format_val, score, validation_record
 
 
 class Trainer:
@@ -222,198 +173,30 @@ class Trainer:
     def validate(self) -> dict[str, Any] | None:
         """Errors of the full DeepBBS++ registration (deep iterations + refinement) on the fixed
         held-out pairs, with and without the extra yaw, plus the one-pass network loss."""
-        import torch
-
-        from deepbbs_ros.core.registration import DeepBBSRegistration
-
         vs = self.validation_set()
         if vs is None:
             return None
-        cfg, tc = self.config, self.config.train
-        t0 = time.perf_counter()
-        self.model.eval()
-        reg = DeepBBSRegistration(cfg, model=self.model, device=str(self.device))
-        rec: dict[str, Any] = {"kind": "val", "step": self.step, "epoch": self.epoch}
-        with torch.no_grad():
-            # one network pass on the plain pairs: the validation loss
-            losses = []
-            for k in range(0, len(vs.plain), tc.batch_size):
-                src, tgt, R_gt, t_gt = (x.to(self.device) for x in collate(vs.plain[k : k + tc.batch_size]))
-                out = self.model(src, tgt)
-                terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=cfg.model.scale, theta=tc.theta,
-                                     corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
-                losses.append(float(terms.total) * len(src))
-            rec["val_loss"] = sum(losses) / max(1, len(vs.plain))
-            folder = {d.name: str(d.meta.get("cache", "")) for d in self.val_drives}
-            groups: dict[str, dict[str, Any]] = {}
-            for name, pairs in (("plain", vs.plain), ("yaw", vs.yaw)):
-                rot, trans, group = [], [], []
-                for p in pairs:
-                    res = reg.register(p.source, p.target, preprocessed=True)
-                    r, t = pair_errors(res.T_target_source, p.T_target_source)
-                    rot.append(r)
-                    trans.append(t)
-                    group.append(folder.get(p.ref.split(":")[0], ""))
-                rec[name] = summarize_errors(rot, trans, cfg.eval.success_rot_deg, cfg.eval.success_trans)
-                for g in sorted(set(group)):  # each validation folder apart (e.g. a sensor mix and HDL-64E roads)
-                    k = [i for i, x in enumerate(group) if x == g]
-                    groups.setdefault(g, {})[name] = summarize_errors(
-                        [rot[i] for i in k], [trans[i] for i in k], cfg.eval.success_rot_deg, cfg.eval.success_trans)
-            if len(groups) > 1:
-                rec["groups"] = groups
-        self.model.train()
-        rec["seconds"] = round(time.perf_counter() - t0, 2)
-        return rec
+        return validation_record(self.model, self.config, vs, self.val_drives, self.device, self.step, self.epoch)
 
-    @staticmethod
-    def score(rec: dict[str, Any]) -> list[float]:
-        """Higher is better: total success rate, then lower mean rotation and translation errors. With
-        several validation folders each weighs the same (a mix of sensors cannot outvote HDL-64E roads)."""
-        parts = list(rec["groups"].values()) if rec.get("groups") else [rec]
-        n = len(parts)
-        return [sum(g[s]["success"] for g in parts for s in ("plain", "yaw")) / n,
-                -sum(g[s]["rot_mean_deg"] for g in parts for s in ("plain", "yaw")) / n,
-                -sum(g[s]["trans_mean_m"] for g in parts for s in ("plain", "yaw")) / n]
+    score = staticmethod(score)  # higher is better (:func:`deepbbs_ros.train.validation.score`)
 
-    # -- checkpoints ---------------------------------------------------------------------------
-    def _model_meta(self, val: dict[str, Any] | None) -> dict[str, Any]:
-        return {**self.meta, "step": self.step, "epoch": self.epoch, "train_seconds": round(self.train_seconds, 1),
-                "num_points": self.num_points, "validation": val, "saved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
-                                                                                             time.gmtime())}
-
-    def _rank_state(self) -> dict[str, Any]:
-        """This process's generators and a digest of its weights (the same on every rank when in sync)."""
-        import hashlib
-
-        import torch
-
-        digest = hashlib.sha256()
-        for v in self.model.state_dict().values():
-            digest.update(v.detach().cpu().contiguous().numpy().tobytes())
-        return {"rank": self.rank, "np_rng": self.rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
-                "cuda_rng": torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None,
-                "py_rng": random.getstate(), "weights_sha256": digest.hexdigest()}
-
+    # -- checkpoints and logs (run_state.py, run_log.py) ---------------------------------------------
     def save(self, val: dict[str, Any] | None = None, best: bool = False) -> None:
         """Write ``state_latest.pt`` and ``model_latest.pt`` (and ``model_best.pt`` when ``best``).
         With several processes every rank calls it (their generators are gathered); rank 0 writes."""
-        import torch
-
-        from deepbbs_ros.core.checkpoint import save_checkpoint
-
-        ranks = None
-        if self.world_size > 1:
-            from deepbbs_ros.train.distributed import all_gather
-
-            ranks = all_gather(self._rank_state())
-            if not self.is_main:
-                return
-        state = {
-            "format": "deepbbs_ros.train/1",
-            "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "scheduler": self.scheduler.state_dict(),
-            "step": self.step,
-            "train_seconds": self.train_seconds,
-            "np_rng": self.rng.bit_generator.state,
-            "torch_rng": torch.get_rng_state(),
-            "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
-            "py_rng": random.getstate(),
-            "best_score": self.best_score,
-            "best_val": self.best_val,
-            "history": self.history,
-            "config": self.config.to_dict(),
-            "meta": self.meta,
-            "world_size": self.world_size,
-            "ranks": ranks,
-        }
-        tmp = self.run_dir / (STATE_FILE + ".tmp")
-        torch.save(state, tmp)
-        tmp.replace(self.run_dir / STATE_FILE)
-        last_val = val or next((h for h in reversed(self.history) if h.get("kind") == "val"), None)
-        save_checkpoint(self.run_dir / LATEST_MODEL, self.model, self.config, self._model_meta(last_val))
-        if best:
-            save_checkpoint(self.run_dir / BEST_MODEL, self.model, self.config, self._model_meta(val))
-            (self.run_dir / "val_best.json").write_text(json.dumps(self._model_meta(val), indent=2))
+        save_state(self, val, best)
 
     def resume(self, path: str | Path | None = None) -> int:
         """Restore everything from ``state_latest.pt`` (or ``path``). Returns the step reached."""
-        import torch
+        return restore_state(self, path)
 
-        path = Path(path) if path else self.run_dir / STATE_FILE
-        if path.is_dir():
-            path = path / STATE_FILE
-        if not path.exists():
-            raise ModelError(f"resume: no training state at {path}")
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
-            raise ModelError(f"resume: {path} is not a readable training state ({err})") from err
-        if state.get("format") != "deepbbs_ros.train/1":
-            raise ModelError(f"resume: {path} is not a deepbbs-train state file")
-        saved_model = state["config"]["model"]
-        if saved_model != self.config.to_dict()["model"]:
-            raise ModelError(f"resume: {path} was trained with a different model config ({saved_model})")
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.scheduler.load_state_dict(state["scheduler"])
-        self.step = int(state["step"])
-        self.train_seconds = float(state.get("train_seconds", 0.0))
-        self.rng.bit_generator.state = state["np_rng"]
-        torch.set_rng_state(state["torch_rng"])
-        if state.get("cuda_rng") is not None and torch.cuda.is_available():
-            torch.cuda.set_rng_state_all(state["cuda_rng"])
-        random.setstate(state["py_rng"])
-        saved_world = int(state.get("world_size") or 1)
-        ranks = state.get("ranks") or []
-        if self.world_size > 1:
-            if self.rank < len(ranks):  # this rank's own generators
-                mine = ranks[self.rank]
-                self.rng.bit_generator.state = mine["np_rng"]
-                torch.set_rng_state(mine["torch_rng"])
-                if mine.get("cuda_rng") is not None and self.device.type == "cuda":
-                    torch.cuda.set_rng_state(mine["cuda_rng"], self.device)
-                random.setstate(mine["py_rng"])
-            else:  # a rank the saved run did not have: a fresh generator of its own
-                self.rng = np.random.default_rng([self.config.train.seed, self.rank, self.step])
-        if saved_world != self.world_size and self.is_main:
-            print(f"deepbbs-train: resuming a state saved by {saved_world} process(es) with {self.world_size}: "
-                  "weights, optimiser and schedule continue, the order of the pairs differs", file=sys.stderr)
-        self.best_score = state.get("best_score")
-        self.best_val = state.get("best_val")
-        self.history = list(state.get("history", []))
-        if self.is_main:
-            self._truncate_log()
-        return self.step
-
-    # -- logs ------------------------------------------------------------------------------------
     def _log(self, rec: dict[str, Any]) -> None:
-        if not self.is_main:
-            return
-        with open(self.run_dir / "log.jsonl", "a") as fh:
-            fh.write(json.dumps(rec) + "\n")
-
-    def _truncate_log(self) -> None:
-        """After a resume, drop log records written after the restored step (they will be redone)."""
-        log = self.run_dir / "log.jsonl"
-        if not log.exists():
-            return
-        keep = [ln for ln in log.read_text().splitlines() if ln.strip() and json.loads(ln).get("step", 0) <= self.step]
-        log.write_text("".join(k + "\n" for k in keep))
+        if self.is_main:
+            append_log(self.run_dir, rec)
 
     def _write_val_csv(self) -> None:
-        vals = [h for h in self.history if h.get("kind") == "val"]
-        if not vals or not self.is_main:
-            return
-        cols = ["step", "epoch", "val_loss"] + [f"{s}_{k}" for s in ("plain", "yaw")
-                                                  for k in ("rot_mean_deg", "trans_mean_m", "success")]
-        with open(self.run_dir / "val.csv", "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(cols)
-            for v in vals:
-                w.writerow([v["step"], v["epoch"], f"{v['val_loss']:.6g}"]
-                           + [f"{v[s][k]:.6g}" for s in ("plain", "yaw") for k in ("rot_mean_deg", "trans_mean_m",
-                                                                                    "success")])
+        if self.is_main:
+            write_val_csv(self.run_dir, self.history)
 
     def plot(self) -> Path | None:
         """``curves.png``: training loss (smoothed) and validation loss; validation errors and success."""
@@ -522,45 +305,3 @@ class Trainer:
         self.plot()
         return {"step": self.step, "epoch": self.epoch, "train_seconds": self.train_seconds,
                 "best_val": self.best_val}
-
-
-def format_val(val: dict[str, Any]) -> str:
-    p, y = val["plain"], val["yaw"]
-    return (f"val step {val['step']} (epoch {val['epoch']}): loss {val['val_loss']:.4g} | "
-            f"plain rot {p['rot_mean_deg']:.3f} deg trans {p['trans_mean_m']:.3f} m success {100 * p['success']:.1f}% "
-            f"| +yaw rot {y['rot_mean_deg']:.3f} deg trans {y['trans_mean_m']:.3f} m success "
-            f"{100 * y['success']:.1f}% ({val['seconds']:.0f} s)"
-            + "".join(f" | {g} success {100 * v['plain']['success']:.1f}% / +yaw {100 * v['yaw']['success']:.1f}%"
-                      for g, v in val.get("groups", {}).items()))
-
-
-def run_report(run_dir: str | Path) -> str:
-    """Markdown: steps done, training time, seconds per step (by points per cloud), and the validation
-    history of a run folder (from ``log.jsonl``)."""
-    run_dir = Path(run_dir)
-    log = run_dir / "log.jsonl"
-    if not log.exists():
-        raise ModelError(f"report: no log.jsonl in {run_dir}")
-    train, vals = [], []
-    for ln in log.read_text().splitlines():
-        if ln.strip():
-            rec = json.loads(ln)
-            (vals if rec.get("kind") == "val" else train).append(rec)
-    out = [f"Run `{run_dir}`: {len(train)} steps"]
-    if train:
-        secs = sum(r["s_per_step"] for r in train)
-        out[0] += (f", {secs / 60:.1f} min of training steps ({np.median([r['s_per_step'] for r in train]):.2f} "
-                   f"s/step median), {sum(v.get('seconds', 0) for v in vals) / 60:.1f} min of validation")
-    out += ["", "| step | epoch | val loss | rot (deg) | trans (m) | success (%) | +yaw rot (deg) | +yaw trans (m) "
-            "| +yaw success (%) |", "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for v in vals:
-        p, y = v["plain"], v["yaw"]
-        out.append(f"| {v['step']} | {v['epoch']} | {v['val_loss']:.4g} | {p['rot_mean_deg']:.3f} | "
-                   f"{p['trans_mean_m']:.3f} | {100 * p['success']:.1f} | {y['rot_mean_deg']:.3f} | "
-                   f"{y['trans_mean_m']:.3f} | {100 * y['success']:.1f} |")
-    best = run_dir / "val_best.json"
-    if best.exists():
-        b = json.loads(best.read_text())
-        out += ["", f"Best checkpoint `{run_dir / BEST_MODEL}`: step {b.get('step')} (epoch {b.get('epoch')}), "
-                    f"saved {b.get('saved_utc')}."]
-    return "\n".join(out)
