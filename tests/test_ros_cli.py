@@ -22,7 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from deepbbs_ros.cli.ros import TopicStats  # noqa: E402
+from deepbbs_ros.cli.ros_topic import TopicStats  # noqa: E402
 from msg_adapters.transforms import matrix_to_pose_stamped, transform_stamped_to_matrix  # noqa: E402
 
 SEC = 1_000_000_000
