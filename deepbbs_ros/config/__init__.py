@@ -13,6 +13,11 @@ The schema is a tree of dataclasses: :class:`Config` has one section per area (`
 Units are SI (metres, seconds); angles are radians unless the name ends in ``_deg``.
 Unknown keys, wrong types and out-of-range values raise :class:`~deepbbs_ros.errors.ConfigError`
 naming the offending key.
+
+One module per group of sections, each class with its fields (a comment each: the docs' parameter tables,
+:mod:`deepbbs_ros.config_doc`) and its ``validate``: ``preprocess.py``, ``registration.py`` (``model``,
+``registration``), ``node.py``, ``odometry.py``, ``localization.py``, ``offline.py`` (``train``, ``eval``);
+``root.py`` the :class:`Config` tree and its conversions, ``keys.py`` the checks' helper and the did-you-mean.
 """
 
 from __future__ import annotations
