@@ -216,9 +216,9 @@ def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float, cell: float 
     w, V = np.linalg.eigh(H)
     if G <= 6 or not np.isfinite(w).all() or w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
         return None
-    Hi = (V / w) @ V.T
     cov = jackknife_meat(H, Gc, Hc) if jackknife else None
     if cov is None:
+        Hi = (V / w) @ V.T
         cov = G / (G - 6) * (Hi @ (Gc.T @ Gc) @ Hi)
     return (inflation * cov)[np.ix_(_PERM, _PERM)], H
 
