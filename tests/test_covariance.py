@@ -17,6 +17,7 @@ from deepbbs_ros.core.covariance import (
     gicp_covariance,
     gicp_hessian,
     is_covariance,
+    jackknife_meat,
     matched_pairs,
     pose_error,
     sandwich_covariance,
@@ -139,16 +140,19 @@ def test_sandwich_nees_is_chi2_with_independent_errors():
 def test_sandwich_follows_errors_that_neighbours_share():
     """The same with every 2 m patch of the source moved by a shared 3 cm offset (most of the pose error now comes
     from a few dozen patches, not from thousands of independent points): the node's cells give a mean NEES in the
-    99.9 % band of the mean of 30 chi2(6), while a cell per voxel (what treating the residuals as independent
-    means) and the raw ``s^2 H^-1`` are overconfident."""
+    99.9 % band of the mean of 30 chi2(6) (the node's leave-one-cell-out covariance, and the plain cluster sums
+    ``H^-1 B H^-1 G / (G - 6)`` alike), while a cell per voxel (what treating the residuals as independent means) and
+    the raw ``s^2 H^-1`` are overconfident."""
     rng = np.random.default_rng(12)
     base = _scene(rng, 8000)
     trials = [_trial(rng, base, rng.normal(0, 0.1, 3), shared=0.03) for _ in range(30)]
     node = np.array([_nees(T, Te, cov) for T, Te, cov, *_ in trials])
     own = np.array([_nees(T, Te, sandwich_covariance(p, Te, 1.0, cell=0.5)) for T, Te, _, _, p in trials])
     raw = np.array([_nees(T, Te, r) for T, Te, _, r, _ in trials])
+    cr1 = np.array([_nees(T, Te, sandwich_covariance(p, Te, 1.0, jackknife=False)) for T, Te, _, _, p in trials])
     lo, hi = _band(len(node))
     assert lo <= node.mean() <= hi, (node.mean(), (lo, hi))
+    assert lo <= cr1.mean() <= hi, (cr1.mean(), (lo, hi))
     assert own.mean() > hi and raw.mean() > hi, (own.mean(), raw.mean())
 
 
@@ -252,6 +256,23 @@ def test_is_covariance_rejects_placeholders():
     assert not is_covariance(np.zeros((6, 6)))
     assert not is_covariance(np.full((6, 6), np.nan))
     assert is_covariance(np.eye(6) * 1e-4, max_diagonal=1.0)
+
+
+def test_jackknife_is_the_leave_one_cell_out_spread():
+    """On a linear least-squares problem (6 parameters, 12 cells of uneven size) the jackknife covariance from the
+    cells' gradients and Hessians at the solution is exactly ``(G - 1) / G`` times the sum of the outer products of
+    the solution's moves when each cell is left out and the problem solved again."""
+    rng = np.random.default_rng(4)
+    sizes = rng.integers(3, 40, 12)
+    cell = np.repeat(np.arange(12), sizes)
+    X = rng.normal(size=(len(cell), 6)) * rng.uniform(0.2, 3.0, (12, 6))[cell]  # cells pin directions unevenly
+    y = X @ rng.normal(size=6) + rng.normal(0, 0.1, len(cell)) + rng.normal(0, 0.1, 12)[cell]
+    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+    g = X * (y - X @ beta)[:, None]
+    grads = np.stack([g[cell == c].sum(0) for c in range(12)])
+    hessians = np.stack([X[cell == c].T @ X[cell == c] for c in range(12)])
+    moves = np.stack([np.linalg.lstsq(X[cell != c], y[cell != c], rcond=None)[0] - beta for c in range(12)])
+    np.testing.assert_allclose(jackknife_meat(X.T @ X, grads, hessians), 11 / 12 * moves.T @ moves, rtol=1e-9)
 
 
 def test_no_covariance_from_too_little():

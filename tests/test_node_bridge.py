@@ -248,7 +248,7 @@ def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
 def test_tracked_covariance_is_the_sandwich_at_the_pose(drive):
     """A tracked pose's covariance is the cluster-robust sandwich of the GICP pairs of the scan on its crop at the
     pose it carries (core/covariance.py, computed here from the pairs directly: the localization's subsampling,
-    inflation and weak-direction prior), for every tracked scan."""
+    leave-one-cell-out estimator and weak-direction prior), for every tracked scan."""
     from deepbbs_ros.core.covariance import (
         LOCALIZATION_INFLATION,
         LOCALIZATION_MAX_POINTS,

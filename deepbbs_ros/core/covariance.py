@@ -16,7 +16,10 @@ sampled from other places), so the gradients are summed per cell of a grid of :d
 outer products taken of the cells' sums (the cluster-robust covariance, :func:`sandwich_covariance`): correlated
 errors within a cell count once, as they move the pose. Then:
 
-1. a small-sample factor ``G / (G - 6)`` for ``G`` cells;
+1. for few cells the outer products understate the spread: a cell that pins a direction pulls the solution towards
+   its own error, so its residuals look smaller than its error is. The covariance is the leave-one-cell-out
+   (jackknife) covariance, :func:`jackknife_meat`, whose ``(H - H_c)^-1`` is each cell's leverage (where leaving a
+   cell out leaves a singular Hessian: ``H^-1 B H^-1`` times the small-sample factor ``G / (G - 6)`` for ``G`` cells);
 2. along a weak translation direction (a corridor, a straight road with little beside it) the start's uncertainty
    is added: there GICP's answer is where the start left it, not a measurement (localization: directions below
    :data:`WEAK_RATIO`, anywhere within the correspondence distance; odometry: the directions its own degeneracy
@@ -31,9 +34,9 @@ errors within a cell count once, as they move the pose. Then:
 4. move to the convention above: ``T exp([v, w]) = (exp(R w) R, t + R v)``, ``Sigma = B Sigma_right B^T`` with
    ``B = diag(R, R)``.
 
-One constant is fitted: :data:`LOCALIZATION_INFLATION` (``scripts/benchmarks/covariance.py --fit`` on simulated
-drives of three sensors and four road scenes) for what the residuals of a scan on a map crop cannot show; the cell
-and the floors are chosen from their meaning. docs/node.md has the figures. The raw ``s^2 H^-1``
+No constant is fitted: the estimator, the cell and the floors are chosen from their meaning
+(``scripts/benchmarks/covariance.py --fit`` prints the factor the simulated sets would still fit on top of them).
+docs/node.md has the figures. The raw ``s^2 H^-1``
 (:func:`gicp_covariance`) is far overconfident: on simulated drives its median NEES was 16 to 209 for the
 localization and 380 to 16,000 for the odometry's steps (chi2(6)'s: 5.35).
 """
@@ -44,12 +47,13 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core.gicp_pairs import matched_pairs, sandwich_terms, voxel_pairs
+from deepbbs_ros.core.gicp_pairs import cell_terms, matched_pairs, voxel_pairs
 from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFloor, floor_term, quantisation_floor
 
 __all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "compose", "conjugated", "floor_term",
-           "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance", "matched_pairs", "odometry_covariance",
-           "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew", "voxel_pairs"]
+           "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance", "jackknife_meat", "matched_pairs",
+           "odometry_covariance", "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew",
+           "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -60,11 +64,10 @@ MIN_CLUSTERS = 24
 #: a translation direction is weak (:func:`sandwich_covariance`) where the Hessian's eigenvalue along it is below
 #: this share of the largest (a synthetic 4 m corridor: 2e-3 to 5e-3; a simulated highway 1e-2 to 5e-2)
 WEAK_RATIO = 0.01
-#: the factor on the localization's cluster-robust covariance for what the residuals of a scan on a map crop cannot
-#: show (the map's and the scan's sampling of the same surfaces, a bias shared by every cell): fitted by
-#: ``scripts/benchmarks/covariance.py --fit`` on simulated drives only (HDL-64E, VLP-16 and OS1-64 in four road
-#: scenes, seed 7: the pooled mean NEES made 6), checked on others (docs/node.md)
-LOCALIZATION_INFLATION = 1.156
+#: the factor on the localization's cluster-robust covariance: none (the leave-one-cell-out covariance,
+#: :func:`jackknife_meat`, covers what the residuals of few cells understate; ``scripts/benchmarks/covariance.py
+#: --fit`` prints the factor the simulated sets would still fit on top of it)
+LOCALIZATION_INFLATION = 1.0
 #: the odometry's: none (its floor, :data:`SWEEP_SPREAD`, is not fitted either)
 ODOMETRY_INFLATION = 1.0
 #: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
@@ -176,17 +179,18 @@ def gicp_hessian(source: Any, target: Any, T_target_source: np.ndarray, *, max_c
 
 def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray, inflation: float,
                         cell: float | None = None, weak_sigma: Any = 0.0,
-                        weak: np.ndarray | None = None) -> np.ndarray | None:
+                        weak: np.ndarray | None = None, jackknife: bool = True) -> np.ndarray | None:
     """(6, 6) covariance (the module's convention, axes of ``T_out``'s parent) of the GICP solution whose matched
-    pairs are ``pairs`` (:func:`matched_pairs`, :func:`voxel_pairs`): ``inflation * H^-1 B H^-1 * G / (G - 6)``
-    (:func:`sandwich_terms` on ``cell``-m cells, :data:`CLUSTER_CELL` halved down to 1 m until there are
+    pairs are ``pairs`` (:func:`matched_pairs`, :func:`voxel_pairs`): ``inflation`` times the leave-one-cell-out
+    covariance (:func:`jackknife_meat`; ``jackknife=False``: ``H^-1 B H^-1 * G / (G - 6)``) of the pairs'
+    (:func:`cell_terms`) on ``cell``-m cells, :data:`CLUSTER_CELL` halved down to 1 m until there are
     :data:`MIN_CLUSTERS` of them; ``G`` the cells); along each weak translation direction (an eigen-direction of
     the Hessian's translation block below :data:`WEAK_RATIO` of its largest: a corridor, a straight road with little
     beside it) the variance grows by ``weak_sigma ** 2`` (m^2: the start's own uncertainty, where the answer along it
     is where the start left it; ``weak``: (K, 3) unit directions in the scan's frame found weak by the caller, the
     odometry's degeneracy check, instead of that test, with ``weak_sigma`` one value or (K,) per direction). None
     without pairs or with a singular Hessian."""
-    robust = _robust(pairs, inflation, cell)
+    robust = _robust(pairs, inflation, cell, jackknife)
     if robust is None:
         return None
     cov_right, H = robust
@@ -194,26 +198,50 @@ def sandwich_covariance(pairs: tuple[np.ndarray, ...] | None, T_out: np.ndarray,
     return _to_parent(cov_right, T_out)
 
 
-def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float,
-            cell: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float, cell: float | None = None,
+            jackknife: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
     """The cluster-robust covariance of :func:`sandwich_covariance` in the scan's axes, ROS order, nothing added
     along weak directions, and small_gicp's Hessian ``H`` (6, 6, ``[rot, trans]``); None without pairs or with a
-    singular Hessian."""
+    singular Hessian. ``jackknife``: :func:`jackknife_meat`'s instead of ``G / (G - 6) * H^-1 B H^-1``."""
     if pairs is None:
         return None
     a, Ca, b, Cb, T = pairs
     cell = float(cell or CLUSTER_CELL)
-    H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
-    while G < MIN_CLUSTERS and cell > 1.0:
+    H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
+    while len(Gc) < MIN_CLUSTERS and cell > 1.0:
         cell = max(1.0, cell / 2)
-        H, B, G = sandwich_terms(a, Ca, b, Cb, T, cell)
+        H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
+    G = len(Gc)
     H = 0.5 * (H + H.T)
     w, V = np.linalg.eigh(H)
     if G <= 6 or not np.isfinite(w).all() or w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
         return None
-    Hi = (V / w) @ V.T
-    cov_right = (inflation * G / (G - 6)) * (Hi @ B @ Hi)
-    return cov_right[np.ix_(_PERM, _PERM)], H
+    cov = jackknife_meat(H, Gc, Hc) if jackknife else None
+    if cov is None:
+        Hi = (V / w) @ V.T
+        cov = G / (G - 6) * (Hi @ (Gc.T @ Gc) @ Hi)
+    return (inflation * cov)[np.ix_(_PERM, _PERM)], H
+
+
+def jackknife_meat(H: np.ndarray, grads: np.ndarray, hessians: np.ndarray) -> np.ndarray | None:
+    """(6, 6) the leave-one-cell-out (jackknife) covariance of the GICP solution, small_gicp's ``[rot, trans]``:
+    ``(G - 1) / G * sum_c d_c d_c^T``, ``d_c = (H - H_c)^-1 g_c`` the pose's move when cell ``c`` is left out (one
+    Newton step from the solution, where the gradients sum to zero), from the cells' gradients ``g_c`` (G, 6) and
+    Hessians ``H_c`` (G, 6, 6) (:func:`~deepbbs_ros.core.gicp_pairs.cell_terms`). ``H^-1 B H^-1`` weighs each cell's
+    gradient by the whole Hessian, which holds that cell's own pairs, and so is too small where few cells pin the
+    pose (a cell that pins a direction pulls the solution towards its own error); the jackknife's ``(H - H_c)^-1``
+    is that cell's leverage, so no factor needs fitting for it (CR3 in the cluster-robust literature). None where
+    leaving a cell out leaves a singular Hessian (the caller keeps ``H^-1 B H^-1``)."""
+    G = len(grads)
+    w = np.linalg.eigvalsh(H)
+    rest = H[None] - 0.5 * (hessians + hessians.transpose(0, 2, 1))
+    try:
+        d = np.linalg.solve(rest, grads[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(d).all() or np.linalg.eigvalsh(rest)[:, 0].min() <= w[-1] * 1e-12:
+        return None
+    return (G - 1) / G * (d.T @ d)
 
 
 def _add_weak(cov_right: np.ndarray, H: np.ndarray, weak_sigma: Any, weak: np.ndarray | None) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["matched_pairs", "sandwich_terms", "voxel_pairs"]
+__all__ = ["cell_terms", "matched_pairs", "voxel_pairs"]
 
 
 def _skews(a: np.ndarray) -> np.ndarray:
@@ -39,12 +39,13 @@ def _inv3(S: np.ndarray) -> np.ndarray:
     return out / det[:, None, None]
 
 
-def sandwich_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
-                   cell: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """GICP's Hessian and the cluster-robust "meat" of the pairs ``a`` (source points (n, 3), covariances ``Ca``
+def cell_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
+               cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """GICP's Hessian ``H = sum J^T M J`` (6, 6) of the pairs ``a`` (source points (n, 3), covariances ``Ca``
     (n, 3, 3)) and ``b`` (their target points and ``Cb``) at ``T = T_target_source``, for small_gicp's right
-    perturbation ``[rot, trans]``: ``H = sum J^T M J`` and ``B = sum_c G_c G_c^T``, ``G_c`` the sum of the gradients
-    ``J^T M r`` of the pairs whose target point lies in the cell ``c`` of a ``cell``-m grid -> (H, B, cells)."""
+    perturbation ``[rot, trans]``, and per cell of a ``cell``-m grid (by the pair's target point) the sum of its pairs'
+    gradients ``J^T M r`` (G, 6) and its pairs' share of the Hessian (G, 6, 6): the terms of the cluster-robust
+    covariance (core/covariance.py) -> (H, gradients, Hessians)."""
     R, t = T[:3, :3], T[:3, 3]
     r = b - (a @ R.T + t)
     Mp = _inv3(_rot(R.T, Cb) + Ca)  # R^T M R, M in the source's axes: J = R [skew(a), -I]
@@ -52,15 +53,18 @@ def sandwich_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray,
     g = np.concatenate([np.cross(u, a), -u], axis=1)  # J^T M r
     Sa = _skews(a)
     MS = Mp @ Sa
-    H = np.empty((6, 6))
-    H[:3, :3] = np.einsum("nji,njk->ik", Sa, MS)
-    H[:3, 3:] = -np.einsum("nji,njk->ik", Sa, Mp)
-    H[3:, :3] = H[:3, 3:].T
-    H[3:, 3:] = Mp.sum(axis=0)
+    Hn = np.empty((len(a), 6, 6))
+    Hn[:, :3, :3] = np.einsum("nji,njk->nik", Sa, MS)
+    Hn[:, :3, 3:] = -np.einsum("nji,njk->nik", Sa, Mp)
+    Hn[:, 3:, :3] = Hn[:, :3, 3:].transpose(0, 2, 1)
+    Hn[:, 3:, 3:] = Mp
     _, cluster = np.unique(_keys(np.floor(b / cell)), return_inverse=True)
     cluster = cluster.ravel()
-    G = np.stack([np.bincount(cluster, weights=g[:, j]) for j in range(6)], axis=1)
-    return H, G.T @ G, len(G)
+    G = int(cluster.max()) + 1 if len(cluster) else 0
+    grads = np.stack([np.bincount(cluster, weights=g[:, j], minlength=G) for j in range(6)], axis=1)
+    flat = Hn.reshape(-1, 36)
+    hess = np.stack([np.bincount(cluster, weights=flat[:, j], minlength=G) for j in range(36)], axis=1)
+    return Hn.sum(axis=0), grads, hess.reshape(G, 6, 6)
 
 
 def _plane_covs(normals: np.ndarray) -> np.ndarray:

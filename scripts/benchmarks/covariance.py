@@ -17,7 +17,9 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
   sweep error once: node/pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
   "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
-  whole floor added) and "chain" (the GICP parts alone, no floor), and the lag-1 correlation of consecutive step
+  whole floor added), "chain" (the GICP parts alone, no floor) and "origin" (the first motion's floor replaced by
+  the first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
+  origin), and the lag-1 correlation of consecutive step
   errors per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for independent
   steps). Per simulated drive the ``sweep:`` line
   shows the sweep floor's premise: how the step's rotation error follows the true rotation the deskew missed within
@@ -26,11 +28,13 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
 
-Calibration: ``--fit`` fits core/covariance.py's one fitted constant, ``LOCALIZATION_INFLATION``, from the raw
-cluster-robust covariances (inflation 1) of the simulated sets only (:func:`fit`), and scores every set with it (the
-odometry's covariance has no fitted constant). Truth error: the real sets' ground truth is itself off by
-centimetres (KITTI about 2 cm / 0.05 deg, nuScenes about 5 cm / 0.3 deg: the data's README); the "+truth" columns add
-that as an isotropic covariance (per axis) to the estimate's, the plain ones do not.
+Calibration check: ``--fit`` fits the one factor on the localization's covariances (core/covariance.py
+``LOCALIZATION_INFLATION``, 1: none) that would make the simulated sets' pooled mean NEES 6 (:func:`fit`), and scores
+every set with it; the node fits nothing (the leave-one-cell-out covariance needs no factor).
+
+Truth error: the real sets' ground truth is itself off by centimetres (KITTI about 2 cm / 0.05 deg, nuScenes about
+5 cm / 0.3 deg: the data's README); the "+truth" columns add that as an isotropic covariance (per axis) to the
+estimate's, the plain ones do not.
 
     python scripts/benchmarks/covariance.py --real ../shared/realdata/kitti/00 ../shared/realdata/nuscenes_hdl32
     python scripts/benchmarks/covariance.py --scenes urban --lidars hdl64 --fit      # the factors, quickly
@@ -80,6 +84,28 @@ def with_truth(rows, sigma: tuple[float, float] | None):
         return rows
     add = np.diag([sigma[0] ** 2] * 3 + [np.radians(sigma[1]) ** 2] * 3)
     return [(d, c + add) for d, c in rows]
+
+
+def truth_needed(rows, sigma: tuple[float, float] | None) -> list[tuple[float, float]]:
+    """The truth error (m, deg per axis: ``sigma`` scaled) at which the rows' mean NEES falls to the upper edge of
+    its band and to 6; [] without a truth error or when the mean is under the edge without one."""
+    from scipy.optimize import brentq
+    from scipy.stats import chi2
+
+    if sigma is None or len(rows) < 2:
+        return []
+
+    def mean(scale: float) -> float:
+        return float(np.mean([d @ np.linalg.solve(c, d)
+                              for d, c in with_truth(rows, (sigma[0] * scale, sigma[1] * scale))]))
+
+    out = []
+    for target in (chi2.ppf(0.975, 6 * len(rows)) / len(rows), 6.0):
+        if mean(0.0) <= target or mean(4.0) >= target:
+            return out
+        scale = brentq(lambda x, t=target: mean(x) - t, 0.0, 4.0)
+        out.append((sigma[0] * scale, sigma[1] * scale))
+    return out
 
 
 def perturbed(T: np.ndarray, rng, sigma: float) -> np.ndarray:
@@ -194,20 +220,26 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
     from deepbbs_ros.node.covariance import alignment_quality
 
     odo = DeepBBSOdometry(config)
-    steps, chain, floors, cov_ms, share = [], [], [], [], []
+    steps, chain, floors, firsts, cov_ms, share = [], [], [], [], [], []
+    first_floor = {}  # frame -> the first motion's floor term (odometry frame), which its covariance holds
     T_prev, prev_points, T0_true, Tp_true = None, None, None, None
     own = odomod._cov.odometry_covariance
 
     def timed(*a, **k):  # the covariance's time within the scan's
+        from deepbbs_ros.core.covariance import floor_term, quantisation_floor
+
         t = time.perf_counter()
+        if len(a) > 4 and a[4] is None:  # no prediction: the first motion's quantisation floor
+            motion = float(np.linalg.norm(np.asarray(a[2])[:3, 3]))
+            first_floor[len(outs)] = floor_term(quantisation_floor(a[0], a[3], motion), a[2])
         try:
             return own(*a, **k)
         finally:
             cov_ms.append((time.perf_counter() - t) * 1e3)
 
     odomod._cov.odometry_covariance = timed
+    outs, swept = [], []
     try:
-        outs, swept = [], []
         for pts, times, stamp, _ in drive:
             t0, n0 = time.perf_counter(), len(cov_ms)
             outs.append(odo.register_frame(pts, times, stamp))
@@ -217,7 +249,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
     finally:
         odomod._cov.odometry_covariance = own
     missed = []  # (the step's rotation error, the true rotation the deskew missed within the sweep)
-    for (_, _, _, T_true), out, sw in zip(drive, outs, swept):
+    for i, ((_, _, _, T_true), out, sw) in enumerate(zip(drive, outs, swept)):
         T = out.T_first_k
         if T_prev is not None and sw is not None:
             true_step = np.linalg.inv(Tp_true) @ T_true
@@ -237,6 +269,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
                 chain.append((T_prev, out.T_prev_k, T, np.linalg.inv(T0_true) @ T_true))
                 fl = None if args.before else getattr(out, "covariance_floor", None)
                 floors.append(np.zeros((6, 6)) if fl is None else np.asarray(fl))
+                firsts.append(None if args.before else first_floor.get(i))
         else:
             T0_true = T_true
         T_prev, prev_points, Tp_true = T, out.points, T_true
@@ -255,22 +288,25 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
               + ", ".join(f"{c:.2f}" for c, _ in fit) + "; slope " + ", ".join(f"{b:.2f}" for _, b in fit)
               + "; missed rms deg " + ", ".join(f"{x:.3f}" for x in np.degrees(np.sqrt(np.mean(miss ** 2, 0)))),
               flush=True)
-    return steps, chain, floors
+    return steps, chain, floors, firsts
 
 
 def accumulated(steps: list, chain: list, before: bool = False, floors: list | None = None,
-                model: str = "node") -> list:
+                model: str = "node", firsts: list | None = None) -> list:
     """The accumulated rows [(delta of T_odom_k, its covariance)] (``before``: the SE(3)-adjoint sum of the whole
     step covariances the node had before the GICP covariance). ``model``: "node" (node/pipeline.py: the steps'
     GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain, plus the current
     scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
-    step covariances composed), "chain" (the GICP parts alone)."""
-    from deepbbs_ros.core.covariance import adjoint, compose, pose_error
+    step covariances composed), "chain" (the GICP parts alone), "origin" (a model tried: the first motion's floor
+    ``firsts[k]`` out of the chain, and in its place the first scan's own error, a bias every pose shares, taken
+    as the current scan's own share of the sweep floor per axis and composed at the origin)."""
+    from deepbbs_ros.core.covariance import adjoint, compose, pose_error, skew
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
+    firsts = firsts or [None] * len(steps)
     rows, cov = [], np.zeros((6, 6))
-    for (_, step_cov), (T_prev, T_step, T, T_true), fl in zip(steps, chain, floors):
+    for (_, step_cov), (T_prev, T_step, T, T_true), fl, first in zip(steps, chain, floors, firsts):
         if before:
             Ad = adjoint(T_prev)
             cov = cov + Ad @ step_cov @ Ad.T
@@ -279,10 +315,20 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
         # the floor in scan k-1's frame, as the step covariance (odometry frame -> k-1's: the rotation of T_prev)
         B = np.zeros((6, 6))
         B[:3, :3] = B[3:, 3:] = T_prev[:3, :3].T
-        own = B @ fl @ B.T
+        origin = model == "origin" and first is not None
+        own = B @ (first if origin else fl) @ B.T
         cov = compose(T_prev, cov, T_step, step_cov if model == "walk" else step_cov - own)
-        share = {"node": SCAN_FLOOR_SHARE, "once": 1.0}.get(model, 0.0)
-        rows.append((pose_error(T_true, T), cov + share * fl))
+        share = {"node": SCAN_FLOOR_SHARE, "once": 1.0, "origin": SCAN_FLOOR_SHARE}.get(model, 0.0)
+        out = cov + share * fl
+        if origin:  # the first pose: its whole first floor (no sweep floor known yet)
+            out = out + first
+        elif model == "origin":  # the first scan's own error per axis (its frame: the odometry's) at the origin
+            R = T[:3, :3]
+            var = np.concatenate([np.diag(R.T @ fl[:3, :3] @ R), np.diag(R.T @ fl[3:, 3:] @ R)])
+            J = np.eye(6)
+            J[:3, 3:] = -skew(T[:3, 3])
+            out = out + J @ np.diag(SCAN_FLOOR_SHARE * var) @ J.T
+        rows.append((pose_error(T_true, T), out))
     return rows
 
 
@@ -352,12 +398,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
     ap.add_argument("--pose", action="store_true", help="also the accumulated pose's NEES under the other models: "
-                    "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone)")
+                    "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone), "
+                    "origin (the first scan's own error at the origin instead of the first motion's floor)")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--all-pairs", action="store_true", help="the localization's covariance from every pair of the "
                     "scan, not at most LOCALIZATION_MAX_POINTS (the pose comes from every point)")
-    ap.add_argument("--fit", action="store_true", help="fit the localization's inflation on the simulated sets (raw "
-                    "covariances); the raw rows are kept in OUT/covariance_rows.npz")
+    ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
+                    "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
     ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
     ap.add_argument("--out", default="bench_out", help="figures: OUT/covariance.json")
     args = ap.parse_args(argv)
@@ -370,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.all_pairs:
         covmod.LOCALIZATION_MAX_POINTS = 0
     config = Config()
-    loc_rows, step_rows, chains, floors, truth, notes = {}, {}, {}, {}, {}, {}
+    loc_rows, step_rows, chains, floors, firsts, truth, notes = {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
         loc_rows, step_rows, chains, truth = load_rows(args.refit)
@@ -384,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    localization: {notes[name]}; mean NEES {f.get('pose', {}).get('mean', float('nan')):.2f}"
                   + (" (inflation 1)" if args.fit else ""), flush=True)
         if "odometry" not in args.skip:
-            step_rows[name], chains[name], floors[name] = odometry_rows(drive, config, args)
+            step_rows[name], chains[name], floors[name], firsts[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     figures: dict = {}
     if args.fit and not args.refit:
@@ -395,12 +442,13 @@ def main(argv: list[str] | None = None) -> int:
         figures["fit"] = {"localization_inflation": k, "sets": sims}
         for n in loc_rows:
             loc_rows[n] = [(d, k * c) for d, c in loc_rows[n]]
-        print(f"\nfitted (simulated sets only; the tables below use it): LOCALIZATION_INFLATION = {k:.3f}")
+        print(f"\nthe factor the simulated sets would fit on top (the tables below use it): {k:.3f}")
     acc_rows = {n: accumulated(step_rows[n], chains[n], args.before, floors.get(n)) for n in step_rows}
     tables = [("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)]
     if args.pose and not args.before:
-        tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m)
-                                                  for n in step_rows}) for m in ("walk", "once", "chain")]
+        tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
+                                                              firsts.get(n)) for n in step_rows})
+                   for m in ("walk", "once", "chain", "origin")]
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
     for key, rows in tables:
         figures[key] = {}
@@ -410,6 +458,12 @@ def main(argv: list[str] | None = None) -> int:
                 figures[key][name + " +truth"] = nees_stats(with_truth(r, truth[name]))
         if rows:
             report(f"{key} NEES ({label})", figures[key])
+    for name, rows in step_rows.items():  # how large a truth error the steps' mean NEES leaves room for
+        need = truth_needed(rows, truth[name])
+        if need:
+            print(f"  odometry {name}: steps inside their band with a truth error per step of "
+                  + "; mean 6 with ".join(f"{1e3 * m:.1f} mm / {d:.4f} deg" for m, d in need)
+                  + f" (the data's README: {truth[name][0] * 1e3:.0f} mm / {truth[name][1]} deg)")
     for name, note in notes.items():
         print(f"  localization {name}: {note}")
     _common.write_json(Path(args.out), "covariance.json", figures)
