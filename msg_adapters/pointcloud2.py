@@ -96,7 +96,6 @@ def _stamp_ns(header: Any) -> int:
     return time_to_ns(stamp.sec, stamp.nanosec, PointCloudFormatError)
 
 
-
 def pointcloud2_to_arrays(
     msg: Any, fields: Sequence[str] = (), *, remove_invalid: bool = True, min_range: float = 1e-3
 ) -> CloudArrays:
