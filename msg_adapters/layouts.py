@@ -98,9 +98,9 @@ def _header(flavor: str, stamp_ns: int, frame_id: str):
         from std_msgs.msg import Header
 
         return Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
-    from msg_adapters.pointcloud2 import _typestore
+    from msg_adapters.pointcloud2_encode import typestore
 
-    t = _typestore().types
+    t = typestore().types
     return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
 
 
@@ -165,9 +165,9 @@ def build_cloud(
         data.frombytes(memoryview(raw))
         msg.data = data
         return msg
-    from msg_adapters.pointcloud2 import _typestore
+    from msg_adapters.pointcloud2_encode import typestore
 
-    t = _typestore().types
+    t = typestore().types
     PointField = t["sensor_msgs/msg/PointField"]
     return t["sensor_msgs/msg/PointCloud2"](
         header=_header(flavor, stamp_ns, frame_id),
