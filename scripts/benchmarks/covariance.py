@@ -15,7 +15,7 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
 * odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
   scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
   node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
-  sweep error once: node/pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
+  sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
   "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
   whole floor added), "chain" (the GICP parts alone, no floor) and "origin" (the first motion's floor replaced by
   the first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
@@ -255,7 +255,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
             true_step = np.linalg.inv(Tp_true) @ T_true
             missed.append((pose_error(true_step, out.T_prev_k)[3:], pose_error(true_step, sw)[3:]))
         if T_prev is not None:
-            if args.before:  # node/pipeline.py's point-to-point step covariance as it was
+            if args.before:  # node/odometry_pipeline.py's point-to-point step covariance as it was
                 src = np.asarray(voxel_down_sample(out.points, odo.voxel_size * 1.5))
                 step_cov = alignment_quality(src, prev_points, out.T_prev_k).covariance
             elif out.covariance is not None:
@@ -294,7 +294,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
 def accumulated(steps: list, chain: list, before: bool = False, floors: list | None = None,
                 model: str = "node", firsts: list | None = None) -> list:
     """The accumulated rows [(delta of T_odom_k, its covariance)] (``before``: the SE(3)-adjoint sum of the whole
-    step covariances the node had before the GICP covariance). ``model``: "node" (node/pipeline.py: the steps'
+    step covariances the node had before the GICP covariance). ``model``: "node" (node/odometry_pipeline.py: the steps'
     GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain, plus the current
     scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
     step covariances composed), "chain" (the GICP parts alone), "origin" (a model tried: the first motion's floor
