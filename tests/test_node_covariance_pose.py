@@ -1,5 +1,5 @@
-"""The odometry's accumulated pose covariance (node/odometry_pipeline.py ``LocalMapOdometry``): the steps' GICP parts compose
-along the chain, and each scan's own sweep error is counted once, for the current scan, not once per step.
+"""The odometry's accumulated pose covariance (node/odometry_pipeline.py ``LocalMapOdometry``): the steps' GICP parts
+compose along the chain, and each scan's own sweep error is counted once, for the current scan, not once per step.
 
 A drive with known truth and known errors: each step's GICP error is drawn from its covariance and accumulates;
 each scan's own sweep error (``SCAN_FLOOR_SHARE`` of the step's floor, ``OdometryStep.covariance_floor``) is drawn

@@ -15,8 +15,8 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
 * odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
   scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
   node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
-  sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
-  "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
+  sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models
+  of it: "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
   whole floor added), "chain" (the GICP parts alone, no floor) and "origin" (the first motion's floor replaced by
   the first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
   origin), and the lag-1 correlation of consecutive step
