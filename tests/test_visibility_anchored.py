@@ -93,3 +93,25 @@ def test_the_floor_on_pinned_spares_a_pose_something_else_anchors(tmp_path):
     bad.write_text(json.dumps({**doc, "min_anchored_far": 0.0}))
     with pytest.raises(VerdictModelError, match="min_anchored_far"):
         calibrated.load(str(bad))
+
+
+def test_the_calibrations_slid_pose_slides_along_the_corridor():
+    """scripts/calibrate_verdict.py ``--slid``: the truth moved by k tolerances (0.3 m each) along the direction the
+    plane matches pin least; in a corridor that is along its walls, and the slid pose fits as well."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from calibrate_verdict import slid_pose
+
+    rc = Config().registration
+    target = prepare_polish_cloud(_scene(_CORRIDOR, np.random.default_rng(0), 6000), rc.polish_voxel,
+                                  rc.polish_neighbors, threads=1)
+    source = _scene(_CORRIDOR, np.random.default_rng(1), 600)
+    T = slid_pose(np.eye(4), source, target, rc.verdict_dist, 3.0)
+    assert abs(abs(T[1, 3]) - 0.9) < 0.05 and abs(T[0, 3]) < 0.05 and abs(T[2, 3]) < 0.05, T
+    assert np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))) < 0.3, T
+    f = dict(zip(visibility.FEATURES, visibility.pose_features(source, T, target, rc.verdict_dist), strict=True))
+    right = _features(_CORRIDOR)
+    assert f["plane_own"] > right["plane_own"] - 0.05 and f["anchored_far"] < 0.02, (f, right)
+    assert slid_pose(np.eye(4), source[:3], target, rc.verdict_dist, 3.0) is None  # too few matches

@@ -9,6 +9,8 @@ and the good-start verdict (a spread subset of the GICP voxels):
   place), per family (``dense``: 64-128 beams, ``sparse``: 16-32 beams, ``solid``: Livox Avia / Mid-360), and with
   ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) and with
   ``--sim-turned-pairs`` the turned pairs (``turned``: a solid-state sensor turned and moved between its scans) apart;
+  with ``--sim-slid`` also the truth slid 2.5-6 tolerances along its least pinned direction (``slid``: every pose
+  wrong, one that a scene's free direction hides), apart;
 * ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
   ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
@@ -83,33 +85,36 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
 
-    parts = [cv.collect(cv.RIGS, seed, pairs)]
+    parts = [cv.collect(cv.RIGS, seed, pairs, slid=slid)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
-        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS)))
+        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), slid=slid))
     if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
-        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS)))
+        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS),
+                                slid=slid))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
     rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
     fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
     low = data["rig"] >= len(cv.RIGS)
     turned = data["rig"] >= len(cv.RIGS) + len(cv.LOW_RIGS)
+    slide = data["kind"] == "slid"
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
-        for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned"):
+        for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned", "slid"):
             m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
-                (fam == f) & ~low
+                slide if f == "slid" else (fam == f) & ~low
+            m = m if f == "slid" else m & ~slide
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
                                          np.c_[data["rot"][m], data["trans"][m]])
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
-        m = ~low if f == "all" else (fam == f) & ~low
+        m = (~low if f == "all" else (fam == f) & ~low) & ~slide
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
         out[f"roughness/{f}"] = {"self_residual_q90_m": round(float(q[0]), 3), "self_planarity": round(float(q[1]), 3)}
     return out
@@ -201,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="low-overlap simulated pairs per rig of the fit's low-overlap rigs, judged apart (default 0)")
     ap.add_argument("--sim-turned-pairs", type=int, default=0,
                     help="turned simulated pairs per rig of the fit's turned rigs, judged apart (default 0)")
+    ap.add_argument("--sim-slid", action="store_true",
+                    help="also the truth slid along its least pinned direction on every simulated pair, judged apart")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
@@ -222,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs, args.sim_turned_pairs)
+                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
