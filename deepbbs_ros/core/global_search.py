@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from deepbbs_ros.core import coarse_rescue
 from deepbbs_ros.core.network import Clock, matrix, worker_share
 
 __all__ = ["yaw_starts", "shift_starts", "rank_outputs", "rank_size", "batch_sizes", "before_precision", "retry"]
@@ -212,7 +213,13 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
     best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
     if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
-        best = _finish_best(reg, st, best, [st.T_start, twin(best.T, st.src_np)], _from_pose(reg))
+        flip = twin(best.T, st.src_np)
+        best = _finish_best(reg, st, best, [st.T_start], _from_pose(reg))
+        if not sure(best, rc) and st.src_pc is not None and st.tgt_pc is not None:
+            # outside GICP's fine basin but near: the given start coarse to fine (the network's answers missed it)
+            best = _finish_best(reg, st, best, [coarse_rescue.pyramid(st.src_pc, st.tgt_pc, st.T_start, rc,
+                                                                      reg.gicp_threads())], _from_pose(reg))
+        best = _finish_best(reg, st, best, [flip], _from_pose(reg)) if not sure(best, rc) else best
     n = min(len(st.src_np), len(st.tgt_np))
     if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
         probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)
