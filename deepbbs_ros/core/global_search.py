@@ -8,13 +8,14 @@ at twice ``registration.verdict_dist``: the deep estimate is good to decimetres)
 ``registration.global_polish`` best get the precision stage and the verdict; the most probable result is kept. The
 search stops early only at an answer that is sure (``registration.verdict_sure``, above the validity bar): in a nearly
 symmetric place a flip can be valid, so a valid answer that is not sure is weighed against the next best start's,
-the given start's GICP answer and its own 180-degree twin (:func:`twin`), and the most probable kept; an answer from
-another start is valid only with a fitness of ``registration.search_min_score`` (a flip that lays the ground on the
-ground fits little else). The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
-(a prefix of the farthest-point order is a farthest-point sample itself: the same coverage at a quarter of the
-network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is valid, the
-starts are ranked again on all the points and the best finished. When still none passes, the best pose turned by 180
-degrees (a road seen backwards) and starts
+the given start's GICP answer (then GICP coarse to fine from the given start, core/coarse_rescue.py's pyramid: a
+start outside GICP's fine basin where every deep answer missed) and its own 180-degree twin (:func:`twin`), and the
+most probable kept; an answer from another start is valid only with a fitness of ``registration.search_min_score``
+(a flip that lays the ground on the ground fits little else). The ranking passes run on the first
+``registration.global_rank_points`` of the sampled points (a prefix of the farthest-point order is a farthest-point
+sample itself: the same coverage at a quarter of the network's cost at 256 of 512); the start kept gets its remaining
+passes on all of them. When none is valid, the starts are ranked again on all the points and the best finished.
+When still none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
@@ -185,8 +186,9 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
 def retry(reg: Any, st: Any, clock: Any) -> Any:
     """The answer still fails the verdict after the precision stage, or came from another start and is not sure
     (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
-    precision stage and the verdict, then (still not sure) the given start's GICP answer and the best one's twin; the
-    most probable valid answer wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+    precision stage and the verdict, then (still not sure) the given start's GICP answer, GICP coarse to fine from the
+    given start and the best one's twin; the most probable valid answer wins. Runs the search first if it did not run
+    (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
