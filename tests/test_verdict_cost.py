@@ -62,6 +62,16 @@ def test_azimuth_coverage_is_the_row_wise_ones(kind):
     assert sensors.azimuth_coverage(np.full((10, 3), np.nan)) == 0.0
 
 
+def _sphere_table(az: np.ndarray, el: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The direction cells of a ``cell`` rad grid over the whole sphere as a flat table (what visibility._occupied
+    computed before it kept to the span of the target's directions): (the table, each direction's index, rows)."""
+    rows = int(np.pi / cell) + 2
+    idx = np.floor((az + np.pi) / cell).astype(np.int64) * rows + np.floor((el + np.pi / 2) / cell).astype(np.int64)
+    table = np.zeros((int(2 * np.pi / cell) + 2) * rows, bool)
+    table[idx] = True
+    return table, idx, rows
+
+
 @pytest.mark.parametrize("n", [150, 3000, 4001, 7999, 8000, 12001, 40000])
 def test_direction_tables_of_every_subsample_are_the_old_ones(n):
     """cell_size / directions on either side of the subsample steps (1, 2, 3 and more) as computed before: every cell
@@ -74,12 +84,12 @@ def test_direction_tables_of_every_subsample_are_the_old_ones(n):
     step = max(1, -(-n // visibility._SHAPE_POINTS))
     cell = float(visibility._CELLS[-1])
     for c in visibility._CELLS:
-        if len(taz[::step]) * step / np.count_nonzero(visibility._occupied(taz[::step], tel[::step], c)[0]) >= \
+        if len(taz[::step]) * step / np.count_nonzero(_sphere_table(taz[::step], tel[::step], c)[0]) >= \
                 visibility._PER_CELL:
             cell = float(c)
             break
     assert visibility.cell_size(taz, tel) == cell
-    table, idx, rows = visibility._occupied(taz, tel, cell)
+    table, idx, rows = _sphere_table(taz, tel, cell)
     nearest = np.full(len(table), np.inf)
     np.minimum.at(nearest, idx, tr)
     occupied = np.flatnonzero(table)

@@ -9,21 +9,33 @@ import pytest
 from deepbbs_ros.core import visibility
 
 
+def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The definition: azimuth, elevation (rad) and range (m) of points (N, 3)."""
+    r = np.linalg.norm(p, axis=1)
+    return np.arctan2(p[:, 1], p[:, 0]), np.arcsin(np.clip(p[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0)), r
+
+
+def _keys(az: np.ndarray, el: np.ndarray, cell: float) -> np.ndarray:
+    """The definition: the floor of the shifted angles over the cell."""
+    return (np.floor((az + np.pi) / cell).astype(np.int64) * 100_000
+            + np.floor((el + np.pi / 2) / cell).astype(np.int64))
+
+
 def _sorted_cell_size(az: np.ndarray, el: np.ndarray) -> float:
     """The definition: the first cell whose occupied cells hold ``_PER_CELL`` returns on average (np.unique)."""
     step = max(1, -(-len(az) // visibility._SHAPE_POINTS))
     az, el = az[::step], el[::step]
     for cell in visibility._CELLS:
-        if len(az) and len(az) * step / len(np.unique(visibility._keys(az, el, cell))) >= visibility._PER_CELL:
+        if len(az) and len(az) * step / len(np.unique(_keys(az, el, cell))) >= visibility._PER_CELL:
             return float(cell)
     return float(visibility._CELLS[-1])
 
 
 def _sorted_directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """The definition: the occupied cells' keys sorted, the nearest return in each (argsort and reduceat)."""
-    taz, tel, tr = visibility._angles(np.asarray(target, np.float64))
+    taz, tel, tr = _angles(np.asarray(target, np.float64))
     cell = _sorted_cell_size(taz, tel)
-    tkey = visibility._keys(taz, tel, cell)
+    tkey = _keys(taz, tel, cell)
     order = np.argsort(tkey)
     tkey, tr = tkey[order], tr[order]
     starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
@@ -53,3 +65,15 @@ def test_direction_tables_are_the_sorted_ones(k):
     np.testing.assert_array_equal(nearest, ref_nearest)
     taz, tel, _ = visibility._angles(target)
     assert visibility.cell_size(taz, tel) == _sorted_cell_size(taz, tel)
+
+
+@pytest.mark.parametrize("k", range(5))
+def test_angles_and_keys_are_the_definitions_to_the_last_bit(k):
+    """The range as three products summed (np.linalg.norm's sums) and the keys as an integer cast of never-negative
+    quotients (the floor's): the same numbers, edges of the sphere included."""
+    target = _clouds()[k]
+    got, want = visibility._angles(target), _angles(target)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for cell in visibility._CELLS:
+        np.testing.assert_array_equal(visibility._keys(*got[:2], float(cell)), _keys(*want[:2], float(cell)))

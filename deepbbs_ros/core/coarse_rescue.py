@@ -22,7 +22,7 @@ import numpy as np
 
 from deepbbs_ros.core.first_motion import coarse_start
 
-__all__ = ["DENSE", "REACH", "VOXEL_FACTORS", "coarse_then_fine", "moved"]
+__all__ = ["DENSE", "REACH", "VOXEL_FACTORS", "coarse_then_fine", "moved", "pyramid"]
 
 #: the rescue's answer stays within this many times registration.good_start_max_trans / good_start_max_rot_deg: how far
 #: a vouched start may plausibly be off, not GICP's basin, which reaches further than the scan's range suggests (GICP
@@ -49,15 +49,21 @@ def coarse_then_fine(src_pc: Any, tgt_pc: Any, T_init: np.ndarray, rc: Any, thre
     result, "" when it is within the rescue's reach of ``T_init``, else why not: then it must not be taken)."""
     from deepbbs_ros.core.good_start import good_start_gicp
 
-    n = min(src_pc.n_points, tgt_pc.n_points)
-    voxel = VOXEL_FACTORS[n >= DENSE] * (rc.polish_voxel or 0.5)
-    solve = 1 if rc.exact_gicp else threads  # the same answer on any machine, as the precision stage's
-    T = coarse_start(tgt_pc.points(), src_pc.points(), voxel, rc.polish_max_corr_dist, rc.polish_neighbors, solve,
-                     np.asarray(T_init, np.float64))
-    pol = good_start_gicp(src_pc, tgt_pc, T, rc)
+    pol = good_start_gicp(src_pc, tgt_pc, pyramid(src_pc, tgt_pc, T_init, rc, threads), rc)
     if not pol.applied:
         return pol, pol.reason.replace("polish_max_", "registration.good_start_max_")
     trans, rot = moved(T_init, pol.T_target_source)
     if trans > REACH * rc.good_start_max_trans or rot > REACH * rc.good_start_max_rot_deg:
         return pol, f"moved {trans:.2f} m / {rot:.1f} deg, beyond {REACH:g}x the good start's limits"
     return pol, ""
+
+
+def pyramid(src_pc: Any, tgt_pc: Any, T_init: np.ndarray, rc: Any, threads: int) -> np.ndarray:
+    """GICP on the pyramid of the precision-stage clouds' voxels (core/first_motion.py, base voxel
+    :data:`VOXEL_FACTORS` times ``registration.polish_voxel``) from ``T_init`` (4, 4) -> where it ended (4, 4): the
+    start of a fine GICP (:func:`coarse_then_fine`; the global search's last try from the given start)."""
+    n = min(src_pc.n_points, tgt_pc.n_points)
+    voxel = VOXEL_FACTORS[n >= DENSE] * (rc.polish_voxel or 0.5)
+    solve = 1 if rc.exact_gicp else threads  # the same answer on any machine, as the precision stage's
+    return coarse_start(tgt_pc.points(), src_pc.points(), voxel, rc.polish_max_corr_dist, rc.polish_neighbors, solve,
+                        np.asarray(T_init, np.float64))

@@ -8,13 +8,14 @@ at twice ``registration.verdict_dist``: the deep estimate is good to decimetres)
 ``registration.global_polish`` best get the precision stage and the verdict; the most probable result is kept. The
 search stops early only at an answer that is sure (``registration.verdict_sure``, above the validity bar): in a nearly
 symmetric place a flip can be valid, so a valid answer that is not sure is weighed against the next best start's,
-the given start's GICP answer and its own 180-degree twin (:func:`twin`), and the most probable kept; an answer from
-another start is valid only with a fitness of ``registration.search_min_score`` (a flip that lays the ground on the
-ground fits little else). The ranking passes run on the first ``registration.global_rank_points`` of the sampled points
-(a prefix of the farthest-point order is a farthest-point sample itself: the same coverage at a quarter of the
-network's cost at 256 of 512); the start kept gets its remaining passes on all of them. When none is valid, the
-starts are ranked again on all the points and the best finished. When still none passes, the best pose turned by 180
-degrees (a road seen backwards) and starts
+the given start's GICP answer (then GICP coarse to fine from the given start, core/coarse_rescue.py's pyramid: a
+start outside GICP's fine basin where every deep answer missed) and its own 180-degree twin (:func:`twin`), and the
+most probable kept; an answer from another start is valid only with a fitness of ``registration.search_min_score``
+(a flip that lays the ground on the ground fits little else). The ranking passes run on the first
+``registration.global_rank_points`` of the sampled points (a prefix of the farthest-point order is a farthest-point
+sample itself: the same coverage at a quarter of the network's cost at 256 of 512); the start kept gets its remaining
+passes on all of them. When none is valid, the starts are ranked again on all the points and the best finished.
+When still none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
 get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
 runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
@@ -40,6 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from deepbbs_ros.core import coarse_rescue
 from deepbbs_ros.core.network import Clock, matrix, worker_share
 
 __all__ = ["yaw_starts", "shift_starts", "rank_outputs", "rank_size", "batch_sizes", "before_precision", "retry"]
@@ -184,8 +186,9 @@ def before_precision(reg: Any, st: Any, clock: Any, force: bool = False, full: b
 def retry(reg: Any, st: Any, clock: Any) -> Any:
     """The answer still fails the verdict after the precision stage, or came from another start and is not sure
     (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
-    precision stage and the verdict, then (still not sure) the given start's GICP answer and the best one's twin; the
-    most probable valid answer wins. Runs the search first if it did not run (``auto`` and a fitting deep answer)."""
+    precision stage and the verdict, then (still not sure) the given start's GICP answer, GICP coarse to fine from the
+    given start and the best one's twin; the most probable valid answer wins. Runs the search first if it did not run
+    (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
@@ -212,7 +215,14 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
 
     best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
     if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
-        best = _finish_best(reg, st, best, [st.T_start, twin(best.T, st.src_np)], _from_pose(reg))
+        flip = twin(best.T, st.src_np)
+        best = _finish_best(reg, st, best, [st.T_start], _from_pose(reg))
+        if not sure(best, rc) and st.src_pc is not None and st.tgt_pc is not None and st.polish_check is None:
+            # outside GICP's fine basin but near: the given start coarse to fine (the network's answers missed it); not
+            # in a search over candidate places (a polish_check: most are wrong, each kept cheap)
+            best = _finish_best(reg, st, best, [coarse_rescue.pyramid(st.src_pc, st.tgt_pc, st.T_start, rc,
+                                                                      reg.gicp_threads())], _from_pose(reg))
+        best = _finish_best(reg, st, best, [flip], _from_pose(reg)) if not sure(best, rc) else best
     n = min(len(st.src_np), len(st.tgt_np))
     if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
         probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)

@@ -140,6 +140,13 @@ def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float
     return [float(np.mean(sq <= d * d)) for d in dists]
 
 
+def _target_points(tpc: PolishCloud, rc: Any) -> np.ndarray:
+    """:func:`good_start_points` of the target, from the voxels its verdict kept (core/visibility.py): no copy of the
+    cloud's points again."""
+    return verdict.spread_subset(visibility.target_points(tpc, rc.verdict_dist), rc.good_start_points,
+                                 rc.polish_voxel or 0.5)
+
+
 def _result(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, pts: np.ndarray, tpc: PolishCloud,
             rc: Any, text: str, clock: Any) -> RegistrationResult:
     """The good start's answer: GICP's pose (again on both scans deskewed, when they are), its verdict."""
@@ -155,6 +162,6 @@ def _result(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float,
         T_target_source=T, converged=bool(pol.converged),
         iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
         gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
-        source=pts.astype(np.float32), target=good_start_points(tpc, rc).astype(np.float32), polish="ok",
+        source=pts.astype(np.float32), target=_target_points(tpc, rc).astype(np.float32), polish="ok",
         deskew=deskew, valid=True, score=float(score), starts=1, path="gicp", good_start=text,
         probability=float(prob))

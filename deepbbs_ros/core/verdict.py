@@ -66,7 +66,8 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     if len(points) == 0:
         return 0.0
     anchor = calibrated.weighs(("anchored", "anchored_far"), model)  # two searches more, only where they count
-    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, anchor), model)
+    view = calibrated.weighs(("in_view", "observable_rel"), model)  # the field of view, likewise
+    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, anchor, view), model)
 
 
 def is_valid(score: float, threshold: float) -> bool:
