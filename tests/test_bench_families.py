@@ -61,7 +61,12 @@ def test_summary_and_its_tables():
     fig = families.summarise(recs, sets, ["deepbbs++", "deepbbs++good", "gicp"])
     c = fig["sim_vlp16_wheeled_hall"]
     assert c["pairs"] == 3 and abs(c["success_pct"]["deepbbs++"] - 200 / 3) < 1e-9
-    assert c["verdict"] == {"cases": 4, "accepted_wrong": 1, "rejected_right": 1, "right": 3}
+    assert c["verdict"] == {"cases": 4, "accepted_wrong": 1, "accepted_between": 0, "rejected_right": 1, "right": 3}
+    # a pose accepted 1.5 deg / 0.1 m off is neither right nor wrong: counted apart, not as a wrong acceptance
+    between = _rec(5, False, True)
+    between["deepbbs++"].update(rot=1.5, trans=0.1)
+    v = families.summarise(recs + [between], sets, ["deepbbs++", "deepbbs++good", "gicp"])["sim_vlp16_wheeled_hall"]
+    assert (v["verdict"]["accepted_wrong"], v["verdict"]["accepted_between"]) == (1, 1)
     assert c["both_right"]["pairs"] == 2 and c["both_right"]["gicp_trans_median"] == 0.03
     assert c["p50_over_gicp"]["deepbbs++"] == 2.0
     (miss,) = c["missed"]

@@ -10,7 +10,8 @@ SENSOR_LABELS = {"hdl64": "Velodyne HDL-64E", "hdl32": "Velodyne HDL-32E", "vlp1
 REAL_LABELS = {"kitti": "KITTI {}", "pair": "reference pair", "nuscenes": "nuScenes", "livox": "handheld walk"}
 METHODS = ("deepbbs++", "gicp", "kiss-matcher+gicp")
 HEADER = ["LiDAR", "data", "pairs", "overlap p50", "DeepBBS++", "GICP", "KISS-Matcher + GICP",
-          "errors where both are right, deg / m: DeepBBS++; GICP", "verdict: wrong accepted / right rejected",
+          "errors where both are right, deg / m: DeepBBS++; GICP",
+          "verdict: wrong accepted / right rejected (beyond 2 deg / 0.5 m; within 1 deg / 0.3 m)",
           "DeepBBS++ p50 / p95 ms", "p50 / GICP's", "`good_start=True`: success", "its p50 / GICP's",
           "its GICP path accepted", "start in GICP's basin: pairs (others)", "there: its p50 / GICP's",
           "there: its paths"]
@@ -45,7 +46,8 @@ def _row(name: str, c: dict) -> list[str]:
     ratio = (c.get("p50_over_gicp") or {}).get("deepbbs++")
     return [SENSOR_LABELS.get(c["sensor"], c["sensor"]), data_label(name, c), str(n), f"{c['overlap_median']:.2f}",
             *(_pct(s.get(m), n) for m in METHODS), f"{_err(b, 'deepbbs++')}; {_err(b, 'gicp')} ({b.get('pairs', 0)})",
-            f"{v.get('accepted_wrong', '-')} / {v.get('rejected_right', '-')} (of {v.get('cases', '-')})",
+            f"{v.get('accepted_wrong', '-')} / {v.get('rejected_right', '-')} (of {v.get('cases', '-')}"
+            + (f"; {v['accepted_between']} in between accepted)" if v.get("accepted_between") else ")"),
             _ms(c, "deepbbs++"),
             "-" if ratio is None else f"x{ratio:.2f}", *_good(c)]
 

@@ -46,6 +46,7 @@ SIMS = ("hdl64:car:urban", "hdl32:car:suburban", "vlp16:wheeled:courtyard", "os0
         "mid360:handheld:corridor")
 REAL = {"kitti": "hdl64", "pair": "hdl32", "nuscenes": "hdl32", "livox": "avia"}  # real set -> its sensor
 OVERLAP_M = 0.5
+WRONG_DEG, WRONG_M = 2.0, 0.5  # a pose beyond either is wrong (right: within 1 deg / 0.3 m)
 
 
 def overlap(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_points: int = 20000) -> float:
@@ -377,7 +378,11 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
                 f"{m}_{e}_median": float(np.median([r[m][e] for r in both])) if both else None
                 for m in ("deepbbs++", "gicp") if m in names for e in ("rot", "trans")}}
             deep = [r["deepbbs++"] for r in rs]
-            cell["verdict"] = {"cases": len(deep), "accepted_wrong": sum(x["valid"] and not x["ok"] for x in deep),
+            # the verdict's classes: right within 1 deg / 0.3 m, wrong beyond 2 deg or 0.5 m, in between counted apart
+            wrong = [x["rot"] > WRONG_DEG or x["trans"] > WRONG_M for x in deep]
+            kept = [x["valid"] and not x["ok"] for x in deep]  # accepted, not right
+            cell["verdict"] = {"cases": len(deep), "accepted_wrong": sum(k and w for k, w in zip(kept, wrong)),
+                               "accepted_between": sum(k and not w for k, w in zip(kept, wrong)),
                                "rejected_right": sum(x["ok"] and not x["valid"] for x in deep),
                                "right": sum(x["ok"] for x in deep)}
         cell["basin"] = []
