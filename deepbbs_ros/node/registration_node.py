@@ -71,6 +71,7 @@ from std_srvs.srv import Trigger
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import NodeError
+from deepbbs_ros.node.callbacks import GuardedCallbacks
 from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.node_diagnostics import NodeDiagnostics, stop_line
@@ -97,12 +98,13 @@ ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 
 
 class RegistrationNode(NodeParameters, InputHandlers, RegistrationJobs, NodeDiagnostics, NodeTf, NodeServices,
-                       Node):
+                       GuardedCallbacks, Node):
     """See the module docstring. The node composes its parts: the parameters
     (:mod:`~deepbbs_ros.node.node_parameters`), the inputs (:mod:`~deepbbs_ros.node.node_inputs`), the
     worker's jobs (:mod:`~deepbbs_ros.node.node_jobs`), the counters and /diagnostics
     (:mod:`~deepbbs_ros.node.node_diagnostics`), TF (:mod:`~deepbbs_ros.node.node_tf`), the services
-    (:mod:`~deepbbs_ros.node.node_services`); here: its construction, one phase per lifecycle step, and its end.
+    (:mod:`~deepbbs_ros.node.node_services`), every callback guarded (:mod:`~deepbbs_ros.node.callbacks`); here: its
+    construction, one phase per lifecycle step, and its end.
 
     Args:
         config: defaults of every parameter (ROS parameters override them); None = ``Config()``.
