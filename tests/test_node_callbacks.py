@@ -14,6 +14,7 @@ apply_default_profile()  # before the first DDS participant of this process
 rclpy = pytest.importorskip("rclpy")
 
 import test_node  # noqa: E402
+import test_node_localization  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_node import SEC, Harness, at, scan, tiny_config  # noqa: E402
 
@@ -23,6 +24,7 @@ from deepbbs_ros.node.tf_buffer import TransformBuffer  # noqa: E402
 from msg_adapters.transforms import matrix_to_transform_stamped  # noqa: E402
 
 world = test_node.world  # the structured street
+drive = test_node_localization.drive  # the simulated drive and its map
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +156,70 @@ def test_bad_input_and_failing_callbacks_leave_the_executor_spinning(ros, world,
         assert h.transforms[-1].child_frame_id == "base_link"
         fut = h.reset.call_async(Trigger.Request())
         assert h.wait_for(fut.done, 10.0) and fut.result().success
+        assert h.spin_error == "" and h.thread.is_alive()
+    finally:
+        h.close()
+
+
+def test_localization_bad_initialpose_tf_and_services(ros, drive, tmp_path):
+    """Localization mode: bad /initialpose messages (zero quaternion, NaN covariance, another frame) are warnings and
+    no hint; an odom -> base on /tf whose inverse overflows gives no map -> odom (it used to be kept, and the
+    map -> odom timer's republish raised TransformFormatError in the executor every period); ~/relocalize and
+    ~/reset answer; the next scan is placed and the spin thread stays up."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from test_node import _check_pose
+    from test_node_rep105 import _harness, _send
+    from tf2_msgs.msg import TFMessage
+
+    from msg_adapters.transforms import matrix_to_pose, pose_stamped_to_matrix
+
+    sim, _, _, scan_k = drive
+    cfg = test_node_localization._config(**{"node.base_frame": "", "node.tf_timeout": 0.5,
+                                            "node.map_odom_period": 0.1, "node.error_log_period": 60.0})
+    h = _harness(cfg, "guard_loc", drive, tmp_path)
+    try:
+        relocalize = h.client.create_client(Trigger, "/guard_loc/relocalize")
+        good = PoseWithCovarianceStamped()
+        good.header.frame_id = "map"
+        good.pose.pose = matrix_to_pose(sim.pose_at(40))
+        zero_q = PoseWithCovarianceStamped()
+        zero_q.header.frame_id = "map"
+        zero_q.pose.pose.orientation.w = 0.0  # (the message's default is the identity, w = 1)
+        nan_cov = PoseWithCovarianceStamped()
+        nan_cov.header.frame_id = "map"
+        nan_cov.pose.pose = matrix_to_pose(np.eye(4))
+        nan_cov.pose.covariance = [float("nan")] * 36
+        other = PoseWithCovarianceStamped()
+        other.header.frame_id = "odom"
+        other.pose.pose = matrix_to_pose(np.eye(4))
+        for msg in (zero_q, nan_cov, other):
+            h.initialpose.publish(msg)
+        warnings = h.node._warnings.counts
+        assert h.wait_for(lambda: warnings.get("initialpose_bad", 0) == 2 and warnings.get("initialpose_frame") == 1,
+                          10.0), warnings
+        assert h.node.rep105.hints == 0
+        # odom -> lidar at the scan's stamp: turned 1 rad, 1.7e308 m away (finite; its inverse is not)
+        stamp = sim.stamp_ns(40)
+        T_bad = np.eye(4)
+        T_bad[:2, :2] = [[np.cos(1.0), -np.sin(1.0)], [np.sin(1.0), np.cos(1.0)]]
+        tf_pub = h.client.create_publisher(TFMessage, "/tf", 10)
+        ts = matrix_to_transform_stamped(T_bad, stamp, "odom", "lidar")
+        ts.transform.translation.x = ts.transform.translation.y = ts.transform.translation.z = 1.7e308
+        tf_pub.publish(TFMessage(transforms=[ts]))  # (no zero quaternion: the test client's TfTree would raise)
+        assert h.wait_for(lambda: h.node.static_tf.has_edge("odom", "lidar"), 10.0)
+        h.initialpose.publish(good)
+        assert h.wait_for(lambda: h.node.rep105.hints == 1, 10.0)
+        _send(h, sim, scan_k, [40])
+        _check_pose(pose_stamped_to_matrix(h.poses[-1])[0], scan_k(40)[1])
+        assert warnings.get("bad_odom_tf") == 1 and h.node.rep105.last_map_odom is None, warnings
+        assert h.wait_for(lambda: "not usable" in h.diagnostics().get("localization.map -> odom", ""), 10.0)
+        for client in (relocalize, h.reset):
+            assert client.wait_for_service(timeout_sec=5.0)
+            fut = client.call_async(Trigger.Request())
+            assert h.wait_for(fut.done, 10.0) and fut.result().success
+        _send(h, sim, scan_k, [42], start=1)
+        _check_pose(pose_stamped_to_matrix(h.poses[-1])[0], scan_k(42)[1])
+        assert not any(k.startswith("callback") for k in h.node._errors.counts), h.node._errors.counts
         assert h.spin_error == "" and h.thread.is_alive()
     finally:
         h.close()
