@@ -54,7 +54,9 @@ newest pair or scan wins, stale ones are dropped and counted. In pair mode on a 
 registration process (:mod:`deepbbs_ros.node.registration_process`), so that this process keeps only rclpy,
 decoding and the hand-off; if that process dies, one line is logged and the node registers itself. Bad input
 (malformed PointCloud2, empty, too few points, NaN-only, missing or changed frames) is logged once per
-kind and period (``node.error_log_period``), nothing is published for it, and the node goes on.
+kind and period (``node.error_log_period``), nothing is published for it, and the node goes on. No callback ends the
+executor (:mod:`deepbbs_ros.node.callbacks`): one that raises (a bug, or input nothing else checks) is one error line
+naming it, counted on /diagnostics as ``errors.callback <name>``; a failed service answers ``success: false``.
 """
 
 from __future__ import annotations
