@@ -223,3 +223,45 @@ def test_localization_bad_initialpose_tf_and_services(ros, drive, tmp_path):
         assert h.spin_error == "" and h.thread.is_alive()
     finally:
         h.close()
+
+
+def test_managed_node_bond_fault_and_services_while_inactive(ros, drive, tmp_path, monkeypatch):
+    """The managed node: a fault in the bond's status callback (its own heartbeat reaches it 10 times a second) is
+    one error line, counted; the transitions go on, ~/reset and ~/relocalize answer while inactive, and the next scan
+    after activate is placed; the executor's spin thread stays up."""
+    pytest.importorskip("bond.msg")
+    import test_node_lifecycle
+    from lifecycle_msgs.msg import Transition
+    from test_node import _check_pose
+
+    from deepbbs_ros.node.bond import BondHeartbeat
+    from msg_adapters.transforms import pose_stamped_to_matrix
+
+    test_node_lifecycle._shipped_weights()
+
+    def on_status(self, msg):
+        raise RuntimeError("injected bond fault")
+
+    monkeypatch.setattr(BondHeartbeat, "_on_status", on_status)
+    sim = drive[0]
+    cfg = test_node_lifecycle._config(**{"localization.map_path": test_node_lifecycle._map(tmp_path, drive[:3]),
+                                         "node.error_log_period": 60.0})
+    m = test_node_lifecycle.Manager(cfg, "guard_lc")
+    try:
+        assert m.transition(Transition.TRANSITION_CONFIGURE)
+        assert m.transition(Transition.TRANSITION_ACTIVATE) and m.state() == "active"
+        errors = m.node._errors.counts
+        assert m.wait_for(lambda: errors.get("callback bond", 0) >= 3, 10.0), errors
+        assert m.transition(Transition.TRANSITION_DEACTIVATE) and m.state() == "inactive"
+        for service in ("reset", "relocalize"):
+            client = m.client.create_client(Trigger, f"/guard_lc/{service}")
+            assert client.wait_for_service(timeout_sec=5.0)
+            assert m._call(client, Trigger.Request(), 10.0).success
+        assert m.transition(Transition.TRANSITION_ACTIVATE)
+        assert m.wait_for(lambda: m.subscribed() == 1, 10.0)
+        m.send(sim.scan_at(12).points, sim.stamp_ns(12))
+        assert m.wait_for(lambda: m.poses, 90.0), m.node.stats()
+        _check_pose(pose_stamped_to_matrix(m.poses[0])[0], sim.pose_at(12))
+        assert m.thread.is_alive()
+    finally:
+        m.close()
