@@ -71,7 +71,12 @@ def topic(node: Any, args: argparse.Namespace) -> int:
 
     from rclpy.executors import ExternalShutdownException
 
-    node.create_subscription(cls, topic, on_msg, qos)
+    from deepbbs_ros.node.callbacks import guard
+    from deepbbs_ros.node.diagnostics import RateLimitedErrors
+
+    # a message the summary cannot read is one line (every 5 s at most), not the end of the command
+    errors = RateLimitedErrors(lambda text: print(text, file=sys.stderr, flush=True), 5.0)
+    node.create_subscription(cls, topic, guard(on_msg, topic, lambda kind, text, exc: errors.log(kind, text)), qos)
     start = last_report = time.monotonic()
     stopped = False
     try:

@@ -56,7 +56,10 @@ class BondHeartbeat:
         self._sub = node.create_subscription(Status, TOPIC, self._on_status, QoSProfile(depth=100),
                                              event_callbacks=no_event_handlers(SubscriptionEventCallbacks))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._timer = node.create_timer(period_s, lambda: self._publish(True), clock=steady)
+        self._timer = node.create_timer(period_s, self._heartbeat, clock=steady)
+        self._publish(True)
+
+    def _heartbeat(self) -> None:
         self._publish(True)
 
     def _publish(self, active: bool) -> None:

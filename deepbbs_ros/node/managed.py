@@ -208,7 +208,7 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
     def create_subscription(self, *args: Any, **kwargs: Any):
         if getattr(self, "_made", None) is not None:  # destroyed again by deactivate / cleanup
             kwargs.setdefault("event_callbacks", no_event_handlers(SubscriptionEventCallbacks))
-        return Node.create_subscription(self, *args, **kwargs)
+        return super().create_subscription(*args, **kwargs)  # guarded (node/callbacks.py)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         if not self._configured:

@@ -54,7 +54,9 @@ newest pair or scan wins, stale ones are dropped and counted. In pair mode on a 
 registration process (:mod:`deepbbs_ros.node.registration_process`), so that this process keeps only rclpy,
 decoding and the hand-off; if that process dies, one line is logged and the node registers itself. Bad input
 (malformed PointCloud2, empty, too few points, NaN-only, missing or changed frames) is logged once per
-kind and period (``node.error_log_period``), nothing is published for it, and the node goes on.
+kind and period (``node.error_log_period``), nothing is published for it, and the node goes on. No callback ends the
+executor (:mod:`deepbbs_ros.node.callbacks`): one that raises (a bug, or input nothing else checks) is one error line
+naming it, counted on /diagnostics as ``errors.callback <name>``; a failed service answers ``success: false``.
 """
 
 from __future__ import annotations
@@ -71,6 +73,7 @@ from std_srvs.srv import Trigger
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import NodeError
+from deepbbs_ros.node.callbacks import GuardedCallbacks
 from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.localization import NodeLocalization, load_map_file
 from deepbbs_ros.node.node_diagnostics import NodeDiagnostics, stop_line
@@ -97,12 +100,13 @@ ODOMETRY_METHODS = ("local_map", "scan_to_scan")
 
 
 class RegistrationNode(NodeParameters, InputHandlers, RegistrationJobs, NodeDiagnostics, NodeTf, NodeServices,
-                       Node):
+                       GuardedCallbacks, Node):
     """See the module docstring. The node composes its parts: the parameters
     (:mod:`~deepbbs_ros.node.node_parameters`), the inputs (:mod:`~deepbbs_ros.node.node_inputs`), the
     worker's jobs (:mod:`~deepbbs_ros.node.node_jobs`), the counters and /diagnostics
     (:mod:`~deepbbs_ros.node.node_diagnostics`), TF (:mod:`~deepbbs_ros.node.node_tf`), the services
-    (:mod:`~deepbbs_ros.node.node_services`); here: its construction, one phase per lifecycle step, and its end.
+    (:mod:`~deepbbs_ros.node.node_services`), every callback guarded (:mod:`~deepbbs_ros.node.callbacks`); here: its
+    construction, one phase per lifecycle step, and its end.
 
     Args:
         config: defaults of every parameter (ROS parameters override them); None = ``Config()``.

@@ -154,7 +154,15 @@ class Rep105:
         T_odom_base = self._odom_base(base, stamp)
         if T_odom_base is None:
             return
-        self.last_map_odom = (T_map_base @ np.linalg.inv(T_odom_base), stamp, frame)
+        T_map_odom = T_map_base @ np.linalg.inv(T_odom_base)
+        if not np.isfinite(T_map_odom).all():  # an absurd odom -> base on /tf (finite, but its inverse overflows)
+            odom = self.cfg.odom_frame
+            self.status = self.problem = f"{odom} -> {base} on /tf is not usable: {frame} -> {odom} not updated"
+            self._warn("bad_odom_tf", f"{odom} -> {base} on /tf at the scan's stamp {stamp} ns gives no finite "
+                       f"{frame} -> {odom} (translation {T_odom_base[:3, 3].tolist()}): not updated, the pose is "
+                       "still published on the topics")
+            return
+        self.last_map_odom = (T_map_odom, stamp, frame)
         self._send(stamp)
         self.status, self.problem = "ok", ""
 
