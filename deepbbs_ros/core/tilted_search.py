@@ -29,7 +29,10 @@ class TiltedSearch:
         """The upright round accepted no place: when the scan is tilted (:meth:`_levelling`), a second round on the
         scan described levelled, compared on the bins it saw (``MapLocalizer.seen``), started with its tilt
         (``PlaceSearch._round``), its best answer tried again on a crop centred at its pose (:meth:`_recentred`);
-        ``answers`` and ``failed`` (as ``_round``'s) added to in place."""
+        ``answers`` and ``failed`` (as ``_round``'s) added to in place. When every upright answer is under
+        ``localization.retry_floor`` ("not here"), only the places whose levelled descriptor distance is under
+        ``retry_descriptor`` are registered (``PlaceSearch._hopeless``'s rule: a place neither the verdict nor the
+        descriptor favours is not tried; a scan from elsewhere that happens to be tilted)."""
         level = self._levelling(src)
         if level is None:
             return
@@ -37,6 +40,9 @@ class TiltedSearch:
         scan = pts @ level[:3, :3].T
         again = self.rank(self.describe(scan, centres), among, centres, seen=self.seen(scan))
         timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
+        lc = self.config.localization
+        if all(a.prob < lc.retry_floor for a in answers):
+            again = [r for r in again if r[1] < lc.retry_descriptor]
         first = len(answers)
         self._round(src, again, level, answers, failed, timings)
         self._recentred(src, answers[first:], answers, timings)
