@@ -1,7 +1,7 @@
-"""A scan from outside the map ends its search early (core/place_search.py ``_hopeless``): GICP alone is not tried on
-a failed place the map verdict calls "not here" (under ``localization.retry_floor``) whose descriptor does not match
-the scan either (``retry_descriptor``). Scans of the map are placed as before. The map and queries of
-test_localization.py (known truth: the simulated drive's poses)."""
+"""A tilted scan from outside the map ends its search early (core/tilted_search.py): after an upright round whose
+every answer the map verdict calls "not here" (under ``localization.retry_floor``), the levelled round registers only
+the places its levelled descriptor matches (under ``retry_descriptor``). A scan of the map tilted alike is placed as
+before. The map and queries of test_localization.py (known truth: the simulated drive's poses)."""
 
 from __future__ import annotations
 
@@ -26,51 +26,6 @@ def _counted(loc, scan, overrides: dict):
         del loc._deep, loc._gicp
         loc.__dict__.update(mine)
     return res, len(deep), len(gicp)
-
-
-def test_gicp_alone_skips_places_neither_the_verdict_nor_the_descriptor_favours(localizer, world):  # noqa: F811
-    """A scan of another world: every first answer under retry_floor and every place's descriptor distance at least
-    retry_descriptor: no pose after the first round, with no GICP alone; retry_descriptor 1 (no descriptor is far
-    enough) tries GICP alone on every failed place, for the same answer. A scan of the map is placed either way."""
-    _, _, drive, other = world
-    scan = other.scan_at(3).points
-    quick, _, n_quick = _counted(localizer, scan, {})
-    slow, _, n_slow = _counted(localizer, scan, {"localization.retry_descriptor": 1.0})
-    assert not quick.valid and not slow.valid and "scan outside the map" in quick.reason, quick.reason
-    assert quick.probability < 0.01 and n_quick == 0 < n_slow == slow.candidates
-    for k in (48, 72):
-        res, _, _ = _counted(localizer, drive.scan_at(k).points, {})
-        assert res.valid and _ok(res.T_map_scan, drive.pose_at(k))[0], (k, res.reason)
-
-
-
-def test_a_scan_of_the_map_whose_network_answers_all_fail_is_placed_by_gicp_alone(localizer, world):  # noqa: F811
-    """Every DeepBBS++ answer forced 20 m off (probability about 0, as on real scans whose network passes all went
-    astray): the first round calls the scan outside the map, and GICP alone from the descriptor's start places it on
-    the places whose descriptor matches it (under retry_descriptor), the well-matching ones not skipped."""
-    _, _, drive, _ = world
-    k = 48
-    deep = localizer._deep
-
-    def astray(src, crop, T_init, place, timings, **kw):
-        ans = deep(src, crop, T_init, place, timings, **kw)
-        T = ans.T.copy()
-        T[:2, 3] += 20.0
-        return localizer._answer(0.0, T, place, crop, src)
-
-    localizer._deep = astray
-    try:
-        c = localizer.description_centres
-        dists = [d for _, d, *_ in localizer.rank(localizer.describe(drive.scan_at(k).points, c), None, c)]
-        cut = 0.5 * (dists[0] + dists[1])  # the best-ranked place only matches under it
-        res, _, n_all = _counted(localizer, drive.scan_at(k).points, {})
-        best, _, n_best = _counted(localizer, drive.scan_at(k).points, {"localization.retry_descriptor": cut})
-    finally:
-        del localizer._deep
-    assert dists[0] < Config().localization.retry_descriptor
-    for r in (res, best):
-        assert r.valid and _ok(r.T_map_scan, drive.pose_at(k))[0], r.reason
-    assert n_best < n_all, (n_best, n_all)
 
 
 def _roll(deg: float) -> np.ndarray:

@@ -62,8 +62,7 @@ class PlaceSearch(TiltedSearch):
         ranked = self.rank(desc, among, centres)
         timings["rank"] = timings.get("rank", 0.0) + (time.perf_counter() - t) * 1e3
         answers: list[_Answer] = []
-        failed: list[tuple[int, int, np.ndarray, float, float]] = []  # (index in answers, rank, T_init, yaw,
-        # descriptor distance): failed starts
+        failed: list[tuple[int, int, np.ndarray, float]] = []  # (index in answers, rank, T_init, yaw): failed starts
         self._round(src, ranked, None, answers, failed, timings)
         if not any(a.ok for a in answers):
             self._levelled_round(pts, src, among, centres, answers, failed, timings)  # core/tilted_search.py
@@ -107,10 +106,10 @@ class PlaceSearch(TiltedSearch):
                                   probability=best.prob)
 
     def _round(self, src: Any, ranked: list, level: np.ndarray | None, answers: list[_Answer],
-               failed: list[tuple[int, int, np.ndarray, float, float]], timings: dict[str, float]) -> None:
+               failed: list[tuple[int, int, np.ndarray, float]], timings: dict[str, float]) -> None:
         """One round of the search: DeepBBS++ on each ``ranked`` place from the descriptor's yaw (turned by
         ``level``, (4, 4) or None, the scan's levelling) until an accepted answer ends it; ``answers`` and
-        ``failed`` (index in answers, rank, T_init, yaw, descriptor distance) are added to in place."""
+        ``failed`` (index in answers, rank, T_init, yaw) are added to in place."""
         lc = self.config.localization
         h_scan = self._sensor_height(src)
         accepted_dist = None  # descriptor distance of the first accepted candidate
@@ -136,7 +135,7 @@ class PlaceSearch(TiltedSearch):
                 # (good to ~2 m), the better of the two kept
                 ans = self._better_gicp(src, crop, T_init, place, ans, timings)
             if not ans.ok:
-                failed.append((len(answers), rank_i, T_init, yaw, dist))
+                failed.append((len(answers), rank_i, T_init, yaw))
             answers.append(ans)
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
@@ -152,36 +151,25 @@ class PlaceSearch(TiltedSearch):
         top = self._refined(src, answers, timings)
         return top.prob < lc.retry_probability and (ranked[0][1] >= lc.retry_descriptor or top.prob < lc.retry_floor)
 
-    def _hopeless(self, ans: _Answer, dist: float) -> bool:
-        """A failed place of a scan the first round calls outside the map (:meth:`_outside`) that GICP alone from the
-        descriptor's start is not worth trying on: the verdict gives its first answer less than
-        ``localization.retry_floor`` ("not here") AND its descriptor distance is at least ``retry_descriptor`` (it
-        does not look like the scan either). Either alone is not enough: the in-map scans GICP alone places after a
-        failed first round had first answers of 0.0000-0.06 on places 0.18-0.30 from their descriptors."""
-        lc = self.config.localization
-        return ans.prob < lc.retry_floor and dist >= lc.retry_descriptor
-
-    def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float, float]],
+    def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float], quick: bool = False) -> None:
-        """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in ``answers``,
-        rank, T_place_scan, yaw, descriptor distance) again with GICP alone (the network's pass went astray; with
-        ``quick`` not on a place that neither the verdict nor the descriptor favours, :meth:`_hopeless`); still none
+        """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
+        ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
         still none: the best once more with the registration's global search (the right place with a poor pose?); still
         none: GICP alone from far_probe m ahead of and behind the best pose and the best-ranked place's (:meth:`_slid`:
-        a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed no
-        outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
+        a pose slid along the road). Not when a place was accepted (on the benchmark's queries these retries changed
+        no outcome there, at 0.4 s a query). ``quick``: GICP alone only (:meth:`_global`: the best first answer's
         probability under ``localization.retry_probability``, its descriptor distance at least ``retry_descriptor`` or
         the probability under ``retry_floor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-        for k, _, T_init, _, dist in failed:
-            if not (quick and self._hopeless(answers[k], dist)):
-                answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
+        for k, _, T_init, _ in failed:
+            answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
         if quick:
             return
         if not any(a.ok for a in answers):
-            for k, rank_i, T_init, yaw, _ in failed:
+            for k, rank_i, T_init, yaw in failed:
                 if not answers[k].ok and rank_i < lc.flip_starts:
                     answers[k] = self._flipped(src, answers[k], T_init, yaw, timings, search)
         best = min(answers, key=answer_rank)
