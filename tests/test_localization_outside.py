@@ -52,31 +52,3 @@ def test_a_tilted_scan_from_elsewhere_is_not_searched_again_levelled(localizer, 
     res, _, _ = _counted(localizer, drive.scan_at(k).points @ tilt[:3, :3].T, {})
     assert res.valid and _ok(res.T_map_scan, drive.pose_at(k) @ np.linalg.inv(tilt))[0], res.reason
 
-
-def test_gicp_alone_retries_a_place_from_its_levelled_start_only(localizer, world):  # noqa: F811
-    """A scan of the map rolled 2 degrees whose every DeepBBS++ answer goes astray (forced 20 m off, probability about
-    0): both rounds fail, and GICP alone retries each place once, from the levelled start where the levelled round
-    registered it again (the upright start less the scan's measured tilt), and places the scan."""
-    _, _, drive, _ = world
-    k, tilt = 48, _roll(2.0)
-    deep, better = localizer._deep, localizer._better_gicp
-    starts, retried = [], []
-
-    def astray(src, crop, T_init, place, timings, **kw):
-        starts.append(crop.T_map_place[:2, 3].copy())
-        ans = deep(src, crop, T_init, place, timings, **kw)
-        T = ans.T.copy()
-        T[:2, 3] += 20.0
-        return localizer._answer(0.0, T, place, crop, src)
-
-    localizer._deep = astray
-    localizer._better_gicp = lambda *a, **kw: retried.append(1) or better(*a, **kw)
-    try:
-        res = localizer.localize(drive.scan_at(k).points @ tilt[:3, :3].T)
-    finally:
-        del localizer._deep, localizer._better_gicp
-    sep = Config().localization.candidate_separation
-    again = sum(any(np.linalg.norm(starts[j] - starts[i]) < sep for j in range(i + 1, len(starts)))
-                for i in range(len(starts)))
-    assert again >= 1 and len(retried) == len(starts) - again, (len(starts), again, len(retried))
-    assert res.valid and _ok(res.T_map_scan, drive.pose_at(k) @ np.linalg.inv(tilt))[0], res.reason

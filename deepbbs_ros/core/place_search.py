@@ -154,9 +154,7 @@ class PlaceSearch(TiltedSearch):
     def _retry(self, src: Any, answers: list[_Answer], failed: list[tuple[int, int, np.ndarray, float]],
                timings: dict[str, float], quick: bool = False) -> None:
         """No place accepted (``answers``, replaced and added to in place): the ``failed`` starts (index in
-        ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray; a place the
-        levelled round registered again from its levelled start only: the upright start less the scan's own measured
-        tilt, and GICP from either lands alike on a right place, 0.978 / 0.979 on real scans); still none
+        ``answers``, rank, T_place_scan, yaw) again with GICP alone (the network's pass went astray); still none
         accepted: DeepBBS++ from the opposite yaw on the best ``flip_starts`` places (a street looks alike both ways);
         still none: the best once more with the registration's global search (the right place with a poor pose?); still
         none: GICP alone from far_probe m ahead of and behind the best pose and the best-ranked place's (:meth:`_slid`:
@@ -166,10 +164,7 @@ class PlaceSearch(TiltedSearch):
         the probability under ``retry_floor``)."""
         lc = self.config.localization
         search = lc.candidate_search != "off"
-        xy = [answers[k].crop.T_map_place[:2, 3] for k, *_ in failed]
-        for i, (k, _, T_init, _) in enumerate(failed):
-            if any(np.linalg.norm(xy[j] - xy[i]) < lc.candidate_separation for j in range(i + 1, len(failed))):
-                continue  # the levelled round's start on this place follows: the same start with the scan's own tilt
+        for k, _, T_init, _ in failed:
             answers[k] = self._better_gicp(src, answers[k].crop, T_init, answers[k].place, answers[k], timings)
         if quick:
             return
