@@ -68,6 +68,7 @@ class StageClock:
         self.cpu, self.calls, self._t = {}, {}, time.process_time()
         self.ranked: list[tuple[int, float]] = []  # (place, descriptor distance) of the search's candidates
         self.answers: list[tuple[int, float, float, bool]] = []  # first-round DeepBBS++ (place, prob, score, ok)
+        self.gicps: list[tuple[int, float, float, bool, bool]] = []  # GICP alone (place, prob, score, ok, in a retry)
 
 
 def _stage(path: str) -> str:
@@ -84,12 +85,12 @@ def _stage(path: str) -> str:
 
 def instrument(clock: StageClock, reg) -> None:
     """Wrap the stages the search calls in the modules (once per process) and of the shared registration ``reg``."""
-    from deepbbs_ros.core import acceptance, place_search, registration
+    from deepbbs_ros.core import acceptance, place_search, registration_precision
 
     reg.register = clock.wrap("register", reg.register)
     acceptance.probability = clock.wrap("verdict", acceptance.probability)
     place_search.polish = clock.wrap("polish", place_search.polish)
-    registration.polish = clock.wrap("polish", registration.polish)
+    registration_precision.polish = clock.wrap("polish", registration_precision.polish)
 
 
 def instrument_map(loc, clock: StageClock) -> None:
@@ -100,7 +101,7 @@ def instrument_map(loc, clock: StageClock) -> None:
 
     def ranked(*a, **kw):  # the candidates in rank order, and each first-round answer
         out = rank(*a, **kw)
-        clock.ranked = [(int(p), float(d)) for p, d, *_ in out]
+        clock.ranked += [(int(p), float(d)) for p, d, *_ in out]  # the levelled round's after the upright's
         return out
 
     def answered(src, crop, T_init, place, timings, **kw):
@@ -109,7 +110,15 @@ def instrument_map(loc, clock: StageClock) -> None:
             clock.answers.append((int(place), float(ans.prob), float(ans.score), bool(ans.ok)))
         return ans
 
-    loc.rank, loc._deep = ranked, answered
+    gicp = loc._gicp
+
+    def alone(src, crop, T, place):  # each GICP alone's answer (None: not applied, stopped at its check)
+        ans = gicp(src, crop, T, place)
+        clock.gicps.append((int(place), float(ans.prob) if ans else -1.0, float(ans.score) if ans else -1.0,
+                            bool(ans.ok) if ans else False, "retry" in clock.stack))
+        return ans
+
+    loc.rank, loc._deep, loc._gicp = ranked, answered, alone
 
 
 def profile(loc, clock: StageClock, queries, label: str, log=print) -> list[dict]:
@@ -136,6 +145,7 @@ def profile(loc, clock: StageClock, queries, label: str, log=print) -> list[dict
         rows.append({"set": label, "outcome": outcome, "cpu_ms": cpu, "wall_s": wall, "stages": stages,
                      "calls": calls, "reason": r.reason, "probability": float(r.probability),
                      "candidates": int(r.candidates), "ranked": clock.ranked, "answers": clock.answers,
+                     "gicps": clock.gicps,
                      "place": int(r.place) if r.place is not None else -1})
         log(f"  {label} {n + 1}/{len(queries)}: {outcome} cpu {cpu:.0f} ms wall {wall:.2f} s "
             + " ".join(f"{k} {v:.0f}" for k, v in sorted(stages.items(), key=lambda kv: -kv[1]) if v >= 5)
