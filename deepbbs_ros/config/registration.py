@@ -120,6 +120,9 @@ class RegistrationConfig:
     # the most probable kept: a nearly symmetric place's flip can reach verdict_probability (simulated courtyard
     # flips scored 0.91-0.92, their right poses 0.97-1.0)
     verdict_sure: float = 0.95
+    # a valid pose left free by more than a tolerance along its weakest direction is checked for a second minimum there
+    # (core/second_minimum.py: GICP from the pose moved both ways along it); one as good beyond the tolerance -> invalid
+    second_minimum: bool = True
     # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
     # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)

@@ -14,7 +14,8 @@
     dense       the same refinement on the voxelised non-ground clouds      (registration.dense_refine)
     polish      precision stage: small_gicp GICP on the dense scans from the estimate (core/polish.py)
     deskew      the same on both scans deskewed with their own stream velocities, when they agree
-    verdict     the score of the pose and whether it can be trusted (core/verdict.py)
+    verdict     the score of the pose and whether it can be trusted (core/verdict.py), not when GICP finds a
+                minimum as good along its weakest direction (core/second_minimum.py)
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
 
 With ``good_start=True`` (the caller vouches for ``T_init``: consecutive scans, a fixed mounting, a map from the

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import verdict
+from deepbbs_ros.core import second_minimum, verdict
 from deepbbs_ros.core.good_start import good_start_points
 from deepbbs_ros.core.registration_state import State
 
@@ -33,7 +33,8 @@ class VerdictStages:
 
     def _verdict(self, st: State) -> None:
         """The pose's score (fitness) and calibrated probability (core/verdict.py); valid from
-        ``registration.verdict_probability``."""
+        ``registration.verdict_probability``, unless it can slide to another minimum as good along its weakest
+        direction (core/second_minimum.py, ``registration.second_minimum``)."""
         rc = self.config.registration
         st.score = self._score(st, st.T)
         if (st.tgt_pc is not None and st.tgt_pc.tree is not None and st.tgt_pc.pending is None
@@ -41,6 +42,9 @@ class VerdictStages:
             pts = good_start_points(st.src_pc, rc)
             st.probability = verdict.probability(pts, st.T, st.tgt_pc, rc.verdict_dist, "good_start")
             st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
+            if st.valid and rc.second_minimum:  # a second minimum as good along the weakest direction: not sure
+                st.ambiguity = second_minimum.check(pts, st.T, st.src_pc, st.tgt_pc, rc)
+                st.valid = not st.ambiguity.ambiguous
             return
         # no precision stage: the voxelised non-ground points, else the sampled ones, for which the probability is
         # not calibrated: reported, and the fitness decides (registration.verdict_threshold)

@@ -1,0 +1,124 @@
+"""Can an accepted pose slide to a second minimum along its weakest direction? (no ROS)
+
+In a corridor, a garage or a hall the verdict's features cannot tell a right pose from one slid along the direction
+the scene leaves nearly free: both fit the planes as tightly, and the structure that would pin them (a pillar, a door
+frame) is as well lined up 2-4 tolerances away. GICP can: started from the pose moved along that direction, it falls
+back to the pose when the pose is the only minimum there, and settles somewhere else when the scene has another one.
+
+The check, on an accepted pose with the precision stage's clouds:
+
+1. the weakest direction and its stiffness, from the target's normals at the plane matches of the verdict's points
+   (core/anchoring.py's information, the ``pinned`` feature's): ``uncertainty = tol / s`` tolerances (0.3 m, 1
+   degree), ``s`` the rms change of a match's point-to-plane residual per tolerance moved along it, ``tol`` the
+   residual tolerance (``verdict_dist / 5``). At most one tolerance (``pinned`` >= 0.5): the fit holds the pose
+   within a right pose's tolerance along every direction, nothing to check.
+2. GICP (the precision stage's settings) from the pose moved ``k`` tolerances both ways along it, ``k`` the
+   uncertainty clipped to [2, 5] tolerances (core/anchoring.py's STEPS: a wrong pose's distance, a slide's): as far
+   as the fit leaves the pose free, at least beyond the wrong-pose tolerance.
+3. ambiguous when a start settles more than one tolerance from the pose (so one of the two is wrong) with a fitness
+   (the verdict's, at ``verdict_dist``) as good as the pose's: not below it by more than two standard errors of a
+   share of ``n`` points, ``2 sqrt(p (1 - p) / n)``, ``p = (f n + 1) / (n + 2)`` (the rule of succession).
+
+Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from deepbbs_ros.core import anchoring, verdict
+from deepbbs_ros.core.polish import polish
+
+__all__ = ["Ambiguity", "check", "offset", "weakest"]
+
+WRONG = 1.0  # tolerances: two minima further apart than this cannot both be right
+STEPS = anchoring.STEPS  # tolerances: the shortest and the longest move along the weakest direction
+SIGMAS = 2.0  # standard errors of the fitness within which another minimum fits as well
+
+
+@dataclass
+class Ambiguity:
+    """What :func:`check` found. ``uncertainty``: tolerances along the weakest direction (inf: too few plane
+    matches); ``step``: tolerances the starts were moved by (0: not checked); ``other``: the other minimum (4, 4) or
+    None; ``offset``: its distance from the pose in tolerances; ``score`` / ``other_score``: their fitness."""
+
+    ambiguous: bool = False
+    uncertainty: float = 0.0
+    step: float = 0.0
+    other: np.ndarray | None = None
+    offset: float = 0.0
+    score: float = float("nan")
+    other_score: float = float("nan")
+    found: list = field(default_factory=list)  # (offset, fitness) of each start's minimum, in the order tried
+
+
+def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[np.ndarray | None, float]:
+    """The twist (6,) of one tolerance along the weakest direction of the pose that moved the verdict's points to
+    ``moved`` (N, 3), and the uncertainty along it in tolerances (see the module); (None, inf) with too few plane
+    matches on the target's normals."""
+    idx, sq = tgt_pc.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
+    normals = np.asarray(tgt_pc.cloud.normals())[:, :3]
+    tpts = np.asarray(tgt_pc.cloud.points())[:, :3]
+    if len(normals) != len(tpts) or not np.any(normals):
+        return None, float("inf")
+    plane = np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
+    if m.sum() < anchoring.MIN_MATCHES:
+        return None, float("inf")
+    w, v = np.linalg.eigh(anchoring.information(moved[m], normals[idx[m]]))
+    s = float(np.sqrt(max(w[0], 0.0)))
+    return v[:, 0] * anchoring.SCALE, (0.2 * dist / s if s > 0 else float("inf"))
+
+
+def offset(T: np.ndarray, T2: np.ndarray) -> float:
+    """Tolerances between two poses (4, 4): the larger of their distance / 0.3 m and their angle / 1 degree."""
+    d = np.linalg.solve(T, T2)
+    ang = float(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    return max(float(np.linalg.norm(d[:3, 3])) / anchoring.SCALE[0], ang / anchoring.SCALE[3])
+
+
+def _moved_by(twist: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``T`` (4, 4) moved by ``twist`` (6,) (translation, rotation about the target's origin)."""
+    D = np.eye(4)
+    D[:3, :3] = anchoring._rotation(twist[3:])
+    D[:3, 3] = twist[:3]
+    return D @ T
+
+
+def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1) -> Ambiguity:
+    """Whether the pose ``T`` (4, 4) ``T_target_source`` has a second minimum as good along its weakest direction
+    (see the module). ``points``: the verdict's points (N, 3), source frame; ``src_pc`` / ``tgt_pc``: the precision
+    stage's clouds (``core.polish.PolishCloud``); ``rc``: the registration section (its ``verdict_dist`` and
+    ``polish*`` keys)."""
+    T = np.asarray(T, np.float64)
+    pts = np.asarray(points, np.float64)
+    if len(pts) == 0 or getattr(tgt_pc, "T_base", None) is not None:
+        return Ambiguity()  # no points, or a map crop (core.polish.PolishView: localization judges its own way)
+    dist = rc.verdict_dist
+    moved = pts @ T[:3, :3].T + T[:3, 3]
+    twist, unc = weakest(moved, tgt_pc, dist, threads)
+    if twist is None or unc <= WRONG:
+        return Ambiguity(uncertainty=unc)
+    k = float(np.clip(unc, STEPS[0], STEPS[-1]))
+    f = verdict.fitness(pts, tgt_pc.tree, T, dist, threads)
+    n = len(pts)
+    p = (f * n + 1.0) / (n + 2.0)  # the share's estimate by the rule of succession: a spread even at 0 or 1
+    margin = SIGMAS * np.sqrt(p * (1.0 - p) / n)
+    out = Ambiguity(uncertainty=unc, step=k, score=f)
+    for sign in (1.0, -1.0):
+        pol = polish(src_pc, tgt_pc, _moved_by(sign * k * twist, T), rc)
+        if not pol.applied:
+            continue  # not converged (or moved implausibly far): no minimum found from there
+        T2 = pol.T_target_source
+        d = offset(T, T2)
+        if d <= WRONG:
+            out.found.append((d, f))
+            continue  # back to the pose: its own basin
+        f2 = verdict.fitness(pts, tgt_pc.tree, T2, dist, threads)
+        out.found.append((d, f2))
+        if f2 >= f - margin and (out.other is None or f2 > out.other_score):
+            out.ambiguous, out.other, out.offset, out.other_score = True, T2, d, f2
+    return out
