@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deepbbs_ros.core import anchoring, verdict
-from deepbbs_ros.core.polish import polish
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish
 
 __all__ = ["Ambiguity", "check", "offset", "weakest"]
 
@@ -95,8 +95,10 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
     ``polish*`` keys)."""
     T = np.asarray(T, np.float64)
     pts = np.asarray(points, np.float64)
-    if len(pts) == 0 or getattr(tgt_pc, "T_base", None) is not None:
-        return Ambiguity()  # no points, or a map crop (core.polish.PolishView: localization judges its own way)
+    if len(pts) == 0 or getattr(tgt_pc, "T_base", None) is not None or rc.polish not in SMALL_GICP_TYPE:
+        # no points, a map crop (core.polish.PolishView: localization judges its own way), or no GICP to run
+        # (registration.polish "none")
+        return Ambiguity()
     dist = rc.verdict_dist
     moved = pts @ T[:3, :3].T + T[:3, 3]
     twist, unc = weakest(moved, tgt_pc, dist, threads)
