@@ -161,3 +161,31 @@ def test_pair_plots_legend_off_the_data_and_zero_errors(tmp_path):
     over_pairs = figs[2].axes[0]
     assert "an error of 0 is drawn at 0.0001" in over_pairs.get_title()
     assert over_pairs.get_ylim()[0] <= P.ZERO_FLOOR
+
+
+def test_save_ends_a_figure_the_same_way_everywhere(tmp_path):
+    """plot_style.save: a grid on the axes asked, one figure legend from several panels (each label once), the PNG
+    at DPI, the figure closed, the path appended."""
+    import matplotlib.image as mpimg
+
+    from deepbbs_ros.replay import plot_style as S
+
+    plt = S.pyplot()
+    fig, axes = plt.subplots(2, 1, figsize=(4, 3), layout="constrained")
+    for ax in axes:
+        ax.plot([0, 1], [0, 1], label="shared")
+    axes[1].plot([0, 1], [1, 0], label="second only")
+    kept = []
+    orig = plt.close
+    try:
+        plt.close = kept.append  # keep the figure to inspect it
+        paths: list = []
+        assert S.save(fig, tmp_path / "f.png", paths, grid=axes[:1], legend=axes) == tmp_path / "f.png"
+    finally:
+        plt.close = orig
+    assert paths == [tmp_path / "f.png"] and kept == [fig]
+    assert mpimg.imread(paths[0]).shape[:2] == (3 * S.DPI, 4 * S.DPI)
+    (legend,) = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["shared", "second only"]
+    assert axes[0].xaxis.get_gridlines()[0].get_visible() and not axes[1].xaxis.get_gridlines()[0].get_visible()
+    plt.close(fig)

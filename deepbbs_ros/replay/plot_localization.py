@@ -13,6 +13,7 @@ from deepbbs_ros.replay.plot_style import (
     log_or_note,
     on_log_axis,
     pyplot,
+    save,
     xy_axes,
     xy_frame,
 )
@@ -54,11 +55,7 @@ def map_figure(points: np.ndarray, T_map_sensor: np.ndarray, title: str = "Map (
 
 def plot_map(path: Path, points: np.ndarray, T_map_sensor: np.ndarray) -> Path:
     """Write :func:`map_figure` to ``path`` (PNG)."""
-    plt = pyplot()
-    fig = map_figure(points, T_map_sensor)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return save(map_figure(points, T_map_sensor), path)
 
 
 #: the colour of each MapTracker event in the localization plots (others: EVENT_OTHER)
@@ -109,11 +106,7 @@ def plot_localization(run: Path, res: LocalizationResults, rot_thresh: float, tr
                     mew=1.5, ms=9, label="wrong (outside tolerance)", zorder=6)
             share += f", {int(wrong.sum())} wrong"
     xy_axes(ax, origin, xlim, ylim, to_scale, f"Localization in the map (top view): {share}")
-    handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 4), fontsize=9, frameon=False)
-    out.append(run / "localization_xy.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(fig, run / "localization_xy.png", out, legend=[ax], ncol=4)
 
     t = (np.asarray([r.stamp_ns for r in recs], dtype=np.int64) - recs[0].stamp_ns) * 1e-9
     rows = 3 if gt is not None else 1
@@ -145,19 +138,6 @@ def plot_localization(run: Path, res: LocalizationResults, rot_thresh: float, tr
         axes[-1].plot(t[sel], ms[sel], "o", ms=3.5, label=f"time: {mode}", color=MODE_COLORS.get(mode, EVENT_OTHER))
     axes[-1].set(ylabel="time [ms/scan]", xlabel="time [s]")
     axes[-1].set_ylim(bottom=0.0)
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    handles, labels = [], []
-    for ax in axes:
-        h, lab = ax.get_legend_handles_labels()
-        for hh, ll in zip(h, lab):
-            if ll not in labels:
-                handles.append(hh)
-                labels.append(ll)
-    if labels:
-        fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 6), fontsize=9, frameon=False)
-    out.append(run / "errors_over_time.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(fig, run / "errors_over_time.png", out, grid=axes, legend=axes)
     return out
 

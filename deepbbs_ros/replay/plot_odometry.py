@@ -12,8 +12,10 @@ from deepbbs_ros import metrics
 from deepbbs_ros.replay.plot_style import (
     cdf,
     figure_legend,
+    finish,
     log_or_note,
     pyplot,
+    save,
     ticks,
     xy_axes,
     xy_frame,
@@ -33,15 +35,9 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
     t = (np.asarray(res.stamps_ns[:n], dtype=np.int64) - res.stamps_ns[0]) * 1e-9
 
     ests = {name: np.stack(res.T_world_est[name][:n]) for name in res.methods}
-    fig = trajectory_figure(ests, gt)
-    out.append(run / "trajectory_xy.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
-
-    fig = errors_over_time_figure(t, ests, {name: res.runtime_ms[name][:n] for name in res.methods}, gt)
-    out.append(run / "errors_over_time.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(trajectory_figure(ests, gt), run / "trajectory_xy.png", out)
+    runtime_ms = {name: res.runtime_ms[name][:n] for name in res.methods}
+    save(errors_over_time_figure(t, ests, runtime_ms, gt), run / "errors_over_time.png", out)
 
     if gt is not None:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
@@ -55,12 +51,7 @@ def plot_odometry(run: Path, res: OdometryResults) -> list[Path]:
         log_or_note(axes[1], "x", np.concatenate([r for _, r in rpes]) if rpes else [])
         axes[0].set(xlabel="RPE translation [m/frame]", ylabel="fraction of frames", title="RPE CDF")
         axes[1].set(xlabel="RPE rotation [deg/frame]")
-        for ax in axes:
-            ax.grid(alpha=0.3)
-        figure_legend(fig, axes[0])
-        out.append(run / "rpe_cdf.png")
-        fig.savefig(out[-1], dpi=110)
-        plt.close(fig)
+        save(fig, run / "rpe_cdf.png", out, grid=axes, legend=axes[:1])
     return out
 
 
@@ -139,8 +130,6 @@ def errors_over_time_figure(t: np.ndarray, ests: dict[str, np.ndarray], runtime_
         _error_scale(axes[1], rpe)
     axes[-1].set(ylabel="runtime [ms/frame]", xlabel="time [s]")
     axes[-1].set_ylim(bottom=0.0)
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    figure_legend(fig, axes[-1])
+    finish(fig, grid=axes, legend=axes[-1:])
     return fig
 

@@ -1,9 +1,15 @@
 """What every replay plot shares: matplotlib on the Agg backend, CDF curves, log axes (or a note when the values do not
-allow one), the figure legend, tick locators, and the top view's frame (to scale or stretched) and axes."""
+allow one), the figure legend, how a figure ends (grid, legend, PNG), tick locators, and the top view's frame (to scale
+or stretched) and axes."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+#: every replay PNG is written at this resolution, dots per inch
+DPI = 110
 
 
 def pyplot():
@@ -37,11 +43,35 @@ def log_or_note(ax, axis: str, values) -> None:
                 color="0.4")
 
 
-def figure_legend(fig, ax) -> None:
-    """One legend for the whole figure, above its panels (never on the data), from ``ax``'s labelled lines."""
-    handles, labels = ax.get_legend_handles_labels()
+def figure_legend(fig, *axes, ncol: int = 6) -> None:
+    """One legend for the whole figure, above its panels (never on the data), from the labelled lines of ``axes``
+    (a label several panels share, once), at most ``ncol`` entries a row."""
+    handles, labels = [], []
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            if label not in labels:
+                handles.append(handle)
+                labels.append(label)
     if labels:
-        fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 6), fontsize=9, frameon=False)
+        fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), ncol), fontsize=9, frameon=False)
+
+
+def finish(fig, grid=(), legend=(), ncol: int = 6) -> None:
+    """End a figure: a light grid on each axes of ``grid``, one :func:`figure_legend` from the axes of ``legend``."""
+    for ax in grid:
+        ax.grid(alpha=0.3)
+    figure_legend(fig, *legend, ncol=ncol)
+
+
+def save(fig, path: Path, paths: list[Path] | None = None, *, grid=(), legend=(), ncol: int = 6) -> Path:
+    """:func:`finish` ``fig``, write it to ``path`` (PNG at :data:`DPI`), close it and append ``path`` to ``paths``."""
+    finish(fig, grid, legend, ncol)
+    path = Path(path)
+    fig.savefig(path, dpi=DPI)
+    pyplot().close(fig)
+    if paths is not None:
+        paths.append(path)
+    return path
 
 
 #: errors of exactly 0 (a log axis cannot show them) are drawn at this floor, deg or m

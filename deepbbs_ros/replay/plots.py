@@ -29,10 +29,10 @@ from deepbbs_ros.replay.plot_style import (
     STRETCHED_XY_RATIO,
     ZERO_FLOOR,
     cdf,
-    figure_legend,
     log_or_note,
     on_log_axis,
     pyplot,
+    save,
     ticks,
 )
 from deepbbs_ros.replay.runner import PairResults
@@ -64,12 +64,7 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
                 title=f"Rotation error CDF (success: <= {rot_thresh:g} deg)", ylim=(0.0, 1.02))
     axes[1].set(xlabel="translation error [m]", title=f"Translation error CDF (success: <= {trans_thresh:g} m)",
                 ylim=(0.0, 1.02))
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    figure_legend(fig, axes[0])
-    out.append(run / "errors_cdf.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(fig, run / "errors_cdf.png", out, grid=axes, legend=axes[:1])
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     for name in res.methods:
@@ -83,10 +78,7 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
     axes[1].set(xlabel="log10 translation error [m]", title="Translation error histogram")
     for ax in axes:
         ax.yaxis.set_major_locator(ticks(6, integer=True))
-    figure_legend(fig, axes[0])
-    out.append(run / "errors_hist.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(fig, run / "errors_hist.png", out, legend=axes[:1])
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 6.4), sharex=True, layout="constrained")
     zeros = False
@@ -105,10 +97,5 @@ def plot_pairs(run: Path, res: PairResults, rot_thresh: float, trans_thresh: flo
                 + (f"; an error of 0 is drawn at {ZERO_FLOOR:g}" if zeros else ""))
     axes[1].set(ylabel="translation error [m]", xlabel="pair")
     axes[1].xaxis.set_major_locator(ticks(10, integer=True))  # pairs are whole numbers
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    figure_legend(fig, axes[0])
-    out.append(run / "errors_over_pairs.png")
-    fig.savefig(out[-1], dpi=110)
-    plt.close(fig)
+    save(fig, run / "errors_over_pairs.png", out, grid=axes, legend=axes[:1])
     return out
