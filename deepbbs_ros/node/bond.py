@@ -13,21 +13,14 @@ import uuid
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+
+from deepbbs_ros.node.destroyable import publisher_events, subscription_events
 
 PERIOD_S = 0.1  # nav2_util::LifecycleNode's heartbeat period
 TIMEOUT_S = 4.0  # and heartbeat timeout
 TOPIC = "bond"
-
-
-def no_event_handlers(kind: type) -> Any:
-    """``kind`` (rclpy's ``PublisherEventCallbacks`` / ``SubscriptionEventCallbacks``) with no QoS-event handlers, for
-    an entity destroyed while an executor may be spinning (deactivate, cleanup, a broken bond): rclpy's executor still
-    adds a destroyed entity's event handlers to its wait set, and the spinning thread dies with ``InvalidHandle``
-    (ros2/rclpy#1142). What is lost is rclpy's "incompatible QoS" warning on those entities."""
-    return kind(use_default_callbacks=False)
 
 
 def available() -> bool:
@@ -52,9 +45,9 @@ class BondHeartbeat:
         self.sister_active = False
         # plain publisher and timer: the heartbeat is not a lifecycle output (bondcpp's QoS: keep last 5, reliable)
         self._pub = Node.create_publisher(node, Status, TOPIC, QoSProfile(depth=5),
-                                          event_callbacks=no_event_handlers(PublisherEventCallbacks))
+                                          event_callbacks=publisher_events())
         self._sub = node.create_subscription(Status, TOPIC, self._on_status, QoSProfile(depth=100),
-                                             event_callbacks=no_event_handlers(SubscriptionEventCallbacks))
+                                             event_callbacks=subscription_events())
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._timer = node.create_timer(period_s, self._heartbeat, clock=steady)
         self._publish(True)

@@ -29,7 +29,6 @@ from collections.abc import Callable
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.lifecycle.publisher import LifecyclePublisher
 from rclpy.node import Node
@@ -37,8 +36,9 @@ from rclpy.node import Node
 from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import DeepBBSError
-from deepbbs_ros.node.bond import BondHeartbeat, no_event_handlers
+from deepbbs_ros.node.bond import BondHeartbeat
 from deepbbs_ros.node.bond import available as bond_available
+from deepbbs_ros.node.destroyable import publisher_events, subscription_events
 from deepbbs_ros.node.outputs import TfBroadcaster
 from deepbbs_ros.node.parameters import node_parameters
 from deepbbs_ros.node.registration_node import RegistrationNode
@@ -201,13 +201,13 @@ class LocalizerNode(LifecycleNodeMixin, RegistrationNode):
     # -- the node's outputs are lifecycle publishers: on while active -------------------------------------------
     def create_publisher(self, *args: Any, **kwargs: Any):
         if getattr(self, "_made", None) is not None:  # during configure (rclpy's own publishers stay plain)
-            kwargs.setdefault("event_callbacks", no_event_handlers(PublisherEventCallbacks))
+            kwargs.setdefault("event_callbacks", publisher_events())
             return self.create_lifecycle_publisher(*args, **kwargs)
         return Node.create_publisher(self, *args, **kwargs)
 
     def create_subscription(self, *args: Any, **kwargs: Any):
         if getattr(self, "_made", None) is not None:  # destroyed again by deactivate / cleanup
-            kwargs.setdefault("event_callbacks", no_event_handlers(SubscriptionEventCallbacks))
+            kwargs.setdefault("event_callbacks", subscription_events())
         return super().create_subscription(*args, **kwargs)  # guarded (node/callbacks.py)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
