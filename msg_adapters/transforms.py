@@ -23,6 +23,7 @@ from deepbbs_ros.errors import TransformFormatError
 
 __all__ = [
     "TransformFormatError",
+    "invert",
     "matrix_to_odometry",
     "matrix_to_pose",
     "matrix_to_pose_stamped",
@@ -227,6 +228,23 @@ def _check_matrix(T: Any) -> np.ndarray:
             f"transform's 3x3 block is not a proper rotation (|R^T R - I| = {err:.2e}, det {np.linalg.det(R):.4f})"
         )
     return T
+
+
+def invert(T: Any) -> np.ndarray:
+    """The inverse of a rigid transform (4, 4) ``T_target_source``: ``T_source_target = [R^T, -R^T t]``.
+
+    Raises TransformFormatError when ``T`` or its inverse is not finite: a finite but huge translation (say 1e308 m)
+    whose ``-R^T t`` overflows is no transform a pose can be composed with."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise TransformFormatError(f"transform must be a finite (4, 4) matrix, got {T.tolist()}")
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    with np.errstate(over="ignore", invalid="ignore"):  # said below
+        out[:3, 3] = -(T[:3, :3].T @ T[:3, 3])
+    if not np.isfinite(out).all():
+        raise TransformFormatError(f"the inverse of the transform is not finite (translation {T[:3, 3].tolist()} m)")
+    return out
 
 
 # --------------------------------------------------------------------------------------------------

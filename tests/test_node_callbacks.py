@@ -21,7 +21,7 @@ from test_node import SEC, Harness, at, scan, tiny_config  # noqa: E402
 from deepbbs_ros.errors import NodeError  # noqa: E402
 from deepbbs_ros.node.callbacks import GuardedCallbacks, guard  # noqa: E402
 from deepbbs_ros.node.tf_buffer import TransformBuffer  # noqa: E402
-from msg_adapters.transforms import matrix_to_transform_stamped  # noqa: E402
+from msg_adapters.transforms import matrix_to_transform_stamped, odometry_to_matrix  # noqa: E402
 
 world = test_node.world  # the structured street
 drive = test_node_localization.drive  # the simulated drive and its map
@@ -159,6 +159,64 @@ def test_bad_input_and_failing_callbacks_leave_the_executor_spinning(ros, world,
         assert h.spin_error == "" and h.thread.is_alive()
     finally:
         h.close()
+
+
+def test_absurd_tf_static_is_one_error_line_and_a_good_one_is_used(ros, world, capfd):
+    """Odometry mode: a base_link <- lidar on /tf_static that is finite but absurd (its inverse overflows; then one
+    whose inverse is finite but the base's pose and covariance are not) withholds each scan's outputs: one error
+    line naming the frames, counted as errors.bad_tf_static (a user error, no internal_error: it used to fail every
+    scan on the worker thread); the odometry goes on, and once a usable transform arrives the base's motion since the
+    first scan is published."""
+    from rclpy.qos import DurabilityPolicy
+    from tf2_msgs.msg import TFMessage
+
+    from deepbbs_ros.node.qos import reliable_qos
+
+    cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
+                         "node.tf_timeout": 5.0, "node.diagnostics_period": 0.2, "node.error_log_period": 60.0})
+    h = Harness(cfg, "reg_mount")
+    static = h.client.create_publisher(TFMessage, "/tf_static", reliable_qos(10, DurabilityPolicy.TRANSIENT_LOCAL))
+    try:
+        turned = np.eye(4)
+        turned[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]  # the LiDAR turned 90 deg left on the base
+        half = np.eye(4)
+        half[:2, :2] = [[np.sqrt(0.5), -np.sqrt(0.5)], [np.sqrt(0.5), np.sqrt(0.5)]]  # 45 deg
+        no_inverse = _tf(half, "base_link", "lidar")
+        no_inverse.transform.translation.x = no_inverse.transform.translation.y = 1.7e308  # -R^T t overflows
+        no_pose = _tf(np.eye(4), "base_link", "lidar")
+        no_pose.transform.translation.x = 1e308  # its inverse is finite; the base's covariance is not
+        good = turned.copy()
+        good[2, 3] = 1.5
+        errors = h.node._errors.counts
+        for k, bad in enumerate((no_inverse, no_inverse, no_pose)):
+            static.publish(TFMessage(transforms=[bad]))
+            x = bad.transform.translation.x
+            assert h.wait_for(lambda x=x: (T := h.node.static_tf.lookup("base_link", "lidar")) is not None
+                              and T[0, 3] == x, 10.0)
+            h.send("cloud", scan(world, at(0.5 * k), seed=40 + k), (40 + k) * SEC)
+            h.wait_processed(k + 1)
+            assert errors.get("bad_tf_static") == k + 1, h.node.stats()
+        assert h.node.stats()["processed"] == 0 and not h.poses and not h.odoms
+        static.publish(TFMessage(transforms=[_tf(good, "base_link", "lidar")]))
+        assert h.wait_for(lambda: h.node.static_tf.lookup("base_link", "lidar")[2, 3] == 1.5, 10.0)
+        for k in (3, 4):
+            h.send("cloud", scan(world, at(0.5 * k), seed=40 + k), (40 + k) * SEC)
+            h.wait_processed(k + 1)
+        assert h.wait_for(lambda: len(h.odoms) == 2, 10.0), h.node.stats()
+        # the base's motion since the first scan (the odom frame), the LiDAR's x the base's y
+        for k, odom in zip((3, 4), h.odoms):
+            T, _, frame, child = odometry_to_matrix(odom)
+            assert (frame, child) == ("odom", "base_link")
+            np.testing.assert_allclose(T[:3, 3], [0.0, 0.5 * k, 0.0], atol=0.15)
+        assert h.wait_for(lambda: h.diagnostics().get("errors.bad_tf_static") == "3", 10.0), h.diagnostics()
+        assert "internal_error" not in errors and not any(k.startswith("callback") for k in errors), errors
+        assert h.spin_error == "" and h.thread.is_alive()
+    finally:
+        h.close()
+    lines = [line for line in capfd.readouterr().err.splitlines() if "[bad_tf_static]" in line]
+    assert len(lines) == 1, lines  # rate-limited: one line per node.error_log_period
+    assert "base_link <- lidar on /tf_static is not usable: the inverse of the transform is not finite" in lines[0]
+    assert "withheld until a usable transform arrives" in lines[0]
 
 
 def test_localization_bad_initialpose_tf_and_services(ros, drive, tmp_path):

@@ -10,6 +10,7 @@ from hypothesis.extra import numpy as hnp
 
 from msg_adapters.transforms import (
     TransformFormatError,
+    invert,
     matrix_to_odometry,
     matrix_to_pose,
     matrix_to_pose_stamped,
@@ -238,6 +239,29 @@ def test_stamp_from_rclpy_time():
 def test_bad_matrix_raises(T, match):
     with pytest.raises(TransformFormatError, match=match):
         matrix_to_pose(T)
+
+
+def test_invert_rigid_transforms_and_refuses_an_overflowing_inverse():
+    """invert(T) @ T = I over seeded random rigid transforms; a finite but huge translation whose -R^T t overflows,
+    or a non-finite T, is a TransformFormatError."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        T[:3, 3] = rng.uniform(-100.0, 100.0, 3)
+        np.testing.assert_allclose(invert(T) @ T, np.eye(4), atol=1e-12)
+        np.testing.assert_allclose(invert(T), np.linalg.inv(T), atol=1e-12)
+    huge = np.eye(4)
+    huge[:3, 3] = 1e308
+    np.testing.assert_array_equal(invert(huge)[:3, 3], -1e308)  # finite: usable
+    huge[:3, :3] = Rotation.from_euler("z", 45.0, degrees=True).as_matrix()
+    huge[:3, 3] = 1.7e308  # -R^T t sums two terms of 1.2e308
+    with pytest.raises(TransformFormatError, match=r"the inverse of the transform is not finite \(translation"):
+        invert(huge)
+    with pytest.raises(TransformFormatError, match="finite"):
+        invert(np.full((4, 4), np.inf))
 
 
 def test_other_errors():

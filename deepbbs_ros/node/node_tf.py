@@ -10,7 +10,11 @@ import time
 
 from rclpy.qos import DurabilityPolicy
 
+from deepbbs_ros.errors import TransformFormatError
+from deepbbs_ros.node.inputs import BadInput
 from deepbbs_ros.node.qos import reliable_qos
+from deepbbs_ros.node.tf_static import BAD_MOUNT, unusable_mount
+from msg_adapters.transforms import invert
 
 
 class NodeTf:
@@ -44,38 +48,44 @@ class NodeTf:
         return self.create_subscription(TFMessage, "/tf", self.static_tf.add_dynamic_message, qos)
 
     def _base_from_sensor(self, frame: str):
-        """``T_base_sensor`` for a cloud in ``frame`` (odometry mode, on the worker thread): looked up on
-        ``/tf_static``; the first scan waits for it until ``node.tf_timeout`` s after the subscription was made
-        (during start-up: the model and the warm-up usually take longer, so a running robot_state_publisher's
-        transform is there before the first scan and nothing waits), then the
-        identity is used with one warning (and the lookup goes on: a transform that arrives later is used
-        from then on, with one log line)."""
+        """``T_base_sensor`` for a cloud in ``frame`` (odometry and localization, on the worker thread): looked up
+        on ``/tf_static`` for every scan (a transform published again is used from then on, with one log line). The
+        first scan waits for it until ``node.tf_timeout`` s after the subscription was made (during start-up: the
+        model and the warm-up usually take longer, so a running robot_state_publisher's transform is there before
+        the first scan and nothing waits), then the identity is used with one warning until it arrives. A transform
+        the node cannot compose poses with (it or its inverse is not finite: a finite but absurd translation such as
+        1e308 m) is :class:`BadInput` ``bad_tf_static`` (one rate-limited error line naming the frames): the scan's
+        outputs are withheld, the odometry goes on, until a usable transform arrives."""
         import numpy as np
 
         base = self.cfg.node.base_frame
         if not base or base == frame:
             return np.eye(4)
         known = self._extrinsics.get(frame)
-        if known is not None and known[1]:
-            return known[0]
         if known is None:
             left = self._t_tf + self.cfg.node.tf_timeout - time.monotonic()
             T = self.static_tf.wait(base, frame, max(0.0, left))
         else:
             T = self.static_tf.lookup(base, frame)
-        if T is not None:
+        if T is None:
+            if known is None:
+                self._extrinsics[frame] = (np.eye(4), False)
+                self.get_logger().warning(
+                    f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} "
+                    f"s: publishing the sensor's {'pose' if self.localization is not None else 'motion'} as {base}'s "
+                    "(identity); publish it (robot_state_publisher) "
+                    "or set -p \"node.base_frame:=''\" to use the cloud frame"
+                )
+            return self._extrinsics[frame][0]
+        try:
+            invert(T)  # the node composes every pose with T and its inverse
+        except TransformFormatError as err:
+            raise BadInput(BAD_MOUNT, unusable_mount(base, frame, str(err))) from err
+        if known is None or not known[1] or not np.array_equal(known[0], T):
             self._extrinsics[frame] = (T, True)
             t, log = T[:3, 3], self.get_logger().info
             log(f"{base} <- {frame} from /tf_static: translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m; "
                 f"publishing the {'pose' if self.localization is not None else 'motion'} of {base}"
                 + (" from now on" if known is not None else ""))
-            return T
-        if known is None:
-            self._extrinsics[frame] = (np.eye(4), False)
-            self.get_logger().warning(
-                f"no transform {base} <- {frame} on /tf_static within node.tf_timeout={self.cfg.node.tf_timeout} s: "
-                f"publishing the sensor's {'pose' if self.localization is not None else 'motion'} as {base}'s "
-                "(identity); publish it (robot_state_publisher) "
-                "or set -p \"node.base_frame:=''\" to use the cloud frame"
-            )
-        return np.eye(4)
+        return T
+

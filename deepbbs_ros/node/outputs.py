@@ -31,7 +31,7 @@ from deepbbs_ros.config import NodeConfig
 from deepbbs_ros.core.covariance import conjugated
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.covariance import twist_from_delta
-from deepbbs_ros.node.inputs import Cloud
+from deepbbs_ros.node.inputs import BadInput, Cloud
 from deepbbs_ros.node.pipeline import (
     UNKNOWN_TWIST_COV,
     OdometryEstimate,
@@ -39,7 +39,7 @@ from deepbbs_ros.node.pipeline import (
     motion_twist,
     registration_covariance,
 )
-from deepbbs_ros.node.tf_static import base_covariance, base_motion
+from deepbbs_ros.node.tf_static import BAD_MOUNT, base_covariance, base_motion, unusable_mount
 from msg_adapters.pointcloud2 import arrays_to_pointcloud2
 from msg_adapters.transforms import matrix_to_odometry, matrix_to_pose_stamped, matrix_to_transform_stamped
 
@@ -138,17 +138,22 @@ class Outputs:
         ``~/aligned_cloud``: the scan in the odom frame."""
         odom, child = self.cfg.odom_frame, self.cfg.base_frame or cloud.frame_id
         T_bs = self._extrinsic(cloud.frame_id)
-        T_odom = base_motion(T_bs, step.T_odom)
+        moved = not np.allclose(T_bs, np.eye(4))
+        with np.errstate(over="ignore", invalid="ignore"):  # an absurd mounting: checked below
+            T_odom = base_motion(T_bs, step.T_odom)
+            twist_and_covs = ()
+            if self.odometry is not None:
+                twist = step.twist
+                if step.T_prev_curr is not None and step.dt > 1e-3 and moved:
+                    twist = twist_from_delta(base_motion(T_bs, step.T_prev_curr), step.dt)  # in the base frame
+                twist_and_covs = (twist, conjugated(T_bs, step.T_odom, step.pose_covariance),
+                                  base_covariance(T_bs, step.twist_covariance))
+        if moved and not all(np.isfinite(a).all() for a in (T_odom, *twist_and_covs)):
+            raise BadInput(BAD_MOUNT, unusable_mount(child, cloud.frame_id, f"the pose or covariance of {child} it "
+                                                     f"gives is not finite (translation {T_bs[:3, 3].tolist()} m)"))
         self._pose_and_transform(T_odom, cloud.stamp_ns, odom, child)
         if self.odometry is not None:
-            twist = step.twist
-            if step.T_prev_curr is not None and step.dt > 1e-3 and not np.allclose(T_bs, np.eye(4)):
-                twist = twist_from_delta(base_motion(T_bs, step.T_prev_curr), step.dt)  # in the base frame
-            self.odometry.publish(
-                matrix_to_odometry(T_odom, cloud.stamp_ns, odom, child, twist,
-                                   conjugated(T_bs, step.T_odom, step.pose_covariance),
-                                   base_covariance(T_bs, step.twist_covariance))
-            )  # fmt: skip
+            self.odometry.publish(matrix_to_odometry(T_odom, cloud.stamp_ns, odom, child, *twist_and_covs))
         # the scan (sensor frame) moved into the odom frame, stamped with that frame: it lines up with every
         # earlier scan in RViz (fixed frame odom), whatever TF holds; T_odom_base @ T_base_sensor
         self._aligned(cloud, T_odom @ T_bs, odom)

@@ -22,6 +22,9 @@ import numpy as np
 
 from deepbbs_ros.node.covariance import adjoint
 
+#: the error kind (log, /diagnostics ``errors.bad_tf_static``) of a scan whose sensor mounting the node cannot use
+BAD_MOUNT = "bad_tf_static"
+
 
 class StaticTransforms:
     """A thread-safe tree of static transforms, fed with ``tf2_msgs/TFMessage`` (``add_message``)."""
@@ -108,3 +111,9 @@ def base_covariance(T_base_sensor: np.ndarray, cov: np.ndarray) -> np.ndarray:
     Ad = adjoint(np.asarray(T_base_sensor, dtype=np.float64))
     out = Ad @ np.asarray(cov, dtype=np.float64) @ Ad.T
     return 0.5 * (out + out.T)
+
+
+def unusable_mount(base: str, frame: str, why: str) -> str:
+    """The error line of a ``base <- frame`` transform on ``/tf_static`` the node cannot compose poses with."""
+    return (f"{base} <- {frame} on /tf_static is not usable: {why}; the scan's outputs are withheld until a usable "
+            "transform arrives (check robot_state_publisher's URDF or the static_transform_publisher arguments)")
