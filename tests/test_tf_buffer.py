@@ -101,12 +101,13 @@ def test_tf_messages_feed_the_buffer():
 
 
 def test_quaternions_of_random_rotations():
-    from deepbbs_ros.node.tf_buffer import matrix_from_quat, quat_from_matrix
+    """The quaternions the buffer interpolates with (msg_adapters.transforms, the messages' own)."""
+    from msg_adapters.transforms import matrix_to_quaternion, quaternion_to_matrix
 
     for R in Rotation.random(200, random_state=1).as_matrix():
-        q = quat_from_matrix(R)
+        q = matrix_to_quaternion(R)
         assert q[3] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
-        np.testing.assert_allclose(matrix_from_quat(q), R, atol=1e-12)
+        np.testing.assert_allclose(quaternion_to_matrix(q), R, atol=1e-12)
     for yaw in (0.0, np.pi, -np.pi / 2):  # w near 0 (180 deg) and the axes
-        np.testing.assert_allclose(matrix_from_quat(quat_from_matrix(_T(0, 0, 0, yaw)[:3, :3])),
+        np.testing.assert_allclose(quaternion_to_matrix(matrix_to_quaternion(_T(0, 0, 0, yaw)[:3, :3])),
                                    _T(0, 0, 0, yaw)[:3, :3], atol=1e-12)

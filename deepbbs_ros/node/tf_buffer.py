@@ -17,36 +17,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.node.tf_static import StaticTransforms, valid_transforms
-
-
-def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> unit quaternion (x, y, z, w), w >= 0 (Shepperd's method: the largest of the four first)."""
-    m = np.asarray(R, dtype=np.float64)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    diag = (tr, m[0, 0], m[1, 1], m[2, 2])
-    i = int(np.argmax(diag))
-    if i == 0:
-        w = 0.5 * np.sqrt(max(1.0 + tr, 0.0))
-        q = np.array([(m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w), w])
-    elif i == 1:
-        x = 0.5 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-        q = np.array([x, (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x), (m[2, 1] - m[1, 2]) / (4 * x)])
-    elif i == 2:
-        y = 0.5 * np.sqrt(max(1.0 - m[0, 0] + m[1, 1] - m[2, 2], 0.0))
-        q = np.array([(m[0, 1] + m[1, 0]) / (4 * y), y, (m[1, 2] + m[2, 1]) / (4 * y), (m[0, 2] - m[2, 0]) / (4 * y)])
-    else:
-        z = 0.5 * np.sqrt(max(1.0 - m[0, 0] - m[1, 1] + m[2, 2], 0.0))
-        q = np.array([(m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z, (m[1, 0] - m[0, 1]) / (4 * z)])
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
-
-
-def matrix_from_quat(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) -> (3, 3) rotation."""
-    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+from msg_adapters.transforms import matrix_to_quaternion, quaternion_to_matrix
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
@@ -64,7 +35,7 @@ def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
 def interpolate(T0: np.ndarray, T1: np.ndarray, s: float) -> np.ndarray:
     """The transform a share ``s`` of the way from ``T0`` to ``T1`` (4, 4): translation linear, rotation slerp."""
     out = np.eye(4)
-    out[:3, :3] = matrix_from_quat(slerp(quat_from_matrix(T0[:3, :3]), quat_from_matrix(T1[:3, :3]), s))
+    out[:3, :3] = quaternion_to_matrix(slerp(matrix_to_quaternion(T0[:3, :3]), matrix_to_quaternion(T1[:3, :3]), s))
     out[:3, 3] = (1 - s) * T0[:3, 3] + s * T1[:3, 3]
     return out
 
