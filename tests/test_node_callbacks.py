@@ -71,18 +71,18 @@ def _tf(T: np.ndarray, parent: str, child: str, quat=None, stamp_ns: int = 0):
 
 def test_bad_input_and_failing_callbacks_leave_the_executor_spinning(ros, world, monkeypatch):
     """Odometry mode with a base frame (/tf_static subscribed), its /diagnostics timer and ~/reset: bad /tf_static
-    transforms are skipped; a callback that raises (a fault injected in the /tf_static, input, timer and service
-    callbacks: each used to end the spin thread) is logged, counted, and the next scans are answered."""
+    transforms are skipped, each a warning; a callback that raises (a fault injected in the /tf_static, input, timer
+    and service callbacks: each used to end the spin thread) is logged, counted, and the next scans are answered."""
     from tf2_msgs.msg import TFMessage
 
     from deepbbs_ros.node.qos import reliable_qos
 
     real_add = TransformBuffer.add_message
 
-    def add_message(self, msg):  # a bug in the /tf_static callback, on the message naming "boom"
+    def add_message(self, msg, *rest):  # a bug in the /tf_static callback, on the message naming "boom"
         if any(ts.child_frame_id == "boom" for ts in msg.transforms):
             raise RuntimeError("injected /tf_static fault")
-        return real_add(self, msg)
+        return real_add(self, msg, *rest)
 
     monkeypatch.setattr(TransformBuffer, "add_message", add_message)
     cfg = tiny_config(**{"node.mode": "odometry", "node.odom_frame": "odom", "node.base_frame": "base_link",
@@ -106,6 +106,8 @@ def test_bad_input_and_failing_callbacks_leave_the_executor_spinning(ros, world,
         static.publish(TFMessage(transforms=[*bad, _tf(T_bl, "base_link", "lidar")]))  # the valid one is used
         assert h.wait_for(lambda: h.node.static_tf.lookup("base_link", "lidar") is not None, 10.0)
         assert h.node.static_tf.lookup("base_link", "zero_q") is None
+        warnings = h.node._warnings.counts  # each bad one said (rate-limited: one line per node.error_log_period)
+        assert h.wait_for(lambda: warnings.get("bad_transform") == 4, 10.0), warnings
         static.publish(TFMessage(transforms=[_tf(eye, "base_link", "boom")]))  # the /tf_static callback raises
         errors = h.node._errors.counts
         assert h.wait_for(lambda: errors.get("callback /tf_static", 0) == 1, 10.0), errors

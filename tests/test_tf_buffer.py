@@ -98,6 +98,15 @@ def test_tf_messages_feed_the_buffer():
                                 matrix_to_transform_stamped(_T(0, 0, 0, 0), 5 * S, "same", "same")])
     assert buf.add_dynamic_message(msg) == 1
     np.testing.assert_allclose(buf.lookup("odom", "base_link", 5 * S), _T(1, 2, 0, 0.1), atol=1e-9)
+    # the ones skipped, each named with why (the node warns with these)
+    zero_q = matrix_to_transform_stamped(np.eye(4), 0, "base_link", "lidar")
+    zero_q.transform.rotation.w = 0.0
+    nameless = matrix_to_transform_stamped(np.eye(4), 0, "", "lidar")
+    rejected: list[str] = []
+    assert buf.add_message(TFMessage(transforms=[*msg.transforms, zero_q, nameless]), rejected) == 1
+    assert rejected == ["'same' -> 'same': a frame is its own parent",
+                        "'base_link' -> 'lidar': quaternion has zero norm; it is not a rotation",
+                        "'' -> 'lidar': a frame name is empty"]
 
 
 def test_quaternions_of_random_rotations():

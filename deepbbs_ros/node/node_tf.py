@@ -35,7 +35,7 @@ class NodeTf:
             )
             return None
         qos = reliable_qos(100, DurabilityPolicy.TRANSIENT_LOCAL)
-        return self.create_subscription(TFMessage, "/tf_static", self.static_tf.add_message, qos)
+        return self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, qos)
 
     def _subscribe_tf(self):
         """Localization mode with ``node.localization_odom: tf``: ``/tf`` into the TF buffer (``odom -> base`` at
@@ -45,7 +45,21 @@ class NodeTf:
         except ImportError:
             return None
         qos = reliable_qos(100, DurabilityPolicy.VOLATILE)
-        return self.create_subscription(TFMessage, "/tf", self.static_tf.add_dynamic_message, qos)
+        return self.create_subscription(TFMessage, "/tf", self._on_tf, qos)
+
+    def _on_tf_static(self, msg) -> None:
+        self._add_transforms("/tf_static", self.static_tf.add_message, msg)
+
+    def _on_tf(self, msg) -> None:
+        self._add_transforms("/tf", self.static_tf.add_dynamic_message, msg)
+
+    def _add_transforms(self, topic: str, add, msg) -> None:
+        """The usable transforms of ``msg`` into the TF buffer; each malformed one (zero quaternion, NaN, no frame
+        names, a frame its own parent) is a rate-limited warning ``bad_transform`` naming its frames."""
+        rejected: list[str] = []
+        add(msg, rejected)
+        for why in rejected:
+            self._warnings.log("bad_transform", f"{topic}: transform {why}: ignored")
 
     def _base_from_sensor(self, frame: str):
         """``T_base_sensor`` for a cloud in ``frame`` (odometry and localization, on the worker thread): looked up

@@ -105,10 +105,11 @@ class TransformBuffer(StaticTransforms):
             edge.add(int(stamp_ns), np.asarray(T_parent_child, dtype=np.float64), self.history_ns)
             self._cond.notify_all()
 
-    def add_dynamic_message(self, msg: Any) -> int:
-        """Add every transform of a ``/tf`` TFMessage; returns how many (invalid ones are skipped)."""
+    def add_dynamic_message(self, msg: Any, rejected: list[str] | None = None) -> int:
+        """Add every transform of a ``/tf`` TFMessage; returns how many (invalid ones are skipped, and said in
+        ``rejected``: :func:`~deepbbs_ros.node.tf_static.valid_transforms`)."""
         n = 0
-        for T, stamp_ns, parent, child in valid_transforms(msg):
+        for T, stamp_ns, parent, child in valid_transforms(msg, rejected):
             self.add_stamped(parent, child, stamp_ns, T)
             n += 1
         return n

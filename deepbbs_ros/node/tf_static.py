@@ -38,10 +38,11 @@ class StaticTransforms:
             self._parent[str(child)] = (str(parent), np.asarray(T_parent_child, dtype=np.float64))
             self._cond.notify_all()
 
-    def add_message(self, msg: Any) -> int:
-        """Add every transform of a TFMessage; returns how many were added (invalid ones are skipped)."""
+    def add_message(self, msg: Any, rejected: list[str] | None = None) -> int:
+        """Add every transform of a TFMessage; returns how many were added (invalid ones are skipped, and said in
+        ``rejected``: :func:`valid_transforms`)."""
         n = 0
-        for T, _, parent, child in valid_transforms(msg):
+        for T, _, parent, child in valid_transforms(msg, rejected):
             self.add(parent, child, T)
             n += 1
         return n
@@ -86,18 +87,30 @@ class StaticTransforms:
                 self._cond.wait(left)
 
 
-def valid_transforms(msg: Any) -> Iterator[tuple[np.ndarray, int, str, str]]:
+def valid_transforms(msg: Any, rejected: list[str] | None = None) -> Iterator[tuple[np.ndarray, int, str, str]]:
     """``(T_parent_child (4, 4), stamp_ns, parent, child)`` of each usable transform of a TFMessage: a malformed one
-    (zero quaternion, NaN, no frame names, a frame its own parent) is skipped."""
+    (zero quaternion, NaN, no frame names, a frame its own parent) is skipped, and said in ``rejected``
+    (``"parent -> child: why"``) when a list is given."""
     from msg_adapters.transforms import transform_stamped_to_matrix
 
     for ts in getattr(msg, "transforms", []):
+        names = f"{getattr(getattr(ts, 'header', None), 'frame_id', '')!r} -> {getattr(ts, 'child_frame_id', '')!r}"
         try:
             T, stamp_ns, parent, child = transform_stamped_to_matrix(ts)
-        except Exception:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
-            continue
-        if parent and child and parent != child and np.all(np.isfinite(T)):
-            yield T, stamp_ns, parent, child
+        except Exception as err:  # noqa: BLE001 - a malformed transform (zero quaternion, NaN) is not one to use
+            why = str(err)
+        else:
+            if not (parent and child):
+                why = "a frame name is empty"
+            elif parent == child:
+                why = "a frame is its own parent"
+            elif not np.all(np.isfinite(T)):
+                why = "not finite"
+            else:
+                yield T, stamp_ns, parent, child
+                continue
+        if rejected is not None:
+            rejected.append(f"{names}: {why}")
 
 
 def base_motion(T_base_sensor: np.ndarray, T_odom_sensor: np.ndarray) -> np.ndarray:
