@@ -105,8 +105,8 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
                      "`good_start=True` over GICP's on the same pairs (both timed again on each pair, alternately, "
                      "the medians' ratio; in brackets that of the first timings, the good start's right after the "
                      "full pipeline's), and the path that answered: `gicp` (GICP "
-                     "from the start within the good start's limits), `within reach` (converged beyond them, taken "
-                     "as the verdict was sure), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
+                     "from the start within the good start's limits), `beyond limits` (converged beyond them, taken "
+                     "as the verdict accepted it), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
                      "`search`) when neither was taken.", ""]
     out += ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(_row(n, fig[n])) + " |" for n in _order(fig)]
