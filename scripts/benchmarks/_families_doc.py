@@ -73,7 +73,11 @@ def _basin(b: dict | None) -> list[str]:
     text = "-" if ratio is None else f"x{ratio:.2f}"
     if alt:  # timed again alternately (families.alternate): that ratio, the first timings' beside it
         text = f"x{alt['p50_over_gicp']:.2f} (first timings {text})"
-    paths = ", ".join(f"{k} {v}" for k, v in sorted((b.get("paths") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
+    counts: dict[str, int] = {}
+    for k, v in (b.get("paths") or {}).items():  # "within reach": figures from before the name "beyond limits"
+        k = "beyond limits" if k == "within reach" else k
+        counts[k] = counts.get(k, 0) + v
+    paths = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
     return [f"{b['pairs']} ({b['others']})", text, paths or "-"]
 
 
