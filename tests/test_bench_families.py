@@ -76,7 +76,7 @@ def test_summary_and_its_tables():
     text = "\n".join(_families_doc.families(doc, ["Measured by x."], "not run"))
     assert "| Velodyne VLP-16 | simulated, wheeled, hall | 3 | 0.80 | 66.7 % (3) | 100.0 % (3) | - |" in text
     assert "1 / 1 (of 4)" in text and "x2.00" in text and "overlap 0.80" in text
-    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "coarse_to_fine": 0, "fallback_why": {}, "within_reach": 0,
+    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "coarse_to_fine": 0, "fallback_why": {}, "beyond_limits": 0,
                                "stages_p50_ms": {}, "accepted_wrong": 0, "rejected_right": 0}
     assert families._stages([{"stages_ms": {"preprocess": 4.0, "good_start": 2.0, "total": 6.0}},
                              {"stages_ms": {"preprocess": 6.0, "good_start": 3.0, "global": 90.0, "total": 99.0}}]) == {
@@ -107,7 +107,7 @@ def test_good_start_where_the_start_lies_in_gicps_basin():
     """families.in_basin: the good-start pairs whose start is good by a physical criterion (GICP from it is right) are
     summarised apart: how many and how many not, the p50 ratio over them (wall and CPU), the path each took."""
     recs = [_good_rec(True, "gicp", "accepted", 12.0),
-            _good_rec(True, "gicp", "accepted, sure, within the coarse try's reach (GICP from the start: moved)", 14.0),
+            _good_rec(True, "gicp", "accepted, beyond the good start's limits (GICP from the start: moved)", 14.0),
             _good_rec(True, "search", "GICP from the start: turned 24 deg; coarse to fine: verdict 0.5 < x", 400.0),
             _good_rec(False, "search", "GICP from the start: not converged in 18 iterations; coarse to fine: x", 900.0,
                       ok=False, valid=False),
@@ -116,7 +116,7 @@ def test_good_start_where_the_start_lies_in_gicps_basin():
     assert b["pairs"] == 3 and b["others"] == 2
     assert b["p50_ms"] == {"deepbbs++good": 14.0, "gicp": 10.0} and b["p50_over_gicp"] == 1.4
     assert b["cpu_p50_over_gicp"] == 1.5 * 14.0 / 15.0
-    assert b["paths"] == {"gicp": 1, "within reach": 1, "search": 1}
+    assert b["paths"] == {"gicp": 1, "beyond limits": 1, "search": 1}
     assert b["fallback_why"] == {"moved / verdict": 1} and b["accepted_wrong"] == 0 and b["rejected_right"] == 0
     assert families.in_basin(recs[3:]) == {"pairs": 0, "others": 2}
     sets = {"sim_a": {"sensor": "vlp16", "source": "sim", "mount": "wheeled", "place": "hall",
@@ -127,7 +127,7 @@ def test_good_start_where_the_start_lies_in_gicps_basin():
     doc = {"command": "x", "figures": {"sets": {"sim_a": c}, "basin": families.BASIN}}
     text = "\n".join(_families_doc.families(doc, [], "not run"))
     row = next(line for line in text.splitlines() if "VLP-16" in line and "of 5" in line)
-    assert row.endswith("| 3 of 5 | 3 (2) | x1.40 | gicp 1, search 1, within reach 1 |"), row
+    assert row.endswith("| 3 of 5 | 3 (2) | x1.40 | beyond limits 1, gicp 1, search 1 |"), row
 
 
 class _Timed:

@@ -90,8 +90,9 @@ def test_proxy_gives_the_in_process_answer(proxy, street_pair):
 
 def test_proxy_good_start_leaves_the_sampling_to_the_worker(proxy, street_pair):
     """Handles preprocessed lazily (the node's inputs) carry no sampled points; a good start answers on the GICP path
-    in the worker, a start 3.5 m off within the coarse-to-fine try's reach (core/good_start.py, core/coarse_rescue.py:
-    sure), a start turned 30 degrees (beyond that reach) falls back there (sampling there), all right."""
+    in the worker, a start 3.5 m off too (GICP from it comes back, beyond the good start's limits, and the verdict
+    takes it: core/good_start.py), a start turned 30 degrees (GICP settles on a pose the verdict rejects, the truth is
+    beyond the coarse try's reach: core/coarse_rescue.py) falls back there (sampling there), all right."""
     from deepbbs_ros.replay.synthetic import pose
 
     src, tgt, T_gt = _pair(street_pair, 2)
@@ -102,9 +103,9 @@ def test_proxy_good_start_leaves_the_sampling_to_the_worker(proxy, street_pair):
     off = T_gt.copy()
     off[:3, 3] += (0.0, 3.5, 0.0)  # across the street: GICP moves it further than good_start_max_trans allows
     res = proxy.register(h_src, h_tgt, T_init=off, good_start=True)
-    sure = ("accepted after coarse to fine (GICP from the start: moved",
-            "accepted, sure, within the coarse try's reach (GICP from the start: moved")
-    assert res.path == "gicp" and res.good_start.startswith(sure), res.good_start
+    taken = ("accepted after coarse to fine (GICP from the start: moved",
+             "accepted, beyond the good start's limits (GICP from the start: moved")
+    assert res.path == "gicp" and res.good_start.startswith(taken), res.good_start
     assert res.valid and max(pair_errors(res.T_target_source, T_gt)) < 0.3
     res = proxy.register(h_src, h_tgt, T_init=T_gt @ pose(0.0, 0.0, 0.0, np.radians(30.0)), good_start=True)
     assert res.path in ("deepbbs", "search") and not res.good_start.startswith("accepted"), res

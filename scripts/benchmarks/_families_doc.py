@@ -73,7 +73,11 @@ def _basin(b: dict | None) -> list[str]:
     text = "-" if ratio is None else f"x{ratio:.2f}"
     if alt:  # timed again alternately (families.alternate): that ratio, the first timings' beside it
         text = f"x{alt['p50_over_gicp']:.2f} (first timings {text})"
-    paths = ", ".join(f"{k} {v}" for k, v in sorted((b.get("paths") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
+    counts: dict[str, int] = {}
+    for k, v in (b.get("paths") or {}).items():  # "within reach": figures from before the name "beyond limits"
+        k = "beyond limits" if k == "within reach" else k
+        counts[k] = counts.get(k, 0) + v
+    paths = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
     return [f"{b['pairs']} ({b['others']})", text, paths or "-"]
 
 
@@ -105,8 +109,8 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
                      "`good_start=True` over GICP's on the same pairs (both timed again on each pair, alternately, "
                      "the medians' ratio; in brackets that of the first timings, the good start's right after the "
                      "full pipeline's), and the path that answered: `gicp` (GICP "
-                     "from the start within the good start's limits), `within reach` (converged beyond them, taken "
-                     "as the verdict was sure), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
+                     "from the start within the good start's limits), `beyond limits` (converged beyond them, taken "
+                     "as the verdict accepted it), `coarse to fine` (the second try), or the full pipeline (`deepbbs`, "
                      "`search`) when neither was taken.", ""]
     out += ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(_row(n, fig[n])) + " |" for n in _order(fig)]

@@ -282,16 +282,21 @@ def _stages(ran: list[dict]) -> dict[str, float]:
     return {k: float(np.median([x.get("stages_ms", {}).get(k, 0.0) for x in ran])) for k in names}
 
 
+#: how an answer GICP from the start gave beyond the good start's limits is named (and was, before GICP's answer was
+#: judged by the verdict alone wherever it ended: within the coarse try's reach, when sure)
+BEYOND = ("beyond the good start's limits", "within the coarse try's reach")
+
+
 def path_taken(x: dict) -> str:
     """Which path answered one ``good_start=True`` call: "gicp" (GICP from the start within the good start's limits),
-    "within reach" (converged beyond them, within the coarse try's reach, taken as the verdict was sure), "coarse to
+    "beyond limits" (converged beyond them, or only after good_start_max_iters, taken by the verdict), "coarse to
     fine" (core/coarse_rescue.py), or the full pipeline after the good start was not taken ("deepbbs", "search")."""
     why = x.get("why", "")
     if x.get("path") != "gicp":
         return x.get("path", "?")
     if "coarse to fine" in why:
         return "coarse to fine"
-    return "within reach" if "within the coarse try's reach" in why else "gicp"
+    return "beyond limits" if any(b in why for b in BEYOND) else "gicp"
 
 
 def in_basin(good: list[dict]) -> dict:
@@ -352,8 +357,7 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
                                       "coarse_to_fine": sum("coarse to fine" in x.get("why", "") and x["path"] == "gicp"
                                                             for x in ran),
                                       "fallback_why": _whys([x.get("why", "") for x in ran if x["path"] != "gicp"]),
-                                      "within_reach": sum("within the coarse try's reach" in x.get("why", "")
-                                                          for x in ran),
+                                      "beyond_limits": sum(path_taken(x) == "beyond limits" for x in ran),
                                       "stages_p50_ms": _stages(ran),
                                       "accepted_wrong": sum(x["valid"] and not x["ok"] for x in ran),
                                       "rejected_right": sum(x["ok"] and not x["valid"] for x in ran)}

@@ -109,12 +109,13 @@ class Runner:
 
 
 def reason_kind(text: str) -> str:
-    """``RegistrationResult.good_start`` in a word: accepted, within reach (GICP from the start converged beyond the
-    good start's limits, taken when sure), coarse to fine (accepted on the second try), or why the first try was not
-    taken (verdict, not converged, moved), or the text."""
+    """``RegistrationResult.good_start`` in a word: accepted, beyond limits (GICP from the start converged beyond the
+    good start's limits, taken by the verdict), coarse to fine (accepted on the second try), or why the first try was
+    not taken (verdict, not converged, moved), or the text."""
     if not text.startswith("accepted"):
         text = text.split("; coarse to fine: ")[0]
-    for word, kind in (("accepted after coarse to fine", "coarse to fine"), ("accepted, sure, within", "within reach"),
+    for word, kind in (("accepted after coarse to fine", "coarse to fine"), ("accepted, beyond", "beyond limits"),
+                       ("accepted, sure, within", "beyond limits"),
                        ("accepted", "accepted"),
                        ("verdict", "verdict"), ("not converged", "not converged"), ("moved", "moved"),
                        ("turned", "moved")):
