@@ -412,6 +412,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--drop-unheld", type=float, nargs=2, metavar=("PINNED", "ANCHORED_FAR"),
                     help="leave out of the fit the right poses with pinned and anchored_far both under these: right "
                          "by luck (the fit neither pins nor anchors them), which would teach it to forgive a slide")
+    ap.add_argument("--relative", nargs="*", default=[], choices=calibrated.RELATIVE, metavar="FEATURE",
+                    help="shares the fit reads over in_view, the overlap the pose expects (core/calibrated.py; "
+                         "default none)")
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
@@ -435,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
         data = {k: v[keep] for k, v in data.items()}
     models = {}
     for name, key in (("pair", "pair"), ("good_start", "good")):
-        X, y = calibrated.design(data[key]), data["y"].astype(float)
+        X, y = calibrated.design(calibrated.relative(data[key], args.relative)), data["y"].astype(float)
         coef, icpt = fit_logistic(X, y, unused=tuple(args.unused))
         loose = (data[key][:, PINNED] < args.min_pinned) & (data[key][:, HELD] < args.min_anchored_far)
         p = np.where(loose, 0.0, 1.0 / (1.0 + np.exp(-(X @ coef + icpt))))
@@ -443,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: {int(y.sum())} right, {int((1 - y).sum())} wrong; highest wrong p {p[y == 0].max():.3f}, "
               f"right under 0.5: {int(np.sum(p[y == 1] < 0.5))}")
     doc = {"features": list(visibility.FEATURES), "transform": calibrated.TRANSFORM, "models": models,
+           **({"relative": list(args.relative)} if args.relative else {}),
            **({"min_pinned": args.min_pinned} if args.min_pinned else {}),
            **({"min_anchored_far": args.min_anchored_far} if args.min_pinned and args.min_anchored_far < 1 else {}),
            "fitted_on": f"{len(data['y'])} simulated poses, {len(np.unique(data['rig']))} rigs (sensor/mount/place), "

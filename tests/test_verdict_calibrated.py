@@ -140,3 +140,26 @@ def test_low_overlap_pairs_let_the_target_judge_a_small_share_and_hold_a_right_p
     obs = d["good"][right, visibility.FEATURES.index("observable")]
     assert right.any() and (~right).any()
     assert np.all(obs <= cv.LOW_OVERLAP[1] + 0.1), obs  # right poses: about the truth's share
+
+
+def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
+    """A file's ``"relative"`` shares enter the regression over ``in_view``: a right pose of a narrow sensor turned
+    by half its view (half of the source in view, all of that seen) reads as one that saw everything; with nothing
+    in view, 0. The field of view is then measured (``weighs``), and an unknown name is refused."""
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    path = tmp_path / "rel.json"
+    path.write_text(json.dumps({**doc, "relative": ["fitness", "observable"]}))
+    f = {n: visibility.FEATURES.index(n) for n in ("fitness", "observable", "in_view", "observable_rel")}
+    rows = np.full((3, len(visibility.FEATURES)), 0.9)
+    rows[:, f["in_view"]] = [1.0, 0.5, 0.0]
+    rows[:, f["fitness"]] = rows[:, f["observable"]] = [0.9, 0.45, 0.0]
+    rel = calibrated.relative(rows, ["fitness", "observable"])
+    assert np.allclose(rel[:, f["fitness"]], [0.9, 0.9, 0.0]) and np.allclose(rel[:, f["observable"]], [0.9, 0.9, 0])
+    assert np.array_equal(rel[:, f["in_view"]], rows[:, f["in_view"]])  # the rest as they were
+    p = calibrated.probability(rows, "good_start", str(path))
+    assert p[0] == pytest.approx(p[1]) and p[1] > calibrated.probability(rows[1], "good_start")
+    assert calibrated.weighs(("in_view", "observable_rel"), "good_start", str(path))
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**doc, "relative": ["pinned"]}))
+    with pytest.raises(VerdictModelError, match="relative"):
+        calibrated.load(str(bad))
