@@ -163,3 +163,33 @@ def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
     bad.write_text(json.dumps({**doc, "relative": ["pinned"]}))
     with pytest.raises(VerdictModelError, match="relative"):
         calibrated.load(str(bad))
+
+
+def test_the_floor_alone_measures_anchored_far_only_under_it(tmp_path, monkeypatch):
+    """A file whose only reader of ``anchored_far`` is the floor on ``pinned``: the verdict measures it only for a pose
+    pinned less than the floor, with the same probability as when it is always measured."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.polish import prepare_polish_cloud
+
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    path = tmp_path / "floor.json"
+    path.write_text(json.dumps({**doc, "min_pinned": 0.5, "min_anchored_far": 0.5}))
+    monkeypatch.setattr(calibrated, "DEFAULT_PATH", path)
+    calibrated.load.cache_clear()
+    rng = np.random.default_rng(5)
+    walls = np.c_[rng.uniform(-40, 40, 4000), np.where(rng.random(4000) < 0.5, -2.0, 2.0), rng.uniform(-1, 2, 4000)]
+    floor = np.c_[rng.uniform(-40, 40, 2000), rng.uniform(-2, 2, 2000), np.full(2000, -1.0)]
+    corridor = np.vstack([walls, floor])  # nothing along x: pinned 0.009, anchored_far 0.17
+    rc = Config().registration
+    target = prepare_polish_cloud(corridor, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    calls = []
+    real = visibility.pose_features
+    monkeypatch.setattr(visibility, "pose_features", lambda *a, **k: calls.append(a[5:6]) or real(*a, **k))
+    try:
+        assert not calibrated.weighs(("anchored", "anchored_far"), "good_start", floor=False)
+        p = verdict.probability(corridor[::10], np.eye(4), target, rc.verdict_dist, "good_start")
+        assert calls == [(False,), (True,)] and p == 0.0  # measured again under the floor: vetoed
+        eager = calibrated.probability(real(corridor[::10], np.eye(4), target, rc.verdict_dist), "good_start")
+        assert p == eager
+    finally:
+        calibrated.load.cache_clear()

@@ -102,12 +102,12 @@ def min_anchored_far(path: str | None = None) -> float:
     return _FLOORS[path][1]
 
 
-def weighs(names: tuple[str, ...], verdict: str = "pair", path: str | None = None) -> bool:
+def weighs(names: tuple[str, ...], verdict: str = "pair", path: str | None = None, floor: bool = True) -> bool:
     """Whether the ``verdict`` model at ``path`` (the shipped file when None) gives any of the features ``names`` a
-    coefficient other than 0, or its floor reads it, or it reads a ``"relative"`` share over ``in_view`` (a feature
-    it does not read need not be measured)."""
+    coefficient other than 0, or its floor reads it (unless ``floor`` is False), or it reads a ``"relative"`` share
+    over ``in_view`` (a feature it does not read need not be measured)."""
     coef = load(path)[verdict][0]
-    floor = "anchored_far" in names and min_pinned(path) > 0 and min_anchored_far(path) < 1
+    floor = floor and "anchored_far" in names and min_pinned(path) > 0 and min_anchored_far(path) < 1
     over = "in_view" in names and any(coef[i] != 0.0 for i in _RELATIVE[path])
     return bool(floor or over or any(coef[FEATURES.index(n)] != 0.0 for n in names))
 
