@@ -413,8 +413,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="leave out of the fit the right poses with pinned and anchored_far both under these: right "
                          "by luck (the fit neither pins nor anchors them), which would teach it to forgive a slide")
     ap.add_argument("--relative", nargs="*", default=[], choices=calibrated.RELATIVE, metavar="FEATURE",
-                    help="shares the fit reads over in_view, the overlap the pose expects (core/calibrated.py; "
-                         "default none)")
+                    help="also fit the _relative models, which read these shares over in_view, the overlap the pose "
+                         "expects (core/calibrated.py; default none)")
+    ap.add_argument("--held", type=float, nargs=2, default=(0.0, 1.0), metavar=("PINNED", "ANCHORED_FAR"),
+                    help="the _relative models judge only poses with pinned or anchored_far at least these (default "
+                         "0 1: all)")
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
@@ -437,16 +440,20 @@ def main(argv: list[str] | None = None) -> int:
         keep = ~((data["y"] == 1) & (g[:, PINNED] < args.drop_unheld[0]) & (g[:, HELD] < args.drop_unheld[1]))
         data = {k: v[keep] for k, v in data.items()}
     models = {}
-    for name, key in (("pair", "pair"), ("good_start", "good")):
-        X, y = calibrated.design(calibrated.relative(data[key], args.relative)), data["y"].astype(float)
+    kinds = (("pair", "pair", ()), ("good_start", "good", ()))
+    if args.relative:
+        kinds += (("pair_relative", "pair", args.relative), ("good_start_relative", "good", args.relative))
+    for name, key, shares in kinds:
+        X, y = calibrated.design(calibrated.relative(data[key], shares)), data["y"].astype(float)
         coef, icpt = fit_logistic(X, y, unused=tuple(args.unused))
         loose = (data[key][:, PINNED] < args.min_pinned) & (data[key][:, HELD] < args.min_anchored_far)
         p = np.where(loose, 0.0, 1.0 / (1.0 + np.exp(-(X @ coef + icpt))))
         models[name] = {"coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6)}
         print(f"{name}: {int(y.sum())} right, {int((1 - y).sum())} wrong; highest wrong p {p[y == 0].max():.3f}, "
-              f"right under 0.5: {int(np.sum(p[y == 1] < 0.5))}")
+              f"right under 0.5: {int(np.sum(p[y == 1] < 0.5))} (each pose by this model)")
     doc = {"features": list(visibility.FEATURES), "transform": calibrated.TRANSFORM, "models": models,
-           **({"relative": list(args.relative)} if args.relative else {}),
+           **({"relative": {"shares": list(args.relative), "held_pinned": args.held[0],
+                            "held_anchored_far": args.held[1]}} if args.relative else {}),
            **({"min_pinned": args.min_pinned} if args.min_pinned else {}),
            **({"min_anchored_far": args.min_anchored_far} if args.min_pinned and args.min_anchored_far < 1 else {}),
            "fitted_on": f"{len(data['y'])} simulated poses, {len(np.unique(data['rig']))} rigs (sensor/mount/place), "

@@ -143,26 +143,36 @@ def test_low_overlap_pairs_let_the_target_judge_a_small_share_and_hold_a_right_p
 
 
 def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
-    """A file's ``"relative"`` shares enter the regression over ``in_view``: a right pose of a narrow sensor turned
-    by half its view (half of the source in view, all of that seen) reads as one that saw everything; with nothing
-    in view, 0. The field of view is then measured (``weighs``), and an unknown name is refused."""
+    """A file's ``"relative"`` models read the shares over ``in_view``: a right pose of a narrow sensor turned by half
+    its view (half of the source in view, all of that seen) reads as one that saw everything; with nothing in view, 0.
+    They judge only a pose the fit holds (pinned or anchored_far at their bounds); one that can slide is judged by the
+    plain model. The field of view is then measured (``weighs``), anchored_far under the bound; bad files refused."""
     doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    m = doc["models"]
+    models = {**m, "pair_relative": m["pair"], "good_start_relative": m["good_start"]}
+    spec = {"shares": ["fitness", "observable"], "held_pinned": 0.02, "held_anchored_far": 0.1}
     path = tmp_path / "rel.json"
-    path.write_text(json.dumps({**doc, "relative": ["fitness", "observable"]}))
-    f = {n: visibility.FEATURES.index(n) for n in ("fitness", "observable", "in_view", "observable_rel")}
-    rows = np.full((3, len(visibility.FEATURES)), 0.9)
-    rows[:, f["in_view"]] = [1.0, 0.5, 0.0]
-    rows[:, f["fitness"]] = rows[:, f["observable"]] = [0.9, 0.45, 0.0]
+    path.write_text(json.dumps({**doc, "models": models, "relative": spec}))
+    f = {n: visibility.FEATURES.index(n) for n in ("fitness", "observable", "in_view", "pinned", "anchored_far")}
+    rows = np.full((4, len(visibility.FEATURES)), 0.9)
+    rows[:, f["in_view"]] = [1.0, 0.5, 0.0, 0.5]
+    rows[:, f["fitness"]] = rows[:, f["observable"]] = [0.9, 0.45, 0.0, 0.45]
+    rows[3, f["pinned"]], rows[3, f["anchored_far"]] = 0.01, 0.05  # free to slide: the plain model
     rel = calibrated.relative(rows, ["fitness", "observable"])
-    assert np.allclose(rel[:, f["fitness"]], [0.9, 0.9, 0.0]) and np.allclose(rel[:, f["observable"]], [0.9, 0.9, 0])
+    assert np.allclose(rel[:, f["fitness"]], [0.9, 0.9, 0.0, 0.9])
+    assert np.allclose(rel[:, f["observable"]], [0.9, 0.9, 0.0, 0.9])
     assert np.array_equal(rel[:, f["in_view"]], rows[:, f["in_view"]])  # the rest as they were
-    p = calibrated.probability(rows, "good_start", str(path))
-    assert p[0] == pytest.approx(p[1]) and p[1] > calibrated.probability(rows[1], "good_start")
+    p, plain = calibrated.probability(rows, "good_start", str(path)), calibrated.probability(rows, "good_start")
+    assert p[0] == pytest.approx(p[1]) and p[1] > plain[1] and p[3] == plain[3] < p[1], (p, plain)
     assert calibrated.weighs(("in_view", "observable_rel"), "good_start", str(path))
-    bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({**doc, "relative": ["pinned"]}))
-    with pytest.raises(VerdictModelError, match="relative"):
-        calibrated.load(str(bad))
+    assert calibrated.anchored_below(str(path)) == 0.02 and calibrated.anchored_below() == 0.0
+    for bad_spec, bad_models, what in (({**spec, "shares": ["pinned"]}, models, "shares"), (spec, m, "_relative"),
+                                       ({**spec, "held_pinned": 1.0}, models, "held")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps({**doc, "models": bad_models, "relative": bad_spec}))
+        with pytest.raises(VerdictModelError, match=what):
+            calibrated.load(str(bad))
+        calibrated.load.cache_clear()
 
 
 def test_the_floor_alone_measures_anchored_far_only_under_it(tmp_path, monkeypatch):

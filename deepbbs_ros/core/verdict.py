@@ -69,8 +69,8 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     view = calibrated.weighs(("in_view", "observable_rel"), model)  # the field of view, likewise
     f = visibility.pose_features(points, T, target, dist, threads, anchor, view)
     pinned = f[visibility.FEATURES.index("pinned")]
-    if not anchor and calibrated.weighs(("anchored_far",), model) and pinned < calibrated.min_pinned():
-        # only the floor on ``pinned`` reads ``anchored_far``, and only under it: measured there (the search kept)
+    if not anchor and pinned < calibrated.anchored_below():
+        # only a bound on ``pinned`` reads ``anchored_far``, and only under it: measured there (the search kept)
         f = visibility.pose_features(points, T, target, dist, threads, True, view)
     return calibrated.probability(f, model)
 
