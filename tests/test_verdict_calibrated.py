@@ -119,7 +119,7 @@ def test_a_feature_left_out_of_the_fit_gets_no_weight():
     coef, _ = cv.fit_logistic(X, y, unused=("plane_close",))
     i = visibility.FEATURES.index("plane_close")
     assert coef[i] == 0.0 and coef[0] > 0
-    for name in ("pair", "good_start"):
+    for name in ("pair", "good_start", "pair_relative", "good_start_relative"):
         for f in cv.UNUSED:
             assert calibrated.load()[name][0][visibility.FEATURES.index(f)] == 0.0
 
@@ -147,10 +147,13 @@ def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
     its view (half of the source in view, all of that seen) reads as one that saw everything; with nothing in view, 0.
     They judge only a pose the fit holds (pinned or anchored_far at their bounds); one that can slide is judged by the
     plain model. The field of view is then measured (``weighs``), anchored_far under the bound; bad files refused."""
-    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
-    m = doc["models"]
+    shipped = json.loads(calibrated.DEFAULT_PATH.read_text())
+    m = {k: shipped["models"][k] for k in ("pair", "good_start")}
+    doc = {**{k: v for k, v in shipped.items() if k != "relative"}, "models": m}  # the plain models only
+    plain_path = tmp_path / "plain.json"
+    plain_path.write_text(json.dumps(doc))
     models = {**m, "pair_relative": m["pair"], "good_start_relative": m["good_start"]}
-    spec = {"shares": ["fitness", "observable"], "held_pinned": 0.02, "held_anchored_far": 0.1}
+    spec = {"shares": ["fitness", "observable"], "held_pinned": 0.03, "held_anchored_far": 0.1}
     path = tmp_path / "rel.json"
     path.write_text(json.dumps({**doc, "models": models, "relative": spec}))
     f = {n: visibility.FEATURES.index(n) for n in ("fitness", "observable", "in_view", "pinned", "anchored_far")}
@@ -162,10 +165,10 @@ def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
     assert np.allclose(rel[:, f["fitness"]], [0.9, 0.9, 0.0, 0.9])
     assert np.allclose(rel[:, f["observable"]], [0.9, 0.9, 0.0, 0.9])
     assert np.array_equal(rel[:, f["in_view"]], rows[:, f["in_view"]])  # the rest as they were
-    p, plain = calibrated.probability(rows, "good_start", str(path)), calibrated.probability(rows, "good_start")
+    p, plain = (calibrated.probability(rows, "good_start", str(q)) for q in (path, plain_path))
     assert p[0] == pytest.approx(p[1]) and p[1] > plain[1] and p[3] == plain[3] < p[1], (p, plain)
     assert calibrated.weighs(("in_view", "observable_rel"), "good_start", str(path))
-    assert calibrated.anchored_below(str(path)) == 0.02 and calibrated.anchored_below() == 0.0
+    assert calibrated.anchored_below(str(path)) == 0.03 and calibrated.anchored_below(str(plain_path)) == 0.0
     for bad_spec, bad_models, what in (({**spec, "shares": ["pinned"]}, models, "shares"), (spec, m, "_relative"),
                                        ({**spec, "held_pinned": 1.0}, models, "held")):
         bad = tmp_path / "bad.json"
