@@ -26,8 +26,8 @@ the fit. Each pose gives two feature rows (core/visibility.py): the network's sa
 for comparison) and a spread subset of the GICP voxels ("good_start": the model both verdicts of the registration
 use). A logistic regression per row kind (classes weighted equally; the features of :data:`UNUSED` left out), and
 one per row kind with the shares :data:`RELATIVE_SHARES` read over ``in_view`` (``_relative``: they judge the poses
-the fit holds, :data:`HELD`), are written to ``deepbbs_ros/resources/verdict_model.json`` with this command line and
-the floor on ``pinned`` (:data:`MIN_PINNED`, ``--min-pinned``). ::
+the fit holds, :data:`HELD_BOUNDS`), are written to ``deepbbs_ros/resources/verdict_model.json`` with this command
+line and the floor on ``pinned`` (:data:`MIN_PINNED`, ``--min-pinned``). ::
 
     python scripts/calibrate_verdict.py --pairs 12         # fit and write the shipped coefficients
     python scripts/calibrate_verdict.py --dump rows.npz    # also keep the rows (the benchmark reads them)
@@ -151,7 +151,7 @@ MIN_PINNED = 0.0
 #: accepted (seed 39, pinned 0.018) and right corridor poses rejected (families.py --quick, OS0-64 legged corridor:
 #: 0 -> 6 of 12)
 RELATIVE_SHARES: tuple[str, ...] = ("fitness", "observable")
-HELD = (0.02, 0.1)
+HELD_BOUNDS = (0.02, 0.1)
 FAR = 40  # frames: "another place" (the other end of a loop, or far along a road)
 
 
@@ -429,9 +429,9 @@ def main(argv: list[str] | None = None) -> int:
                     metavar="FEATURE", help="also fit the _relative models, which read these shares over in_view, the "
                     f"overlap the pose expects (core/calibrated.py; default: {' '.join(RELATIVE_SHARES)}; none: no "
                     "_relative models)")
-    ap.add_argument("--held", type=float, nargs=2, default=HELD, metavar=("PINNED", "ANCHORED_FAR"),
+    ap.add_argument("--held", type=float, nargs=2, default=HELD_BOUNDS, metavar=("PINNED", "ANCHORED_FAR"),
                     help="the _relative models judge only poses with pinned or anchored_far at least these (default "
-                         f"{HELD[0]} {HELD[1]}; 0 1: all)")
+                         f"{HELD_BOUNDS[0]} {HELD_BOUNDS[1]}; 0 1: all)")
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)

@@ -206,3 +206,28 @@ def test_the_floor_alone_measures_anchored_far_only_under_it(tmp_path, monkeypat
         assert p == eager
     finally:
         calibrated.load.cache_clear()
+
+
+def test_the_calibration_writes_a_file_the_verdict_reads(tmp_path):
+    """scripts/calibrate_verdict.py on dumped rows (--rows): the plain and the _relative models with their bounds, or
+    the plain ones alone (--relative with no share), each a file core/calibrated.py loads."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import calibrate_verdict as cv
+
+    rng = np.random.default_rng(1)
+    n, k = 120, len(visibility.FEATURES)
+    y = (rng.random(n) < 0.4).astype(int)
+    x = np.clip(rng.uniform(0.2, 0.8, (n, k)) + 0.15 * y[:, None], 0.0, 1.0)
+    rows = tmp_path / "rows.npz"
+    np.savez(rows, pair=x, good=x, y=y, rig=np.zeros(n, int), kind=np.array(["near"] * n))
+    for extra, relative in (([], True), (["--relative"], False)):
+        out = tmp_path / f"fit{len(extra)}.json"
+        assert cv.main(["--rows", str(rows), "--out", str(out), *extra]) == 0
+        doc = json.loads(out.read_text())
+        assert ("relative" in doc) == relative and ("good_start_relative" in calibrated.load(str(out))) == relative
+        if relative:
+            assert doc["relative"]["held_pinned"] == cv.HELD_BOUNDS[0]
+            assert calibrated.anchored_below(str(out)) == cv.HELD_BOUNDS[0]
