@@ -119,7 +119,7 @@ def test_a_feature_left_out_of_the_fit_gets_no_weight():
     coef, _ = cv.fit_logistic(X, y, unused=("plane_close",))
     i = visibility.FEATURES.index("plane_close")
     assert coef[i] == 0.0 and coef[0] > 0
-    for name in ("pair", "good_start"):
+    for name in ("pair", "good_start", "pair_relative", "good_start_relative"):
         for f in cv.UNUSED:
             assert calibrated.load()[name][0][visibility.FEATURES.index(f)] == 0.0
 
@@ -140,3 +140,94 @@ def test_low_overlap_pairs_let_the_target_judge_a_small_share_and_hold_a_right_p
     obs = d["good"][right, visibility.FEATURES.index("observable")]
     assert right.any() and (~right).any()
     assert np.all(obs <= cv.LOW_OVERLAP[1] + 0.1), obs  # right poses: about the truth's share
+
+
+def test_relative_shares_are_read_over_the_overlap_the_pose_expects(tmp_path):
+    """A file's ``"relative"`` models read the shares over ``in_view``: a right pose of a narrow sensor turned by half
+    its view (half of the source in view, all of that seen) reads as one that saw everything; with nothing in view, 0.
+    They judge only a pose the fit holds (pinned or anchored_far at their bounds); one that can slide is judged by the
+    plain model. The field of view is then measured (``weighs``), anchored_far under the bound; bad files refused."""
+    shipped = json.loads(calibrated.DEFAULT_PATH.read_text())
+    m = {k: shipped["models"][k] for k in ("pair", "good_start")}
+    doc = {**{k: v for k, v in shipped.items() if k != "relative"}, "models": m}  # the plain models only
+    plain_path = tmp_path / "plain.json"
+    plain_path.write_text(json.dumps(doc))
+    models = {**m, "pair_relative": m["pair"], "good_start_relative": m["good_start"]}
+    spec = {"shares": ["fitness", "observable"], "held_pinned": 0.03, "held_anchored_far": 0.1}
+    path = tmp_path / "rel.json"
+    path.write_text(json.dumps({**doc, "models": models, "relative": spec}))
+    f = {n: visibility.FEATURES.index(n) for n in ("fitness", "observable", "in_view", "pinned", "anchored_far")}
+    rows = np.full((4, len(visibility.FEATURES)), 0.9)
+    rows[:, f["in_view"]] = [1.0, 0.5, 0.0, 0.5]
+    rows[:, f["fitness"]] = rows[:, f["observable"]] = [0.9, 0.45, 0.0, 0.45]
+    rows[3, f["pinned"]], rows[3, f["anchored_far"]] = 0.01, 0.05  # free to slide: the plain model
+    rel = calibrated.relative(rows, ["fitness", "observable"])
+    assert np.allclose(rel[:, f["fitness"]], [0.9, 0.9, 0.0, 0.9])
+    assert np.allclose(rel[:, f["observable"]], [0.9, 0.9, 0.0, 0.9])
+    assert np.array_equal(rel[:, f["in_view"]], rows[:, f["in_view"]])  # the rest as they were
+    p, plain = (calibrated.probability(rows, "good_start", str(q)) for q in (path, plain_path))
+    assert p[0] == pytest.approx(p[1]) and p[1] > plain[1] and p[3] == plain[3] < p[1], (p, plain)
+    assert calibrated.weighs(("in_view", "observable_rel"), "good_start", str(path))
+    assert calibrated.anchored_below(str(path)) == 0.03 and calibrated.anchored_below(str(plain_path)) == 0.0
+    for bad_spec, bad_models, what in (({**spec, "shares": ["pinned"]}, models, "shares"), (spec, m, "_relative"),
+                                       ({**spec, "held_pinned": 1.0}, models, "held")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps({**doc, "models": bad_models, "relative": bad_spec}))
+        with pytest.raises(VerdictModelError, match=what):
+            calibrated.load(str(bad))
+        calibrated.load.cache_clear()
+
+
+def test_the_floor_alone_measures_anchored_far_only_under_it(tmp_path, monkeypatch):
+    """A file whose only reader of ``anchored_far`` is the floor on ``pinned``: the verdict measures it only for a pose
+    pinned less than the floor, with the same probability as when it is always measured."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.polish import prepare_polish_cloud
+
+    doc = json.loads(calibrated.DEFAULT_PATH.read_text())
+    path = tmp_path / "floor.json"
+    path.write_text(json.dumps({**doc, "min_pinned": 0.5, "min_anchored_far": 0.5}))
+    monkeypatch.setattr(calibrated, "DEFAULT_PATH", path)
+    calibrated.load.cache_clear()
+    rng = np.random.default_rng(5)
+    walls = np.c_[rng.uniform(-40, 40, 4000), np.where(rng.random(4000) < 0.5, -2.0, 2.0), rng.uniform(-1, 2, 4000)]
+    floor = np.c_[rng.uniform(-40, 40, 2000), rng.uniform(-2, 2, 2000), np.full(2000, -1.0)]
+    corridor = np.vstack([walls, floor])  # nothing along x: pinned 0.009, anchored_far 0.17
+    rc = Config().registration
+    target = prepare_polish_cloud(corridor, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    calls = []
+    real = visibility.pose_features
+    monkeypatch.setattr(visibility, "pose_features", lambda *a, **k: calls.append(a[5:6]) or real(*a, **k))
+    try:
+        assert not calibrated.weighs(("anchored", "anchored_far"), "good_start", floor=False)
+        p = verdict.probability(corridor[::10], np.eye(4), target, rc.verdict_dist, "good_start")
+        assert calls == [(False,), (True,)] and p == 0.0  # measured again under the floor: vetoed
+        eager = calibrated.probability(real(corridor[::10], np.eye(4), target, rc.verdict_dist), "good_start")
+        assert p == eager
+    finally:
+        calibrated.load.cache_clear()
+
+
+def test_the_calibration_writes_a_file_the_verdict_reads(tmp_path):
+    """scripts/calibrate_verdict.py on dumped rows (--rows): the plain and the _relative models with their bounds, or
+    the plain ones alone (--relative with no share), each a file core/calibrated.py loads."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import calibrate_verdict as cv
+
+    rng = np.random.default_rng(1)
+    n, k = 120, len(visibility.FEATURES)
+    y = (rng.random(n) < 0.4).astype(int)
+    x = np.clip(rng.uniform(0.2, 0.8, (n, k)) + 0.15 * y[:, None], 0.0, 1.0)
+    rows = tmp_path / "rows.npz"
+    np.savez(rows, pair=x, good=x, y=y, rig=np.zeros(n, int), kind=np.array(["near"] * n))
+    for extra, relative in (([], True), (["--relative"], False)):
+        out = tmp_path / f"fit{len(extra)}.json"
+        assert cv.main(["--rows", str(rows), "--out", str(out), *extra]) == 0
+        doc = json.loads(out.read_text())
+        assert ("relative" in doc) == relative and ("good_start_relative" in calibrated.load(str(out))) == relative
+        if relative:
+            assert doc["relative"]["held_pinned"] == cv.HELD_BOUNDS[0]
+            assert calibrated.anchored_below(str(out)) == cv.HELD_BOUNDS[0]
