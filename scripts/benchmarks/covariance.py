@@ -299,14 +299,31 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
     scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
     step covariances composed), "chain" (the GICP parts alone), "origin" (a model tried: the first motion's floor
     ``firsts[k]`` out of the chain, and in its place the first scan's own error, a bias every pose shares, taken
-    as the current scan's own share of the sweep floor per axis and composed at the origin)."""
+    as the current scan's own share of the sweep floor per axis and composed at the origin), "yaw" (a model tried:
+    the first motion's floor kept in roll and pitch only; in position and yaw the first sweep floor measured, at the
+    origin)."""
     from deepbbs_ros.core.covariance import adjoint, compose, pose_error, skew
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
     firsts = firsts or [None] * len(steps)
-    rows, cov = [], np.zeros((6, 6))
+    rows, cov, quant, swept = [], np.zeros((6, 6)), None, None
     for (_, step_cov), (T_prev, T_step, T, T_true), fl, first in zip(steps, chain, floors, firsts):
+        if model == "yaw":  # a model tried: the first motion's floor in position and yaw replaced, at the origin,
+            # by the first sweep floor measured (its roll and pitch kept: they stand in for the slow pitch error)
+            quant = first if first is not None else quant
+            if swept is None and first is None and quant is not None and fl.any():
+                swept = fl.copy()
+            cov = compose(T_prev, cov, T_step, step_cov - _in_prev(T_prev, first if first is not None else fl))
+            M = np.zeros((6, 6)) if quant is None else quant.copy()
+            if swept is not None:
+                rest = [0, 1, 2, 5]
+                M[np.ix_(rest, rest)] = swept[np.ix_(rest, rest)]
+                M[np.ix_(rest, [3, 4])] = M[np.ix_([3, 4], rest)] = 0.0
+            J = np.eye(6)
+            J[:3, 3:] = -skew(T[:3, 3])
+            rows.append((pose_error(T_true, T), cov + SCAN_FLOOR_SHARE * fl + J @ M @ J.T))
+            continue
         if before:
             Ad = adjoint(T_prev)
             cov = cov + Ad @ step_cov @ Ad.T
@@ -330,6 +347,13 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
             out = out + J @ np.diag(SCAN_FLOOR_SHARE * var) @ J.T
         rows.append((pose_error(T_true, T), out))
     return rows
+
+
+def _in_prev(T_prev: np.ndarray, fl: np.ndarray) -> np.ndarray:
+    """``fl`` (odometry frame) in scan k-1's frame, as the step covariance."""
+    B = np.zeros((6, 6))
+    B[:3, :3] = B[3:, 3:] = T_prev[:3, :3].T
+    return B @ fl @ B.T
 
 
 def fit(rows_by_set: dict, names: list[str]) -> float:
@@ -399,10 +423,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
     ap.add_argument("--pose", action="store_true", help="also the accumulated pose's NEES under the other models: "
                     "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone), "
-                    "origin (the first scan's own error at the origin instead of the first motion's floor)")
+                    "origin (the first scan's own error at the origin instead of the first motion's floor), yaw (the "
+                    "first motion's floor in position and yaw replaced by the first sweep floor measured, at the "
+                    "origin); the raw rows kept in OUT/odometry_rows.pkl")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--all-pairs", action="store_true", help="the localization's covariance from every pair of the "
                     "scan, not at most LOCALIZATION_MAX_POINTS (the pose comes from every point)")
+    ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
                     "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
     ap.add_argument("--refit", metavar="NPZ", help="fit again from the raw rows of an earlier --fit (no data)")
@@ -416,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         covmod.LOCALIZATION_INFLATION = 1.0
     if args.all_pairs:
         covmod.LOCALIZATION_MAX_POINTS = 0
+    if args.cell > 0:
+        covmod.CLUSTER_CELL = args.cell
     config = Config()
     loc_rows, step_rows, chains, floors, firsts, truth, notes = {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
@@ -436,6 +465,12 @@ def main(argv: list[str] | None = None) -> int:
     figures: dict = {}
     if args.fit and not args.refit:
         save_rows(Path(args.out) / "covariance_rows.npz", loc_rows, step_rows, chains, truth)
+    if args.pose and step_rows:  # the odometry's raw rows, to compare pose models offline
+        import pickle
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        with open(Path(args.out) / "odometry_rows.pkl", "wb") as f:
+            pickle.dump({"steps": step_rows, "chains": chains, "floors": floors, "firsts": firsts, "truth": truth}, f)
     if args.fit and loc_rows:
         sims = [n for n in loc_rows if n.startswith("sim")]
         k = fit(loc_rows, sims)
@@ -448,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.pose and not args.before:
         tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
                                                               firsts.get(n)) for n in step_rows})
-                   for m in ("walk", "once", "chain", "origin")]
+                   for m in ("walk", "once", "chain", "origin", "yaw")]
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
     for key, rows in tables:
         figures[key] = {}
