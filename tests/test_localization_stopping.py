@@ -70,7 +70,7 @@ def test_a_candidate_the_map_verdict_calls_hopeless_stops_its_gicp_at_the_check(
 
 
 def test_a_coarse_first_leg_keeps_the_pose_and_costs_a_scan_from_elsewhere_less(localizer, world, monkeypatch):  # noqa: F811
-    """localization.polish_check_voxel: a candidate GICP's first leg up to its check aligns the scan on a coarser grid.
+    """localization.polish_check_voxels: a candidate GICP's first leg up to its check aligns the scan on a coarser grid.
     A scan from another world: no pose either way, for fewer source points aligned in all (points x iterations); a
     scan of the map: placed at its true pose either way."""
     import small_gicp
@@ -84,18 +84,18 @@ def test_a_coarse_first_leg_keeps_the_pose_and_costs_a_scan_from_elsewhere_less(
         work.append(src_c.size() * max(1, int(res.iterations)))
         return res
 
-    def localized(scan, lead: float):
+    def localized(scan, lead: int):
         work.clear()
         monkeypatch.setattr(small_gicp, "align", counted)
-        res, _ = _gicps(localizer, scan, {"localization.polish_check_voxel": lead}, monkeypatch)
+        res, _ = _gicps(localizer, scan, {"localization.polish_check_voxels": lead}, monkeypatch)
         return res, sum(work)
 
-    off, w_off = localized(other.scan_at(3).points, 0.0)
-    on, w_on = localized(other.scan_at(3).points, 1.0)
+    off, w_off = localized(other.scan_at(3).points, 0)
+    on, w_on = localized(other.scan_at(3).points, 2000)
     assert not off.valid and not on.valid, (off.reason, on.reason)
     assert w_on < w_off, (w_on, w_off)
-    a, _ = localized(drive.scan_at(48).points, 0.0)
-    b, _ = localized(drive.scan_at(48).points, 1.0)
+    a, _ = localized(drive.scan_at(48).points, 0)
+    b, _ = localized(drive.scan_at(48).points, 2000)
     assert a.valid and b.valid, (a.reason, b.reason)
     for res in (a, b):
         rot, trans = pair_errors(res.T_map_scan, drive.pose_at(48))

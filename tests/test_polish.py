@@ -352,7 +352,7 @@ def test_a_coarse_lead_runs_the_first_leg_and_the_whole_cloud_finishes(pair, mon
 
     src, tgt, T = pair
     cfg = _cfg(**{"registration.exact_gicp": True, "registration.polish_max_iters": 50})
-    lead = prepare_polish_cloud(src.polish_cloud.points(), 1.0, 20)
+    lead = prepare_polish_cloud(src.polish_cloud.points(), 0.5, 20, max_voxels=2000)
     assert 0 < lead.n_points < src.polish_cloud.n_points
     sizes = []
     align = small_gicp.align

@@ -499,16 +499,16 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         return check if judge is None and lead is None else (*check, judge, lead)
 
     def _lead(self, src: Any) -> Any:
-        """The scan's GICP cloud on the coarser ``localization.polish_check_voxel`` m grid for a candidate GICP's first
-        leg up to its check (core.polish.polish's ``check``), built once per scan; None when that is 0 or not coarser
-        than the cloud's own grid."""
-        v, pc = self.config.localization.polish_check_voxel, getattr(src, "polish_cloud", None)
-        rc = self.config.registration
-        if v <= rc.polish_voxel or pc is None:
+        """The scan's GICP cloud on a coarser grid of about ``localization.polish_check_voxels`` voxels for a candidate
+        GICP's first leg up to its check (core.polish.polish's ``check``), built once per scan; None when that is 0 or
+        the cloud has no more voxels than that."""
+        n, pc = self.config.localization.polish_check_voxels, getattr(src, "polish_cloud", None)
+        if n <= 0 or pc is None or pc.n_points <= n:
             return None
         if self._lead_of is not None and self._lead_of[0] is pc:
             return self._lead_of[1]
-        lead = prepare_polish_cloud(pc.points(), v, rc.polish_neighbors,
+        rc = self.config.registration
+        lead = prepare_polish_cloud(pc.points(), rc.polish_voxel, rc.polish_neighbors, max_voxels=n,
                                     registration_type=SMALL_GICP_TYPE.get(rc.polish, "GICP"),
                                     threads=self.registration.gicp_threads())
         lead = lead if lead.n_points < pc.n_points else None
