@@ -67,3 +67,36 @@ def test_a_candidate_the_map_verdict_calls_hopeless_stops_its_gicp_at_the_check(
     b, _ = _gicps(localizer, inside, {"localization.polish_check_probability": 0.01}, monkeypatch)
     assert a.valid and b.valid and np.allclose(a.T_map_scan, b.T_map_scan, atol=1e-6)
     assert pair_errors(b.T_map_scan, drive.pose_at(48))[1] < 0.3
+
+
+def test_a_coarse_first_leg_keeps_the_pose_and_costs_a_scan_from_elsewhere_less(localizer, world, monkeypatch):  # noqa: F811
+    """localization.polish_check_voxels: a candidate GICP's first leg up to its check aligns the scan on a coarser grid.
+    A scan from another world: no pose either way, for fewer source points aligned in all (points x iterations); a
+    scan of the map: placed at its true pose either way."""
+    import small_gicp
+
+    _, _, drive, other = world
+    work = []
+    align = small_gicp.align
+
+    def counted(tgt_c, src_c, *a, **k):
+        res = align(tgt_c, src_c, *a, **k)
+        work.append(src_c.size() * max(1, int(res.iterations)))
+        return res
+
+    def localized(scan, lead: int):
+        work.clear()
+        monkeypatch.setattr(small_gicp, "align", counted)
+        res, _ = _gicps(localizer, scan, {"localization.polish_check_voxels": lead}, monkeypatch)
+        return res, sum(work)
+
+    off, w_off = localized(other.scan_at(3).points, 0)
+    on, w_on = localized(other.scan_at(3).points, 2000)
+    assert not off.valid and not on.valid, (off.reason, on.reason)
+    assert w_on < w_off, (w_on, w_off)
+    a, _ = localized(drive.scan_at(48).points, 0)
+    b, _ = localized(drive.scan_at(48).points, 2000)
+    assert a.valid and b.valid, (a.reason, b.reason)
+    for res in (a, b):
+        rot, trans = pair_errors(res.T_map_scan, drive.pose_at(48))
+        assert rot < 1.0 and trans < 0.3, (rot, trans)

@@ -342,3 +342,33 @@ def test_the_checks_judge_stops_a_gicp_it_calls_hopeless_and_only_that(pair):
     judged = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg,
                     check=(near.iterations + 1, 0.3, lambda P: False))
     assert near.applied and np.array_equal(near.T_target_source, judged.T_target_source)
+
+
+def test_a_coarse_lead_runs_the_first_leg_and_the_whole_cloud_finishes(pair, monkeypatch):
+    """polish(..., check=(k, score, judge, lead)): the first k iterations align ``lead`` (the source on a coarser
+    grid) instead of the source; a start that is then hopeless stops there, having aligned the lead only; a near
+    start is finished on the whole source cloud: the true pose, as without the lead (to a few mm)."""
+    import small_gicp
+
+    src, tgt, T = pair
+    cfg = _cfg(**{"registration.exact_gicp": True, "registration.polish_max_iters": 50})
+    lead = prepare_polish_cloud(src.polish_cloud.points(), 0.5, 20, max_voxels=2000)
+    assert 0 < lead.n_points < src.polish_cloud.n_points
+    sizes = []
+    align = small_gicp.align
+    monkeypatch.setattr(small_gicp, "align", lambda tgt_c, src_c, *a, **k: sizes.append(src_c.size()) or
+                        align(tgt_c, src_c, *a, **k))
+    far = T @ _offset(trans=(9.0, 6.0, 0.0), yaw_deg=40.0)
+    stopped = polish(src.polish_cloud, tgt.polish_cloud, far, cfg, check=(3, 0.0, lambda P: False, lead))
+    assert not stopped.applied and stopped.iterations <= 3 and "judged hopeless" in stopped.reason
+    assert sizes == [lead.n_points]
+    sizes.clear()
+    plain = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg, check=(3, 0.3, None))
+    led = polish(src.polish_cloud, tgt.polish_cloud, T @ _offset(), cfg, check=(3, 0.3, None, lead))
+    n = src.polish_cloud.n_points
+    assert sizes[0] == n and sizes[1] == lead.n_points and sizes[-1] == n
+    assert plain.applied and led.applied, (plain.reason, led.reason)
+    rot, trans = _err(led.T_target_source, plain.T_target_source)
+    assert rot < 0.05 and trans < 0.01, (rot, trans)
+    rot, trans = _err(led.T_target_source, T)
+    assert rot < 0.2 and trans < 0.05, (rot, trans)

@@ -87,6 +87,13 @@ class LocalizationConfig:
     # a right pose still converging can score under it there (0.0001-0.003 on 7 of 27 right answers still converging):
     # its place fails like a wrong one and is retried by GICP alone from the descriptor's start; 0 = no such check
     polish_check_probability: float = 0.01
+    # a global search's candidate GICP runs its first polish_check_iters iterations on the scan's GICP cloud put on a
+    # coarser grid of about this many voxels, the rest of its budget on the whole cloud (the check asks whether a start
+    # is hopeless, not where to the centimetre; on the wrong places of a search, most of them, the leg costs a
+    # fraction). Measured on the benchmark's maps: 1000 (the check's own sample, core/polish.py CHECK_POINTS) cost a
+    # rolled highway scan its placement (0.69 < 0.7; 0.75 with the whole cloud and with 2000); a grid of the check's
+    # 1 m cells kept half the voxels of a scan (its far points stay alone in their cells); 0 = the whole cloud
+    polish_check_voxels: int = 2000
     # the map's GICP cloud (voxel grid, k-d tree, covariances) is prepared once when the map is loaded (about 0.6 s and
     # 60 MB per km of road) and every crop is a view of it (a crop costs ~20 ms instead of ~115 ms); false: each crop
     # prepares its own cloud (less memory for a very large map)
@@ -165,6 +172,7 @@ class LocalizationConfig:
         _check(self.polish_check_iters >= 0, "localization.polish_check_iters", "must be >= 0 (0 = no check)")
         _check(0 <= self.polish_check_score <= 1, "localization.polish_check_score", "must be in [0, 1]")
         _check(0 <= self.polish_check_probability <= 1, "localization.polish_check_probability", "must be in [0, 1]")
+        _check(self.polish_check_voxels >= 0, "localization.polish_check_voxels", "must be >= 0 (0 = the whole cloud)")
         _check(self.ambiguity_distance > 0, "localization.ambiguity_distance", "must be > 0")
         _check(0 <= self.ambiguity_margin <= 1, "localization.ambiguity_margin", "must be in [0, 1]")
         _check(self.ambiguity_probe >= 0, "localization.ambiguity_probe", "must be >= 0 (0 = no probe)")

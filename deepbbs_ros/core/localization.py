@@ -171,6 +171,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         self._track_place = -1  # the place whose crop tracking used last
         self._track_scores: deque[float] = deque(maxlen=10)  # GICP scores of the last scans tracked from a guess
         self._guess_crop: _Crop | None = None  # tracking off the places: the crop at an earlier guess
+        self._lead_of: tuple[Any, Any] | None = None  # (the scan's GICP cloud, its coarse copy): :meth:`_lead`
         self.build_ms = (time.perf_counter() - t0) * 1e3  # the map's part (not the model's loading)
         if registration is None:
             from deepbbs_ros.core.registration import DeepBBSRegistration
@@ -491,8 +492,28 @@ class MapLocalizer(GuessTracking, PlaceSearch):
     def _check_at(self, src: Any, crop: _Crop) -> tuple | None:
         """:attr:`_check` with the map verdict as its judge on ``crop`` (``localization.polish_check_probability``)."""
         check = self._check
+        if check is None:
+            return None
+        lead = self._lead(src)
         judge = self._judge(src, crop)
-        return check if check is None or judge is None else (*check, judge)
+        return check if judge is None and lead is None else (*check, judge, lead)
+
+    def _lead(self, src: Any) -> Any:
+        """The scan's GICP cloud on a coarser grid of about ``localization.polish_check_voxels`` voxels for a candidate
+        GICP's first leg up to its check (core.polish.polish's ``check``), built once per scan; None when that is 0 or
+        the cloud has no more voxels than that."""
+        n, pc = self.config.localization.polish_check_voxels, getattr(src, "polish_cloud", None)
+        if n <= 0 or pc is None or pc.n_points <= n:
+            return None
+        if self._lead_of is not None and self._lead_of[0] is pc:
+            return self._lead_of[1]
+        rc = self.config.registration
+        lead = prepare_polish_cloud(pc.points(), rc.polish_voxel, rc.polish_neighbors, max_voxels=n,
+                                    registration_type=SMALL_GICP_TYPE.get(rc.polish, "GICP"),
+                                    threads=self.registration.gicp_threads())
+        lead = lead if lead.n_points < pc.n_points else None
+        self._lead_of = (pc, lead)
+        return lead
 
     def _judge(self, src: Any, crop: _Crop) -> Any:
         """The GICP check's judge of a candidate's pose (T_place_scan (4, 4) -> go on?): the map verdict's probability

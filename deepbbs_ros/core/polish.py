@@ -294,7 +294,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
             whose pose then scores under ``score`` (the verdict's fitness at ``verdict_dist`` of a spread subset of the
             source's voxels), or that ``judge(T_target_source)`` (the pose there, (4, 4) in the target's frame) calls
             hopeless (False), stops there, rejected (GICP on a wrong place wanders for its whole budget); None: no
-            check.
+            check. A fourth item, a :class:`PolishCloud` of the source on a coarser grid (or None): the first leg up
+            to the check aligns it instead of the source (the check asks whether a start is hopeless, not where to the
+            centimetre: on a wrong place the leg costs a fraction), the rest of the budget the source itself.
 
     Returns:
         :class:`PolishResult`; ``T_target_source`` is ``T_init`` unless the polish was accepted.
@@ -317,9 +319,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     T_base = clouds[1].T_base if isinstance(clouds[1], PolishView) else None
     tree = clouds[1].tree if T_base is None else clouds[1].tree.base
 
-    def align(T_start: np.ndarray, iterations: int) -> Any:
+    def align(T_start: np.ndarray, iterations: int, source: Any = None) -> Any:
         return small_gicp.align(
-            clouds[1].cloud, clouds[0].cloud, tree,
+            clouds[1].cloud, (clouds[0] if source is None else source).cloud, tree,
             init_T_target_source=T_start,
             registration_type=reg_type,
             max_correspondence_distance=cfg.polish_max_corr_dist,
@@ -337,11 +339,12 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     else:  # a first leg, a look at the fit, the rest of the budget only when it is worth it
         from deepbbs_ros.core.verdict import fitness, spread_subset
 
-        res = align(start, check[0])
+        lead = check[3] if len(check) > 3 else None  # the first leg on a coarser copy of the source
+        res = align(start, check[0], lead)
         iterations, check_score = int(res.iterations), float("nan")
+        T_now = np.asarray(res.T_target_source)
         if not res.converged:
             pts = spread_subset(clouds[0].points(), CHECK_POINTS, CHECK_CELL)
-            T_now = np.asarray(res.T_target_source)
             check_score = fitness(pts, tree, T_now, cfg.verdict_dist)
             stopped = not check_score >= check[1]  # nan-safe
             if not stopped and len(check) > 2 and check[2] is not None:
@@ -350,6 +353,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
             if not stopped:
                 res = align(T_now, cfg.polish_max_iters - check[0])
                 iterations += int(res.iterations)
+        elif lead is not None:  # the coarse leg converged: the whole cloud from there
+            res = align(T_now, cfg.polish_max_iters - check[0])
+            iterations += int(res.iterations)
     t2 = time.perf_counter()
     T = np.asarray(res.T_target_source, dtype=np.float64).copy()
     if T_base is not None:

@@ -319,7 +319,7 @@ def _target(target, dist: float) -> tuple:
     tree = getattr(target, "tree", None)
     tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
     normals = None
-    if tree is not None:
+    if tree is not None and not hasattr(tree, "base"):  # a crop's view of a map's cloud: its normals are the map's
         nrm = np.asarray(target.cloud.normals())[:, :3]
         normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
     res = None if normals is None or len(tpts) < 2 else self_residuals(tpts, tree, normals, dist)
