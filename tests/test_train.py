@@ -153,6 +153,27 @@ def test_sampler_is_deterministic_and_validation_pairs_fixed():
     assert np.linalg.norm(pos[j] - pos[i]) <= 5.0 and (j + 1 >= len(d) or np.linalg.norm(pos[j + 1] - pos[i]) > 5.0)
 
 
+def test_sampler_distance_balance():
+    """train.pair_balance=distance: every drive alike, and a drive's pair distances uniform over tenths of
+    max_dist (by count, a drive's close pairs outnumber its far ones); 'pairs' weighs drives by their pairs."""
+    slow, fast = synthetic_drive("urban_1", frames=8), synthetic_drive("urban_2", frames=4, seed=3)
+    fast.T_world_lidar[:, :3, 3] *= 1.5  # 1.8 m a frame: 1.8 and 3.6 m pairs only (6 pairs against 44)
+    slow.T_world_lidar[:, :3, 3] *= 0.5  # 0.6 m a frame: 0.6 .. 4.2 m pairs, the close ones most
+    counts = {}
+    for balance in ("pairs", "distance"):
+        s = PairSampler([slow, fast], AugmentConfig(num_points=32, pair_balance=balance))
+        rng = np.random.default_rng(1)
+        refs = [s.draw(rng).ref for _ in range(300)]
+        ij = [(r.split(":")[0], *(int(k) for k in r.split(":")[1].split("->"))) for r in refs]
+        counts[balance] = sum(n == "urban_2" for n, _, _ in ij) / len(ij)
+        d = np.array([abs(j - i) for n, i, j in ij if n == "urban_1"])
+        if balance == "distance":  # distances 0.6 k m, k = 1..7: one per 0.5 m bin, so each about 1/7
+            assert np.all(np.abs(np.bincount(d, minlength=8)[1:] / len(d) - 1 / 7) < 0.08), np.bincount(d)
+        else:  # by count: k frames apart has 2 (8 - k) pairs, the close ones most
+            assert np.mean(d == 1) > 2 * np.mean(d == 6)
+    assert abs(counts["distance"] - 0.5) < 0.1 and counts["pairs"] < 0.25, counts
+
+
 # -- loss ------------------------------------------------------------------------------------------
 def test_loss_is_zero_at_ground_truth_and_guards_no_partner():
     from deepbbs_ros.core.model import NetOutput

@@ -1,5 +1,5 @@
-"""scripts/train_mix.sh: its cache and fit settings are valid, in seconds (one short drive, two steps of a
-tiny model), and the validation reports each validation folder apart."""
+"""scripts/train_mix.sh and train_mix_keep.sh: their cache and fit settings are valid, in seconds (one short
+drive, two steps of a tiny model), and the validation reports each validation folder apart."""
 
 from __future__ import annotations
 
@@ -17,10 +17,11 @@ from deepbbs_ros.train.trainer import Trainer
 from tests.test_train import TINY, synthetic_drive
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "train_mix.sh"
+KEEP = SCRIPT.with_name("train_mix_keep.sh")
 
 
-def _script() -> str:
-    return SCRIPT.read_text()
+def _script(path: Path = SCRIPT) -> str:
+    return path.read_text()
 
 
 def _var(name: str) -> str:
@@ -29,8 +30,8 @@ def _var(name: str) -> str:
     return m.group(1)
 
 
-def _sets() -> dict[str, str]:
-    return dict(re.findall(r"--set (train\.\w+)=(\S+?)[\s\"]", _script()))
+def _sets(path: Path = SCRIPT) -> dict[str, str]:
+    return dict(re.findall(r"--set (train\.\w+)=(\S+?)[\s\"]", _script(path)))
 
 
 @pytest.fixture(autouse=True)
@@ -41,11 +42,17 @@ def one_thread():
     torch.set_num_threads(n)
 
 
-def test_schedule_is_a_valid_config():
-    sets = _sets()
+@pytest.mark.parametrize("script", [SCRIPT, KEEP], ids=["train_mix", "train_mix_keep"])
+def test_schedule_is_a_valid_config(script):
+    sets = _sets(script)
     assert {"train.epochs", "train.lr", "train.val_pairs", "train.num_points"} <= set(sets)
-    cfg = Config().replace(**{k: json.loads(v) for k, v in sets.items()}).validate()
+    cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
+    cfg = cfg.validate()
     assert cfg.train.num_points == 512 and cfg.train.epochs * cfg.train.steps_per_epoch > 0
+    if script == KEEP:  # the same data as the first run, pairs drawn uniform in distance
+        assert cfg.train.pair_balance == "distance"
+        for name in ("SCENES", "SENSORS", "MOUNTS"):
+            assert re.search(rf"^{name}=(\S+)$", _script(KEEP), re.M).group(1) == _var(name)
 
 
 def test_mix_cache_command_on_one_short_drive(tmp_path):
@@ -106,3 +113,25 @@ def test_evaluate_on_a_rig():
     with pytest.raises(ConfigError, match="sensor:mount:place"):
         evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["avia:handheld"], drives_per_scene=1, frames=12,
                  progress=False)
+
+
+def test_evaluate_network_alone_runs_no_search(monkeypatch):
+    """evaluate's "deepbbs" (the network alone) and "refine-only" run without the global search, whose other
+    starts go through GICP; "deepbbs++" keeps the configured search."""
+    from deepbbs_ros.core import registration
+    from deepbbs_ros.core.model import DeepBBSNet
+    from deepbbs_ros.train.evaluate import evaluate
+
+    seen = []
+    init = registration.DeepBBSRegistration.__init__
+
+    def spy(self, config=None, *a, **kw):
+        seen.append(config)
+        init(self, config, *a, **kw)
+
+    monkeypatch.setattr(registration.DeepBBSRegistration, "__init__", spy)
+    cfg = Config().replace(**{**TINY, "preprocess.num_points": 128})
+    torch.manual_seed(0)
+    evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["vlp16:wheeled:courtyard"], drives_per_scene=1, frames=2,
+             stride=10, yaw_deg=0.0, methods=["deepbbs++", "deepbbs", "refine-only"], progress=False)
+    assert [c.registration.global_search for c in seen] == ["auto", "off", "off"]

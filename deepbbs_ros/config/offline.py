@@ -23,6 +23,10 @@ class TrainConfig:
     theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
     trans_weight: float = 1.0  # weight of the translation term (1 = the paper's loss; scaled units, see train/loss.py)
     max_dist: float = 5.0  # m; pairs of frames at most this far apart
+    # how pairs are drawn: "pairs" = drives in proportion to their pair count (capped at 2000), then any of their
+    # pairs; "distance" = every drive alike, then the pair's distance uniform over tenths of max_dist (slow
+    # mounts, handheld or legged, have most pairs under 1 m: drawn by count they teach that scans are close)
+    pair_balance: str = "pairs"
     yaw_aug_deg: float = 45.0  # extra random yaw on top of the real relative pose
     trans_aug: float = 1.0  # m; extra random translation
     crop_prob: float = 0.3  # probability of a partial-overlap crop of one cloud
@@ -44,6 +48,8 @@ class TrainConfig:
         _check(0 < self.beta <= 1, "train.beta", "must be in (0, 1]")
         _check(self.theta > 0, "train.theta", "must be > 0")
         _check(self.max_dist > 0, "train.max_dist", "must be > 0")
+        _check(self.pair_balance in ("pairs", "distance"), "train.pair_balance",
+               f"must be 'pairs' or 'distance', got {self.pair_balance!r}")
         _check(0 <= self.crop_prob <= 1, "train.crop_prob", "must be in [0, 1]")
         _check(self.noise_sigma >= 0, "train.noise_sigma", "must be >= 0")
 

@@ -10,8 +10,9 @@ comes, and with an extra random yaw of up to ``yaw_deg`` applied to the source s
 adjusted accordingly).
 
 Methods: ``deepbbs++`` (the shipped pipeline as configured: deep passes + GICP precision stage by
-default), ``deepbbs`` (deep passes only), ``refine-only`` (the 3D SoftBBS refinement from identity, no
-network), ``gicp``
+default), ``deepbbs`` (the network alone: deep passes only, from the one start, no global search: the
+search's other starts are judged by the verdict and retried through GICP, coarse to fine, so with it on the
+figure would be partly GICP's), ``refine-only`` (the 3D SoftBBS refinement from identity, no network), ``gicp``
 (small_gicp GICP from identity on the dense voxelised scan, the replay baseline, for contrast) and
 ``gicp-gt`` (the same GICP started at the ground truth: how far the dense clouds' own optimum lies
 from the truth, i.e. the floor of rigid registration on the pair; large where a scene is degenerate,
@@ -95,11 +96,12 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
         regs["deepbbs++"] = full
     if "deepbbs" in methods:
         regs["deepbbs"] = DeepBBSRegistration(
-            cfg_used.replace(**{"registration.refine": False, "registration.polish": "none"}), **shared)
+            cfg_used.replace(**{"registration.refine": False, "registration.polish": "none",
+                                "registration.global_search": "off"}), **shared)
     if "refine-only" in methods:
         regs["refine-only"] = DeepBBSRegistration(
             cfg_used.replace(**{"registration.deep": False, "registration.refine": True,
-                                "registration.polish": "none"}), **shared)
+                                "registration.polish": "none", "registration.global_search": "off"}), **shared)
     gicp = None
     if "gicp" in methods or "gicp-gt" in methods:
         from deepbbs_ros.baselines import SmallGicpRegistration

@@ -34,11 +34,13 @@ class AugmentConfig:
     crop_prob: float = 0.3
     noise_sigma: float = 0.01  # m
     subset_min: float = 0.7  # each cloud is FPS-sampled from a random subset of this fraction or more
+    pair_balance: str = "pairs"  # "pairs" or "distance" (train.pair_balance)
 
     @classmethod
     def from_train(cls, train, num_points: int) -> AugmentConfig:
         return cls(num_points=num_points, max_dist=train.max_dist, yaw_aug_deg=train.yaw_aug_deg,
-                   trans_aug=train.trans_aug, crop_prob=train.crop_prob, noise_sigma=train.noise_sigma)
+                   trans_aug=train.trans_aug, crop_prob=train.crop_prob, noise_sigma=train.noise_sigma,
+                   pair_balance=train.pair_balance)
 
 
 @dataclass
@@ -184,22 +186,41 @@ class PairSampler:
             raise DatasetError(
                 f"training pairs: no frame pair within max_dist={aug.max_dist} m in {len(drives)} drive(s)"
             )
-        # drives are drawn in proportion to their pair count, capped so no drive dominates
-        w = np.array([min(len(self.pairs[k]), 2000) for k in self._valid], dtype=np.float64)
-        self._p = w / w.sum()
+        self._bins: list[list[np.ndarray]] | None = None
+        if aug.pair_balance == "distance":  # every drive alike; within one, the distance uniform over its bins
+            self._p = np.full(len(self._valid), 1.0 / len(self._valid))
+            self._bins = [_distance_bins(drives[k], self.pairs[k], aug.max_dist) for k in self._valid]
+        else:  # drives in proportion to their pair count, capped so no drive dominates
+            w = np.array([min(len(self.pairs[k]), 2000) for k in self._valid], dtype=np.float64)
+            self._p = w / w.sum()
 
     @property
     def num_pairs(self) -> int:
         return int(sum(len(p) for p in self.pairs))
 
     def draw(self, rng: np.random.Generator) -> Pair:
-        k = self._valid[int(rng.choice(len(self._valid), p=self._p))]
+        v = int(rng.choice(len(self._valid), p=self._p))
+        k = self._valid[v]
         drive = self.drives[k]
-        i, j = (int(v) for v in self.pairs[k][int(rng.integers(len(self.pairs[k])))])
+        if self._bins is not None:
+            group = self._bins[v][int(rng.integers(len(self._bins[v])))]
+            i, j = (int(x) for x in self.pairs[k][int(group[rng.integers(len(group))])])
+        else:
+            i, j = (int(x) for x in self.pairs[k][int(rng.integers(len(self.pairs[k])))])
         return make_pair(drive, i, j, rng, self.aug)
 
     def batch(self, rng: np.random.Generator, batch_size: int) -> list[Pair]:
         return [self.draw(rng) for _ in range(batch_size)]
+
+
+def _distance_bins(drive: Drive, pairs: np.ndarray, max_dist: float) -> list[np.ndarray]:
+    """The indices into ``pairs`` grouped by the pair's distance in tenths of ``max_dist`` (non-empty groups)."""
+    if not drive.has_gt:
+        return [np.arange(len(pairs))]
+    pos = drive.T_world_lidar[:, :3, 3]
+    dist = np.linalg.norm(pos[pairs[:, 0]] - pos[pairs[:, 1]], axis=1)
+    b = np.minimum((dist / (max_dist / 10)).astype(np.int64), 9)
+    return [np.flatnonzero(b == v) for v in np.unique(b)]
 
 
 def make_pair(drive: Drive, i: int, j: int, rng: np.random.Generator, aug: AugmentConfig) -> Pair:
