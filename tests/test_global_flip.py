@@ -89,3 +89,20 @@ def test_the_given_start_coarse_to_fine_registers_what_every_deep_answer_missed(
     rot, trans = pair_errors(res.T_target_source, np.linalg.inv(Tt) @ Ts)
     assert res.starts > 1
     assert res.valid and rot <= 1.0 and trans <= 0.3, (float(rot), float(trans), res.probability, res.score)
+
+
+def test_the_network_alone_runs_no_gicp_in_its_search(courtyard, monkeypatch):
+    """The same pair with no precision stage (``registration.polish: none``, the network alone as
+    ``deepbbs-replay --method deepbbs`` runs it): the search still runs, but its last try, GICP coarse to fine,
+    does not (a figure of the network alone would be partly GICP's)."""
+    from deepbbs_ros.core import coarse_rescue
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    calls = []
+    real = coarse_rescue.pyramid
+    monkeypatch.setattr(coarse_rescue, "pyramid", lambda *a, **k: calls.append(1) or real(*a, **k))
+    (src, _), (tgt, _) = courtyard[1], courtyard[0]
+    res = DeepBBSRegistration(Config().replace(**{"registration.polish": "none"})).register(src, tgt, T_init=np.eye(4))
+    assert res.starts > 1 and calls == []
+    res = DeepBBSRegistration(Config()).register(src, tgt, T_init=np.eye(4))  # with it, the try runs
+    assert calls

@@ -217,9 +217,11 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
         flip = twin(best.T, st.src_np)
         best = _finish_best(reg, st, best, [st.T_start], _from_pose(reg))
-        if not sure(best, rc) and st.src_pc is not None and st.tgt_pc is not None and st.polish_check is None:
+        if (not sure(best, rc) and st.src_pc is not None and st.tgt_pc is not None and st.polish_check is None
+                and rc.polish != "none"):
             # outside GICP's fine basin but near: the given start coarse to fine (the network's answers missed it); not
-            # in a search over candidate places (a polish_check: most are wrong, each kept cheap)
+            # in a search over candidate places (a polish_check: most are wrong, each kept cheap), and not without a
+            # precision stage (registration.polish "none": the network alone runs no GICP)
             best = _finish_best(reg, st, best, [coarse_rescue.pyramid(st.src_pc, st.tgt_pc, st.T_start, rc,
                                                                       reg.gicp_threads())], _from_pose(reg))
         best = _finish_best(reg, st, best, [flip], _from_pose(reg)) if not sure(best, rc) else best
