@@ -65,6 +65,33 @@ def test_observed_bins_only_leave_out_what_the_scan_did_not_see():
     assert d[0] < 1e-6 < d[1] and shift[0] == 7  # the bins seen only: the right place, at its yaw
 
 
+def test_observed_match_is_the_per_shift_definition():
+    """Every shift at once (matrix products, in chunks of places) gives the per-shift definition: the mean, over
+    the columns either side has, of the cosine of the place's column s + k and the query's column s on the bins the
+    query saw (0 where one of the two is empty)."""
+    from deepbbs_ros.core.descriptors import _match_observed
+
+    rng = np.random.default_rng(5)
+    places = rng.uniform(0.0, 3.0, (37, 18, 60)).astype(np.float32)
+    places[rng.random(places.shape) < 0.5] = 0.0
+    places[3, :, :20] = 0.0  # empty columns
+    query = rng.uniform(0.0, 3.0, (18, 60)).astype(np.float32)
+    query[rng.random(query.shape) < 0.3] = 0.0
+    seen = rng.random((18, 60)) < 0.7
+    seen[:, 40:] = False  # columns the query did not see
+    q = np.where(seen, query, 0.0)
+    want = np.empty((len(places), 60))
+    for k in range(60):
+        p = np.roll(places, -k, axis=2) * seen[None]
+        pn, qn = np.linalg.norm(p, axis=1), np.linalg.norm(q, axis=0)[None]
+        both = (pn > 1e-6) & (qn > 1e-6)
+        cos = np.where(both, np.einsum("prs,rs->ps", p, q) / np.where(both, pn * qn, 1.0), 0.0)
+        want[:, k] = cos.sum(axis=1) / np.maximum(((pn > 1e-6) | (qn > 1e-6)).sum(axis=1), 1)
+    d, shift = _match_observed(places, query, seen, chunk=8)
+    np.testing.assert_allclose(d, 1.0 - want.max(axis=1), atol=1e-5)
+    np.testing.assert_allclose(want[np.arange(len(places)), shift], want.max(axis=1), atol=1e-5)
+
+
 def test_a_tilted_scan_is_placed_levelled(street):
     from deepbbs_ros.core.localization import MapLocalizer
 

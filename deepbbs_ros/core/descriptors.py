@@ -117,24 +117,38 @@ class _PolarTemplate:
         return np.maximum.reduceat(padded[ix, iy], self.starts).reshape(self.rings, self.sectors)
 
 
-def _match_observed(places: np.ndarray, query: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _match_observed(places: np.ndarray, query: np.ndarray, seen: np.ndarray,
+                    chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_match` on the bins the query saw only (``seen`` (R, S) bool): a place's bins facing the scan's unseen
-    ones (beyond a tilted sensor's low-side horizon) are left out. Brute force over the shifts: for a shortlist."""
-    P, _, S = places.shape
+    ones (beyond a tilted sensor's low-side horizon) are left out. Every shift at once: a place column's norm over the
+    bins query column s saw, and its dot product with that column, for every (place column, query column) pair as two
+    matrix products, then read off per shift (``chunk`` places at a time, to stay in cache); for a shortlist."""
+    P, R, S = places.shape
     q = np.where(seen, query, 0.0).astype(np.float32)
     qn = np.linalg.norm(q, axis=0)  # (S,)
-    best = np.full(P, -np.inf)
-    shift = np.zeros(P, np.int64)
-    for k in range(S):
-        pk = np.roll(places, -k, axis=2) * seen[None]  # place column (s + k) against query column s
-        pn = np.linalg.norm(pk, axis=1)  # (P, S)
-        dot = np.einsum("prs,rs->ps", pk, q)
-        both = (pn > 1e-6) & (qn[None] > 1e-6)
-        either = ((pn > 1e-6) | (qn[None] > 1e-6)).sum(axis=1)
-        sim = np.where(both, dot / np.where(both, pn * qn[None], 1.0), 0.0).sum(axis=1) / np.maximum(either, 1)
-        better = sim > best
-        best[better], shift[better] = sim[better], k
-    return 1.0 - best, shift
+    qok = qn > 1e-6
+    w = np.concatenate([seen.astype(np.float32), q], axis=1)  # (R, 2S): the seen mask, the masked query
+    s = np.arange(S)
+    at = ((s[None, :] + s[:, None]) % S * S + s[None, :]).ravel()  # (shift k, query column s) -> (place column, s)
+    dist = np.empty(P, np.float64)
+    shift = np.empty(P, np.int64)
+    for a in range(0, P, chunk):
+        pt = np.asarray(places[a:a + chunk], np.float32).transpose(0, 2, 1)  # (n, S, R)
+        n = len(pt)
+        sq = (pt * pt) @ w[:, :S]  # (n, place column, query column): squared norms over the seen bins
+        dot = pt @ w[:, S:]
+        pn = np.take(sq.reshape(n, S * S), at, axis=1).reshape(n, S, S)  # (n, shift k, query column s)
+        dot = np.take(dot.reshape(n, S * S), at, axis=1).reshape(n, S, S)
+        np.sqrt(pn, out=pn)
+        pok = pn > 1e-6
+        either = (pok | qok).sum(axis=2)
+        both = np.logical_and(pok, qok, out=pok)
+        np.multiply(pn, qn, out=pn)
+        sim = np.divide(dot, pn, out=np.zeros_like(dot), where=both).sum(axis=2) / np.maximum(either, 1)
+        k = np.argmax(sim, axis=1)
+        shift[a:a + n] = k
+        dist[a:a + n] = 1.0 - sim[np.arange(n), k]
+    return dist, shift
 
 
 def _normalise_columns(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,3 +193,4 @@ def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     shift = np.argmax(sim, axis=-1)
     best = np.take_along_axis(sim, shift[..., None], axis=-1)[..., 0]
     return (1.0 - best).astype(np.float64), shift
+
