@@ -413,12 +413,14 @@ def calibration_line(cal: dict) -> str:
     v, s = cal.get("voxels") or {}, cal.get("sampled") or {}
     n, right = cal.get("converged"), cal.get("right")
     wrong = None if n is None or right is None else n - right
-    return (f"The good-start verdict, on the {n} GICP-first answers that converged ({right} right, {wrong} wrong): "
-            f"its score (a spread subset of the source's GICP voxels) accepts at {num(v.get('threshold'), 3)}; "
-            f"highest wrong {num(v.get('wrong_max'), 3)}, lowest right {num(v.get('right_min'), 3)}, "
-            f"{v.get('wrong_accepted', '-')} wrong accepted, {v.get('right_rejected', '-')} right rejected. "
-            f"The full verdict's score (sampled points, threshold {num(s.get('threshold'), 3)}): highest wrong "
-            f"{num(s.get('wrong_max'), 3)}, lowest right {num(s.get('right_min'), 3)}.")
+    return (f"Fitness alone (the share of points within `registration.verdict_dist` of the target, one of the "
+            f"features the calibrated verdict reads), on the {n} answers of GICP within the good start's limits that "
+            f"converged ({right} right, {wrong} wrong): on a spread subset of the source's GICP voxels a cut at "
+            f"{num(v.get('threshold'), 3)} would take {v.get('wrong_accepted', '-')} wrong and reject "
+            f"{v.get('right_rejected', '-')} right (highest wrong {num(v.get('wrong_max'), 3)}, lowest right "
+            f"{num(v.get('right_min'), 3)}); on the sampled points, a cut at {num(s.get('threshold'), 3)}: highest "
+            f"wrong {num(s.get('wrong_max'), 3)}, lowest right {num(s.get('right_min'), 3)}. The verdict's own "
+            f"probabilities on GICP's answers from every family: `scripts/benchmarks/good_start_reach.py`.")
 
 
 # ---- localization in a prior map
