@@ -195,13 +195,18 @@ def test_the_floor_alone_measures_anchored_far_only_under_it(tmp_path, monkeypat
     corridor = np.vstack([walls, floor])  # nothing along x: pinned 0.009, anchored_far 0.17
     rc = Config().registration
     target = prepare_polish_cloud(corridor, rc.polish_voxel, rc.polish_neighbors, threads=1)
-    calls = []
-    real = visibility.pose_features
+    from deepbbs_ros.core import anchoring
+
+    calls, held = [], []
+    real, real_held = visibility.pose_features, anchoring.anchored
     monkeypatch.setattr(visibility, "pose_features", lambda *a, **k: calls.append(a[5:6]) or real(*a, **k))
+    monkeypatch.setattr(anchoring, "anchored", lambda *a, **k: held.append(1) or real_held(*a, **k))
     try:
         assert not calibrated.weighs(("anchored", "anchored_far"), "good_start", floor=False)
         p = verdict.probability(corridor[::10], np.eye(4), target, rc.verdict_dist, "good_start")
-        assert calls == [(False,), (True,)] and p == 0.0  # measured again under the floor: vetoed
+        # one pass, the floor as its bound; anchored_far measured (once) for this pose under the floor: vetoed
+        assert calls == [(0.5,)] and held == [1] and p == 0.0
+        monkeypatch.setattr(visibility, "pose_features", real)
         eager = calibrated.probability(real(corridor[::10], np.eye(4), target, rc.verdict_dist), "good_start")
         assert p == eager
     finally:

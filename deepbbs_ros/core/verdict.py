@@ -67,12 +67,9 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
         return 0.0
     anchor = calibrated.weighs(("anchored", "anchored_far"), model, floor=False)  # more searches, where they count
     view = calibrated.weighs(("in_view", "observable_rel"), model)  # the field of view, likewise
-    f = visibility.pose_features(points, T, target, dist, threads, anchor, view)
-    pinned = f[visibility.FEATURES.index("pinned")]
-    if not anchor and pinned < calibrated.anchored_below():
-        # only a bound on ``pinned`` reads ``anchored_far``, and only under it: measured there (the search kept)
-        f = visibility.pose_features(points, T, target, dist, threads, True, view)
-    return calibrated.probability(f, model)
+    # where only a bound on ``pinned`` reads ``anchored_far``: measured for a pose under it only
+    bound = True if anchor else calibrated.anchored_below()
+    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, bound, view), model)
 
 
 def is_valid(score: float, threshold: float) -> bool:

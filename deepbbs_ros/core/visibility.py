@@ -262,13 +262,13 @@ def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarr
 
 
 def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, threads: int = 1,
-                  anchor: bool = True, view: bool = True) -> np.ndarray:
+                  anchor: bool | float = True, view: bool = True) -> np.ndarray:
     """:func:`features` of ``points`` (N, 3) (source frame) under ``T`` (4, 4) ``T_target_source`` against
     ``target``: a precision-stage cloud (``core.polish.PolishCloud``: its voxels, k-d tree and normals) or a
     plain (M, 3) cloud (a ``scipy`` k-d tree is built; no tangent planes: ``pinned`` takes the normals of the matched
     points' 8 nearest neighbours). ``anchor``: measure ``anchored`` and ``anchored_far`` (two more nearest-neighbour
-    searches each, against a precision-stage cloud; else 1, as without one). ``view``: measure ``in_view`` (else 1:
-    :func:`features`)."""
+    searches each, against a precision-stage cloud; else 1, as without one); a number: only for a pose whose
+    ``pinned`` is under it. ``view``: measure ``in_view`` (else 1: :func:`features`)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
@@ -294,7 +294,9 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     held = None
     if anchor:
         m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
-        held = anchoring.anchored(moved, sq, tree, moved[m], normals[idx[m]], dist, threads)
+        bound = None if isinstance(anchor, (bool, np.bool_)) else float(anchor)
+        if bound is None or pinned(moved[m], normals[idx[m]], 0.2 * dist) < bound:
+            held = anchoring.anchored(moved, sq, tree, moved[m], normals[idx[m]], dist, threads)
     return features(moved, sq, table, dist, plane, own, tol, normals[idx], held, view)
 
 
