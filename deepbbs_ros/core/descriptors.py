@@ -193,4 +193,3 @@ def _match_many(places: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     shift = np.argmax(sim, axis=-1)
     best = np.take_along_axis(sim, shift[..., None], axis=-1)[..., 0]
     return (1.0 - best).astype(np.float64), shift
-
