@@ -424,8 +424,9 @@ def report(fig: dict, names: list[str]) -> None:
             f"{v:.0f}" for v in b["success_pct"].values()) for b in c["basin"]))
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def add_set_args(p: argparse.ArgumentParser) -> None:
+    """The options of the data sets :func:`real_sets` and :func:`sim_sets` read: the real recordings, the simulated
+    sets and how their pairs are drawn."""
     p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry folders (HDL-64E), e.g. PATH/TO/kitti/00")
     p.add_argument("--pair", default=None, help="a folder with a real HDL-32E pair (two .pcd, relative.txt)")
     p.add_argument("--nuscenes", default=None, help="nuScenes HDL-32E scans in the KITTI layout")
@@ -434,10 +435,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-dist", type=float, default=5.0, help="m between the scans of a real pair (not Livox)")
     p.add_argument("--livox-stride", type=int, default=4, help="every n-th Livox keyframe is a source")
     p.add_argument("--livox-max-dist", type=float, default=2.0, help="m between the scans of a Livox pair")
+    p.add_argument("--sim-frames", type=int, default=7, help="scans per simulated set")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_set_args(p)
     p.add_argument("--pairs-per-set", type=int, default=16, help="pairs per set from the good start (evenly spread)")
     p.add_argument("--basin-pairs", type=int, default=4, help="pairs per set from each basin offset")
     p.add_argument("--pair-trials", type=int, default=3, help="random moves of the --pair pair per basin offset")
-    p.add_argument("--sim-frames", type=int, default=7, help="scans per simulated set")
     p.add_argument("--quick", action="store_true", help="8 pairs per set, 2 per basin offset, 5 simulated scans: "
                    "a few minutes per family")
     p.add_argument("--methods", default=METHODS, help=f"comma list of {METHODS}")

@@ -119,15 +119,7 @@ def summarise(recs: list[dict], rc) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--kitti", nargs="*", default=[], help="KITTI odometry folders (HDL-64E)")
-    p.add_argument("--pair", default=None, help="a folder with a real HDL-32E pair (two .pcd, relative.txt)")
-    p.add_argument("--nuscenes", default=None, help="nuScenes HDL-32E scans in the KITTI layout")
-    p.add_argument("--livox", default=None, help="Livox Avia keyframes in the KITTI layout")
-    p.add_argument("--sims", nargs="*", default=list(families.SIMS), help="simulated sets sensor:mount:place")
-    p.add_argument("--max-dist", type=float, default=5.0, help="m between the scans of a real pair (not Livox)")
-    p.add_argument("--livox-stride", type=int, default=4, help="every n-th Livox keyframe is a source")
-    p.add_argument("--livox-max-dist", type=float, default=2.0, help="m between the scans of a Livox pair")
-    p.add_argument("--sim-frames", type=int, default=7, help="scans per simulated set")
+    families.add_set_args(p)  # the families benchmark's data sets, read by its real_sets / sim_sets
     p.add_argument("--quick", action="store_true", help="5 simulated scans (the families benchmark's --quick sets)")
     p.add_argument("--moves", default="0:0,20:1.5,30:2,45:3,60:4",
                    help="starts: yaw deg:shift m, comma separated (0:0 = the pair as recorded)")
