@@ -11,8 +11,8 @@ adjusted accordingly).
 
 Methods: ``deepbbs++`` (the shipped pipeline as configured: deep passes + GICP precision stage by
 default), ``deepbbs`` (the network alone: deep passes only, from the one start, no global search: the
-search's other starts are judged by the verdict and retried through GICP, coarse to fine, so with it on the
-figure would be partly GICP's), ``refine-only`` (the 3D SoftBBS refinement from identity, no network), ``gicp``
+network's own answer, not the best of the search's starts as the verdict judges them), ``refine-only`` (the 3D
+SoftBBS refinement from identity, no network), ``gicp``
 (small_gicp GICP from identity on the dense voxelised scan, the replay baseline, for contrast) and
 ``gicp-gt`` (the same GICP started at the ground truth: how far the dense clouds' own optimum lies
 from the truth, i.e. the floor of rigid registration on the pair; large where a scene is degenerate,
