@@ -17,12 +17,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
   sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models
   of it: "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
-  whole floor added), "chain" (the GICP parts alone, no floor) and "origin" (the first motion's floor replaced by
-  the first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
-  origin), "ar1" (origin with the GICP parts' errors an AR(1) per axis, its coefficient measured from the
-  deviations from the prediction: a model tried), the lag-1 correlation of consecutive step errors and their mean
-  per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for independent
-  steps; a mean away from 0: a drift the steps share). Per simulated drive the ``sweep:`` line
+  whole floor added), "chain" (the GICP parts alone, no floor), "origin" (the first motion's floor replaced by the
+  first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
+  origin), "ar1" and "ar1origin" (the node's and the origin model with the GICP parts' errors an AR(1) per axis,
+  its coefficient measured from the deviations from the prediction: models tried), the lag-1 correlation of
+  consecutive step errors per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for
+  independent steps) and their mean (away from 0: a drift the steps share). Per simulated drive the ``sweep:`` line
   shows the sweep floor's premise: how the step's rotation error follows the true rotation the deskew missed within
   the sweep (correlation and slope per axis), and the covariance's time per scan.
 
@@ -306,15 +306,15 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
     ``firsts[k]`` out of the chain, and in its place the first scan's own error, a bias every pose shares, taken
     as the current scan's own share of the sweep floor per axis and composed at the origin), "yaw" (a model tried:
     the first motion's floor kept in roll and pitch only; in position and yaw the first sweep floor measured, at the
-    origin), "ar1" (a model tried: the "origin" model with the GICP parts' errors correlated from step to step as an
-    AR(1) per axis, :func:`ar1_rows`)."""
+    origin), "ar1" and "ar1origin" (models tried: the node's and the "origin" model with the GICP parts' errors
+    correlated from step to step as an AR(1) per axis, :func:`ar1_rows`)."""
     from deepbbs_ros.core.covariance import adjoint, compose, pose_error, skew
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
     firsts = firsts or [None] * len(steps)
-    if model == "ar1":
-        return ar1_rows(steps, chain, floors, firsts)
+    if model in ("ar1", "ar1origin"):
+        return ar1_rows(steps, chain, floors, firsts, model == "ar1origin")
     rows, cov, quant, swept = [], np.zeros((6, 6)), None, None
     for (_, step_cov), (T_prev, T_step, T, T_true), fl, first in zip(steps, chain, floors, firsts):
         if model == "yaw":  # a model tried: the first motion's floor in position and yaw replaced, at the origin,
@@ -361,17 +361,18 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
 AR1_MAX = 0.9
 
 
-def ar1_rows(steps: list, chain: list, floors: list, firsts: list) -> list:
-    """The accumulated rows of the "ar1" model (tried, not shipped): the steps' GICP parts ``u_k`` (the step
-    covariance less its sweep floor) are an AR(1) per axis of the scan, ``z_k = rho z_{k-1} + w_k``, ``u_k = L_k z_k``
-    (``L_k`` the symmetric root of the GICP part), with ``rho`` what the odometry can measure as it runs: a deviation
-    from the constant-velocity prediction is ``u_k - u_{k-1}`` plus the true motion's change, and the lag-1
-    autocorrelation ``r`` of a differenced AR(1) is ``-(1 - rho) / 2``, so ``rho = 1 + 2 r`` (clipped to [0,
-    :data:`AR1_MAX`]) from the deviations so far. The accumulated error ``e_k = Ja e_{k-1} + Jb u_k`` (``compose``'s
-    Jacobians) then has the closed-form recursion ``Y_k = Cov(e_k, z_k) = Ja Y_{k-1} D + Jb L_k`` and ``V_k = Ja V_{k-1}
-    Ja^T + Jb S_k Jb^T + (Ja Y_{k-1} D L_k^T Jb^T + its transpose)`` (``D = diag(rho)``); plus, as the "origin" model,
-    the current scan's own share of its floor, the first motion's floor out of the chain and the first scan's own
-    error at the origin."""
+def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool = False) -> list:
+    """The accumulated rows of the "ar1" models (tried, not shipped): the node's model with the steps' GICP parts
+    ``u_k`` (the step covariance less its sweep floor, or less the first motion's floor) an AR(1) per axis of the
+    scan, ``z_k = rho z_{k-1} + w_k``, ``u_k = L_k z_k`` (``L_k`` the symmetric root of the GICP part), instead of
+    independent; ``rho`` is what the odometry can measure as it runs: a deviation from the constant-velocity
+    prediction is ``u_k - u_{k-1}`` plus the true motion's change, and the lag-1 autocorrelation ``r`` of a differenced
+    AR(1) is ``-(1 - rho) / 2``, so ``rho = 1 + 2 r`` (clipped to [0, :data:`AR1_MAX`]) from the deviations so far.
+    The accumulated error ``e_k = Ja e_{k-1} + Jb u_k`` (``compose``'s Jacobians) has the closed-form recursion
+    ``Y_k = Cov(e_k, z_k) = Ja Y_{k-1} D + Jb L_k``, ``V_k = Ja V_{k-1} Ja^T + Jb S_k Jb^T + (Ja Y_{k-1} D L_k^T Jb^T +
+    its transpose)`` (``D = diag(rho)``; ``rho = 0``: the node's chain). Plus the current scan's own share of its
+    floor, and the first motion's floor composed along the chain as the node does ("ar1") or, ``origin`` ("ar1origin"),
+    in its place the first scan's own error at the origin, as the "origin" model."""
     from scipy.linalg import sqrtm
     from scipy.spatial.transform import Rotation
 
@@ -381,7 +382,7 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list) -> list:
     def log(D: np.ndarray) -> np.ndarray:
         return np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()])
 
-    rows, V, Y, devs, swept = [], np.zeros((6, 6)), np.zeros((6, 6)), [], None
+    rows, V, Y, W, devs, swept = [], np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)), [], None
     for k, ((_, S), (T_prev, T_step, T, T_true), fl, first) in enumerate(zip(steps, chain, floors, firsts)):
         if k:  # the deviation from the constant-velocity prediction (the previous step's motion repeated)
             devs.append(log(np.linalg.solve(chain[k - 1][1], T_step)))
@@ -400,9 +401,12 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list) -> list:
         cross = Ja @ Y @ np.diag(rho) @ L.T @ Jb.T
         V = Ja @ V @ Ja.T + Jb @ part @ Jb.T + cross + cross.T
         Y = Ja @ Y @ np.diag(rho) + Jb @ L
+        W = Ja @ W @ Ja.T + (first if first is not None else 0.0)  # the first motion's floor along the chain
         swept = fl.copy() if swept is None and first is None and fl.any() else swept
         out = V + SCAN_FLOOR_SHARE * fl
-        if first is not None:
+        if not origin:
+            out = out + W
+        elif first is not None:
             out = out + first
         elif swept is not None:  # the first scan's own error per axis (its frame: the odometry's) at the origin
             R = T[:3, :3]
@@ -490,8 +494,9 @@ def main(argv: list[str] | None = None) -> int:
                     "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone), "
                     "origin (the first scan's own error at the origin instead of the first motion's floor), yaw (the "
                     "first motion's floor in position and yaw replaced by the first sweep floor measured, at the "
-                    "origin), ar1 (origin with the GICP parts' errors an AR(1) per axis, its coefficient from the "
-                    "deviations' lag-1 autocorrelation); the raw rows kept in OUT/odometry_rows.pkl")
+                    "origin), ar1 (the GICP parts' errors an AR(1) per axis, its coefficient from the deviations' "
+                    "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); the raw rows kept in "
+                    "OUT/odometry_rows.pkl")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--all-pairs", action="store_true", help="the localization's covariance from every pair of the "
                     "scan, not at most LOCALIZATION_MAX_POINTS (the pose comes from every point)")
@@ -549,7 +554,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.pose and not args.before:
         tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
                                                               firsts.get(n)) for n in step_rows})
-                   for m in ("walk", "once", "chain", "origin", "yaw", "ar1")]
+                   for m in ("walk", "once", "chain", "origin", "yaw", "ar1", "ar1origin")]
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
     for key, rows in tables:
         figures[key] = {}
