@@ -286,6 +286,10 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
         mean, sem = e.mean(0) * scale, e.std(0) * scale / len(e) ** 0.5
         print("    step errors, mean (mm, mdeg) and t (mean / its standard error): "
               + ", ".join(f"{m:.1f} (t {m / max(s, 1e-12):.1f})" for m, s in zip(mean, sem)), flush=True)
+    if args.pose and len(chain) >= 5:  # the ar1 model's coefficient from the deviations, at the drive's end
+        rho = ar1_coefficient([c[1] for c in chain])
+        print("    ar1: rho from the deviations' lag-1 autocorrelation (x, y, z, roll, pitch, yaw): "
+              + ", ".join(f"{c:.2f}" for c in rho), flush=True)
     if len(missed) >= 5:  # the sweep floor's premise: the step's rotation error follows the rotation the deskew missed
         err, miss = (np.array(x) for x in zip(*missed))
         fit = [(np.corrcoef(miss[:, i], err[:, i])[0, 1], np.polyfit(miss[:, i], err[:, i], 1)[0]) for i in range(3)]
@@ -361,6 +365,23 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
 AR1_MAX = 0.9
 
 
+def ar1_coefficient(motions: list) -> np.ndarray:
+    """(6,) the ar1 model's ``rho`` per axis from the registered motions ``T_{k-1}_k`` so far: ``1 + 2 r`` with ``r``
+    the lag-1 autocorrelation of the deviations from the constant-velocity prediction (each motion against the one
+    before), clipped to [0, :data:`AR1_MAX`]; zeros before three deviations."""
+    from scipy.spatial.transform import Rotation
+
+    if len(motions) < 4:
+        return np.zeros(6)
+    d = []
+    for a, b in zip(motions[:-1], motions[1:]):
+        D = np.linalg.solve(a, b)
+        d.append(np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()]))
+    d = np.array(d)
+    r = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-30)
+    return np.clip(1.0 + 2.0 * r, 0.0, AR1_MAX)
+
+
 def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool = False) -> list:
     """The accumulated rows of the "ar1" models (tried, not shipped): the node's model with the steps' GICP parts
     ``u_k`` (the step covariance less its sweep floor, or less the first motion's floor) an AR(1) per axis of the
@@ -374,23 +395,13 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool 
     floor, and the first motion's floor composed along the chain as the node does ("ar1") or, ``origin`` ("ar1origin"),
     in its place the first scan's own error at the origin, as the "origin" model."""
     from scipy.linalg import sqrtm
-    from scipy.spatial.transform import Rotation
 
     from deepbbs_ros.core.covariance import pose_error, skew
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
-    def log(D: np.ndarray) -> np.ndarray:
-        return np.concatenate([D[:3, 3], Rotation.from_matrix(D[:3, :3]).as_rotvec()])
-
-    rows, V, Y, W, devs, swept = [], np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)), [], None
+    rows, V, Y, W, swept = [], np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)), None
     for k, ((_, S), (T_prev, T_step, T, T_true), fl, first) in enumerate(zip(steps, chain, floors, firsts)):
-        if k:  # the deviation from the constant-velocity prediction (the previous step's motion repeated)
-            devs.append(log(np.linalg.solve(chain[k - 1][1], T_step)))
-        rho = np.zeros(6)
-        if len(devs) >= 3:
-            d = np.array(devs)
-            r = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-30)
-            rho = np.clip(1.0 + 2.0 * r, 0.0, AR1_MAX)
+        rho = ar1_coefficient([c[1] for c in chain[:k + 1]])
         part = S - _in_prev(T_prev, first if first is not None else fl)
         part = 0.5 * (part + part.T)
         L = np.real(sqrtm(part))
