@@ -264,7 +264,7 @@ def effective_cells(H: np.ndarray, hessians: np.ndarray, basis: np.ndarray, left
     cell ``c``'s term adds along the direction when a cell's gradient varies as its share of the Hessian, ``H_c``
     (the errors GICP's cost weighs; the design's, not the residuals', so not itself noisy): ``w^T A_c H_c A_c^T w``,
     ``A_c = (H - H_c)^-1`` (``left_out``, :func:`jackknife_meat`) or ``H^-1``. G equal cells give G; one cell that
-    pins the direction, about 1 (the Bell-McCaffrey degrees of freedom of the cluster-robust literature)."""
+    pins the direction, about 1 (as Bell and McCaffrey's degrees of freedom for cluster-robust variances)."""
     Hc = 0.5 * (hessians + hessians.transpose(0, 2, 1))
     A = np.linalg.inv(H[None] - Hc) if left_out else np.broadcast_to(np.linalg.inv(H), Hc.shape)
     lam = np.einsum("ik,ckl,cml,mi->ci", basis.T, A @ Hc, A, basis)  # (G, K)
@@ -272,11 +272,12 @@ def effective_cells(H: np.ndarray, hessians: np.ndarray, basis: np.ndarray, left
 
 
 def student_widened(cov: np.ndarray, H: np.ndarray, hessians: np.ndarray, left_out: bool = True) -> np.ndarray:
-    """(6, 6) ``cov`` (a cluster-robust covariance, small_gicp's ``[rot, trans]``) widened along each of its
-    eigen-directions to Student's t's variance, ``nu / (nu - 2)`` (at most 3, :data:`MIN_EFFECTIVE_CELLS`), with
+    """(6, 6) ``cov`` (a cluster-robust covariance, small_gicp's ``[rot, trans]``, rad and m) widened along each of
+    its eigen-directions to Student's t's variance, ``nu / (nu - 2)`` (at most 3, :data:`MIN_EFFECTIVE_CELLS`), with
     ``nu`` the direction's effective number of cells (:func:`effective_cells`): the covariance is estimated from a few
-    dozen cells, and an estimate with ``nu`` degrees of freedom taken as exact leaves the error's NEES that of a t
-    (the mean of chi2's ``nu / (nu - 2)`` times), where a direction rests on a few cells most."""
+    dozen cells, and with a variance estimated on ``nu`` degrees of freedom taken as exact, the error over its
+    standard deviation is a t, whose square averages ``nu / (nu - 2)``, not 1: most where a direction rests on a few
+    cells."""
     w, U = np.linalg.eigh(0.5 * (cov + cov.T))
     nu = np.maximum(effective_cells(H, hessians, U, left_out), MIN_EFFECTIVE_CELLS)
     return (U * (w * nu / (nu - 2.0))) @ U.T
