@@ -1,7 +1,8 @@
 """The pose covariance of a GICP solution (deepbbs_ros/core/covariance.py) against known truth: its convention (the
 cost's curvature along perturbations of the pose), Monte-Carlo NEES of the cluster-robust covariance on a synthetic
-structured scene with independent and with correlated errors (no fitted constant), a degenerate corridor, the
-odometry's sweep floor, composition along a chain, and the localizer's covariance on every valid pose."""
+structured scene with independent and with correlated errors (no fitted constant), the Student widening on a linear
+problem with few cells, a degenerate corridor, the odometry's sweep floor, composition along a chain, and the
+localizer's covariance on every valid pose."""
 
 from __future__ import annotations
 
