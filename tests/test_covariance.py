@@ -1,7 +1,8 @@
 """The pose covariance of a GICP solution (deepbbs_ros/core/covariance.py) against known truth: its convention (the
 cost's curvature along perturbations of the pose), Monte-Carlo NEES of the cluster-robust covariance on a synthetic
-structured scene with independent and with correlated errors (no fitted constant), a degenerate corridor, the
-odometry's sweep floor, composition along a chain, and the localizer's covariance on every valid pose."""
+structured scene with independent and with correlated errors (no fitted constant), the Student widening on a linear
+problem with few cells, a degenerate corridor, the odometry's sweep floor, composition along a chain, and the
+localizer's covariance on every valid pose."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from deepbbs_ros.core.covariance import (
     SWEEP_SPREAD,
     MotionFloor,
     compose,
+    effective_cells,
     gicp_covariance,
     gicp_hessian,
     is_covariance,
@@ -21,6 +23,7 @@ from deepbbs_ros.core.covariance import (
     matched_pairs,
     pose_error,
     sandwich_covariance,
+    student_widened,
 )
 from deepbbs_ros.core.polish import prepare_polish_cloud
 
@@ -273,6 +276,49 @@ def test_jackknife_is_the_leave_one_cell_out_spread():
     hessians = np.stack([X[cell == c].T @ X[cell == c] for c in range(12)])
     moves = np.stack([np.linalg.lstsq(X[cell != c], y[cell != c], rcond=None)[0] - beta for c in range(12)])
     np.testing.assert_allclose(jackknife_meat(X.T @ X, grads, hessians), 11 / 12 * moves.T @ moves, rtol=1e-9)
+
+
+def test_effective_cells_count_the_cells_a_direction_rests_on():
+    """G cells of equal information are G effective cells along every direction; where one cell holds nearly all
+    the information along a direction (the others a thousandth), about one."""
+    eq = np.stack([np.eye(6)] * 10)
+    np.testing.assert_allclose(effective_cells(eq.sum(0), eq, np.eye(6)), 10.0, rtol=1e-9)
+    uneven = eq.copy()
+    uneven[1:, 0, 0] = 1e-3
+    uneven[0, 0, 0] = 1.0
+    nu = effective_cells(uneven.sum(0), uneven, np.eye(6), left_out=False)
+    assert nu[0] < 1.1 and np.allclose(nu[1:], 10.0), nu
+
+
+def _student_trials(seed: int, G: int = 12, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """A linear least-squares problem with ``G`` cells of uneven size that pin the directions unevenly (true
+    parameters 0, independent normal errors), ``n`` draws: per draw and parameter the squared error over the variance
+    the jackknife covariance gives and over the widened one's."""
+    rng = np.random.default_rng(seed)
+    cell = np.repeat(np.arange(G), rng.integers(5, 40, G))
+    X = rng.normal(size=(len(cell), 6)) * rng.uniform(0.2, 3.0, (G, 6))[cell]
+    H = X.T @ X
+    hessians = np.stack([X[cell == c].T @ X[cell == c] for c in range(G)])
+    jk, st = [], []
+    for _ in range(n):
+        y = rng.normal(0, 0.1, len(cell))
+        beta = np.linalg.lstsq(X, y, rcond=None)[0]
+        g = X * (y - X @ beta)[:, None]
+        grads = np.stack([g[cell == c].sum(0) for c in range(G)])
+        V = jackknife_meat(H, grads, hessians)
+        jk.append(beta ** 2 / np.diag(V))
+        st.append(beta ** 2 / np.diag(student_widened(V, H, hessians)))
+    return np.array(jk), np.array(st)
+
+
+def test_student_widening_makes_each_direction_honest_with_few_cells():
+    """With a dozen cells the jackknife variance is itself an estimate with a few degrees of freedom, so a
+    parameter's squared error over it is on average above 1 (a t, not a normal); widened as Student's t with the
+    direction's effective cells, the average is 1 (known truth: 400 draws of a linear problem, pooled over the six
+    parameters)."""
+    jk, st = _student_trials(6)
+    assert jk.mean() > 1.2, jk.mean()
+    assert 0.8 < st.mean() < 1.1, st.mean()
 
 
 def test_no_covariance_from_too_little():

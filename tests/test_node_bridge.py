@@ -247,8 +247,8 @@ def test_tracker_retries_at_rest_when_the_prediction_is_far_off(drive):
 
 def test_tracked_covariance_is_the_sandwich_at_the_pose(drive):
     """A tracked pose's covariance is the cluster-robust sandwich of the GICP pairs of the scan on its crop at the
-    pose it carries (core/covariance.py, computed here from the pairs directly: the localization's subsampling,
-    leave-one-cell-out estimator and weak-direction prior), for every tracked scan."""
+    pose it carries (core/covariance.py, computed here from the pairs directly: the localization's pairs,
+    leave-one-cell-out estimator, Student's t widening and weak-direction prior), for every tracked scan."""
     from deepbbs_ros.core.covariance import (
         LOCALIZATION_INFLATION,
         LOCALIZATION_MAX_POINTS,
@@ -269,7 +269,8 @@ def test_tracked_covariance_is_the_sandwich_at_the_pose(drive):
     def spy(src, crop, T, timings):
         pairs = matched_pairs(src.polish_cloud, crop.pre.polish_cloud, np.linalg.solve(crop.T_map_place, T), corr,
                               1, LOCALIZATION_MAX_POINTS)
-        seen.append((T, sandwich_covariance(pairs, T, LOCALIZATION_INFLATION, weak_sigma=corr / np.sqrt(3.0))))
+        seen.append((T, sandwich_covariance(pairs, T, LOCALIZATION_INFLATION, weak_sigma=corr / np.sqrt(3.0),
+                                            student=True)))
         return own(src, crop, T, timings)
 
     loc._covariance = spy

@@ -509,8 +509,10 @@ def main(argv: list[str] | None = None) -> int:
                     "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); the raw rows kept in "
                     "OUT/odometry_rows.pkl")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
-    ap.add_argument("--all-pairs", action="store_true", help="the localization's covariance from every pair of the "
-                    "scan, not at most LOCALIZATION_MAX_POINTS (the pose comes from every point)")
+    ap.add_argument("--max-points", type=int, default=-1, help="the localization's covariance from every k-th pair, "
+                    "at most this many (a check; 0: every pair; default LOCALIZATION_MAX_POINTS, every pair)")
+    ap.add_argument("--no-student", action="store_true", help="the localization's covariance not widened as Student's "
+                    "t (a check: LOCALIZATION_STUDENT)")
     ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
                     "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
@@ -523,8 +525,10 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.fit:  # raw cluster-robust covariances: inflation 1
         covmod.LOCALIZATION_INFLATION = 1.0
-    if args.all_pairs:
-        covmod.LOCALIZATION_MAX_POINTS = 0
+    if args.max_points >= 0:
+        covmod.LOCALIZATION_MAX_POINTS = args.max_points
+    if args.no_student:
+        covmod.LOCALIZATION_STUDENT = False
     if args.cell > 0:
         covmod.CLUSTER_CELL = args.cell
     config = Config()
