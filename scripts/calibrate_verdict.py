@@ -48,7 +48,7 @@ from scipy.optimize import minimize
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from deepbbs_ros.config import Config  # noqa: E402
+from deepbbs_ros.config import Config, load_config  # noqa: E402
 from deepbbs_ros.core import anchoring, calibrated, visibility  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
@@ -345,15 +345,17 @@ def _turned(scan, i: int, rng: np.random.Generator, rc) -> tuple | None:
 
 
 def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool = False,
-            rig0: int = 0, turned: bool = False, slid: bool = False) -> dict[str, np.ndarray]:
+            rig0: int = 0, turned: bool = False, slid: bool = False,
+            config: Config | None = None) -> dict[str, np.ndarray]:
     """Feature rows of poses on simulated pairs (see the module): {"pair", "good", "y", "rot", "trans", "rig",
     "kind", "near_ref", "rough", "self_plane"} (``rough``, ``self_plane``: the target's :func:`visibility.roughness`;
     ``near_ref``: within 1 deg / 0.3 m of GICP started at the truth, where the pattern lets GICP
     settle; the fit does not use it). ``low``: low-overlap pairs (:func:`_low_overlap`); ``turned``: turned pairs
     (:func:`_turned`, over 100 frames); ``slid``: the truth slid along its weakest direction too; ``rig0``: the
-    index of the first rig (its ``rig`` rows, its simulator's seed)."""
+    index of the first rig (its ``rig`` rows, its simulator's seed); ``config``: the registration's (default: the
+    defaults)."""
     frames = 100 if turned else frames  # a hand-held walk takes 2.5 m in up to 50 frames
-    reg = DeepBBSRegistration(Config())
+    reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
     out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
@@ -408,6 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=6, help="pairs per rig (default 6)")
     ap.add_argument("--seed", type=int, default=38)
+    ap.add_argument("--config", type=Path, help="config YAML of the registration whose clouds the poses are scored on "
+                    "(default: the defaults)")
     ap.add_argument("--out", type=Path, default=calibrated.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--low-pairs", type=int, default=0,
@@ -435,17 +439,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
+    config = load_config(args.config) if args.config else None
     if args.rows:
         parts = [dict(np.load(f, allow_pickle=False)) for f in args.rows]
     else:
         parts = []
         for seed in args.seeds or [args.seed]:
-            parts.append(collect(RIGS, seed, args.pairs, slid=args.slid))
+            parts.append(collect(RIGS, seed, args.pairs, slid=args.slid, config=config))
             if args.low_pairs:
-                parts.append(collect(LOW_RIGS, seed, args.low_pairs, low=True, rig0=len(RIGS), slid=args.slid))
+                parts.append(collect(LOW_RIGS, seed, args.low_pairs, low=True, rig0=len(RIGS), slid=args.slid,
+                                     config=config))
             if args.turned_pairs:
                 parts.append(collect(TURNED_RIGS, seed, args.turned_pairs, turned=True,
-                                     rig0=len(RIGS) + len(LOW_RIGS), slid=args.slid))
+                                     rig0=len(RIGS) + len(LOW_RIGS), slid=args.slid, config=config))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
     if args.dump:
         np.savez(args.dump, **data)

@@ -85,17 +85,18 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
+                config=None) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
 
-    parts = [cv.collect(cv.RIGS, seed, pairs, slid=slid)]
+    parts = [cv.collect(cv.RIGS, seed, pairs, slid=slid, config=config)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
-        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), slid=slid))
+        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), slid=slid, config=config))
     if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
         parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS),
-                                slid=slid))
+                                slid=slid, config=config))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
     rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
     fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
@@ -212,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
                     "errors (deg, m), scores, the pairs' motion (deg, m) and GICP voxels (source, target) here (.npz)")
+    ap.add_argument("--config", type=Path, help="config YAML of the registration (default: the defaults)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
@@ -220,16 +222,17 @@ def main(argv: list[str] | None = None) -> int:
 
         calibrated.DEFAULT_PATH = args.model.resolve()
 
-    from deepbbs_ros.config import Config
+    from deepbbs_ros.config import Config, load_config
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
-    reg = DeepBBSRegistration(Config())
+    config = load_config(args.config) if args.config else Config()
+    reg = DeepBBSRegistration(config)
     figures = {"thresholds": {"old": OLD, "pair": reg.config.registration.verdict_probability,
                               "good_start": reg.config.registration.good_start_probability},
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid)
+                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
