@@ -48,8 +48,8 @@ from scipy.optimize import minimize
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from deepbbs_ros.config import Config  # noqa: E402
-from deepbbs_ros.core import anchoring, calibrated, visibility  # noqa: E402
+from deepbbs_ros.config import Config, load_config  # noqa: E402
+from deepbbs_ros.core import anchoring, calibrated, second_minimum, visibility  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -261,12 +261,14 @@ def slid_pose(T: np.ndarray, points: np.ndarray, target, dist: float, k: float) 
 
 
 def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: int, truth: bool = False,
-               reg=None, slid: bool = False) -> None:
+               reg=None, slid: bool = False, second: bool = False) -> None:
     """Append to ``out`` the rows of the poses of one pair (``pair``: the target's and the source's (prepared scan,
     T_world_lidar); ``far()``: the same for a scan of another place; see the module). ``truth``: also the truth
     moved a little (within 0.5 deg / 0.1 m), a right pose where GICP may not find one; ``reg``: also the whole
     pipeline's answer from identity (``DeepBBSRegistration.register``), right or its own local minimum; ``slid``: also
-    the truth slid along its weakest direction (:func:`slid_pose`), a wrong pose the scene's planes hardly tell."""
+    the truth slid along its weakest direction (:func:`slid_pose`), a wrong pose the scene's planes hardly tell;
+    ``second``: a pose the verdict takes (``verdict_probability``) is also checked for a second minimum as good along
+    its weakest direction, as the registration's own verdict does (core/second_minimum.py; ``ambiguous``)."""
     (tgt, Tt), (src, Ts) = pair
     T_gt = np.linalg.inv(Tt) @ Ts
     ref = good_start_gicp(src.polish_cloud, tgt.polish_cloud, T_gt, rc)  # where GICP settles from the truth
@@ -296,11 +298,17 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
         y, r, t = label(T, T_other if kind == "other" else T_gt)
         if y < 0:
             continue
-        pair, good = rows_of(other if kind == "other" else src, tgt, T, rc)
+        s_pre = other if kind == "other" else src
+        pair, good = rows_of(s_pre, tgt, T, rc)
         near = kind != "other" and label(T, T_ref)[0] == 1
+        ambiguous = bool(second and rc.second_minimum
+                         and calibrated.probability(good[None], "good_start")[0] >= rc.verdict_probability
+                         and second_minimum.check(good_start_points(s_pre.polish_cloud, rc), T, s_pre.polish_cloud,
+                                                  tgt.polish_cloud, rc).ambiguous)
         rough = visibility.roughness(tgt.polish_cloud, rc.verdict_dist)  # the target's own (benchmark)
         for k, v in (("pair", pair), ("good", good), ("y", y), ("rot", r), ("trans", t), ("rig", ri),
-                     ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1])):
+                     ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
+                     ("ambiguous", ambiguous)):
             out[k].append(v)
 
 
@@ -345,17 +353,22 @@ def _turned(scan, i: int, rng: np.random.Generator, rc) -> tuple | None:
 
 
 def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool = False,
-            rig0: int = 0, turned: bool = False, slid: bool = False) -> dict[str, np.ndarray]:
+            rig0: int = 0, turned: bool = False, slid: bool = False,
+            config: Config | None = None, second: bool = False) -> dict[str, np.ndarray]:
     """Feature rows of poses on simulated pairs (see the module): {"pair", "good", "y", "rot", "trans", "rig",
-    "kind", "near_ref", "rough", "self_plane"} (``rough``, ``self_plane``: the target's :func:`visibility.roughness`;
+    "kind", "near_ref", "rough", "self_plane", "ambiguous"} (``rough``, ``self_plane``: the target's
+    :func:`visibility.roughness`;
     ``near_ref``: within 1 deg / 0.3 m of GICP started at the truth, where the pattern lets GICP
     settle; the fit does not use it). ``low``: low-overlap pairs (:func:`_low_overlap`); ``turned``: turned pairs
     (:func:`_turned`, over 100 frames); ``slid``: the truth slid along its weakest direction too; ``rig0``: the
-    index of the first rig (its ``rig`` rows, its simulator's seed)."""
+    index of the first rig (its ``rig`` rows, its simulator's seed); ``config``: the registration's (default: the
+    defaults); ``second``: the second-minimum check on the poses the verdict takes (``ambiguous``, see
+    :func:`_pair_rows`)."""
     frames = 100 if turned else frames  # a hand-held walk takes 2.5 m in up to 50 frames
-    reg = DeepBBSRegistration(Config())
+    reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
-    out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane")}
+    out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
+                           "ambiguous")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()
@@ -374,7 +387,7 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
                 (scan(i), scan(j))
             if pair is not None:
                 _pair_rows(pair, partial(scan, min(frames - 1, i + FAR)), rng, rc, out, ri, truth=low,
-                           reg=reg if turned else None, slid=slid)
+                           reg=reg if turned else None, slid=slid, second=second)
         n = sum(1 for r in out["rig"] if r == ri)
         log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
             f"{time.perf_counter() - t0:.1f} s")
@@ -408,6 +421,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=6, help="pairs per rig (default 6)")
     ap.add_argument("--seed", type=int, default=38)
+    ap.add_argument("--config", type=Path, help="config YAML of the registration whose clouds the poses are scored on "
+                    "(default: the defaults)")
     ap.add_argument("--out", type=Path, default=calibrated.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--low-pairs", type=int, default=0,
@@ -435,17 +450,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
+    config = load_config(args.config) if args.config else None
     if args.rows:
         parts = [dict(np.load(f, allow_pickle=False)) for f in args.rows]
     else:
         parts = []
         for seed in args.seeds or [args.seed]:
-            parts.append(collect(RIGS, seed, args.pairs, slid=args.slid))
+            parts.append(collect(RIGS, seed, args.pairs, slid=args.slid, config=config))
             if args.low_pairs:
-                parts.append(collect(LOW_RIGS, seed, args.low_pairs, low=True, rig0=len(RIGS), slid=args.slid))
+                parts.append(collect(LOW_RIGS, seed, args.low_pairs, low=True, rig0=len(RIGS), slid=args.slid,
+                                     config=config))
             if args.turned_pairs:
                 parts.append(collect(TURNED_RIGS, seed, args.turned_pairs, turned=True,
-                                     rig0=len(RIGS) + len(LOW_RIGS), slid=args.slid))
+                                     rig0=len(RIGS) + len(LOW_RIGS), slid=args.slid, config=config))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
     if args.dump:
         np.savez(args.dump, **data)

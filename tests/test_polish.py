@@ -372,3 +372,28 @@ def test_a_coarse_lead_runs_the_first_leg_and_the_whole_cloud_finishes(pair, mon
     assert rot < 0.05 and trans < 0.01, (rot, trans)
     rot, trans = _err(led.T_target_source, T)
     assert rot < 0.2 and trans < 0.05, (rot, trans)
+
+
+def test_a_scene_sized_grid_follows_the_median_range_within_its_bounds():
+    """registration.polish_voxel_angle: the grid is the angle at the scan's median range, in [voxel / 4, voxel], the
+    cloud records it, and polish() scales its correspondence distance by the finer grid of the pair (0: as before)."""
+    from deepbbs_ros.core.polish import correspondence_distance, scene_voxel
+
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(5000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    near, far = dirs * 2.0, dirs * 20.0  # a corridor's ranges and a street's
+    assert scene_voxel(near, 0.5, 0.125) == pytest.approx(0.25)
+    assert scene_voxel(far, 0.5, 0.125) == 0.5  # never coarser than polish_voxel
+    assert scene_voxel(dirs * 0.2, 0.5, 0.125) == 0.125  # never finer than a quarter of it
+    small = prepare_polish_cloud(near, 0.5, 20, voxel_angle=0.125)
+    large = prepare_polish_cloud(far, 0.5, 20, voxel_angle=0.125)
+    plain = prepare_polish_cloud(near, 0.5, 20)
+    assert (small.voxel, large.voxel, plain.voxel) == (pytest.approx(0.25), 0.5, 0.5)
+    assert small.n_points > plain.n_points
+    rc = Config().registration
+    assert correspondence_distance([small, large], rc) == pytest.approx(1.0)  # 2.0 m at 0.5 m: the same ratio
+    assert correspondence_distance([large, plain], rc) == 2.0
+    import pickle
+
+    assert pickle.loads(pickle.dumps(small)).voxel == pytest.approx(0.25)

@@ -236,3 +236,25 @@ def test_the_calibration_writes_a_file_the_verdict_reads(tmp_path):
         if relative:
             assert doc["relative"]["held_pinned"] == cv.HELD_BOUNDS[0]
             assert calibrated.anchored_below(str(out)) == cv.HELD_BOUNDS[0]
+
+
+def test_the_benchmark_counts_a_pose_the_second_minimum_turns_away_as_rejected():
+    """scripts/benchmarks/verdict.py's counts follow the registration's pair verdict: a pose with the probability but
+    a second minimum as good (``veto``) is rejected, counted apart as vetoed; the reliability curve reads the
+    probability alone."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "benchmarks"))
+    import verdict as bench
+
+    y = np.array([True, True, False, False])
+    prob = np.array([0.95, 0.9, 0.92, 0.1])
+    err = np.array([[0.1, 0.05], [0.2, 0.1], [3.0, 1.2], [10.0, 4.0]])
+    plain = bench.summary(y, prob, prob, 0.35, 0.7, err=err)
+    vetoed = bench.summary(y, prob, prob, 0.35, 0.7, err=err, veto=np.array([False, True, True, False]))
+    assert (plain["wrong_accepted"], plain["right_rejected"]) == (1, 0)
+    assert (vetoed["wrong_accepted"], vetoed["right_rejected"]) == (0, 1)
+    assert vetoed["vetoed"] == {"right": 1, "wrong": 1}
+    assert vetoed["classes"]["wrong_accepted"] == 0 and vetoed["classes"]["right_rejected"] == 1
+    assert vetoed["reliability"] == plain["reliability"]

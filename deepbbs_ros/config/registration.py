@@ -78,6 +78,10 @@ class RegistrationConfig:
     polish: str = "gicp"  # precision stage (small_gicp) from the DeepBBS++ estimate: gicp|plane_icp|none
     polish_voxel: float = 0.5  # m; voxel grid of the precision clouds (whole cropped scan, ground kept); 0 = none
     polish_max_corr_dist: float = 2.0  # m; small_gicp max_correspondence_distance (= eval.baseline_max_corr_dist)
+    # rad; > 0: a scan's precision grid is at most this angle seen from the sensor at its median range (after the
+    # crop), at least polish_voxel / 4, and polish_max_corr_dist shrinks with it (core/polish.py scene_voxel); 0 =
+    # polish_voxel for every scan (the default: measured in docs/sensors.md, not shipped)
+    polish_voxel_angle: float = 0.0
     polish_max_iters: int = 50  # (= eval.baseline_max_iters)
     polish_neighbors: int = 20  # neighbours for covariances / normals (= eval.baseline_neighbors)
     # at most this many voxels in a scan's GICP cloud: a denser one is put on a coarser grid (0 = polish_voxel as is);
@@ -185,6 +189,7 @@ class RegistrationConfig:
         _check(self.polish_max_corr_dist > 0, "registration.polish_max_corr_dist", "must be > 0")
         _check(self.polish_max_iters >= 1, "registration.polish_max_iters", "must be >= 1")
         _check(self.polish_neighbors >= 5, "registration.polish_neighbors", "must be >= 5")
+        _check(self.polish_voxel_angle >= 0, "registration.polish_voxel_angle", "must be >= 0 (0 = polish_voxel)")
         _check(self.polish_max_voxels >= 0, "registration.polish_max_voxels", "must be >= 0 (0 = no cap)")
         _check(self.polish_max_trans >= 0, "registration.polish_max_trans", "must be >= 0 (0 = no limit)")
         _check(self.polish_max_rot_deg >= 0, "registration.polish_max_rot_deg", "must be >= 0 (0 = no limit)")

@@ -79,11 +79,14 @@ class PolishCloud:
     # cloud in another process builds again (pickling keeps the voxel grid only, with the k-d tree and covariances
     # deferred: small_gicp's objects do not pickle, and building them is the work that process is there for)
     spec: tuple[int, str, int] | None = None
+    # the grid it was put on (m; before a max_voxels coarsening), 0 for none: polish() scales its correspondence
+    # distance with the finer of a pair's grids (prepare_polish_cloud's voxel_angle)
+    voxel: float = 0.0
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
         return {"points": self.points(), "n_points": self.n_points, "prepare_ms": self.prepare_ms,
-                "n_cropped": self.n_cropped, "spec": self.spec}
+                "n_cropped": self.n_cropped, "spec": self.spec, "voxel": self.voxel}
 
     def __setstate__(self, state: dict) -> None:
         import small_gicp
@@ -91,6 +94,7 @@ class PolishCloud:
         self.cloud = small_gicp.PointCloud(np.ascontiguousarray(state["points"], dtype=np.float64))
         self.tree, self.n_points, self.n_cropped = None, state["n_points"], state["n_cropped"]
         self.prepare_ms, self.spec, self.pending = state["prepare_ms"], state["spec"], state["spec"]
+        self.voxel = state.get("voxel", 0.0)
         self._lock = threading.Lock()
 
     def complete(self, threads: int | None = None) -> PolishCloud:
@@ -167,7 +171,7 @@ def _plain_cloud(state: dict) -> PolishCloud:
 
 def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, registration_type: str = "GICP",
                          min_range: float = 0.0, max_range: float = float("inf"), threads: int = 0,
-                         defer: bool = False, max_voxels: int = 0) -> PolishCloud:
+                         defer: bool = False, max_voxels: int = 0, voxel_angle: float = 0.0) -> PolishCloud:
     """Raw scan -> :class:`PolishCloud`: finite points within [min_range, max_range] m, a ``voxel`` m grid
     (0 = none), a k-d tree, and covariances + normals from ``neighbors`` neighbours (``"GICP"``,
     ``"PLANE_ICP"``) or nothing (``"ICP"``). Shared by the precision stage and the small_gicp baselines.
@@ -179,16 +183,32 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
             tree and covariances later (``DeepBBSRegistration`` does it while the network process runs).
         max_voxels: at most this many voxels (0 = no cap): a denser grid's centroids go on a coarser grid,
             ``voxel * sqrt(n / max_voxels)`` (a scan's voxels fill surfaces: their count goes as 1 / voxel^2).
+        voxel_angle: > 0: the grid is at most this angle (rad) seen from the sensor at the scan's median range,
+            ``min(voxel, voxel_angle * median range)``, and at least ``voxel / 4``: a corridor's or a small room's
+            scan (median range 1-4 m) gets a grid fine enough for its walls, floor and ceiling, whose corners a
+            ``voxel`` grid with ``neighbors`` covariances blends (:func:`scene_voxel`); 0: ``voxel``.
     """
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
     pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
+    if voxel > 0 and voxel_angle > 0:
+        voxel = scene_voxel(pts, voxel, voxel_angle)
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
-    out.n_cropped = len(pts)
+    out.n_cropped, out.voxel = len(pts), float(voxel)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
+
+
+def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 4096) -> float:
+    """The grid (m) for a scan's points (N, 3) (sensor frame): ``angle`` (rad) seen from the sensor at their median
+    range (of an even subsample of about ``samples``), within [``voxel`` / 4, ``voxel``]."""
+    if len(points) == 0:
+        return float(voxel)
+    sub = points[:: max(1, len(points) // samples)]
+    r50 = float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub))))
+    return float(np.clip(angle * r50, 0.25 * voxel, voxel))
 
 
 def prepared_cloud(points: np.ndarray, neighbors: int, registration_type: str = "GICP",
@@ -280,6 +300,15 @@ class PolishResult:
     hessian: tuple[np.ndarray, float, int] | None = None
 
 
+def correspondence_distance(clouds, cfg: RegistrationConfig) -> float:
+    """``polish_max_corr_dist`` scaled by the finer of the two clouds' grids over ``polish_voxel`` (the shipped
+    ratio of the two, kept on a scene-sized grid: :func:`scene_voxel`); as is when either has no grid recorded."""
+    grids = [getattr(c, "voxel", 0.0) for c in clouds]
+    if cfg.polish_voxel <= 0 or min(grids) <= 0:
+        return cfg.polish_max_corr_dist
+    return cfg.polish_max_corr_dist * min(1.0, min(grids) / cfg.polish_voxel)
+
+
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
            cfg: RegistrationConfig, check: tuple | None = None) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
@@ -318,13 +347,14 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     # a view of a larger cloud (PolishView, a map crop): aligned on the whole cloud in its frame, answered in ours
     T_base = clouds[1].T_base if isinstance(clouds[1], PolishView) else None
     tree = clouds[1].tree if T_base is None else clouds[1].tree.base
+    corr = correspondence_distance(clouds, cfg)
 
     def align(T_start: np.ndarray, iterations: int, source: Any = None) -> Any:
         return small_gicp.align(
             clouds[1].cloud, (clouds[0] if source is None else source).cloud, tree,
             init_T_target_source=T_start,
             registration_type=reg_type,
-            max_correspondence_distance=cfg.polish_max_corr_dist,
+            max_correspondence_distance=corr,
             num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
             max_iterations=iterations,
             rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
@@ -370,7 +400,7 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     elif not res.converged:
         reason = f"not converged in {iterations} iterations"
     elif int(res.num_inliers) < MIN_POLISH_POINTS:
-        reason = f"only {res.num_inliers} correspondences within {cfg.polish_max_corr_dist} m"
+        reason = f"only {res.num_inliers} correspondences within {corr:.2f} m"
     elif 0 < cfg.polish_max_trans < d_trans:
         reason = f"moved {d_trans:.2f} m > polish_max_trans {cfg.polish_max_trans} m"
     elif 0 < cfg.polish_max_rot_deg < d_rot:

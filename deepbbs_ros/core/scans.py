@@ -152,7 +152,7 @@ def polish_cloud(config: Config, points: np.ndarray, *, defer: bool = False, thr
         points, rc.polish_voxel, rc.polish_neighbors,
         registration_type=SMALL_GICP_TYPE[rc.polish],
         min_range=pp.min_range, max_range=pp.max_range, threads=threads, defer=defer,
-        max_voxels=rc.polish_max_voxels)
+        max_voxels=rc.polish_max_voxels, voxel_angle=rc.polish_voxel_angle)
 
 
 def deskew_prepared(config: Config, pre: PreprocessResult, motion: tuple[np.ndarray, float], *,

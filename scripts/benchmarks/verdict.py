@@ -54,10 +54,13 @@ FAMILY = {"hdl64": "dense", "ouster64": "dense", "os0_64": "dense", "os0_128": "
 
 
 def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar: float,
-            near_ref: np.ndarray | None = None, err: np.ndarray | None = None) -> dict:
+            near_ref: np.ndarray | None = None, err: np.ndarray | None = None, veto: np.ndarray | None = None) -> dict:
     """Counts and the reliability curve of one set of poses (labels y, fitness score, probability prob; ``near_ref``:
-    whether each is within 1 deg / 0.3 m of GICP started at the truth, the truth's resolution on real scans)."""
+    whether each is within 1 deg / 0.3 m of GICP started at the truth, the truth's resolution on real scans;
+    ``veto``: poses turned away whatever their probability, the pair verdict's second minimum: counted as rejected,
+    and apart as ``vetoed``; the reliability curve reads the probability alone)."""
     y = np.asarray(y, bool)
+    veto = np.zeros(len(y), bool) if veto is None else np.asarray(veto, bool)
     bins = []
     for lo in np.arange(0.0, 1.0, 0.1):
         m = (prob >= lo) & ((prob < lo + 0.1) | (lo >= 0.9))
@@ -66,36 +69,40 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     out = {"poses": len(y), "right": int(y.sum()), "wrong": int((~y).sum()),
             "old_wrong_accepted": int(np.sum(~y & (score >= old))),
             "old_right_rejected": int(np.sum(y & (score < old))),
-            "wrong_accepted": int(np.sum(~y & (prob >= bar))), "right_rejected": int(np.sum(y & (prob < bar))),
+            "wrong_accepted": int(np.sum(~y & (prob >= bar) & ~veto)),
+            "right_rejected": int(np.sum(y & ((prob < bar) | veto))),
+            "vetoed": {"right": int(np.sum(y & (prob >= bar) & veto)), "wrong": int(np.sum(~y & (prob >= bar) & veto))},
             "max_wrong_p": round(float(prob[~y].max()), 3) if (~y).any() else None,
             "min_right_p": round(float(prob[y].min()), 3) if y.any() else None, "reliability": bins}
     if err is not None:  # three classes: right, wrong beyond 2 deg / 0.5 m, and in between (neither)
         e = np.asarray(err, float).reshape(-1, 2)
-        far, acc = (e[:, 0] > 2.0) | (e[:, 1] > 0.5), prob >= bar
+        far, acc = (e[:, 0] > 2.0) | (e[:, 1] > 0.5), (prob >= bar) & ~veto
         mid = ~y & ~far
         out["classes"] = {"right": int(y.sum()), "right_rejected": int(np.sum(y & ~acc)),
                           "in_between": int(mid.sum()), "in_between_accepted": int(np.sum(mid & acc)),
                           "wrong": int(far.sum()), "wrong_accepted": int(np.sum(far & acc)),
                           "max_wrong_p": round(float(prob[far].max()), 3) if far.any() else None}
     if near_ref is not None:  # wrong by the recorded truth, right by GICP from it: at the truth's resolution
-        out["wrong_accepted_near_gicp_truth"] = int(np.sum(~y & (prob >= bar) & np.asarray(near_ref, bool)))
-    if err is not None and np.any(~y & (prob >= bar)):  # the largest errors of the wrong poses accepted (deg, m)
-        e = np.asarray(err, float)[~y & (prob >= bar)]
+        out["wrong_accepted_near_gicp_truth"] = int(np.sum(~y & (prob >= bar) & ~veto & np.asarray(near_ref, bool)))
+    if err is not None and np.any(~y & (prob >= bar) & ~veto):  # the largest errors of the wrong poses accepted
+        e = np.asarray(err, float)[~y & (prob >= bar) & ~veto]
         out["wrong_accepted_max_err"] = [round(float(e[:, 0].max()), 2), round(float(e[:, 1].max()), 2)]
     return out
 
 
-def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False) -> dict:
+def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
+                config=None) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated
 
-    parts = [cv.collect(cv.RIGS, seed, pairs, slid=slid)]
+    kw = {"slid": slid, "config": config, "second": True}  # the pair verdict's second-minimum check, as registered
+    parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
-        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), slid=slid))
+        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), **kw))
     if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
         parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS),
-                                slid=slid))
+                                **kw))
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
     rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
     fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
@@ -112,7 +119,8 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
-                                         np.c_[data["rot"][m], data["trans"][m]])
+                                         np.c_[data["rot"][m], data["trans"][m]],
+                                         data["ambiguous"][m] if name == "pair" else None)
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
         m = (~low if f == "all" else (fam == f) & ~low) & ~slide
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
@@ -160,7 +168,8 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 res = reg.register(ps, pt, T_init=T0, preprocessed=True)
                 y, r, t = cv.label(res.T_target_source, T_gt)
                 rows["pair"].append((y == 1, res.score, res.probability,
-                                     cv.label(res.T_target_source, T_ref)[0] == 1, r, t))
+                                     cv.label(res.T_target_source, T_ref)[0] == 1, r, t,
+                                     res.probability >= rc.verdict_probability and not res.valid))
                 y = y == 1
                 f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
                                              pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
@@ -172,13 +181,13 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     y, r, t = cv.label(pol.T_target_source, T_gt)
                     y = y == 1
                     rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
-                                         cv.label(pol.T_target_source, T_ref)[0] == 1, r, t))
+                                         cv.label(pol.T_target_source, T_ref)[0] == 1, r, t, False))
                     feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
-            a = np.array(rows[key], float).reshape(-1, 6)
+            a = np.array(rows[key], float).reshape(-1, 7)
             out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
-                                               a[:, 4:6])
+                                               a[:, 4:6], a[:, 6] > 0)
         q = np.median(np.array(rough).reshape(-1, 2), axis=0)
         out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
                                     "self_planarity": round(float(q[1]), 3)}
@@ -212,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
                     "errors (deg, m), scores, the pairs' motion (deg, m) and GICP voxels (source, target) here (.npz)")
+    ap.add_argument("--config", type=Path, help="config YAML of the registration (default: the defaults)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
     args = ap.parse_args(argv)
@@ -220,16 +230,17 @@ def main(argv: list[str] | None = None) -> int:
 
         calibrated.DEFAULT_PATH = args.model.resolve()
 
-    from deepbbs_ros.config import Config
+    from deepbbs_ros.config import Config, load_config
     from deepbbs_ros.core.registration import DeepBBSRegistration
 
-    reg = DeepBBSRegistration(Config())
+    config = load_config(args.config) if args.config else Config()
+    reg = DeepBBSRegistration(config)
     figures = {"thresholds": {"old": OLD, "pair": reg.config.registration.verdict_probability,
                               "good_start": reg.config.registration.good_start_probability},
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid)
+                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith("roughness") else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
