@@ -92,6 +92,8 @@ def anchored(moved: np.ndarray, sq_dist: np.ndarray, tree, matched: np.ndarray, 
     for k in steps:
         best = 0.0
         for sign in (1.0, -1.0):
+            if best >= close:  # one side keeps every close point already: 0 whatever the other keeps
+                break
             step = sign * k * twist
             q = moved @ _rotation(step[3:]).T + step[:3]
             best = max(best, float(np.sum(sq_dists(tree, q, threads) <= 0.25 * dist * dist)))

@@ -307,9 +307,10 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     sq = np.asarray(sq, np.float64)
     if normals is None:
         return features(moved, sq, table, dist, None, own, tol, view=view)
-    plane = np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    nidx = normals[idx]
+    plane = np.einsum("ij,ij->i", moved - tpts[idx], nidx)
     m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s: features' on_plane)
-    pm, nm = moved[m], normals[idx[m]]
+    pm, nm = moved[m], nidx[m]
     info = anchoring.information(pm, nm) if len(pm) >= _PIN_MIN else None
     pin = pinned(pm, nm, 0.2 * dist, info)
     held = None
@@ -319,7 +320,7 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
             held = anchoring.anchored(moved, sq, tree, pm, nm, dist, threads, info=info)
         elif pin < bound:  # what the bound reads: anchored_far alone
             held = (1.0, *anchoring.anchored(moved, sq, tree, pm, nm, dist, threads, anchoring.STEPS[-1:], info))
-    return features(moved, sq, table, dist, plane, own, tol, normals[idx], held, view, pin)
+    return features(moved, sq, table, dist, plane, own, tol, nidx, held, view, pin)
 
 
 def _pca_normals(tpts: np.ndarray, ktree, idx: np.ndarray, k: int = 8) -> np.ndarray:
