@@ -115,3 +115,38 @@ def test_the_calibrations_slid_pose_slides_along_the_corridor():
     right = _features(_CORRIDOR)
     assert f["plane_own"] > right["plane_own"] - 0.05 and f["anchored_far"] < 0.02, (f, right)
     assert slid_pose(np.eye(4), source[:3], target, rc.verdict_dist, 3.0) is None  # too few matches
+
+
+def test_anchored_far_alone_and_a_settled_side_give_the_same_numbers():
+    """``anchored_far`` measured alone (what a bound on ``pinned`` reads) is the pair's second value; a side that keeps
+    every close point settles a step at 0 without the other side's search; the k = 1 search's squared distances are
+    the nearest-neighbour search's."""
+    rc = Config().registration
+    dist = rc.verdict_dist
+    for planes, shift in ((_STREET, 0.0), (_WALL + _FLOOR, 0.0), (_CORRIDOR, 0.0), (_STREET, 1.5)):
+        target = prepare_polish_cloud(_scene(planes, np.random.default_rng(0), 6000), rc.polish_voxel,
+                                      rc.polish_neighbors, threads=1)
+        T = np.eye(4)
+        T[1, 3] = shift
+        src = _scene(planes, np.random.default_rng(1), 600)
+        moved = src @ T[:3, :3].T + T[:3, 3]
+        idx, sq = target.tree.batch_nearest_neighbor_search(moved)
+        sq = np.asarray(sq, np.float64)
+        assert np.array_equal(anchoring.sq_dists(target.tree, moved), sq)
+        nrm = np.asarray(target.cloud.normals())[:, :3][np.asarray(idx, np.int64)]
+        tpts = np.asarray(target.cloud.points())[:, :3][np.asarray(idx, np.int64)]
+        m = (sq <= dist * dist) & (np.abs(np.einsum("ij,ij->i", moved - tpts, nrm)) <= 0.2 * dist)
+        both = anchoring.anchored(moved, sq, target.tree, moved[m], nrm[m], dist)
+        far = anchoring.anchored(moved, sq, target.tree, moved[m], nrm[m], dist, steps=anchoring.STEPS[-1:],
+                                 info=anchoring.information(moved[m], nrm[m]))
+        assert far == both[-1:], (planes, shift)
+        close = np.sum(sq <= 0.25 * dist * dist)
+        twist = anchoring.weakest(moved[m], nrm[m])
+        for k, value in zip(anchoring.STEPS, both):  # both sides searched, as the module says
+            kept = [np.sum(anchoring.sq_dists(target.tree, moved @ anchoring._rotation(s * k * twist[3:]).T
+                                              + s * k * twist[:3]) <= 0.25 * dist * dist) for s in (1.0, -1.0)]
+            assert value == float(np.clip(1.0 - max(kept) / close, 0.0, 1.0)), (planes, shift, k)
+        row = visibility.pose_features(src, T, target, dist)
+        bounded = visibility.pose_features(src, T, target, dist, anchor=1.0)  # every pose pinned under 1
+        k = visibility.FEATURES.index("anchored")
+        assert np.array_equal(row[:k], bounded[:k]) and bounded[k] == 1.0 and bounded[k + 1] == row[k + 1]

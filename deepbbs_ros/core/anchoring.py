@@ -10,7 +10,7 @@ pose held by such structure loses many of them either way; a pose in the middle 
 
 ``anchored`` (``anchored_far``: the longer step) = 1 - (the better of the two moved poses' close points) / (the
 pose's own), within [0, 1]: a share, so that it means the same for 500 points as for 50,000. Two nearest-neighbour
-searches of the verdict's points per step.
+searches of the verdict's points per step (one where the first side keeps every close point: 0 whatever the other).
 """
 
 from __future__ import annotations
@@ -38,12 +38,13 @@ def information(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return a.T @ a / len(a)
 
 
-def weakest(points: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
+def weakest(points: np.ndarray, normals: np.ndarray, info: np.ndarray | None = None) -> np.ndarray | None:
     """The twist (6,) (m, rad: translation, rotation about the target's origin) of one tolerance unit along the
-    direction the matches pin least; None below :data:`MIN_MATCHES` matches."""
+    direction the matches pin least (``info``: their :func:`information`, when known); None below
+    :data:`MIN_MATCHES` matches."""
     if len(points) < MIN_MATCHES:
         return None
-    w, v = np.linalg.eigh(information(points, normals))
+    w, v = np.linalg.eigh(information(points, normals) if info is None else info)
     return v[:, 0] * SCALE
 
 
@@ -57,9 +58,21 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
+def sq_dists(tree, points: np.ndarray, threads: int = 1) -> np.ndarray:
+    """(N,) float64 squared distance of each of ``points`` (N, 3) to its nearest point in ``tree`` (a
+    ``small_gicp.KdTree``: its k = 1 search, which answers in arrays, the same numbers as its nearest-neighbour search's
+    lists without building them; anything else with ``batch_nearest_neighbor_search``: that)."""
+    knn = getattr(tree, "batch_knn_search", None)
+    if knn is None:
+        return np.asarray(tree.batch_nearest_neighbor_search(points, num_threads=max(1, threads))[1], np.float64)
+    return knn(points, 1, num_threads=max(1, threads))[1][:, 0]
+
+
 def anchored(moved: np.ndarray, sq_dist: np.ndarray, tree, matched: np.ndarray, normals: np.ndarray, dist: float,
-             threads: int = 1) -> tuple[float, ...]:
-    """How firmly the pose is held along its weakest direction (see the module), for each of :data:`STEPS` -> [0, 1].
+             threads: int = 1, steps: tuple[float, ...] = STEPS,
+             info: np.ndarray | None = None) -> tuple[float, ...]:
+    """How firmly the pose is held along its weakest direction (see the module), for each of ``steps`` (of
+    :data:`STEPS`: ``anchored``, ``anchored_far``; only the last, where nothing reads the first) -> [0, 1].
 
     Args:
         moved: (N, 3) the verdict's source points moved into the target's frame by the pose, metres.
@@ -68,19 +81,21 @@ def anchored(moved: np.ndarray, sq_dist: np.ndarray, tree, matched: np.ndarray, 
         matched: (K, 3) the moved points matched on the target's planes, and ``normals`` (K, 3) the target's unit
             normals at their matches (``pinned``'s matches: they give the weakest direction).
         dist: m, the verdict's distance (``registration.verdict_dist``); close is within ``dist / 2``.
+        info: :func:`information` of ``matched`` and ``normals``, when the caller has it (None: computed here).
     """
     moved = np.asarray(moved, np.float64)
     close = float(np.sum(np.asarray(sq_dist, np.float64) <= 0.25 * dist * dist))
-    twist = weakest(matched, normals)
+    twist = weakest(matched, normals, info)
     if close == 0 or twist is None:
-        return (0.0,) * len(STEPS)
+        return (0.0,) * len(steps)
     out = []
-    for k in STEPS:
+    for k in steps:
         best = 0.0
         for sign in (1.0, -1.0):
+            if best >= close:  # one side keeps every close point already: 0 whatever the other keeps
+                break
             step = sign * k * twist
             q = moved @ _rotation(step[3:]).T + step[:3]
-            _, sq = tree.batch_nearest_neighbor_search(q, num_threads=max(1, threads))
-            best = max(best, float(np.sum(np.asarray(sq, np.float64) <= 0.25 * dist * dist)))
+            best = max(best, float(np.sum(sq_dists(tree, q, threads) <= 0.25 * dist * dist)))
         out.append(float(np.clip(1.0 - best / close, 0.0, 1.0)))
     return tuple(out)

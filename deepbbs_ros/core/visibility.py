@@ -47,7 +47,12 @@ def _nearest(target, moved: np.ndarray, threads: int) -> tuple[np.ndarray, np.nd
     last = getattr(target, "_nearest_last", None)
     if last is not None and last[0] == key:
         return last[1], last[2]
-    idx, sq = target.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    knn = getattr(target.tree, "batch_knn_search", None)  # small_gicp's k = 1 search: arrays, not lists (the same)
+    if knn is None:  # a crop's view of a map's tree
+        idx, sq = target.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+    else:
+        idx, sq = knn(moved, 1, num_threads=max(1, threads))
+        idx, sq = idx[:, 0].astype(np.int64), sq[:, 0]
     target._nearest_last = (key, idx, sq)
     return idx, sq
 
@@ -153,7 +158,8 @@ def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
              plane_dist: np.ndarray | None = None, self_plane: float | None = None,
              own_tol: float | None = None, normals: np.ndarray | None = None,
-             anchored: tuple[float, float] | None = None, view: bool = True) -> np.ndarray:
+             anchored: tuple[float, float] | None = None, view: bool = True,
+             pin: float | None = None) -> np.ndarray:
     """The verdict's features of a pose -> (len(FEATURES),) float64.
 
     Args:
@@ -171,6 +177,7 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
             direction, moved by a wrong pose's distance and by a slide's; None: 1, 1).
         view: measure ``in_view``; False (a model that does not read it or ``observable_rel``): 1, as for a target
             that sees every direction (``observable_rel`` is then ``observable``).
+        pin: ``pinned`` of these matches, when the caller measured it (:func:`pose_features`); None: measured here.
 
     ``fitness``: share of the points seen (within ``dist``); ``fitness_close``: the share within ``dist / 2``
     among those (how tightly they fit); ``plane_close``: the share within ``dist / 5`` of the nearest target point's
@@ -205,15 +212,22 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     on_plane = None if off is None else seen & (off <= 0.2 * dist)
     plane = close if on_plane is None else np.count_nonzero(on_plane)
     matched = seen & (sq <= 0.25 * dist * dist) if on_plane is None else on_plane  # no tangent planes: close points
-    pin = 1.0 if normals is None else pinned(moved[matched], normals[matched], 0.2 * dist)
+    if pin is None:
+        pin = 1.0 if normals is None else pinned(moved[matched], normals[matched], 0.2 * dist)
     tol = 0.2 * dist if own_tol is None else own_tol
     own = close if off is None else np.count_nonzero(seen & (off <= tol))
     cell, ukey, nearest = target if isinstance(target, tuple) else directions(target)
     un = ~seen
     viol = viol_nb = 0
+    # every point's direction cell once, when in_view reads them all (elementwise: the same numbers for the unseen)
+    every = _angles(np.asarray(moved, np.float64)) if view else None
+    keys = None if every is None else _keys(every[0], every[1], cell)
     if un.any():
-        saz, sel, sr = _angles(np.asarray(moved, np.float64)[un])
-        skey = _keys(saz, sel, cell)
+        if every is None:
+            saz, sel, sr = _angles(np.asarray(moved, np.float64)[un])
+            skey = _keys(saz, sel, cell)
+        else:
+            sr, skey = every[2][un], keys[un]
         idx = np.clip(np.searchsorted(ukey, skey), 0, len(ukey) - 1)
         hit = ukey[idx] == skey
         margin = np.maximum(2.0 * dist, 0.05 * nearest[idx])  # clearly in front: noise and the cell's spread
@@ -225,14 +239,14 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
     judged, judged_nb = n_seen + viol, n_seen + viol_nb
     plane_close = plane / max(n_seen, 1)
     rel = min(1.0, plane_close / max(self_plane if self_plane is not None else 1.0, 0.05))
-    view = in_view(moved, cell, ukey) if view else 1.0
+    view = in_view(moved, cell, ukey, keys) if view else 1.0
     return np.array([n_seen / n, close / max(n_seen, 1), plane_close, n_seen / judged if judged else 0.0,
                      judged / n, viol / n, rel, own / max(n_seen, 1), viol_nb / n,
                      n_seen / judged_nb if judged_nb else 0.0, pin, view, min(1.0, judged / n / view) if view else 0.0,
                      *((1.0, 1.0) if anchored is None else anchored)])
 
 
-def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
+def pinned(points: np.ndarray, normals: np.ndarray, tol: float, info: np.ndarray | None = None) -> float:
     """How well point-to-plane matches pin a pose: ``s^2 / (s^2 + tol^2)`` (its log-odds: ``2 log(s / tol)``).
 
     ``s`` (m) is the root-mean-square change of the matches' point-to-plane residuals when the pose moves by one
@@ -247,10 +261,11 @@ def pinned(points: np.ndarray, normals: np.ndarray, tol: float) -> float:
         points: (K, 3) the matched points moved into the target's frame, metres.
         normals: (K, 3) the target's unit normals at their matches.
         tol: m, the residual tolerance (``plane_close``'s, ``dist / 5``).
+        info: their ``anchoring.information``, when the caller has it (None: computed here).
     """
     if len(points) < _PIN_MIN:
         return 0.0
-    s2 = max(float(np.linalg.eigvalsh(anchoring.information(points, normals))[0]), 0.0)
+    s2 = max(float(np.linalg.eigvalsh(anchoring.information(points, normals) if info is None else info)[0]), 0.0)
     return s2 / (s2 + tol * tol)
 
 
@@ -267,8 +282,10 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     ``target``: a precision-stage cloud (``core.polish.PolishCloud``: its voxels, k-d tree and normals) or a
     plain (M, 3) cloud (a ``scipy`` k-d tree is built; no tangent planes: ``pinned`` takes the normals of the matched
     points' 8 nearest neighbours). ``anchor``: measure ``anchored`` and ``anchored_far`` (two more nearest-neighbour
-    searches each, against a precision-stage cloud; else 1, as without one); a number: only for a pose whose
-    ``pinned`` is under it. ``view``: measure ``in_view`` (else 1: :func:`features`)."""
+    searches each, against a precision-stage cloud; else 1, as without one); a number: only ``anchored_far`` (what a
+    bound reads; ``anchored`` 1, as unmeasured), only for a pose whose ``pinned`` is under it. ``view``: measure
+    ``in_view`` (else 1: :func:`features`). ``pinned`` is measured once, here, for both :func:`features` and the
+    anchoring (the same plane matches)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     tree = getattr(target, "tree", None)
@@ -290,14 +307,20 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     sq = np.asarray(sq, np.float64)
     if normals is None:
         return features(moved, sq, table, dist, None, own, tol, view=view)
-    plane = np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    nidx = normals[idx]
+    plane = np.einsum("ij,ij->i", moved - tpts[idx], nidx)
+    m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s: features' on_plane)
+    pm, nm = moved[m], nidx[m]
+    info = anchoring.information(pm, nm) if len(pm) >= _PIN_MIN else None
+    pin = pinned(pm, nm, 0.2 * dist, info)
     held = None
     if anchor:
-        m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
         bound = None if isinstance(anchor, (bool, np.bool_)) else float(anchor)
-        if bound is None or pinned(moved[m], normals[idx[m]], 0.2 * dist) < bound:
-            held = anchoring.anchored(moved, sq, tree, moved[m], normals[idx[m]], dist, threads)
-    return features(moved, sq, table, dist, plane, own, tol, normals[idx], held, view)
+        if bound is None:
+            held = anchoring.anchored(moved, sq, tree, pm, nm, dist, threads, info=info)
+        elif pin < bound:  # what the bound reads: anchored_far alone
+            held = (1.0, *anchoring.anchored(moved, sq, tree, pm, nm, dist, threads, anchoring.STEPS[-1:], info))
+    return features(moved, sq, table, dist, plane, own, tol, nidx, held, view, pin)
 
 
 def _pca_normals(tpts: np.ndarray, ktree, idx: np.ndarray, k: int = 8) -> np.ndarray:
@@ -377,11 +400,12 @@ def roughness(target, dist: float) -> tuple[float, float]:
 _VIEW: tuple = (None, 0.0, np.zeros(0, bool))  # (a target's direction keys, their cell, :func:`in_view`'s table)
 
 
-def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray) -> float:
+def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray, keys: np.ndarray | None = None) -> float:
     """The share of ``moved`` (N, 3) (the target's sensor frame) whose direction falls in the target's field of view:
     the :data:`_VIEW_CELL` direction cells (a whole multiple of ``cell``) holding a target return, from the target's
     :func:`directions` keys ``ukey`` (``cell`` rad). Measured on the target's returns (no sensor's constants): a
-    70-degree view turned by 35 degrees keeps about half of the source in it, a 360-degree one all of it."""
+    70-degree view turned by 35 degrees keeps about half of the source in it, a 360-degree one all of it. ``keys``:
+    the points' :func:`_keys` on the ``cell`` grid, when the caller has them."""
     if len(moved) == 0 or len(ukey) == 0 or cell <= 0:
         return 0.0
     global _VIEW
@@ -393,6 +417,8 @@ def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray) -> float:
         table[(ukey // 100_000 // f) * rows + ukey % 100_000 // f] = True
         kept = _VIEW = (ukey, cell, table)
     table = kept[2]
-    az, el, _ = _angles(np.asarray(moved, np.float64))
-    k = _keys(az, el, cell)
+    if keys is None:
+        az, el, _ = _angles(np.asarray(moved, np.float64))
+        keys = _keys(az, el, cell)
+    k = keys
     return float(np.mean(table[(k // 100_000 // f) * rows + k % 100_000 // f]))
