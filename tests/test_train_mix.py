@@ -1,5 +1,6 @@
-"""scripts/train_mix.sh and train_mix_keep.sh: their cache and fit settings are valid, in seconds (one short
-drive, two steps of a tiny model), and the validation reports each validation folder apart."""
+"""scripts/train_mix.sh, train_mix_keep.sh and train_mix_span.sh: their cache and fit settings are valid, in seconds
+(one short drive, two steps of a tiny model), the validation reports each validation folder apart, and a slow mount's
+frames are spread over the travel asked for (``--min-span``)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from tests.test_train import TINY, synthetic_drive
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "train_mix.sh"
 KEEP = SCRIPT.with_name("train_mix_keep.sh")
+SPAN = SCRIPT.with_name("train_mix_span.sh")
 
 
 def _script(path: Path = SCRIPT) -> str:
@@ -42,17 +44,19 @@ def one_thread():
     torch.set_num_threads(n)
 
 
-@pytest.mark.parametrize("script", [SCRIPT, KEEP], ids=["train_mix", "train_mix_keep"])
+@pytest.mark.parametrize("script", [SCRIPT, KEEP, SPAN], ids=["train_mix", "train_mix_keep", "train_mix_span"])
 def test_schedule_is_a_valid_config(script):
     sets = _sets(script)
     assert {"train.epochs", "train.lr", "train.val_pairs", "train.num_points"} <= set(sets)
     cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
     cfg = cfg.validate()
     assert cfg.train.num_points == 512 and cfg.train.epochs * cfg.train.steps_per_epoch > 0
-    if script == KEEP:  # the same data as the first run, pairs drawn uniform in distance
+    if script in (KEEP, SPAN):  # the same data as the first run, pairs drawn uniform in distance
         assert cfg.train.pair_balance == "distance"
         for name in ("SCENES", "SENSORS", "MOUNTS"):
-            assert re.search(rf"^{name}=(\S+)$", _script(KEEP), re.M).group(1) == _var(name)
+            assert re.search(rf"^{name}=(\S+)$", _script(script), re.M).group(1) == _var(name)
+    if script == SPAN:  # the second run's schedule; only the frames' spread differs
+        assert sets == _sets(KEEP) and "--min-span" in _script(SPAN)
 
 
 def test_mix_cache_command_on_one_short_drive(tmp_path):
@@ -72,6 +76,46 @@ def test_randomised_road_sensor_on_a_car_off_the_road(tmp_path):
     path = simulate_cached_drive(SimDriveSpec("courtyard", 20006, 2), tmp_path, Config().preprocess, 256)
     d = load_drive(path)
     assert len(d) == 2 and d.meta["sensor"]["mount"] == "car" and d.frame(0).shape[0] > 50
+
+
+class _Walk:
+    """A simulator's poses only: straight ahead at ``step`` m per sweep."""
+
+    def __init__(self, step: float):
+        self.step = step
+
+    def pose_at(self, k: int) -> np.ndarray:
+        T = np.eye(4)
+        T[0, 3] = self.step * k
+        return T
+
+
+def test_frame_stride_spans_the_travel_asked_for():
+    from deepbbs_ros.train.cache import MAX_FRAME_STRIDE, frame_stride
+
+    assert frame_stride(_Walk(0.1), 5, 0.0) == 1  # off: consecutive sweeps
+    assert frame_stride(_Walk(0.1), 5, 2.0) == 5  # 4 gaps of 5 sweeps of 0.1 m: 2 m
+    assert frame_stride(_Walk(0.1), 5, 1.9) == 5 and frame_stride(_Walk(0.1), 5, 2.01) == 6
+    assert frame_stride(_Walk(1.0), 5, 2.0) == 1  # a fast car already travels that far
+    assert frame_stride(_Walk(0.001), 5, 2.0) == MAX_FRAME_STRIDE  # standing still: at most 1 s apart
+
+
+def test_a_handheld_drive_spread_over_its_span(tmp_path):
+    """--min-span on a handheld walk (0.5-1.2 m/s): frames several sweeps apart, travelling the span asked for,
+    each with the ground truth of its own sweep."""
+    from deepbbs_ros.sim.rig import make_simulator
+    from deepbbs_ros.train.cache import MAX_FRAME_STRIDE
+
+    spec = SimDriveSpec("corridor", 20006, 3, sensor="vlp16", mount="handheld", min_span=2.0)
+    d = load_drive(simulate_cached_drive(spec, tmp_path, Config().preprocess, 256))
+    stride = d.meta["sensor"]["frame_stride"]
+    pos = d.T_world_lidar[:, :3, 3]
+    assert len(d) == 3 and 1 < stride <= MAX_FRAME_STRIDE
+    assert np.linalg.norm(np.diff(pos, axis=0), axis=1).sum() >= 2.0 * 0.9  # path length; chord a little shorter
+    assert np.diff(d.stamps_ns)[0] == stride * 100_000_000  # 10 Hz sweeps, every stride-th kept
+    sim = make_simulator("corridor", 20006, "vlp16", "handheld", frames=3 * MAX_FRAME_STRIDE)
+    for k in range(3):  # the pose of the sweep the frame is
+        np.testing.assert_allclose(d.T_world_lidar[k], sim.pose_at(k * stride), atol=1e-9)
 
 
 def test_fit_validates_each_folder_apart(tmp_path):

@@ -109,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "road sensors), e.g. 'random,os1_64,avia,mid360' (default: the randomised road sensors)")
     g.add_argument("--mounts", default="",
                    help="mounts drawn per drive: car, wheeled, legged, handheld (default: car)")
+    g.add_argument("--min-span", type=float, default=0.0, metavar="M",
+                   help="m; a drive's frames are every s-th sweep, s (at most 10) the smallest whose frames travel "
+                        "this far, so slow mounts have pairs as far apart as cars (e.g. 2 x train.max_dist); "
+                        "0 = consecutive sweeps; the randomised road drives always are")
     g = c.add_argument_group("a user's recording")
     g.add_argument("--source", action="append", default=[], help="bag / mcap / Apollo or KITTI folder (repeatable)")
     g.add_argument("--topic", help="PointCloud2 topic (needed when there are several)")
@@ -220,7 +224,8 @@ def _cmd_cache(args) -> int:
         randomize = args.randomize_sensor == "yes" or (args.randomize_sensor == "auto" and args.split == "train")
         sensors = [s.strip() for s in args.sensors.split(",") if s.strip()] or None
         mounts = [m.strip() for m in args.mounts.split(",") if m.strip()] or None
-        specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts)
+        specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
+                                  min_span=args.min_span)
         written += list(C.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
                                           randomize_sensor=randomize, progress=not args.no_progress))
         manifest = out / "manifest.json"
@@ -229,6 +234,7 @@ def _cmd_cache(args) -> int:
             "scenes": scenes, "seeds": [seeds[0], seeds[-1]], "frames": args.frames,
             "randomize_sensor": randomize, "cache_points": args.cache_points,
             **({"sensors": sensors, "mounts": mounts} if sensors or mounts else {}),
+            **({"min_span": args.min_span} if args.min_span > 0 else {}),
             "command": "deepbbs-train " + shlex.join(sys.argv[1:]) if sys.argv else ""}
         manifest.write_text(json.dumps(info, indent=2))
     if not args.source and not (args.drives or args.seeds):

@@ -38,6 +38,9 @@ from deepbbs_ros.errors import DatasetError, RegistrationError
 TRAIN_SEED_BASE = 10_000
 VAL_SEED_BASE = 80_000
 TEST_SEED_BASE = 90_000
+# frames of a drive are at most this many sweeps apart (SimDriveSpec.min_span): 1 s at 10 Hz, so that neighbouring
+# frames of a slow mount still overlap
+MAX_FRAME_STRIDE = 10
 
 
 @dataclass
@@ -219,6 +222,10 @@ class SimDriveSpec:
     frames: int
     sensor: str | None = None
     mount: str = "car"
+    # m; 0: the frames are consecutive (10 Hz). Else the frames are every s-th sweep, s the smallest stride
+    # (at most MAX_FRAME_STRIDE) whose frames span this path length: a slow mount (handheld, legged, wheeled at
+    # 0.5-1.5 m/s) then has pairs as far apart as a car's, up to train.max_dist (the road drives keep stride 1)
+    min_span: float = 0.0
 
     @property
     def name(self) -> str:
@@ -228,11 +235,13 @@ class SimDriveSpec:
 
 
 def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int, *,
-                    sensors: Sequence[str] | None = None, mounts: Sequence[str] | None = None) -> list[SimDriveSpec]:
+                    sensors: Sequence[str] | None = None, mounts: Sequence[str] | None = None,
+                    min_span: float = 0.0) -> list[SimDriveSpec]:
     """Drives for ``seeds``, the scene types cycling over ``scenes`` (seed i -> scenes[i % len]).
 
     sensors / mounts: when given, each drive draws one of them from its seed (``"random"`` in sensors =
     the randomised road sensors); left out, every drive is a car with a randomised road sensor, as before.
+    min_span: :attr:`SimDriveSpec.min_span` of every drive.
     """
     from deepbbs_ros.sim.mounts import MOUNTS
     from deepbbs_ros.sim.patterns import SENSORS
@@ -245,7 +254,7 @@ def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int, *,
             raise DatasetError(f"training cache: unknown mount {name!r}; choose from {', '.join(MOUNTS)}")
     specs = []
     for i, s in enumerate(seeds):
-        spec = SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames))
+        spec = SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames), min_span=float(min_span))
         if sensors or mounts:
             pick = np.random.default_rng([int(s), 7920])
             sensor = str(pick.choice(list(sensors))) if sensors else "random"
@@ -300,9 +309,12 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
     else:
         from deepbbs_ros.sim.rig import make_simulator
 
-        scans = iter(make_simulator(spec.scene, spec.seed, lidar, spec.mount, frames=spec.frames,
-                                    motion_distortion=motion, compensate=compensate))
-        desc = {**desc, "mount": spec.mount}
+        longest = spec.frames * (MAX_FRAME_STRIDE if spec.min_span > 0 else 1)
+        sim = make_simulator(spec.scene, spec.seed, lidar, spec.mount, frames=longest,
+                             motion_distortion=motion, compensate=compensate)
+        stride = frame_stride(sim, spec.frames, spec.min_span)
+        scans = (sim.scan_at(k * stride) for k in range(spec.frames))
+        desc = {**desc, "mount": spec.mount, **({"frame_stride": stride} if spec.min_span > 0 else {})}
     frames, poses, stamps, raw_counts = [], [], [], []
     t0 = time.perf_counter()
     for k, scan in enumerate(scans):
@@ -319,6 +331,20 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
     }
     save_drive(path, frames, np.stack(poses), stamps, meta)
     return path
+
+
+def frame_stride(sim: Any, frames: int, min_span: float) -> int:
+    """The smallest stride s (1..MAX_FRAME_STRIDE) whose ``frames`` frames 0, s, 2s, ... of ``sim`` (a simulator
+    with ``pose_at``, at least ``frames * MAX_FRAME_STRIDE`` frames long when min_span > 0) travel ``min_span`` m
+    along the ground-truth path; 1 when ``min_span`` is 0. Poses only: no ray is cast."""
+    if min_span <= 0:
+        return 1
+    pos = np.stack([sim.pose_at(k)[:3, 3] for k in range(frames * MAX_FRAME_STRIDE)])
+    step = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    for s in range(1, MAX_FRAME_STRIDE + 1):
+        if step[(frames - 1) * s] >= min_span:
+            return s
+    return MAX_FRAME_STRIDE
 
 
 def build_sim_cache(out_dir: str | Path, specs: Sequence[SimDriveSpec], pre: PreprocessConfig, cache_points: int,
