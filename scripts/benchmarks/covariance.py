@@ -312,9 +312,10 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
                 model: str = "node", firsts: list | None = None, helds: list | None = None) -> list:
     """The accumulated rows [(delta of T_odom_k, its covariance)] (``before``: the SE(3)-adjoint sum of the whole
     step covariances the node had before the GICP covariance). ``model``: "node" (node/odometry_pipeline.py: the steps'
-    GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain, plus the current
-    scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
-    step covariances composed), "chain" (the GICP parts alone), "origin" (a model tried: the first motion's floor
+    GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain with the held steps'
+    shared error ``helds[k]``, plus the current scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same
+    with the whole floor), "walk" (the whole step covariances composed as independent), "chain" (the GICP parts
+    alone), "origin" (a model tried: the first motion's floor
     ``firsts[k]`` out of the chain, and in its place the first scan's own error, a bias every pose shares, taken
     as the current scan's own share of the sweep floor per axis and composed at the origin), "yaw" (a model tried:
     the first motion's floor kept in roll and pitch only; in position and yaw the first sweep floor measured, at the
@@ -326,7 +327,7 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
     firsts = firsts or [None] * len(steps)
-    helds = [np.zeros((6, 6))] * len(steps) if not helds or model == "independent" else helds
+    helds = [np.zeros((6, 6))] * len(steps) if not helds or model in ("independent", "walk") else helds
     if model in ("ar1", "ar1origin"):
         return ar1_rows(steps, chain, floors, firsts, model == "ar1origin")
     rows, cov, quant, swept = [], np.zeros((6, 6)), None, None
