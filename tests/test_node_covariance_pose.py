@@ -134,3 +134,54 @@ def test_the_odometry_hands_over_its_floor_and_the_pose_counts_it_once():
                 assert np.all(np.linalg.eigvalsh(walk - out.pose_covariance) > -1e-12), k
                 assert np.trace(walk) - np.trace(out.pose_covariance) > 1e-3 * np.trace(walk), k
         prev = out.T_odom
+
+
+def _held_drive(rng, s: float, held: range) -> tuple[list[OdometryStep], list[np.ndarray]]:
+    """The same car, its position along the road held on the steps ``held`` (a stretch in a row): there the velocity
+    along the road is not measured and the motion changes by ``a_i`` (standard deviation ``s``) each held step, so the
+    ``j``-th held step is off along the road by ``a_1 + ... + a_j``; its covariance holds its own ``j s^2`` and
+    ``covariance_held`` its share with the held steps before it, ``j (j - 1) s^2`` (core/motion_floor.py)."""
+    S = np.eye(4)
+    S[:3, :3] = Rotation.from_euler("z", 0.03).as_matrix()
+    S[:3, 3] = [1.0, 0.0, 0.0]
+    truth, est = [np.eye(4)], [np.eye(4)]
+    steps, v, j = [OdometryStep(np.eye(4), np.eye(4))], 0.0, 0
+    x = np.diag([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    for k in range(1, STEPS + 1):
+        j = j + 1 if k in held else 0
+        v = v + rng.normal(0.0, s) if j else 0.0
+        e = rng.multivariate_normal(np.zeros(6), G)
+        e[0] += v
+        est.append(est[-1] @ _moved(e, S))
+        truth.append(truth[-1] @ S)
+        cov = _rot(est[-2], G + j * s ** 2 * x)
+        steps.append(OdometryStep(est[-1], np.linalg.solve(est[-2], est[-1]), covariance=cov,
+                                  covariance_held=_rot(est[-2], j * (j - 1) * s ** 2 * x) if j > 1 else None))
+    return steps, truth
+
+
+def test_the_pose_counts_the_held_steps_shared_velocity_error():
+    """Ten steps held in a row (steps 6 to 15 of 20): the published pose's mean NEES at the stretch's end and at the
+    drive's end lies inside the 99.9 % band with the held steps' shared error (``OdometryStep.covariance_held``), and
+    the steps composed as independent (without it) are overconfident."""
+    rng = np.random.default_rng(4)
+    odo = LocalMapOdometry(Config(), None)
+    checked = (15, STEPS)
+    nees = {(k, w): [] for k in checked for w in (True, False)}
+    for _ in range(DRIVES):
+        steps, truth = _held_drive(rng, 0.05, range(6, 16))
+        for with_held in (True, False):
+            script = [s if with_held else OdometryStep(s.T_first_k, s.T_prev_k, covariance=s.covariance)
+                      for s in steps]
+            odo.odometry = _Script(script)
+            odo.reset()
+            for k in range(len(script)):
+                out = odo.step(Cloud(np.zeros((8, 3), np.float32), int(k * 1e8), "lidar", 0.0))
+                if k in checked:
+                    d = pose_error(truth[k], out.T_odom)
+                    nees[(k, with_held)].append(float(d @ np.linalg.solve(out.pose_covariance, d)))
+    n = DRIVES
+    lo, hi = chi2.ppf(0.0005, 6 * n) / n, chi2.ppf(0.9995, 6 * n) / n
+    for k in checked:
+        assert lo <= np.mean(nees[(k, True)]) <= hi, (k, np.mean(nees[(k, True)]), lo, hi)
+        assert np.mean(nees[(k, False)]) > hi, (k, np.mean(nees[(k, False)]), hi)

@@ -65,7 +65,8 @@ class MotionFloor:
       pairs already count;
     * weak directions (:meth:`weak_sigma`): where the odometry held the prediction's position (core/degeneracy.py),
       the step along the direction is the prediction's, whose error is one whole deviation per held step, summed
-      over the steps held in a row (the velocity along it is not measured again meanwhile)."""
+      over the steps held in a row (the velocity along it is not measured again meanwhile); the held steps share that
+      velocity error, and :meth:`held_cross` is what the accumulated pose gains from it beyond the steps' own."""
 
     def __init__(self) -> None:
         from collections import deque
@@ -124,6 +125,21 @@ class MotionFloor:
             return float("nan")
         var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
         return float(np.sqrt(max(1, self._held) * var))
+
+    def held_cross(self, direction: np.ndarray) -> float:
+        """m^2: what the accumulated pose's variance along the unit ``direction`` (3,), the scan's axes, gains at this
+        step beyond the step's own (:meth:`weak_sigma`) while the odometry holds it: the held steps' errors are not
+        independent. Along a held direction the velocity is not measured; each held step adds the motion model's
+        miss ``a_i`` (variance ``s^2``, the deviations' root mean square along it squared) to the velocity's error,
+        which persists, so the ``j``-th held step is off by ``a_1 + ... + a_j`` (variance ``j s^2``: the step's own,
+        :meth:`weak_sigma`) and shares ``min(i, j) s^2`` with the ``i``-th. Composed as independent steps (the node's
+        chain) the ``k``-th adds ``k s^2``; its covariance with the ``k - 1`` held steps before it adds ``k (k - 1)
+        s^2`` more (a stretch of ``k`` held steps is off by ``s^2 k (k + 1) (2 k + 1) / 6`` in all, not ``s^2 k (k +
+        1) / 2``): that is this. 0 before the second held step in a row, or before any step that was not held."""
+        if not self._free or self._held < 2:
+            return 0.0
+        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
+        return float(self._held * (self._held - 1) * var)
 
 
 def _log(D: np.ndarray) -> np.ndarray:

@@ -189,13 +189,14 @@ class DeepBBSOdometry:
         if along is not None and along.sigma > 0:  # the first motion's places along the direction: its uncertainty
             weak, weak_sigma = np.vstack([deg.weak, along.direction]), [np.nan] * len(deg.weak) + [along.sigma]
         cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, weak, self._sweep, weak_sigma)
+        cross = self._held_cross(pose, deg.weak) if cov is not None else None
         self._local.insert(cloud, pose)
         self.pose = pose
         self._fits.append(fit)
         self._remember(frame, stamp_ns, bool(reason))
         self.frames += 1
         return OdometryStep(pose.copy(), T_prev_k, bool(reason), won, reason, fit, clock.done(), _cloud_points(cloud),
-                            path, cov, deg.label, dev, limit, floor_covariance(floor, pose, cov))
+                            path, cov, deg.label, dev, limit, floor_covariance(floor, pose, cov), cross)
 
     # -- stages ------------------------------------------------------------------------------------
     def _other_starts(self, frame: np.ndarray, cloud: Any, prior: np.ndarray, pose: np.ndarray, fit: float,
@@ -312,6 +313,15 @@ class DeepBBSOdometry:
             lambda d: np.fmax(self._sweep.weak_sigma(R.T @ d), self._sweep.last_deviation(R.T @ d)))
         pose = _deg.hold(_held.blend(pose, start, held, sigmas), start, deg.weak, limit)
         return pose, _held.merged(deg, held, R)
+
+    def _held_cross(self, pose: np.ndarray, weak: np.ndarray) -> np.ndarray | None:
+        """(6, 6) map frame: along each ``weak`` direction (K, 3, map frame) held at ``pose``, the accumulated pose's
+        covariance gain from the held steps' shared velocity error (``MotionFloor.held_cross``); None: none."""
+        R = pose[:3, :3]
+        out = np.zeros((6, 6))
+        for d in np.asarray(weak, dtype=np.float64).reshape(-1, 3):
+            out[:3, :3] += self._sweep.held_cross(R.T @ d) * np.outer(d, d)
+        return out if out.any() else None
 
     def _coarse_start(self, frame: np.ndarray, start: np.ndarray) -> np.ndarray:
         """``start`` (4, 4, the first scan's frame) refined on the coarse levels against the previous scan."""

@@ -41,6 +41,10 @@ class OdometryStep:
         (core/motion_floor.py ``MotionFloor``: this scan's own error, which the next step undoes), in the same
         frame; the rest is the GICP's and accumulates along the chain. None when ``covariance`` is None or has no
         such part (the first motion: the voxel map's quantisation).
+    covariance_held: (6, 6) float64 what the accumulated pose's covariance gains at this step beyond ``covariance``'s
+        GICP part, in the same frame: along the directions held (``degenerate``) the held steps share the velocity's
+        error, and this is the step's covariance with the held steps before it in a row (core/motion_floor.py
+        ``MotionFloor.held_cross``); None where there is none (not held, or the first held step).
     """
 
     __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
@@ -59,6 +63,7 @@ class OdometryStep:
     deviation: float = float("nan")
     gate: float = float("inf")
     covariance_floor: np.ndarray | None = None
+    covariance_held: np.ndarray | None = None
 
 
 def floor_covariance(floor: np.ndarray | None, T_map_scan: np.ndarray, cov: np.ndarray | None) -> np.ndarray | None:

@@ -118,7 +118,8 @@ class LocalMapOdometry:
     composes the steps' GICP parts along ``T_odom_k = T_odom_{k-1} @ T_{k-1}_k`` (independent steps: the drift of a
     chain) and adds the current scan's own sweep error once (its share :data:`SCAN_FLOOR_SHARE` of the step's floor
     ``OdometryStep.covariance_floor``): that error belongs to the scan, and the next step undoes it rather than
-    adding to it.
+    adding to it. Where the odometry held a direction several steps in a row, the held steps share the velocity's
+    error along it, and the chain adds their covariance (``OdometryStep.covariance_held``).
     """
 
     def __init__(self, config: Any, registration: Any, *, covariance: bool = True) -> None:
@@ -177,7 +178,9 @@ class LocalMapOdometry:
             floor = np.zeros((6, 6)) if floor is None else np.asarray(floor, dtype=np.float64)  # odometry frame
             B = np.zeros((6, 6))
             B[:3, :3] = B[3:, 3:] = self._T_odom[:3, :3].T  # -> scan k-1's frame, as cov_step
-            self._cov_chain = compose(self._T_odom, self._cov_chain, T_step, cov_step - B @ floor @ B.T)
+            held = getattr(out, "covariance_held", None) if getattr(out, "covariance", None) is not None else None
+            held = floor * 0.0 if held is None else np.asarray(held, dtype=np.float64)  # the held steps' shared error
+            self._cov_chain = compose(self._T_odom, self._cov_chain, T_step, cov_step - B @ (floor - held) @ B.T)
             self._cov_odom = self._cov_chain + SCAN_FLOOR_SHARE * floor
             twist, twist_cov = motion_twist(T_step, cov_step, dt)
             timings["covariance"] = (time.perf_counter() - t1) * 1e3

@@ -16,7 +16,8 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
   node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
   sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models
-  of it: "walk" (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
+  of it: "independent" (the held steps composed as independent, without the velocity error they share), "walk"
+  (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
   whole floor added), "chain" (the GICP parts alone, no floor), "origin" (the first motion's floor replaced by the
   first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
   origin), "ar1" and "ar1origin" (the node's and the origin model with the GICP parts' errors an AR(1) per axis,
@@ -210,9 +211,11 @@ def _before_localization(res, pts) -> np.ndarray:
     return q.covariance
 
 
-def odometry_rows(drive, config, args) -> tuple[list, list, list]:
+def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
     """(step rows [(delta, step covariance)], chain [(T_odom_{k-1}, T_{k-1}_k, T_odom_k, true T_first_k)], floors
-    [the step's sweep floor term, odometry frame, zeros without one]) of the scans with a step covariance."""
+    [the step's sweep floor term, odometry frame, zeros without one], firsts [the first motion's floor term or None],
+    helds [the held steps' shared error the pose gains, ``OdometryStep.covariance_held``, odometry frame, zeros
+    without one]) of the scans with a step covariance."""
     from kiss_icp.voxelization import voxel_down_sample
 
     import deepbbs_ros.core.odometry as odomod
@@ -221,7 +224,7 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
     from deepbbs_ros.node.covariance import alignment_quality
 
     odo = DeepBBSOdometry(config)
-    steps, chain, floors, firsts, cov_ms, share = [], [], [], [], [], []
+    steps, chain, floors, firsts, helds, cov_ms, share = [], [], [], [], [], [], []
     first_floor = {}  # frame -> the first motion's floor term (odometry frame), which its covariance holds
     T_prev, prev_points, T0_true, Tp_true = None, None, None, None
     own = odomod._cov.odometry_covariance
@@ -271,6 +274,8 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
                 fl = None if args.before else getattr(out, "covariance_floor", None)
                 floors.append(np.zeros((6, 6)) if fl is None else np.asarray(fl))
                 firsts.append(None if args.before else first_floor.get(i))
+                hd = None if args.before else getattr(out, "covariance_held", None)
+                helds.append(np.zeros((6, 6)) if hd is None else np.asarray(hd))
         else:
             T0_true = T_true
         T_prev, prev_points, Tp_true = T, out.points, T_true
@@ -297,30 +302,36 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list]:
               + ", ".join(f"{c:.2f}" for c, _ in fit) + "; slope " + ", ".join(f"{b:.2f}" for _, b in fit)
               + "; missed rms deg " + ", ".join(f"{x:.3f}" for x in np.degrees(np.sqrt(np.mean(miss ** 2, 0)))),
               flush=True)
-    return steps, chain, floors, firsts
+    held = [i for i, h in enumerate(helds) if h.any()]
+    print(f"    held steps sharing a velocity error (the 2nd and later of a stretch held in a row): {len(held)} of "
+          f"{len(helds)}", flush=True)
+    return steps, chain, floors, firsts, helds
 
 
 def accumulated(steps: list, chain: list, before: bool = False, floors: list | None = None,
-                model: str = "node", firsts: list | None = None) -> list:
+                model: str = "node", firsts: list | None = None, helds: list | None = None) -> list:
     """The accumulated rows [(delta of T_odom_k, its covariance)] (``before``: the SE(3)-adjoint sum of the whole
     step covariances the node had before the GICP covariance). ``model``: "node" (node/odometry_pipeline.py: the steps'
-    GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain, plus the current
-    scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same with the whole floor), "walk" (the whole
-    step covariances composed), "chain" (the GICP parts alone), "origin" (a model tried: the first motion's floor
+    GICP parts, the step covariance less its sweep floor ``floors[k]``, composed along the chain with the held steps'
+    shared error ``helds[k]``, plus the current scan's own share of its floor, ``SCAN_FLOOR_SHARE``), "once" (the same
+    with the whole floor), "walk" (the whole step covariances composed as independent), "chain" (the GICP parts
+    alone), "origin" (a model tried: the first motion's floor
     ``firsts[k]`` out of the chain, and in its place the first scan's own error, a bias every pose shares, taken
     as the current scan's own share of the sweep floor per axis and composed at the origin), "yaw" (a model tried:
     the first motion's floor kept in roll and pitch only; in position and yaw the first sweep floor measured, at the
     origin), "ar1" and "ar1origin" (models tried: the node's and the "origin" model with the GICP parts' errors
-    correlated from step to step as an AR(1) per axis, :func:`ar1_rows`)."""
+    correlated from step to step as an AR(1) per axis, :func:`ar1_rows`), "independent" (the node's without the held
+    steps' shared error ``helds[k]``, ``OdometryStep.covariance_held``: the held steps composed as independent)."""
     from deepbbs_ros.core.covariance import adjoint, compose, pose_error, skew
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
     firsts = firsts or [None] * len(steps)
+    helds = [np.zeros((6, 6))] * len(steps) if not helds or model in ("independent", "walk") else helds
     if model in ("ar1", "ar1origin"):
         return ar1_rows(steps, chain, floors, firsts, model == "ar1origin")
     rows, cov, quant, swept = [], np.zeros((6, 6)), None, None
-    for (_, step_cov), (T_prev, T_step, T, T_true), fl, first in zip(steps, chain, floors, firsts):
+    for (_, step_cov), (T_prev, T_step, T, T_true), fl, first, held in zip(steps, chain, floors, firsts, helds):
         if model == "yaw":  # a model tried: the first motion's floor in position and yaw replaced, at the origin,
             # by the first sweep floor measured (its roll and pitch kept: they stand in for the slow pitch error)
             quant = first if first is not None else quant
@@ -346,8 +357,9 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
         B[:3, :3] = B[3:, 3:] = T_prev[:3, :3].T
         origin = model == "origin" and first is not None
         own = B @ (first if origin else fl) @ B.T
-        cov = compose(T_prev, cov, T_step, step_cov if model == "walk" else step_cov - own)
-        share = {"node": SCAN_FLOOR_SHARE, "once": 1.0, "origin": SCAN_FLOOR_SHARE}.get(model, 0.0)
+        cov = compose(T_prev, cov, T_step, (step_cov if model == "walk" else step_cov - own) + _in_prev(T_prev, held))
+        share = {"node": SCAN_FLOOR_SHARE, "independent": SCAN_FLOOR_SHARE, "once": 1.0,
+                 "origin": SCAN_FLOOR_SHARE}.get(model, 0.0)
         out = cov + share * fl
         if origin:  # the first pose: its whole first floor (no sweep floor known yet)
             out = out + first
@@ -502,7 +514,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-sigma", type=float, default=0.2, help="tracking start error, m and deg per axis")
     ap.add_argument("--skip", nargs="*", default=[], choices=["localization", "odometry"])
     ap.add_argument("--pose", action="store_true", help="also the accumulated pose's NEES under the other models: "
-                    "walk (whole steps composed), once (the scan's whole floor added), chain (GICP parts alone), "
+                    "independent (the held steps' shared velocity error left out), walk (whole steps composed), "
+                    "once (the scan's whole floor added), chain (GICP parts alone), "
                     "origin (the first scan's own error at the origin instead of the first motion's floor), yaw (the "
                     "first motion's floor in position and yaw replaced by the first sweep floor measured, at the "
                     "origin), ar1 (the GICP parts' errors an AR(1) per axis, its coefficient from the deviations' "
@@ -532,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cell > 0:
         covmod.CLUSTER_CELL = args.cell
     config = Config()
-    loc_rows, step_rows, chains, floors, firsts, truth, notes = {}, {}, {}, {}, {}, {}, {}
+    loc_rows, step_rows, chains, floors, firsts, helds, truth, notes = {}, {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
         loc_rows, step_rows, chains, truth = load_rows(args.refit)
@@ -546,7 +559,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    localization: {notes[name]}; mean NEES {f.get('pose', {}).get('mean', float('nan')):.2f}"
                   + (" (inflation 1)" if args.fit else ""), flush=True)
         if "odometry" not in args.skip:
-            step_rows[name], chains[name], floors[name], firsts[name] = odometry_rows(drive, config, args)
+            step_rows[name], chains[name], floors[name], firsts[name], helds[name] = odometry_rows(drive, config, args)
         print(f"  {name}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     figures: dict = {}
     if args.fit and not args.refit:
@@ -556,7 +569,8 @@ def main(argv: list[str] | None = None) -> int:
 
         Path(args.out).mkdir(parents=True, exist_ok=True)
         with open(Path(args.out) / "odometry_rows.pkl", "wb") as f:
-            pickle.dump({"steps": step_rows, "chains": chains, "floors": floors, "firsts": firsts, "truth": truth}, f)
+            pickle.dump({"steps": step_rows, "chains": chains, "floors": floors, "firsts": firsts, "helds": helds,
+                         "truth": truth}, f)
     if args.fit and loc_rows:
         sims = [n for n in loc_rows if n.startswith("sim")]
         k = fit(loc_rows, sims)
@@ -564,12 +578,13 @@ def main(argv: list[str] | None = None) -> int:
         for n in loc_rows:
             loc_rows[n] = [(d, k * c) for d, c in loc_rows[n]]
         print(f"\nthe factor the simulated sets would fit on top (the tables below use it): {k:.3f}")
-    acc_rows = {n: accumulated(step_rows[n], chains[n], args.before, floors.get(n)) for n in step_rows}
+    acc_rows = {n: accumulated(step_rows[n], chains[n], args.before, floors.get(n), helds=helds.get(n))
+                for n in step_rows}
     tables = [("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)]
     if args.pose and not args.before:
         tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
-                                                              firsts.get(n)) for n in step_rows})
-                   for m in ("walk", "once", "chain", "origin", "yaw", "ar1", "ar1origin")]
+                                                              firsts.get(n), helds.get(n)) for n in step_rows})
+                   for m in ("independent", "walk", "once", "chain", "origin", "yaw", "ar1", "ar1origin")]
     label = "before: point-to-point" if args.before else "GICP Hessian" + (", fitted here" if args.fit else "")
     for key, rows in tables:
         figures[key] = {}
