@@ -11,7 +11,7 @@ import pytest
 from deepbbs_ros.config import Config, PreprocessConfig
 from deepbbs_ros.core.preprocess import crop_mask, preprocess, voxel_downsample
 from deepbbs_ros.core.scans import prepare_scan
-from deepbbs_ros.core.sensors import SENSORS, azimuth_coverage, guess_sensor, resolve
+from deepbbs_ros.core.sensors import SENSORS, azimuth_coverage, guess_sensor, lowest_elevation, resolve
 from deepbbs_ros.errors import ConfigError
 from msg_adapters.layouts import FLOAT64_XYZ, HESAI, LIVOX, OUSTER, VELODYNE, build_cloud, recognise_driver
 
@@ -49,6 +49,26 @@ def test_guess_from_driver_and_shape(rng):
     assert guess_sensor(spinning, "livox") == "livox_mid360"
     assert guess_sensor(narrow, "ouster") == "ouster"
     assert guess_sensor(narrow, "velodyne") is None  # a cropped Velodyne cloud: the defaults
+
+
+@pytest.mark.parametrize("mount, place", [("handheld", "corridor"), ("wheeled", "courtyard")])
+def test_guess_from_the_shape_of_every_simulated_sensor(mount, place):
+    # plain xyz (no driver fields) of every simulated sensor, raw and deskewed to the stamp: a narrow rosette is an
+    # Avia, a 360-degree one whose lowest returns sit above every spinning LiDAR's lowest beam a Mid-360, any
+    # spinning sensor (16-128 beams, 15-55 degrees below its horizon) keeps the defaults
+    from deepbbs_ros.sim.patterns import SENSORS as SIMULATED
+    from deepbbs_ros.sim.rig import make_simulator
+
+    expected = {"avia": "livox_avia", "mid360": "livox_mid360"}
+    for name in SIMULATED:
+        for compensate in (False, True):
+            scan = make_simulator(place, 5, name, mount, frames=3, compensate=compensate).scan_at(1).points
+            assert guess_sensor(scan) == expected.get(name), (name, compensate, lowest_elevation(scan))
+            if name == "mid360":
+                assert -9.0 < lowest_elevation(scan) < -5.0  # its field of view's edge, 7 degrees below
+            elif name != "avia":
+                assert lowest_elevation(scan) < -14.0
+            assert guess_sensor(scan, "livox") == expected.get(name, "livox_mid360")  # a Livox driver: the shape
 
 
 def test_resolve_applies_a_row_and_user_settings_win():
