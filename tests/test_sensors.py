@@ -11,7 +11,7 @@ import pytest
 from deepbbs_ros.config import Config, PreprocessConfig
 from deepbbs_ros.core.preprocess import crop_mask, preprocess, voxel_downsample
 from deepbbs_ros.core.scans import prepare_scan
-from deepbbs_ros.core.sensors import SENSORS, azimuth_coverage, guess_sensor, lowest_elevation, resolve
+from deepbbs_ros.core.sensors import SENSORS, azimuth_coverage, guess_sensor, resolve
 from deepbbs_ros.errors import ConfigError
 from msg_adapters.layouts import FLOAT64_XYZ, HESAI, LIVOX, OUSTER, VELODYNE, build_cloud, recognise_driver
 
@@ -54,21 +54,20 @@ def test_guess_from_driver_and_shape(rng):
 @pytest.mark.parametrize("mount, place", [("handheld", "corridor"), ("wheeled", "courtyard")])
 def test_guess_from_the_shape_of_every_simulated_sensor(mount, place):
     # plain xyz (no driver fields) of every simulated sensor, raw and deskewed to the stamp: a narrow rosette is an
-    # Avia, a 360-degree one whose lowest returns sit above every spinning LiDAR's lowest beam a Mid-360, any
-    # spinning sensor (16-128 beams, 15-55 degrees below its horizon) keeps the defaults
+    # Avia, any spinning sensor (16-128 beams) keeps the defaults; with its driver's name each gets its row (a
+    # 360-degree rosette with a Livox driver: a Mid-360; without one its shape is not told from a spinning sensor's)
     from deepbbs_ros.sim.patterns import SENSORS as SIMULATED
+    from deepbbs_ros.sim.patterns import driver_of
     from deepbbs_ros.sim.rig import make_simulator
 
-    expected = {"avia": "livox_avia", "mid360": "livox_mid360"}
+    by_driver = {"velodyne": None, "ouster": "ouster", "hesai": "hesai", "robosense": "robosense"}
     for name in SIMULATED:
+        with_driver = {"avia": "livox_avia", "mid360": "livox_mid360"}.get(name) or by_driver[driver_of(name)]
         for compensate in (False, True):
             scan = make_simulator(place, 5, name, mount, frames=3, compensate=compensate).scan_at(1).points
-            assert guess_sensor(scan) == expected.get(name), (name, compensate, lowest_elevation(scan))
-            if name == "mid360":
-                assert -9.0 < lowest_elevation(scan) < -5.0  # its field of view's edge, 7 degrees below
-            elif name != "avia":
-                assert lowest_elevation(scan) < -14.0
-            assert guess_sensor(scan, "livox") == expected.get(name, "livox_mid360")  # a Livox driver: the shape
+            if name != "mid360":
+                assert guess_sensor(scan) == ("livox_avia" if name == "avia" else None), (name, compensate)
+            assert guess_sensor(scan, driver_of(name)) == with_driver, (name, compensate)
 
 
 def test_resolve_applies_a_row_and_user_settings_win():

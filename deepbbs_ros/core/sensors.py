@@ -51,25 +51,18 @@ DRIVER_SENSORS: dict[str, str | None] = {"velodyne": None, "ouster": "ouster", "
 _NARROW = 0.5  # a cloud filling less than this fraction of the azimuth circle is a narrow solid-state sensor
 _AZ_BINS = 36  # 10-degree azimuth bins
 _MAX_SHAPE_POINTS = 4096  # the shape guess reads an even subsample
-#: elevation (deg, sensor frame) between the lowest beam of every spinning LiDAR (VLP-16 and XT-32: -15 / -16,
-#: OS1: -22.5, HDL-64E: -24.8, HDL-32E: -30.7, OS0: -45) and the lower edge of a Livox Mid-360's field of view
-#: (-7): a 360-degree cloud whose lowest returns sit above it is a Mid-360 (midway; a deskewed scan's edge moves
-#: by a degree or two)
-_LOWEST_SPINNING_BEAM_DEG = -11.0
-_LOW_SHARE = 0.01  # the lowest returns: this quantile of the elevations (a stray point below does not count)
 
 
-def _shape_points(points: np.ndarray) -> np.ndarray:
-    """An even subsample (at most 4,096) of the finite rows of ``points`` (N, 3)."""
+def azimuth_coverage(points: np.ndarray) -> float:
+    """Fraction of the 36 ten-degree azimuth bins (sensor frame, around +z) holding at least 0.2 % of the
+    finite points of ``points`` (N, 3): about 1 for a spinning sensor, about 0.2 for a Livox Avia."""
     pts = np.asarray(points)[:: max(1, len(points) // _MAX_SHAPE_POINTS)]
     if pts.ndim == 2 and pts.shape[1] == 3:  # column by column: a quarter of the time of a row-wise all()
         finite = np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & np.isfinite(pts[:, 2])
     else:
         finite = np.isfinite(pts).all(axis=1)
-    return pts if finite.all() else pts[finite]  # a copy only when some rows are missing returns
-
-
-def _coverage(pts: np.ndarray) -> float:
+    if not finite.all():  # a copy only when some rows are missing returns
+        pts = pts[finite]
     if len(pts) == 0:
         return 0.0
     az = np.arctan2(pts[:, 1], pts[:, 0])
@@ -77,42 +70,16 @@ def _coverage(pts: np.ndarray) -> float:
     return float(np.count_nonzero(hist >= 0.002 * len(pts))) / _AZ_BINS
 
 
-def azimuth_coverage(points: np.ndarray) -> float:
-    """Fraction of the 36 ten-degree azimuth bins (sensor frame, around +z) holding at least 0.2 % of the
-    finite points of ``points`` (N, 3): about 1 for a spinning sensor, about 0.2 for a Livox Avia."""
-    return _coverage(_shape_points(points))
-
-
-def lowest_elevation(points: np.ndarray) -> float:
-    """Elevation (deg, sensor frame, above the x-y plane) of the lowest returns of ``points`` (N, 3): the 1 %
-    quantile of an even subsample's (nan when no point is finite). The lowest beam of a spinning LiDAR is 15-45
-    degrees below its horizon; a Livox Mid-360 sees from 7 degrees below."""
-    return _lowest(_shape_points(points))
-
-
-def _lowest(pts: np.ndarray) -> float:
-    if len(pts) == 0:
-        return float("nan")
-    k = int(_LOW_SHARE * (len(pts) - 1))
-    sin_el = pts[:, 2] / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), 1e-9)
-    return float(np.degrees(np.arcsin(np.clip(np.partition(sin_el, k)[k], -1.0, 1.0))))
-
-
 def guess_sensor(points: np.ndarray, driver: str | None = None) -> str | None:
     """The sensor of a scan (N, 3) from its ``driver`` (a :data:`DRIVER_SENSORS` name) or its shape; None when
     nothing says it is anything but a spinning sensor (the defaults apply). A Livox cloud, or any cloud that fills
     less than half the azimuth circle, is a ``"livox_avia"`` (narrow field of view) or, filling more, a
-    ``"livox_mid360"``. Without a driver, a cloud filling more than half of the circle is a ``"livox_mid360"``
-    when its lowest returns (:func:`lowest_elevation`) sit above the lowest beam of any spinning LiDAR (a
-    Mid-360's field of view starts 7 degrees below its horizon, a spinning sensor's lowest beam 15 or more)."""
-    if driver in DRIVER_SENSORS and driver != "livox":  # a spinning sensor's driver: its row, whatever the shape
+    ``"livox_mid360"``."""
+    if driver == "livox":
+        return "livox_avia" if azimuth_coverage(points) < _NARROW else "livox_mid360"
+    if driver in DRIVER_SENSORS:  # a spinning sensor's driver: its row, whatever the cloud's shape (a crop)
         return DRIVER_SENSORS[driver]
-    pts = _shape_points(points)
-    if _coverage(pts) < _NARROW:
-        return "livox_avia"
-    if driver == "livox" or _lowest(pts) > _LOWEST_SPINNING_BEAM_DEG:
-        return "livox_mid360"
-    return None
+    return "livox_avia" if azimuth_coverage(points) < _NARROW else None
 
 
 def resolve(cfg: PreprocessConfig, sensor: str | None = None) -> PreprocessConfig:
