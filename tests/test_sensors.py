@@ -51,6 +51,25 @@ def test_guess_from_driver_and_shape(rng):
     assert guess_sensor(narrow, "velodyne") is None  # a cropped Velodyne cloud: the defaults
 
 
+@pytest.mark.parametrize("mount, place", [("handheld", "corridor"), ("wheeled", "courtyard")])
+def test_guess_from_the_shape_of_every_simulated_sensor(mount, place):
+    # plain xyz (no driver fields) of every simulated sensor, raw and deskewed to the stamp: a narrow rosette is an
+    # Avia, any spinning sensor (16-128 beams) keeps the defaults; with its driver's name each gets its row (a
+    # 360-degree rosette with a Livox driver: a Mid-360; without one its shape is not told from a spinning sensor's)
+    from deepbbs_ros.sim.patterns import SENSORS as SIMULATED
+    from deepbbs_ros.sim.patterns import driver_of
+    from deepbbs_ros.sim.rig import make_simulator
+
+    by_driver = {"velodyne": None, "ouster": "ouster", "hesai": "hesai", "robosense": "robosense"}
+    for name in SIMULATED:
+        with_driver = {"avia": "livox_avia", "mid360": "livox_mid360"}.get(name) or by_driver[driver_of(name)]
+        for compensate in (False, True):
+            scan = make_simulator(place, 5, name, mount, frames=3, compensate=compensate).scan_at(1).points
+            if name != "mid360":
+                assert guess_sensor(scan) == ("livox_avia" if name == "avia" else None), (name, compensate)
+            assert guess_sensor(scan, driver_of(name)) == with_driver, (name, compensate)
+
+
 def test_resolve_applies_a_row_and_user_settings_win():
     base = PreprocessConfig()
     assert resolve(base) is base  # "auto" alone changes nothing
