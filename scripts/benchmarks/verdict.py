@@ -17,7 +17,10 @@ and the good-start verdict (a spread subset of the GICP voxels):
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
 Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed
-(the pair verdict: the fitness of the sampled points). Per set and verdict: the poses, right (1 deg / 0.3 m) and
+(the pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check
+turns away (core/second_minimum.py) as rejected: the pair verdict checks every pose it takes, the good start only one
+that can slide (``second_minimum.slides``); ``good_start_checks`` gives the good start's counts with no check and
+with the check on every pose it takes, on the same poses. Per set and verdict: the poses, right (1 deg / 0.3 m) and
 wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
 probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
 predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
@@ -90,11 +93,26 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
+def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, slides: np.ndarray,
+           err: np.ndarray) -> dict:
+    """The good start's wrong (beyond 2 deg / 0.5 m) accepted and right rejected with no second-minimum check
+    (``none``), with it where the pose slides (``slides``, as registered) and on every pose taken (``all``); and
+    how many poses it took would be checked (GICP runs: two each)."""
+    y, ok = np.asarray(y, bool), np.asarray(prob) >= bar
+    e = np.asarray(err, float).reshape(-1, 2)
+    far = (e[:, 0] > 2.0) | (e[:, 1] > 0.5)
+    out = {"checked": {"slides": int(np.sum(ok & slides)), "all": int(ok.sum())}}
+    for mode, veto in (("none", np.zeros(len(y), bool)), ("slides", ambiguous & slides), ("all", ambiguous)):
+        acc = ok & ~np.asarray(veto, bool)
+        out[mode] = {"wrong_accepted": int(np.sum(far & acc)), "right_rejected": int(np.sum(y & ~acc))}
+    return out
+
+
 def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
                 config=None) -> dict:
     import calibrate_verdict as cv
 
-    from deepbbs_ros.core import calibrated
+    from deepbbs_ros.core import calibrated, second_minimum
 
     kw = {"slid": slid, "config": config, "second": True}  # the pair verdict's second-minimum check, as registered
     parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
@@ -111,6 +129,8 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     slide = data["kind"] == "slid"
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
+    slides = np.array([second_minimum.slides(r) for r in data["good"]], bool)
+    vetoes = {"pair": data["ambiguous"], "good_start": data["ambiguous"] & slides}  # the good start: where it slides
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
         for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned", "slid"):
             m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
@@ -119,8 +139,10 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
-                                         np.c_[data["rot"][m], data["trans"][m]],
-                                         data["ambiguous"][m] if name == "pair" else None)
+                                         np.c_[data["rot"][m], data["trans"][m]], vetoes[name][m])
+            if name == "good_start":  # the same poses with no check, and with the check on every pose taken
+                out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p[m], bar, data["ambiguous"][m],
+                                                       slides[m], np.c_[data["rot"][m], data["trans"][m]])
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
         m = (~low if f == "all" else (fam == f) & ~low) & ~slide
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
@@ -140,7 +162,7 @@ def real_pairs(spec: str):
 def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Path | None = None) -> dict:
     import calibrate_verdict as cv
 
-    from deepbbs_ros.core import calibrated, visibility
+    from deepbbs_ros.core import calibrated, second_minimum, visibility
 
     rc, rng, out, feats = reg.config.registration, np.random.default_rng(7), {}, []
     sets = [real_pairs(s) for s in specs]
@@ -179,15 +201,23 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 if pol.applied:
                     f = cv.rows_of(ps, pt, pol.T_target_source, rc)[1]
                     y, r, t = cv.label(pol.T_target_source, T_gt)
-                    y = y == 1
-                    rows["good"].append((y, f[0], calibrated.probability(f, "good_start"),
-                                         cv.label(pol.T_target_source, T_ref)[0] == 1, r, t, False))
+                    y, p = y == 1, calibrated.probability(f, "good_start")
+                    # the second-minimum check on every pose taken; the good start runs it where the pose slides
+                    amb = bool(rc.second_minimum and p >= rc.good_start_probability and second_minimum.check(
+                        cv.good_start_points(ps.polish_cloud, rc), pol.T_target_source, ps.polish_cloud,
+                        pt.polish_cloud, rc).ambiguous)
+                    slides = second_minimum.slides(f)
+                    rows["good"].append((y, f[0], p, cv.label(pol.T_target_source, T_ref)[0] == 1, r, t,
+                                         amb and slides, amb, slides))
                     feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
-            a = np.array(rows[key], float).reshape(-1, 7)
+            a = np.array(rows[key], float).reshape(-1, 7 if key == "pair" else 9)
             out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
                                                a[:, 4:6], a[:, 6] > 0)
+            if key == "good":
+                out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, a[:, 2], bar, a[:, 7] > 0, a[:, 8] > 0,
+                                                            a[:, 4:6])
         q = np.median(np.array(rough).reshape(-1, 2), axis=0)
         out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
                                     "self_planarity": round(float(q[1]), 3)}
@@ -242,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
                                      args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config)
         for k, v in figures["sim"].items():
-            print("sim", k, v if k.startswith("roughness") else
+            print("sim", k, v if k.startswith(("roughness", "good_start_checks")) else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
                                              "classes"]}, v["reliability"]), flush=True)
     if args.real or args.pair:
