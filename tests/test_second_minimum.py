@@ -81,22 +81,3 @@ def test_nothing_to_check_without_points():
                                threads=1)
     a = second_minimum.check(np.zeros((0, 3)), np.eye(4), tpc, tpc, rc)
     assert not a.ambiguous and a.step == 0.0
-
-
-def test_only_a_pose_the_fit_does_not_hold_slides():
-    """``slides``: a round hall with nothing on its wall leaves yaw free (``pinned`` under the calibrated verdict's
-    bound for held poses, nothing anchors it): it slides; pillars every 10 degrees hold it: it does not. The bound is
-    the shipped file's (``relative``: held_pinned 0.02, held_anchored_far 0.1)."""
-    from deepbbs_ros.core import calibrated, visibility
-
-    assert calibrated.held() == (0.02, 0.1)
-    rc = Config().registration
-    for every, size, free in ((360.0, 0.05, True), (10.0, 1.0, False)):
-        target, source = (_hall(np.random.default_rng(s), 20000, every=every, size=size) for s in (0, 1))
-        tpc, spc = (prepare_polish_cloud(c, rc.polish_voxel, rc.polish_neighbors, threads=1) for c in (target, source))
-        row = visibility.pose_features(good_start_points(spc, rc), np.eye(4), tpc, rc.verdict_dist)
-        assert second_minimum.slides(row) is free, row
-    row = np.ones(len(visibility.FEATURES))
-    for pin, far, free in ((0.01, 0.05, True), (0.03, 0.05, False), (0.01, 0.2, False)):
-        row[visibility.FEATURES.index("pinned")], row[visibility.FEATURES.index("anchored_far")] = pin, far
-        assert second_minimum.slides(row) is free, (pin, far)

@@ -258,3 +258,33 @@ def test_the_benchmark_counts_a_pose_the_second_minimum_turns_away_as_rejected()
     assert vetoed["vetoed"] == {"right": 1, "wrong": 1}
     assert vetoed["classes"]["wrong_accepted"] == 0 and vetoed["classes"]["right_rejected"] == 1
     assert vetoed["reliability"] == plain["reliability"]
+
+
+def test_the_benchmark_counts_the_good_start_with_and_without_the_second_minimum_check():
+    """scripts/benchmarks/verdict.py's ``good_start_checks``: the good start's counts on the same poses with no
+    second-minimum check, with it only where the pose can slide (``pinned`` and ``anchored_far`` under the shipped
+    coefficients' bound for held poses, 0.02 and 0.1) and on every pose taken."""
+    import sys
+    from pathlib import Path
+
+    from deepbbs_ros.core.visibility import FEATURES
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "benchmarks"))
+    import verdict as bench
+
+    rows = np.ones((4, len(FEATURES)))
+    pin, far = FEATURES.index("pinned"), FEATURES.index("anchored_far")
+    rows[:, pin] = [0.01, 0.01, 0.01, 0.3]
+    rows[:, far] = [0.05, 0.05, 0.2, 1.0]
+    free = np.array([bench.slides(r) for r in rows])
+    assert free.tolist() == [True, True, False, False]  # held: anchored_far 0.2 or pinned 0.3
+    y = np.array([True, False, False, False])
+    prob = np.array([0.9, 0.95, 0.8, 0.99])
+    err = np.array([[0.1, 0.05], [3.0, 0.2], [2.5, 0.1], [0.2, 0.6]])
+    amb = np.array([False, True, True, False])
+    out = bench.checks(y, prob, 0.7, amb, free, err, rows)
+    assert (out["taken"], out["taken_sliding"]) == (4, 2)
+    assert out["none"] == {"wrong_accepted": 3, "right_rejected": 0}
+    assert out["slides"] == {"wrong_accepted": 2, "right_rejected": 0}
+    assert out["all"] == {"wrong_accepted": 1, "right_rejected": 0}
+    assert out["found"] == [[False, 3.0, 0.2, 0.95, 0.01, 0.05], [False, 2.5, 0.1, 0.8, 0.01, 0.2]]

@@ -150,12 +150,3 @@ def probability(rows: np.ndarray, verdict: str = "pair", path: str | None = None
     p = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
     p = np.where((x[:, _PINNED] < min_pinned(path)) & (x[:, _ANCHORED_FAR] < min_anchored_far(path)), 0.0, p)
     return float(p[0]) if np.ndim(rows) == 1 else p
-
-
-def held(path: str | None = None) -> tuple[float, float]:
-    """The bounds (``held_pinned``, ``held_anchored_far``) of the file's ``"relative"`` models: a pose with ``pinned``
-    at least the first or ``anchored_far`` at least the second is one the fit holds where it is; (0, 1) when the file
-    sets no ``"relative"`` models (no bound: every pose counts as held)."""
-    load(path)
-    cols, held_pin, held_far = _RELATIVE[path]
-    return (held_pin, held_far) if cols else (0.0, 1.0)

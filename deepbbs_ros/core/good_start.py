@@ -9,9 +9,6 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 good_start_max_iters, the answer says so ("beyond the good start's limits")
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
-    slide       an accepted pose that can slide (core/second_minimum.py ``slides``: the fit does not hold it where it
-                is) is checked for a second minimum as good along its weakest direction (registration.second_minimum,
-                as the pair verdict does): one found, the pose is not taken
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
 
 Why the first GICP is judged by the verdict alone, however far it moved: the verdict is a probability that the pose
@@ -30,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import calibrated, coarse_rescue, pair_deskew, second_minimum, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, pair_deskew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, polish
@@ -89,7 +86,7 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     clock.lap("preprocess")
     pts = good_start_points(spc, rc)
     pol = from_start(spc, tpc, T0, rc)  # GICP's own budget, wherever it goes: the verdict judges where it ended
-    (prob, row), sure = _judge(pol, "", pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
+    prob, sure = _probability(pol, "", pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
     if verdict.is_valid(prob, rc.good_start_probability):
         beyond = _beyond(pol, rc)
         accepted = f"accepted, beyond the good start's limits (GICP from the start: {beyond})" if beyond else "accepted"
@@ -98,16 +95,12 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
                                            f"verdict {prob:.2f} < registration.good_start_probability "
                                            f"{rc.good_start_probability}")
         pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, reg.gicp_threads())  # coarse to fine, when sure
-        prob, row = _judge(pol, why, pts, tpc, rc)
+        prob = _probability(pol, why, pts, tpc, rc)
         if not verdict.is_valid(prob, sure):
             clock.lap("good_start")
             then = why or f"verdict {prob:.2f} < registration.verdict_sure {sure}"
             return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
         accepted = f"accepted after coarse to fine ({first})"
-    other = _second_minimum(pts, pol.T_target_source, row, spc, tpc, rc)
-    if other:
-        clock.lap("good_start")
-        return Attempt(src, tgt, reason=f"{accepted}, but {other}")
     reg._searched.append(False)
     return Attempt(src, tgt, accepted, _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock))
 
@@ -138,31 +131,12 @@ def _beyond(pol: Any, rc: Any) -> str:
     return ""
 
 
-def _judge(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any) -> tuple[float, np.ndarray | None]:
-    """The good-start verdict's probability of the GICP result ``pol`` (:func:`core.verdict.probability`) and the
-    feature row it read (core/visibility.py); (0, None) when ``why`` says it is not taken (or GICP did not converge
-    within its limits)."""
-    if why or not pol.applied or len(pts) == 0:
-        return 0.0, None
-    bound = True if calibrated.weighs(("anchored", "anchored_far"), "good_start", floor=False) \
-        else calibrated.anchored_below()  # as core.verdict.probability measures them
-    view = calibrated.weighs(("in_view", "observable_rel"), "good_start")
-    row = visibility.pose_features(pts, pol.T_target_source, tpc, rc.verdict_dist, 1, bound, view)
-    return float(calibrated.probability(row, "good_start")), row
-
-
-def _second_minimum(pts: np.ndarray, T: np.ndarray, row: np.ndarray | None, spc: PolishCloud, tpc: PolishCloud,
-                    rc: Any) -> str:
-    """Why the accepted pose ``T`` is not taken after all: a second minimum as good along its weakest direction
-    (core/second_minimum.py), looked for only where the pose can slide (``second_minimum.slides`` of its feature
-    ``row``) and ``registration.second_minimum`` is on; "" when it is taken."""
-    if not rc.second_minimum or row is None or not second_minimum.slides(row):
-        return ""
-    amb = second_minimum.check(pts, T, spc, tpc, rc)
-    if not amb.ambiguous:
-        return ""
-    return (f"a second minimum as good {amb.offset:.1f} tolerances away along its weakest direction (fitness "
-            f"{amb.other_score:.3f} against {amb.score:.3f}; registration.second_minimum)")
+def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any) -> float:
+    """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken (or GICP
+    did not converge within its limits)."""
+    if why or not pol.applied:
+        return 0.0
+    return verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
 
 
 def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:

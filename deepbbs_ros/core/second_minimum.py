@@ -19,11 +19,7 @@ The check, on an accepted pose with the precision stage's clouds:
    (the verdict's, at ``verdict_dist``) as good as the pose's: not below it by more than two standard errors of a
    share of ``n`` points, ``2 sqrt(p (1 - p) / n)``, ``p = (f n + 1) / (n + 2)`` (the rule of succession).
 
-Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones). The good
-start (core/good_start.py) checks only a pose that can slide (:func:`slides`): one the calibrated verdict does not
-count as held where it is (core/calibrated.py's bound for its ``_relative`` models: ``pinned`` under 0.02, free by
-more than seven tolerances, and ``anchored_far`` under 0.1), so that its well-pinned poses, indoors as well, pay
-nothing.
+Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones).
 """
 
 from __future__ import annotations
@@ -32,11 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from deepbbs_ros.core import anchoring, calibrated, verdict
+from deepbbs_ros.core import anchoring, verdict
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish
-from deepbbs_ros.core.visibility import FEATURES
 
-__all__ = ["Ambiguity", "check", "offset", "slides", "weakest"]
+__all__ = ["Ambiguity", "check", "offset", "weakest"]
 
 WRONG = 1.0  # tolerances: two minima further apart than this cannot both be right
 STEPS = anchoring.STEPS  # tolerances: the shortest and the longest move along the weakest direction
@@ -57,19 +52,6 @@ class Ambiguity:
     score: float = float("nan")
     other_score: float = float("nan")
     found: list = field(default_factory=list)  # (offset, fitness) of each start's minimum, in the order tried
-
-
-def slides(row: np.ndarray) -> bool:
-    """Whether the pose of the verdict's feature row (``core.visibility.FEATURES``) is one the fit does not hold where
-    it is: ``pinned`` and ``anchored_far`` both under the calibrated verdict's bound for held poses
-    (:func:`core.calibrated.held`); with no such bound, free by more than :data:`WRONG` tolerances (``pinned`` under
-    0.5, where :func:`check` looks at all)."""
-    row = np.asarray(row, np.float64).ravel()
-    pin, far = row[FEATURES.index("pinned")], row[FEATURES.index("anchored_far")]
-    held_pin, held_far = calibrated.held()
-    if held_pin <= 0.0 and held_far >= 1.0:  # no bound in the file: where the check itself looks
-        return bool(pin < 1.0 / (1.0 + WRONG * WRONG))
-    return bool(pin < held_pin and far < held_far)
 
 
 def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[np.ndarray | None, float]:

@@ -16,23 +16,23 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
-Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed
-(the pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check
-turns away (core/second_minimum.py) as rejected: the pair verdict checks every pose it takes, the good start only one
-that can slide (``second_minimum.slides``); ``good_start_checks`` gives the good start's counts with no check and
-with the check on every pose it takes, on the same poses. Per set and verdict: the poses, right (1 deg / 0.3 m) and
-wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by the
-probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
-predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything
-beyond 1 deg / 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg /
-0.3 m of GICP started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's:
-the scans' own optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their
-largest errors (deg, m). ``classes`` splits the poses in three, as the figures are counted against the goal:
-right (within 1 deg / 0.3 m), wrong (beyond 2 deg or 0.5 m) and in between (neither: shown apart, not counted as
-a success nor as a wrong pose accepted), each with its accepted / rejected count; the ``wrong`` and ``wrong_accepted``
-above it keep the older count (anything not right). ``roughness/<set>``: how rough the targets' own surfaces are
-(core/visibility.py's ``roughness``: the distance 90 % of a target's points keep from their neighbour's tangent plane,
-and its ``self_planarity``; medians over the set's targets), to compare the simulation with real scans. ::
+Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed (the
+pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
+(core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
+gives what the good start's counts would be with it, on the same poses: ``none`` (as shipped), ``slides`` (only on a
+pose that can slide: :func:`slides`) and ``all`` (on every pose it takes). Per set and verdict: the poses, right (1 deg
+/ 0.3 m) and wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by
+the probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
+predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything beyond 1 deg
+/ 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg / 0.3 m of GICP
+started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's: the scans' own
+optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their largest errors (deg, m).
+``classes`` splits the poses in three, as the figures are counted against the goal: right (within 1 deg / 0.3 m), wrong
+(beyond 2 deg or 0.5 m) and in between (neither: shown apart, not counted as a success nor as a wrong pose accepted),
+each with its accepted / rejected count; the ``wrong`` and ``wrong_accepted`` above it keep the older count (anything
+not right). ``roughness/<set>``: how rough the targets' own surfaces are (core/visibility.py's ``roughness``: the
+distance 90 % of a target's points keep from their neighbour's tangent plane, and its ``self_planarity``; medians over
+the set's targets), to compare the simulation with real scans. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
@@ -42,6 +42,8 @@ and its ``self_planarity``; medians over the set's targets), to compare the simu
 from __future__ import annotations
 
 import argparse
+import functools
+import json
 import sys
 from pathlib import Path
 
@@ -50,6 +52,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
+
+from deepbbs_ros.core.visibility import FEATURES  # noqa: E402
 
 OLD = {"pair": 0.35, "good_start": 0.65}  # the fixed fitness thresholds the probability replaced
 FAMILY = {"hdl64": "dense", "ouster64": "dense", "os0_64": "dense", "os0_128": "dense", "os1_64": "dense",
@@ -93,18 +97,45 @@ def summary(y: np.ndarray, score: np.ndarray, prob: np.ndarray, old: float, bar:
     return out
 
 
+def slides(row: np.ndarray) -> bool:
+    """Whether the pose of a good-start feature row (``core.visibility.FEATURES``) is one the fit does not hold where
+    it is, by the bound of the shipped coefficients' ``_relative`` models (``verdict_model.json`` "relative":
+    ``pinned`` under ``held_pinned`` 0.02, free by more than seven tolerances, and ``anchored_far`` under
+    ``held_anchored_far`` 0.1); False when the file sets no such bound."""
+    held_pin, held_far = _held()
+    row = np.asarray(row, np.float64).ravel()
+    return bool(row[FEATURES.index("pinned")] < held_pin and row[FEATURES.index("anchored_far")] < held_far)
+
+
+@functools.lru_cache(maxsize=1)
+def _held() -> tuple[float, float]:
+    """(held_pinned, held_anchored_far) of the coefficients judged (0, 1 with no ``"relative"`` models: none slides)."""
+    from deepbbs_ros.core import calibrated
+
+    spec = json.loads(Path(calibrated.DEFAULT_PATH).read_text()).get("relative", {})
+    if not spec.get("shares"):
+        return 0.0, 1.0
+    return float(spec.get("held_pinned", 0.0)), float(spec.get("held_anchored_far", 1.0))
+
+
 def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, slides: np.ndarray,
-           err: np.ndarray) -> dict:
+           err: np.ndarray, rows: np.ndarray | None = None) -> dict:
     """The good start's wrong (beyond 2 deg / 0.5 m) accepted and right rejected with no second-minimum check
-    (``none``), with it where the pose slides (``slides``, as registered) and on every pose taken (``all``); and
-    how many poses it took would be checked (GICP runs: two each)."""
+    (``none``, as shipped), with it where the pose slides (``slides``) and on every pose taken (``all``); and
+    how many poses the verdict takes (``taken``) and how many of them slide (``taken_sliding``: the check's two GICP
+    runs each, where their uncertainty exceeds a tolerance); ``found``: the poses taken where the check finds a second
+    minimum, each (right, deg, m, probability, ``pinned``, ``anchored_far``; the last two from ``rows``)."""
     y, ok = np.asarray(y, bool), np.asarray(prob) >= bar
     e = np.asarray(err, float).reshape(-1, 2)
     far = (e[:, 0] > 2.0) | (e[:, 1] > 0.5)
-    out = {"checked": {"slides": int(np.sum(ok & slides)), "all": int(ok.sum())}}
+    out = {"taken": int(ok.sum()), "taken_sliding": int(np.sum(ok & slides))}
     for mode, veto in (("none", np.zeros(len(y), bool)), ("slides", ambiguous & slides), ("all", ambiguous)):
         acc = ok & ~np.asarray(veto, bool)
         out[mode] = {"wrong_accepted": int(np.sum(far & acc)), "right_rejected": int(np.sum(y & ~acc))}
+    pin, anc = FEATURES.index("pinned"), FEATURES.index("anchored_far")
+    out["found"] = [[bool(y[i]), round(float(e[i, 0]), 2), round(float(e[i, 1]), 2), round(float(prob[i]), 3),
+                     *([round(float(rows[i, pin]), 3), round(float(rows[i, anc]), 3)] if rows is not None else [])]
+                    for i in np.flatnonzero(ok & np.asarray(ambiguous, bool))]
     return out
 
 
@@ -112,7 +143,7 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
                 config=None) -> dict:
     import calibrate_verdict as cv
 
-    from deepbbs_ros.core import calibrated, second_minimum
+    from deepbbs_ros.core import calibrated
 
     kw = {"slid": slid, "config": config, "second": True}  # the pair verdict's second-minimum check, as registered
     parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
@@ -129,8 +160,7 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     slide = data["kind"] == "slid"
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
-    slides = np.array([second_minimum.slides(r) for r in data["good"]], bool)
-    vetoes = {"pair": data["ambiguous"], "good_start": data["ambiguous"] & slides}  # the good start: where it slides
+    free = np.array([slides(r) for r in data["good"]], bool)
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
         for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned", "slid"):
             m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
@@ -139,10 +169,12 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             if not m.any():
                 continue
             out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
-                                         np.c_[data["rot"][m], data["trans"][m]], vetoes[name][m])
+                                         np.c_[data["rot"][m], data["trans"][m]],
+                                         data["ambiguous"][m] if name == "pair" else None)
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
                 out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p[m], bar, data["ambiguous"][m],
-                                                       slides[m], np.c_[data["rot"][m], data["trans"][m]])
+                                                       free[m], np.c_[data["rot"][m], data["trans"][m]],
+                                                       np.asarray(data["good"])[m])
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
         m = (~low if f == "all" else (fam == f) & ~low) & ~slide
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
@@ -202,22 +234,24 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     f = cv.rows_of(ps, pt, pol.T_target_source, rc)[1]
                     y, r, t = cv.label(pol.T_target_source, T_gt)
                     y, p = y == 1, calibrated.probability(f, "good_start")
-                    # the second-minimum check on every pose taken; the good start runs it where the pose slides
+                    # the second-minimum check on every pose taken (not run by the good start: good_start_checks)
                     amb = bool(rc.second_minimum and p >= rc.good_start_probability and second_minimum.check(
                         cv.good_start_points(ps.polish_cloud, rc), pol.T_target_source, ps.polish_cloud,
                         pt.polish_cloud, rc).ambiguous)
-                    slides = second_minimum.slides(f)
-                    rows["good"].append((y, f[0], p, cv.label(pol.T_target_source, T_ref)[0] == 1, r, t,
-                                         amb and slides, amb, slides))
+                    rows["good"].append((y, f[0], p, cv.label(pol.T_target_source, T_ref)[0] == 1, r, t, False,
+                                         amb, slides(f), f[FEATURES.index("pinned")],
+                                         f[FEATURES.index("anchored_far")]))
                     feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
-            a = np.array(rows[key], float).reshape(-1, 7 if key == "pair" else 9)
+            a = np.array(rows[key], float).reshape(-1, 7 if key == "pair" else 11)
             out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
                                                a[:, 4:6], a[:, 6] > 0)
             if key == "good":
+                r = np.zeros((len(a), len(FEATURES)))
+                r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
                 out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, a[:, 2], bar, a[:, 7] > 0, a[:, 8] > 0,
-                                                            a[:, 4:6])
+                                                            a[:, 4:6], r)
         q = np.median(np.array(rough).reshape(-1, 2), axis=0)
         out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
                                     "self_planarity": round(float(q[1]), 3)}
