@@ -267,7 +267,8 @@ def effective_cells(H: np.ndarray, hessians: np.ndarray, basis: np.ndarray, left
     pins the direction, about 1 (as Bell and McCaffrey's degrees of freedom for cluster-robust variances)."""
     Hc = 0.5 * (hessians + hessians.transpose(0, 2, 1))
     A = np.linalg.inv(H[None] - Hc) if left_out else np.broadcast_to(np.linalg.inv(H), Hc.shape)
-    lam = np.einsum("ik,ckl,cml,mi->ci", basis.T, A @ Hc, A, basis)  # (G, K)
+    Y = np.matmul(A.transpose(0, 2, 1), basis)  # (G, 6, K): A_c^T w
+    lam = np.einsum("cki,cki->ci", Y, Hc @ Y)  # (G, K): (A_c^T w)^T H_c (A_c^T w)
     return np.square(lam.sum(axis=0)) / np.maximum(np.square(lam).sum(axis=0), 1e-300)
 
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["cell_terms", "matched_pairs", "voxel_pairs"]
+__all__ = ["cell_terms", "cells", "matched_pairs", "voxel_pairs"]
 
 
 def _rot(R: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -21,14 +21,33 @@ def _rot(R: np.ndarray, C: np.ndarray) -> np.ndarray:
     return np.tensordot(np.tensordot(C, R.T, axes=([2], [0])), R, axes=([1], [1])).transpose(0, 2, 1)
 
 
-def _inv3(S: np.ndarray) -> np.ndarray:
-    """Inverses of a stack (n, 3, 3) of symmetric matrices (the adjugate over the determinant)."""
-    a, b, c, d, e, f = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2], S[:, 1, 1], S[:, 1, 2], S[:, 2, 2]
+_SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def _inverse_entries(S: np.ndarray) -> list[list[np.ndarray]]:
+    """The entries ``m[i][j]`` (each (n,)) of the inverses of a stack (n, 3, 3) of symmetric matrices (the adjugate
+    over the determinant), one contiguous array per entry: the products below run on whole vectors, not on strided
+    slices of a stack."""
+    a, b, c, d, e, f = (np.ascontiguousarray(S[:, i, j]) for i, j in _SYM)
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
     det = a * A + b * B + c * C
-    out = np.stack([A, B, C, B, D, E, C, E, F], axis=1).reshape(-1, 3, 3)
-    return out / det[:, None, None]
+    m01, m02, m12 = B / det, C / det, E / det
+    return [[A / det, m01, m02], [m01, D / det, m12], [m02, m12, F / det]]
+
+
+def cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
+    """Each of ``points`` (n, 3)'s ``cell``-m cell, numbered in the order of its (x, y, z) index -> ((n,) cell
+    numbers, the number of cells)."""
+    c = np.floor(points / cell).astype(np.int64)
+    c -= c.min(axis=0)
+    dims = c.max(axis=0) + 1
+    index = (c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2]
+    if int(np.prod(dims)) > 8 * len(points) + 4096:  # a sparse grid: sort instead of a table
+        _, number = np.unique(index, return_inverse=True)
+        return number.ravel(), int(number.max()) + 1
+    occupied = np.bincount(index, minlength=int(np.prod(dims))) > 0
+    return (np.cumsum(occupied) - 1)[index], int(occupied.sum())
 
 
 def cell_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
@@ -39,37 +58,28 @@ def cell_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: 
     gradients ``J^T M r`` (G, 6) and its pairs' share of the Hessian (G, 6, 6): the terms of the cluster-robust
     covariance (core/covariance.py) -> (H, gradients, Hessians)."""
     R, t = T[:3, :3], T[:3, 3]
-    r = b - (a @ R.T + t)
-    M = _inv3(_rot(R.T, Cb) + Ca)  # R^T M R, M in the source's axes: J = R [skew(a), -I]
-    u = np.einsum("nij,nj->ni", M, r @ R)  # R^T M r
-    g = np.concatenate([np.cross(u, a), -u], axis=1)  # J^T M r
-    # J^T M J = [[S^T M S, -S^T M], [-M S, M]], S = skew(a): its blocks from P = M S and S^T P, column by column
-    # (elementwise over the pairs: a stack of 3 x 3 products is several times slower)
-    x, y, z = (a[:, i, None] for i in range(3))
-    P = np.empty_like(M)
-    P[:, :, 0] = M[:, :, 1] * z - M[:, :, 2] * y
-    P[:, :, 1] = M[:, :, 2] * x - M[:, :, 0] * z
-    P[:, :, 2] = M[:, :, 0] * y - M[:, :, 1] * x
-    Q = np.empty_like(M)
-    Q[:, 0] = z * P[:, 1] - y * P[:, 2]
-    Q[:, 1] = x * P[:, 2] - z * P[:, 0]
-    Q[:, 2] = y * P[:, 0] - x * P[:, 1]
-    _, cluster = np.unique(_keys(np.floor(b / cell)), return_inverse=True)
-    cluster = cluster.ravel()
-    G = int(cluster.max()) + 1 if len(cluster) else 0
-
-    def sums(X: np.ndarray) -> np.ndarray:
-        flat = X.reshape(len(X), -1)
-        return np.stack([np.bincount(cluster, weights=flat[:, j], minlength=G) for j in range(flat.shape[1])], 1)
-
-    grads = sums(g)
-    q, p, m = (sums(X).reshape(G, 3, 3) for X in (Q, P, M))
+    if len(a) == 0:
+        return np.zeros((6, 6)), np.zeros((0, 6)), np.zeros((0, 6, 6))
+    m = _inverse_entries(_rot(R.T, Cb) + Ca)  # R^T M R, M in the source's axes: J = R [skew(a), -I]
+    v = (b - (a @ R.T + t)) @ R
+    x, y, z = (np.ascontiguousarray(a[:, i]) for i in range(3))
+    # per pair, one row each: J^T M r = [u x a, -u] (u = R^T M r), then J^T M J = [[S^T P, -P^T], [-P, M]] with
+    # P = M S, S = skew(a), entry by entry over whole vectors
+    u = [m[i][0] * v[:, 0] + m[i][1] * v[:, 1] + m[i][2] * v[:, 2] for i in range(3)]
+    P = [[m[i][1] * z - m[i][2] * y, m[i][2] * x - m[i][0] * z, m[i][0] * y - m[i][1] * x] for i in range(3)]
+    Q = [[z * P[1][j] - y * P[2][j] for j in range(3)], [x * P[2][j] - z * P[0][j] for j in range(3)],
+         [y * P[0][j] - x * P[1][j] for j in range(3)]]
+    rows = [u[1] * z - u[2] * y, u[2] * x - u[0] * z, u[0] * y - u[1] * x, -u[0], -u[1], -u[2]]
+    rows += [X[i][j] for X in (Q, P, m) for i in range(3) for j in range(3)]
+    cluster, G = cells(b, cell)
+    tot = np.stack([np.bincount(cluster, weights=row, minlength=G) for row in rows], axis=1)  # (G, 33)
+    q, p, mm = (tot[:, k:k + 9].reshape(G, 3, 3) for k in (6, 15, 24))
     hess = np.empty((G, 6, 6))
     hess[:, :3, :3] = q
     hess[:, :3, 3:] = -p.transpose(0, 2, 1)
     hess[:, 3:, :3] = -p
-    hess[:, 3:, 3:] = m
-    return hess.sum(axis=0), grads, hess
+    hess[:, 3:, 3:] = mm
+    return hess.sum(axis=0), tot[:, :6], hess
 
 
 def _plane_covs(normals: np.ndarray) -> np.ndarray:
