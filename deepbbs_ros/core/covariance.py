@@ -73,13 +73,18 @@ LOCALIZATION_INFLATION = 1.0
 #: the odometry's: none (its floor, :data:`SWEEP_SPREAD`, is not fitted either)
 ODOMETRY_INFLATION = 1.0
 #: the odometry's covariance pairs every k-th point of a larger scan (its cost: the floor dominates, and on simulated
-#: drives 2,000 points moved the mean NEES by under 6 %)
+#: drives 2,000 points moved the mean NEES by under 6 %; every pair, with or without the t, brought no step set inside
+#: and cost 2.6 to 3.9 times as much)
 ODOMETRY_MAX_POINTS = 2000
 #: the localization's pairs: every point (0), as the pose is from every point (pairs of every k-th point give the
 #: covariance of that thinner estimate: on simulated drives its mean NEES 1.1 to 3.1 times under every pair's)
 LOCALIZATION_MAX_POINTS = 0
 #: the localization's covariance widened as Student's t (:func:`student_widened`)
 LOCALIZATION_STUDENT = True
+#: the odometry's step covariance widened as Student's t (:func:`student_widened`): not (measured with every pair:
+#: one simulated set fewer inside its band, KITTI 02's pose over; on 2,000 pairs the VLP-16 open road's steps over;
+#: the sweep floor is most of a step's rotation variance; docs/node.md, "Tried, not shipped")
+ODOMETRY_STUDENT = False
 #: effective cells below which Student's t has no variance to speak of (:func:`student_widened`): the factor stops at
 #: t_3's, 3 (under 2 % of the directions on simulated drives; 5 or 1,000 there left every set's count the same)
 MIN_EFFECTIVE_CELLS = 3.0
@@ -346,7 +351,7 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     if weak_scan is not None and weak_sigma is not None:
         given = np.asarray(weak_sigma, dtype=np.float64).reshape(-1)
         sigma = np.where(np.isfinite(given), given, np.broadcast_to(sigma, given.shape))
-    robust = _robust(pairs, ODOMETRY_INFLATION)
+    robust = _robust(pairs, ODOMETRY_INFLATION, student=ODOMETRY_STUDENT)
     if robust is None:
         return None
     cov_right, H = robust
@@ -361,7 +366,7 @@ def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float) 
     cluster-robust covariance of the scan's VGICP pairs on ``vmap``, nothing added along weak directions and no floor
     (the data's own uncertainty, core/odometry_hold.py); None without pairs."""
     pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
-    return sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak=np.zeros((0, 3)))
+    return sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak=np.zeros((0, 3)), student=ODOMETRY_STUDENT)
 
 
 def scan_covariance(source: Any, target: Any, T_map_target: np.ndarray, T_map_scan: np.ndarray, config: Any,

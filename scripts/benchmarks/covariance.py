@@ -526,6 +526,11 @@ def main(argv: list[str] | None = None) -> int:
                     "at most this many (a check; 0: every pair; default LOCALIZATION_MAX_POINTS, every pair)")
     ap.add_argument("--no-student", action="store_true", help="the localization's covariance not widened as Student's "
                     "t (a check: LOCALIZATION_STUDENT)")
+    ap.add_argument("--odometry-max-points", type=int, default=-1, help="the odometry's step covariance from every "
+                    "k-th pair, at most this many (a check; 0: every pair; default ODOMETRY_MAX_POINTS)")
+    ap.add_argument("--odometry-student", choices=["on", "off"], help="the odometry's step covariance widened as "
+                    "Student's t or not (a check; default ODOMETRY_STUDENT)")
+    ap.add_argument("--threads", type=int, default=0, help="the odometry's small_gicp threads (0: every core)")
     ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
                     "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
@@ -542,9 +547,15 @@ def main(argv: list[str] | None = None) -> int:
         covmod.LOCALIZATION_MAX_POINTS = args.max_points
     if args.no_student:
         covmod.LOCALIZATION_STUDENT = False
+    if args.odometry_max_points >= 0:
+        covmod.ODOMETRY_MAX_POINTS = args.odometry_max_points
+    if args.odometry_student:
+        covmod.ODOMETRY_STUDENT = args.odometry_student == "on"
     if args.cell > 0:
         covmod.CLUSTER_CELL = args.cell
     config = Config()
+    if args.threads > 0:
+        config.odometry.threads = args.threads
     loc_rows, step_rows, chains, floors, firsts, helds, truth, notes = {}, {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
