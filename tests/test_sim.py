@@ -296,9 +296,9 @@ def test_junctions_leave_the_carriageway_flat(scene):
     w = World(scene, 8, 1200.0)
     st = w.style
     edge = st.half_width + (st.sidewalk + 0.6 if st.sidewalk > 0 else 2.0)
-    offs = np.arange(-edge, edge + 1e-9, 0.25)
+    offs = np.arange(-edge, edge + 1e-9, 0.5)
     for j in w.junctions:
-        s = np.arange(max(j["s"] - 30.0, 0.0), j["s"] + 30.0, 0.25)
+        s = np.arange(max(j["s"] - 30.0, 0.0), j["s"] + 30.0, 0.5)
         p = w.route.lateral(s[:, None], offs[None, :])
         relief = w.terrain.height(p[..., 0], p[..., 1]) - w.terrain._base(p[..., 0], p[..., 1])
         assert np.abs(relief).max() == 0.0, f"junction at s = {j['s']:.1f} m: {np.abs(relief).max():.3f} m relief"
