@@ -286,6 +286,36 @@ def test_world_structure(scene):
     assert len(f) > 20000
 
 
+@pytest.mark.parametrize("scene", SCENES)
+def test_junctions_leave_the_carriageway_flat(scene):
+    """A side road's corridor is narrower than the main road's, and where it starts, points of the main road lie
+    nearer its centreline than the main road's: its ditch and banks must still stay off the main road (the relief is
+    zero across the whole carriageway, up to its verges, round every junction)."""
+    from deepbbs_ros.sim.scene import World
+
+    w = World(scene, 8, 1200.0)
+    st = w.style
+    edge = st.half_width + (st.sidewalk + 0.6 if st.sidewalk > 0 else 2.0)
+    offs = np.arange(-edge, edge + 1e-9, 0.5)
+    for j in w.junctions:
+        s = np.arange(max(j["s"] - 30.0, 0.0), j["s"] + 30.0, 0.5)
+        p = w.route.lateral(s[:, None], offs[None, :])
+        relief = w.terrain.height(p[..., 0], p[..., 1]) - w.terrain._base(p[..., 0], p[..., 1])
+        assert np.abs(relief).max() == 0.0, f"junction at s = {j['s']:.1f} m: {np.abs(relief).max():.3f} m relief"
+
+
+def test_ground_truth_attitude_is_smooth_past_a_slip_road():
+    """The VLP-16 highway drive, seed 8, passes the start of a slip road on its own side at frame 145: its pose
+    there follows its neighbours (the ditch of the slip road once tilted it by 19 deg roll and 23 deg pitch and
+    dropped it 0.55 m)."""
+    sim = DriveSimulator("highway", 8, LidarConfig.preset("vlp16"), frames=150)
+    T = np.stack([sim.pose_at(k) for k in range(136, 150)])
+    R = T[:, :3, :3]
+    roll, pitch = np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(R[:, 2, 0])
+    for x, tol in ((np.degrees(roll), 0.5), (np.degrees(pitch), 0.5), (T[:, 2, 3], 0.02)):
+        assert np.abs(x[1:-1] - 0.5 * (x[:-2] + x[2:])).max() < tol  # deg, deg, m off the neighbours' mean
+
+
 def test_porous_crown_lets_rays_through():
     from deepbbs_ros.sim.geometry import clusters
 

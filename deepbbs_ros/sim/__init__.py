@@ -17,7 +17,7 @@ from deepbbs_ros.sim.simulator import DriveSimulator, simulate_drive
 from deepbbs_ros.sim.trajectory import Trajectory
 
 #: bumped whenever the worlds a (scene, seed) produces change: caches of simulated drives key on it
-WORLDS_VERSION = 2
+WORLDS_VERSION = 3
 
 __all__ = [
     "ALL_PLACES", "MOUNTS", "PLACES", "SCENES", "SENSORS", "WORLDS_VERSION", "DriveSimulator", "LidarConfig",

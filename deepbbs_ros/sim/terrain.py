@@ -9,6 +9,7 @@ from deepbbs_ros.sim.geometry import strip
 
 TILE = 40.0  # m, terrain tile edge
 TILE_RES = 2.0  # m, terrain grid spacing
+DITCH_AT, DITCH_HALF = 1.0, 1.2  # m beyond the corridor: the ditches' centre line and half width
 
 
 class Terrain:
@@ -17,7 +18,10 @@ class Terrain:
     cuttings (ground falling or rising with the distance from the road) and ditches just beside it.
 
     The relief is faded in from ``1 m`` beyond each road's edge (:meth:`attach_roads`), so every
-    road corridor keeps the smooth long-wavelength surface the vehicle drives on.
+    road corridor keeps the smooth long-wavelength surface the vehicle drives on. Roads of different
+    widths meet at junctions: a point of one road can lie nearer another (narrower) road's centreline
+    than its own, and that road's ditch must not cut into it, so the relief is zero wherever any road's
+    corridor reaches (``_inside``), whichever centreline is nearest.
     """
 
     def __init__(self, rng: np.random.Generator, amp: float) -> None:
@@ -36,6 +40,9 @@ class Terrain:
         edge distance ``edge`` (K,) (m from the centreline); ``hills``: amplitude (m) of the short
         hills, ``bank``: slope of embankments / cuttings, ``ditch``: ditch depth (m)."""
         self._roads, self._edge = cKDTree(xy), np.asarray(edge, dtype=np.float64)
+        # one tree per edge distance (every road has one; roads sharing one can share a tree): the distance
+        # beyond the nearest corridor is the smallest over the roads, not the nearest centreline's
+        self._by_edge = [(cKDTree(xy[self._edge == w]), float(w)) for w in np.unique(self._edge)]
         k = 4
         self.h_amp = hills * rng.uniform(0.4, 1.0, k) / 2
         lam = rng.uniform(25.0, 90.0, k)
@@ -61,8 +68,25 @@ class Terrain:
         hills = (self.h_amp * np.sin(arg)).sum(-1)
         b = np.sin(x[..., None] * self.b_w[:, 0] + y[..., None] * self.b_w[:, 1] + self.b_phi)
         bank = self.bank * np.clip(b[..., 0] * 1.6, -1, 1) * np.clip(e - 2.0, 0.0, 14.0)
-        ditch = -self.ditch * (0.6 + 0.4 * b[..., 1]) * np.clip(1.0 - ((e - 1.0) / 1.2) ** 2, 0.0, 1.0)
-        return ramp * hills + bank + ditch
+        ditch = -self.ditch * (0.6 + 0.4 * b[..., 1]) * np.clip(1.0 - ((e - DITCH_AT) / DITCH_HALF) ** 2, 0.0, 1.0)
+        relief = ramp * hills + bank + ditch
+        inside = self._inside(np.stack([x, y], -1).reshape(-1, 2), d, e.reshape(-1)).reshape(np.shape(x))
+        return np.where(inside, 0.0, relief)[()] if inside.any() else relief
+
+    def _inside(self, q: np.ndarray, d: np.ndarray, e: np.ndarray) -> np.ndarray:
+        """Which of the points ``q`` (N, 2) (``d``: distance to the nearest centreline, ``e``: beyond its corridor)
+        a road's corridor reaches (up to the ditches' inner rim, ``DITCH_AT - DITCH_HALF``) while ``e`` puts them
+        beyond it: the points of a wide road nearer a narrower road's centreline, beside a junction. Elsewhere ``e``
+        is already the smallest over the roads."""
+        rim = DITCH_AT - DITCH_HALF
+        out = np.zeros(len(q), bool)
+        # only points beyond the nearest corridor yet within the widest one's reach can be inside another
+        todo = np.flatnonzero((e > rim) & (d <= self._by_edge[-1][1] + 1.0 + rim))
+        if len(self._by_edge) < 2 or not len(todo):
+            return out
+        e_min = np.min([tree.query(q[todo])[0] - w for tree, w in self._by_edge], axis=0) - 1.0
+        out[todo] = (e_min <= rim) & (e[todo] - e_min > 1e-6)
+        return out
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
