@@ -27,26 +27,9 @@ T="$PY -m deepbbs_ros.cli.train"
 . scripts/train_resume.sh
 if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 
-# 1. data: the seeds, sensor, mount and place draws of scripts/train_mix_keep.sh, frames spread over 10 m
-SCENES=urban,suburban,highway,open_road,corridor,hall,courtyard,garage
-SENSORS=random,random,os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,avia,mid360,mid360
-MOUNTS=car,car,wheeled,legged,handheld
-HALF=$((20000 + DRIVES / 2))
-$T cache --out "$CACHE/mix_span_train" --split train --seeds "20000:$HALF" --frames 25 --cache-points 4096 \
-  --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS --min-span 10 --no-progress --threads 1 &
-$T cache --out "$CACHE/mix_span_train" --split train --seeds "$HALF:$((20000 + DRIVES))" --frames 25 \
-  --cache-points 4096 --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS --min-span 10 --no-progress --threads 1 &
-wait
-$T cache --out "$CACHE/mix_span_val" --split val --seeds 80100:80116 --frames 30 --cache-points 4096 --scenes $SCENES \
-  --sensors os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,mid360 --mounts car,wheeled,legged,handheld \
-  --min-span 10 --no-progress --threads 1 &
-$T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1 &
-wait
-$T cache --out "$CACHE/worlds_train" --split train --seeds 10000:10032 --frames 25 --cache-points 4096 \
-  --no-progress --threads 1 &
-$T cache --out "$CACHE/worlds_train" --split train --seeds 10032:10064 --frames 25 --cache-points 4096 \
-  --no-progress --threads 1 &
-wait
+# 1. data: scripts/train_mix_data.sh (scripts/train_mix_keep.sh's draws), frames spread over 10 m
+. scripts/train_mix_data.sh
+mix_data mix_span --min-span 10
 
 # 2. schedule: scripts/train_mix_keep.sh's (12 epochs x 100 steps x batch 8 at 512 points; lr 5e-5 halved every 3
 #    epochs; translation weighted 5x; pairs balanced by distance; validation every 2 epochs on 48 pairs)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from tests.test_train import TINY, synthetic_drive
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "train_mix.sh"
 KEEP = SCRIPT.with_name("train_mix_keep.sh")
 SPAN = SCRIPT.with_name("train_mix_span.sh")
+DATA = SCRIPT.with_name("train_mix_data.sh")
 
 
 def _script(path: Path = SCRIPT) -> str:
@@ -27,7 +29,7 @@ def _script(path: Path = SCRIPT) -> str:
 
 
 def _var(name: str) -> str:
-    m = re.search(rf"^{name}=(\S+)$", _script(), re.M)
+    m = re.search(rf"^{name}=(\S+)$", _script(DATA), re.M)
     assert m, name
     return m.group(1)
 
@@ -51,10 +53,10 @@ def test_schedule_is_a_valid_config(script):
     cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
     cfg = cfg.validate()
     assert cfg.train.num_points == 512 and cfg.train.epochs * cfg.train.steps_per_epoch > 0
-    if script in (KEEP, SPAN):  # the same data as the first run, pairs drawn uniform in distance
+    # every run's data is the one data step's (the same sensor, mount and place draws)
+    assert re.search(r"^\. scripts/train_mix_data\.sh\n(mix_data \w+.*)$", _script(script), re.M)
+    if script in (KEEP, SPAN):  # pairs drawn uniform in distance
         assert cfg.train.pair_balance == "distance"
-        for name in ("SCENES", "SENSORS", "MOUNTS"):
-            assert re.search(rf"^{name}=(\S+)$", _script(script), re.M).group(1) == _var(name)
     if script == SPAN:  # the second run's schedule; only the frames' spread differs
         assert sets == _sets(KEEP) and "--min-span" in _script(SPAN)
 
@@ -179,3 +181,16 @@ def test_evaluate_network_alone_runs_no_search(monkeypatch):
     evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["vlp16:wheeled:courtyard"], drives_per_scene=1, frames=2,
              stride=10, yaw_deg=0.0, methods=["deepbbs++", "deepbbs", "refine-only"], progress=False)
     assert [c.registration.global_search for c in seen] == ["auto", "off", "off"]
+
+
+def test_mix_data_step_commands():
+    """The data step sourced by the three runs: the mix drives (two halves of the seeds) with the run's own cache
+    options, the mix validation drives, the HDL-64E road folders without them."""
+    out = subprocess.run(["sh", "-c", ". scripts/train_mix_data.sh; T=echo CACHE=c DRIVES=4; "
+                          "mix_data mix_span --min-span 10"], cwd=DATA.parents[1], capture_output=True, text=True,
+                         check=True).stdout.splitlines()
+    assert len(out) == 6, out
+    train = [line for line in out if "--out c/mix_span_train" in line]
+    assert [line.split("--seeds ")[1].split()[0] for line in train] == ["20000:20002", "20002:20004"]
+    assert all("--min-span 10" in line for line in train + [line for line in out if "c/mix_span_val" in line])
+    assert not any("--min-span" in line for line in out if "worlds_" in line)

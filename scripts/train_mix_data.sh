@@ -1,0 +1,37 @@
+# The sensor-mix runs' data, sourced by scripts/train_mix.sh, train_mix_keep.sh and train_mix_span.sh (after they
+# set T, CACHE and DRIVES). Training: DRIVES drives (seeds 20000 and up, two processes) x 25 frames; the scene types
+# cycle over the eight places; each drive draws its sensor and mount from its seed: 'random' (the randomised
+# spinning road sensors of scripts/train_worlds.sh) twice as often as one preset, Livox Avia and Mid-360 twice too,
+# the Ouster / Hesai / RoboSense-like / Velodyne presets once; car twice as often as wheeled, legged or handheld.
+# Validation (model selection): 16 drives of the mix (seeds 80100-80115, every sensor preset, mount and place, 30
+# frames) and the 8 HDL-64E road drives (80000-80007) the shipped model was selected on. Replay: the 64 road drives
+# the shipped model was fine-tuned on (scripts/train_worlds.sh), so that the spinning sensors on car roofs keep
+# their share of the training pairs.
+SCENES=urban,suburban,highway,open_road,corridor,hall,courtyard,garage
+SENSORS=random,random,os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,avia,mid360,mid360
+MOUNTS=car,car,wheeled,legged,handheld
+
+# mix_data NAME [cache options for the mix drives]: $CACHE/NAME_train, $CACHE/NAME_val, the road folders
+mix_data() {
+  name=$1
+  shift
+  half=$((20000 + DRIVES / 2))
+  $T cache --out "$CACHE/${name}_train" --split train --seeds "20000:$half" --frames 25 --cache-points 4096 \
+    --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS "$@" --no-progress --threads 1 &
+  a=$!
+  $T cache --out "$CACHE/${name}_train" --split train --seeds "$half:$((20000 + DRIVES))" --frames 25 \
+    --cache-points 4096 --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS "$@" --no-progress --threads 1 &
+  wait "$a" $!
+  $T cache --out "$CACHE/${name}_val" --split val --seeds 80100:80116 --frames 30 --cache-points 4096 \
+    --scenes $SCENES --sensors os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,mid360 \
+    --mounts car,wheeled,legged,handheld "$@" --no-progress --threads 1 &
+  a=$!
+  $T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1 &
+  wait "$a" $!
+  $T cache --out "$CACHE/worlds_train" --split train --seeds 10000:10032 --frames 25 --cache-points 4096 \
+    --no-progress --threads 1 &
+  a=$!
+  $T cache --out "$CACHE/worlds_train" --split train --seeds 10032:10064 --frames 25 --cache-points 4096 \
+    --no-progress --threads 1 &
+  wait "$a" $!
+}
