@@ -166,9 +166,12 @@ def summary(rows: list[dict]) -> dict:
 def _cached(cache: Path, scene: str):
     import localization as bench
 
-    hits = sorted(cache.glob(f"loc_sim_{scene}_*.npz"))
+    from deepbbs_ros.sim import WORLDS_VERSION
+
+    hits = sorted(cache.glob(f"loc_sim_{scene}_*_w{WORLDS_VERSION}_*.npz"))  # the current simulator's worlds only
     if not hits:
-        raise SystemExit(f"no cached map of {scene!r} in {cache} (build it with localization.py --generate-only)")
+        raise SystemExit(f"no cached map of {scene!r} in {cache} of the simulator's worlds version {WORLDS_VERSION} "
+                         f"(build it with localization.py --generate-only)")
     return bench._load(hits[0], scene)
 
 
