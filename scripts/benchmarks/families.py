@@ -97,31 +97,35 @@ def real_sets(args) -> dict[str, dict]:
     return sets
 
 
+def sim_seed(spec: str) -> int:
+    """The held-out seed of the ``--sims`` entry ``spec`` (sensor:mount:place): the same whatever the list."""
+    from deepbbs_ros.train.cache import TEST_SEED_BASE
+
+    return TEST_SEED_BASE + 500 + zlib.crc32(spec.encode()) % 1000
+
+
+def sim_picks(sim, mount: str, count: int) -> list[int]:
+    """The frames of a set: ``count`` frames from frame 10 on, about 2 m (car) or 1 m (else) apart."""
+    return sim.frames_apart(2.0 if mount == "car" else 1.0, count, start=10)
+
+
 def sim_sets(args) -> dict[str, dict]:
     """The ``--sims`` recordings (held-out seeds), ``--sim-frames`` scans about 2 m (car) or 1 m apart; pairs of
     neighbours; cached in ``--cache``."""
     from deepbbs_ros.sim import WORLDS_VERSION
     from deepbbs_ros.sim.rig import make_simulator
-    from deepbbs_ros.train.cache import TEST_SEED_BASE
 
     sets = {}
     for spec in args.sims:
         sensor, mount, place = spec.split(":")
-        seed = TEST_SEED_BASE + 500 + zlib.crc32(spec.encode()) % 1000  # held out, the same whatever the list
+        seed = sim_seed(spec)
         key = f"{spec.replace(':', '_')}_{seed}x{args.sim_frames}_w{WORLDS_VERSION}"
         cache = Path(args.cache).expanduser() / f"families_{key}.npz"
         if cache.is_file():
             frames = list(np.load(cache, allow_pickle=True)["frames"])
         else:
             sim = make_simulator(place, seed, sensor, mount, frames=300, compensate=True)
-            step, picks, last = 2.0 if mount == "car" else 1.0, [], None
-            for k in range(10, 300):
-                p = sim.pose_at(k)[:3, 3]
-                if last is None or np.linalg.norm(p - last) >= step:
-                    picks.append(k)
-                    last = p
-                if len(picks) == args.sim_frames:
-                    break
+            picks = sim_picks(sim, mount, args.sim_frames)
             frames = [(sim.scan_at(k).points.astype(np.float32), sim.pose_at(k)) for k in picks]
             cache.parent.mkdir(parents=True, exist_ok=True)
             np.savez(cache, frames=np.array(frames, dtype=object))

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -31,20 +30,11 @@ def ideal_frames(spec: str, picks_like: list) -> list:
     """The frames of a families set simulated again without motion in the sweep, range noise or dropouts."""
     from deepbbs_ros.sim.patterns import make_sensor
     from deepbbs_ros.sim.rig import make_simulator
-    from deepbbs_ros.train.cache import TEST_SEED_BASE
 
     sensor, mount, place = spec.split(":")
-    seed = TEST_SEED_BASE + 500 + zlib.crc32(spec.encode()) % 1000  # families.sim_sets' seed
-    sim = make_simulator(place, seed, make_sensor(sensor, range_noise=0.0, dropout=0.0), mount, frames=300,
-                         compensate=True, motion_distortion=False)
-    picks, last = [], None
-    for k in range(10, 300):  # families.sim_sets' frames
-        p = sim.pose_at(k)[:3, 3]
-        if last is None or np.linalg.norm(p - last) >= (2.0 if mount == "car" else 1.0):
-            picks.append(k)
-            last = p
-        if len(picks) == len(picks_like):
-            break
+    sim = make_simulator(place, families.sim_seed(spec), make_sensor(sensor, range_noise=0.0, dropout=0.0), mount,
+                         frames=300, compensate=True, motion_distortion=False)
+    picks = families.sim_picks(sim, mount, len(picks_like))
     return [(sim.scan_at(k).points.astype(np.float32), sim.pose_at(k)) for k in picks]
 
 
