@@ -58,14 +58,22 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
-def sq_dists(tree, points: np.ndarray, threads: int = 1) -> np.ndarray:
-    """(N,) float64 squared distance of each of ``points`` (N, 3) to its nearest point in ``tree`` (a
-    ``small_gicp.KdTree``: its k = 1 search, which answers in arrays, the same numbers as its nearest-neighbour search's
-    lists without building them; anything else with ``batch_nearest_neighbor_search``: that)."""
+def nearest(tree, points: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """((N,) int64 index, (N,) float64 squared distance) of the nearest point in ``tree`` to each of ``points``
+    (N, 3): a ``small_gicp.KdTree``'s k = 1 search, which answers in arrays, the same numbers as its nearest-neighbour
+    search's lists without building them; anything else with ``batch_nearest_neighbor_search`` (a map crop's view of
+    the map's tree): that."""
     knn = getattr(tree, "batch_knn_search", None)
     if knn is None:
-        return np.asarray(tree.batch_nearest_neighbor_search(points, num_threads=max(1, threads))[1], np.float64)
-    return knn(points, 1, num_threads=max(1, threads))[1][:, 0]
+        idx, sq = tree.batch_nearest_neighbor_search(points, num_threads=max(1, threads))
+        return np.asarray(idx, np.int64), np.asarray(sq, np.float64)
+    idx, sq = knn(points, 1, num_threads=max(1, threads))
+    return idx[:, 0].astype(np.int64), sq[:, 0]
+
+
+def sq_dists(tree, points: np.ndarray, threads: int = 1) -> np.ndarray:
+    """(N,) float64 squared distance of each of ``points`` (N, 3) to its nearest point in ``tree`` (:func:`nearest`)."""
+    return nearest(tree, points, threads)[1]
 
 
 def anchored(moved: np.ndarray, sq_dist: np.ndarray, tree, matched: np.ndarray, normals: np.ndarray, dist: float,

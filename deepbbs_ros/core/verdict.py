@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from deepbbs_ros.core import anchoring
+
 __all__ = ["fitness", "fitness_to_points", "is_valid", "probability", "spread_subset"]
 
 
@@ -40,11 +42,9 @@ def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
 def fitness(points: np.ndarray, target_tree, T: np.ndarray, dist: float, threads: int = 1) -> float:
     """Share of ``points`` (N, 3) (source frame, metres) within ``dist`` m of the target cloud whose
     ``small_gicp.KdTree`` is ``target_tree``, under ``T`` (4, 4) ``T_target_source``. 0 for no points."""
-    from deepbbs_ros.core.anchoring import sq_dists  # small_gicp's k = 1 search: arrays, the same numbers
-
     if len(points) == 0 or target_tree is None:
         return 0.0
-    return float(np.mean(sq_dists(target_tree, _moved(points, T), threads) <= dist * dist))
+    return float(np.mean(anchoring.sq_dists(target_tree, _moved(points, T), threads) <= dist * dist))
 
 
 def fitness_to_points(points: np.ndarray, target: np.ndarray, T: np.ndarray, dist: float) -> float:

@@ -47,12 +47,7 @@ def _nearest(target, moved: np.ndarray, threads: int) -> tuple[np.ndarray, np.nd
     last = getattr(target, "_nearest_last", None)
     if last is not None and last[0] == key:
         return last[1], last[2]
-    knn = getattr(target.tree, "batch_knn_search", None)  # small_gicp's k = 1 search: arrays, not lists (the same)
-    if knn is None:  # a crop's view of a map's tree
-        idx, sq = target.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
-    else:
-        idx, sq = knn(moved, 1, num_threads=max(1, threads))
-        idx, sq = idx[:, 0].astype(np.int64), sq[:, 0]
+    idx, sq = anchoring.nearest(target.tree, moved, threads)
     target._nearest_last = (key, idx, sq)
     return idx, sq
 
@@ -420,5 +415,4 @@ def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray, keys: np.ndarray |
     if keys is None:
         az, el, _ = _angles(np.asarray(moved, np.float64))
         keys = _keys(az, el, cell)
-    k = keys
-    return float(np.mean(table[(k // 100_000 // f) * rows + k % 100_000 // f]))
+    return float(np.mean(table[(keys // 100_000 // f) * rows + keys % 100_000 // f]))
