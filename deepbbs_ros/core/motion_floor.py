@@ -123,8 +123,7 @@ class MotionFloor:
         motion model never measured the direction: :func:`odometry_covariance` keeps its default)."""
         if not self._free:
             return float("nan")
-        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
-        return float(np.sqrt(max(1, self._held) * var))
+        return float(np.sqrt(max(1, self._held) * self._free_var(direction)))
 
     def held_cross(self, direction: np.ndarray) -> float:
         """m^2: what the accumulated pose's variance along the unit ``direction`` (3,), the scan's axes, gains at this
@@ -138,8 +137,11 @@ class MotionFloor:
         1) / 2``): that is this. 0 before the second held step in a row, or before any step that was not held."""
         if not self._free or self._held < 2:
             return 0.0
-        var = np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64)))
-        return float(self._held * (self._held - 1) * var)
+        return float(self._held * (self._held - 1) * self._free_var(direction))
+
+    def _free_var(self, direction: np.ndarray) -> float:
+        """m^2: the mean square along the unit ``direction`` (3,) of the deviations of the steps not held."""
+        return float(np.mean(np.square(np.asarray(self._free) @ np.asarray(direction, dtype=np.float64))))
 
 
 def _log(D: np.ndarray) -> np.ndarray:

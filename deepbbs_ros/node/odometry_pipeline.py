@@ -29,6 +29,13 @@ def motion_twist(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) 
     return twist_from_delta(T_prev_curr, dt), twist_covariance(T_prev_curr, cov_prev_curr, dt)
 
 
+def _step_part(out, name: str) -> np.ndarray:
+    """(6, 6) the step's covariance part ``name`` (``OdometryStep.covariance_floor``, ``covariance_held``: odometry
+    frame); zeros where the odometry gave no covariance or no such part."""
+    part = getattr(out, name, None) if getattr(out, "covariance", None) is not None else None
+    return np.zeros((6, 6)) if part is None else np.asarray(part, dtype=np.float64)
+
+
 @dataclass
 class OdometryEstimate:
     """What odometry mode publishes for one scan.
@@ -174,12 +181,9 @@ class LocalMapOdometry:
         if self.covariance:
             t1 = time.perf_counter()
             cov_step = self._step_covariance(cloud, T_step, dt, out.points, getattr(out, "covariance", None))
-            floor = getattr(out, "covariance_floor", None) if getattr(out, "covariance", None) is not None else None
-            floor = np.zeros((6, 6)) if floor is None else np.asarray(floor, dtype=np.float64)  # odometry frame
+            floor, held = _step_part(out, "covariance_floor"), _step_part(out, "covariance_held")  # odometry frame
             B = np.zeros((6, 6))
             B[:3, :3] = B[3:, 3:] = self._T_odom[:3, :3].T  # -> scan k-1's frame, as cov_step
-            held = getattr(out, "covariance_held", None) if getattr(out, "covariance", None) is not None else None
-            held = floor * 0.0 if held is None else np.asarray(held, dtype=np.float64)  # the held steps' shared error
             self._cov_chain = compose(self._T_odom, self._cov_chain, T_step, cov_step - B @ (floor - held) @ B.T)
             self._cov_odom = self._cov_chain + SCAN_FLOOR_SHARE * floor
             twist, twist_cov = motion_twist(T_step, cov_step, dt)
