@@ -52,10 +52,10 @@ import numpy as np
 from deepbbs_ros.core.gicp_pairs import cell_terms, matched_pairs, voxel_pairs
 from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFloor, floor_term, quantisation_floor
 
-__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "compose", "conjugated", "effective_cells",
-           "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance", "jackknife_meat",
-           "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor", "sandwich_covariance",
-           "scan_covariance", "skew", "student_widened", "voxel_pairs"]
+__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "compose", "compose_jacobians", "conjugated",
+           "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance",
+           "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
+           "sandwich_covariance", "scan_covariance", "skew", "student_widened", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -140,17 +140,24 @@ def compose(T_a: np.ndarray, cov_a: np.ndarray | None, T_b: np.ndarray, cov_b: n
     in ``T_a``'s parent frame, ``cov_b`` in ``T_a``'s child frame; None = exact).
 
     ``R' = exp(da) R_a exp(db) R_b = exp(da + R_a db) R`` and ``t' = t + dt_a + da x (R_a t_b) + R_a dt_b``."""
-    Ta, Tb = np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64)
+    Ja, Jb = compose_jacobians(T_a, T_b)
     out = np.zeros((6, 6))
     if cov_a is not None:
-        Ja = np.eye(6)
-        Ja[:3, 3:] = -skew(Ta[:3, :3] @ Tb[:3, 3])
         out += Ja @ np.asarray(cov_a, dtype=np.float64) @ Ja.T
     if cov_b is not None:
-        Jb = np.zeros((6, 6))
-        Jb[:3, :3] = Jb[3:, 3:] = Ta[:3, :3]
         out += Jb @ np.asarray(cov_b, dtype=np.float64) @ Jb.T
     return 0.5 * (out + out.T)
+
+
+def compose_jacobians(T_a: np.ndarray, T_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(6, 6) Jacobians of ``T_a @ T_b``'s error with respect to ``T_a``'s and ``T_b``'s (:func:`compose`: the error of
+    ``T_a @ T_b`` is ``Ja e_a + Jb e_b``)."""
+    Ta, Tb = np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64)
+    Ja = np.eye(6)
+    Ja[:3, 3:] = -skew(Ta[:3, :3] @ Tb[:3, 3])
+    Jb = np.zeros((6, 6))
+    Jb[:3, :3] = Jb[3:, 3:] = Ta[:3, :3]
+    return Ja, Jb
 
 
 def conjugated(T_base_sensor: np.ndarray, T_odom_sensor: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -322,7 +322,7 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
     origin), "ar1" and "ar1origin" (models tried: the node's and the "origin" model with the GICP parts' errors
     correlated from step to step as an AR(1) per axis, :func:`ar1_rows`), "independent" (the node's without the held
     steps' shared error ``helds[k]``, ``OdometryStep.covariance_held``: the held steps composed as independent)."""
-    from deepbbs_ros.core.covariance import adjoint, compose, pose_error, skew
+    from deepbbs_ros.core.covariance import adjoint, compose, pose_error
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     floors = floors or [np.zeros((6, 6))] * len(steps)
@@ -343,9 +343,7 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
                 rest = [0, 1, 2, 5]
                 M[np.ix_(rest, rest)] = swept[np.ix_(rest, rest)]
                 M[np.ix_(rest, [3, 4])] = M[np.ix_([3, 4], rest)] = 0.0
-            J = np.eye(6)
-            J[:3, 3:] = -skew(T[:3, 3])
-            rows.append((pose_error(T_true, T), cov + SCAN_FLOOR_SHARE * fl + J @ M @ J.T))
+            rows.append((pose_error(T_true, T), cov + SCAN_FLOOR_SHARE * fl + compose(np.eye(4), M, T, None)))
             continue
         if before:
             Ad = adjoint(T_prev)
@@ -363,14 +361,22 @@ def accumulated(steps: list, chain: list, before: bool = False, floors: list | N
         out = cov + share * fl
         if origin:  # the first pose: its whole first floor (no sweep floor known yet)
             out = out + first
-        elif model == "origin":  # the first scan's own error per axis (its frame: the odometry's) at the origin
-            R = T[:3, :3]
-            var = np.concatenate([np.diag(R.T @ fl[:3, :3] @ R), np.diag(R.T @ fl[3:, 3:] @ R)])
-            J = np.eye(6)
-            J[:3, 3:] = -skew(T[:3, 3])
-            out = out + J @ np.diag(SCAN_FLOOR_SHARE * var) @ J.T
+        elif model == "origin":
+            out = out + _own_at_origin(T, fl)
         rows.append((pose_error(T_true, T), out))
     return rows
+
+
+def _own_at_origin(T: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """The first scan's own error per axis, composed at the origin for the pose ``T``: the scan's share
+    (``SCAN_FLOOR_SHARE``) of ``floor``'s (a sweep floor term, odometry frame) variance along each of the scan's axes
+    (the "origin" models)."""
+    from deepbbs_ros.core.covariance import compose
+    from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
+
+    R = T[:3, :3]
+    var = np.concatenate([np.diag(R.T @ floor[:3, :3] @ R), np.diag(R.T @ floor[3:, 3:] @ R)])
+    return compose(np.eye(4), np.diag(SCAN_FLOOR_SHARE * var), T, None)
 
 
 #: the AR(1) model's largest coefficient: the accumulated variance of an AR(1) sum grows as n^2 when it nears 1
@@ -408,7 +414,7 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool 
     in its place the first scan's own error at the origin, as the "origin" model."""
     from scipy.linalg import sqrtm
 
-    from deepbbs_ros.core.covariance import pose_error, skew
+    from deepbbs_ros.core.covariance import compose_jacobians, pose_error
     from deepbbs_ros.node.pipeline import SCAN_FLOOR_SHARE
 
     rows, V, Y, W, swept = [], np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)), None
@@ -417,10 +423,7 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool 
         part = S - _in_prev(T_prev, first if first is not None else fl)
         part = 0.5 * (part + part.T)
         L = np.real(sqrtm(part))
-        Ja = np.eye(6)
-        Ja[:3, 3:] = -skew(T_prev[:3, :3] @ T_step[:3, 3])
-        Jb = np.zeros((6, 6))
-        Jb[:3, :3] = Jb[3:, 3:] = T_prev[:3, :3]
+        Ja, Jb = compose_jacobians(T_prev, T_step)
         cross = Ja @ Y @ np.diag(rho) @ L.T @ Jb.T
         V = Ja @ V @ Ja.T + Jb @ part @ Jb.T + cross + cross.T
         Y = Ja @ Y @ np.diag(rho) + Jb @ L
@@ -431,12 +434,8 @@ def ar1_rows(steps: list, chain: list, floors: list, firsts: list, origin: bool 
             out = out + W
         elif first is not None:
             out = out + first
-        elif swept is not None:  # the first scan's own error per axis (its frame: the odometry's) at the origin
-            R = T[:3, :3]
-            var = np.concatenate([np.diag(R.T @ swept[:3, :3] @ R), np.diag(R.T @ swept[3:, 3:] @ R)])
-            J = np.eye(6)
-            J[:3, 3:] = -skew(T[:3, 3])
-            out = out + J @ np.diag(SCAN_FLOOR_SHARE * var) @ J.T
+        elif swept is not None:
+            out = out + _own_at_origin(T, swept)
         rows.append((pose_error(T_true, T), 0.5 * (out + out.T)))
     return rows
 
