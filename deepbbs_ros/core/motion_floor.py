@@ -105,9 +105,14 @@ class MotionFloor:
         missed = np.mean(np.square(np.asarray(self._devs)), axis=0) - 2.0 * noise
         floor = SWEEP_SPREAD * np.sqrt(np.maximum(missed, 0.0))
         if self._swept:  # kept whole: see the class docstring
-            sweep = SWEEP_SPREAD * 2.0 * np.sqrt(np.mean(np.square(np.asarray(self._swept)), axis=0))
-            floor[3:] = np.maximum(floor[3:], sweep)
+            floor[3:] = np.maximum(floor[3:], self._sweep_floor())
         return floor
+
+    def _sweep_floor(self) -> np.ndarray:
+        """(3,) rad: the sweep's floor per rotation axis of the scan, from the last deviations of the registered
+        motion from the deskew's (the class docstring; scripts/benchmarks/covariance.py ``--sweep-floor`` scores other
+        estimates from the same deviations)."""
+        return SWEEP_SPREAD * 2.0 * np.sqrt(np.mean(np.square(np.asarray(self._swept)), axis=0))
 
     def last_deviation(self, direction: np.ndarray) -> float:
         """m: the last step's deviation from its prediction along the unit ``direction`` (3,), the scan's axes (the

@@ -110,6 +110,26 @@ def truth_needed(rows, sigma: tuple[float, float] | None) -> list[tuple[float, f
     return out
 
 
+def _gicp_noise(floor) -> np.ndarray:
+    """(3,) rad^2: a MotionFloor's mean GICP variance per rotation axis over its window (0 before any)."""
+    return np.mean(np.asarray(floor._noise), axis=0)[3:] if floor._noise else np.zeros(3)
+
+
+def _rms(x, less=0.0) -> np.ndarray:
+    return np.sqrt(np.maximum(np.mean(np.square(np.asarray(x)), axis=0) - less, 0.0))
+
+
+#: ``--sweep-floor``: MotionFloor._sweep_floor's estimates (checks; "shipped" is the module's own)
+SWEEP_FLOORS = {
+    "shipped": None,
+    "half": lambda f: 0.5 ** 0.5 * _rms(f._swept),
+    "sub": lambda f: 2.0 ** 0.5 * _rms(f._swept, _gicp_noise(f)),
+    "diff": lambda f: _rms(np.diff(np.asarray(f._swept), axis=0), 2.0 * _gicp_noise(f)) if len(f._swept) > 1
+    else np.zeros(3),
+    "none": lambda f: np.zeros(3),
+}
+
+
 def perturbed(T: np.ndarray, rng, sigma: float) -> np.ndarray:
     """``T`` moved by ``sigma`` m per axis and ``sigma`` deg per rotation axis (normal)."""
     from scipy.spatial.transform import Rotation
@@ -145,11 +165,13 @@ def sim_sets(args):
             other = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True, world_frames=F,
                                    lane_offset=None, day=2)
             queries = [(other.scan_at(k).points, other.pose_at(k)) for k in range(10, F - 10, args.query_every)]
-            raw = DriveSimulator(scene, args.seed + 1, lidar, frames=args.odometry_frames)
+            raw = DriveSimulator(scene, args.seed + 1, lidar, frames=args.odometry_frames,
+                                 motion_distortion=not args.ideal_sweeps)
             drive = []
             for k in range(args.odometry_frames):
                 s = raw.scan_at(k)
-                drive.append((s.points, s.fields.get("time"), s.stamp_ns, raw.pose_at(k)))
+                times = None if args.ideal_sweeps else s.fields.get("time")  # an ideal sweep needs no deskew
+                drive.append((s.points, times, s.stamp_ns, raw.pose_at(k)))
             yield f"sim {scene} {lidar_name}", np.concatenate(pts), np.array(keys), queries, drive, None
 
 
@@ -257,7 +279,8 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
         T = out.T_first_k
         if T_prev is not None and sw is not None:
             true_step = np.linalg.inv(Tp_true) @ T_true
-            missed.append((pose_error(true_step, out.T_prev_k)[3:], pose_error(true_step, sw)[3:]))
+            missed.append((pose_error(true_step, out.T_prev_k)[3:], pose_error(true_step, sw)[3:],
+                           pose_error(out.T_prev_k, sw)[3:]))
         if T_prev is not None:
             if args.before:  # node/odometry_pipeline.py's point-to-point step covariance as it was
                 src = np.asarray(voxel_down_sample(out.points, odo.voxel_size * 1.5))
@@ -296,11 +319,18 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
         print("    ar1: rho from the deviations' lag-1 autocorrelation (x, y, z, roll, pitch, yaw): "
               + ", ".join(f"{c:.2f}" for c in rho), flush=True)
     if len(missed) >= 5:  # the sweep floor's premise: the step's rotation error follows the rotation the deskew missed
-        err, miss = (np.array(x) for x in zip(*missed))
+        err, miss, dev = (np.array(x) for x in zip(*missed))
         fit = [(np.corrcoef(miss[:, i], err[:, i])[0, 1], np.polyfit(miss[:, i], err[:, i], 1)[0]) for i in range(3)]
         print("    sweep: step rotation error vs the true rotation the deskew missed (roll, pitch, yaw): correlation "
               + ", ".join(f"{c:.2f}" for c, _ in fit) + "; slope " + ", ".join(f"{b:.2f}" for _, b in fit)
               + "; missed rms deg " + ", ".join(f"{x:.3f}" for x in np.degrees(np.sqrt(np.mean(miss ** 2, 0)))),
+              flush=True)
+        # the floor's two premises as mean squares over the missed rotation's: a step takes half of it (0.5: two
+        # scans each off by half their own), the deviation the floor measures shows half of it (0.25: hence its 2)
+        m2 = np.maximum(np.mean(miss ** 2, 0), 1e-30)
+        print("    sweep: over the missed rotation's mean square (roll, pitch, yaw): step error's "
+              + ", ".join(f"{x:.2f}" for x in np.mean(err ** 2, 0) / m2) + " (premise 0.5); the deviation from the "
+              "deskew's motion's " + ", ".join(f"{x:.2f}" for x in np.mean(dev ** 2, 0) / m2) + " (premise 0.25)",
               flush=True)
     held = [i for i, h in enumerate(helds) if h.any()]
     print(f"    held steps sharing a velocity error (the 2nd and later of a stretch held in a row): {len(held)} of "
@@ -529,6 +559,17 @@ def main(argv: list[str] | None = None) -> int:
                     "k-th pair, at most this many (a check; 0: every pair; default ODOMETRY_MAX_POINTS)")
     ap.add_argument("--odometry-student", choices=["on", "off"], help="the odometry's step covariance widened as "
                     "Student's t or not (a check; default ODOMETRY_STUDENT)")
+    ap.add_argument("--sweep-floor", choices=sorted(SWEEP_FLOORS), default="shipped", help="the odometry's sweep "
+                    "floor per rotation axis from the deviations d of the registered motion from the deskew's (a "
+                    "check; core/motion_floor.py): shipped (sqrt(2) rms d: d taken as half the missed rotation), half "
+                    "(sqrt(2) / 2 rms d: d taken as the whole missed rotation), sub (shipped, less the step's GICP "
+                    "variance that d carries), diff (the rms of d's change from scan to scan, less twice that "
+                    "variance), none (no sweep floor: the prediction's floor alone)")
+    ap.add_argument("--ideal-sweeps", action="store_true", help="the simulated odometry drives without motion within "
+                    "the sweep (every point cast from the pose at the stamp, no per-point times: nothing to deskew; a "
+                    "check of what the sweep and its deskew cause)")
+    ap.add_argument("--map-covariances", action="store_true", help="the odometry aligns against the map's planes "
+                    "(odometry.map_covariances; a check)")
     ap.add_argument("--threads", type=int, default=0, help="the odometry's small_gicp threads (0: every core)")
     ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
@@ -552,9 +593,14 @@ def main(argv: list[str] | None = None) -> int:
         covmod.ODOMETRY_STUDENT = args.odometry_student == "on"
     if args.cell > 0:
         covmod.CLUSTER_CELL = args.cell
+    if args.sweep_floor != "shipped":
+        import deepbbs_ros.core.motion_floor as floormod
+
+        floormod.MotionFloor._sweep_floor = SWEEP_FLOORS[args.sweep_floor]
     config = Config()
     if args.threads > 0:
         config.odometry.threads = args.threads
+    config.odometry.map_covariances = config.odometry.map_covariances or args.map_covariances
     loc_rows, step_rows, chains, floors, firsts, helds, truth, notes = {}, {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
