@@ -23,9 +23,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   origin), "ar1" and "ar1origin" (the node's and the origin model with the GICP parts' errors an AR(1) per axis,
   its coefficient measured from the deviations from the prediction: models tried), the lag-1 correlation of
   consecutive step errors per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for
-  independent steps) and their mean (away from 0: a drift the steps share). Per simulated drive the ``sweep:`` line
-  shows the sweep floor's premise: how the step's rotation error follows the true rotation the deskew missed within
-  the sweep (correlation and slope per axis), and the covariance's time per scan.
+  independent steps) and their mean (away from 0: a drift the steps share). Per simulated drive the ``sweep:`` lines
+  show the sweep floor's premises: how the step's rotation error follows the true rotation the deskew missed within
+  the sweep (correlation and slope per axis), and the step error's and the floor's deviation's mean squares over the
+  missed rotation's (the floor assumes 0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor``
+  (other estimates of the sweep floor from the same deviations), ``--ideal-sweeps`` (drives without motion within the
+  sweep), ``--map-covariances`` (the odometry against the map's planes).
 
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
