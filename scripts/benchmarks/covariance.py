@@ -30,6 +30,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   (other estimates of the sweep floor from the same deviations), ``--ideal-sweeps`` (drives without motion within the
   sweep), ``--map-covariances`` (the odometry against the map's planes).
 
+Localization checks (models tried, scripts/benchmarks/_localization_variants.py): ``--estimator cr2`` (the
+bias-reduced cluster-robust covariance instead of the jackknife), ``--coarse-cell M`` (along each direction the larger
+of the cells' and M-m cells' covariance), ``--min-effective-cells`` (where the t stops), ``--directions`` (the poses'
+errors along their covariance's eigen-directions by effective cells). Each set prints its poses' mean error per axis
+and its t: an error the poses share, which no pose's covariance holds.
+
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
 
@@ -56,6 +62,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common
+import _localization_variants as _variants
 
 CHI2_MEDIAN_6 = 5.348120627447122  # scipy.stats.chi2.median(6)
 #: per-axis (m, deg) error of the real sets' ground truth (the data's README)
@@ -208,8 +215,9 @@ def localization_rows(points, keys, queries, config, args, log=print) -> tuple[l
 
     loc = MapLocalizer(points, config, trajectory=keys)
     rng = np.random.default_rng(args.seed)
-    rows, failed, ms, share = [], 0, [], []
+    rows, failed, ms, share, directions = [], 0, [], [], []
     for pts, T_true in queries:
+        _variants.LAST.clear()
         res = loc.localize(pts, perturbed(T_true, rng, args.start_sigma))
         ms.append(res.timings_ms.get("covariance", np.nan))
         share.append(ms[-1] / res.timings_ms.get("total", np.nan))
@@ -224,7 +232,16 @@ def localization_rows(points, keys, queries, config, args, log=print) -> tuple[l
             failed += 1
             continue
         rows.append((pose_error(T_true, res.T_map_scan), np.asarray(cov)))
+        if getattr(args, "directions", False) and _variants.LAST and not args.before:
+            directions.append(_variants.direction_rows(rows[-1][0]))
     log(f"    covariance: median {np.nanmedian(ms):.1f} ms a pose, {np.nanmedian(share):.0%} of the pose's time")
+    if len(rows) >= 2:  # an error the poses share (one no pose's covariance can hold): mm, mdeg
+        e = np.array([d for d, _ in rows]) * np.array([1e3] * 3 + [np.degrees(1.0) * 1e3] * 3)
+        mean, sem = e.mean(0), e.std(0, ddof=1) / len(e) ** 0.5
+        log("    errors, mean (mm, mdeg) and t (x, y, z, roll, pitch, yaw): "
+            + ", ".join(f"{m:+.1f} (t {m / max(t, 1e-12):.1f})" for m, t in zip(mean, sem)))
+    if directions:
+        log("    " + _variants.direction_table(directions))
     return rows, failed
 
 
@@ -574,6 +591,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--map-covariances", action="store_true", help="the odometry aligns against the map's planes "
                     "(odometry.map_covariances; a check)")
     ap.add_argument("--threads", type=int, default=0, help="the odometry's small_gicp threads (0: every core)")
+    ap.add_argument("--estimator", choices=["jackknife", "cr2"], default="jackknife", help="the localization's "
+                    "cluster-robust covariance: the node's leave-one-cell-out (jackknife) or the bias-reduced CR2 (a "
+                    "model tried: scripts/benchmarks/_localization_variants.py)")
+    ap.add_argument("--coarse-cell", type=float, default=0.0, help="m: the localization's covariance along each "
+                    "direction the larger of the cells' and these coarser cells' (a model tried; 0: off)")
+    ap.add_argument("--directions", action="store_true", help="per localization set, the poses' errors along their "
+                    "covariance's eigen-directions by the directions' effective cells (which directions are cautious)")
+    ap.add_argument("--min-effective-cells", type=float, default=0.0, help="the effective cells at which the "
+                    "localization's Student's t stops (a check; default MIN_EFFECTIVE_CELLS)")
     ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
                     "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
@@ -596,6 +622,10 @@ def main(argv: list[str] | None = None) -> int:
         covmod.ODOMETRY_STUDENT = args.odometry_student == "on"
     if args.cell > 0:
         covmod.CLUSTER_CELL = args.cell
+    if args.min_effective_cells > 0:
+        covmod.MIN_EFFECTIVE_CELLS = args.min_effective_cells
+    if args.estimator != "jackknife" or args.coarse_cell > 0 or args.directions:
+        _variants.install(args.estimator, args.coarse_cell, args.directions)
     if args.sweep_floor != "shipped":
         import deepbbs_ros.core.motion_floor as floormod
 
