@@ -16,7 +16,11 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
-Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed (the
+The verdicts that ``registration.verdict_within`` names ("pair", the default; "all") multiply the probability by
+P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
+``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
+registered, the second-minimum check as it ran). Both verdicts judge a spread subset of the source's GICP voxels with
+the same coefficients; the old ones differed (the
 pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
 (core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
 gives what the good start's counts would be with it, on the same poses: ``none`` (as shipped), ``slides`` (only on a
