@@ -71,15 +71,15 @@ def test_a_pose_slid_along_a_corridor_that_nothing_pins_is_not_sure():
 
 def test_the_verdict_multiplies_only_where_it_can_change_the_decision():
     """``registration.verdict_within``: "pair" multiplies the registration's verdict, not the good start's ("all"
-    both, "off" neither); under the bar the probability is returned as it is (the product cannot reach the bar)."""
-    rc = Config().registration
+    both, "off", the default, neither); under the bar the probability is returned as it is (the product cannot reach
+    the bar)."""
+    rc = dataclasses.replace(Config().registration, verdict_within="pair")
     tgt, src = _clouds(STREET)
     slid = _along(1.0)
-    assert verdict.times_within(0.9, src, tgt, slid, rc, 0.7) < 0.35  # "pair", the default
+    assert verdict.times_within(0.9, src, tgt, slid, rc, 0.7) < 0.35
     assert verdict.times_within(0.9, src, tgt, slid, rc, 0.7, "good_start") == 0.9
     assert verdict.times_within(0.5, src, tgt, slid, rc, 0.7) == 0.5  # under the bar: not computed
     every = dataclasses.replace(rc, verdict_within="all")
     assert verdict.times_within(0.9, src, tgt, slid, every, 0.7, "good_start") < 0.35
-    off = dataclasses.replace(rc, verdict_within="off")
-    assert verdict.times_within(0.9, src, tgt, slid, off, 0.7) == 0.9
+    assert verdict.times_within(0.9, src, tgt, slid, Config().registration, 0.7) == 0.9  # "off", the default
     assert verdict.times_within(0.9, src, tgt, np.eye(4), rc, 0.7) > 0.85  # the truth: the probability itself

@@ -131,8 +131,8 @@ class RegistrationConfig:
     # (core/within.py: the cluster-robust covariance of its GICP pairs, core/covariance.py), where that can change
     # the decision: a pose free to slide (a corridor, a straight road) is consistent anywhere along the slide, but
     # not sure to be within the tolerance. "pair": the registration's verdict; "all": the good start's as well;
-    # "off" (measured in docs/sensors.md)
-    verdict_within: str = "pair"
+    # "off" (the default: "pair" turns away wrong slides but also right poses in corridors, docs/sensors.md)
+    verdict_within: str = "off"
     # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
     # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)

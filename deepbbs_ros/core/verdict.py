@@ -24,10 +24,10 @@ score decides, against ``registration.verdict_threshold``.
 The good-start path (``register(..., good_start=True)``) judges the same points with the same coefficients, valid
 from ``registration.good_start_probability``.
 
-The registration's verdict (``registration.verdict_within`` "pair", the default; "all": the good start's too)
-multiplies the probability by P(the pose within the tolerance | its covariance) (core/within.py), where that can
-change the decision (:func:`times_within`): the calibrated models ask whether the fit is consistent, and a pose free
-to slide is consistent anywhere along the slide.
+With ``registration.verdict_within`` "pair" (the registration's verdict; "all": the good start's too; "off", the
+default) the probability is multiplied by P(the pose within the tolerance | its covariance) (core/within.py), where
+that can change the decision (:func:`times_within`): the calibrated models ask whether the fit is consistent, and a
+pose free to slide is consistent anywhere along the slide.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ as well, docs/sensors.md). Then
 the share of a fixed set of :data:`SAMPLES` standard normal draws (deterministic; its standard error is at most
 0.008) that the covariance's square root maps within the tolerance (``registration.success_trans``,
 ``success_rot_deg``: the verdict's own definition of right). The verdict reports P(consistent) x P(within)
-(``registration.verdict_within``). No constant is fitted: the covariance is core/covariance.py's, unchanged.
-Cost: a nearest-neighbour search of every source voxel and the cells' terms, 3-9 ms a pose (one thread); the
-registration computes it only where the calibrated probability alone would accept.
+(``registration.verdict_within``, off by default: docs/sensors.md). No constant is fitted: the covariance is
+core/covariance.py's, unchanged. Cost: a nearest-neighbour search of every source voxel and the cells' terms, 3-9 ms
+a pose (one thread); the verdict computes it only where the calibrated probability alone would accept.
 """
 
 from __future__ import annotations

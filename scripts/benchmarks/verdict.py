@@ -16,7 +16,7 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
-The verdicts that ``registration.verdict_within`` names ("pair", the default; "all") multiply the probability by
+The verdicts that ``registration.verdict_within`` names ("pair", "all"; "off" by default) multiply the probability by
 P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
 ``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
 registered, the second-minimum check as it ran). Both verdicts judge a spread subset of the source's GICP voxels with
