@@ -19,7 +19,8 @@ and the good-start verdict (a spread subset of the GICP voxels):
 The verdicts that ``registration.verdict_within`` names ("pair", "all"; "off" by default) multiply the probability by
 P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
 ``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
-registered, the second-minimum check as it ran). Both verdicts judge a spread subset of the source's GICP voxels with
+registered, the second-minimum check as it ran); ``cost/<set>``: the verdict's CPU per pose (one thread) without and
+with the factor, on the pipeline's answers. Both verdicts judge a spread subset of the source's GICP voxels with
 the same coefficients; the old ones differed (the
 pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
 (core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
@@ -197,6 +198,26 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     return out
 
 
+def _cost(pts: np.ndarray, T: np.ndarray, src, tgt, rc, repeats: int = 3) -> tuple[float, float]:
+    """CPU ms (one thread, medians of ``repeats``, alternated) of the verdict's probability of the pose ``T`` and of
+    the same times P(within | covariance) (core/within.py), where ``verdict_within`` computes it (an accepted pose)."""
+    import time
+
+    from deepbbs_ros.core import verdict, within
+
+    tpc, old, new = tgt.polish_cloud, [], []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")
+        t1 = time.process_time()
+        verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")
+        within.within(src.polish_cloud, tpc, T, rc)
+        t2 = time.process_time()
+        old.append(t1 - t0)
+        new.append(t2 - t1)
+    return 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
+
+
 def real_pairs(spec: str):
     """'FOLDER:stride:max_dist' -> (name, [(src Scan, tgt Scan, None)])."""
     from deepbbs_ros.datasets import open_source
@@ -217,7 +238,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
         tgt, src, T_ref = _common.read_reference_pair(pair)
         sets.append((Path(pair).name, [("ref", src, tgt, T_ref)]))
     for name, pairs in sets:
-        rows, rough = {"pair": [], "good": []}, []
+        rows, rough, cost = {"pair": [], "good": []}, [], []
         for item in pairs:
             if item[0] == "ref":
                 _, sp, tp, T_gt = item
@@ -238,6 +259,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 y, r, t = cv.label(res.T_target_source, T_gt)
                 f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
                                              pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
+                cost.append(_cost(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source, ps, pt, rc))
                 rows["pair"].append((y == 1, res.score, res.probability,
                                      cv.label(res.T_target_source, T_ref)[0] == 1, r, t,
                                      res.probability >= rc.verdict_probability and not res.valid,
@@ -278,12 +300,16 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
                 out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, p_on, bar, a[:, 7] > 0, a[:, 8] > 0,
                                                             a[:, 4:6], r)
+        c = np.median(np.array(cost).reshape(-1, 2), axis=0)
+        out[f"cost/{name}"] = {"verdict_ms": round(float(c[0]), 3), "verdict_within_ms": round(float(c[1]), 3),
+                               "ratio": round(float(c[1] / max(c[0], 1e-9)), 2)}
         q = np.median(np.array(rough).reshape(-1, 2), axis=0)
         out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
                                     "self_planarity": round(float(q[1]), 3)}
         print(name, {k: {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
                                                   "wrong_accepted_max_err", "classes", "self_residual_q90_m",
-                                                  "self_planarity"] if kk in v}
+                                                  "self_planarity", "verdict_ms", "verdict_within_ms", "ratio"]
+                         if kk in v}
                      for k, v in out.items() if k.endswith("/" + name)},
               flush=True)
     if dump:
