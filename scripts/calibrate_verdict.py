@@ -49,7 +49,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from deepbbs_ros.config import Config, load_config  # noqa: E402
-from deepbbs_ros.core import anchoring, calibrated, second_minimum, visibility  # noqa: E402
+from deepbbs_ros.core import anchoring, calibrated, second_minimum, visibility, within  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -306,9 +306,11 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
                          and second_minimum.check(good_start_points(s_pre.polish_cloud, rc), T, s_pre.polish_cloud,
                                                   tgt.polish_cloud, rc).ambiguous)
         rough = visibility.roughness(tgt.polish_cloud, rc.verdict_dist)  # the target's own (benchmark)
+        cov = within.pose_covariance(s_pre.polish_cloud, tgt.polish_cloud, T, rc.polish_max_corr_dist)
+        cov = np.full((6, 6), np.nan) if cov is None else cov  # the pose's (core/within.py; NaN: none)
         for k, v in (("pair", pair), ("good", good), ("y", y), ("rot", r), ("trans", t), ("rig", ri),
                      ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
-                     ("ambiguous", ambiguous)):
+                     ("ambiguous", ambiguous), ("cov", cov)):
             out[k].append(v)
 
 
@@ -368,7 +370,7 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
     out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
-                           "ambiguous")}
+                           "ambiguous", "cov")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()

@@ -127,6 +127,12 @@ class RegistrationConfig:
     # a valid pose left free by more than a tolerance along its weakest direction is checked for a second minimum there
     # (core/second_minimum.py: GICP from the pose moved both ways along it); one as good beyond the tolerance -> invalid
     second_minimum: bool = True
+    # the verdict's probability times P(the pose within success_rot_deg / success_trans | its covariance)
+    # (core/within.py: the cluster-robust covariance of its GICP pairs, core/covariance.py), where that can change
+    # the decision: a pose free to slide (a corridor, a straight road) is consistent anywhere along the slide, but
+    # not sure to be within the tolerance. "pair": the registration's verdict; "all": the good start's as well;
+    # "off" (the default: "pair" turns away wrong slides but also right poses in corridors, docs/sensors.md)
+    verdict_within: str = "off"
     # a global search's answer (another start than the given one) is valid only when its fitness (the score) reaches
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
     # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)
@@ -204,6 +210,8 @@ class RegistrationConfig:
         _check(self.verdict_dist > 0, "registration.verdict_dist", "must be > 0")
         _check(0 <= self.verdict_threshold <= 1, "registration.verdict_threshold", "must be in [0, 1]")
         _check(0 <= self.verdict_probability <= 1, "registration.verdict_probability", "must be in [0, 1]")
+        _check(self.verdict_within in ("off", "pair", "all"), "registration.verdict_within",
+               f"must be 'off', 'pair' or 'all', got {self.verdict_within!r}")
         _check(0 <= self.verdict_sure <= 1, "registration.verdict_sure", "must be in [0, 1]")
         _check(0 <= self.search_min_score <= 1, "registration.search_min_score", "must be in [0, 1]")
         _check(self.global_search in ("auto", "always", "off"), "registration.global_search",

@@ -86,7 +86,7 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     clock.lap("preprocess")
     pts = good_start_points(spc, rc)
     pol = from_start(spc, tpc, T0, rc)  # GICP's own budget, wherever it goes: the verdict judges where it ended
-    prob, sure = _probability(pol, "", pts, tpc, rc), max(rc.good_start_probability, rc.verdict_sure)
+    prob, sure = _probability(pol, "", pts, tpc, rc, spc), max(rc.good_start_probability, rc.verdict_sure)
     if verdict.is_valid(prob, rc.good_start_probability):
         beyond = _beyond(pol, rc)
         accepted = f"accepted, beyond the good start's limits (GICP from the start: {beyond})" if beyond else "accepted"
@@ -95,7 +95,7 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
                                            f"verdict {prob:.2f} < registration.good_start_probability "
                                            f"{rc.good_start_probability}")
         pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, reg.gicp_threads())  # coarse to fine, when sure
-        prob = _probability(pol, why, pts, tpc, rc)
+        prob = _probability(pol, why, pts, tpc, rc, spc)
         if not verdict.is_valid(prob, sure):
             clock.lap("good_start")
             then = why or f"verdict {prob:.2f} < registration.verdict_sure {sure}"
@@ -131,12 +131,13 @@ def _beyond(pol: Any, rc: Any) -> str:
     return ""
 
 
-def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any) -> float:
+def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any, spc: Any = None) -> float:
     """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken (or GICP
-    did not converge within its limits)."""
+    did not converge within its limits). ``spc``: the source's cloud (``registration.verdict_within``)."""
     if why or not pol.applied:
         return 0.0
-    return verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
+    prob = verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
+    return verdict.times_within(prob, spc, tpc, pol.T_target_source, rc, rc.good_start_probability, "good_start")
 
 
 def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:

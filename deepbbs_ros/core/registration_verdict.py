@@ -41,6 +41,8 @@ class VerdictStages:
                 and st.src_pc is not None):  # the good start's points and coefficients: they carry to real scans
             pts = good_start_points(st.src_pc, rc)
             st.probability = verdict.probability(pts, st.T, st.tgt_pc, rc.verdict_dist, "good_start")
+            st.probability = verdict.times_within(st.probability, st.src_pc, st.tgt_pc, st.T, rc,
+                                                  rc.verdict_probability)
             st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
             if st.valid and rc.second_minimum:  # a second minimum as good along the weakest direction: not sure
                 st.ambiguity = second_minimum.check(pts, st.T, st.src_pc, st.tgt_pc, rc)

@@ -23,6 +23,11 @@ score decides, against ``registration.verdict_threshold``.
 
 The good-start path (``register(..., good_start=True)``) judges the same points with the same coefficients, valid
 from ``registration.good_start_probability``.
+
+With ``registration.verdict_within`` "pair" (the registration's verdict; "all": the good start's too; "off", the
+default) the probability is multiplied by P(the pose within the tolerance | its covariance) (core/within.py), where
+that can change the decision (:func:`times_within`): the calibrated models ask whether the fit is consistent, and a
+pose free to slide is consistent anywhere along the slide.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import numpy as np
 
 from deepbbs_ros.core import anchoring
 
-__all__ = ["fitness", "fitness_to_points", "is_valid", "probability", "spread_subset"]
+__all__ = ["fitness", "fitness_to_points", "is_valid", "probability", "spread_subset", "times_within"]
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -71,6 +76,20 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     # where only a bound on ``pinned`` reads ``anchored_far``: measured for a pose under it only
     bound = True if anchor else calibrated.anchored_below()
     return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, bound, view), model)
+
+
+def times_within(prob: float, source, target, T: np.ndarray, rc, bar: float, verdict: str = "pair",
+                 threads: int = 1) -> float:
+    """``prob`` times P(the pose ``T`` (4, 4) within the tolerance | its covariance) (core/within.py; the precision
+    stage's clouds ``source`` / ``target``) where ``registration.verdict_within`` names the ``verdict`` ("pair": the
+    registration's; "all": the good start's too) and ``prob`` reaches ``bar`` (under it the product cannot reach it
+    either: not computed); else ``prob``."""
+    on = rc.verdict_within == "all" or rc.verdict_within == verdict
+    if not on or not prob >= bar or source is None:
+        return prob
+    from deepbbs_ros.core import within
+
+    return prob * within.within(source, target, T, rc, threads)
 
 
 def is_valid(score: float, threshold: float) -> bool:

@@ -16,7 +16,12 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
-Both verdicts judge a spread subset of the source's GICP voxels with the same coefficients; the old ones differed (the
+The verdicts that ``registration.verdict_within`` names ("pair", "all"; "off" by default) multiply the probability by
+P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
+``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
+registered, the second-minimum check as it ran); ``cost/<set>``: the verdict's CPU per pose (one thread) without and
+with the factor, on the pipeline's answers. Both verdicts judge a spread subset of the source's GICP voxels with
+the same coefficients; the old ones differed (the
 pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
 (core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
 gives what the good start's counts would be with it, on the same poses: ``none`` (as shipped), ``slides`` (only on a
@@ -140,10 +145,10 @@ def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, s
 
 
 def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
-                config=None) -> dict:
+                config=None, dump: Path | None = None) -> dict:
     import calibrate_verdict as cv
 
-    from deepbbs_ros.core import calibrated
+    from deepbbs_ros.core import calibrated, within
 
     kw = {"slid": slid, "config": config, "second": True}  # the pair verdict's second-minimum check, as registered
     parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
@@ -161,18 +166,29 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     out = {}
     p = calibrated.probability(data["good"], "good_start")  # both verdicts judge the spread voxel subset
     free = np.array([slides(r) for r in data["good"]], bool)
+    # P(within the tolerance | the pose's covariance) (core/within.py): the verdicts that registration.verdict_within
+    # names multiply by it; the other rows (``<verdict>_with_within`` / ``_without_within``) judge the same poses
+    # the other way
+    w = np.array([within.probability(None if np.isnan(c).any() else c, rc.success_trans, rc.success_rot_deg)
+                  for c in data["cov"]])
+    if dump:
+        np.savez(dump, p=p, within=w, fam=fam, low=low, turned=turned, **data)
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
+        on = rc.verdict_within in ("all", name)
         for f in ("dense", "sparse", "solid", "all", "low_overlap", "turned", "slid"):
             m = turned if f == "turned" else low & ~turned if f == "low_overlap" else ~low if f == "all" else \
                 slide if f == "slid" else (fam == f) & ~low
             m = m if f == "slid" else m & ~slide
             if not m.any():
                 continue
-            out[f"{name}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p[m], OLD[name], bar, data["near_ref"][m],
-                                         np.c_[data["rot"][m], data["trans"][m]],
-                                         data["ambiguous"][m] if name == "pair" else None)
+            for row, factor in ((name, w if on else 1.0), (f"{name}_{'without' if on else 'with'}_within",
+                                                           1.0 if on else w)):
+                out[f"{row}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], (p * factor)[m], OLD[name], bar,
+                                            data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]],
+                                            data["ambiguous"][m] if name == "pair" else None)
+            p_on = p * w if on else p
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
-                out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p[m], bar, data["ambiguous"][m],
+                out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p_on[m], bar, data["ambiguous"][m],
                                                        free[m], np.c_[data["rot"][m], data["trans"][m]],
                                                        np.asarray(data["good"])[m])
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
@@ -180,6 +196,26 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
         out[f"roughness/{f}"] = {"self_residual_q90_m": round(float(q[0]), 3), "self_planarity": round(float(q[1]), 3)}
     return out
+
+
+def _cost(pts: np.ndarray, T: np.ndarray, src, tgt, rc, repeats: int = 3) -> tuple[float, float]:
+    """CPU ms (one thread, medians of ``repeats``, alternated) of the verdict's probability of the pose ``T`` and of
+    the same times P(within | covariance) (core/within.py), where ``verdict_within`` computes it (an accepted pose)."""
+    import time
+
+    from deepbbs_ros.core import verdict, within
+
+    tpc, old, new = tgt.polish_cloud, [], []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")
+        t1 = time.process_time()
+        verdict.probability(pts, T, tpc, rc.verdict_dist, "good_start")
+        within.within(src.polish_cloud, tpc, T, rc)
+        t2 = time.process_time()
+        old.append(t1 - t0)
+        new.append(t2 - t1)
+    return 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
 
 
 def real_pairs(spec: str):
@@ -194,7 +230,7 @@ def real_pairs(spec: str):
 def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Path | None = None) -> dict:
     import calibrate_verdict as cv
 
-    from deepbbs_ros.core import calibrated, second_minimum, visibility
+    from deepbbs_ros.core import calibrated, second_minimum, visibility, within
 
     rc, rng, out, feats = reg.config.registration, np.random.default_rng(7), {}, []
     sets = [real_pairs(s) for s in specs]
@@ -202,7 +238,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
         tgt, src, T_ref = _common.read_reference_pair(pair)
         sets.append((Path(pair).name, [("ref", src, tgt, T_ref)]))
     for name, pairs in sets:
-        rows, rough = {"pair": [], "good": []}, []
+        rows, rough, cost = {"pair": [], "good": []}, [], []
         for item in pairs:
             if item[0] == "ref":
                 _, sp, tp, T_gt = item
@@ -221,12 +257,15 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
             for T0 in starts:
                 res = reg.register(ps, pt, T_init=T0, preprocessed=True)
                 y, r, t = cv.label(res.T_target_source, T_gt)
-                rows["pair"].append((y == 1, res.score, res.probability,
-                                     cv.label(res.T_target_source, T_ref)[0] == 1, r, t,
-                                     res.probability >= rc.verdict_probability and not res.valid))
-                y = y == 1
                 f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
                                              pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
+                cost.append(_cost(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source, ps, pt, rc))
+                rows["pair"].append((y == 1, res.score, res.probability,
+                                     cv.label(res.T_target_source, T_ref)[0] == 1, r, t,
+                                     res.probability >= rc.verdict_probability and not res.valid,
+                                     calibrated.probability(f, "good_start"),
+                                     within.within(ps.polish_cloud, pt.polish_cloud, res.T_target_source, rc)))
+                y = y == 1
                 feats.append((name, "pair", y, r, t, res.score, *motion, *f))
             for yaw, tr in (((0, 3), (0, 0.5)), ((10, 45), (1, 4))):  # GICP from near and from far
                 pol = cv.good_start_gicp(ps.polish_cloud, pt.polish_cloud, cv.perturb(rng, yaw, tr) @ T_gt, rc)
@@ -240,24 +279,37 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                         pt.polish_cloud, rc).ambiguous)
                     rows["good"].append((y, f[0], p, cv.label(pol.T_target_source, T_ref)[0] == 1, r, t, False,
                                          amb, slides(f), f[FEATURES.index("pinned")],
-                                         f[FEATURES.index("anchored_far")]))
+                                         f[FEATURES.index("anchored_far")],
+                                         within.within(ps.polish_cloud, pt.polish_cloud, pol.T_target_source, rc)))
                     feats.append((name, "good", y, r, t, f[0], *motion, *f))
         for verdict, key, bar in (("pair", "pair", rc.verdict_probability),
                                   ("good_start", "good", rc.good_start_probability)):
-            a = np.array(rows[key], float).reshape(-1, 7 if key == "pair" else 11)
-            out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], a[:, 2], OLD[verdict], bar, a[:, 3] > 0,
+            a = np.array(rows[key], float).reshape(-1, 9 if key == "pair" else 12)
+            on = rc.verdict_within in ("all", verdict)
+            # the pair verdict as registered (with or without the factor, the second-minimum check as it ran); the
+            # good start's on GICP's poses; then the same poses judged the other way
+            plain = a[:, 7] if key == "pair" else a[:, 2]
+            p_on = a[:, 2] if key == "pair" else a[:, 2] * (a[:, -1] if on else 1.0)
+            out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], p_on, OLD[verdict], bar, a[:, 3] > 0,
                                                a[:, 4:6], a[:, 6] > 0)
+            out[f"{verdict}_{'without' if on else 'with'}_within/{name}"] = summary(
+                a[:, 0] > 0, a[:, 1], plain * (1.0 if on else a[:, -1]), OLD[verdict], bar, a[:, 3] > 0, a[:, 4:6],
+                a[:, 6] > 0)
             if key == "good":
                 r = np.zeros((len(a), len(FEATURES)))
                 r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
-                out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, a[:, 2], bar, a[:, 7] > 0, a[:, 8] > 0,
+                out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, p_on, bar, a[:, 7] > 0, a[:, 8] > 0,
                                                             a[:, 4:6], r)
+        c = np.median(np.array(cost).reshape(-1, 2), axis=0)
+        out[f"cost/{name}"] = {"verdict_ms": round(float(c[0]), 3), "verdict_within_ms": round(float(c[1]), 3),
+                               "ratio": round(float(c[1] / max(c[0], 1e-9)), 2)}
         q = np.median(np.array(rough).reshape(-1, 2), axis=0)
         out[f"roughness/{name}"] = {"self_residual_q90_m": round(float(q[0]), 3),
                                     "self_planarity": round(float(q[1]), 3)}
         print(name, {k: {kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth",
                                                   "wrong_accepted_max_err", "classes", "self_residual_q90_m",
-                                                  "self_planarity"] if kk in v}
+                                                  "self_planarity", "verdict_ms", "verdict_within_ms", "ratio"]
+                         if kk in v}
                      for k, v in out.items() if k.endswith("/" + name)},
               flush=True)
     if dump:
@@ -285,6 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
                     "errors (deg, m), scores, the pairs' motion (deg, m) and GICP voxels (source, target) here (.npz)")
+    ap.add_argument("--dump-sim", type=Path, help="also write the simulated poses' rows (.npz)")
     ap.add_argument("--config", type=Path, help="config YAML of the registration (default: the defaults)")
     ap.add_argument("--model", type=Path, help="judge with these coefficients (a verdict_model.json; default: the "
                     "shipped ones), to compare a fit with the shipped one on the same poses")
@@ -304,7 +357,8 @@ def main(argv: list[str] | None = None) -> int:
                "model": str(args.model or "shipped")}
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
-                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config)
+                                     args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config,
+                                     args.dump_sim)
         for k, v in figures["sim"].items():
             print("sim", k, v if k.startswith(("roughness", "good_start_checks")) else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
