@@ -4,6 +4,7 @@ from the estimate (core/polish.py), then again on both scans deskewed with their
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import torch
@@ -12,7 +13,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import pair_deskew
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network_output import Clock, matrix, orthonormalize
-from deepbbs_ros.core.polish import polish
+from deepbbs_ros.core.polish import finish, polish
 from deepbbs_ros.core.registration_state import State
 
 __all__ = ["PrecisionStages"]
@@ -41,13 +42,18 @@ class PrecisionStages:
 
     def _polish(self, st: State, clock: Clock) -> None:
         """The precision stage: small_gicp GICP on the dense scans from the estimate (both clouds need
-        their ``polish_cloud``; rejected results keep the estimate)."""
+        their ``polish_cloud``; rejected results keep the estimate), finished on the scans' scene-sized grids where
+        they have them (``registration.polish_voxel_angle``: :func:`core.polish.finish`)."""
         rc = self.config.registration
         st.T = matrix(st.R, st.t, self.model.scale)
         if rc.polish == "none" or st.src_pc is None or st.tgt_pc is None:
             return
         pol = polish(st.src_pc, st.tgt_pc, st.T, rc, check=st.polish_check)
         st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
+        fine = finish(st.src_pc, st.tgt_pc, pol.T_target_source, rc) if pol.applied else None
+        if fine is not None and fine.applied:
+            st.iters["polish"] += fine.iterations
+            pol = dataclasses.replace(pol, T_target_source=fine.T_target_source)
         if pol.applied:
             st.T = pol.T_target_source
             st.T[:3, :3] = orthonormalize(st.T[:3, :3])
