@@ -83,9 +83,10 @@ class PolishCloud:
     # distance with the finer of a pair's grids
     voxel: float = 0.0
     # prepare_polish_cloud's voxel_angle: the scene-sized grid (m) finer than ``voxel`` that GICP finishes on
-    # (:meth:`finer`, :func:`finish`), 0 for none; ``fine_points`` the cropped scan it is built from, when asked
+    # (:meth:`finer`, :func:`finish`), 0 for none; ``fine_points`` what it is built from, when asked: (the scan as
+    # given, not copied (a copy kept costs each scan a fresh allocation), min_range, max_range)
     fine_voxel: float = 0.0
-    fine_points: np.ndarray | None = field(default=None, repr=False)
+    fine_points: tuple[np.ndarray, float, float] | None = field(default=None, repr=False)
     _fine: PolishCloud | None = field(default=None, repr=False, compare=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
@@ -128,8 +129,12 @@ class PolishCloud:
             return None
         with self._lock:
             if self._fine is None:
+                from deepbbs_ros.core.preprocess import crop_range
+
                 neighbors, registration_type, th = self.spec
-                self._fine = _prepared(self.fine_points, self.fine_voxel, neighbors, registration_type, th)
+                pts, lo, hi = self.fine_points
+                pts = np.compress(crop_range(pts, lo, hi), pts, axis=0)
+                self._fine = _prepared(pts, self.fine_voxel, neighbors, registration_type, th)
                 self._fine.voxel = self.fine_voxel
         return self._fine
 
@@ -212,24 +217,26 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
-    pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
-    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
+    given = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
+    pts = np.compress(crop_range(given, min_range, max_range), given, axis=0).astype(np.float64, copy=False)
     fine = scene_voxel(pts, voxel, voxel_angle) if voxel > 0 and voxel_angle > 0 else voxel
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped, out.voxel = len(pts), float(voxel)
     if fine < voxel:
-        out.fine_voxel, out.fine_points = float(fine), pts
+        out.fine_voxel, out.fine_points = float(fine), (given, min_range, max_range)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
 
 
-def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 4096) -> float:
+def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 1024) -> float:
     """The grid (m) for a scan's points (N, 3) (sensor frame): ``angle`` (rad) seen from the sensor at their median
-    range (of an even subsample of about ``samples``), within [``voxel`` / 4, ``voxel``]."""
+    range (of an even subsample of about ``samples``: a few hundredths of a millisecond), within [``voxel`` / 4,
+    ``voxel``]."""
     if len(points) == 0:
         return float(voxel)
     sub = points[:: max(1, len(points) // samples)]
-    r50 = float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub))))
+    sq = np.einsum("ij,ij->i", sub, sub)
+    r50 = float(np.sqrt(np.partition(sq, len(sq) // 2)[len(sq) // 2]))
     return float(np.clip(angle * r50, 0.25 * voxel, voxel))
 
 
