@@ -82,7 +82,8 @@ class RegistrationConfig:
     # its median range (after the crop), at least polish_voxel / 4, polish_max_corr_dist scaled with it (core/polish.py
     # scene_voxel, finish): in the precision stage, and where the good start's verdict did not take GICP's pose;
     # scans whose median range puts it at polish_voxel or above (8 m at 1/16) are not touched; 0 = polish_voxel only
-    polish_voxel_angle: float = 0.0
+    # (measured in docs/sensors.md)
+    polish_voxel_angle: float = 0.0625
     polish_max_iters: int = 50  # (= eval.baseline_max_iters)
     polish_neighbors: int = 20  # neighbours for covariances / normals (= eval.baseline_neighbors)
     # at most this many voxels in a scan's GICP cloud: a denser one is put on a coarser grid (0 = polish_voxel as is);
