@@ -7,6 +7,8 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 the verdict on a spread subset of the source's voxels (registration.good_start_probability) wherever
                 it ended; converged beyond registration.good_start_max_trans / _rot_deg or only after
                 good_start_max_iters, the answer says so ("beyond the good start's limits")
+    finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
+                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
