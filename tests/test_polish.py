@@ -375,8 +375,9 @@ def test_a_coarse_lead_runs_the_first_leg_and_the_whole_cloud_finishes(pair, mon
 
 
 def test_a_scene_sized_grid_follows_the_median_range_within_its_bounds():
-    """registration.polish_voxel_angle: the grid is the angle at the scan's median range, in [voxel / 4, voxel], the
-    cloud records it, and polish() scales its correspondence distance by the finer grid of the pair (0: as before)."""
+    """registration.polish_voxel_angle: the scene's grid is the angle at the scan's median range, in [voxel / 4,
+    voxel]; the cloud stays on polish_voxel (GICP's grid) and builds the finer one on demand (finer()), and polish()
+    scales its correspondence distance by the finer grid of the pair (0: as before)."""
     from deepbbs_ros.core.polish import correspondence_distance, scene_voxel
 
     rng = np.random.default_rng(3)
@@ -389,11 +390,43 @@ def test_a_scene_sized_grid_follows_the_median_range_within_its_bounds():
     small = prepare_polish_cloud(near, 0.5, 20, voxel_angle=0.125)
     large = prepare_polish_cloud(far, 0.5, 20, voxel_angle=0.125)
     plain = prepare_polish_cloud(near, 0.5, 20)
-    assert (small.voxel, large.voxel, plain.voxel) == (pytest.approx(0.25), 0.5, 0.5)
-    assert small.n_points > plain.n_points
+    assert (small.voxel, large.voxel, plain.voxel) == (0.5, 0.5, 0.5)
+    assert small.n_points == plain.n_points  # GICP's grid: its cost
+    assert (small.fine_voxel, large.fine_voxel) == (pytest.approx(0.25), 0.0)
+    assert large.finer() is None and plain.finer() is None
+    fine = small.finer()
+    assert fine is small.finer() and fine.voxel == pytest.approx(0.25) and fine.n_points > plain.n_points
     rc = Config().registration
-    assert correspondence_distance([small, large], rc) == pytest.approx(1.0)  # 2.0 m at 0.5 m: the same ratio
+    assert correspondence_distance([fine, large], rc) == pytest.approx(1.0)  # 2.0 m at 0.5 m: the same ratio
     assert correspondence_distance([large, plain], rc) == 2.0
     import pickle
 
-    assert pickle.loads(pickle.dumps(small)).voxel == pytest.approx(0.25)
+    again = pickle.loads(pickle.dumps(small))
+    assert again.fine_voxel == pytest.approx(0.25) and again.finer().n_points == fine.n_points
+
+
+def test_gicp_finishes_on_the_scene_grid_where_its_own_grid_blends_a_corridor():
+    """A simulated Mid-360 in a 2-3 m corridor (no noise, no motion in the sweep: the truth exact): GICP started at
+    the truth on its 0.5 m grid settles degrees off it (the grid blends walls, floor and ceiling); finished on the
+    scene's grid (registration.polish_voxel_angle 1/16: 0.125 m here) it comes back to within 0.2 deg / 5 cm."""
+    from deepbbs_ros.core.polish import finish
+    from deepbbs_ros.sim.patterns import make_sensor
+    from deepbbs_ros.sim.rig import make_simulator
+
+    rc = Config().replace(**{"registration.polish_voxel_angle": 0.0625, "registration.polish_threads": 1,
+                             "registration.exact_gicp": True}).registration
+    sim = make_simulator("corridor", 2, make_sensor("mid360", range_noise=0.0, dropout=0.0), "handheld", frames=60,
+                         compensate=True, motion_distortion=False)
+    frames = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 3, start=10)]
+    for (src, T_w_s), (tgt, T_w_t) in zip(frames[1:], frames[:-1]):
+        T = np.linalg.inv(T_w_t) @ T_w_s
+        sc, tc = (prepare_polish_cloud(p, 0.5, 20, voxel_angle=0.0625, threads=1) for p in (src, tgt))
+        assert 0 < sc.fine_voxel < 0.2 and 0 < tc.fine_voxel < 0.2
+        coarse = polish(sc, tc, T, rc)
+        fine = finish(sc, tc, coarse.T_target_source, rc)
+        assert coarse.applied and fine.applied, (coarse.reason, fine.reason)
+        assert _err(coarse.T_target_source, T)[0] > 1.0  # GICP's own grid: its minimum off the truth
+        rot, trans = _err(fine.T_target_source, T)
+        assert rot < 0.2 and trans < 0.05, (rot, trans)
+        plain = prepare_polish_cloud(src, 0.5, 20, threads=1)
+        assert finish(plain, tc, T, rc) is None  # no scene grid: nothing to finish on

@@ -78,10 +78,12 @@ class RegistrationConfig:
     polish: str = "gicp"  # precision stage (small_gicp) from the DeepBBS++ estimate: gicp|plane_icp|none
     polish_voxel: float = 0.5  # m; voxel grid of the precision clouds (whole cropped scan, ground kept); 0 = none
     polish_max_corr_dist: float = 2.0  # m; small_gicp max_correspondence_distance (= eval.baseline_max_corr_dist)
-    # rad; > 0: a scan's precision grid is at most this angle seen from the sensor at its median range (after the
-    # crop), at least polish_voxel / 4, and polish_max_corr_dist shrinks with it (core/polish.py scene_voxel); 0 =
-    # polish_voxel for every scan (the default: measured in docs/sensors.md, not shipped)
-    polish_voxel_angle: float = 0.0
+    # rad; > 0: GICP, run on polish_voxel, finishes on a scan's scene-sized grid, this angle seen from the sensor at
+    # its median range (after the crop), at least polish_voxel / 4, polish_max_corr_dist scaled with it (core/polish.py
+    # scene_voxel, finish): in the precision stage, and where the good start's verdict did not take GICP's pose;
+    # scans whose median range puts it at polish_voxel or above (8 m at 1/16) are not touched; 0 = polish_voxel only
+    # (measured in docs/sensors.md)
+    polish_voxel_angle: float = 0.0625
     polish_max_iters: int = 50  # (= eval.baseline_max_iters)
     polish_neighbors: int = 20  # neighbours for covariances / normals (= eval.baseline_neighbors)
     # at most this many voxels in a scan's GICP cloud: a denser one is put on a coarser grid (0 = polish_voxel as is);

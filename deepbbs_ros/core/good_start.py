@@ -7,6 +7,8 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 the verdict on a spread subset of the source's voxels (registration.good_start_probability) wherever
                 it ended; converged beyond registration.good_start_max_trans / _rot_deg or only after
                 good_start_max_iters, the answer says so ("beyond the good start's limits")
+    finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
+                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
@@ -30,7 +32,7 @@ import numpy as np
 from deepbbs_ros.core import coarse_rescue, pair_deskew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
-from deepbbs_ros.core.polish import PolishCloud, polish
+from deepbbs_ros.core.polish import PolishCloud, finish, polish
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
 
@@ -90,6 +92,9 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     if verdict.is_valid(prob, rc.good_start_probability):
         beyond = _beyond(pol, rc)
         accepted = f"accepted, beyond the good start's limits (GICP from the start: {beyond})" if beyond else "accepted"
+    elif (fine := _finished(pol, spc, tpc, pts, rc)) is not None:  # GICP's minimum on its grid off the place's
+        pol, prob = fine
+        accepted = f"accepted on the scene's grid (GICP from the start: verdict < {rc.good_start_probability})"
     else:  # not converged, or a pose the verdict does not take (outside GICP's basin, or a wrong one)
         first = "GICP from the start: " + (pol.reason if not pol.applied else
                                            f"verdict {prob:.2f} < registration.good_start_probability "
@@ -115,6 +120,20 @@ def from_start(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc:
     if pol.applied:
         pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
     return pol
+
+
+def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc: Any) -> tuple[Any, float] | None:
+    """GICP from the start converged but not taken: finished on the scans' scene-sized grids
+    (``registration.polish_voxel_angle``, :func:`core.polish.finish`; a narrow place's walls, floor and ceiling that
+    GICP's grid blends) and judged again on the same points and target (the verdict's own grid) -> (the finished
+    result, its probability) when the verdict takes it, else None (no finer grid, or not taken)."""
+    fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
+    if fine is None or not fine.applied:
+        return None
+    fine.T_target_source[:3, :3] = orthonormalize(fine.T_target_source[:3, :3])
+    fine = dataclasses.replace(fine, iterations=pol.iterations + fine.iterations, converged=pol.converged)
+    prob = _probability(fine, "", pts, tpc, rc)
+    return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
 
 
 def _beyond(pol: Any, rc: Any) -> str:

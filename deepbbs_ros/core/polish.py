@@ -37,8 +37,8 @@ from deepbbs_ros.config import RegistrationConfig
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.reprs import short_repr
 
-__all__ = ["PolishCloud", "PolishResult", "polish", "prepare_polish_cloud", "prepared_cloud", "SMALL_GICP_TYPE",
-           "threads_or_all"]
+__all__ = ["PolishCloud", "PolishResult", "finish", "polish", "prepare_polish_cloud", "prepared_cloud",
+           "SMALL_GICP_TYPE", "threads_or_all"]
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
@@ -80,13 +80,19 @@ class PolishCloud:
     # deferred: small_gicp's objects do not pickle, and building them is the work that process is there for)
     spec: tuple[int, str, int] | None = None
     # the grid it was put on (m; before a max_voxels coarsening), 0 for none: polish() scales its correspondence
-    # distance with the finer of a pair's grids (prepare_polish_cloud's voxel_angle)
+    # distance with the finer of a pair's grids
     voxel: float = 0.0
+    # prepare_polish_cloud's voxel_angle > 0: (the scan as given, min_range, max_range, voxel_angle), what the
+    # scene-sized grid GICP finishes on is sized from and built from when first asked (:attr:`fine_voxel`,
+    # :meth:`finer`, :func:`finish`): nothing is computed or copied for a scan no finish asks for
+    fine_source: tuple[np.ndarray, float, float, float] | None = field(default=None, repr=False)
+    _fine_voxel: float | None = field(default=None, repr=False, compare=False)
+    _fine: PolishCloud | None = field(default=None, repr=False, compare=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
         return {"points": self.points(), "n_points": self.n_points, "prepare_ms": self.prepare_ms,
-                "n_cropped": self.n_cropped, "spec": self.spec, "voxel": self.voxel}
+                "n_cropped": self.n_cropped, "spec": self.spec, "voxel": self.voxel, "fine_source": self.fine_source}
 
     def __setstate__(self, state: dict) -> None:
         import small_gicp
@@ -95,6 +101,7 @@ class PolishCloud:
         self.tree, self.n_points, self.n_cropped = None, state["n_points"], state["n_cropped"]
         self.prepare_ms, self.spec, self.pending = state["prepare_ms"], state["spec"], state["spec"]
         self.voxel = state.get("voxel", 0.0)
+        self.fine_source, self._fine_voxel, self._fine = state.get("fine_source"), None, None
         self._lock = threading.Lock()
 
     def complete(self, threads: int | None = None) -> PolishCloud:
@@ -113,6 +120,35 @@ class PolishCloud:
             self.pending = None
             self.prepare_ms += (time.perf_counter() - t0) * 1e3
         return self
+
+    def _cropped_source(self) -> np.ndarray:
+        from deepbbs_ros.core.preprocess import crop_range
+
+        pts, lo, hi, _ = self.fine_source
+        return np.compress(crop_range(pts, lo, hi), pts, axis=0).astype(np.float64, copy=False)
+
+    @property
+    def fine_voxel(self) -> float:
+        """The scan's scene-sized grid (m; :func:`scene_voxel` of ``fine_source``) when finer than ``voxel``, else
+        0 (none); computed on first read."""
+        if self._fine_voxel is None:
+            v = 0.0
+            if self.fine_source is not None and self.voxel > 0:
+                v = scene_voxel(self._cropped_source(), self.voxel, self.fine_source[3])
+            self._fine_voxel = v if v < self.voxel else 0.0
+        return self._fine_voxel
+
+    def finer(self) -> PolishCloud | None:
+        """This scan on its scene-sized grid (:attr:`fine_voxel`), with k-d tree and covariances, built on first
+        call (thread-safe, once); None when it has none."""
+        if self.fine_voxel <= 0 or self.spec is None:
+            return None
+        with self._lock:
+            if self._fine is None:
+                neighbors, registration_type, th = self.spec
+                self._fine = _prepared(self._cropped_source(), self.fine_voxel, neighbors, registration_type, th)
+                self._fine.voxel = self.fine_voxel
+        return self._fine
 
     def points(self) -> np.ndarray:
         """(n_points, 3) float64 voxel centroids."""
@@ -183,31 +219,35 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
             tree and covariances later (``DeepBBSRegistration`` does it while the network process runs).
         max_voxels: at most this many voxels (0 = no cap): a denser grid's centroids go on a coarser grid,
             ``voxel * sqrt(n / max_voxels)`` (a scan's voxels fill surfaces: their count goes as 1 / voxel^2).
-        voxel_angle: > 0: the grid is at most this angle (rad) seen from the sensor at the scan's median range,
-            ``min(voxel, voxel_angle * median range)``, and at least ``voxel / 4``: a corridor's or a small room's
-            scan (median range 1-4 m) gets a grid fine enough for its walls, floor and ceiling, whose corners a
-            ``voxel`` grid with ``neighbors`` covariances blends (:func:`scene_voxel`); 0: ``voxel``.
+        voxel_angle: > 0: the scan's scene-sized grid, this angle (rad) seen from the sensor at the scan's median
+            range, within [``voxel`` / 4, ``voxel``] (:func:`scene_voxel`): the cloud stays on ``voxel`` (GICP's
+            grid: its basin and its cost) and keeps the scan (not copied) to size and build that grid from when a
+            finish first asks (``fine_voxel``, :meth:`PolishCloud.finer`): a corridor's or a small room's scan
+            (median range 1-4 m) gets a grid fine enough for its walls, floor and ceiling, whose corners a ``voxel``
+            grid with ``neighbors`` covariances blends, to finish on (:func:`finish`); 0: ``voxel`` only.
     """
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
-    pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
-    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
-    if voxel > 0 and voxel_angle > 0:
-        voxel = scene_voxel(pts, voxel, voxel_angle)
+    given = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
+    pts = np.compress(crop_range(given, min_range, max_range), given, axis=0).astype(np.float64, copy=False)
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped, out.voxel = len(pts), float(voxel)
+    if voxel > 0 and voxel_angle > 0:
+        out.fine_source = (given, min_range, max_range, voxel_angle)
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
 
 
-def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 4096) -> float:
+def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 1024) -> float:
     """The grid (m) for a scan's points (N, 3) (sensor frame): ``angle`` (rad) seen from the sensor at their median
-    range (of an even subsample of about ``samples``), within [``voxel`` / 4, ``voxel``]."""
+    range (of an even subsample of about ``samples``: a few hundredths of a millisecond), within [``voxel`` / 4,
+    ``voxel``]."""
     if len(points) == 0:
         return float(voxel)
     sub = points[:: max(1, len(points) // samples)]
-    r50 = float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub))))
+    sq = np.einsum("ij,ij->i", sub, sub)
+    r50 = float(np.sqrt(np.partition(sq, len(sq) // 2)[len(sq) // 2]))
     return float(np.clip(angle * r50, 0.25 * voxel, voxel))
 
 
@@ -307,6 +347,18 @@ def correspondence_distance(clouds, cfg: RegistrationConfig) -> float:
     if cfg.polish_voxel <= 0 or min(grids) <= 0:
         return cfg.polish_max_corr_dist
     return cfg.polish_max_corr_dist * min(1.0, min(grids) / cfg.polish_voxel)
+
+
+def finish(source: Any, target: Any, T: np.ndarray, cfg: RegistrationConfig) -> PolishResult | None:
+    """GICP again from ``T`` (4, 4), on both scans' scene-sized grids (:meth:`PolishCloud.finer`: built on first
+    use), the correspondence distance scaled with the finer grid: where GICP on ``polish_voxel`` converged, its
+    minimum in a narrow place lies off the truth by the grid's blend (degrees in a 2-3 m corridor), and the finer grid
+    pins it in a few iterations (its own basin is narrower: it finishes, it does not start). None when either scan
+    has no finer grid (its median range puts ``registration.polish_voxel_angle`` at ``polish_voxel`` or above)."""
+    fine = [c.finer() if isinstance(c, PolishCloud) else None for c in (source, target)]
+    if fine[0] is None or fine[1] is None:
+        return None
+    return polish(fine[0], fine[1], T, cfg)
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,

@@ -17,6 +17,8 @@
     verdict     the score of the pose and whether it can be trusted (core/verdict.py), not when GICP finds a
                 minimum as good along its weakest direction (core/second_minimum.py)
     global      when it cannot: other start yaws, the best by the verdict kept (core/global_search.py)
+    finish      still not trusted: GICP's answer finished on the scans' scene-sized grids, judged again
+                (registration.polish_voxel_angle, core/polish.py finish)
 
 With ``good_start=True`` (the caller vouches for ``T_init``: consecutive scans, a fixed mounting, a map from the
 last pose) GICP from ``T_init`` runs first and answers alone when the verdict accepts (then coarse to fine, taken when
@@ -208,6 +210,7 @@ class DeepBBSRegistration(RegistrationInputs, NetworkStages, RefineStages, Preci
         self._deskew(st, clock)  # again on both scans deskewed with their own velocities, if they agree
         self._verdict(st)  # the pose's score and whether it can be trusted (registration.verdict_*)
         st = global_search.retry(self, st, clock)  # still not trusted: the other starts through the precision stage
+        self._finish(st, clock)  # still not trusted: GICP's answer finished on the scene's grid, judged again
         self._searched.append(st.starts > 1)
         result = to_result(st, clock)
         if good_start and T_init is not None:

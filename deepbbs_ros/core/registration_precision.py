@@ -1,6 +1,6 @@
 """The precision stage of one ``DeepBBSRegistration.register`` call (no ROS): small_gicp GICP on the dense scans
 from the estimate (core/polish.py), then again on both scans deskewed with their own velocities when they agree
-(core/pair_deskew.py)."""
+(core/pair_deskew.py); an answer the verdict does not take, finished on the scans' scene-sized grids."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import pair_deskew
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network_output import Clock, matrix, orthonormalize
-from deepbbs_ros.core.polish import polish
+from deepbbs_ros.core.polish import finish, polish
 from deepbbs_ros.core.registration_state import State
 
 __all__ = ["PrecisionStages"]
@@ -26,6 +26,7 @@ class PrecisionStages:
     model: DeepBBSNet
     device: torch.device
     _inlier_ratio: Callable[..., float]  # RefineStages._inlier_ratio
+    _verdict: Callable[[State], None]  # VerdictStages._verdict
 
     def _deskew(self, st: State, clock: Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
@@ -57,3 +58,25 @@ class PrecisionStages:
                 st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
             st.converged = pol.converged
         clock.lap("polish")
+
+    def _finish(self, st: State, clock: Clock) -> None:
+        """An answer the verdict does not take, GICP's (the precision stage applied): finished on the scans'
+        scene-sized grids (``registration.polish_voxel_angle``, :func:`core.polish.finish`: a narrow place's walls,
+        floor and ceiling, which GICP's grid blends) and judged again. Not on scans deskewed with their own velocities
+        (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
+        rc = self.config.registration
+        if (st.valid or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
+                or st.src_pc is None or st.tgt_pc is None):
+            return
+        fine = finish(st.src_pc, st.tgt_pc, st.T, rc)
+        if fine is None or not fine.applied:
+            return
+        st.T = fine.T_target_source
+        st.T[:3, :3] = orthonormalize(st.T[:3, :3])
+        st.iters["polish"] += fine.iterations
+        with torch.inference_mode():
+            Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
+            tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
+            st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
+        clock.lap("polish")
+        self._verdict(st)

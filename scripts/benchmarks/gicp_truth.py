@@ -7,10 +7,12 @@ frames and cache) and each ``--grids`` entry ``VOXEL:CORR`` (m), GICP (the basel
 ``preprocess.min_range`` as the pipeline has it for a plain cloud) from the truth of each neighbouring pair: its
 rotation / translation error, and the axis of the rotation error in the target's world frame. ``--ideal`` simulates
 the same frames again without motion within the sweep, range noise or dropouts (a simulator or motion effect then
-goes; a grid effect stays). ::
+goes; a grid effect stays). ``--finish ANGLE``: also the precision stage's GICP on ``registration.polish_voxel`` from
+the truth, finished on each scan's scene-sized grid (``registration.polish_voxel_angle`` ANGLE: core/polish.py
+``finish``). ::
 
     python scripts/benchmarks/gicp_truth.py --sims mid360:handheld:corridor mid360:legged:garage \\
-        --grids 0.5:2.0 0.25:1.0 --out /tmp/gicp_truth
+        --grids 0.5:2.0 0.25:1.0 --finish 0.0625 --out /tmp/gicp_truth
 """
 
 from __future__ import annotations
@@ -61,12 +63,39 @@ def from_truth(frames: list, voxel: float, corr: float) -> list[dict]:
     return out
 
 
+def finished_from_truth(frames: list, angle: float) -> list[dict]:
+    """The precision stage from the truth on each pair (k, k - 1) of ``frames``: GICP on ``registration.polish_voxel``,
+    then finished on the scans' grids at ``angle`` (rad) of their median ranges -> errors, and the finer grids (m)."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.polish import finish, polish, prepare_polish_cloud
+    from deepbbs_ros.metrics import pair_errors
+
+    cfg = Config().replace(**{"registration.polish_voxel_angle": angle, "registration.polish_threads": 1,
+                              "registration.exact_gicp": True})
+    rc, pp = cfg.registration, cfg.preprocess
+    out = []
+    for k in range(1, len(frames)):
+        (src, Ts), (tgt, Tt) = frames[k], frames[k - 1]
+        T = np.linalg.inv(Tt) @ Ts
+        sc, tc = (prepare_polish_cloud(p, rc.polish_voxel, rc.polish_neighbors, min_range=pp.min_range,
+                                       max_range=pp.max_range, threads=1, voxel_angle=angle) for p in (src, tgt))
+        pol = polish(sc, tc, T, rc)
+        fine = finish(sc, tc, pol.T_target_source, rc) if pol.applied else None
+        T_end = fine.T_target_source if fine is not None and fine.applied else pol.T_target_source
+        rot, tr = pair_errors(T_end, T)
+        grids = [round(c.fine_voxel or rc.polish_voxel, 3) for c in (sc, tc)]
+        out.append({"pair": [k, k - 1], "rot_deg": float(rot), "trans_m": float(tr), "grids_m": grids})
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sims", nargs="*", default=list(families.SIMS), help="simulated sets sensor:mount:place")
     p.add_argument("--sim-frames", type=int, default=5, help="scans per set (families.py --quick: 5)")
     p.add_argument("--grids", nargs="+", default=["0.5:2.0", "0.25:1.0"], help="VOXEL:CORR pairs (m)")
     p.add_argument("--ideal", action="store_true", help="also the frames simulated without motion, noise, dropouts")
+    p.add_argument("--finish", type=float, default=0.0, metavar="ANGLE",
+                   help="also GICP on polish_voxel finished on the scene's grid (registration.polish_voxel_angle)")
     p.add_argument("--cache", default="~/.cache/deepbbs_ros/bench", help="cache of the simulated scans")
     p.add_argument("--out", default="results/benchmarks", help="folder for gicp_truth.json")
     args = p.parse_args(argv)
@@ -84,6 +113,11 @@ def main(argv: list[str] | None = None) -> int:
                 figures[f"{spec}/{name}/{voxel}:{corr}"] = rows
                 print(f"{spec} {name} grid {voxel} m, corr {corr} m: " + ", ".join(
                     f"{r['rot_deg']:.2f} deg / {r['trans_m']:.3f} m" for r in rows), flush=True)
+            if args.finish > 0:
+                rows = finished_from_truth(fr, args.finish)
+                figures[f"{spec}/{name}/finish {args.finish}"] = rows
+                print(f"{spec} {name} finished on the scene's grid ({args.finish} rad): " + ", ".join(
+                    f"{r['rot_deg']:.2f} deg / {r['trans_m']:.3f} m ({r['grids_m'][0]} m)" for r in rows), flush=True)
     _common.write_json(Path(args.out), "gicp_truth.json", figures)
     return 0
 
