@@ -11,14 +11,20 @@
 # committed deepbbs_ros/models/train_state/mix_span/state_latest.pt, else from the shipped model.
 #   UNTIL=10:30 setsid nohup nice -n 10 scripts/train_mix_span.sh > runs/mix_span.log 2>&1 &
 #   scripts/train_mix_span.sh --save-state     # commit the state after a stop
+# The fourth run (the bounded per-pair pose loss, train.pose_loss=bounded) is this script with its own run and
+# state folders:
+#   NAME=mix_bound POSE_LOSS=bounded UNTIL=13:25 setsid nohup nice -n 10 scripts/train_mix_span.sh > runs/mix_bound.log 2>&1 &
+#   NAME=mix_bound scripts/train_mix_span.sh --save-state
 # BUDGET: minutes of fitting this invocation (0 = until the schedule ends); UNTIL (HH:MM, UTC) sets BUDGET
 # to the minutes left until then once the caches are made. THREADS: torch threads. DRIVES: mix drives.
+# NAME: run and state folder name (runs/NAME, deepbbs_ros/models/train_state/NAME). POSE_LOSS: train.pose_loss.
 set -eu
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
-RUN=${RUN:-runs/mix_span}
+NAME=${NAME:-mix_span}
+RUN=${RUN:-runs/$NAME}
 CACHE=${CACHE:-runs/cache}
-STATE=deepbbs_ros/models/train_state/mix_span
+STATE=deepbbs_ros/models/train_state/$NAME
 THREADS=${THREADS:-1}
 BUDGET=${BUDGET:-0}
 DRIVES=${DRIVES:-128}
@@ -36,6 +42,7 @@ mix_data mix_span --min-span 10
 SETS="--set train.epochs=12 --set train.steps_per_epoch=100 --set train.batch_size=8 --set train.lr=5e-5 \
   --set train.pair_balance=distance --set train.lr_step=3 --set train.lr_gamma=0.5 --set train.val_every=2 --set train.val_pairs=48 \
   --set train.checkpoint_minutes=10 --set train.trans_weight=5 --set train.seed=3 --set train.num_points=512"
+if [ -n "${POSE_LOSS:-}" ]; then SETS="$SETS --set train.pose_loss=$POSE_LOSS"; fi
 if [ -n "${UNTIL:-}" ]; then
   BUDGET=$(( ($(date -u -d "$UNTIL" +%s) - $(date -u +%s)) / 60 ))
   if [ "$BUDGET" -lt 1 ]; then echo "UNTIL $UNTIL: no time left" >&2; exit 1; fi

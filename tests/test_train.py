@@ -197,6 +197,54 @@ def test_loss_is_zero_at_ground_truth_and_guards_no_partner():
     assert torch.isfinite(terms.total) and float(terms.corr) == 0.0
 
 
+def test_bounded_pose_loss_on_pairs_of_known_error():
+    """train.pose_loss=bounded on a batch whose pose errors are known: the squared loss below the success
+    tolerance, 2 (sqrt 2 - 1) c at it, and beyond it each pair's pull (gradient with respect to its rotation
+    error) at most 2 sqrt(c) while the squared loss's grows with the error."""
+    from deepbbs_ros.core.model import NetOutput
+    from deepbbs_ros.train.loss import loss_options, tolerance_pose_term
+
+    cfg = Config().replace(**{"train.pose_loss": "bounded", "train.trans_weight": 5.0}).validate()
+    opts = loss_options(cfg, epoch=0)
+    c = opts["pose_bound"]
+    assert c == pytest.approx(4 * (1 - np.cos(np.radians(1.0))) + 5.0 * (0.025 * 0.3) ** 2)
+    assert loss_options(Config(), 0)["pose_bound"] == 0.0  # the default: today's squared loss
+    assert c == tolerance_pose_term(1.0, 0.3, scale=0.025, trans_weight=5.0)
+
+    g = torch.Generator().manual_seed(1)
+    src = torch.randn(1, 40, 3, generator=g, dtype=torch.float64) * 10
+    tgt = src.clone()  # ground truth: identity
+
+    def loss(deg: float, metres: float, pose_loss: str):
+        angle = torch.tensor(np.radians(deg), dtype=torch.float64, requires_grad=True)
+        cs, sn, z, o = torch.cos(angle), torch.sin(angle), torch.zeros((), dtype=torch.float64), \
+            torch.ones((), dtype=torch.float64)
+        R = torch.stack([torch.stack([cs, -sn, z]), torch.stack([sn, cs, z]), torch.stack([z, z, o])])[None]
+        t = torch.tensor([[metres, 0.0, 0.0]], dtype=torch.float64)
+        out = NetOutput(R, t, tgt.clone(), torch.ones(1, 40), torch.ones(1))
+        o = loss_options(cfg.replace(**{"train.pose_loss": pose_loss}), epoch=0)
+        total = deepbbs_loss(out, src, tgt, torch.eye(3, dtype=torch.float64)[None], torch.zeros(1, 3,
+                             dtype=torch.float64), **o).total
+        (d_angle,) = torch.autograd.grad(total, angle)
+        return float(total.detach()), float(d_angle)
+
+    # at the tolerance (1 deg, 0.3 m): the squared loss is c, the bounded 2 (sqrt 2 - 1) c
+    assert loss(1.0, 0.3, "squared")[0] == pytest.approx(c, rel=1e-9)
+    assert loss(1.0, 0.3, "bounded")[0] == pytest.approx(2 * (np.sqrt(2) - 1) * c, rel=1e-9)
+    # well inside it the two agree
+    small_sq, small_b = loss(0.02, 0.006, "squared"), loss(0.02, 0.006, "bounded")
+    assert small_b[0] == pytest.approx(small_sq[0], rel=1e-3) and small_b[1] == pytest.approx(small_sq[1], rel=1e-3)
+    # far beyond it: the squared loss pulls 4 sin(angle) (57x at 90 deg what it pulls at 1), the bounded one at most
+    # 2 sqrt(c) per unit of the error's norm sqrt(rot) ~ sqrt(2) x angle: d/d angle <= 2 sqrt(2 c)
+    # and no more than sqrt(2) x the pull of a pair whose pose term is c (a rotation alone of tol_deg)
+    tol_deg = float(np.degrees(np.arccos(1 - c / 4)))
+    pull_tol = loss(tol_deg, 0.0, "bounded")[1]
+    for deg in (10.0, 30.0, 90.0):
+        assert loss(deg, 0.0, "squared")[1] == pytest.approx(4 * np.sin(np.radians(deg)), rel=1e-9)  # d 4(1-cos)
+        assert 0 < loss(deg, 0.0, "bounded")[1] <= 2 * np.sqrt(2 * c)
+        assert loss(deg, 0.0, "bounded")[1] <= np.sqrt(2) * pull_tol
+
+
 # -- training ------------------------------------------------------------------------------------
 def test_loss_falls_on_a_fixed_batch(tmp_path):
     cfg = tiny_config(**{"train.lr": 3e-3})

@@ -35,7 +35,7 @@ def _var(name: str) -> str:
 
 
 def _sets(path: Path = SCRIPT) -> dict[str, str]:
-    return dict(re.findall(r"--set (train\.\w+)=(\S+?)[\s\"]", _script(path)))
+    return dict(re.findall(r"--set (train\.\w+)=([^\s\"$]\S*?)[\s\"]", _script(path)))  # not from the environment
 
 
 @pytest.fixture(autouse=True)
@@ -181,6 +181,22 @@ def test_evaluate_network_alone_runs_no_search(monkeypatch):
     evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["vlp16:wheeled:courtyard"], drives_per_scene=1, frames=2,
              stride=10, yaw_deg=0.0, methods=["deepbbs++", "deepbbs", "refine-only"], progress=False)
     assert [c.registration.global_search for c in seen] == ["auto", "off", "off"]
+
+
+def test_bounded_run_is_the_third_run_with_its_loss_and_folders(tmp_path):
+    """NAME=mix_bound POSE_LOSS=bounded scripts/train_mix_span.sh: the third run's data and schedule, the bounded
+    per-pair pose loss, its own run and state folders."""
+    env = {"PATH": "/usr/bin:/bin", "PY": "echo", "NAME": "mix_bound", "POSE_LOSS": "bounded",
+           "RUN": str(tmp_path / "run"), "CACHE": str(tmp_path / "c"), "DRIVES": "4"}
+    out = subprocess.run(["sh", str(SPAN)], env=env, capture_output=True, text=True, check=True).stdout
+    fit = [line for line in out.splitlines() if " fit " in line]
+    assert len(fit) == 1 and "--min-span 10" in out
+    sets = dict(re.findall(r"--set (train\.\w+)=(\S+)", fit[0]))
+    assert sets.pop("train.pose_loss") == "bounded" and sets == _sets(KEEP)
+    assert f"--run {tmp_path / 'run'}" in fit[0]
+    assert Config().replace(**{"train.pose_loss": "bounded"}).validate().train.pose_loss == "bounded"
+    with pytest.raises(ValueError):
+        Config().replace(**{"train.pose_loss": "huber"}).validate()
 
 
 def test_mix_data_step_commands():

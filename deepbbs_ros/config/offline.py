@@ -22,6 +22,10 @@ class TrainConfig:
     beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
     theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
     trans_weight: float = 1.0  # weight of the translation term (1 = the paper's loss; scaled units, see train/loss.py)
+    # per-pair pose term: "squared" = rot + trans_weight * trans (the paper's); "bounded" = its pseudo-Huber with
+    # the scale of a pair at the success tolerance (eval.success_rot_deg / success_trans): squared below it,
+    # growing like the error above, so no pair pulls more than ~1.4 pairs at the tolerance (see train/loss.py)
+    pose_loss: str = "squared"
     max_dist: float = 5.0  # m; pairs of frames at most this far apart
     # how pairs are drawn: "pairs" = drives in proportion to their pair count (capped at 2000), then any of their
     # pairs; "distance" = every drive alike, then the pair's distance uniform over tenths of max_dist (slow
@@ -42,6 +46,8 @@ class TrainConfig:
         _check(self.num_points == 0 or self.num_points >= 16, "train.num_points", "must be 0 or >= 16")
         _check(self.grad_clip >= 0, "train.grad_clip", "must be >= 0")
         _check(self.trans_weight > 0, "train.trans_weight", "must be > 0")
+        _check(self.pose_loss in ("squared", "bounded"), "train.pose_loss",
+               f"must be 'squared' or 'bounded', got {self.pose_loss!r}")
         _check(self.checkpoint_minutes >= 0, "train.checkpoint_minutes", "must be >= 0")
         _check(self.lr > 0, "train.lr", "must be > 0")
         _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")

@@ -13,6 +13,17 @@ swamp the rotation by three orders of magnitude. ``w_t`` (``train.trans_weight``
 shifts that balance: the success criterion (1 degree, 0.3 m) weighs 0.3 m like 1 degree, i.e.
 w_t ~ 5.
 
+**Bounded per pair** (``train.pose_loss: bounded``). The pose term ``p = rot + w_t trans`` of each pair
+is replaced by ``2 c (sqrt(1 + p / c) - 1)`` (pseudo-Huber, Charbonnier), ``c`` the pose term of a pair at
+the success tolerance (``eval.success_rot_deg``, ``eval.success_trans``: 1 degree and 0.3 m give
+c = 6.1e-4 + w_t 5.6e-5). Below the tolerance it is the squared loss (p for p << c); beyond it grows like
+the error instead of its square, so a pair's pull on the network (the gradient with respect to its pose
+error) is at most 2 sqrt(c), about 1.4 times that of a pair at the tolerance. A pair many degrees off
+(one the network cannot solve in one pass: the search's starts are there for it) still says which way to
+go, but can no longer outweigh the batch's pairs near the tolerance, which the success criterion
+measures. Rotation and translation are bounded together: a pair whose rotation is far off has a
+translation error that follows from it.
+
 ``gamma_gt_i = 1`` when source point p_i, moved by the ground truth, has a target point within
 ``theta`` metres (a true partner), else 0. The mean over partners is guarded: a pair with no
 partner at all contributes 0 to the correspondence term instead of NaN.
@@ -20,6 +31,7 @@ partner at all contributes 0 to the correspondence term instead of NaN.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 
@@ -48,8 +60,29 @@ def partner_mask(src, tgt, R_gt, t_gt, theta: float):
         return (nearest <= theta).to(src.dtype)
 
 
+def tolerance_pose_term(rot_deg: float, trans_m: float, *, scale: float, trans_weight: float) -> float:
+    """The pose term ``rot + w_t trans`` of a pair off by exactly ``rot_deg`` degrees and ``trans_m`` metres."""
+    return 4.0 * (1.0 - math.cos(math.radians(rot_deg))) + trans_weight * (scale * trans_m) ** 2
+
+
+def bounded_pose(pose, c: float):
+    """``2 c (sqrt(1 + pose / c) - 1)`` of the per-pair tensor ``pose`` (>= 0): ~pose below c, ~sqrt above."""
+    return 2.0 * c * ((1.0 + pose / c).sqrt() - 1.0)
+
+
+def loss_options(config, epoch: int) -> dict:
+    """``deepbbs_loss``'s keyword arguments from a ``Config`` (train, model and eval sections) at ``epoch``."""
+    tc = config.train
+    bound = 0.0
+    if tc.pose_loss == "bounded":
+        bound = tolerance_pose_term(config.eval.success_rot_deg, config.eval.success_trans,
+                                    scale=config.model.scale, trans_weight=tc.trans_weight)
+    return {"scale": config.model.scale, "theta": tc.theta, "corr_weight": tc.beta ** epoch,
+            "trans_weight": tc.trans_weight, "pose_bound": bound}
+
+
 def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_weight: float,
-                 trans_weight: float = 1.0) -> LossTerms:
+                 trans_weight: float = 1.0, pose_bound: float = 0.0) -> LossTerms:
     """The loss above.
 
     Args:
@@ -59,6 +92,7 @@ def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_
         scale: model.scale (metres -> network units). theta: partner radius in metres.
         corr_weight: beta ** epoch.
         trans_weight: w_t, the weight of the translation term (1 = the paper).
+        pose_bound: c of the bounded per-pair pose term (``tolerance_pose_term``); 0 = the squared loss.
     """
     import torch
 
@@ -70,6 +104,9 @@ def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_
     q_gt = src @ R_gt.transpose(1, 2) + t_gt[:, None, :]
     err = ((scale * (out.q_hat - q_gt)) ** 2).sum(dim=2)
     corr = (gamma_gt * err).sum(dim=1) / gamma_gt.sum(dim=1).clamp_min(1.0)
-    total = rot + trans_weight * trans + corr_weight * corr
+    pose = rot + trans_weight * trans
+    if pose_bound > 0:
+        pose = bounded_pose(pose, pose_bound)
+    total = pose + corr_weight * corr
     return LossTerms(total.mean(), rot.mean().detach(), trans.mean().detach(), corr.mean().detach(),
                      gamma_gt.mean().detach())

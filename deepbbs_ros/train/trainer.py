@@ -41,7 +41,7 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.train.cache import Drive
-from deepbbs_ros.train.loss import deepbbs_loss
+from deepbbs_ros.train.loss import deepbbs_loss, loss_options
 from deepbbs_ros.train.pairs import AugmentConfig, Pair, PairSampler, collate
 from deepbbs_ros.train.run_log import append_log, write_val_csv
 from deepbbs_ros.train.run_state import STATE_FILE, restore_state, save_state
@@ -137,8 +137,7 @@ class Trainer:
         src, tgt, R_gt, t_gt = (x.to(self.device) for x in collate(pairs))
         self.model.train()
         out = self.net(src, tgt)
-        terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=self.config.model.scale, theta=tc.theta,
-                             corr_weight=tc.beta ** self.epoch, trans_weight=tc.trans_weight)
+        terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, **loss_options(self.config, self.epoch))
         self.optimizer.zero_grad(set_to_none=True)
         terms.total.backward()
         grad_norm = float("nan")

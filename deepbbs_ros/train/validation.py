@@ -12,7 +12,7 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.train.cache import Drive
-from deepbbs_ros.train.loss import deepbbs_loss
+from deepbbs_ros.train.loss import deepbbs_loss, loss_options
 from deepbbs_ros.train.pairs import Pair, collate, validation_pairs
 
 
@@ -82,8 +82,7 @@ def validation_record(model: Any, config: Config, vs: ValidationSet, val_drives:
         for k in range(0, len(vs.plain), tc.batch_size):
             src, tgt, R_gt, t_gt = (x.to(device) for x in collate(vs.plain[k : k + tc.batch_size]))
             out = model(src, tgt)
-            terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, scale=cfg.model.scale, theta=tc.theta,
-                                 corr_weight=tc.beta ** epoch, trans_weight=tc.trans_weight)
+            terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, **loss_options(cfg, epoch))
             losses.append(float(terms.total) * len(src))
         rec["val_loss"] = sum(losses) / max(1, len(vs.plain))
         folder = {d.name: str(d.meta.get("cache", "")) for d in val_drives}
