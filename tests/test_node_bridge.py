@@ -88,7 +88,8 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
         sent = _stream(h, during)  # the search's scan and those that arrive during the search
         # then one scan for every two the bridge follows, and once it caught up, each once the one before is answered
         prev = [during[-1][0]] + [stamp for stamp, _ in after]
-        sent.update(_stream(h, after, go=lambda i: loc._bridging and loc.bridged >= 2 * (i + 1) or loc.answered(prev[i])))
+        sent.update(_stream(h, after, go=lambda i: (loc._bridging and loc.bridged >= 2 * (i + 1))
+                            or loc.answered(prev[i])))
         frames = range(12, 42)
         assert h.wait_for(lambda: loc.tracker is not None and loc.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
                           and not h.node.worker.busy, 120.0), loc.diagnostics()
