@@ -221,3 +221,9 @@ class RegistrationConfig:
         _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
         _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
+
+
+#: the network alone (``deepbbs-replay --method deepbbs``, ``deepbbs-train evaluate --methods deepbbs``): the deep
+#: passes from the one start given, with no refinement, no precision stage and no global search (whose other starts
+#: end in GICP): the network's own answer
+NETWORK_ALONE = {"registration.refine": False, "registration.polish": "none", "registration.global_search": "off"}
