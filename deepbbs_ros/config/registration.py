@@ -156,8 +156,8 @@ class RegistrationConfig:
     good_start_probability: float = 0.7  # the good-start verdict: valid when its probability of being right reaches it
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     # register(..., good_start=True) gives GICP from the vouched start its own budget (polish_max_iters) and takes its
-    # answer wherever the good-start verdict accepts it; these limits name it "beyond the good start's limits" past
-    # them, bound the coarse try's answer (twice them) and the localization's tracking
+    # answer wherever the good-start verdict accepts it (the localization's tracking too, with the map verdict);
+    # these limits name it "beyond the good start's limits" past them and bound the coarse try's answer (twice them)
     good_start_max_iters: int = 10  # GICP iterations a vouched start should need
     good_start_max_trans: float = 3.0  # m; how far GICP should move a vouched start
     good_start_max_rot_deg: float = 10.0  # deg; idem for rotation
