@@ -65,6 +65,13 @@ def _stream(h: Harness, clouds: list[tuple[int, np.ndarray]], go=None) -> dict[i
     return sent
 
 
+def _handed_on(h: Harness, clouds: list[tuple[int, np.ndarray]]):
+    """``go`` for :func:`_stream`: the scan before the i-th was decoded and prepared (the input thread holds one
+    waiting scan: a second sent meanwhile would push it out on a machine slower than the stream)."""
+    loc = h.node.localization
+    return lambda i: i == 0 or (loc.last_arrival is not None and loc.last_arrival >= clouds[i - 1][0])
+
+
 def _search_waits_for(h: Harness, n: int) -> None:
     """Every search waits until ``n`` scans more arrived (kept for the bridge): it outlasts ``n`` scan periods."""
     loc = h.node.localization
@@ -85,11 +92,12 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
     loc = h.node.localization
     try:
         _search_waits_for(h, len(during) - 1)
-        sent = _stream(h, during)  # the search's scan and those that arrive during the search
+        sent = _stream(h, during, go=_handed_on(h, during))  # the search's scan and those that arrive meanwhile
         # then one scan for every two the bridge follows, and once it caught up, each once the one before is answered
         prev = [during[-1][0]] + [stamp for stamp, _ in after]
-        sent.update(_stream(h, after, go=lambda i: (loc._bridging and loc.bridged >= 2 * (i + 1))
-                            or loc.answered(prev[i])))
+        handed = _handed_on(h, [during[-1], *after])
+        sent.update(_stream(h, after, go=lambda i: handed(i + 1) and (
+            (loc._bridging and loc.bridged >= 2 * (i + 1)) or loc.answered(prev[i]))))
         frames = range(12, 42)
         assert h.wait_for(lambda: loc.tracker is not None and loc.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
                           and not h.node.worker.busy, 120.0), loc.diagnostics()
@@ -145,16 +153,16 @@ def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, ca
     def two_more_arrive() -> None:  # on the worker thread, before a tracked scan's registration
         if not loc._bridging:
             return  # the worker's own scans after the bridge: no wait
-        start = loc._bridge.arrived
-        for stamp, xyz in itertools.islice(later, 2):
+        for stamp, xyz in itertools.islice(later, 2):  # one at a time: the input thread holds one waiting scan
+            start = loc._bridge.arrived
             h.send("source_cloud", xyz, stamp, "lidar")
             sent.append(stamp)
-        wait_for(lambda: loc._bridge.arrived >= start + 2, 120.0)
+            wait_for(lambda start=start: loc._bridge.arrived > start, 120.0)
 
     try:
         _search_waits_for(h, len(during) - 1)
         loc.track_gate = two_more_arrive
-        stamps = list(_stream(h, during))
+        stamps = list(_stream(h, during, go=_handed_on(h, during)))
         assert h.wait_for(lambda: loc.last_bridge != "" and not h.node.worker.busy, 120.0), loc.diagnostics()
         line = loc.last_bridge
         m = re.search(r"(\d+) scan\(s\) arrived while it followed the last (\d+)\)", line)
