@@ -92,9 +92,9 @@ def test_the_given_start_coarse_to_fine_registers_what_every_deep_answer_missed(
 
 
 def test_the_network_alone_runs_no_gicp_in_its_search(courtyard, monkeypatch):
-    """The same pair with no precision stage (``registration.polish: none``, the network alone as
-    ``deepbbs-replay --method deepbbs`` runs it): the search still runs, but its last try, GICP coarse to fine,
-    does not (a figure of the network alone would be partly GICP's)."""
+    """The same pair with no precision stage (``registration.polish: none``, the global search on: the network as
+    ``deepbbs-train adapt``'s report runs it): the search still runs, but its last try, GICP coarse to fine, does not
+    (a figure of the network would be partly GICP's)."""
     from deepbbs_ros.core import coarse_rescue
     from deepbbs_ros.core.registration import DeepBBSRegistration
 

@@ -1,13 +1,16 @@
 """A global search slower than the scan period, over real DDS: the pose it finds is carried through the scans that
 arrived meanwhile (node/bridge.py) and tracking goes on with no loss; scans dropped unanswered are said once.
 
-The map and the scans are tests/test_node_localization.py's simulated drive; the scans are sent at 10 Hz. The search
-is made to outlast the period by the node's test hook ``NodeLocalization.search_delay_s`` (every search waits that
-long before it starts: the registration itself is the real one).
+The map and the scans are tests/test_node_localization.py's simulated drive; the scans are made before they are sent,
+at 10 Hz at most. The search is made to outlast the period by the node's test hook ``NodeLocalization.search_gate``
+(the search waits until a dozen scans more arrived: the registration itself is the real one), and the pace of the
+scans against the node's is set in scans, not seconds (``track_gate``, and a stream that waits for the node where a
+test says so), so that a loaded machine gives the same sequence as a quiet one.
 """
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -21,7 +24,7 @@ rclpy = pytest.importorskip("rclpy")
 
 import test_node  # noqa: E402
 import test_node_localization  # noqa: E402
-from test_node import Harness, _check_pose  # noqa: E402
+from test_node import Harness, _check_pose, wait_for  # noqa: E402
 from test_node_localization import _config, _registration, _write_map  # noqa: E402
 
 from msg_adapters.transforms import pose_stamped_to_matrix  # noqa: E402
@@ -44,41 +47,67 @@ def _harness(drive_data, tmp_path, name: str, trajectory: bool = True, **extra) 
     return Harness(cfg, name, registration=_registration(cfg))
 
 
-def _stream(h: Harness, sim, scan, frames) -> dict[int, float]:
-    """Send ``frames`` at 10 Hz; -> stamp -> time.perf_counter() sent (the node's clock of arrival)."""
-    sent = {}
-    t0 = time.perf_counter()
-    for i, k in enumerate(frames):
-        time.sleep(max(t0 + i * PERIOD - time.perf_counter(), 0.0))
-        sent[sim.stamp_ns(k)] = time.perf_counter()
-        h.send("source_cloud", scan(k)[0], sim.stamp_ns(k), "lidar")
+def _clouds(sim, scan, frames) -> list[tuple[int, np.ndarray]]:
+    """(stamp, points) of ``frames``, made before any is sent (a simulated scan takes most of a period to make)."""
+    return [(sim.stamp_ns(k), scan(k)[0]) for k in frames]
+
+
+def _stream(h: Harness, clouds: list[tuple[int, np.ndarray]], go=None) -> dict[int, float]:
+    """Send ``clouds`` ((stamp, points)) a period apart at least; ``go(i)``, when given, is waited for before the i-th
+    (a stream no faster than the node, counted in scans). -> stamp -> time.perf_counter() sent (the node's clock)."""
+    sent: dict[int, float] = {}
+    last = -np.inf
+    for i, (stamp, xyz) in enumerate(clouds):
+        assert go is None or h.wait_for(lambda i=i: go(i), 120.0), f"the node never got to scan {i}: {h.node.stats()}"
+        time.sleep(max(last + PERIOD - time.perf_counter(), 0.0))
+        sent[stamp] = last = time.perf_counter()
+        h.send("source_cloud", xyz, stamp, "lidar")
     return sent
+
+
+def _handed_on(h: Harness, clouds: list[tuple[int, np.ndarray]]):
+    """``go`` for :func:`_stream`: the scan before the i-th was decoded and prepared (the input thread holds one
+    waiting scan: a second sent meanwhile would push it out on a machine slower than the stream)."""
+    loc = h.node.localization
+    return lambda i: i == 0 or (loc.last_arrival is not None and loc.last_arrival >= clouds[i - 1][0])
+
+
+def _search_waits_for(h: Harness, n: int) -> None:
+    """Every search waits until ``n`` scans more arrived (kept for the bridge): it outlasts ``n`` scan periods."""
+    loc = h.node.localization
+    loc.search_gate = lambda: h.wait_for(lambda: loc._bridge.arrived >= n, 120.0)
 
 
 @pytest.mark.parametrize("trajectory", [True, False], ids=["with_trajectory", "map_alone"])
 def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, trajectory):
-    """The first search takes > 1 s (10+ scans arrive meanwhile): once it places its scan, the node follows the pose
-    through the scans that arrived (their poses published, right), and every scan sent after the first pose is
-    answered with the right pose; never lost, one 'followed' line; the scans the bridge passed over are counted and
-    said in one line at most. The same with a map given without its trajectory (a robot that boots anywhere in a map
-    from another tool: the whole map's free space searched)."""
+    """The first search lasts 12 scans (they arrive meanwhile): once it places its scan, the node follows the pose
+    through the scans that arrived (their poses published, right), round after round while more arrive (one for every
+    two it follows: tracking faster than the stream), and every scan sent after the first pose is answered with the
+    right pose; never lost, one 'followed' line; the scans the bridge passed over are counted and said in one line at
+    most. The same with a map given without its trajectory (a robot that boots anywhere in a map from another tool: the
+    whole map's free space searched)."""
     sim, _, _, scan = drive
+    during, after = _clouds(sim, scan, range(12, 25)), _clouds(sim, scan, range(25, 42))  # 3 s of driving at 10 Hz
     h = _harness(drive, tmp_path, "bridge_node", trajectory, **{"node.error_log_period": 60.0})
+    loc = h.node.localization
     try:
-        h.node.localization.search_delay_s = 1.2
-        frames = list(range(12, 42))  # 3 s of driving at 10 Hz
-        sent = _stream(h, sim, scan, frames)
-        assert h.wait_for(lambda: h.node.localization.tracker is not None
-                          and h.node.localization.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
-                          and not h.node.worker.busy, 60.0), h.node.localization.diagnostics()
+        _search_waits_for(h, len(during) - 1)
+        sent = _stream(h, during, go=_handed_on(h, during))  # the search's scan and those that arrive meanwhile
+        # then one scan for every two the bridge follows, and once it caught up, each once the one before is answered
+        prev = [during[-1][0]] + [stamp for stamp, _ in after]
+        handed = _handed_on(h, [during[-1], *after])
+        sent.update(_stream(h, after, go=lambda i: handed(i + 1) and (
+            (loc._bridging and loc.bridged >= 2 * (i + 1)) or loc.answered(prev[i]))))
+        frames = range(12, 42)
+        assert h.wait_for(lambda: loc.tracker is not None and loc.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
+                          and not h.node.worker.busy, 120.0), loc.diagnostics()
         assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
         got = {pose_stamped_to_matrix(m)[1]: pose_stamped_to_matrix(m)[0] for m in h.poses}
-        truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
+        truth = {sim.stamp_ns(k): sim.pose_at(k) for k in frames}
         for stamp, T in got.items():
             _check_pose(T, truth[stamp])
         first = min(got)
         assert first == sim.stamp_ns(frames[0]), "the search's scan is the first placed"
-        loc = h.node.localization
         # the search's end, on the node's clock (this process's perf_counter, as `sent`): a scan received before it
         # arrived during the search (thinned by the bridge); sent[first] + first_pose_s would be earlier by the first
         # scan's delivery, and a scan sent in between is one the node rightly counts as of the search's time
@@ -92,9 +121,11 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
         assert h.wait_for(lambda: h.diagnostics().get("localization.scans followed after a search", "0") != "0", 5.0)
         log = capfd.readouterr().err
         assert log.count("localization found") == 1 and log.count("followed the pose through") == 1, log
-        assert "localization lost" not in log, log
+        assert "localization lost" not in log and "fell behind" not in log, log
         assert ("a grid over its free space" in log) != trajectory, log  # the map alone: places from its free space
-        dropped = int(h.diagnostics().get("localization.scans dropped unanswered", "0"))
+        dropped = h.node._drops.total  # the node's count; its next /diagnostics says the same
+        assert h.wait_for(lambda: h.diagnostics().get("localization.scans dropped unanswered", "0") == str(dropped),
+                          5.0), (dropped, h.diagnostics())
         lines = [ln for ln in log.splitlines() if "dropped unanswered" in ln]
         assert len(lines) == (dropped > 0) and (not lines or "dropped so far" in lines[0]), (dropped, lines)
     finally:
@@ -102,36 +133,50 @@ def test_slow_search_then_tracking_with_no_loss(ros, drive, tmp_path, capfd, tra
 
 
 def test_bridge_slower_than_the_stream_ends_and_says_so(ros, drive, tmp_path, capfd):
-    """Tracking slower than the scan period (the test hook ``track_delay_s``: 0.15 s a scan at 10 Hz): the bridge
-    cannot catch up, so it does not try to: it ends once as many scans arrived as its window holds (node/bridge.py
-    gains()), long before it would have followed them all, and the log line says so; the worker goes on from the last
-    pose followed, never lost, to the last scan sent; every pose published is right."""
+    """Tracking slower than the stream, counted in scans rather than seconds (so the same on a loaded machine): every
+    scan the bridge follows waits (the test hook ``track_gate``) until the test sent two more and both arrived. The
+    bridge cannot catch up, so it does not try to: it ends once as many scans arrived as its window holds
+    (node/bridge.py gains(): after following half of it), long before it would have followed them all, and the log
+    line says so; the worker goes on from the last pose followed, never lost, to the last scan sent; every pose
+    published is right."""
     import re
 
     from deepbbs_ros.node.bridge import BRIDGE_MAX
 
     sim, _, _, scan = drive
+    during = _clouds(sim, scan, range(12, 25))  # the search's scan and the 12 that arrive during the search
+    later = iter(_clouds(sim, scan, range(25, 49)))  # sent while the bridge follows: two for every scan it follows
     h = _harness(drive, tmp_path, "slow_bridge_node", **{"node.error_log_period": 60.0})
+    loc = h.node.localization
+    sent: list[int] = []
+
+    def two_more_arrive() -> None:  # on the worker thread, before a tracked scan's registration
+        if not loc._bridging:
+            return  # the worker's own scans after the bridge: no wait
+        for stamp, xyz in itertools.islice(later, 2):  # one at a time: the input thread holds one waiting scan
+            start = loc._bridge.arrived
+            h.send("source_cloud", xyz, stamp, "lidar")
+            sent.append(stamp)
+            wait_for(lambda start=start: loc._bridge.arrived > start, 120.0)
+
     try:
-        h.node.localization.search_delay_s = 1.2
-        h.node.localization.track_delay_s = 0.15
-        frames = list(range(12, 72))  # 6 s of driving at 10 Hz: scans still arrive when the first round would end
-        _stream(h, sim, scan, frames)
-        assert h.wait_for(lambda: h.node.localization.last_bridge != "" and not h.node.worker.busy, 60.0), (
-            h.node.localization.diagnostics())
-        line = h.node.localization.last_bridge
+        _search_waits_for(h, len(during) - 1)
+        loc.track_gate = two_more_arrive
+        stamps = list(_stream(h, during, go=_handed_on(h, during)))
+        assert h.wait_for(lambda: loc.last_bridge != "" and not h.node.worker.busy, 120.0), loc.diagnostics()
+        line = loc.last_bridge
         m = re.search(r"(\d+) scan\(s\) arrived while it followed the last (\d+)\)", line)
         assert m, line
         arrived, followed = map(int, m.groups())
         assert arrived >= BRIDGE_MAX > followed >= 1, line  # cut within its first window
-        assert h.node.localization.bridged == followed, (h.node.localization.bridged, line)
+        assert loc.bridged == followed, (loc.bridged, line)
+        stamps += sent
         # the worker goes on from the last pose followed (its slot: the newest scan each time) and keeps the pose
-        assert h.wait_for(lambda: h.node.localization.tracker.last_stamp_ns == sim.stamp_ns(frames[-1])
-                          and not h.node.worker.busy, 60.0), h.node.localization.diagnostics()
-        loc = h.node.localization
+        assert h.wait_for(lambda: loc.tracker.last_stamp_ns == stamps[-1] and not h.node.worker.busy, 120.0), (
+            loc.diagnostics())
         assert loc.state == "tracking" and loc.events.get("lost", 0) == 0, loc.diagnostics()
         assert h.wait_for(lambda: len(h.poses) >= h.node.outputs.published, 5.0)
-        truth = {sim.stamp_ns(k): scan(k)[1] for k in frames}
+        truth = {sim.stamp_ns(k): sim.pose_at(k) for k in range(12, 49)}
         for msg in h.poses:
             _check_pose(pose_stamped_to_matrix(msg)[0], truth[pose_stamped_to_matrix(msg)[1]])
         assert "fell behind the stream" in capfd.readouterr().err
@@ -143,10 +188,11 @@ def test_drops_are_said_once_and_counted(ros, drive, tmp_path, capfd):
     """Without the bridge (``localization.bridge_scans`` 0), the scans that wait for a long search are dropped: the
     first drop is one log line naming why and the counter, later ones are only counted (/diagnostics)."""
     sim, _, _, scan = drive
+    clouds = _clouds(sim, scan, range(12, 20))
     h = _harness(drive, tmp_path, "drops_node", **{"localization.bridge_scans": 0, "node.error_log_period": 60.0})
-    try:
-        h.node.localization.search_delay_s = 1.0
-        _stream(h, sim, scan, range(12, 20))
+    try:  # the search waits until every scan was received (none kept: the bridge is off)
+        h.node.localization.search_gate = lambda: h.wait_for(lambda: h.node.stats()["received"] >= len(clouds), 120.0)
+        _stream(h, clouds)
         assert h.wait_for(lambda: h.node.localization.placed >= 1 and not h.node.worker.busy, 60.0)
         drops = h.node.worker.dropped + sum(i.dropped for i in h.node.inputs)
         assert drops >= 3, h.node.stats()

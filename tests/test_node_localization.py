@@ -8,6 +8,7 @@ finds it again, with the shipped weights (the global search needs them).
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -57,11 +58,15 @@ def drive():
         parts.append(sim.scan_at(k).points @ P[:3, :3].T + P[:3, 3])
     points = voxel_downsample(np.concatenate(parts), 0.2)
 
+    @functools.cache
+    def points_at(k: int) -> np.ndarray:  # made once: a simulated scan takes most of a 10 Hz period to make
+        return sim.scan_at(k).points
+
     def scan(k: int, yaw: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Frame k's scan, the sensor turned by ``yaw`` about its z axis (a kidnap), and its true pose."""
         J = np.eye(4)
         J[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-        pts = sim.scan_at(k).points
+        pts = points_at(k)
         return ((pts - J[:3, 3]) @ J[:3, :3]).astype(np.float32), sim.pose_at(k) @ J
 
     return sim, points, np.stack([sim.pose_at(k) for k in keys]), scan

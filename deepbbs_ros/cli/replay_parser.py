@@ -34,8 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "beside it, when present, is the drive it was built from (its poses become the candidate places)")
     g.add_argument("--method", default="deepbbs++",
                    help="comma list of deepbbs++ (odometry: the local-map pipeline), deepbbs++s2s (odometry only: "
-                   "chained scan-to-scan), deepbbs++gicp, deepbbs (deep passes only), icp, plane-icp, gicp, "
-                   "kiss-icp (odometry only), kiss-matcher, kiss-matcher+gicp (global, pairs only)")
+                   "chained scan-to-scan), deepbbs++gicp, deepbbs (the network alone: deep passes from the one "
+                   "start, no search, no GICP), icp, plane-icp, gicp, kiss-icp (odometry only), kiss-matcher, "
+                   "kiss-matcher+gicp (global, pairs only)")
     g.add_argument("--stride", type=int, default=None, metavar="N",
                    help="pairs: a source frame every N frames; odometry, localization: every N-th frame (default: "
                    f"{d('eval.stride')} in pairs mode, {d('eval.odom_stride')} in odometry and localization)")

@@ -164,8 +164,8 @@ class RegistrationConfig:
     good_start_probability: float = 0.7  # the good-start verdict: valid when its probability of being right reaches it
     good_start_points: int = 512  # source voxels the good-start verdict scores (a spread subset of its GICP cloud)
     # register(..., good_start=True) gives GICP from the vouched start its own budget (polish_max_iters) and takes its
-    # answer wherever the good-start verdict accepts it; these limits name it "beyond the good start's limits" past
-    # them, bound the coarse try's answer (twice them) and the localization's tracking
+    # answer wherever the good-start verdict accepts it (the localization's tracking too, with the map verdict);
+    # these limits name it "beyond the good start's limits" past them and bound the coarse try's answer (twice them)
     good_start_max_iters: int = 10  # GICP iterations a vouched start should need
     good_start_max_trans: float = 3.0  # m; how far GICP should move a vouched start
     good_start_max_rot_deg: float = 10.0  # deg; idem for rotation
@@ -231,3 +231,9 @@ class RegistrationConfig:
         _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
         _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
+
+
+#: the network alone (``deepbbs-replay --method deepbbs``, ``deepbbs-train evaluate --methods deepbbs``): the deep
+#: passes from the one start given, with no refinement, no precision stage and no global search (whose other starts
+#: end in GICP): the network's own answer
+NETWORK_ALONE = {"registration.refine": False, "registration.polish": "none", "registration.global_search": "off"}

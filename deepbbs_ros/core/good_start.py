@@ -50,17 +50,13 @@ class Attempt:
     result: RegistrationResult | None = None
 
 
-def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any, reach: float = 1.0,
-                    more: int = 0) -> Any:
-    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``,
-    times ``reach``, in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation
-    orthonormalised when applied (``register(..., good_start=True)`` and the localization's tracking). ``more``: not
-    converged within ``good_start_max_iters``, GICP goes on from where it stopped for up to this many iterations
-    (then the result's ``check_score`` is finite: :func:`core.polish.polish`'s check)."""
-    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters + more,
-                              polish_max_trans=reach * rc.good_start_max_trans,
-                              polish_max_rot_deg=reach * rc.good_start_max_rot_deg)
-    pol = polish(src_pc, tgt_pc, T_init, cfg, check=(rc.good_start_max_iters, 0.0) if more > 0 else None)
+def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
+    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``
+    in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation orthonormalised when applied
+    (the coarse try's fine GICP, core/coarse_rescue.py)."""
+    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
+                              polish_max_rot_deg=rc.good_start_max_rot_deg)
+    pol = polish(src_pc, tgt_pc, T_init, cfg)
     if pol.applied:
         pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
     return pol

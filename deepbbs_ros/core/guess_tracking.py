@@ -102,17 +102,18 @@ class GuessTracking:
 
     def _track_gicp(self, src: Any, crop: _Crop, starts: list[np.ndarray],
                     place: int) -> tuple[_Answer | None, float, np.ndarray]:
-        """Tracking's GICP from the starts T_place_scan (4, 4) (the prediction first) with register()'s good-start
-        limits (``registration.good_start_max_*``) and its verdict: the share of a spread subset of the scan's GICP
-        voxels (``good_start_points``) on the crop, judged by the map verdict (core/map_verdict.py) as every answer in
-        a map (the registration's good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran
-        low for right poses). With more than one start, they are tried in the order of their fitness (the share of
-        those voxels on the crop at the start itself; a tie keeps the prediction first) until one is accepted.
+        """Tracking's GICP from the starts T_place_scan (4, 4) (the prediction first) as register()'s good start runs
+        it (GICP's own settings, ``registration.polish_*``, taken wherever the verdict accepts it: core/good_start.py
+        from_start) and its verdict: the share of a spread subset of the scan's GICP voxels (``good_start_points``) on
+        the crop, judged by the map verdict (core/map_verdict.py) as every answer in a map (the registration's
+        good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran low for right poses). With
+        more than one start, they are tried in the order of their fitness (the share of those voxels on the crop at
+        the start itself; a tie keeps the prediction first) until one is accepted.
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the accepted answer, else
         the best-scoring one, or None when GICP applied from no start; the fitness at the best start when GICP did not
         apply, else nan; the best-fitting start)."""
         from deepbbs_ros.core import verdict
-        from deepbbs_ros.core.registration import good_start_gicp, good_start_points
+        from deepbbs_ros.core.good_start import from_start, good_start_points
 
         rc = self.config.registration
         if src.polish_cloud is None or crop.pre.polish_cloud is None or rc.polish == "none":
@@ -124,8 +125,8 @@ class GuessTracking:
         order = sorted(range(len(starts)), key=lambda i: -fits[i])  # stable: the prediction first on a tie
         best: _Answer | None = None
         for i in order:
-            pol = good_start_gicp(spc, tpc, starts[i], rc)  # as register()'s good start
-            if not pol.applied:  # GICP moved the start too far or did not converge
+            pol = from_start(spc, tpc, starts[i], rc)  # as register()'s good start
+            if not pol.applied:  # GICP did not converge
                 continue
             T = pol.T_target_source
             score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.network import NetworkOutput
-from deepbbs_ros.core.worker_process import handshake, spawn_worker
+from deepbbs_ros.core.worker_process import handshake, spawn_worker, stop_worker
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 120.0  # importing torch and loading the checkpoint on a busy machine
 RESULT_TIMEOUT_S = 60.0  # one registration's network passes (the first ones warm torch's kernels up)
+STOP_GRACE_S = 2.0  # the worker's time to exit once asked to stop, before it is killed
 
 
 class NetworkProcessLost(RegistrationError):
@@ -72,7 +73,7 @@ class NetworkProcess:
         self._proc, self._conn = spawn_worker("deepbbs_ros.core.network_process", "network process")
         self._lock = threading.Lock()  # one request at a time: held from submit() until its answer is read
         self._send_lock = threading.Lock()  # one message at a time on the socket
-        self._finalizer = weakref.finalize(self, _shutdown, self._conn, self._proc)
+        self._finalizer = weakref.finalize(self, stop_worker, self._conn, self._proc, STOP_GRACE_S)
         self._stale: Pending | None = None  # a cancelled request whose answer is still to be read
         try:
             handshake(self._conn, self._proc, (str(weights), flat_config), "network process", START_TIMEOUT_S)
@@ -210,19 +211,6 @@ class Pending:
         if msg[0] != "ok":
             raise RegistrationError(f"network process: {msg[1]}")
         return msg[1]
-
-
-def _shutdown(conn, proc) -> None:
-    try:
-        conn.send(("stop",))
-    except (OSError, ValueError):
-        pass
-    conn.close()
-    try:
-        proc.wait(timeout=2.0)
-    except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
-        proc.kill()
-        proc.wait(timeout=2.0)
 
 
 def _worker_main(fd: int) -> int:

@@ -14,7 +14,7 @@ from typing import Any
 
 from deepbbs_ros.errors import ModelError
 
-__all__ = ["handshake", "spawn_worker"]
+__all__ = ["handshake", "spawn_worker", "stop_worker"]
 
 
 def spawn_worker(module: str, what: str) -> tuple[Any, Any]:
@@ -59,3 +59,23 @@ def handshake(conn: Any, proc: Any, hello: tuple, what: str, timeout_s: float) -
     if msg[0] != "ready":
         raise ModelError(f"{what}: {msg[1]}")
     return msg
+
+
+def stop_worker(conn: Any, proc: Any, grace_s: float, keep_open: bool = False) -> None:
+    """Ask the worker ``proc`` on ``conn`` to stop (``("stop",)``), give it ``grace_s`` s to exit, else kill it;
+    close ``conn`` before the wait (a worker blocked sending an answer nobody will read fails at once), or after it
+    with ``keep_open`` (answers in flight still go out while the worker winds down: the registration process's
+    lanes)."""
+    try:
+        conn.send(("stop",))
+    except (OSError, ValueError):
+        pass
+    if not keep_open:
+        conn.close()
+    try:
+        proc.wait(timeout=grace_s)
+    except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+        proc.kill()
+        proc.wait(timeout=2.0)
+    if keep_open:
+        conn.close()

@@ -156,12 +156,11 @@ class NodeLocalization:
         self._drops_said = 0  # of self._bridge.dropped
         self.last_arrival: int | None = None  # the stamp of the last scan handed to arrived() (the worker's slot)
         self.skipped = 0  # scans the worker got after the bridge had answered them (not registered twice)
-        #: a test hook: seconds every search (a scan with no pose to track from) waits before it starts, so that a test
-        #: can make a search outlast the scan period on a tiny map; 0 in use
-        self.search_delay_s = 0.0
-        #: a test hook: seconds every tracked scan (one with a pose to track from) waits before its registration, so
-        #: that a test can make tracking slower than the scan period; 0 in use
-        self.track_delay_s = 0.0
+        #: test hooks, called on the worker thread before a scan's registration: ``search_gate`` before a search (a scan
+        #: with no pose to track from), ``track_gate`` before a tracked scan, so that a test can make a search outlast
+        #: the scan period on a tiny map, or tracking slower than the stream, counted in scans; None in use
+        self.search_gate: Callable[[], None] | None = None
+        self.track_gate: Callable[[], None] | None = None
         self.last_bridge = ""  # the last bridge's log line (bridge())
         self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
         # a search placed its scan and bridge() has not started yet: the scans arriving in between (while the found
@@ -315,10 +314,9 @@ class NodeLocalization:
             return None
         if state_before != "tracking" and self._search_t0 is None:
             self._search_t0, self._search_scans = cloud.t_recv, 0
-        if state_before != "tracking" and self.search_delay_s > 0:
-            time.sleep(self.search_delay_s)
-        if state_before == "tracking" and self.track_delay_s > 0:
-            time.sleep(self.track_delay_s)
+        gate = self.track_gate if state_before == "tracking" else self.search_gate
+        if gate is not None:
+            gate()
         t0 = time.perf_counter()
         try:
             pp = cloud.pp if isinstance(cloud.pp, tuple) and len(cloud.pp) == 2 else None

@@ -37,7 +37,7 @@ class WorkerLink:
     """
 
     def __init__(self, module: str, what: str, hello: Any, timeout_s: float) -> None:
-        from deepbbs_ros.core.worker_process import handshake, spawn_worker
+        from deepbbs_ros.core.worker_process import handshake, spawn_worker, stop_worker
 
         self.ids = itertools.count(1)
         self.released: deque[int] = deque()
@@ -45,7 +45,8 @@ class WorkerLink:
         self._futures_lock = threading.Lock()
         self._send_lock = threading.Lock()
         self.proc, self.conn = spawn_worker(module, what)
-        self.stop = weakref.finalize(self, _shutdown, self.conn, self.proc)  # also when collected, at exit
+        # also when collected, at exit; 5 s: the worker stops its own network process too
+        self.stop = weakref.finalize(self, stop_worker, self.conn, self.proc, 5.0, True)
         try:
             self.hello = handshake(self.conn, self.proc, hello, what, timeout_s)
         except ModelError:
@@ -130,16 +131,3 @@ class WorkerLink:
             waiting, self._futures = list(self._futures.values()), {}
         for fut in waiting:
             fut.set_result(("lost", why))
-
-
-def _shutdown(conn, proc) -> None:
-    try:
-        conn.send(("stop",))
-    except (OSError, ValueError):
-        pass
-    try:
-        proc.wait(timeout=5.0)
-    except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
-        proc.kill()
-        proc.wait(timeout=2.0)
-    conn.close()

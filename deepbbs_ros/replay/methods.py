@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.config.registration import NETWORK_ALONE
 from deepbbs_ros.errors import ConfigError
 
 METHODS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp",
@@ -31,7 +32,8 @@ INPUTS = {
     "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points) and, "
                  "with registration.polish on (default), the GICP precision stage on the whole voxelised scan",
     "deepbbs++gicp": "DeepBBS++ with the GICP precision stage forced on (registration.polish = gicp; the default)",
-    "deepbbs": "DeepBBS++ preprocessing; deep iterations only (no refinement, no precision stage)",
+    "deepbbs": "DeepBBS++ preprocessing; the network alone: deep passes from the one start (no refinement, no "
+               "precision stage, no global search)",
     "deepbbs++s2s": "DeepBBS++ scan-to-scan, chained (the paper's pipeline as an odometry)",
     "deepbbs++odom": "DeepBBS++ odometry (core/odometry.py): KISS-ICP-style scan-to-local-map ICP on the raw scan "
                      "(crop, voxel map, deskew from per-point times), DeepBBS++ where the motion prior fails",
@@ -65,7 +67,8 @@ def topic_name(method: str) -> str:
 
 class DeepBBSMethod:
     """DeepBBS++ as configured (``deepbbs++``), with the GICP precision stage forced on (``deepbbs++gicp``), or
-    the deep passes alone (``deepbbs``: no refinement, no precision stage) via ``DeepBBSRegistration``."""
+    the network alone (``deepbbs``: the deep passes from the one start, ``config.registration.NETWORK_ALONE``) via
+    ``DeepBBSRegistration``."""
 
     def __init__(self, name: str, config: Config, *, weights: str | None = None, device: str | None = None,
                  model: Any = None, share_from: DeepBBSMethod | None = None) -> None:
@@ -73,7 +76,7 @@ class DeepBBSMethod:
 
         self.name = name
         if name == "deepbbs":
-            cfg = config.replace(**{"registration.refine": False, "registration.polish": "none"})
+            cfg = config.replace(**NETWORK_ALONE)
         elif name == "deepbbs++gicp":
             cfg = config.replace(**{"registration.polish": "gicp"})
         else:

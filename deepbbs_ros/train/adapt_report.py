@@ -1,8 +1,8 @@
 """The before / after report of an adaptation, on the recording's held-back scans (its poses graded here only).
 
 Pairs follow the replay protocol on the held-back frames (a source every ``stride`` frames, the target the last
-later frame within ``max_dist`` metres). Each is registered by the network alone (the deep passes: no refinement,
-no precision stage, as ``deepbbs-replay --method deepbbs``) and by the shipped pipeline (as configured), from the
+later frame within ``max_dist`` metres). Each is registered by the network (the deep passes and the global search's
+other starts, no refinement, no precision stage) and by the shipped pipeline (as configured), from the
 pair's true relative start (identity) and from ``trials`` perturbed starts (a random yaw up to ``yaw_deg`` and a
 shift up to ``trans_m``). A pair succeeds within ``eval.success_rot_deg`` / ``eval.success_trans`` and is in the
 basin within :data:`BASIN` (5 degrees / 1 m: where GICP takes over); for the pipeline

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.config.registration import NETWORK_ALONE
 from deepbbs_ros.errors import ConfigError
 from deepbbs_ros.metrics import pair_errors
 from deepbbs_ros.train.cache import TEST_SEED_BASE
@@ -95,9 +96,7 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
     if "deepbbs++" in methods:
         regs["deepbbs++"] = full
     if "deepbbs" in methods:
-        regs["deepbbs"] = DeepBBSRegistration(
-            cfg_used.replace(**{"registration.refine": False, "registration.polish": "none",
-                                "registration.global_search": "off"}), **shared)
+        regs["deepbbs"] = DeepBBSRegistration(cfg_used.replace(**NETWORK_ALONE), **shared)
     if "refine-only" in methods:
         regs["refine-only"] = DeepBBSRegistration(
             cfg_used.replace(**{"registration.deep": False, "registration.refine": True,
