@@ -56,10 +56,7 @@ def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray
     (the coarse try's fine GICP, core/coarse_rescue.py)."""
     cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
                               polish_max_rot_deg=rc.good_start_max_rot_deg)
-    pol = polish(src_pc, tgt_pc, T_init, cfg)
-    if pol.applied:
-        pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
-    return pol
+    return _orthonormal(polish(src_pc, tgt_pc, T_init, cfg))
 
 
 def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
@@ -112,7 +109,11 @@ def from_start(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc:
     result, its rotation orthonormalised when applied."""
     if rc.polish_max_trans or rc.polish_max_rot_deg:  # the full pipeline's limits on the precision stage's move
         rc = dataclasses.replace(rc, polish_max_trans=0.0, polish_max_rot_deg=0.0)
-    pol = polish(src_pc, tgt_pc, T_init, rc)
+    return _orthonormal(polish(src_pc, tgt_pc, T_init, rc))
+
+
+def _orthonormal(pol: Any) -> Any:
+    """The :func:`core.polish.polish` result ``pol``, its rotation orthonormalised when applied."""
     if pol.applied:
         pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
     return pol
@@ -126,8 +127,7 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
     if fine is None or not fine.applied:
         return None
-    fine.T_target_source[:3, :3] = orthonormalize(fine.T_target_source[:3, :3])
-    fine = dataclasses.replace(fine, iterations=pol.iterations + fine.iterations, converged=pol.converged)
+    fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
     prob = _probability(fine, "", pts, tpc, rc)
     return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
 

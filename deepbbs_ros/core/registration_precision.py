@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
@@ -50,14 +51,18 @@ class PrecisionStages:
         pol = polish(st.src_pc, st.tgt_pc, st.T, rc, check=st.polish_check)
         st.iters["polish"], st.polish_reason = pol.iterations, pol.reason
         if pol.applied:
-            st.T = pol.T_target_source
-            st.T[:3, :3] = orthonormalize(st.T[:3, :3])
-            with torch.inference_mode():
-                Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
-                tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
-                st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
+            self._take(st, pol.T_target_source)
             st.converged = pol.converged
         clock.lap("polish")
+
+    def _take(self, st: State, T: np.ndarray) -> None:
+        """GICP's pose ``T`` (4, 4) becomes the answer: its rotation orthonormalised, the inlier ratio at it."""
+        st.T = T
+        st.T[:3, :3] = orthonormalize(st.T[:3, :3])
+        with torch.inference_mode():
+            Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
+            tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
+            st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
 
     def _finish(self, st: State, clock: Clock) -> None:
         """An answer the verdict does not take, GICP's (the precision stage applied): finished on the scans'
@@ -71,12 +76,7 @@ class PrecisionStages:
         fine = finish(st.src_pc, st.tgt_pc, st.T, rc)
         if fine is None or not fine.applied:
             return
-        st.T = fine.T_target_source
-        st.T[:3, :3] = orthonormalize(st.T[:3, :3])
+        self._take(st, fine.T_target_source)
         st.iters["polish"] += fine.iterations
-        with torch.inference_mode():
-            Rp = torch.as_tensor(st.T[:3, :3], dtype=st.src.dtype, device=self.device)
-            tp = torch.as_tensor(st.T[:3, 3] * self.model.scale, dtype=st.src.dtype, device=self.device)
-            st.inlier_ratio = self._inlier_ratio(st, Rp, tp)
         clock.lap("polish")
         self._verdict(st)
