@@ -29,6 +29,22 @@ def torch_one_thread():
 
 
 @pytest.fixture
+def registration_configs(monkeypatch) -> list:
+    """The config of every ``DeepBBSRegistration`` built during the test, in order (a spy on its ``__init__``)."""
+    from deepbbs_ros.core import registration
+
+    seen: list = []
+    init = registration.DeepBBSRegistration.__init__
+
+    def spy(self, config=None, *a, **kw):
+        seen.append(config)
+        init(self, config, *a, **kw)
+
+    monkeypatch.setattr(registration.DeepBBSRegistration, "__init__", spy)
+    return seen
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     """A seeded generator: every test that draws random data is deterministic."""
     random.seed(0)

@@ -440,7 +440,7 @@ def test_odometry_table_says_the_ate_alignment():
 
 
 @pytest.mark.skipif(not HAVE_CORE, reason="needs the core's registration")
-def test_network_alone_is_one_method_in_replay_and_evaluate(tiny_weights, monkeypatch):
+def test_network_alone_is_one_method_in_replay_and_evaluate(tiny_weights, monkeypatch, registration_configs):
     """``deepbbs-replay --method deepbbs`` is ``deepbbs-train evaluate --methods deepbbs``: the deep passes from the
     one start, no refinement, no precision stage, no global search; ``deepbbs++`` keeps the configured search."""
     from deepbbs_ros.core import registration
@@ -451,20 +451,12 @@ def test_network_alone_is_one_method_in_replay_and_evaluate(tiny_weights, monkey
     got = build_methods(["deepbbs++", "deepbbs"], cfg, weights=str(tiny_weights), device="cpu")
     alone = got["deepbbs"].reg.config.registration
     assert got["deepbbs++"].reg.config.registration.global_search == cfg.registration.global_search != "off"
-    seen = []
-    init = registration.DeepBBSRegistration.__init__
-
-    def spy(self, config=None, *a, **kw):
-        seen.append(config)
-        init(self, config, *a, **kw)
-
-    monkeypatch.setattr(registration.DeepBBSRegistration, "__init__", spy)
     try:  # no drive: only the registrations it builds are looked at
         evaluate(cfg, weights=str(tiny_weights), methods=["deepbbs"], rigs=["vlp16:wheeled:courtyard"],
                  drives_per_scene=0, progress=False)
     except IndexError:  # no pair to report on
         pass
-    ev = seen[-1].registration
+    ev = registration_configs[-1].registration  # evaluate's, the last built
     for key in ("refine", "polish", "global_search", "deep"):
         assert getattr(alone, key) == getattr(ev, key), key
     assert (alone.refine, alone.polish, alone.global_search, alone.deep) == (False, "none", "off", True)

@@ -161,26 +161,17 @@ def test_evaluate_on_a_rig():
                  progress=False)
 
 
-def test_evaluate_network_alone_runs_no_search(monkeypatch):
+def test_evaluate_network_alone_runs_no_search(registration_configs):
     """evaluate's "deepbbs" (the network alone) and "refine-only" run without the global search, whose other
     starts go through GICP; "deepbbs++" keeps the configured search."""
-    from deepbbs_ros.core import registration
     from deepbbs_ros.core.model import DeepBBSNet
     from deepbbs_ros.train.evaluate import evaluate
 
-    seen = []
-    init = registration.DeepBBSRegistration.__init__
-
-    def spy(self, config=None, *a, **kw):
-        seen.append(config)
-        init(self, config, *a, **kw)
-
-    monkeypatch.setattr(registration.DeepBBSRegistration, "__init__", spy)
     cfg = Config().replace(**{**TINY, "preprocess.num_points": 128})
     torch.manual_seed(0)
     evaluate(cfg, model=DeepBBSNet(cfg.model), rigs=["vlp16:wheeled:courtyard"], drives_per_scene=1, frames=2,
              stride=10, yaw_deg=0.0, methods=["deepbbs++", "deepbbs", "refine-only"], progress=False)
-    assert [c.registration.global_search for c in seen] == ["auto", "off", "off"]
+    assert [c.registration.global_search for c in registration_configs] == ["auto", "off", "off"]
 
 
 def test_bounded_run_is_the_third_run_with_its_loss_and_folders(tmp_path):
