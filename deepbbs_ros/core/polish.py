@@ -82,17 +82,18 @@ class PolishCloud:
     # the grid it was put on (m; before a max_voxels coarsening), 0 for none: polish() scales its correspondence
     # distance with the finer of a pair's grids
     voxel: float = 0.0
-    # prepare_polish_cloud's voxel_angle > 0: (the scan as given, min_range, max_range, voxel_angle), what the
-    # scene-sized grid GICP finishes on is sized from and built from when first asked (:attr:`fine_voxel`,
-    # :meth:`finer`, :func:`finish`): nothing is computed or copied for a scan no finish asks for
-    fine_source: tuple[np.ndarray, float, float, float] | None = field(default=None, repr=False)
-    _fine_voxel: float | None = field(default=None, repr=False, compare=False)
+    # the scan's scene-sized grid (m; prepare_polish_cloud's voxel_angle, :func:`scene_voxel`) when finer than
+    # ``voxel``, else 0 (none); then ``fine_source`` holds the cropped scan (N, 3) it is built from when a finish
+    # first asks (:meth:`finer`, :func:`finish`); a scan with none keeps (and pickles) nothing more
+    fine_voxel: float = 0.0
+    fine_source: np.ndarray | None = field(default=None, repr=False)
     _fine: PolishCloud | None = field(default=None, repr=False, compare=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
         return {"points": self.points(), "n_points": self.n_points, "prepare_ms": self.prepare_ms,
-                "n_cropped": self.n_cropped, "spec": self.spec, "voxel": self.voxel, "fine_source": self.fine_source}
+                "n_cropped": self.n_cropped, "spec": self.spec, "voxel": self.voxel, "fine_voxel": self.fine_voxel,
+                "fine_source": self.fine_source}
 
     def __setstate__(self, state: dict) -> None:
         import small_gicp
@@ -101,7 +102,7 @@ class PolishCloud:
         self.tree, self.n_points, self.n_cropped = None, state["n_points"], state["n_cropped"]
         self.prepare_ms, self.spec, self.pending = state["prepare_ms"], state["spec"], state["spec"]
         self.voxel = state.get("voxel", 0.0)
-        self.fine_source, self._fine_voxel, self._fine = state.get("fine_source"), None, None
+        self.fine_voxel, self.fine_source, self._fine = state.get("fine_voxel", 0.0), state.get("fine_source"), None
         self._lock = threading.Lock()
 
     def complete(self, threads: int | None = None) -> PolishCloud:
@@ -121,32 +122,15 @@ class PolishCloud:
             self.prepare_ms += (time.perf_counter() - t0) * 1e3
         return self
 
-    def _cropped_source(self) -> np.ndarray:
-        from deepbbs_ros.core.preprocess import crop_range
-
-        pts, lo, hi, _ = self.fine_source
-        return np.compress(crop_range(pts, lo, hi), pts, axis=0).astype(np.float64, copy=False)
-
-    @property
-    def fine_voxel(self) -> float:
-        """The scan's scene-sized grid (m; :func:`scene_voxel` of ``fine_source``) when finer than ``voxel``, else
-        0 (none); computed on first read."""
-        if self._fine_voxel is None:
-            v = 0.0
-            if self.fine_source is not None and self.voxel > 0:
-                v = scene_voxel(self._cropped_source(), self.voxel, self.fine_source[3])
-            self._fine_voxel = v if v < self.voxel else 0.0
-        return self._fine_voxel
-
     def finer(self) -> PolishCloud | None:
         """This scan on its scene-sized grid (:attr:`fine_voxel`), with k-d tree and covariances, built on first
         call (thread-safe, once); None when it has none."""
-        if self.fine_voxel <= 0 or self.spec is None:
+        if self.fine_voxel <= 0 or self.fine_source is None or self.spec is None:
             return None
         with self._lock:
             if self._fine is None:
                 neighbors, registration_type, th = self.spec
-                self._fine = _prepared(self._cropped_source(), self.fine_voxel, neighbors, registration_type, th)
+                self._fine = _prepared(self.fine_source, self.fine_voxel, neighbors, registration_type, th)
                 self._fine.voxel = self.fine_voxel
         return self._fine
 
@@ -221,20 +205,21 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
             ``voxel * sqrt(n / max_voxels)`` (a scan's voxels fill surfaces: their count goes as 1 / voxel^2).
         voxel_angle: > 0: the scan's scene-sized grid, this angle (rad) seen from the sensor at the scan's median
             range, within [``voxel`` / 4, ``voxel``] (:func:`scene_voxel`): the cloud stays on ``voxel`` (GICP's
-            grid: its basin and its cost) and keeps the scan (not copied) to size and build that grid from when a
-            finish first asks (``fine_voxel``, :meth:`PolishCloud.finer`): a corridor's or a small room's scan
+            grid: its basin and its cost); where that grid is finer (``fine_voxel``) the cropped scan is kept to
+            build it from when a finish first asks (:meth:`PolishCloud.finer`): a corridor's or a small room's scan
             (median range 1-4 m) gets a grid fine enough for its walls, floor and ceiling, whose corners a ``voxel``
             grid with ``neighbors`` covariances blends, to finish on (:func:`finish`); 0: ``voxel`` only.
     """
     from deepbbs_ros.core.preprocess import crop_range
 
     t0 = time.perf_counter()
-    given = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
-    pts = np.compress(crop_range(given, min_range, max_range), given, axis=0).astype(np.float64, copy=False)
+    pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
+    pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped, out.voxel = len(pts), float(voxel)
-    if voxel > 0 and voxel_angle > 0:
-        out.fine_source = (given, min_range, max_range, voxel_angle)
+    fine = scene_voxel(pts, voxel, voxel_angle) if voxel > 0 and voxel_angle > 0 else voxel
+    if fine < voxel:  # a narrow place's scan: the cropped scan kept to build its finer grid from when asked
+        out.fine_voxel, out.fine_source = fine, pts
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
 
