@@ -257,9 +257,10 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
             for T0 in starts:
                 res = reg.register(ps, pt, T_init=T0, preprocessed=True)
                 y, r, t = cv.label(res.T_target_source, T_gt)
-                f = visibility.pose_features(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source,
-                                             pt.polish_cloud, rc.verdict_dist)  # what the pipeline's verdict judged
-                cost.append(_cost(cv.good_start_points(ps.polish_cloud, rc), res.T_target_source, ps, pt, rc))
+                pts = cv.good_start_points(ps.polish_cloud, rc)
+                f = visibility.pose_features(pts, res.T_target_source, pt.polish_cloud,
+                                             rc.verdict_dist)  # what the pipeline's verdict judged
+                cost.append(_cost(pts, res.T_target_source, ps, pt, rc))
                 rows["pair"].append((y == 1, res.score, res.probability,
                                      cv.label(res.T_target_source, T_ref)[0] == 1, r, t,
                                      res.probability >= rc.verdict_probability and not res.valid,
