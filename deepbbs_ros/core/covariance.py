@@ -52,9 +52,9 @@ import numpy as np
 from deepbbs_ros.core.gicp_pairs import cell_terms, matched_pairs, voxel_pairs
 from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFloor, floor_term, quantisation_floor
 
-__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "compose", "compose_jacobians", "conjugated",
-           "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part", "is_covariance",
-           "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
+__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "clustered_terms", "compose", "compose_jacobians",
+           "conjugated", "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part",
+           "is_covariance", "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
            "sandwich_covariance", "scan_covariance", "skew", "student_widened", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
@@ -228,14 +228,8 @@ def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float, cell: float 
     :func:`student_widened`."""
     if pairs is None:
         return None
-    a, Ca, b, Cb, T = pairs
-    cell = float(cell or CLUSTER_CELL)
-    H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
-    while len(Gc) < MIN_CLUSTERS and cell > 1.0:
-        cell = max(1.0, cell / 2)
-        H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
+    H, Gc, Hc = clustered_terms(pairs, cell)
     G = len(Gc)
-    H = 0.5 * (H + H.T)
     w, V = np.linalg.eigh(H)
     if G <= 6 or not np.isfinite(w).all() or w[-1] <= 0 or w[0] <= w[-1] * 1e-14:
         return None
@@ -247,6 +241,20 @@ def _robust(pairs: tuple[np.ndarray, ...] | None, inflation: float, cell: float 
     if student:
         cov = student_widened(cov, H, Hc, left_out)
     return (inflation * cov)[np.ix_(_PERM, _PERM)], H
+
+
+def clustered_terms(pairs: tuple[np.ndarray, ...], cell: float | None = None) -> tuple[np.ndarray, np.ndarray,
+                                                                                       np.ndarray]:
+    """small_gicp's Hessian ``H`` (6, 6, ``[rot, trans]``, symmetrised) of the GICP ``pairs`` and each cell's gradient
+    ``Gc`` (G, 6) and Hessian ``Hc`` (G, 6, 6) (:func:`core.gicp_pairs.cell_terms`), the cells ``cell`` m
+    (:data:`CLUSTER_CELL` when None), halved down to 1 m until there are :data:`MIN_CLUSTERS` of them."""
+    a, Ca, b, Cb, T = pairs
+    cell = float(cell or CLUSTER_CELL)
+    H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
+    while len(Gc) < MIN_CLUSTERS and cell > 1.0:
+        cell = max(1.0, cell / 2)
+        H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
+    return 0.5 * (H + H.T), Gc, Hc
 
 
 def jackknife_meat(H: np.ndarray, grads: np.ndarray, hessians: np.ndarray) -> np.ndarray | None:

@@ -22,16 +22,11 @@ LAST: dict = {}  # the last localization covariance's directions (``directions``
 
 
 def _terms(pairs: tuple, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """core/covariance.py ``_robust``'s cells: ``cell`` m, halved down to 1 m until there are MIN_CLUSTERS."""
+    """core/covariance.py's cells (``clustered_terms``), each cell's Hessian symmetrised."""
     import deepbbs_ros.core.covariance as cm
-    from deepbbs_ros.core.gicp_pairs import cell_terms
 
-    a, Ca, b, Cb, T = pairs
-    H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
-    while len(Gc) < cm.MIN_CLUSTERS and cell > 1.0:
-        cell = max(1.0, cell / 2)
-        H, Gc, Hc = cell_terms(a, Ca, b, Cb, T, cell)
-    return 0.5 * (H + H.T), Gc, 0.5 * (Hc + Hc.transpose(0, 2, 1))
+    H, Gc, Hc = cm.clustered_terms(pairs, cell)
+    return H, Gc, 0.5 * (Hc + Hc.transpose(0, 2, 1))
 
 
 def _weights(H: np.ndarray, Hc: np.ndarray, estimator: str) -> np.ndarray:
