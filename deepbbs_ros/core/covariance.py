@@ -52,10 +52,10 @@ import numpy as np
 from deepbbs_ros.core.gicp_pairs import cell_terms, matched_pairs, voxel_pairs
 from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFloor, floor_term, quantisation_floor
 
-__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "clustered_terms", "compose", "compose_jacobians",
-           "conjugated", "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian", "gicp_part",
-           "is_covariance", "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error", "quantisation_floor",
-           "sandwich_covariance", "scan_covariance", "skew", "student_widened", "voxel_pairs"]
+__all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "clustered_terms", "compose",
+           "compose_jacobians", "conjugated", "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian",
+           "gicp_part", "is_covariance", "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error",
+           "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew", "student_widened", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
