@@ -33,7 +33,7 @@ pair, in its own session, the same checkpoint and config). A RegistrationError t
 back as a RegistrationError with its one-line message. If the worker dies or stops answering, the proxy
 logs one line, loads the registration in the node's process, and runs every request there from then on
 (a handle of the dead worker is preprocessed again from its points: nothing is lost but time). A
-``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish.py).
+``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish_cloud.py).
 
 Here: the proxy the node calls. The worker's side is :mod:`deepbbs_ros.node.registration_worker`, the connection
 between them (requests, answers, releases) :mod:`deepbbs_ros.node.registration_link`.
