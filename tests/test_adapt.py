@@ -134,3 +134,21 @@ def test_adapt_refuses_to_overwrite_or_resume_nothing(tmp_path, tiny_weights, ca
     assert "--resume" in capsys.readouterr().err
     assert _adapt(rec, tmp_path / "run", tiny_weights, "--resume") == 0  # done already: labels reused, no new step
     assert load_checkpoint(tmp_path / "run" / "model_adapted.pt")[2]["step"] == 2
+
+
+def test_the_report_names_its_network_row_for_what_it_runs():
+    """The "network" row is the network alone (config.registration.NETWORK_ALONE) with the global search kept: the
+    report calls it "network + search", not the network alone of deepbbs-replay / deepbbs-train evaluate."""
+    from deepbbs_ros.config.registration import NETWORK_ALONE
+    from deepbbs_ros.train.adapt_report import markdown, method_config
+
+    cfg = Config()
+    rc = method_config(cfg, "network").registration
+    alone = cfg.replace(**NETWORK_ALONE).registration
+    assert (rc.refine, rc.polish) == (alone.refine, alone.polish)
+    assert rc.global_search == cfg.registration.global_search != alone.global_search
+    assert method_config(cfg, "pipeline") is cfg
+    row = {"n": 2, "success": 0.5, "basin": 1.0, "accepted": 1, "accepted_wrong": 0}
+    fig = {"pairs": 1, **{m: {s: row for s in ("identity", "perturbed")} for m in ("network", "pipeline")}}
+    text = markdown(fig, None, {}, {})
+    assert "| network + search | identity |" in text and "| pipeline | perturbed |" in text
