@@ -1,5 +1,6 @@
-# The sensor-mix runs' data, sourced by scripts/train_mix.sh, train_mix_keep.sh and train_mix_span.sh (after they
-# set T, CACHE and DRIVES). Training: DRIVES drives (seeds 20000 and up, two processes) x 25 frames; the scene types
+# The sensor-mix runs' data, sourced by scripts/train_mix.sh and train_mix_balanced.sh (train_mix_keep.sh,
+# train_mix_span.sh; after they set T, CACHE and DRIVES). Training: DRIVES drives (seeds 20000 and up, two
+# processes) x 25 frames; the scene types
 # cycle over the eight places; each drive draws its sensor and mount from its seed: 'random' (the randomised
 # spinning road sensors of scripts/train_worlds.sh) twice as often as one preset, Livox Avia and Mid-360 twice too,
 # the Ouster / Hesai / RoboSense-like / Velodyne presets once; car twice as often as wheeled, legged or handheld.

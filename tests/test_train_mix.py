@@ -1,4 +1,5 @@
-"""scripts/train_mix.sh, train_mix_keep.sh and train_mix_span.sh: their cache and fit settings are valid, in seconds
+"""scripts/train_mix.sh, train_mix_keep.sh and train_mix_span.sh (both train_mix_balanced.sh): their cache and fit
+settings are valid, in seconds
 (one short drive, two steps of a tiny model), the validation reports each validation folder apart, and a slow mount's
 frames are spread over the travel asked for (``--min-span``)."""
 
@@ -34,8 +35,18 @@ def _var(name: str) -> str:
     return m.group(1)
 
 
-def _sets(path: Path = SCRIPT) -> dict[str, str]:
-    return dict(re.findall(r"--set (train\.\w+)=([^\s\"$]\S*?)[\s\"]", _script(path)))  # not from the environment
+def _run(script: Path, tmp_path: Path, **env: str) -> str:
+    """What ``script`` runs (its commands echoed: PY=echo), with its run and cache folders under ``tmp_path``."""
+    env = {"PATH": "/usr/bin:/bin", "PY": "echo", "RUN": str(tmp_path / "run"), "CACHE": str(tmp_path / "c"),
+           "DRIVES": "4", **env}
+    return subprocess.run(["sh", str(script)], env=env, capture_output=True, text=True, check=True).stdout
+
+
+def _fit_sets(out: str) -> dict[str, str]:
+    """The ``--set train.*`` of the one fit command in a script's echoed commands."""
+    fit = [line for line in out.splitlines() if " fit " in line]
+    assert len(fit) == 1, out
+    return dict(re.findall(r"--set (train\.\w+)=(\S+)", fit[0]))
 
 
 @pytest.fixture(autouse=True)
@@ -47,18 +58,23 @@ def one_thread():
 
 
 @pytest.mark.parametrize("script", [SCRIPT, KEEP, SPAN], ids=["train_mix", "train_mix_keep", "train_mix_span"])
-def test_schedule_is_a_valid_config(script):
-    sets = _sets(script)
+def test_schedule_is_a_valid_config(script, tmp_path):
+    out = _run(script, tmp_path)
+    sets = _fit_sets(out)
     assert {"train.epochs", "train.lr", "train.val_pairs", "train.num_points"} <= set(sets)
     cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
     cfg = cfg.validate()
     assert cfg.train.num_points == 512 and cfg.train.epochs * cfg.train.steps_per_epoch > 0
     # every run's data is the one data step's (the same sensor, mount and place draws)
-    assert re.search(r"^\. scripts/train_mix_data\.sh\n(mix_data \w+.*)$", _script(script), re.M)
+    mix = [line for line in out.splitlines() if " cache " in line and "--sensors " + _var("SENSORS") in line]
+    assert len(mix) == 2 and all("--mounts " + _var("MOUNTS") in line for line in mix)
     if script in (KEEP, SPAN):  # pairs drawn uniform in distance
         assert cfg.train.pair_balance == "distance"
+        assert f"--run {tmp_path / 'run'}" in out
     if script == SPAN:  # the second run's schedule; only the frames' spread differs
-        assert sets == _sets(KEEP) and "--min-span" in _script(SPAN)
+        assert sets == _fit_sets(_run(KEEP, tmp_path)) and all("--min-span 10" in line for line in mix)
+    if script == KEEP:
+        assert "--min-span" not in out and all(f"--out {tmp_path / 'c'}/mix_train" in line for line in mix)
 
 
 def test_mix_cache_command_on_one_short_drive(tmp_path):
@@ -121,7 +137,7 @@ def test_a_handheld_drive_spread_over_its_span(tmp_path):
 
 
 def test_fit_validates_each_folder_apart(tmp_path):
-    sets = {k: json.loads(v) for k, v in _sets().items()}
+    sets = {k: json.loads(v) for k, v in _fit_sets(_run(SCRIPT, tmp_path / "echo")).items()}
     cfg = Config().replace(**{**sets, **TINY, "train.num_points": 0, "train.epochs": 1, "train.val_every": 1,
                               "train.val_pairs": 4})
     val = {}
@@ -177,14 +193,11 @@ def test_evaluate_network_alone_runs_no_search(registration_configs):
 def test_bounded_run_is_the_third_run_with_its_loss_and_folders(tmp_path):
     """NAME=mix_bound POSE_LOSS=bounded scripts/train_mix_span.sh: the third run's data and schedule, the bounded
     per-pair pose loss, its own run and state folders."""
-    env = {"PATH": "/usr/bin:/bin", "PY": "echo", "NAME": "mix_bound", "POSE_LOSS": "bounded",
-           "RUN": str(tmp_path / "run"), "CACHE": str(tmp_path / "c"), "DRIVES": "4"}
-    out = subprocess.run(["sh", str(SPAN)], env=env, capture_output=True, text=True, check=True).stdout
-    fit = [line for line in out.splitlines() if " fit " in line]
-    assert len(fit) == 1 and "--min-span 10" in out
-    sets = dict(re.findall(r"--set (train\.\w+)=(\S+)", fit[0]))
-    assert sets.pop("train.pose_loss") == "bounded" and sets == _sets(KEEP)
-    assert f"--run {tmp_path / 'run'}" in fit[0]
+    out = _run(SPAN, tmp_path, NAME="mix_bound", POSE_LOSS="bounded")
+    assert "--min-span 10" in out
+    sets = _fit_sets(out)
+    assert sets.pop("train.pose_loss") == "bounded" and sets == _fit_sets(_run(KEEP, tmp_path))
+    assert f"--run {tmp_path / 'run'}" in out
     assert Config().replace(**{"train.pose_loss": "bounded"}).validate().train.pose_loss == "bounded"
     with pytest.raises(ValueError):
         Config().replace(**{"train.pose_loss": "huber"}).validate()
