@@ -28,7 +28,7 @@ from deepbbs_ros.core.localization_types import (
     answer_rank,
 )
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish, prepare_polish_cloud
-from deepbbs_ros.core.tilted_search import TiltedSearch
+from deepbbs_ros.core.tilted_search import TiltedSearch, _start
 
 MIN_PROBE_POINTS = 200  # a probe cloud on localization.probe_voxel with fewer voxels: the scan's own cloud instead
 
@@ -121,14 +121,7 @@ class PlaceSearch(TiltedSearch):
             t = time.perf_counter()
             crop = self._crop(place)
             timings["crop"] = timings.get("crop", 0.0) + (time.perf_counter() - t) * 1e3
-            T_init = _rz(yaw)
-            T_init[:2, 3] = -T_init[:2, :2] @ centre  # that point of the scan on the place
-            if level is not None:
-                T_init = T_init @ level
-            if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
-                g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
-                if np.isfinite(g):
-                    T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
+            T_init = self._place_start(crop, yaw, centre, level, h_scan)
             ans = self._deep(src, crop, T_init, place, timings, yaw_search=search)
             if ans.ok and ans.score < lc.confident_score:
                 # the network's pass settled on a poor optimum (a lane off)? GICP alone from the descriptor's start
@@ -139,6 +132,18 @@ class PlaceSearch(TiltedSearch):
             answers.append(ans)
             if ans.ok and accepted_dist is None and (ans.score >= lc.confident_score or ans.prob >= sure):
                 accepted_dist = dist  # a fit this close, or a verdict this sure: only look-alike places are rivals
+
+    def _place_start(self, crop: _Crop, yaw: float, centre: np.ndarray, level: np.ndarray | None,
+                     h_scan: float | None) -> np.ndarray:
+        """(4, 4) T_place_scan, the descriptor's start on ``crop``'s place: the scan turned by ``yaw`` with its point
+        ``centre`` (2,) on the place, levelled by ``level`` (4, 4) or None, at its own height above the ground
+        ``h_scan`` (m; :meth:`_sensor_height`, None: unknown)."""
+        T_init = _start(yaw, centre, level)
+        if h_scan is not None:  # the crop's origin is the place's sensor: the scan's own height above the ground
+            g = self.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
+            if np.isfinite(g):
+                T_init[2, 3] = g + h_scan - crop.T_map_place[2, 3]
+        return T_init
 
     def _outside(self, src: Any, answers: list[_Answer], ranked: list, timings: dict[str, float]) -> bool:
         """The first round's answers say the scan is not in the map (then the quick retry only): the best one

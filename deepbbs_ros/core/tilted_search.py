@@ -89,8 +89,8 @@ class TiltedSearch:
 
 
 def _start(yaw: float, centre: np.ndarray, level: np.ndarray | None) -> np.ndarray:
-    """(4, 4) a round's start on a place (``PlaceSearch._round``'s, less its height): the scan turned by ``yaw`` with
-    its point ``centre`` (2,) on the place, levelled by ``level``."""
+    """(4, 4) a round's start on a place (``PlaceSearch._place_start``'s, less its height): the scan turned by
+    ``yaw`` with its point ``centre`` (2,) on the place, levelled by ``level``."""
     T = _rz(yaw)
     T[:2, 3] = -T[:2, :2] @ np.asarray(centre, np.float64)
     return T if level is None else T @ level
