@@ -6,7 +6,8 @@ recording's every third scan at their true poses (a ``MapLocalizer`` with that t
 scores poses with known truth of the scans in between (most degraded like real ones: range noise, things seen in one
 scan only, the carrier's body; ``scripts/calibrate_verdict.py``'s :func:`degrade`):
 
-* GICP on the nearest place's crop from the truth moved a little (right, mostly) and far (GICP's local minima);
+* GICP on the nearest place's crop from the truth moved a little (right, mostly) and far (GICP's local minima), run as
+  tracking runs it (``core.good_start.from_start``: GICP's own settings, wherever it goes);
 * the truth moved beyond 2 degrees / 0.5 m (a wrong pose near the right one); with ``--slid``, also slid 0.6-1.5 m
   along the direction its fit pins least (along a wall, a corridor, a road: it fits as tightly as the right one);
 * the search's own answers: GICP from the descriptor's start on the places the ranking puts first (the right place,
@@ -42,10 +43,10 @@ from calibrate_verdict import body_points, degrade, fit_logistic, label, perturb
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.core import calibrated, map_verdict  # noqa: E402
+from deepbbs_ros.core.good_start import from_start  # noqa: E402
 from deepbbs_ros.core.localization import MapLocalizer  # noqa: E402
-from deepbbs_ros.core.localization_types import _rz  # noqa: E402
 from deepbbs_ros.core.polish import polish  # noqa: E402
-from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp  # noqa: E402
+from deepbbs_ros.core.registration import DeepBBSRegistration  # noqa: E402
 from deepbbs_ros.sim.rig import make_simulator  # noqa: E402
 
 #: (sensor, mount, place): the road scenes and the indoor places, spinning and solid-state sensors, every mount
@@ -80,12 +81,7 @@ def _searched(loc: MapLocalizer, prep, places: int = 3) -> list[tuple[np.ndarray
     centres = loc.description_centres
     for place, _, yaw, centre in loc.rank(loc.describe(prep.points, centres), None, centres)[:places]:
         crop = loc._crop(place)
-        T_init = _rz(yaw)
-        T_init[:2, 3] = -T_init[:2, :2] @ centre
-        h = loc._sensor_height(prep.pre)
-        g = loc.grid.ground_at(crop.T_map_place[None, :2, 3], np.nan)[0]
-        if h is not None and np.isfinite(g):
-            T_init[2, 3] = g + h - crop.T_map_place[2, 3]
+        T_init = loc._place_start(crop, yaw, centre, None, loc._sensor_height(prep.pre))  # the search's own start
         pol = polish(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(), T_init, rc)
         out.append((crop.T_map_place @ (pol.T_target_source if pol.applied else T_init), crop))
     return out
@@ -157,8 +153,8 @@ def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndar
             crop = _nearest_crop(loc, T_gt)
             T_place = np.linalg.inv(crop.T_map_place)
             for kind, yaw, tr in (("near", (0, 3), (0, 0.5)), ("far", (8, 40), (1, 4))):
-                pol = good_start_gicp(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(),
-                                      T_place @ T_gt @ perturb(rng, yaw, tr), rc)
+                pol = from_start(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(),
+                                 T_place @ T_gt @ perturb(rng, yaw, tr), rc)
                 if pol.applied:
                     add(ri, kind, loc, prep, crop.T_map_place @ pol.T_target_source, crop, T_gt)
             add(ri, "moved", loc, prep, T_gt @ perturb(rng, (2, 15), (0.5, 3.0)), crop, T_gt)
@@ -188,8 +184,8 @@ def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndar
             prep = sl.prepare(pts)
             T_gt = scans[b].T_world_lidar
             crop = _nearest_crop(sl, T_gt)
-            pol = good_start_gicp(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(),
-                                  np.linalg.inv(crop.T_map_place) @ T_gt, rc)
+            pol = from_start(prep.pre.polish_cloud.complete(), crop.pre.polish_cloud.complete(),
+                             np.linalg.inv(crop.T_map_place) @ T_gt, rc)
             if pol.applied:
                 add(ri, "short", sl, prep, crop.T_map_place @ pol.T_target_source, crop, T_gt)
             add(ri, "short-moved", sl, prep, T_gt @ perturb(rng, (2, 15), (0.5, 3.0)), crop, T_gt)
