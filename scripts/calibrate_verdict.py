@@ -36,6 +36,7 @@ line and the floor on ``pinned`` (:data:`MIN_PINNED`, ``--min-pinned``). ::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -49,7 +50,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from deepbbs_ros.config import Config, load_config  # noqa: E402
-from deepbbs_ros.core import anchoring, calibrated, second_minimum, visibility, within  # noqa: E402
+from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility, within  # noqa: E402
+from deepbbs_ros.core.polish import finish  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -206,6 +208,20 @@ def rows_of(src, tgt, T: np.ndarray, rc) -> tuple[np.ndarray, np.ndarray]:
     return pair, good
 
 
+def fine_rows(src, tgt, T: np.ndarray, rc) -> np.ndarray:
+    """The good start's feature rows of the pose ``T`` judged on both scans' scene-sized grids
+    (core/verdict.py :func:`on_scene_grid`): (2, F), at ``verdict_dist`` and at ``verdict_dist`` scaled with the finer
+    grid (``registration.good_start_finish_grid`` "scene"); NaN where either scan has none."""
+    out = np.full((2, len(visibility.FEATURES)), np.nan)
+    grid = verdict.on_scene_grid(src.polish_cloud, tgt.polish_cloud, rc)
+    if grid is None:
+        return out
+    pts, tf, d = grid
+    out[0] = visibility.pose_features(pts, T, tf, rc.verdict_dist)
+    out[1] = visibility.pose_features(pts, T, tf, d)
+    return out
+
+
 def label(T: np.ndarray, T_gt: np.ndarray) -> tuple[int, float, float]:
     """1 right (1 deg / 0.3 m), 0 wrong (beyond 2 deg or 0.5 m), -1 in between."""
     r, t = pair_errors(T, T_gt)
@@ -261,12 +277,16 @@ def slid_pose(T: np.ndarray, points: np.ndarray, target, dist: float, k: float) 
 
 
 def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: int, truth: bool = False,
-               reg=None, slid: bool = False, second: bool = False) -> None:
+               reg=None, slid: bool = False, second: bool = False, scene: bool = False) -> None:
     """Append to ``out`` the rows of the poses of one pair (``pair``: the target's and the source's (prepared scan,
     T_world_lidar); ``far()``: the same for a scan of another place; see the module). ``truth``: also the truth
     moved a little (within 0.5 deg / 0.1 m), a right pose where GICP may not find one; ``reg``: also the whole
     pipeline's answer from identity (``DeepBBSRegistration.register``), right or its own local minimum; ``slid``: also
     the truth slid along its weakest direction (:func:`slid_pose`), a wrong pose the scene's planes hardly tell;
+    ``scene``: also the good start's rows on the scene-sized grids (``fine``: :func:`fine_rows`) and each GICP
+    answer finished there (core/polish.py finish; ``fin``: its rows on GICP's grid and on the scene's with the scaled
+    distance, ``fin_y``: its label, degrees, metres; ``fin_amb``: taken on the scene's grids, the second-minimum check
+    there finds another minimum as good); NaN (False) where a scan has no finer grid or when off;
     ``second``: a pose the verdict takes (``verdict_probability``) is also checked for a second minimum as good along
     its weakest direction, as the registration's own verdict does (core/second_minimum.py; ``ambiguous``)."""
     (tgt, Tt), (src, Ts) = pair
@@ -308,7 +328,22 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
         rough = visibility.roughness(tgt.polish_cloud, rc.verdict_dist)  # the target's own (benchmark)
         cov = within.pose_covariance(s_pre.polish_cloud, tgt.polish_cloud, T, rc.polish_max_corr_dist)
         cov = np.full((6, 6), np.nan) if cov is None else cov  # the pose's (core/within.py; NaN: none)
-        for k, v in (("pair", pair), ("good", good), ("y", y), ("rot", r), ("trans", t), ("rig", ri),
+        fine = fine_rows(s_pre, tgt, T, rc) if scene else np.full((2, len(visibility.FEATURES)), np.nan)
+        fin, fin_y, fin_amb = np.full((2, len(visibility.FEATURES)), np.nan), np.full(3, np.nan), False
+        if kind in ("near", "far") and np.isfinite(fine[0, 0]):  # GICP's answer finished on the scene's grids
+            f = finish(s_pre.polish_cloud, tgt.polish_cloud, T, rc)
+            if f is not None and f.applied:
+                fin_y[:] = label(f.T_target_source, T_gt)
+                fin[0] = rows_of(s_pre, tgt, f.T_target_source, rc)[1]
+                fin[1] = fine_rows(s_pre, tgt, f.T_target_source, rc)[1]
+                if calibrated.probability(fin[1], "good_start") >= rc.good_start_probability:  # taken: a 2nd minimum?
+                    pts, tf, d = verdict.on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud, rc)
+                    fin_amb = second_minimum.check(pts, f.T_target_source, s_pre.polish_cloud.finer(), tf,
+                                                   dataclasses.replace(rc, verdict_dist=d)).ambiguous
+        grid = (s_pre.polish_cloud.fine_voxel, tgt.polish_cloud.fine_voxel)
+        for k, v in (("pair", pair), ("good", good), ("fine", fine), ("grid", grid), ("fin", fin), ("fin_y", fin_y),
+                     ("fin_amb", fin_amb),
+                     ("y", y), ("rot", r), ("trans", t), ("rig", ri),
                      ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
                      ("ambiguous", ambiguous), ("cov", cov)):
             out[k].append(v)
@@ -356,7 +391,7 @@ def _turned(scan, i: int, rng: np.random.Generator, rc) -> tuple | None:
 
 def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool = False,
             rig0: int = 0, turned: bool = False, slid: bool = False,
-            config: Config | None = None, second: bool = False) -> dict[str, np.ndarray]:
+            config: Config | None = None, second: bool = False, scene: bool = False) -> dict[str, np.ndarray]:
     """Feature rows of poses on simulated pairs (see the module): {"pair", "good", "y", "rot", "trans", "rig",
     "kind", "near_ref", "rough", "self_plane", "ambiguous"} (``rough``, ``self_plane``: the target's
     :func:`visibility.roughness`;
@@ -365,12 +400,13 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     (:func:`_turned`, over 100 frames); ``slid``: the truth slid along its weakest direction too; ``rig0``: the
     index of the first rig (its ``rig`` rows, its simulator's seed); ``config``: the registration's (default: the
     defaults); ``second``: the second-minimum check on the poses the verdict takes (``ambiguous``, see
-    :func:`_pair_rows`)."""
+    :func:`_pair_rows`); ``scene``: the rows on the scene-sized grids too (``fine``, ``fin``, ``fin_y``: see
+    :func:`_pair_rows`; ``grid``: both scans' finer grids, m, 0 for none, always)."""
     frames = 100 if turned else frames  # a hand-held walk takes 2.5 m in up to 50 frames
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
     out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
-                           "ambiguous", "cov")}
+                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()
@@ -389,7 +425,7 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
                 (scan(i), scan(j))
             if pair is not None:
                 _pair_rows(pair, partial(scan, min(frames - 1, i + FAR)), rng, rc, out, ri, truth=low,
-                           reg=reg if turned else None, slid=slid, second=second)
+                           reg=reg if turned else None, slid=slid, second=second, scene=scene)
         n = sum(1 for r in out["rig"] if r == ri)
         log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
             f"{time.perf_counter() - t0:.1f} s")

@@ -261,3 +261,44 @@ def test_a_pose_the_verdict_does_not_take_on_gicps_grid_is_finished_on_the_scene
     res = reg.register(src, tgt, T_init=T, good_start=True)
     assert res.good_start.startswith("accepted") and "scene's grid" not in res.good_start, res.good_start
     assert pair_errors(res.T_target_source, T)[0] > 1.0
+
+
+
+def test_the_finished_pose_can_be_judged_on_the_grid_it_was_finished_on(monkeypatch):
+    """registration.good_start_finish_grid "scene": the pose finished on the scans' scene-sized grids is judged on
+    those grids (core/verdict.py on_scene_grid: the source's voxels there against the target's finer cloud) with the
+    verdict's distance scaled with the finer grid as GICP's correspondence distance is; "gicp" (the default) judges
+    it on GICP's grid at registration.verdict_dist. Simulated Mid-360 corridor, exact truth; a verdict that takes
+    only poses within 0.3 deg of the truth (patched in) records what it was asked."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.patterns import make_sensor
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 2, make_sensor("mid360", range_noise=0.0, dropout=0.0), "handheld", frames=60,
+                         compensate=True, motion_distortion=False)
+    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=10)]
+    T = np.linalg.inv(T_w_t) @ T_w_s
+    asked = []
+
+    def judge(pts, T_est, target, dist, *a, **k):
+        asked.append((getattr(target, "voxel", 0.0), dist))
+        return float(pair_errors(T_est, T)[0] < 0.3)
+
+    monkeypatch.setattr(verdict, "probability", judge)
+    for grid in ("gicp", "scene"):
+        cfg = Config().replace(**{"registration.exact_gicp": True, "registration.network_process": "off",
+                                  "registration.good_start_finish_grid": grid})
+        rc, reg, asked[:] = cfg.registration, DeepBBSRegistration(cfg), []
+        try:
+            res = reg.register(src, tgt, T_init=T, good_start=True)
+        finally:
+            reg.close()
+        assert res.path == "gicp" and "scene's grid" in res.good_start, res.good_start
+        assert pair_errors(res.T_target_source, T)[0] < 0.2
+        (first_grid, first_dist), (grid_m, dist) = asked[0], asked[1]
+        assert first_grid == rc.polish_voxel and first_dist == rc.verdict_dist  # GICP's pose on GICP's grid
+        if grid == "gicp":
+            assert (grid_m, dist) == (rc.polish_voxel, rc.verdict_dist)
+        else:  # the finer of the two grids (each about 0.19 m in this 2-3 m corridor), the distance scaled with it
+            assert 0.25 * rc.polish_voxel <= grid_m < rc.polish_voxel
+            assert dist == pytest.approx(rc.verdict_dist * grid_m / rc.polish_voxel, rel=0.05)

@@ -169,6 +169,11 @@ class RegistrationConfig:
     good_start_max_iters: int = 10  # GICP iterations a vouched start should need
     good_start_max_trans: float = 3.0  # m; how far GICP should move a vouched start
     good_start_max_rot_deg: float = 10.0  # deg; idem for rotation
+    # the grid on which the good start judges GICP's pose finished on the scene-sized grids (polish_voxel_angle):
+    # "gicp" (GICP's polish_voxel grid, the one the verdict's coefficients were fitted on); "scene" (those scene-sized
+    # grids, verdict_dist scaled with them, then the second-minimum check there): a narrow place's right pose taken
+    # instead of the search, but one more simulated wrong pose accepted (docs/sensors.md; tried, not the default)
+    good_start_finish_grid: str = "gicp"
 
     def validate(self) -> None:
         dev = self.device
@@ -212,6 +217,8 @@ class RegistrationConfig:
         _check(self.verdict_dist > 0, "registration.verdict_dist", "must be > 0")
         _check(0 <= self.verdict_threshold <= 1, "registration.verdict_threshold", "must be in [0, 1]")
         _check(0 <= self.verdict_probability <= 1, "registration.verdict_probability", "must be in [0, 1]")
+        _check(self.good_start_finish_grid in ("gicp", "scene"), "registration.good_start_finish_grid",
+               f"must be 'gicp' or 'scene', got {self.good_start_finish_grid!r}")
         _check(self.verdict_within in ("off", "pair", "all"), "registration.verdict_within",
                f"must be 'off', 'pair' or 'all', got {self.verdict_within!r}")
         _check(0 <= self.verdict_sure <= 1, "registration.verdict_sure", "must be in [0, 1]")

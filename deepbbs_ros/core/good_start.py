@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish, polish
@@ -122,14 +122,26 @@ def _orthonormal(pol: Any) -> Any:
 def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc: Any) -> tuple[Any, float] | None:
     """GICP from the start converged but not taken: finished on the scans' scene-sized grids
     (``registration.polish_voxel_angle``, :func:`core.polish.finish`; a narrow place's walls, floor and ceiling that
-    GICP's grid blends) and judged again on the same points and target (the verdict's own grid) -> (the finished
-    result, its probability) when the verdict takes it, else None (no finer grid, or not taken)."""
+    GICP's grid blends) and judged again: on the same points and target (GICP's grid, ``good_start_finish_grid``
+    "gicp"), or on the grids it was finished on with the verdict's distance scaled with them
+    (:func:`core.verdict.on_scene_grid`; "scene"), where taken then checked there for a second minimum as good along
+    its weakest direction (core/second_minimum.py, ``registration.second_minimum``) -> (the finished result, its
+    probability) when the verdict takes it, else None (no finer grid, not taken, or ambiguous)."""
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
     if fine is None or not fine.applied:
         return None
     fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
-    prob = _probability(fine, "", pts, tpc, rc)
-    return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
+    if rc.good_start_finish_grid != "scene":
+        prob = _probability(fine, "", pts, tpc, rc)
+        return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
+    pts, target, dist = verdict.on_scene_grid(spc, tpc, rc)  # finished: both scans have a finer grid
+    prob = _probability(fine, "", pts, target, rc, dist=dist)
+    if not verdict.is_valid(prob, rc.good_start_probability):
+        return None
+    scene = dataclasses.replace(rc, verdict_dist=dist)
+    if rc.second_minimum and second_minimum.check(pts, fine.T_target_source, spc.finer(), target, scene).ambiguous:
+        return None
+    return fine, prob
 
 
 def _beyond(pol: Any, rc: Any) -> str:
@@ -146,12 +158,15 @@ def _beyond(pol: Any, rc: Any) -> str:
     return ""
 
 
-def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any, spc: Any = None) -> float:
+def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any, spc: Any = None,
+                 dist: float | None = None) -> float:
     """The good-start verdict's probability of the GICP result ``pol``; 0 when ``why`` says it is not taken (or GICP
-    did not converge within its limits). ``spc``: the source's cloud (``registration.verdict_within``)."""
+    did not converge within its limits). ``spc``: the source's cloud (``registration.verdict_within``); ``dist``: the
+    verdict's distance (``registration.verdict_dist`` when None)."""
     if why or not pol.applied:
         return 0.0
-    prob = verdict.probability(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")
+    d = rc.verdict_dist if dist is None else dist
+    prob = verdict.probability(pts, pol.T_target_source, tpc, d, "good_start")
     return verdict.times_within(prob, spc, tpc, pol.T_target_source, rc, rc.good_start_probability, "good_start")
 
 

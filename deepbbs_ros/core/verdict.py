@@ -32,11 +32,13 @@ pose free to slide is consistent anywhere along the slide.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from deepbbs_ros.core import anchoring
 
-__all__ = ["fitness", "fitness_to_points", "is_valid", "probability", "spread_subset", "times_within"]
+__all__ = ["fitness", "fitness_to_points", "is_valid", "on_scene_grid", "probability", "spread_subset", "times_within"]
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -76,6 +78,21 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     # where only a bound on ``pinned`` reads ``anchored_far``: measured for a pose under it only
     bound = True if anchor else calibrated.anchored_below()
     return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, bound, view), model)
+
+
+def on_scene_grid(source, target, rc) -> tuple[np.ndarray, Any, float] | None:
+    """What the good start judges a pose finished on the scans' scene-sized grids with
+    (``registration.polish_voxel_angle``, core/polish.py :func:`~deepbbs_ros.core.polish.finish`): (a spread subset
+    of the source's voxels on its finer grid, the target's finer cloud, ``registration.verdict_dist`` scaled with the
+    finer of the two grids, as GICP's correspondence distance is); None where either precision-stage cloud
+    ``source`` / ``target`` has no finer grid. Every distance the features read (and ``pinned``'s residual
+    tolerance) shrinks with the grid: the same test at the scene's scale, where GICP's grid blends a narrow place's
+    walls, floor and ceiling."""
+    sf, tf = (c.finer() if hasattr(c, "finer") else None for c in (source, target))
+    if sf is None or tf is None:
+        return None
+    scale = min(1.0, min(sf.voxel, tf.voxel) / (rc.polish_voxel or 0.5))
+    return spread_subset(sf.points(), rc.good_start_points, sf.voxel), tf, rc.verdict_dist * scale
 
 
 def times_within(prob: float, source, target, T: np.ndarray, rc, bar: float, verdict: str = "pair",

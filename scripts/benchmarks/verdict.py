@@ -144,13 +144,40 @@ def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, s
     return out
 
 
+def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
+    """The good start on the GICP answers (``near`` / ``far``) of the rows ``m`` (``--sim-scene-grid``): taken on
+    GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's grid
+    (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
+    ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"): wrong (beyond 2
+    deg / 0.5 m) accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses
+    that the finish made (deg, m, probability)."""
+    from deepbbs_ros.core import calibrated
+
+    g = m & np.isin(data["kind"], ["near", "far"])
+    p0 = calibrated.probability(data["good"], "good_start")
+    fy, done = data["fin_y"], np.isfinite(data["fin_y"][:, 0])
+    far0, y0 = (data["rot"] > 2.0) | (data["trans"] > 0.5), data["y"] == 1
+    ffar, fright = done & ((fy[:, 1] > 2.0) | (fy[:, 2] > 0.5)), done & (fy[:, 0] == 1)
+    out = {"answers": int(g.sum()), "finished": int(np.sum(g & (p0 < bar) & done))}
+    for name, col in (("gicp_grid", 0), ("scene_grid", 1)):
+        pf = np.zeros(len(p0))
+        pf[done] = calibrated.probability(data["fin"][done, col], "good_start")
+        first, then = p0 >= bar, (p0 < bar) & (pf >= bar) & ~(data["fin_amb"].astype(bool) if col else False)
+        out[name] = {"wrong_accepted": int(np.sum(g & ((first & far0) | (then & ffar)))),
+                     "right_rejected": int(np.sum(g & ~first & ~then & (y0 | fright))),
+                     "right_accepted": int(np.sum(g & ((first & y0) | (then & fright)))),
+                     "accepted_finished": [[round(float(fy[i, 1]), 2), round(float(fy[i, 2]), 2),
+                                            round(float(pf[i]), 3)] for i in np.flatnonzero(g & then)]}
+    return out
+
+
 def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
-                config=None, dump: Path | None = None) -> dict:
+                config=None, dump: Path | None = None, scene: bool = False) -> dict:
     import calibrate_verdict as cv
 
     from deepbbs_ros.core import calibrated, within
 
-    kw = {"slid": slid, "config": config, "second": True}  # the pair verdict's second-minimum check, as registered
+    kw = {"slid": slid, "config": config, "second": True, "scene": scene}  # the pair verdict's second-minimum check
     parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
     if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
         parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), **kw))
@@ -187,6 +214,8 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
                                             data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]],
                                             data["ambiguous"][m] if name == "pair" else None)
             p_on = p * w if on else p
+            if name == "good_start" and scene:
+                out[f"good_start_scene_grid/{f}"] = scene_flow(data, m, bar)
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
                 out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p_on[m], bar, data["ambiguous"][m],
                                                        free[m], np.c_[data["rot"][m], data["trans"][m]],
@@ -334,6 +363,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="turned simulated pairs per rig of the fit's turned rigs, judged apart (default 0)")
     ap.add_argument("--sim-slid", action="store_true",
                     help="also the truth slid along its least pinned direction on every simulated pair, judged apart")
+    ap.add_argument("--sim-scene-grid", action="store_true",
+                    help="also the good start's GICP answers finished on the scans' scene-sized grids and judged "
+                    "there, the verdict's distance scaled with the grid (good_start_scene_grid; tried, not shipped)")
     ap.add_argument("--seed", type=int, default=39, help="simulation seed (the fit's is 38; default 39)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
     ap.add_argument("--dump", type=Path, help="also write the real poses' features (those the verdict judged), labels, "
@@ -359,9 +391,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.sim_pairs > 0:
         figures["sim"] = sim_figures(args.sim_pairs, args.seed, reg.config.registration,
                                      args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config,
-                                     args.dump_sim)
+                                     args.dump_sim, args.sim_scene_grid)
         for k, v in figures["sim"].items():
-            print("sim", k, v if k.startswith(("roughness", "good_start_checks")) else
+            print("sim", k, v if k.startswith(("roughness", "good_start_checks", "good_start_scene")) else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
                                              "classes"]}, v["reliability"]), flush=True)
     if args.real or args.pair:
