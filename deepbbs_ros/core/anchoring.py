@@ -58,30 +58,6 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
-def _moves(moved: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``moved`` (N, 3) moved by the twist ``step`` (6,) and by ``-step``: :func:`_rotation`'s terms computed once
-    (negated exactly: the same numbers as two calls)."""
-    w = step[3:]
-    a = float(np.linalg.norm(w))
-    if a < 1e-12:
-        R = np.eye(3)
-        return moved @ R.T + step[:3], moved @ R.T + -step[:3]
-    k = w / a
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    sK, cKK = np.sin(a) * K, (1 - np.cos(a)) * K @ K
-    eye = np.eye(3)
-    return moved @ (eye + sK + cKK).T + step[:3], moved @ (eye + -sK + cKK).T + -step[:3]
-
-
-def _counts(tree, clouds: list[np.ndarray], near: float, threads: int) -> list[float]:
-    """For each of ``clouds`` (N, 3), how many of its points lie within ``sqrt(near)`` of the target (one search of
-    them all)."""
-    if not clouds:
-        return []
-    close = (sq_dists(tree, np.concatenate(clouds), threads) <= near).reshape(len(clouds), -1)
-    return [float(np.sum(c)) for c in close]
-
-
 def nearest(tree, points: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """((N,) int64 index, (N,) float64 squared distance) of the nearest point in ``tree`` to each of ``points``
     (N, 3): a ``small_gicp.KdTree``'s k = 1 search, which answers in arrays, the same numbers as its nearest-neighbour
@@ -120,15 +96,14 @@ def anchored(moved: np.ndarray, sq_dist: np.ndarray, tree, matched: np.ndarray, 
     twist = weakest(matched, normals, info)
     if close == 0 or twist is None:
         return (0.0,) * len(steps)
-    # each step's first side for every step in one search, the second sides still needed in another: the same
-    # points searched as one side at a time (each point's nearest neighbour is its own), in two calls instead of four
-    sides = [_moves(moved, k * twist) for k in steps]  # (+, -) of each step
-    near = 0.25 * dist * dist
-    first = _counts(tree, [s[0] for s in sides], near, threads)
-    need = [i for i, c in enumerate(first) if c < close]  # a side keeping every close point: 0 whatever the other
-    second = dict(zip(need, _counts(tree, [sides[i][1] for i in need], near, threads)))
     out = []
-    for i in range(len(steps)):
-        best = max(first[i], second[i]) if i in second else first[i]
+    for k in steps:
+        best = 0.0
+        for sign in (1.0, -1.0):
+            if best >= close:  # one side keeps every close point already: 0 whatever the other keeps
+                break
+            step = sign * k * twist
+            q = moved @ _rotation(step[3:]).T + step[:3]
+            best = max(best, float(np.sum(sq_dists(tree, q, threads) <= 0.25 * dist * dist)))
         out.append(float(np.clip(1.0 - best / close, 0.0, 1.0)))
     return tuple(out)

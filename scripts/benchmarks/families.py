@@ -249,12 +249,14 @@ def alternate(good_reg, gicp_reg, src: np.ndarray, tgt: np.ndarray, repeats: int
     "gicp_cpu_ms"}: each timing (wall, and CPU of this process and its children). ``stream``: each round also times
     both as in a stream ("good_stream_ms", "gicp_stream_ms", "good_stream_cpu_ms", "gicp_stream_cpu_ms"), the target
     prepared before the clock starts (afresh each time, as the previous scan was when it was the source) and the
-    source raw: one scan prepared per call, where the raw pair prepares both."""
+    source raw, copied just before (as a driver's message is converted just before the call: in the CPU's caches,
+    where the raw pair's scans were last read a call ago): one scan prepared per call, where the raw pair prepares
+    both."""
     calls = {"good": lambda reg: reg.register(src, tgt, T_init=np.eye(4), good_start=True),
              "gicp": lambda reg: _reg._register("gicp", reg, src, tgt)}
     ready = {"good": lambda reg: reg.preprocess(tgt, lazy=True), "gicp": lambda reg: reg.preprocess(tgt)}
-    streamed = {"good": lambda reg, t: reg.register(src, t, T_init=np.eye(4), good_start=True),
-                "gicp": lambda reg, t: reg.align(reg.preprocess(src), t)}
+    streamed = {"good": lambda reg, s, t: reg.register(s, t, T_init=np.eye(4), good_start=True),
+                "gicp": lambda reg, s, t: reg.align(reg.preprocess(s), t)}
     kinds = ("", "_stream") if stream else ("",)
     out: dict[str, list[float]] = {f"{m}{s}_{k}": [] for s in kinds for m in calls for k in ("ms", "cpu_ms")}
     for k in range(repeats):
@@ -262,8 +264,8 @@ def alternate(good_reg, gicp_reg, src: np.ndarray, tgt: np.ndarray, repeats: int
             for m in ("gicp", "good") if k % 2 == 0 else ("good", "gicp"):
                 reg = good_reg if m == "good" else gicp_reg
                 if s:
-                    t = ready[m](reg)  # the target as a stream holds it: prepared, untimed
-                    _, ms, cpu = timed(lambda r, t=t, m=m: streamed[m](r, t), reg)
+                    t, c = ready[m](reg), src.copy()  # the target as a stream holds it, the source as it arrives
+                    _, ms, cpu = timed(lambda r, c=c, t=t, m=m: streamed[m](r, c, t), reg)
                 else:
                     _, ms, cpu = timed(calls[m], reg)
                 out[f"{m}{s}_ms"].append(ms)
