@@ -162,3 +162,36 @@ def test_good_start_and_gicp_are_timed_again_alternately(monkeypatch):
                                "p50_over_gicp": 12.5 / 11.0, "cpu_p50_over_gicp": 12.5 / 11.0}
     assert b["p50_over_gicp"] == 1.3  # the first timings' (13 / 10)
     assert _families_doc._basin(b)[1] == "x1.14 (first timings x1.30)"
+
+
+class _Streamed(_Timed):
+    """A stand-in for both methods as a stream calls them: the target prepared first (untimed), then the call."""
+
+    def preprocess(self, points, lazy=False):
+        self.calls.append(self.name + " prepares")
+        return ("prepared", points)
+
+    def align(self, src, tgt):
+        self.calls.append(self.name)
+
+    def register(self, src, tgt, T_init=None, good_start=False):
+        self.calls.append(self.name if isinstance(tgt, np.ndarray) else self.name + " on a prepared target")
+
+
+def test_stream_timing_prepares_the_target_before_the_clock_and_alternates(monkeypatch):
+    """families.alternate(stream=True): each round times the raw pair as before, then both as in a stream (the target
+    prepared before the clock starts, afresh each round), in the same alternating order; in_basin gives that ratio
+    apart."""
+    calls = []
+    monkeypatch.setattr(families._reg, "_register", lambda m, reg, s, t: reg.register(s, t))
+    monkeypatch.setattr(families, "timed", lambda call, reg: (call(reg), 1.0, 1.0))
+    out = families.alternate(_Streamed("good", calls), _Streamed("gicp", calls), _cloud(), _cloud(), 2, stream=True)
+    assert calls == ["gicp", "good", "gicp prepares", "gicp prepares", "gicp", "good prepares",
+                     "good on a prepared target",
+                     "good", "gicp", "good prepares", "good on a prepared target", "gicp prepares", "gicp prepares",
+                     "gicp"]
+    assert sorted(out) == sorted(f"{m}{s}_{k}" for m in ("good", "gicp") for s in ("", "_stream")
+                                 for k in ("ms", "cpu_ms"))
+    recs = [_good_rec(True, "gicp", "accepted", 12.0)]
+    recs[0]["timing"] = {**out, "good_stream_ms": [6.0, 6.0], "gicp_stream_ms": [4.0, 4.0]}
+    assert families.in_basin(recs)["alternated"]["stream"]["p50_over_gicp"] == 1.5

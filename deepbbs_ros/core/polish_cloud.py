@@ -141,9 +141,10 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
     t0 = time.perf_counter()
     pts = as_xyz(points, "polish", dtype=None)  # (N, 3) only: never a silent reshape (core/points.py)
     pts = np.compress(crop_range(pts, min_range, max_range), pts, axis=0).astype(np.float64, copy=False)
+    # the scene's grid first, while the cropped scan is still in the CPU's caches (its subsample is a strided read)
+    fine = scene_voxel(pts, voxel, voxel_angle) if voxel > 0 and voxel_angle > 0 else voxel
     out = _prepared(pts, voxel, neighbors, registration_type, threads, defer, max_voxels)
     out.n_cropped, out.voxel = len(pts), float(voxel)
-    fine = scene_voxel(pts, voxel, voxel_angle) if voxel > 0 and voxel_angle > 0 else voxel
     if fine < voxel:  # a narrow place's scan: the cropped scan kept to build its finer grid from when asked
         out.fine_voxel, out.fine_source = fine, pts
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
