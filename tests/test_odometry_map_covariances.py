@@ -160,3 +160,47 @@ def test_line_share_tells_ring_bound_neighbourhoods(scan, line_like):
     for k in range(3):
         odom.register_frame(scan(k * STEP, boxes, rng))
     assert odom.plane_frames == (2 if line_like else 0)
+
+
+
+def test_a_scan_aligned_on_the_map_planes_takes_its_covariance_from_those_planes(road):
+    """The covariance's pairs are the estimate's (core/covariance.py ``odometry_pairs``): against the map's planes,
+    each scan point with its nearest map-target point and that point's plane (fitted through its map neighbours),
+    not the voxel map's mean of scan planes; the step covariance from them is a covariance."""
+    from deepbbs_ros.core.covariance import is_covariance, odometry_covariance, odometry_pairs
+
+    vmap, scan = road
+    T = np.eye(4)
+    T[0, 3] = 6 * STEP
+    target = MapTarget(20, 1).get(vmap, 0)
+    a, _, b, Cb, _ = odometry_pairs(scan, vmap, T, VOXEL, (target, 1.0))
+    pts = np.asarray(target[0].points())[:, :3]
+    idx = np.argmin(np.linalg.norm(b[:, None, :] - pts[None, ::1], axis=2), axis=1)
+    np.testing.assert_allclose(b, pts[idx], atol=1e-9)  # the target's points ...
+    covs = np.asarray(target[0].covs())[idx, :3, :3]
+    np.testing.assert_allclose(Cb, covs, atol=1e-6)  # ... with the planes through their map neighbours
+    assert np.linalg.norm(a @ T[:3, :3].T + T[:3, 3] - b, axis=1).max() <= 1.0  # within the correspondence distance
+    voxel = odometry_pairs(scan, vmap, T, VOXEL)
+    assert len(voxel[2]) != len(b) or not np.allclose(voxel[3], Cb)  # not the voxel map's
+    assert is_covariance(odometry_covariance(scan, vmap, T, VOXEL, np.full(6, 1e-3), planes=(target, 1.0)))
+
+
+@pytest.mark.parametrize("map_covariances", [True, False])
+def test_the_odometry_covariance_pairs_with_what_the_scan_was_aligned_against(monkeypatch, map_covariances):
+    import deepbbs_ros.core.covariance as cov
+
+    seen = []
+    real = cov.odometry_pairs
+
+    def spy(*a, **k):
+        seen.append(a[4] if len(a) > 4 else k.get("planes"))
+        return real(*a, **k)
+
+    monkeypatch.setattr(cov, "odometry_pairs", spy)
+    boxes, rng = _road(), np.random.default_rng(1)
+    cfg = Config().replace(**{"odometry.threads": 1, "odometry.deepbbs_init": "never",
+                              "odometry.map_covariances": map_covariances, "odometry.line_share": 1.0})
+    odom = DeepBBSOdometry(cfg)
+    steps = [odom.register_frame(_ring_scan(k * STEP, boxes, rng)) for k in range(4)]
+    assert seen and all((p is not None) == map_covariances for p in seen), seen
+    assert all(s.covariance is not None for s in steps[1:])
