@@ -54,9 +54,8 @@ from deepbbs_ros.core.motion_floor import MOTION_WINDOW, SWEEP_SPREAD, MotionFlo
 
 __all__ = ["MOTION_WINDOW", "SWEEP_SPREAD", "MotionFloor", "adjoint", "clustered_terms", "compose",
            "compose_jacobians", "conjugated", "effective_cells", "floor_term", "gicp_covariance", "gicp_hessian",
-           "gicp_part", "is_covariance", "jackknife_meat", "matched_pairs", "odometry_covariance", "odometry_pairs",
-           "pose_error", "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew", "student_widened",
-           "voxel_pairs"]
+           "gicp_part", "is_covariance", "jackknife_meat", "matched_pairs", "odometry_covariance", "pose_error",
+           "quantisation_floor", "sandwich_covariance", "scan_covariance", "skew", "student_widened", "voxel_pairs"]
 
 #: m; the cells whose pairs' residual gradients are summed before their outer products (the correlation length of
 #: GICP's residual errors: neighbouring points see the same surface, ring and voxel grid, and their errors move
@@ -339,8 +338,7 @@ def is_covariance(cov: Any, max_diagonal: float = float("inf")) -> bool:
 
 def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
                         floor: np.ndarray | None = None, weak: np.ndarray | None = None,
-                        model: MotionFloor | None = None, weak_sigma: Any = None,
-                        planes: tuple[Any, float] | None = None) -> np.ndarray | None:
+                        model: MotionFloor | None = None, weak_sigma: Any = None) -> np.ndarray | None:
     """The covariance of the odometry's ``T_map_scan`` (the module's convention, the local map's frame, the map held
     fixed) from its VGICP pairs on ``vmap`` (the local map before the scan joins it) at the pose, plus the model error
     ``floor`` (:class:`MotionFloor`: (6,) standard deviations, m and rad, along the scan's own axes x, y, z, roll,
@@ -351,10 +349,8 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     motion model knows there (``model.weak_sigma``: the deviations along it, growing with the steps held in a row;
     without a model or a deviation, the whole deviation ``|floor[:3]| / SWEEP_SPREAD``, or a voxel); ``weak_sigma``:
     (K,) m per weak direction given by the caller (NaN: as above), e.g. the first motion's spread of places along its
-    weakest direction (core/odometry_first.py). ``planes``: the scan was aligned with GICP against the map's planes
-    (core/map_target.py): its ``(cloud, tree)`` and the correspondence distance, whose pairs are the estimate's
-    (:func:`odometry_pairs`)."""
-    pairs = odometry_pairs(cloud, vmap, T_map_scan, voxel_size, planes)
+    weakest direction (core/odometry_first.py)."""
+    pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
     R = np.asarray(T_map_scan, dtype=np.float64)[:3, :3]
     first = floor is None
     if first:
@@ -380,31 +376,11 @@ def odometry_covariance(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_siz
     return _to_parent(cov_right, T_map_scan) + floor_term(floor, T_map_scan)
 
 
-def odometry_pairs(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
-                   planes: tuple[Any, float] | None = None) -> tuple[np.ndarray, ...] | None:
-    """The odometry's GICP pairs at ``T_map_scan`` (every k-th scan point, at most :data:`ODOMETRY_MAX_POINTS`): the
-    VGICP pairs on the voxel map ``vmap`` (:func:`voxel_pairs`), or with ``planes`` (``((cloud, tree), max_corr_dist)``
-    of the map's planes, core/map_target.py, that the scan was aligned against) the nearest map-target points within
-    the correspondence distance, with the planes fitted through their map neighbours (:func:`matched_pairs`)."""
-    if planes is None:
-        return voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
-    (target_cloud, tree), corr = planes
-    return matched_pairs(cloud, _Target(target_cloud, tree), T_map_scan, corr, 1, ODOMETRY_MAX_POINTS)
-
-
-class _Target:
-    """A (cloud, tree) pair as :func:`matched_pairs` reads a target."""
-
-    def __init__(self, cloud: Any, tree: Any) -> None:
-        self.cloud, self.tree = cloud, tree
-
-
-def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float,
-              planes: tuple[Any, float] | None = None) -> np.ndarray | None:
+def gicp_part(cloud: Any, vmap: Any, T_map_scan: np.ndarray, voxel_size: float) -> np.ndarray | None:
     """(6, 6) the GICP part of the odometry's covariance at ``T_map_scan`` (the module's convention, map frame): the
-    cluster-robust covariance of the scan's GICP pairs (:func:`odometry_pairs`), nothing added along weak directions
-    and no floor (the data's own uncertainty, core/odometry_hold.py); None without pairs."""
-    pairs = odometry_pairs(cloud, vmap, T_map_scan, voxel_size, planes)
+    cluster-robust covariance of the scan's VGICP pairs on ``vmap``, nothing added along weak directions and no floor
+    (the data's own uncertainty, core/odometry_hold.py); None without pairs."""
+    pairs = voxel_pairs(cloud, vmap, T_map_scan, voxel_size, ODOMETRY_MAX_POINTS)
     return sandwich_covariance(pairs, T_map_scan, ODOMETRY_INFLATION, weak=np.zeros((0, 3)), student=ODOMETRY_STUDENT)
 
 

@@ -119,8 +119,7 @@ def _build(pts: np.ndarray, neighbors: int, threads: int) -> tuple[Any, Any]:
 
     cloud = small_gicp.PointCloud(pts)
     tree = small_gicp.KdTree(cloud, num_threads=threads)
-    # normals too: the covariance's pairs read a point's plane from its normal (core/gicp_pairs.py)
-    small_gicp.estimate_normals_covariances(cloud, tree, num_neighbors=neighbors, num_threads=threads)
+    small_gicp.estimate_covariances(cloud, tree, num_neighbors=neighbors, num_threads=threads)
     return cloud, tree
 
 

@@ -188,8 +188,7 @@ class DeepBBSOdometry:
         weak, weak_sigma = deg.weak, None
         if along is not None and along.sigma > 0:  # the first motion's places along the direction: its uncertainty
             weak, weak_sigma = np.vstack([deg.weak, along.direction]), [np.nan] * len(deg.weak) + [along.sigma]
-        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, weak, self._sweep, weak_sigma,
-                                       self._plane_target(pose))
+        cov = _cov.odometry_covariance(cloud, self._map, pose, self.voxel_size, floor, weak, self._sweep, weak_sigma)
         cross = self._held_cross(pose, deg.weak) if cov is not None else None
         self._local.insert(cloud, pose)
         self.pose = pose
@@ -257,13 +256,6 @@ class DeepBBSOdometry:
                 self._shares.append(share)
         return bool(self._shares and np.mean(self._shares) > oc.line_share)
 
-    def _plane_target(self, pose: np.ndarray) -> tuple[Any, float] | None:
-        """The map's planes this scan aligned against and the correspondence distance (the covariance's pairs are the
-        estimate's: core/covariance.py ``odometry_pairs``); None when it aligned against the voxel map."""
-        if not self._planes:
-            return None
-        return self._local.target.get(self._map, self._map_version, pose[:3, 3]), self.config.odometry.max_corr_dist
-
     def _has_times(self, times: np.ndarray | None) -> bool:
         return bool(self.config.odometry.deskew and times is not None and len(times) and np.ptp(times) > 0)
 
@@ -317,7 +309,7 @@ class DeepBBSOdometry:
         R = pose[:3, :3]
         held, sigmas = _held.held_directions(
             pose, start, _held.translation_directions(H, R), limit,
-            lambda: _cov.gicp_part(cloud, self._map, pose, self.voxel_size, self._plane_target(pose)),
+            lambda: _cov.gicp_part(cloud, self._map, pose, self.voxel_size),
             lambda d: np.fmax(self._sweep.weak_sigma(R.T @ d), self._sweep.last_deviation(R.T @ d)))
         pose = _deg.hold(_held.blend(pose, start, held, sigmas), start, deg.weak, limit)
         return pose, _held.merged(deg, held, R)
