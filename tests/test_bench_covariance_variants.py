@@ -48,3 +48,25 @@ def test_matrix_max_holds_both():
     M = variants._matrix_max(A, B)
     assert np.linalg.eigvalsh(M - A).min() > -1e-9 and np.linalg.eigvalsh(M - B).min() > -1e-9
     np.testing.assert_allclose(variants._matrix_max(A, A), A, rtol=1e-9)
+
+
+def test_map_planes_drop_the_scans_own_covariances_from_the_pairs(monkeypatch):
+    """``--map-planes`` (a model tried): the localization's covariance pairs weigh the map's planes alone (``C_a = 0``)
+    and its refinement runs point-to-plane."""
+    import deepbbs_ros.core.localization as locmod
+    from deepbbs_ros.core.polish import prepare_polish_cloud
+
+    monkeypatch.setattr(cm, "matched_pairs", cm.matched_pairs)  # restored after the test
+    refine = locmod.MapLocalizer._refine
+    monkeypatch.setattr(locmod.MapLocalizer, "_refine", refine)
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-10, 10, (4000, 2)), rng.normal(0, 0.02, 4000)]  # a floor
+    pts[:1000, 2] = rng.uniform(0, 3, 1000)
+    pts[:1000, 0] = 5.0  # a wall
+    src, tgt = prepare_polish_cloud(pts, 0.5, 20), prepare_polish_cloud(pts, 0.5, 20)
+    own = cm.matched_pairs(src, tgt, np.eye(4), 0.5)
+    variants.install_map_planes()
+    a, Ca, b, Cb, _ = cm.matched_pairs(src, tgt, np.eye(4), 0.5)
+    assert np.abs(own[1]).max() > 0.5 and not Ca.any()
+    np.testing.assert_array_equal(Cb, own[3])
+    assert locmod.MapLocalizer._refine is not refine  # the point-to-plane refinement

@@ -133,3 +133,30 @@ def direction_table(rows: list[tuple[np.ndarray, np.ndarray]]) -> str:
         if m.any():
             parts.append(f"[{lo:.0f}, {hi:.0f}): {r[m].mean():.2f} ({m.sum()})")
     return "per direction by effective cells, mean (u^T d)^2 / lambda (1 when honest): " + ", ".join(parts)
+
+
+def install_map_planes() -> None:
+    """The localization against the map's planes alone (a model tried): its refinement point-to-plane on the map crop's
+    normals (small_gicp ``PLANE_ICP``, the scan's own covariances out of GICP's weight ``(C_b + R C_a R^T)^-1``) and
+    its covariance from the same pairs with ``C_a = 0`` (the map's planes, as the estimate weighs them)."""
+    import dataclasses
+
+    import deepbbs_ros.core.covariance as cm
+    import deepbbs_ros.core.localization as locmod
+
+    own_refine, own_pairs = locmod.MapLocalizer._refine, cm.matched_pairs
+
+    def refine(self: Any, src: Any, crop: Any, T_map_scan: np.ndarray, timings: dict) -> np.ndarray:
+        rc = self.config.registration
+        self.config.registration = dataclasses.replace(rc, polish="plane_icp")
+        try:
+            return own_refine(self, src, crop, T_map_scan, timings)
+        finally:
+            self.config.registration = rc
+
+    def pairs(*a: Any, **k: Any) -> tuple[np.ndarray, ...] | None:
+        p = own_pairs(*a, **k)
+        return None if p is None else (p[0], np.zeros_like(p[1]), *p[2:])
+
+    locmod.MapLocalizer._refine = refine
+    cm.matched_pairs = pairs

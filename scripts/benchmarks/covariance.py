@@ -33,8 +33,10 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
 Localization checks (models tried, scripts/benchmarks/_localization_variants.py): ``--estimator cr2`` (the
 bias-reduced cluster-robust covariance instead of the jackknife), ``--coarse-cell M`` (along each direction the larger
 of the cells' and M-m cells' covariance), ``--min-effective-cells`` (where the t stops), ``--directions`` (the poses'
-errors along their covariance's eigen-directions by effective cells). Each set prints its poses' mean error per axis
-and its t: an error the poses share, which no pose's covariance holds.
+errors along their covariance's eigen-directions by effective cells), ``--map-planes`` (the refinement and the
+covariance against the map's planes alone, the scan's own covariances out). Each set prints its poses' mean error per
+axis and its t (an error the poses share, which no pose's covariance holds) and their root mean square error and
+standard deviation per axis.
 
 Before: ``--before`` scores the point-to-point covariance the node had (node/covariance.py alignment_quality,
 localization and odometry) instead of the GICP one.
@@ -240,6 +242,11 @@ def localization_rows(points, keys, queries, config, args, log=print) -> tuple[l
         mean, sem = e.mean(0), e.std(0, ddof=1) / len(e) ** 0.5
         log("    errors, mean (mm, mdeg) and t (x, y, z, roll, pitch, yaw): "
             + ", ".join(f"{m:+.1f} (t {m / max(t, 1e-12):.1f})" for m, t in zip(mean, sem)))
+        sd = np.array([np.sqrt(np.diag(c)) for _, c in rows]) * np.array([1e3] * 3 + [np.degrees(1.0) * 1e3] * 3)
+        log("    errors, root mean square (mm, mdeg; x, y, z, roll, pitch, yaw): "
+            + ", ".join(f"{v:.1f}" for v in np.sqrt(np.square(e).mean(0)))
+            + "; standard deviations, root mean square: "
+            + ", ".join(f"{v:.1f}" for v in np.sqrt(np.square(sd).mean(0))))
     if directions:
         log("    " + _variants.direction_table(directions))
     return rows, failed
@@ -600,6 +607,9 @@ def main(argv: list[str] | None = None) -> int:
                     "covariance's eigen-directions by the directions' effective cells (which directions are cautious)")
     ap.add_argument("--min-effective-cells", type=float, default=0.0, help="the effective cells at which the "
                     "localization's Student's t stops (a check; default MIN_EFFECTIVE_CELLS)")
+    ap.add_argument("--map-planes", action="store_true", help="the localization's refinement and covariance against "
+                    "the map's planes alone (point-to-plane on the map crop's normals, the scan's own covariances out: "
+                    "a model tried, scripts/benchmarks/_localization_variants.py)")
     ap.add_argument("--cell", type=float, default=0.0, help="m: the cluster cell instead of CLUSTER_CELL (a check)")
     ap.add_argument("--fit", action="store_true", help="the factor on the localization's covariances that would make "
                     "the simulated sets' pooled mean NEES 6 (a check); raw rows kept in OUT/covariance_rows.npz")
@@ -626,6 +636,8 @@ def main(argv: list[str] | None = None) -> int:
         covmod.MIN_EFFECTIVE_CELLS = args.min_effective_cells
     if args.estimator != "jackknife" or args.coarse_cell > 0 or args.directions:
         _variants.install(args.estimator, args.coarse_cell, args.directions)
+    if args.map_planes:
+        _variants.install_map_planes()
     if args.sweep_floor != "shipped":
         import deepbbs_ros.core.motion_floor as floormod
 
