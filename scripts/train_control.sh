@@ -8,6 +8,9 @@
 # START: shipped (the shipped weights, a fresh optimiser at step 0: what the mix runs do) or a state file to
 #   resume exactly (weights, optimiser, schedule, step), e.g. deepbbs_ros/models/train_state/worlds/state_latest.pt.
 # SETS_EXTRA: more --set options, one change at a time (e.g. "--set train.lr=1.5625e-5").
+# MORE: more training cache folders beside the road drives (e.g. "--cache runs/cache/mixcar_train": sensor-mix
+#   drives on car roofs only, `deepbbs-train cache ... --mounts car` with scripts/train_mix_data.sh's seeds, places
+#   and sensors), to split the mix into its parts.
 # STEPS: steps this call trains; CHUNK: steps between copies of the weights. THREADS: torch threads.
 set -eu
 cd "$(dirname "$0")/.."
@@ -37,7 +40,7 @@ while [ "$done_steps" -lt "$STEPS" ]; do
     FROM="--resume $START"
   fi
   # shellcheck disable=SC2086
-  $T fit --cache "$CACHE/worlds_train" --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM --max-steps "$CHUNK"
+  $T fit --cache "$CACHE/worlds_train" ${MORE:-} --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM --max-steps "$CHUNK"
   step=$($PY -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['step'])" "$RUN/state_latest.pt")
   cp "$RUN/model_latest.pt" "$RUN/step$step.pt"
   echo "weights at step $step: $RUN/step$step.pt"
