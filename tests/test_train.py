@@ -197,21 +197,6 @@ def test_loss_is_zero_at_ground_truth_and_guards_no_partner():
     assert torch.isfinite(terms.total) and float(terms.corr) == 0.0
 
 
-def test_beta_epochs_continues_the_correspondence_weight():
-    """train.beta_epochs: the correspondence weight beta ** (beta_epochs + epoch), a fine-tune continuing the
-    decayed weight of the run its start ended; 0 (the default) starts at 1 as before; negative is refused."""
-    from deepbbs_ros.errors import ConfigError
-    from deepbbs_ros.train.loss import loss_options
-
-    assert loss_options(Config(), 0)["corr_weight"] == 1.0
-    assert loss_options(Config(), 3)["corr_weight"] == pytest.approx(0.95 ** 3)
-    cfg = Config().replace(**{"train.beta_epochs": 38}).validate()
-    assert loss_options(cfg, 0)["corr_weight"] == pytest.approx(0.95 ** 38)
-    assert loss_options(cfg, 2)["corr_weight"] == pytest.approx(0.95 ** 40)
-    with pytest.raises(ConfigError, match="train.beta_epochs"):
-        Config().replace(**{"train.beta_epochs": -1}).validate()
-
-
 def test_bounded_pose_loss_on_pairs_of_known_error():
     """train.pose_loss=bounded on a batch whose pose errors are known: the squared loss below the success
     tolerance, 2 (sqrt 2 - 1) c at it, and beyond it each pair's pull (gradient with respect to its rotation

@@ -19,10 +19,7 @@ class TrainConfig:
     lr_step: int = 8  # epochs between learning-rate decays
     lr_gamma: float = 0.5  # learning-rate factor at each decay
     grad_clip: float = 1.0  # max gradient norm; 0 disables clipping
-    beta: float = 0.95  # weight of the correspondence loss: beta ** (beta_epochs + epoch)
-    # epochs already counted in that weight: a fine-tune continuing the decayed weight of the run its start
-    # weights ended (0 = from 1, as a new run; the shipped model's step 3800 is epoch 38)
-    beta_epochs: int = 0
+    beta: float = 0.95  # weight of the correspondence loss: beta ** epoch
     theta: float = 1.0  # m; a source point has a true partner within theta (1000 FPS points: ~2 m apart)
     trans_weight: float = 1.0  # weight of the translation term (1 = the paper's loss; scaled units, see train/loss.py)
     # per-pair pose term: "squared" = rot + trans_weight * trans (the paper's); "bounded" = its pseudo-Huber with
@@ -55,7 +52,6 @@ class TrainConfig:
         _check(self.lr > 0, "train.lr", "must be > 0")
         _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")
         _check(0 < self.beta <= 1, "train.beta", "must be in (0, 1]")
-        _check(self.beta_epochs >= 0, "train.beta_epochs", "must be >= 0")
         _check(self.theta > 0, "train.theta", "must be > 0")
         _check(self.max_dist > 0, "train.max_dist", "must be > 0")
         _check(self.pair_balance in ("pairs", "distance"), "train.pair_balance",

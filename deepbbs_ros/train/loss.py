@@ -77,7 +77,7 @@ def loss_options(config, epoch: int) -> dict:
     if tc.pose_loss == "bounded":
         bound = tolerance_pose_term(config.eval.success_rot_deg, config.eval.success_trans,
                                     scale=config.model.scale, trans_weight=tc.trans_weight)
-    return {"scale": config.model.scale, "theta": tc.theta, "corr_weight": tc.beta ** (tc.beta_epochs + epoch),
+    return {"scale": config.model.scale, "theta": tc.theta, "corr_weight": tc.beta ** epoch,
             "trans_weight": tc.trans_weight, "pose_bound": bound}
 
 
@@ -90,7 +90,7 @@ def deepbbs_loss(out, src, tgt, R_gt, t_gt, *, scale: float, theta: float, corr_
         src: (B, N, 3) float32 source (network input, metres). tgt: (B, M, 3) float32 target.
         R_gt: (B, 3, 3), t_gt: (B, 3) metres: ground-truth T_target_source.
         scale: model.scale (metres -> network units). theta: partner radius in metres.
-        corr_weight: beta ** (train.beta_epochs + epoch).
+        corr_weight: beta ** epoch.
         trans_weight: w_t, the weight of the translation term (1 = the paper).
         pose_bound: c of the bounded per-pair pose term (``tolerance_pose_term``); 0 = the squared loss.
     """
