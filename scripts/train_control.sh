@@ -1,5 +1,6 @@
 #!/bin/sh
-# A control for the sensor-mix fine-tunes (docs/training.md, "A control: fine-tuning on the road drives alone"):
+# A control for the sensor-mix fine-tunes (docs/training.md, "A control: the mix runs' procedure on the road
+# drives alone"):
 # the mix runs' schedule (scripts/train_mix_keep.sh / train_mix_span.sh: batch 8 at 512 points, lr 5e-5 halved
 # every 3 epochs of 100 steps, translation weighted 5x, pairs balanced by distance, seed 3) on the shipped model's
 # OWN training drives (scripts/train_worlds.sh's cache runs/cache/worlds_train) instead of the mix. The weights are
@@ -10,7 +11,7 @@
 # SETS_EXTRA: more --set options, one change at a time (e.g. "--set train.lr=1.5625e-5").
 # MORE: more training cache folders beside the road drives (e.g. "--cache runs/cache/mixcar_train": sensor-mix
 #   drives on car roofs only, `deepbbs-train cache ... --mounts car` with scripts/train_mix_data.sh's seeds, places
-#   and sensors), to split the mix into its parts.
+#   and sensors; runs/cache/mixslow_train the same with --mounts wheeled,legged,handheld), to split the mix.
 # STEPS: steps this call trains; CHUNK: steps between copies of the weights. THREADS: torch threads.
 set -eu
 cd "$(dirname "$0")/.."
@@ -40,7 +41,8 @@ while [ "$done_steps" -lt "$STEPS" ]; do
     FROM="--resume $START"
   fi
   # shellcheck disable=SC2086
-  $T fit --cache "$CACHE/worlds_train" ${MORE:-} --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM --max-steps "$CHUNK"
+  $T fit --cache "$CACHE/worlds_train" ${MORE:-} --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM \
+    --max-steps "$CHUNK"
   step=$($PY -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['step'])" "$RUN/state_latest.pt")
   cp "$RUN/model_latest.pt" "$RUN/step$step.pt"
   echo "weights at step $step: $RUN/step$step.pt"
