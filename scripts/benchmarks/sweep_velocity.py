@@ -13,11 +13,13 @@ pairs 1, 3, 6 and 10 frames apart the precision stage's GICP (core/polish.py, on
 * ``compensated``: the compensated sweeps (the simulator's truth).
 
 Per pair the rotation error (deg) of each, and the CPU of the two sweep velocities over the raw GICP's (same process,
-one thread). ``verdict``: the good start's verdict (core/calibrated.py, ``registration.good_start_probability``) on
-calibrate_verdict.py's poses of each pair (GICP from the truth moved a little and far, the truth moved beyond 2 deg /
-0.5 m), judged as they are on the raw sweeps (``raw``) and, with ``sweep``, GICP again from each on the sweeps deskewed
-with their own velocities and judged on those (the moved truths judged there as they are): wrong (beyond 2 deg /
-0.5 m) accepted and right (1 deg / 0.3 m) rejected, per rig and in all. ::
+one thread). With ``--thirds`` a sweep velocity is kept only where the sweep's thirds agree on the turn
+(:func:`thirds_agree`). ``verdict``: the good start's verdict (core/calibrated.py,
+``registration.good_start_probability``) on calibrate_verdict.py's poses of each pair (GICP from the truth moved a
+little and far, the truth moved beyond 2 deg / 0.5 m), judged as they are on the raw sweeps (``raw``) and, with
+``sweep``, GICP again from each on the sweeps deskewed with their own velocities and judged on those (the moved truths
+judged there as they are), and ``choose``: the more probable of the two: wrong (beyond 2 deg / 0.5 m) accepted and
+right (1 deg / 0.3 m) rejected, per rig and in all. ::
 
     python scripts/benchmarks/sweep_velocity.py --rigs mid360:legged:hall avia:handheld:hall --seed 39 --pairs 8 \\
         --out /tmp/sweep_velocity
@@ -88,6 +90,29 @@ def sweep_velocity(config: Any, pre: Any) -> tuple[np.ndarray, float] | None:
     return (T, dt) if d2 > SIGNIFICANT else (np.eye(4), dt)
 
 
+def thirds_agree(config: Any, pre: Any, velocity: tuple[np.ndarray, float]) -> bool:
+    """Whether the turn rates of the sweep's first and last two thirds (each its later third registered to its
+    earlier one) differ by no more than the rate ``velocity`` measured over its halves: a motion the whole sweep
+    shows, not one that a half-sweep's GICP made up (``--thirds``)."""
+    from deepbbs_ros.core.scans import polish_cloud
+
+    pts, t = pre.raw_points, pre.times
+    q1, q2 = np.quantile(t, [1.0 / 3.0, 2.0 / 3.0])
+    parts = [t < q1, (t >= q1) & (t < q2), t >= q2]
+    rates = []
+    for a, b in zip(parts[:-1], parts[1:]):
+        try:
+            res = polish(polish_cloud(config, pts[b]), polish_cloud(config, pts[a]), np.eye(4), config.registration)
+        except RegistrationError:
+            return False
+        if not res.applied:
+            return False
+        d = float(np.median(t[b]) - np.median(t[a]))
+        rates.append(Rotation.from_matrix(res.T_target_source[:3, :3]).as_rotvec() / d)
+    w = Rotation.from_matrix(velocity[0][:3, :3]).as_rotvec() / velocity[1]
+    return bool(np.linalg.norm(rates[0] - rates[1]) <= np.linalg.norm(w))
+
+
 def deskewed_cloud(config: Any, pre: Any, velocity: tuple[np.ndarray, float]) -> Any:
     """The precision-stage cloud of ``pre`` deskewed with ``velocity`` (:func:`sweep_velocity`): the scan's own
     cloud when the sweep is still (identity)."""
@@ -122,6 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rigs", nargs="+", default=["mid360:legged:hall"], help="SENSOR:MOUNT:PLACE (simulated)")
     ap.add_argument("--seed", type=int, default=39, help="the simulator's seed of each rig (default 39)")
     ap.add_argument("--pairs", type=int, default=8, help="pairs per rig (default 8)")
+    ap.add_argument("--thirds", action="store_true", help="keep a sweep velocity only where the turn rates of the "
+                    "sweep's first and last two thirds agree within it (thirds_agree)")
     ap.add_argument("--out", type=Path, help="write sweep_velocity.json here")
     args = ap.parse_args(argv)
     reg = DeepBBSRegistration(Config())
@@ -191,6 +218,9 @@ def main(argv: list[str] | None = None) -> int:
             T_mean = gicp(a.deskewed_cloud, b.deskewed_cloud, Tg) if a.deskewed_cloud is not None else Tg
             t0 = time.perf_counter()
             vs, vt = sweep_velocity(cfg, src), sweep_velocity(cfg, tgt)
+            if args.thirds:  # a turn the thirds of the sweep do not agree on: taken as none
+                vs, vt = ((np.eye(4), v[1]) if v is not None and not np.allclose(v[0], np.eye(4))
+                          and not thirds_agree(cfg, pre, v) else v for v, pre in ((vs, src), (vt, tgt)))
             vel_ms = (time.perf_counter() - t0) * 1e3
             T_sweep = None
             if vs is not None and vt is not None:
