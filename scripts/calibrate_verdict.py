@@ -330,6 +330,7 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
         cov = np.full((6, 6), np.nan) if cov is None else cov  # the pose's (core/within.py; NaN: none)
         fine = fine_rows(s_pre, tgt, T, rc) if scene else np.full((2, len(visibility.FEATURES)), np.nan)
         fin, fin_y, fin_amb = np.full((2, len(visibility.FEATURES)), np.nan), np.full(3, np.nan), False
+        fin_within = np.nan  # P(within | covariance) of the finished pose on the scene's grids, where taken there
         if kind in ("near", "far") and np.isfinite(fine[0, 0]):  # GICP's answer finished on the scene's grids
             f = finish(s_pre.polish_cloud, tgt.polish_cloud, T, rc)
             if f is not None and f.applied:
@@ -340,9 +341,10 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
                     pts, tf, d = verdict.on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud, rc)
                     fin_amb = second_minimum.check(pts, f.T_target_source, s_pre.polish_cloud.finer(), tf,
                                                    dataclasses.replace(rc, verdict_dist=d)).ambiguous
+                    fin_within = within.on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud, f.T_target_source, rc)
         grid = (s_pre.polish_cloud.fine_voxel, tgt.polish_cloud.fine_voxel)
         for k, v in (("pair", pair), ("good", good), ("fine", fine), ("grid", grid), ("fin", fin), ("fin_y", fin_y),
-                     ("fin_amb", fin_amb),
+                     ("fin_amb", fin_amb), ("fin_within", fin_within),
                      ("y", y), ("rot", r), ("trans", t), ("rig", ri),
                      ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
                      ("ambiguous", ambiguous), ("cov", cov)):
@@ -406,7 +408,7 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
     out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
-                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb")}
+                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb", "fin_within")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()

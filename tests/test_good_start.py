@@ -302,3 +302,45 @@ def test_the_finished_pose_can_be_judged_on_the_grid_it_was_finished_on(monkeypa
         else:  # the finer of the two grids (each about 0.19 m in this 2-3 m corridor), the distance scaled with it
             assert 0.25 * rc.polish_voxel <= grid_m < rc.polish_voxel
             assert dist == pytest.approx(rc.verdict_dist * grid_m / rc.polish_voxel, rel=0.05)
+
+
+def test_the_scene_path_takes_the_pose_times_its_probability_within_the_tolerance(monkeypatch):
+    """registration.good_start_finish_grid "scene": the finished pose's probability is the verdict's times P(within 1
+    deg / 0.3 m | the pose's covariance) on the scene's grids (core/within.py on_scene_grid), whatever
+    registration.verdict_within says; "gicp" does not compute it. Simulated Mid-360 corridor, exact truth; a verdict
+    that takes only poses within 0.3 deg of the truth (patched in): the right finished pose is pinned on the finer
+    grids (P(within) reaches the bar) and taken; with P(within) patched to 0 (a pose free to slide) it is not."""
+    from deepbbs_ros.core import within
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.patterns import make_sensor
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 2, make_sensor("mid360", range_noise=0.0, dropout=0.0), "handheld", frames=60,
+                         compensate=True, motion_distortion=False)
+    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=10)]
+    T = np.linalg.inv(T_w_t) @ T_w_s
+    monkeypatch.setattr(verdict, "probability", lambda pts, T_est, *a, **k: float(pair_errors(T_est, T)[0] < 0.3))
+    seen, real = [], within.on_scene_grid
+    monkeypatch.setattr(within, "on_scene_grid", lambda *a, **k: seen.append(real(*a, **k)) or seen[-1])
+    for grid in ("gicp", "scene"):
+        cfg = Config().replace(**{"registration.exact_gicp": True, "registration.network_process": "off",
+                                  "registration.good_start_finish_grid": grid})
+        reg, seen[:] = DeepBBSRegistration(cfg), []
+        try:
+            res = reg.register(src, tgt, T_init=T, good_start=True)
+        finally:
+            reg.close()
+        assert res.path == "gicp" and "scene's grid" in res.good_start, res.good_start
+        assert pair_errors(res.T_target_source, T)[0] < 0.2
+        if grid == "gicp":
+            assert seen == [] and res.probability == 1.0
+        else:
+            assert len(seen) == 1 and res.probability == pytest.approx(seen[0])
+            assert seen[0] >= cfg.registration.good_start_probability
+    monkeypatch.setattr(within, "probability", lambda *a, **k: 0.0)  # the same pose, free to slide: not taken
+    reg = DeepBBSRegistration(cfg)
+    try:
+        res = reg.register(src, tgt, T_init=T, good_start=True)
+    finally:
+        reg.close()
+    assert "scene's grid" not in res.good_start, res.good_start
