@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, verdict, visibility, within
+from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish, polish
@@ -124,8 +124,7 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     (``registration.polish_voxel_angle``, :func:`core.polish.finish`; a narrow place's walls, floor and ceiling that
     GICP's grid blends) and judged again: on the same points and target (GICP's grid, ``good_start_finish_grid``
     "gicp"), or on the grids it was finished on with the verdict's distance scaled with them
-    (:func:`core.verdict.on_scene_grid`; "scene", its probability times P(within the tolerance | the pose's
-    covariance) on those grids, core/within.py), where taken then checked there for a second minimum as good along
+    (:func:`core.verdict.on_scene_grid`; "scene"), where taken then checked there for a second minimum as good along
     its weakest direction (core/second_minimum.py, ``registration.second_minimum``) -> (the finished result, its
     probability) when the verdict takes it, else None (no finer grid, not taken, or ambiguous)."""
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
@@ -137,8 +136,6 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
         return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
     pts, target, dist = verdict.on_scene_grid(spc, tpc, rc)  # finished: both scans have a finer grid
     prob = _probability(fine, "", pts, target, rc, dist=dist)
-    if verdict.is_valid(prob, rc.good_start_probability):  # times P(within | its covariance), whatever verdict_within
-        prob *= within.on_scene_grid(spc, tpc, fine.T_target_source, rc)
     if not verdict.is_valid(prob, rc.good_start_probability):
         return None
     scene = dataclasses.replace(rc, verdict_dist=dist)

@@ -27,7 +27,7 @@ import numpy as np
 
 from deepbbs_ros.core import covariance
 
-__all__ = ["SAMPLES", "on_scene_grid", "pose_covariance", "probability", "within"]
+__all__ = ["SAMPLES", "pose_covariance", "probability", "within"]
 
 #: standard normal draws (6 each) of :func:`probability`: fixed, so the same covariance gives the same answer
 SAMPLES = 4096
@@ -66,19 +66,4 @@ def within(source: Any, target: Any, T: np.ndarray, rc: Any, threads: int = 1, w
     ``rc.polish_max_corr_dist`` (the registration section), the tolerance ``rc.success_trans`` /
     ``rc.success_rot_deg``."""
     cov = pose_covariance(source, target, T, rc.polish_max_corr_dist, threads, weak)
-    return probability(cov, rc.success_trans, rc.success_rot_deg)
-
-
-def on_scene_grid(source: Any, target: Any, T: np.ndarray, rc: Any, threads: int = 1) -> float:
-    """:func:`probability` of the pose ``T`` (4, 4) finished on the scans' scene-sized grids (core/polish.py
-    ``finish``), on those grids: the precision stage's clouds' :meth:`finer`, paired within GICP's correspondence
-    distance there (``polish_max_corr_dist`` scaled with the finer grid, as ``finish`` aligned them), the same
-    tolerance; 0 where either has no finer grid. The good start's "scene" path multiplies its verdict by it
-    (core/good_start.py): a pose finished along a corridor's free direction is consistent there too."""
-    from deepbbs_ros.core.polish import correspondence_distance
-
-    sf, tf = (c.finer() if hasattr(c, "finer") else None for c in (source, target))
-    if sf is None or tf is None:
-        return 0.0
-    cov = pose_covariance(sf, tf, T, correspondence_distance((sf, tf), rc), threads)
     return probability(cov, rc.success_trans, rc.success_rot_deg)
