@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 from deepbbs_ros.config import Config, load_config  # noqa: E402
 from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility, within  # noqa: E402
-from deepbbs_ros.core.polish import finish  # noqa: E402
+from deepbbs_ros.core.polish import correspondence_distance, finish  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -330,6 +330,8 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
         cov = np.full((6, 6), np.nan) if cov is None else cov  # the pose's (core/within.py; NaN: none)
         fine = fine_rows(s_pre, tgt, T, rc) if scene else np.full((2, len(visibility.FEATURES)), np.nan)
         fin, fin_y, fin_amb = np.full((2, len(visibility.FEATURES)), np.nan), np.full(3, np.nan), False
+        fin_within = np.full(2, np.nan)  # P(within | covariance) of the finished pose on the scene's grids (weak: with
+        # the spread along a weak direction), where taken there
         if kind in ("near", "far") and np.isfinite(fine[0, 0]):  # GICP's answer finished on the scene's grids
             f = finish(s_pre.polish_cloud, tgt.polish_cloud, T, rc)
             if f is not None and f.applied:
@@ -340,13 +342,28 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
                     pts, tf, d = verdict.on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud, rc)
                     fin_amb = second_minimum.check(pts, f.T_target_source, s_pre.polish_cloud.finer(), tf,
                                                    dataclasses.replace(rc, verdict_dist=d)).ambiguous
+                    fin_within = np.array([_within_on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud,
+                                                                 f.T_target_source, rc, w) for w in (False, True)])
         grid = (s_pre.polish_cloud.fine_voxel, tgt.polish_cloud.fine_voxel)
         for k, v in (("pair", pair), ("good", good), ("fine", fine), ("grid", grid), ("fin", fin), ("fin_y", fin_y),
-                     ("fin_amb", fin_amb),
+                     ("fin_amb", fin_amb), ("fin_within", fin_within),
                      ("y", y), ("rot", r), ("trans", t), ("rig", ri),
                      ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
                      ("ambiguous", ambiguous), ("cov", cov)):
             out[k].append(v)
+
+
+def _within_on_scene_grid(source, target, T: np.ndarray, rc, weak: bool) -> float:
+    """P(within the tolerance | the covariance) (core/within.py) of the pose ``T`` (4, 4) finished on the scans'
+    scene-sized grids, on those grids (the precision stage's clouds' ``finer()``), paired within GICP's correspondence
+    distance there (core/polish.py correspondence_distance); ``weak``: with the spread along a weak direction. 0
+    where either has no finer grid. verdict.py's ``good_start_scene_grid`` ``scene_within*`` columns (tried, not
+    shipped: docs/sensors.md)."""
+    sf, tf = source.finer(), target.finer()
+    if sf is None or tf is None:
+        return 0.0
+    cov = within.pose_covariance(sf, tf, T, correspondence_distance((sf, tf), rc), 1, weak)
+    return within.probability(cov, rc.success_trans, rc.success_rot_deg)
 
 
 def _low_overlap(scan, i: int, j: int, rng: np.random.Generator, rc) -> tuple | None:
@@ -406,7 +423,7 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
     out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
-                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb")}
+                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb", "fin_within")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()

@@ -148,7 +148,9 @@ def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     """The good start on the GICP answers (``near`` / ``far``) of the rows ``m`` (``--sim-scene-grid``): taken on
     GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's grid
     (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
-    ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"): wrong (beyond 2
+    ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"; tried, not
+    shipped: ``scene_within``, its probability times P(within | the pose's covariance) there, core/within.py,
+    ``scene_within_weak`` with the spread along a weak direction): wrong (beyond 2
     deg / 0.5 m) accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses
     that the finish made (deg, m, probability)."""
     from deepbbs_ros.core import calibrated
@@ -159,9 +161,12 @@ def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     far0, y0 = (data["rot"] > 2.0) | (data["trans"] > 0.5), data["y"] == 1
     ffar, fright = done & ((fy[:, 1] > 2.0) | (fy[:, 2] > 0.5)), done & (fy[:, 0] == 1)
     out = {"answers": int(g.sum()), "finished": int(np.sum(g & (p0 < bar) & done))}
-    for name, col in (("gicp_grid", 0), ("scene_grid", 1)):
+    for name, col in (("gicp_grid", 0), ("scene_grid", 1), ("scene_within", 1), ("scene_within_weak", 1)):
         pf = np.zeros(len(p0))
         pf[done] = calibrated.probability(data["fin"][done, col], "good_start")
+        if name.startswith("scene_within"):  # times P(within | the pose's covariance) on the scene's grids (tried);
+            # _weak: that covariance with the spread along a weak direction (core/within.py pose_covariance weak)
+            pf = pf * np.nan_to_num(np.asarray(data["fin_within"], np.float64)[:, int(name.endswith("weak"))], nan=0.0)
         first, then = p0 >= bar, (p0 < bar) & (pf >= bar) & ~(data["fin_amb"].astype(bool) if col else False)
         out[name] = {"wrong_accepted": int(np.sum(g & ((first & far0) | (then & ffar)))),
                      "right_rejected": int(np.sum(g & ~first & ~then & (y0 | fright))),
