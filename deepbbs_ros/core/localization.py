@@ -44,9 +44,10 @@ place, then a fixed number of registrations.
 :class:`MapTracker` (core/tracking.py) is the state machine around it (the node's and the replay's): constant-velocity
 prediction, lost after localization.lost_after rejected scans, then the global search until found again. The results
 and the search's data types are in core/localization_types.py, the map's cell index in core/map_index.py; this module
-builds the map (places, descriptors, GICP cloud) and its crops, and describes and ranks a scan; ``MapLocalizer`` takes
-its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch` and its tracking from a guess from
-:class:`~deepbbs_ros.core.guess_tracking.GuessTracking`.
+builds the map (places, descriptors, GICP cloud); ``MapLocalizer`` takes its crops from core/map_crops.py, a scan's
+description and ranking from core/place_ranking.py, registration on a crop and its checks from
+core/candidate_checks.py, its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch` and its tracking
+from a guess from :class:`~deepbbs_ros.core.guess_tracking.GuessTracking`.
 
 Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
 ``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
@@ -62,8 +63,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import acceptance
-from deepbbs_ros.core.covariance import scan_covariance
+from deepbbs_ros.core.candidate_checks import CandidateChecks
 from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests reach the descriptor's helpers here)
     GROUND_WINDOW,
     _HeightGrid,
@@ -77,21 +77,23 @@ from deepbbs_ros.core.descriptors import (  # noqa: F401  (re-exported: tests re
 from deepbbs_ros.core.drive_places import OBSTACLE_BAND, keyframe_places  # noqa: F401
 from deepbbs_ros.core.guess_tracking import GuessTracking
 from deepbbs_ros.core.localization_types import (  # noqa: F401  (re-exported)
+    MIN_SCAN_POINTS,
     LocalizationResult,
     PreparedScan,
     _Answer,
+    _as_cloud,
     _Crop,
     _crop_cloud,
     _heading,
     _rz,
     _yaw,
 )
+from deepbbs_ros.core.map_crops import MapCrops
 from deepbbs_ros.core.map_fit import check_trajectory
 from deepbbs_ros.core.map_index import _CellIndex, voxel_downsample
+from deepbbs_ros.core.place_ranking import PlaceRanking
 from deepbbs_ros.core.place_search import MIN_PROBE_POINTS, PlaceSearch  # noqa: F401
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, PolishView, polish, prepare_polish_cloud
-from deepbbs_ros.core.preprocess import crop_range
-from deepbbs_ros.core.scans import prepare_view
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, prepare_polish_cloud
 from deepbbs_ros.core.tracking import (  # noqa: F401
     DESKEW_WINDOW,
     HINT_MIN_RADIUS,
@@ -105,13 +107,12 @@ from deepbbs_ros.errors import DeepBBSError, LocalizationError
 __all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "voxel_downsample"]
 
 MIN_MAP_POINTS = 100  # a map with fewer points is refused
-MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 #: bytes per voxel of a small_gicp cloud with covariances and normals (point, normal: 4 doubles; covariance: 16) and
 #: its k-d tree (about 32)
 CLOUD_BYTES = 224
 
 
-class MapLocalizer(GuessTracking, PlaceSearch):
+class MapLocalizer(GuessTracking, PlaceSearch, MapCrops, PlaceRanking, CandidateChecks):
     """Finds a scan's pose in a prior map (module docstring).
 
     Args:
@@ -218,155 +219,7 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         return grid_places(self.points, g.origin, g.cell, g.shape, lc.grid_spacing, lc.free_clearance,
                            lc.sensor_height, lc.map_voxel)
 
-    # -- crops -----------------------------------------------------------------------------------------------------
-    def crop_points(self, T_map_place: np.ndarray) -> np.ndarray:
-        """(M, 3) float32 map points within ``crop_radius`` (horizontally) of the place, in the place's frame."""
-        return self._local(self._index, T_map_place).astype(np.float32)
-
-    def _local(self, index: _CellIndex, T_map_place: np.ndarray) -> np.ndarray:
-        """(M, 3) float64 the points of ``index`` within ``crop_radius`` (horizontally) of the place, in its frame."""
-        c = T_map_place[:3, 3]
-        return (index.within(c[:2], self.crop_radius).astype(np.float64) - c) @ T_map_place[:3, :3]
-
-    def _view_points(self, T_map_place: np.ndarray) -> np.ndarray:
-        """(M, 3) float64 the map's GICP voxel centroids within ``crop_radius`` (horizontally) of the place and within
-        the scans' range (``preprocess.min_range``, ``max_range``) of it, in the place's frame (the crop of a scan
-        taken there)."""
-        pts = self._local(self._voxels, T_map_place)
-        if not len(pts):  # no map there: _crop says so (crop_range would refuse the empty cloud)
-            return pts
-        pp = self.config.preprocess
-        return np.compress(crop_range(pts, pp.min_range, pp.max_range), pts, axis=0)
-
-    def _crop(self, place: int, T_map_place: np.ndarray | None = None) -> _Crop:
-        """The preprocessed crop of place ``place`` (LRU), or (``place`` -1) one at ``T_map_place`` (not kept)."""
-        if place >= 0 and place in self._crops:
-            self._crops.move_to_end(place)
-            return self._crops[place]
-        T = self._places[place] if place >= 0 else T_map_place
-        local = self.crop_points(T) if self._cloud is None else self._view_points(T)
-        if len(local) < MIN_SCAN_POINTS:
-            raise LocalizationError(f"map: {len(local)} points within {self.crop_radius:.0f} m of "
-                                    f"[{T[0, 3]:.1f}, {T[1, 3]:.1f}]")
-        if self._cloud is None:
-            crop = _Crop(T.copy(), self.registration.preprocess(local))
-        else:  # a view of the map's GICP cloud: nothing to prepare but the network's points
-            crop = _Crop(T.copy(), prepare_view(self.config, PolishView.of(self._cloud, local, T)))
-        if place >= 0:
-            self._crops[place] = crop
-            while len(self._crops) > self.config.localization.crop_cache:
-                self._crops.popitem(last=False)
-        return crop
-
-    # -- the scan --------------------------------------------------------------------------------------------------
-    def describe(self, scan: np.ndarray, centres: np.ndarray | None = None) -> np.ndarray:
-        """(R, S) float32 descriptor of a raw scan (N, 3), sensor frame (its yaw: the columns' order), about the
-        sensor; with ``centres`` (K, 2) (m, sensor frame): (K, R, S), one about each (about the sensor: the same)."""
-        lc = self.config.localization
-        pts = _as_cloud(scan, "scan")
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        r = np.hypot(pts[:, 0], pts[:, 1])
-        own = pts[r <= lc.descriptor_radius + lc.descriptor_cell]
-        if len(own) < MIN_SCAN_POINTS:
-            raise LocalizationError(f"scan: {len(own)} points within {lc.descriptor_radius:.0f} m")
-        at_sensor = self.template.describe(_HeightGrid(own, lc.descriptor_cell, pad=lc.descriptor_radius),
-                                           np.zeros((1, 2)))
-        if centres is None:
-            return at_sensor[0]
-        cs = np.asarray(centres, np.float64).reshape(-1, 2)
-        reach = float(np.hypot(cs[:, 0], cs[:, 1]).max(initial=0.0))
-        out = np.empty((len(cs), *at_sensor.shape[1:]), np.float32)
-        sensor = np.all(cs == 0.0, axis=1)
-        out[sensor] = at_sensor[0]
-        if not sensor.all():  # the points as far around each centre (a grid of its own: the cells fall elsewhere)
-            wide = pts[r <= lc.descriptor_radius + lc.descriptor_cell + reach]
-            grid = _HeightGrid(wide, lc.descriptor_cell, pad=lc.descriptor_radius + reach)
-            out[~sensor] = self.template.describe(grid, cs[~sensor])
-        return out
-
-    def seen(self, scan: np.ndarray) -> np.ndarray:
-        """(R, S) bool, the bins of :meth:`describe`'s descriptor about the sensor that hold any point of the scan."""
-        lc = self.config.localization
-        pts = scan[np.isfinite(scan).all(axis=1)]
-        own = pts[np.hypot(pts[:, 0], pts[:, 1]) <= lc.descriptor_radius + lc.descriptor_cell]
-        return self.template.observed(_HeightGrid(own, lc.descriptor_cell, pad=lc.descriptor_radius), np.zeros(2))
-
-    @property
-    def description_centres(self) -> np.ndarray:
-        """(K, 2) the points of the scan's frame (m) :meth:`_global` describes a scan about: the sensor first, then
-        ``localization.descriptor_shift`` m ahead, behind and to either side (a 3 x 3 grid; the sensor alone at 0)."""
-        s = self.config.localization.descriptor_shift
-        if s <= 0:
-            return np.zeros((1, 2))
-        g = np.array([0.0, -s, s])
-        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
-
-    def rank(self, desc: np.ndarray, among: np.ndarray | None = None,
-             centres: np.ndarray | None = None,
-             seen: np.ndarray | None = None) -> list[tuple[int, float, float, np.ndarray]]:
-        """[(place, descriptor distance, yaw of the scan in the map (rad), the point of the scan's frame (2,) that
-        stands on the place)] best first, at most ``top_k`` places at least ``candidate_separation`` m apart, among the
-        places ``among`` (indices; None: all). ``desc``: (R, S) about the sensor, or (K, R, S) about ``centres``
-        (K, 2) (:meth:`describe`): each place keeps its best match over them (the first of equals). ``seen`` (R, S)
-        (:meth:`seen`, a levelled scan): the sensor's descriptor compared on the bins it saw only, on the shortlist."""
-        lc = self.config.localization
-        idx = np.arange(len(self._places)) if among is None else np.asarray(among, dtype=np.int64)
-        if len(idx) == 0:
-            return []
-        descs = desc[None] if desc.ndim == 2 else desc
-        cs = np.zeros((1, 2)) if centres is None else np.asarray(centres, np.float64).reshape(-1, 2)
-        if len(cs) != len(descs):
-            raise LocalizationError(f"rank: {len(descs)} descriptors for {len(cs)} centres")
-        skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
-        if 0 < lc.rank_shortlist < len(idx) and len(descs) > 1:
-            # a large map: the descriptor about the first centre (the sensor) alone against every place, then all of
-            # them against the places it ranks best only
-            first = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
-            d0, _ = _match_many(first, descs[:1, skip:])
-            idx = np.sort(idx[np.argpartition(d0[0], lc.rank_shortlist)[:lc.rank_shortlist]])
-            among = idx
-        spectra = self._spectra if among is None else tuple(a[idx] for a in self._spectra)
-        dists, shifts = _match_many(spectra, descs[:, skip:])  # (K, P)
-        if seen is not None and len(idx) <= max(lc.rank_shortlist, 1):
-            dists[0], shifts[0] = _match_observed(self.descriptors[idx, skip:], descs[0, skip:], seen[skip:])
-        which = np.argmin(dists, axis=0)  # the first of equals: the sensor's own first
-        cols = np.arange(dists.shape[1])
-        dist, shift = dists[which, cols], shifts[which, cols]
-        order = np.argsort(dist, kind="stable")
-        chosen: list[tuple[int, float, float, np.ndarray]] = []
-        xy = self._places[:, :2, 3]
-        for o in order:
-            p = int(idx[o])
-            if any(np.linalg.norm(xy[p] - xy[q]) < lc.candidate_separation for q, *_ in chosen):
-                continue
-            yaw = (int(shift[o]) * 2.0 * np.pi / lc.descriptor_sectors)
-            chosen.append((p, float(dist[o]), yaw, cs[which[o]].copy()))
-            if len(chosen) >= lc.top_k:
-                break
-        return chosen
-
     # -- localize --------------------------------------------------------------------------------------------------
-    def prefetch(self, T_map_scan: np.ndarray) -> int:
-        """Prepare and keep the crop that tracking a scan at ``T_map_scan`` (4, 4) would register on (the place
-        nearest it, once the crop tracked now no longer reaches it), so that the scan that reaches a new place does
-        not wait for its crop. Meant for a background thread while :meth:`localize` tracks on another (the node: with
-        the pose predicted a second ahead); a kept crop is only added, never evicted, here. Returns the place
-        prepared, -1 when the tracked crop still serves, the crop is kept already, or the pose is off the places."""
-        lc = self.config.localization
-        T = np.asarray(T_map_scan, dtype=np.float64)
-        d = np.linalg.norm(self._places[:, :2, 3] - T[:2, 3], axis=1)
-        near = int(np.argmin(d))
-        reach = max(lc.place_spacing, 0.25 * self.crop_radius)  # as _track: a crop serves while this close
-        current = self._track_place
-        if (current >= 0 and d[current] <= reach) or d[near] > reach or near in self._crops:
-            return -1
-        local = self.crop_points(self._places[near])
-        if len(local) < MIN_SCAN_POINTS:
-            return -1
-        crop = _Crop(self._places[near].copy(), self.registration.preprocess(local))
-        self._crops.setdefault(near, crop)  # one dict operation: safe beside the tracking thread's own
-        return near
-
     def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
                  stamp_ns: int | None = None, motion: tuple[np.ndarray, float] | None = None,
                  among: np.ndarray | None = None, starts: Any = ()) -> LocalizationResult:
@@ -468,103 +321,3 @@ class MapLocalizer(GuessTracking, PlaceSearch):
         except DeepBBSError as err:
             raise LocalizationError(f"scan: {err}") from err
         return PreparedScan(pts, src, (time.perf_counter() - t0) * 1e3)
-
-    def _sensor_height(self, src: Any) -> float | None:
-        """The scan's sensor height above its ground plane (m), None without one."""
-        g = getattr(src, "ground_plane", None)
-        if g is None or abs(g[2]) < 0.5:
-            return None
-        return float(g[3] / g[2])
-
-    def _register(self, src: Any, crop: _Crop, T_place_scan: np.ndarray, yaw_search: bool = True,
-                  judged: bool = False) -> Any:
-        """DeepBBS++ of the scan on the crop from T_place_scan (4, 4); ``yaw_search`` False: the given start only;
-        ``judged``: its GICP checked by the map verdict too (a global search's candidate, :meth:`_check_at`)."""
-        return self.registration.register(src, crop.pre, T_init=T_place_scan, yaw_search=yaw_search,
-                                          polish_check=self._check_at(src, crop) if judged else self._check)
-
-    @property
-    def _check(self) -> tuple[int, float] | None:
-        """The GICP check of a candidate place (``localization.polish_check_*``; core.polish.polish's ``check``)."""
-        lc = self.config.localization
-        return (lc.polish_check_iters, lc.polish_check_score) if lc.polish_check_iters > 0 else None
-
-    def _check_at(self, src: Any, crop: _Crop) -> tuple | None:
-        """:attr:`_check` with the map verdict as its judge on ``crop`` (``localization.polish_check_probability``)."""
-        check = self._check
-        if check is None:
-            return None
-        lead = self._lead(src)
-        judge = self._judge(src, crop)
-        return check if judge is None and lead is None else (*check, judge, lead)
-
-    def _lead(self, src: Any) -> Any:
-        """The scan's GICP cloud on a coarser grid of about ``localization.polish_check_voxels`` voxels for a candidate
-        GICP's first leg up to its check (core.polish.polish's ``check``), built once per scan; None when that is 0 or
-        the cloud has no more voxels than that."""
-        n, pc = self.config.localization.polish_check_voxels, getattr(src, "polish_cloud", None)
-        if n <= 0 or pc is None or pc.n_points <= n:
-            return None
-        if self._lead_of is not None and self._lead_of[0] is pc:
-            return self._lead_of[1]
-        rc = self.config.registration
-        lead = prepare_polish_cloud(pc.points(), rc.polish_voxel, rc.polish_neighbors, max_voxels=n,
-                                    registration_type=SMALL_GICP_TYPE.get(rc.polish, "GICP"),
-                                    threads=self.registration.gicp_threads())
-        lead = lead if lead.n_points < pc.n_points else None
-        self._lead_of = (pc, lead)
-        return lead
-
-    def _judge(self, src: Any, crop: _Crop) -> Any:
-        """The GICP check's judge of a candidate's pose (T_place_scan (4, 4) -> go on?): the map verdict's probability
-        at least ``localization.polish_check_probability``; None when that is 0."""
-        bar = self.config.localization.polish_check_probability
-        if bar <= 0:
-            return None
-        return lambda T: acceptance.probability(src, crop, crop.T_map_place @ T, self.config) >= bar
-
-    # -- acceptance (core/acceptance.py) ---------------------------------------------------------------------------
-    @property
-    def _threshold(self) -> float:
-        return acceptance.threshold(self.config)
-
-    def _accepts_at(self, src: Any, crop: _Crop, T_map_scan: np.ndarray) -> bool:
-        """The map verdict accepts the scan at ``T_map_scan`` on ``crop``."""
-        return acceptance.accepts(self.config, acceptance.probability(src, crop, T_map_scan, self.config))
-
-    # -- GICP: refine, covariance ----------------------------------------------------------------------------------
-    def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:
-        """T_map_scan refined by a second GICP on the same clouds with ``refine_corr_dist`` (the registration's wider
-        correspondence distance lets far pairs pull the pose along a road with few features); kept when it does not
-        converge or moves more than 1 m / 2 deg (and when there is no refinement)."""
-        import dataclasses
-
-        lc, rc = self.config.localization, self.config.registration
-        if lc.refine_corr_dist <= 0 or rc.polish == "none" or src.polish_cloud is None or crop.pre.polish_cloud is None:
-            return T_map_scan
-        t = time.perf_counter()
-        cfg = dataclasses.replace(rc, polish_max_corr_dist=lc.refine_corr_dist, polish_max_trans=1.0,
-                                  polish_max_rot_deg=2.0)
-        pol = polish(src.polish_cloud, crop.pre.polish_cloud, np.linalg.inv(crop.T_map_place) @ T_map_scan, cfg)
-        timings["refine"] = timings.get("refine", 0.0) + (time.perf_counter() - t) * 1e3
-        return crop.T_map_place @ pol.T_target_source if pol.applied else T_map_scan
-
-    def _covariance(self, src: Any, crop: _Crop, T_map_scan: np.ndarray,
-                    timings: dict[str, float]) -> np.ndarray | None:
-        """The covariance of a valid ``T_map_scan`` (core/covariance.py: cluster-robust, from the GICP pairs at the
-        pose), timed into ``covariance``."""
-        t = time.perf_counter()
-        cov = scan_covariance(src.polish_cloud, crop.pre.polish_cloud, crop.T_map_place, T_map_scan, self.config,
-                              self.registration.gicp_threads())
-        timings["covariance"] = (time.perf_counter() - t) * 1e3
-        return cov
-
-
-def _as_cloud(points: Any, name: str) -> np.ndarray:
-    """(N, 3) float32 (NaN rows kept) or LocalizationError naming ``name``."""
-    from deepbbs_ros.core.points import as_xyz
-
-    try:
-        return as_xyz(points, name)
-    except DeepBBSError as err:
-        raise LocalizationError(str(err)) from err

@@ -13,7 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.errors import DeepBBSError, LocalizationError
 from deepbbs_ros.reprs import short_repr
+
+MIN_SCAN_POINTS = 50  # a scan with fewer finite points is refused
 
 
 @dataclass
@@ -122,3 +125,13 @@ def _rz(yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     T[:2, :2] = [[c, -s], [s, c]]
     return T
+
+
+def _as_cloud(points: Any, name: str) -> np.ndarray:
+    """(N, 3) float32 (NaN rows kept) or LocalizationError naming ``name``."""
+    from deepbbs_ros.core.points import as_xyz
+
+    try:
+        return as_xyz(points, name)
+    except DeepBBSError as err:
+        raise LocalizationError(str(err)) from err
