@@ -1,5 +1,5 @@
 """The localization covariance's checks for scripts/benchmarks/covariance.py (models tried, not shipped, and the
-per-direction diagnostic): installed around core/localization.py's ``scan_covariance`` for one run.
+per-direction diagnostic): installed around core/candidate_checks.py's ``scan_covariance`` for one run.
 
 * ``estimator="cr2"``: the bias-reduced cluster-robust covariance (CR2, Bell and McCaffrey) in place of the node's
   leave-one-cell-out one (CR3): each cell's gradient times ``(I - H_c H^-1)^-1/2`` instead of ``^-1`` (the pose's
@@ -73,9 +73,9 @@ def _matrix_max(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def install(estimator: str = "jackknife", coarse: float = 0.0, directions: bool = False) -> None:
-    """Route the localization's covariance (core/localization.py ``scan_covariance``) through the models above."""
+    """Route the localization's covariance (core/candidate_checks.py ``scan_covariance``) through the models above."""
+    import deepbbs_ros.core.candidate_checks as locmod
     import deepbbs_ros.core.covariance as cm
-    import deepbbs_ros.core.localization as locmod
 
     own_scan, own_sandwich = locmod.scan_covariance, cm.sandwich_covariance
 
