@@ -21,21 +21,31 @@ from __future__ import annotations
 import numpy as np
 
 from deepbbs_ros.core import anchoring
-
-
-def _quantile(x: np.ndarray, q: float) -> float:
-    """``np.quantile(x, q)`` (its default, linear method) of a non-empty 1-D float64 array, to the last bit, without
-    its overhead (about a third of its time on a few hundred values): the same index, weight and interpolation."""
-    s = np.sort(np.asarray(x, np.float64))
-    if np.isnan(s[-1]):
-        return float("nan")
-    n = len(s)
-    v = (n - 1) * q
-    if v >= n - 1:
-        return float(s[-1])
-    lo = int(np.floor(v))
-    a, b, g = float(s[lo]), float(s[lo + 1]), v - np.floor(v)
-    return b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+from deepbbs_ros.core.directions import (  # noqa: F401  (re-exported)
+    _CELLS,
+    _PER_CELL,
+    _SHAPE_POINTS,
+    _VIEW_CELL,
+    _angles,
+    _cell_table,
+    _keys,
+    _occupied,
+    cell_size,
+    directions,
+    in_view,
+)
+from deepbbs_ros.core.target_surface import (  # noqa: F401  (re-exported)
+    _OWN_Q,
+    _SELF_POINTS,
+    _pca_normals,
+    _quantile,
+    _target,
+    own_tolerance,
+    roughness,
+    self_planarity,
+    self_residuals,
+    target_points,
+)
 
 
 def _nearest(target, moved: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
@@ -52,102 +62,12 @@ def _nearest(target, moved: np.ndarray, threads: int) -> tuple[np.ndarray, np.nd
     return idx, sq
 
 
-def _cell_table(az: np.ndarray, el: np.ndarray) -> tuple[float, tuple | None]:
-    """:func:`cell_size`, and the :func:`_occupied` table of the cell chosen when it was computed on every direction
-    (no subsample: then :func:`directions` reuses it), else None. A subsample of every ``step``-th direction with
-    ``step >= _PER_CELL`` takes the first cell without a table: its cells hold at least ``step`` returns each."""
-    step = max(1, -(-len(az) // _SHAPE_POINTS))
-    if len(az) and step >= _PER_CELL:
-        return float(_CELLS[0]), None
-    az, el = az[::step], el[::step]
-    if not len(az):
-        return float(_CELLS[-1]), None
-    # every cell's _occupied table at once, side by side in one array (the same keys: the same operations)
-    i = ((az + np.pi) / _CELLS[:, None]).astype(np.int64)  # :func:`_keys`' cells (never negative: no floor needed)
-    j = ((el + np.pi / 2) / _CELLS[:, None]).astype(np.int64)
-    i0, j0 = i.min(axis=1), j.min(axis=1)
-    rows = j.max(axis=1) - j0 + 1
-    sizes = (i.max(axis=1) - i0 + 1) * rows
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    i *= rows[:, None]  # in place: each cell's table index (i - i0) * rows + j - j0, offset by its table's start
-    i += j
-    i += (starts - i0 * rows - j0)[:, None]
-    tables = np.zeros(int(sizes.sum()), bool)
-    tables[i.ravel()] = True
-    for k, cell in enumerate(_CELLS):
-        table = tables[starts[k]:starts[k] + sizes[k]]
-        if len(az) * step / np.count_nonzero(table) >= _PER_CELL or k == len(_CELLS) - 1:
-            return float(cell), (table, i[k] - starts[k], int(rows[k]), int(i0[k]), int(j0[k])) if step == 1 else None
-
-
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
             "plane_own", "violations_nb", "consistency_nb", "pinned", "in_view", "observable_rel", "anchored",
             "anchored_far")
-_CELLS = np.radians([0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])  # rad; the direction cells to choose from
-_SELF_POINTS = 256  # target points whose fit to their own neighbours' planes measures how rough the target is
-_SHAPE_POINTS = 4000  # the cell size is chosen on an even subsample of the target of at most this many points
-_PER_CELL = 3.0  # target returns a direction cell should hold on average
 _NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
-_OWN_Q = 0.9  # the target's own plane residual at this quantile is ``plane_own``'s tolerance (within dist/5..dist/2)
 _PIN_MIN = 6  # close plane matches ``pinned`` needs (fewer: 0)
-_VIEW_CELL = np.radians(5.0)  # rad; ``in_view``'s direction cells: the target's field of view at this resolution
-
-
-def _angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Azimuth, elevation (rad) and range (m) of points (N, 3); the range is np.linalg.norm's to the last bit (the
-    same products, summed in the same order) in a sixth of its time."""
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    r = np.sqrt(x * x + y * y + z * z)
-    az = np.arctan2(y, x)
-    el = np.arcsin(np.clip(z / np.maximum(r, 1e-9), -1.0, 1.0))
-    return az, el, r
-
-
-def _keys(az: np.ndarray, el: np.ndarray, cell: float) -> np.ndarray:
-    """Direction cell keys ``i * 100_000 + j`` of azimuths ``az`` and elevations ``el`` (rad, :func:`_angles`) on a
-    ``cell`` rad grid: ``az + pi`` and ``el + pi / 2`` are never negative, so the integer cast is the floor."""
-    i = ((az + np.pi) / cell).astype(np.int64)
-    j = ((el + np.pi / 2) / cell).astype(np.int64)
-    return i * 100_000 + j
-
-
-def cell_size(az: np.ndarray, el: np.ndarray) -> float:
-    """The smallest direction cell (rad) of :data:`_CELLS` in which the target's occupied cells hold about
-    ``_PER_CELL`` returns on average (measured on an even subsample of at most ``_SHAPE_POINTS``)."""
-    return _cell_table(az, el)[0]
-
-
-def _occupied(az: np.ndarray, el: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, int, int, int]:
-    """The direction cells of a ``cell`` rad grid, over the span of directions the target has, as a flat table (no
-    sort: a few tens of thousands of bytes for a spinning sensor's 30-degree band at 0.5 degrees): (True where a
-    direction falls (the table), each direction's index in it, the elevation cells per azimuth cell (``rows``), the
-    first azimuth cell ``i0``, the first elevation cell ``j0``); index ``k`` is :func:`_keys`'
-    ``(k // rows + i0) * 100_000 + k % rows + j0``, in the same order."""
-    if not len(az):
-        return np.zeros(0, bool), np.zeros(0, np.int64), 1, 0, 0
-    i = ((az + np.pi) / cell).astype(np.int64)
-    j = ((el + np.pi / 2) / cell).astype(np.int64)
-    i0, j0 = int(i.min()), int(j.min())
-    rows = int(j.max()) - j0 + 1
-    table = np.zeros((int(i.max()) - i0 + 1) * rows, bool)
-    i *= rows  # in place: the index (i - i0) * rows + j - j0
-    i += j
-    i -= i0 * rows + j0
-    table[i] = True
-    return table, i, rows, i0, j0
-
-
-def directions(target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """The target's direction cells: (cell size (rad), the occupied cells' keys (sorted), the nearest return's range
-    in each (m))."""
-    taz, tel, tr = _angles(np.asarray(target, np.float64))
-    cell, occupied = _cell_table(taz, tel)
-    table, idx, rows, i0, j0 = _occupied(taz, tel, cell) if occupied is None else occupied
-    nearest = np.full(len(table), np.inf)
-    np.minimum.at(nearest, idx, tr)
-    occupied = np.flatnonzero(table)  # in the order of _keys: the same sorted keys as a sort of them
-    return cell, (occupied // rows + i0) * 100_000 + occupied % rows + j0, nearest[occupied]
 
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
@@ -316,103 +236,3 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
         elif pin < bound:  # what the bound reads: anchored_far alone
             held = (1.0, *anchoring.anchored(moved, sq, tree, pm, nm, dist, threads, anchoring.STEPS[-1:], info))
     return features(moved, sq, table, dist, plane, own, tol, nidx, held, view, pin)
-
-
-def _pca_normals(tpts: np.ndarray, ktree, idx: np.ndarray, k: int = 8) -> np.ndarray:
-    """(len(idx), 3) the normal of a plain cloud at each of its points ``idx``: the least-spread direction of the
-    point's ``k`` nearest neighbours."""
-    u, inv = np.unique(idx, return_inverse=True)
-    _, nb = ktree.query(tpts[u], k=min(k, len(tpts)))
-    q = tpts[np.asarray(nb).reshape(len(u), -1)]
-    q = q - q.mean(axis=1, keepdims=True)
-    return np.linalg.eigh(np.einsum("kni,knj->kij", q, q))[1][:, :, 0][inv.ravel()]
-
-
-def _target(target, dist: float) -> tuple:
-    """(points (M, 3), :func:`directions`, :func:`self_planarity` or None, normals or None, :func:`own_tolerance` or
-    None) of a target; kept on a
-    precision-stage cloud (its voxels never change), so that a cloud judged again (the good start, then the full
-    pipeline; a scan that is the next pair's target) pays for them once."""
-    cached = getattr(target, "_visibility", None)
-    if cached is not None and cached[0] == dist:
-        return cached[1]
-    tree = getattr(target, "tree", None)
-    tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
-    normals = None
-    if tree is not None and not hasattr(tree, "base"):  # a crop's view of a map's cloud: its normals are the map's
-        nrm = np.asarray(target.cloud.normals())[:, :3]
-        normals = nrm if len(nrm) == len(tpts) and np.any(nrm) else None
-    res = None if normals is None or len(tpts) < 2 else self_residuals(tpts, tree, normals, dist)
-    own = None if res is None else (float(np.mean(res <= 0.2 * dist)) if len(res) else 1.0)
-    tol = None if res is None else own_tolerance(res, dist)
-    out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals, tol)
-    if tree is not None:
-        target._visibility = (dist, out)
-    return out
-
-
-def target_points(target, dist: float) -> np.ndarray:
-    """A target's points (M, 3) float64 as the verdict judged against them: a precision-stage cloud's voxels kept
-    with its direction cells (:func:`_target`), not copied again."""
-    return _target(target, dist)[0]
-
-
-def self_residuals(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> np.ndarray:
-    """Of an even subset of the target's points (at most about ``_SELF_POINTS``), the distance (m) of each to its
-    nearest other point's tangent plane, for those with one within ``dist`` -> (K,): how rough the target is."""
-    sub = tpts[:: max(1, len(tpts) // _SELF_POINTS)]
-    idx, sq = tree.batch_knn_search(sub, 2, num_threads=1)
-    j, sq = np.asarray(idx, np.int64)[:, 1], np.asarray(sq, np.float64)[:, 1]
-    ok = (sq <= dist * dist) & (j >= 0) & (j < len(tpts))
-    return np.abs(np.einsum("ij,ij->i", sub[ok] - tpts[j[ok]], normals[j[ok]]))
-
-
-def own_tolerance(residuals: np.ndarray, dist: float) -> float:
-    """``plane_own``'s tolerance (m): the :data:`_OWN_Q` quantile of the target's :func:`self_residuals`, kept
-    within ``dist / 5`` (``plane_close``'s) and ``dist / 2`` (``fitness_close``'s: trees never make everything fit)."""
-    q = _quantile(residuals, _OWN_Q) if len(residuals) else 0.0
-    return float(np.clip(q, 0.2 * dist, 0.5 * dist))
-
-
-def self_planarity(tpts: np.ndarray, tree, normals: np.ndarray, dist: float) -> float:
-    """Of an even subset of the target's points, the share within ``dist / 5`` of their nearest other point's
-    tangent plane (among those with one within ``dist``): 1 for clean walls, lower for trees and smeared scans."""
-    res = self_residuals(tpts, tree, normals, dist)
-    return float(np.mean(res <= 0.2 * dist)) if len(res) else 1.0
-
-
-def roughness(target, dist: float) -> tuple[float, float]:
-    """How rough a precision-stage cloud's surfaces are: (the :data:`_OWN_Q` quantile of its :func:`self_residuals`
-    (m, unclipped), its :func:`self_planarity`); (0, 1) without normals. For benchmarks: real scans against
-    simulated ones."""
-    tpts, _, own, normals, _ = _target(target, dist)
-    if normals is None:
-        return 0.0, 1.0
-    res = self_residuals(tpts, target.tree, normals, dist)
-    return (float(np.quantile(res, _OWN_Q)) if len(res) else 0.0), float(own)
-
-
-_VIEW: tuple = (None, 0.0, np.zeros(0, bool))  # (a target's direction keys, their cell, :func:`in_view`'s table)
-
-
-def in_view(moved: np.ndarray, cell: float, ukey: np.ndarray, keys: np.ndarray | None = None) -> float:
-    """The share of ``moved`` (N, 3) (the target's sensor frame) whose direction falls in the target's field of view:
-    the :data:`_VIEW_CELL` direction cells (a whole multiple of ``cell``) holding a target return, from the target's
-    :func:`directions` keys ``ukey`` (``cell`` rad). Measured on the target's returns (no sensor's constants): a
-    70-degree view turned by 35 degrees keeps about half of the source in it, a 360-degree one all of it. ``keys``:
-    the points' :func:`_keys` on the ``cell`` grid, when the caller has them."""
-    if len(moved) == 0 or len(ukey) == 0 or cell <= 0:
-        return 0.0
-    global _VIEW
-    f = max(1, int(round(_VIEW_CELL / cell)))
-    rows = int(np.pi / cell) // f + 2  # the coarse cells as a flat table (no sort), as :func:`_occupied`
-    kept = _VIEW  # the last target's table (a target is judged several times in a row); one assignment below
-    if kept[0] is not ukey or kept[1] != cell:
-        table = np.zeros((int(2 * np.pi / cell) // f + 2) * rows, bool)
-        table[(ukey // 100_000 // f) * rows + ukey % 100_000 // f] = True
-        kept = _VIEW = (ukey, cell, table)
-    table = kept[2]
-    if keys is None:
-        az, el, _ = _angles(np.asarray(moved, np.float64))
-        keys = _keys(az, el, cell)
-    return float(np.mean(table[(keys // 100_000 // f) * rows + keys % 100_000 // f]))
