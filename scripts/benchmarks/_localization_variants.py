@@ -43,7 +43,7 @@ def _weights(H: np.ndarray, Hc: np.ndarray, estimator: str) -> np.ndarray:
 def _one(pairs: tuple, cell: float, estimator: str, student: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                           np.ndarray] | None:
     """(covariance [rot, trans], H, eigen-directions U, their effective cells) at one cell size."""
-    import deepbbs_ros.core.covariance as cm
+    import deepbbs_ros.core.cluster_robust as cr
 
     H, Gc, Hc = _terms(pairs, cell)
     G = len(Gc)
@@ -58,7 +58,7 @@ def _one(pairs: tuple, cell: float, estimator: str, student: bool) -> tuple[np.n
     li = np.einsum("cki,cki->ci", Y, Hc @ Y)
     nu = np.square(li.sum(0)) / np.maximum(np.square(li).sum(0), 1e-300)
     if student:
-        n = np.maximum(nu, cm.MIN_EFFECTIVE_CELLS)
+        n = np.maximum(nu, cr.MIN_EFFECTIVE_CELLS)
         lam = lam * n / (n - 2.0)
     return (U * lam) @ U.T, H, U, nu
 
@@ -75,6 +75,7 @@ def _matrix_max(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def install(estimator: str = "jackknife", coarse: float = 0.0, directions: bool = False) -> None:
     """Route the localization's covariance (core/candidate_checks.py ``scan_covariance``) through the models above."""
     import deepbbs_ros.core.candidate_checks as locmod
+    import deepbbs_ros.core.cluster_robust as cr
     import deepbbs_ros.core.covariance as cm
 
     own_scan, own_sandwich = locmod.scan_covariance, cm.sandwich_covariance
@@ -83,7 +84,7 @@ def install(estimator: str = "jackknife", coarse: float = 0.0, directions: bool 
                  weak: np.ndarray | None = None, jackknife: bool = True, student: bool = False) -> np.ndarray | None:
         if pairs is None:
             return None
-        cells = [float(cell or cm.CLUSTER_CELL)] + ([float(coarse)] if coarse > 0 else [])
+        cells = [float(cell or cr.CLUSTER_CELL)] + ([float(coarse)] if coarse > 0 else [])
         parts = [_one(pairs, c, estimator, student) for c in cells]  # (the localization always jackknifes)
         if parts[0] is None:
             return None

@@ -617,6 +617,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="bench_out", help="figures: OUT/covariance.json")
     args = ap.parse_args(argv)
 
+    import deepbbs_ros.core.cluster_robust as robustmod
     import deepbbs_ros.core.covariance as covmod
     from deepbbs_ros.config import Config
 
@@ -630,10 +631,10 @@ def main(argv: list[str] | None = None) -> int:
         covmod.ODOMETRY_MAX_POINTS = args.odometry_max_points
     if args.odometry_student:
         covmod.ODOMETRY_STUDENT = args.odometry_student == "on"
-    if args.cell > 0:
-        covmod.CLUSTER_CELL = args.cell
+    if args.cell > 0:  # read where the cluster-robust covariance is computed
+        robustmod.CLUSTER_CELL = args.cell
     if args.min_effective_cells > 0:
-        covmod.MIN_EFFECTIVE_CELLS = args.min_effective_cells
+        robustmod.MIN_EFFECTIVE_CELLS = args.min_effective_cells
     if args.estimator != "jackknife" or args.coarse_cell > 0 or args.directions:
         _variants.install(args.estimator, args.coarse_cell, args.directions)
     if args.map_planes:
