@@ -1,5 +1,5 @@
 """The data of global localization (no ROS): what a localization answers, a prepared scan, a candidate place's
-crop and a registration's answer on it, and the small pose helpers they share.
+crop and a registration's answer on it, and the small pose and input helpers they share.
 
 :class:`LocalizationResult` is what :class:`~deepbbs_ros.core.localization.MapLocalizer` and
 :class:`~deepbbs_ros.core.tracking.MapTracker` return; :class:`PreparedScan` what ``MapLocalizer.prepare`` makes

@@ -35,7 +35,7 @@ optimum is there, and the precision stage cannot land closer), ``wrong_accepted_
 ``classes`` splits the poses in three, as the figures are counted against the goal: right (within 1 deg / 0.3 m), wrong
 (beyond 2 deg or 0.5 m) and in between (neither: shown apart, not counted as a success nor as a wrong pose accepted),
 each with its accepted / rejected count; the ``wrong`` and ``wrong_accepted`` above it keep the older count (anything
-not right). ``roughness/<set>``: how rough the targets' own surfaces are (core/visibility.py's ``roughness``: the
+not right). ``roughness/<set>``: how rough the targets' own surfaces are (core/target_surface.py's ``roughness``: the
 distance 90 % of a target's points keep from their neighbour's tangent plane, and its ``self_planarity``; medians over
 the set's targets), to compare the simulation with real scans. ::
 
