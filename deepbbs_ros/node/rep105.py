@@ -154,7 +154,8 @@ class Rep105:
         T_odom_base = self._odom_base(base, stamp)
         if T_odom_base is None:
             return
-        T_map_odom = T_map_base @ np.linalg.inv(T_odom_base)
+        with np.errstate(over="ignore", invalid="ignore"):  # checked just below: a warning here would only repeat it
+            T_map_odom = T_map_base @ np.linalg.inv(T_odom_base)
         if not np.isfinite(T_map_odom).all():  # an absurd odom -> base on /tf (finite, but its inverse overflows)
             odom = self.cfg.odom_frame
             self.status = self.problem = f"{odom} -> {base} on /tf is not usable: {frame} -> {odom} not updated"
