@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 from deepbbs_ros.config import Config, load_config  # noqa: E402
 from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility, within  # noqa: E402
-from deepbbs_ros.core.polish import correspondence_distance, finish  # noqa: E402
+from deepbbs_ros.core.polish import correspondence_distance, finer_pair, finish  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
@@ -359,10 +359,10 @@ def _within_on_scene_grid(source, target, T: np.ndarray, rc, weak: bool) -> floa
     distance there (core/polish.py correspondence_distance); ``weak``: with the spread along a weak direction. 0
     where either has no finer grid. verdict.py's ``good_start_scene_grid`` ``scene_within*`` columns (tried, not
     shipped: docs/sensors.md)."""
-    sf, tf = source.finer(), target.finer()
-    if sf is None or tf is None:
+    fine = finer_pair(source, target)
+    if fine is None:
         return 0.0
-    cov = within.pose_covariance(sf, tf, T, correspondence_distance((sf, tf), rc), 1, weak)
+    cov = within.pose_covariance(*fine, T, correspondence_distance(fine, rc), 1, weak)
     return within.probability(cov, rc.success_trans, rc.success_rot_deg)
 
 

@@ -32,6 +32,8 @@ from deepbbs_ros.core.polish_cloud import (
     MIN_POLISH_POINTS,
     PolishCloud,
     _prepared,
+    finer_pair,
+    grid_scale,
     prepare_polish_cloud,
     prepared_cloud,
     scene_voxel,
@@ -41,7 +43,7 @@ from deepbbs_ros.core.threads import cpu_cores, threads_or_all
 from deepbbs_ros.reprs import short_repr
 
 __all__ = ["MIN_POLISH_POINTS", "PolishCloud", "PolishResult", "PolishView", "correspondence_distance", "cpu_cores",
-           "finish", "polish", "prepare_polish_cloud", "prepared_cloud", "scene_voxel", "SMALL_GICP_TYPE",
+           "finer_pair", "finish", "polish", "prepare_polish_cloud", "prepared_cloud", "scene_voxel", "SMALL_GICP_TYPE",
            "threads_or_all"]
 
 #: registration.polish -> small_gicp registration_type
@@ -94,10 +96,7 @@ class PolishResult:
 def correspondence_distance(clouds, cfg: RegistrationConfig) -> float:
     """``polish_max_corr_dist`` scaled by the finer of the two clouds' grids over ``polish_voxel`` (the shipped
     ratio of the two, kept on a scene-sized grid: :func:`scene_voxel`); as is when either has no grid recorded."""
-    grids = [getattr(c, "voxel", 0.0) for c in clouds]
-    if cfg.polish_voxel <= 0 or min(grids) <= 0:
-        return cfg.polish_max_corr_dist
-    return cfg.polish_max_corr_dist * min(1.0, min(grids) / cfg.polish_voxel)
+    return cfg.polish_max_corr_dist * grid_scale(clouds, cfg.polish_voxel)
 
 
 def finish(source: Any, target: Any, T: np.ndarray, cfg: RegistrationConfig) -> PolishResult | None:
@@ -106,10 +105,8 @@ def finish(source: Any, target: Any, T: np.ndarray, cfg: RegistrationConfig) -> 
     minimum in a narrow place lies off the truth by the grid's blend (degrees in a 2-3 m corridor), and the finer grid
     pins it in a few iterations (its own basin is narrower: it finishes, it does not start). None when either scan
     has no finer grid (its median range puts ``registration.polish_voxel_angle`` at ``polish_voxel`` or above)."""
-    fine = [c.finer() if isinstance(c, PolishCloud) else None for c in (source, target)]
-    if fine[0] is None or fine[1] is None:
-        return None
-    return polish(fine[0], fine[1], T, cfg)
+    fine = finer_pair(source, target)
+    return None if fine is None else polish(fine[0], fine[1], T, cfg)
 
 
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,

@@ -24,7 +24,8 @@ import numpy as np
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.threads import threads_or_all
 
-__all__ = ["MIN_POLISH_POINTS", "PolishCloud", "prepare_polish_cloud", "prepared_cloud", "scene_voxel"]
+__all__ = ["MIN_POLISH_POINTS", "PolishCloud", "finer_pair", "grid_scale", "prepare_polish_cloud", "prepared_cloud",
+           "scene_voxel"]
 
 MIN_POLISH_POINTS = 10  # fewer points per cloud (after the voxel grid): no polish
 
@@ -149,6 +150,23 @@ def prepare_polish_cloud(points: np.ndarray, voxel: float, neighbors: int, *, re
         out.fine_voxel, out.fine_source = fine, pts
     out.prepare_ms = (time.perf_counter() - t0) * 1e3
     return out
+
+
+def finer_pair(source: Any, target: Any) -> tuple[PolishCloud, PolishCloud] | None:
+    """Both scans on their scene-sized grids (:meth:`PolishCloud.finer`, built on first use); None when either is no
+    :class:`PolishCloud` or has no finer grid."""
+    fine = [c.finer() if isinstance(c, PolishCloud) else None for c in (source, target)]
+    return None if fine[0] is None or fine[1] is None else (fine[0], fine[1])
+
+
+def grid_scale(clouds: Any, polish_voxel: float) -> float:
+    """The finer of the ``clouds``' grids over ``polish_voxel``, at most 1: how a scene-sized grid scales GICP's
+    correspondence distance and the verdict's (the shipped ratio of each to ``polish_voxel``, kept on a finer grid);
+    1 when ``polish_voxel`` <= 0 or either cloud has no grid recorded."""
+    grids = [getattr(c, "voxel", 0.0) for c in clouds]
+    if polish_voxel <= 0 or min(grids) <= 0:
+        return 1.0
+    return min(1.0, min(grids) / polish_voxel)
 
 
 def scene_voxel(points: np.ndarray, voxel: float, angle: float, samples: int = 1024) -> float:

@@ -88,11 +88,14 @@ def on_scene_grid(source, target, rc) -> tuple[np.ndarray, Any, float] | None:
     ``source`` / ``target`` has no finer grid. Every distance the features read (and ``pinned``'s residual
     tolerance) shrinks with the grid: the same test at the scene's scale, where GICP's grid blends a narrow place's
     walls, floor and ceiling."""
-    sf, tf = (c.finer() if hasattr(c, "finer") else None for c in (source, target))
-    if sf is None or tf is None:
+    from deepbbs_ros.core.polish_cloud import finer_pair, grid_scale
+
+    fine = finer_pair(source, target)
+    if fine is None:
         return None
-    scale = min(1.0, min(sf.voxel, tf.voxel) / (rc.polish_voxel or 0.5))
-    return spread_subset(sf.points(), rc.good_start_points, sf.voxel), tf, rc.verdict_dist * scale
+    sf, tf = fine
+    dist = rc.verdict_dist * grid_scale(fine, rc.polish_voxel)
+    return spread_subset(sf.points(), rc.good_start_points, sf.voxel), tf, dist
 
 
 def times_within(prob: float, source, target, T: np.ndarray, rc, bar: float, verdict: str = "pair",
