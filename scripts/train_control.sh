@@ -28,9 +28,8 @@ T="$PY -m deepbbs_ros.cli.train"
 if [ ! -d "$CACHE/worlds_train" ]; then
   echo "no $CACHE/worlds_train: make it as scripts/train_worlds.sh does (step 1)" >&2; exit 1
 fi
-SETS="--set train.epochs=12 --set train.steps_per_epoch=100 --set train.batch_size=8 --set train.lr=5e-5 \
-  --set train.pair_balance=distance --set train.lr_step=3 --set train.lr_gamma=0.5 --set train.checkpoint_minutes=0 \
-  --set train.trans_weight=5 --set train.seed=3 --set train.num_points=512 ${SETS_EXTRA:-}"
+. scripts/train_mix_data.sh  # MIX_SCHEDULE: the mix runs' schedule, the same string they run
+SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 ${SETS_EXTRA:-}"
 done_steps=0
 while [ "$done_steps" -lt "$STEPS" ]; do
   if [ -f "$RUN/state_latest.pt" ]; then

@@ -36,12 +36,10 @@ mix_data $MIX_DATA
 set -- $MIX_DATA
 MIX=$1
 
-# 2. schedule: 12 epochs x 100 steps x batch 8 at 512 points; lr 5e-5 halved every 3 epochs; translation
-#    weighted 5x; pairs balanced by distance; validation every 2 epochs on 48 pairs (2 per drive, each folder
-#    weighing the same)
-SETS="--set train.epochs=12 --set train.steps_per_epoch=100 --set train.batch_size=8 --set train.lr=5e-5 \
-  --set train.pair_balance=distance --set train.lr_step=3 --set train.lr_gamma=0.5 --set train.val_every=2 --set train.val_pairs=48 \
-  --set train.checkpoint_minutes=10 --set train.trans_weight=5 --set train.seed=3 --set train.num_points=512"
+# 2. schedule: MIX_SCHEDULE (scripts/train_mix_data.sh: 12 epochs x 100 steps x batch 8 at 512 points; lr 5e-5
+#    halved every 3 epochs; translation weighted 5x; pairs balanced by distance); validation every 2 epochs on 48
+#    pairs (2 per drive, each folder weighing the same)
+SETS="$MIX_SCHEDULE --set train.val_every=2 --set train.val_pairs=48 --set train.checkpoint_minutes=10"
 if [ -n "${POSE_LOSS:-}" ]; then SETS="$SETS --set train.pose_loss=$POSE_LOSS"; fi
 if [ -n "${UNTIL:-}" ]; then
   BUDGET=$(( ($(date -u -d "$UNTIL" +%s) - $(date -u +%s)) / 60 ))
