@@ -75,7 +75,8 @@ from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.callbacks import GuardedCallbacks
 from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, arrival_preprocess
-from deepbbs_ros.node.localization import NodeLocalization, load_map_file
+from deepbbs_ros.node.localization import NodeLocalization
+from deepbbs_ros.node.map_data import load_map_file
 from deepbbs_ros.node.node_diagnostics import NodeDiagnostics, stop_line
 from deepbbs_ros.node.node_inputs import InputHandlers
 from deepbbs_ros.node.node_jobs import JUMP_BACK_S, RegistrationJobs, _result_summary, _step_line  # noqa: F401
