@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from deepbbs_ros.node.bridge import BRIDGE_MAX, ScanBridge, gains
 from deepbbs_ros.node.inputs import BadInput, Cloud
-
-if TYPE_CHECKING:
-    from deepbbs_ros.node.localization import LocalizedScan
 
 __all__ = ["BRIDGE_DROP", "SearchBridge"]
 
@@ -33,7 +30,7 @@ class SearchBridge:
     # what it reads of the NodeLocalization it is part of
     tracker: Any
     searching: bool
-    step: Callable[[Cloud], LocalizedScan | None]  # NodeLocalization.step
+    step: Callable[[Cloud], Any]  # NodeLocalization.step: a LocalizedScan, or None
 
     def _init_bridge(self, bridge_scans: int) -> None:
         """The bridge's state (``localization.bridge_scans``: how many arrivals it keeps)."""
@@ -82,7 +79,7 @@ class SearchBridge:
         last = tracker.last_stamp_ns if tracker is not None and tracker.state == "tracking" else None
         return stamp_ns is not None and last is not None and stamp_ns <= last
 
-    def bridge(self, found: LocalizedScan, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
+    def bridge(self, found: Any, stamp_ns: int) -> Iterator[tuple[Cloud, Any]]:
         """After a search placed the scan stamped ``stamp_ns`` (``found``: its :meth:`step`): track the scans that
         arrived meanwhile (:meth:`ScanBridge.take`), in stamp order, yielding each with its :meth:`step` (published
         like any tracked scan); ends when none is left or the tracker lost the pose. One log line, on the last."""
@@ -103,7 +100,7 @@ class SearchBridge:
                                 + (f"it fell behind the stream ({self._behind}): tracking from the newest scan"
                                    if self._behind else "tracking from the newest"))
 
-    def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
+    def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, Any]]:
         done = self._followed = 0
         self._behind = ""
         # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
