@@ -1,0 +1,71 @@
+"""What the verdict keeps on a scan's precision-stage cloud (core/target_surface.py): its target tables and the spread
+subset of its voxels are the same numbers as a fresh computation, shared by the scan's two roles in a stream (source,
+then target), and drawn again when the cloud's voxels are replaced."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.core import verdict, visibility
+from deepbbs_ros.core.polish import prepare_polish_cloud
+
+
+def _room(seed: int, n: int = 6000) -> np.ndarray:
+    """A box room's walls, floor and ceiling seen from near its middle (N, 3), metres."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform([-6, -3, -1], [6, 3, 2], (n, 3))
+    face = rng.integers(0, 6, n)
+    p[face == 0, 0], p[face == 1, 0], p[face == 2, 1] = -6, 6, -3
+    p[face == 3, 1], p[face == 4, 2], p[face == 5, 2] = 3, -1, 2
+    return p
+
+
+def _cloud(seed: int):
+    return prepare_polish_cloud(_room(seed), 0.3, 10)
+
+
+def test_spread_points_is_the_spread_subset_and_kept():
+    pc = _cloud(1)
+    first = visibility.spread_points(pc, 256, 0.3)
+    np.testing.assert_array_equal(first, verdict.spread_subset(pc.points(), 256, 0.3))
+    assert visibility.spread_points(pc, 256, 0.3) is first  # the second role's draw: kept
+    assert not first.flags.writeable  # shared: no caller may write into it
+    other = visibility.spread_points(pc, 128, 0.3)  # another size: drawn, the same as fresh
+    np.testing.assert_array_equal(other, verdict.spread_subset(pc.points(), 128, 0.3))
+
+
+def test_kept_tables_are_fresh_ones_and_redrawn_when_the_voxels_change():
+    pc, new = _cloud(2), _cloud(3)
+    pts = visibility.spread_points(pc, 256, 0.3)
+    tables = visibility._target(pc, 0.5)
+    assert visibility._target(pc, 0.5) is tables
+    fresh = visibility._target(_cloud(2), 0.5)  # the same scan prepared again
+    for a, b in zip(tables, fresh):
+        if isinstance(a, tuple):
+            for x, y in zip(a, b):
+                np.testing.assert_array_equal(x, y)
+        else:
+            np.testing.assert_array_equal(a, b)
+    pc.cloud, pc.tree = new.cloud, new.tree  # the cloud's voxels replaced: nothing kept is read
+    np.testing.assert_array_equal(visibility.spread_points(pc, 256, 0.3), verdict.spread_subset(new.points(), 256, 0.3))
+    assert not np.array_equal(visibility.spread_points(pc, 256, 0.3), pts)
+    np.testing.assert_array_equal(visibility._target(pc, 0.5)[0], new.points())
+    np.testing.assert_array_equal(visibility._target(pc, 0.5)[1][1], visibility._target(new, 0.5)[1][1])
+
+
+@pytest.mark.parametrize("dist", [0.5, 0.3])
+def test_a_stream_scans_verdict_is_the_fresh_one(dist):
+    """A scan judged as a target after it was a source (its spread subset and tables kept) gets the probability of a
+    scan prepared afresh."""
+    a, b = _cloud(4), _cloud(5)
+    T = np.eye(4)
+    T[:3, 3] = [0.05, -0.02, 0.0]
+    pts = visibility.spread_points(b, 256, 0.3)
+    kept_first = verdict.probability(visibility.spread_points(a, 256, 0.3), T, b, dist, "good_start")  # a: source
+    kept = verdict.probability(pts, np.linalg.inv(T), a, dist, "good_start")  # a: the next pair's target
+    fresh_a, fresh_b = _cloud(4), _cloud(5)
+    assert kept_first == verdict.probability(verdict.spread_subset(fresh_a.points(), 256, 0.3), T, fresh_b, dist,
+                                             "good_start")
+    assert kept == verdict.probability(verdict.spread_subset(fresh_b.points(), 256, 0.3), np.linalg.inv(T), fresh_a,
+                                       dist, "good_start")
