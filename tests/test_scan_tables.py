@@ -69,3 +69,23 @@ def test_a_stream_scans_verdict_is_the_fresh_one(dist):
                                              "good_start")
     assert kept == verdict.probability(verdict.spread_subset(fresh_b.points(), 256, 0.3), np.linalg.inv(T), fresh_a,
                                        dist, "good_start")
+
+
+def test_ready_to_judge_keeps_what_the_verdict_computes():
+    """A scan made ready on arrival (the node's registration process) keeps the tables and subset the verdict would
+    compute; a scan whose cloud waits for its k-d tree is left as it is."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.scans import prepare_scan, ready_to_judge
+
+    cfg = Config()
+    rc = cfg.registration
+    pre = ready_to_judge(cfg, prepare_scan(cfg, _room(6).astype(np.float32), lazy=True))
+    pc = pre.polish_cloud
+    kept = (pc._visibility[1], pc._spread[2])
+    fresh = prepare_scan(cfg, _room(6).astype(np.float32), lazy=True).polish_cloud
+    assert visibility._target(pc, rc.verdict_dist) is kept[0]
+    np.testing.assert_array_equal(kept[0][1][1], visibility._target(fresh, rc.verdict_dist)[1][1])
+    assert visibility.spread_points(pc, rc.good_start_points, rc.polish_voxel) is kept[1]
+    np.testing.assert_array_equal(kept[1], verdict.spread_subset(fresh.points(), rc.good_start_points, rc.polish_voxel))
+    waiting = ready_to_judge(cfg, prepare_scan(cfg, _room(6).astype(np.float32), defer=True, lazy=True)).polish_cloud
+    assert not hasattr(waiting, "_visibility") and not hasattr(waiting, "_spread")

@@ -101,12 +101,15 @@ class _Worker:
     def run(self, msg: tuple) -> Any:
         op = msg[0]
         if op == "adopt":  # a scan the node preprocessed: its GICP cloud's k-d tree and covariances are built here
+            from deepbbs_ros.core.scans import ready_to_judge
+
             _, hid, pre = msg
             if self.reg.config.node.good_start and pre.polish_cloud is not None:
                 # pairs from a good start run GICP alone (no network to overlap the k-d tree and covariances with, in
                 # register): built now, on this input's lane, while the registration lane works on the last pair
                 t0 = time.perf_counter()
                 pre.polish_cloud.complete(self.reg.gicp_threads())
+                ready_to_judge(self.reg.config, pre)  # the verdict's tables of this scan (the next pair's target)
                 pre.timings_ms["polish_prepare"] = pre.timings_ms.get("polish_prepare", 0.0) + (
                     time.perf_counter() - t0) * 1e3
             self.put(hid, pre)
