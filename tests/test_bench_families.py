@@ -199,8 +199,8 @@ def test_stream_timing_prepares_the_target_before_the_clock_and_alternates(monke
 
 def test_node_timing_prepares_both_scans_before_the_clock(monkeypatch):
     """families.alternate(node=True): each round also times both on scans prepared before the clock starts, as the
-    node's registration process holds them (the good start's made ready to judge: core.scans.ready_to_judge); in_basin
-    gives that ratio apart."""
+    node's registration process holds them in a stream (the good start's target made ready to judge:
+    core.scans.ready_to_judge); in_basin gives that ratio apart."""
     calls, clocked = [], []
     monkeypatch.setattr(families._reg, "_register", lambda m, reg, s, t: reg.register(s, t))
 
@@ -215,8 +215,8 @@ def test_node_timing_prepares_both_scans_before_the_clock(monkeypatch):
     good, gicp = _Streamed("good", calls), _Streamed("gicp", calls)
     good.config = gicp.config = None
     out = families.alternate(good, gicp, _cloud(), _cloud(), 1, node=True)
-    assert calls == ["gicp", "good", "gicp prepares", "gicp prepares", "gicp", "good prepares", "ready",
-                     "good prepares", "ready", "good on a prepared target"]
+    assert calls == ["gicp", "good", "gicp prepares", "gicp prepares", "gicp", "good prepares", "good prepares",
+                     "ready", "good on a prepared target"]
     assert [calls[a:b] for a, b in zip(clocked[::2], clocked[1::2])] == [["gicp"], ["good"], ["gicp"],
                                                                          ["good on a prepared target"]]
     assert sorted(out) == sorted(f"{m}{s}_{k}" for m in ("good", "gicp") for s in ("", "_node")

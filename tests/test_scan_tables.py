@@ -89,3 +89,28 @@ def test_ready_to_judge_keeps_what_the_verdict_computes():
     np.testing.assert_array_equal(kept[1], verdict.spread_subset(fresh.points(), rc.good_start_points, rc.polish_voxel))
     waiting = ready_to_judge(cfg, prepare_scan(cfg, _room(6).astype(np.float32), defer=True, lazy=True)).polish_cloud
     assert not hasattr(waiting, "_visibility") and not hasattr(waiting, "_spread")
+
+
+def test_the_registration_process_readies_a_streams_source_once_answered():
+    """node/registration_worker.py: once a pair is answered, its source is made ready to judge when the pair's target
+    was an earlier pair's source (one stream: it is the next target); two sensors' scans (a target never a source)
+    are left as they are."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.scans import prepare_scan
+    from deepbbs_ros.node.registration_worker import _Worker
+
+    cfg = Config()
+    reg = type("Reg", (), {"config": cfg})()
+    worker = _Worker(None, reg)
+    pres = {k: prepare_scan(cfg, _room(10 + k).astype(np.float32), lazy=True) for k in range(4)}
+    for k, pre in pres.items():
+        worker.put(k, pre)
+    worker.answered(("register", 1, 0, None, True))  # the first pair: its target was no source
+    assert not hasattr(pres[1].polish_cloud, "_visibility")
+    worker.answered(("register", 2, 1, None, True))  # scan 2 against scan 1, the last source: a stream
+    kept = pres[2].polish_cloud._visibility[1]
+    np.testing.assert_array_equal(kept[0], pres[2].polish_cloud.points())
+    assert visibility.spread_points(pres[2].polish_cloud, cfg.registration.good_start_points,
+                                    cfg.registration.polish_voxel) is pres[2].polish_cloud._spread[2]
+    worker.answered(("register", 3, 0, None, True))  # another sensor's scan as the target: nothing built
+    assert not hasattr(pres[3].polish_cloud, "_visibility")

@@ -12,8 +12,8 @@ and as target (odometry, the node)::
 :func:`prepare_view` does the same for a part of a cloud prepared once (a map crop: core/localization.py), with no
 precision-stage preparation of its own.
 
-:func:`ready_to_judge` builds what the verdict reads of a prepared scan alone (its target tables), off the
-registration's path. :func:`deskew_prepared` adds a prepared scan's precision-stage cloud deskewed with the scan's own
+:func:`ready_to_judge` builds what the verdict reads of a prepared scan alone (its target tables), between a
+stream's pairs. :func:`deskew_prepared` adds a prepared scan's precision-stage cloud deskewed with the scan's own
 velocity, once its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in the sensor frame;
 per-point times (N,) are seconds since the stamp.
 """
@@ -135,10 +135,10 @@ def ready_to_judge(config: Config, pre: PreprocessResult) -> PreprocessResult:
     """``pre`` with what the good start's verdict reads of this scan alone built now and kept on its precision-stage
     cloud: its target tables (core/target_surface.py: its voxels, direction cells, own roughness, at
     ``registration.verdict_dist``) and the spread subset of its voxels it judges (``registration.good_start_points``).
-    In a stream each scan is the source of one pair and the target of the next: a caller that prepares scans off the
-    registration's path (the node's registration process, on a scan's arrival) takes both off the next answers'
-    time; the numbers are those the verdict would compute. Nothing when the cloud waits for its k-d tree (or has
-    none)."""
+    In a stream each scan is the source of one pair and the target of the next: a caller with time between the pairs
+    (the node's registration process, once the pair the scan was the source of is answered) takes them off the next
+    answer's path; the numbers are those the verdict would compute. Nothing when the cloud waits for its k-d tree (or
+    has none)."""
     from deepbbs_ros.core import target_surface
 
     pc, rc = pre.polish_cloud, config.registration

@@ -33,6 +33,7 @@ class _Worker:
         self.lanes: dict[str, deque] = {}
         self.cond = threading.Condition()
         self.stopping = False
+        self.sources: deque[int] = deque(maxlen=4)  # the last pairs' source scans (a stream's next targets)
 
     def put(self, hid: int, pre: Any) -> None:
         with self.scans_lock:
@@ -91,6 +92,25 @@ class _Worker:
                     self.conn.send(answer)
             except (OSError, ValueError):
                 return
+            if msg[0] == "register" and answer[1] == "ok":
+                self.answered(msg)
+
+    def answered(self, msg: tuple) -> None:
+        """After an answer was sent: where its target was an earlier pair's source (one stream, scan k against scan
+        k-1; not two sensors' scans), the source is the next pair's target: what the verdict reads of it alone is
+        built now (core.scans.ready_to_judge), while the lane waits for that pair, off its path."""
+        from deepbbs_ros.core.scans import ready_to_judge
+
+        src_id, tgt_id = msg[1], msg[2]
+        stream = tgt_id in self.sources
+        self.sources.append(src_id)
+        with self.scans_lock:
+            pre = self.scans.get(src_id) if stream else None
+        try:
+            if pre is not None:
+                ready_to_judge(self.reg.config, pre)
+        except Exception:  # noqa: BLE001 - the next registration builds them itself (and says what is wrong)
+            pass
 
     @staticmethod
     def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet
@@ -101,15 +121,12 @@ class _Worker:
     def run(self, msg: tuple) -> Any:
         op = msg[0]
         if op == "adopt":  # a scan the node preprocessed: its GICP cloud's k-d tree and covariances are built here
-            from deepbbs_ros.core.scans import ready_to_judge
-
             _, hid, pre = msg
             if self.reg.config.node.good_start and pre.polish_cloud is not None:
                 # pairs from a good start run GICP alone (no network to overlap the k-d tree and covariances with, in
                 # register): built now, on this input's lane, while the registration lane works on the last pair
                 t0 = time.perf_counter()
                 pre.polish_cloud.complete(self.reg.gicp_threads())
-                ready_to_judge(self.reg.config, pre)  # the verdict's tables of this scan (the next pair's target)
                 pre.timings_ms["polish_prepare"] = pre.timings_ms.get("polish_prepare", 0.0) + (
                     time.perf_counter() - t0) * 1e3
             self.put(hid, pre)
