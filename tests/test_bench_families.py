@@ -195,3 +195,32 @@ def test_stream_timing_prepares_the_target_before_the_clock_and_alternates(monke
     recs = [_good_rec(True, "gicp", "accepted", 12.0)]
     recs[0]["timing"] = {**out, "good_stream_ms": [6.0, 6.0], "gicp_stream_ms": [4.0, 4.0]}
     assert families.in_basin(recs)["alternated"]["stream"]["p50_over_gicp"] == 1.5
+
+
+def test_node_timing_prepares_both_scans_before_the_clock(monkeypatch):
+    """families.alternate(node=True): each round also times both on scans prepared before the clock starts, as the
+    node's registration process holds them in a stream (the good start's target made ready to judge:
+    core.scans.ready_to_judge); in_basin gives that ratio apart."""
+    calls, clocked = [], []
+    monkeypatch.setattr(families._reg, "_register", lambda m, reg, s, t: reg.register(s, t))
+
+    def timed(call, reg):
+        clocked.append(len(calls))
+        out = call(reg)
+        clocked.append(len(calls))
+        return out, 1.0, 1.0
+
+    monkeypatch.setattr(families, "timed", timed)
+    monkeypatch.setattr("deepbbs_ros.core.scans.ready_to_judge", lambda cfg, pre: calls.append("ready") or pre)
+    good, gicp = _Streamed("good", calls), _Streamed("gicp", calls)
+    good.config = gicp.config = None
+    out = families.alternate(good, gicp, _cloud(), _cloud(), 1, node=True)
+    assert calls == ["gicp", "good", "gicp prepares", "gicp prepares", "gicp", "good prepares", "good prepares",
+                     "ready", "good on a prepared target"]
+    assert [calls[a:b] for a, b in zip(clocked[::2], clocked[1::2])] == [["gicp"], ["good"], ["gicp"],
+                                                                         ["good on a prepared target"]]
+    assert sorted(out) == sorted(f"{m}{s}_{k}" for m in ("good", "gicp") for s in ("", "_node")
+                                 for k in ("ms", "cpu_ms"))
+    recs = [_good_rec(True, "gicp", "accepted", 12.0)]
+    recs[0]["timing"] = {**out, "good_node_ms": [5.0], "gicp_node_ms": [4.0]}
+    assert families.in_basin(recs)["alternated"]["node"]["p50_over_gicp"] == 1.25

@@ -64,7 +64,7 @@ def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray
 def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
     """The points the good start's verdict scores: a spread, order-independent subset of the cloud's GICP voxels
     (``registration.good_start_points``; :func:`core.verdict.spread_subset`)."""
-    return verdict.spread_subset(pc.points(), rc.good_start_points, rc.polish_voxel or 0.5)
+    return visibility.spread_points(pc, rc.good_start_points, rc.polish_voxel or 0.5)  # kept on the cloud
 
 
 def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed: bool, clock: Any) -> Attempt:
@@ -198,10 +198,8 @@ def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float
 
 
 def _target_points(tpc: PolishCloud, rc: Any) -> np.ndarray:
-    """:func:`good_start_points` of the target, from the voxels its verdict kept (core/visibility.py): no copy of the
-    cloud's points again."""
-    return verdict.spread_subset(visibility.target_points(tpc, rc.verdict_dist), rc.good_start_points,
-                                 rc.polish_voxel or 0.5)
+    """:func:`good_start_points` of the target (kept on its cloud: drawn when it was a stream's source)."""
+    return visibility.spread_points(tpc, rc.good_start_points, rc.polish_voxel or 0.5)  # its source's, in a stream
 
 
 def _result(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, pts: np.ndarray, tpc: PolishCloud,

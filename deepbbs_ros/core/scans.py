@@ -12,9 +12,10 @@ and as target (odometry, the node)::
 :func:`prepare_view` does the same for a part of a cloud prepared once (a map crop: core/localization.py), with no
 precision-stage preparation of its own.
 
-:func:`deskew_prepared` adds a prepared scan's precision-stage cloud deskewed with the scan's own velocity, once
-its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in the sensor frame; per-point times
-(N,) are seconds since the stamp.
+:func:`ready_to_judge` builds what the verdict reads of a prepared scan alone (its target tables), between a
+stream's pairs. :func:`deskew_prepared` adds a prepared scan's precision-stage cloud deskewed with the scan's own
+velocity, once its stream knows it (``core.deskew.StreamDeskew``). Points are (N, 3) metres in the sensor frame;
+per-point times (N,) are seconds since the stamp.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from deepbbs_ros.core.preprocess import PreprocessResult, SweepTimes, canonical_
 from deepbbs_ros.core.sensors import guess_sensor, resolve
 from deepbbs_ros.errors import RegistrationError
 
-__all__ = ["prepare_scan", "prepare_view", "polish_cloud", "deskew_prepared", "with_sensor"]
+__all__ = ["prepare_scan", "prepare_view", "polish_cloud", "deskew_prepared", "ready_to_judge", "with_sensor"]
 
 
 def prepare_scan(config: Config, points: np.ndarray, times: np.ndarray | None = None, stamp_ns: int | None = None,
@@ -128,6 +129,23 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
         return PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
                                 pending_sample=(pp, pp.seed, np.asarray(points, np.float32)))
     return preprocess(points, pp)
+
+
+def ready_to_judge(config: Config, pre: PreprocessResult) -> PreprocessResult:
+    """``pre`` with what the good start's verdict reads of this scan alone built now and kept on its precision-stage
+    cloud: its target tables (core/target_surface.py: its voxels, direction cells, own roughness, at
+    ``registration.verdict_dist``) and the spread subset of its voxels it judges (``registration.good_start_points``).
+    In a stream each scan is the source of one pair and the target of the next: a caller with time between the pairs
+    (the node's registration process, once the pair the scan was the source of is answered) takes them off the next
+    answer's path; the numbers are those the verdict would compute. Nothing when the cloud waits for its k-d tree (or
+    has none)."""
+    from deepbbs_ros.core import target_surface
+
+    pc, rc = pre.polish_cloud, config.registration
+    if pc is not None and pc.pending is None and pc.tree is not None:
+        target_surface._target(pc, rc.verdict_dist)
+        target_surface.spread_points(pc, rc.good_start_points, rc.polish_voxel or 0.5)
+    return pre
 
 
 def prepare_view(config: Config, view: PolishView) -> PreprocessResult:

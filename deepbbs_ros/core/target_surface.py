@@ -44,7 +44,7 @@ def _target(target, dist: float) -> tuple:
     precision-stage cloud (its voxels never change), so that a cloud judged again (the good start, then the full
     pipeline; a scan that is the next pair's target) pays for them once."""
     cached = getattr(target, "_visibility", None)
-    if cached is not None and cached[0] == dist:
+    if cached is not None and cached[0] == dist and _same_voxels(target, cached[2]):
         return cached[1]
     tree = getattr(target, "tree", None)
     tpts = np.asarray(target.points() if hasattr(target, "points") else target, np.float64)[:, :3]
@@ -57,8 +57,34 @@ def _target(target, dist: float) -> tuple:
     tol = None if res is None else own_tolerance(res, dist)
     out = (tpts, directions(tpts) if len(tpts) else (0.0, np.zeros(0, np.int64), np.zeros(0)), own, normals, tol)
     if tree is not None:
-        target._visibility = (dist, out)
+        target._visibility = (dist, out, _voxels(target))
     return out
+
+
+def _voxels(cloud) -> tuple:
+    """What a precision-stage cloud's voxels are read from (its small_gicp cloud; a map crop's view: its own
+    centroids): the identity a table kept on the cloud is checked against, so that a cloud whose voxels were replaced
+    has its tables built again."""
+    return getattr(cloud, "cloud", None), getattr(cloud, "local", None)
+
+
+def _same_voxels(cloud, kept: tuple) -> bool:
+    return all(a is b for a, b in zip(_voxels(cloud), kept))
+
+
+def spread_points(cloud, n: int, cell: float) -> np.ndarray:
+    """:func:`core.verdict.spread_subset` of a precision-stage cloud's voxels (``points()``), kept on the cloud
+    (read-only; drawn again when its voxels were replaced): a scan judged as the source of one pair and as the target
+    of the next (a stream), or against every crop of a map, draws it once. -> (K, 3) float64."""
+    from deepbbs_ros.core.verdict import spread_subset
+
+    kept = getattr(cloud, "_spread", None)
+    if kept is not None and kept[0] == (n, cell) and _same_voxels(cloud, kept[1]):
+        return kept[2]
+    pts = spread_subset(cloud.points(), n, cell)
+    pts.flags.writeable = False  # shared by every caller
+    cloud._spread = ((n, cell), _voxels(cloud), pts)
+    return pts
 
 
 def target_points(target, dist: float) -> np.ndarray:

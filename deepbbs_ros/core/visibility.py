@@ -44,6 +44,7 @@ from deepbbs_ros.core.target_surface import (  # noqa: F401  (re-exported)
     roughness,
     self_planarity,
     self_residuals,
+    spread_points,
     target_points,
 )
 

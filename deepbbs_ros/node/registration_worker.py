@@ -33,6 +33,7 @@ class _Worker:
         self.lanes: dict[str, deque] = {}
         self.cond = threading.Condition()
         self.stopping = False
+        self.sources: deque[int] = deque(maxlen=4)  # the last pairs' source scans (a stream's next targets)
 
     def put(self, hid: int, pre: Any) -> None:
         with self.scans_lock:
@@ -91,6 +92,25 @@ class _Worker:
                     self.conn.send(answer)
             except (OSError, ValueError):
                 return
+            if msg[0] == "register" and answer[1] == "ok":
+                self.answered(msg)
+
+    def answered(self, msg: tuple) -> None:
+        """After an answer was sent: where its target was an earlier pair's source (one stream, scan k against scan
+        k-1; not two sensors' scans), the source is the next pair's target: what the verdict reads of it alone is
+        built now (core.scans.ready_to_judge), while the lane waits for that pair, off its path."""
+        from deepbbs_ros.core.scans import ready_to_judge
+
+        src_id, tgt_id = msg[1], msg[2]
+        stream = tgt_id in self.sources
+        self.sources.append(src_id)
+        with self.scans_lock:
+            pre = self.scans.get(src_id) if stream else None
+        try:
+            if pre is not None:
+                ready_to_judge(self.reg.config, pre)
+        except Exception:  # noqa: BLE001 - the next registration builds them itself (and says what is wrong)
+            pass
 
     @staticmethod
     def _reply(pre: Any) -> dict:  # a waiting sampling stays waiting (PreprocessResult.sample): no points yet

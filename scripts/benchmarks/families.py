@@ -188,7 +188,7 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
             if (case["level"] == 0 and args.timing_repeats and GOOD in rec and rec.get("gicp", {}).get("ok")
                     and "timing" not in rec):  # a start in GICP's basin (in_basin): timed again, alternately
                 rec["timing"] = alternate(regs[GOOD][0], regs["gicp"][0], src, tgt, args.timing_repeats,
-                                         getattr(args, "stream_timing", False))
+                                         getattr(args, "stream_timing", False), getattr(args, "node_timing", False))
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
             by_key[_key(rec)] = rec
@@ -242,7 +242,7 @@ def run_good(regs, src: np.ndarray, tgt: np.ndarray) -> dict:
 
 
 def alternate(good_reg, gicp_reg, src: np.ndarray, tgt: np.ndarray, repeats: int,
-              stream: bool = False) -> dict[str, list[float]]:
+              stream: bool = False, node: bool = False) -> dict[str, list[float]]:
     """``good_start=True`` and GICP timed on the same pair ``repeats`` times each, back to back in alternating order
     (GICP first in even rounds, the good start first in odd ones): neither is timed in the other's wake (after the
     full pipeline, or on scans the other just read) more often -> {"good_ms", "gicp_ms", "good_cpu_ms",
@@ -251,19 +251,28 @@ def alternate(good_reg, gicp_reg, src: np.ndarray, tgt: np.ndarray, repeats: int
     prepared before the clock starts (afresh each time, as the previous scan was when it was the source) and the
     source raw, copied just before (as a driver's message is converted just before the call: in the CPU's caches,
     where the raw pair's scans were last read a call ago): one scan prepared per call, where the raw pair prepares
-    both."""
+    both. ``node``: each round also times both as the node's registration process runs a stream ("good_node_ms",
+    ...): both scans prepared before the clock starts (k-d trees and covariances built on their arrival; the target,
+    the last pair's source, with what the verdict reads of it alone, built once that pair was answered:
+    core.scans.ready_to_judge), the registration alone timed (GICP: its alignment)."""
     calls = {"good": lambda reg: reg.register(src, tgt, T_init=np.eye(4), good_start=True),
              "gicp": lambda reg: _reg._register("gicp", reg, src, tgt)}
     ready = {"good": lambda reg: reg.preprocess(tgt, lazy=True), "gicp": lambda reg: reg.preprocess(tgt)}
     streamed = {"good": lambda reg, s, t: reg.register(s, t, T_init=np.eye(4), good_start=True),
                 "gicp": lambda reg, s, t: reg.align(reg.preprocess(s), t)}
-    kinds = ("", "_stream") if stream else ("",)
+    arrived = {"good": _arrived, "gicp": lambda reg, s, target: reg.preprocess(s)}
+    registered = {"good": lambda reg, s, t: reg.register(s, t, T_init=np.eye(4), good_start=True),
+                  "gicp": lambda reg, s, t: reg.align(s, t)}
+    kinds = ("",) + (("_stream",) if stream else ()) + (("_node",) if node else ())
     out: dict[str, list[float]] = {f"{m}{s}_{k}": [] for s in kinds for m in calls for k in ("ms", "cpu_ms")}
     for k in range(repeats):
         for s in kinds:
             for m in ("gicp", "good") if k % 2 == 0 else ("good", "gicp"):
                 reg = good_reg if m == "good" else gicp_reg
-                if s:
+                if s == "_node":  # both scans as the node's registration process holds them
+                    c, t = arrived[m](reg, src, False), arrived[m](reg, tgt, True)
+                    _, ms, cpu = timed(lambda r, c=c, t=t, m=m: registered[m](r, c, t), reg)
+                elif s:
                     t, c = ready[m](reg), src.copy()  # the target as a stream holds it, the source as it arrives
                     _, ms, cpu = timed(lambda r, c=c, t=t, m=m: streamed[m](r, c, t), reg)
                 else:
@@ -271,6 +280,18 @@ def alternate(good_reg, gicp_reg, src: np.ndarray, tgt: np.ndarray, repeats: int
                 out[f"{m}{s}_ms"].append(ms)
                 out[f"{m}{s}_cpu_ms"].append(cpu)
     return out
+
+
+def _arrived(reg, points: np.ndarray, target: bool):
+    """A raw scan prepared as the node's registration process holds it in a stream: lazy sampling, k-d tree and
+    covariances built on its arrival; a ``target`` (the last pair's source) also made ready to judge once that pair was
+    answered (``core.scans.ready_to_judge``, where the checkout has it)."""
+    from deepbbs_ros.core import scans
+
+    pre = reg.preprocess(points, lazy=True)
+    if getattr(pre, "polish_cloud", None) is not None:
+        pre.polish_cloud.complete(reg.gicp_threads())
+    return getattr(scans, "ready_to_judge", lambda cfg, p: p)(reg.config, pre) if target else pre
 
 
 def _alternated(inside: list[dict]) -> dict:
@@ -288,6 +309,10 @@ def _alternated(inside: list[dict]) -> dict:
         out["stream"] = {"p50_ms": {GOOD: p50["good_stream_ms"], "gicp": p50["gicp_stream_ms"]},
                          "p50_over_gicp": p50["good_stream_ms"] / p50["gicp_stream_ms"],
                          "cpu_p50_over_gicp": p50["good_stream_cpu_ms"] / p50["gicp_stream_cpu_ms"]}
+    if "good_node_ms" in p50:  # both scans prepared on arrival, the registration alone (alternate)
+        out["node"] = {"p50_ms": {GOOD: p50["good_node_ms"], "gicp": p50["gicp_node_ms"]},
+                       "p50_over_gicp": p50["good_node_ms"] / p50["gicp_node_ms"],
+                       "cpu_p50_over_gicp": p50["good_node_cpu_ms"] / p50["gicp_node_cpu_ms"]}
     return out
 
 
@@ -448,6 +473,9 @@ def report(fig: dict, names: list[str]) -> None:
             if a and "stream" in a:
                 st = a["stream"]
                 alt += f"; in a stream x{st['p50_over_gicp']:.2f} (CPU x{st['cpu_p50_over_gicp']:.2f})"
+            if a and "node" in a:
+                nd = a["node"]
+                alt += f"; scans prepared on arrival x{nd['p50_over_gicp']:.2f} (CPU x{nd['cpu_p50_over_gicp']:.2f})"
             print(f"   good start where GICP from the start is right ({b['pairs']} pairs, {b['others']} others): "
                   f"p50 / GICP's {ratio}{cpu}{alt}; paths {b.get('paths', {})}; fallbacks {b.get('fallback_why', {})}")
         print("   basin: " + "; ".join(f"{b['yaw_deg']:.0f} deg/{b['shift_m']:.0f} m " + "/".join(
@@ -490,6 +518,9 @@ def main(argv: list[str] | None = None) -> int:
                    "again this many times each, alternately (0 = not)")
     p.add_argument("--stream-timing", action="store_true", help="with --timing-repeats: also timed as in a stream "
                    "(the target prepared before the clock starts, the source raw: one scan prepared per call)")
+    p.add_argument("--node-timing", action="store_true", help="with --timing-repeats: also timed as the node's "
+                   "registration process runs a stream (both scans prepared before, the target's verdict tables "
+                   "too: the registration alone)")
     args = p.parse_args(argv)
     if args.quick:
         args.pairs_per_set, args.basin_pairs, args.sim_frames = 8, 2, 5
