@@ -174,6 +174,12 @@ class RegistrationConfig:
     # grids, verdict_dist scaled with them, then the second-minimum check there): a narrow place's right pose taken
     # instead of the search, but one more simulated wrong pose accepted (docs/sensors.md; tried, not the default)
     good_start_finish_grid: str = "gicp"
+    # the skew check (core/sweep_skew.py), on scans with per-point times only, where the verdict would accept: the
+    # motion within each sweep that the rigid pose cannot absorb (one Gauss-Newton step with the pose and its rate over
+    # the sweep); where half of it, less skew_sigmas standard errors, exceeds success_rot_deg / success_trans, the
+    # pose cannot be right and is not valid ("sweep skew")
+    skew_check: bool = False
+    skew_sigmas: float = 2.0  # standard errors taken off the estimate: the least error the sweep's motion implies
 
     def validate(self) -> None:
         dev = self.device
@@ -238,6 +244,7 @@ class RegistrationConfig:
         _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
         _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
+        _check(self.skew_sigmas >= 0, "registration.skew_sigmas", "must be >= 0")
 
 
 #: the network alone (``deepbbs-replay --method deepbbs``, ``deepbbs-train evaluate --methods deepbbs``): the deep
