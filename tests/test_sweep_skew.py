@@ -1,7 +1,7 @@
 """The skew check (core/sweep_skew.py): a swaying sweep with known per-point times and a known turn within the sweep,
 against a hall's surfaces seen from a still sensor: a 3 degree turn within the sweep bends the pose beyond the
-tolerance and is flagged, a 0.2 degree one is not; a scan without times is skipped; the registration's verdict turns a
-bent pose away with its reason."""
+tolerance and is flagged, a 0.2 degree one is not; two sweeps that turn alike pass; scans without times, and a spinning
+sensor's, are skipped; the registration's verdict and the good start turn a bent pose away with the reason."""
 
 from __future__ import annotations
 
@@ -50,9 +50,20 @@ def hall():
 
 
 def _fit(rc, target, points: np.ndarray) -> np.ndarray:
-    """GICP of the sweep to the still hall from identity: the rigid pose the verdict judges."""
+    """GICP of the sweep to the target cloud from identity: the rigid pose the verdict judges."""
     src = prepare_polish_cloud(points, rc.polish_voxel, rc.polish_neighbors, threads=1)
     return polish(src, target, np.eye(4), rc).T_target_source
+
+
+def _pre(points: np.ndarray, times: np.ndarray | None = None, cloud=None) -> PreprocessResult:
+    """A prepared scan with only what the check reads: its raw points and times (None: none kept), its cloud."""
+    return PreprocessResult(np.zeros((0, 3), np.float32), None, len(points), len(points), 0, polish_cloud=cloud,
+                            raw_points=None if times is None else points, times=times,
+                            stamp_ns=None if times is None else 1)
+
+
+def _rot_deg(T: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))))
 
 
 @pytest.mark.parametrize(("turn", "flagged"), [(3.0, True), (0.2, False)])
@@ -60,47 +71,70 @@ def test_a_turn_within_the_sweep_bends_the_pose(hall, turn, flagged):
     rc, rng, target = hall
     points, times = _sweep(rng, turn)
     T = _fit(rc, target, points)
-    sk = sweep_skew.sweep_skew(points, times, T, target, rc.polish_max_corr_dist, rc.skew_sigmas)
-    assert sk is not None and sk.n > 1000
-    # half the turn, as the rigid pose is off by (GICP's pose is off by it too)
+    sk = sweep_skew.check(_pre(points, times), _pre(points, cloud=target), T, rc)
+    assert sk is not None and sk.scans == "source" and sk.n > 1000
+    # half the turn, as the rigid pose is off by (GICP's pose is off by it too: the still target's truth is identity)
     assert sk.rot_est_deg == pytest.approx(turn / 2, abs=0.25)
+    assert _rot_deg(T) == pytest.approx(turn / 2, abs=0.25)
     assert sk.trans_est_m < 0.05  # no translation within the sweep
     assert sk.bends(rc.success_rot_deg, rc.success_trans) is flagged
 
 
-def test_scans_without_times_are_skipped(hall):
+def test_two_sweeps_that_turn_alike_pass(hall):
+    """Both scans turn 3 degrees within their sweeps, alike: the pose between them is right, and the check says so."""
+    rc, rng, _ = hall
+    (ps, ts), (pt, tt) = _sweep(rng, 3.0), _sweep(rng, 3.0)
+    cloud = prepare_polish_cloud(pt, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    src = prepare_polish_cloud(ps, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    T = _fit(rc, cloud, ps)
+    assert _rot_deg(T) < 0.3
+    sk = sweep_skew.check(_pre(ps, ts, src), _pre(pt, tt, cloud), T, rc)
+    assert sk is not None and sk.scans == "both" and sk.rot_est_deg < 0.3
+    assert not sk.bends(rc.success_rot_deg, rc.success_trans)
+    alone = sweep_skew.check(_pre(ps, ts, src), _pre(pt, None, cloud), T, rc)  # the target's motion unknown
+    assert alone.scans == "source" and alone.bends(rc.success_rot_deg, rc.success_trans)
+
+
+def test_scans_without_times_or_spinning_are_skipped(hall):
     rc, rng, target = hall
     points, times = _sweep(rng, 3.0)
-    pre = PreprocessResult(np.zeros((0, 3), np.float32), None, len(points), len(points), 0, polish_cloud=target)
-    assert sweep_skew.check(pre, pre, np.eye(4), rc) is None  # neither scan kept times: nothing runs
-    raw = PreprocessResult(np.zeros((0, 3), np.float32), None, len(points), len(points), 0, raw_points=points,
-                           times=times, stamp_ns=1)
-    sk = sweep_skew.check(raw, pre, _fit(rc, target, points), rc)  # the source's sweep only
-    assert sk is not None and sk.scan == "source" and sk.bends(rc.success_rot_deg, rc.success_trans)
-    assert sweep_skew.sweep_skew(points, np.zeros(len(points)), np.eye(4), target, 2.0) is None  # no time span
-
-
-def test_a_spinning_sweep_is_not_judged(hall):
-    """Times that follow the azimuth (a spinning sensor): the motion within the sweep and the scene's shape along the
-    azimuth cannot be told apart, so nothing is judged."""
-    rc, rng, target = hall
-    points, _ = _sweep(rng, 3.0)
-    times = np.mod(-np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi) / (2 * np.pi) * 0.1
-    assert sweep_skew.sweep_skew(points, times, _fit(rc, target, points), target, rc.polish_max_corr_dist) is None
+    assert sweep_skew.check(_pre(points, cloud=target), _pre(points, cloud=target), np.eye(4), rc) is None
+    assert sweep_skew.sweep_motion(points, np.zeros(len(points)), np.eye(4), target, 2.0) is None  # no time span
+    # times that follow the azimuth (a spinning sensor): the motion within the sweep and the scene's shape along the
+    # azimuth cannot be told apart, so nothing is judged
+    spin = np.mod(-np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi) / (2 * np.pi) * 0.1
+    assert sweep_skew.spinning(points, spin) and not sweep_skew.spinning(points, times)
+    assert sweep_skew.check(_pre(points, spin), _pre(points, cloud=target), _fit(rc, target, points), rc) is None
 
 
 def test_the_verdict_turns_a_bent_pose_away(hall):
-    """VerdictStages._skew on a pose the probability took: not valid, with the reason; off: untouched."""
+    """VerdictStages._skew on a pose the probability took: not valid, with the reason."""
     from deepbbs_ros.core.registration_state import State
     from deepbbs_ros.core.registration_verdict import VerdictStages
 
     rc, rng, target = hall
     points, times = _sweep(rng, 3.0)
-    src = PreprocessResult(np.zeros((0, 3), np.float32), None, len(points), len(points), 0, raw_points=points,
-                           times=times, stamp_ns=1)
-    tgt = PreprocessResult(np.zeros((0, 3), np.float32), None, 1, 1, 0, polish_cloud=target)
-    st = State(*([None] * 4), src, tgt, None, target, *([None] * 6), T=_fit(rc, target, points), valid=True)
+    st = State(*([None] * 4), _pre(points, times), _pre(points, cloud=target), None, target, *([None] * 6),
+               T=_fit(rc, target, points), valid=True)
     stages = VerdictStages()
     stages.config = Config()
     stages._skew(st)
-    assert not st.valid and st.skew.startswith("rejected: sweep skew of the source")
+    assert not st.valid and st.skew.startswith("rejected: sweep skew (source)")
+
+
+def test_the_good_start_turns_a_bent_pose_away(hall):
+    """register(..., good_start=True) on a 3-degree sweep against the still hall: GICP's pose, not valid, the reason;
+    with the check off, the same pose valid."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    rc, rng, _ = hall
+    points, times = _sweep(rng, 3.0)
+    still = _hall(rng, 40000)
+    for on in (True, False):
+        reg = DeepBBSRegistration(Config().replace(**{"registration.skew_check": on, "registration.threads": 1,
+                                                      "registration.network_process": "off"}))
+        src, tgt = reg.preprocess(points, times, 1), reg.preprocess(still, np.zeros(len(still)), 1)
+        res = reg.register(src, tgt, T_init=np.eye(4), preprocessed=True, good_start=True)
+        assert res.path == "gicp" and _rot_deg(res.T_target_source) == pytest.approx(1.5, abs=0.3)
+        assert res.valid is not on and res.skew.startswith("rejected" if on else "")
+        assert on or res.skew == ""
