@@ -16,6 +16,10 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
+With ``registration.skew_check`` (on by default) a simulated pose whose raw Livox-like sweeps' own motion says it
+cannot be right is counted as rejected by both verdicts (core/sweep_skew.py; the real sets carry no per-point times:
+nothing runs); ``<verdict>_without_skew`` (``_with_skew`` when off) judges the same poses the other way, ``skew_cost``
+gives the check's time per pose where it runs and its ratio to GICP from the truth on the same pair (median).
 The verdicts that ``registration.verdict_within`` names ("pair", "all"; "off" by default) multiply the probability by
 P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
 ``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
@@ -214,17 +218,18 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             m = m if f == "slid" else m & ~slide
             if not m.any():
                 continue
+            # vetoes: the pair verdict's second minimum; the skew check (core/sweep_skew.py) where
+            # registration.skew_check is on (``<verdict>_with_skew`` / ``_without_skew``: the same poses the other way)
+            amb = data["ambiguous"][m] if name == "pair" else np.zeros(int(m.sum()), bool)
+            veto = amb | (bent[m] if rc.skew_check else False)
             for row, factor in ((name, w if on else 1.0), (f"{name}_{'without' if on else 'with'}_within",
                                                            1.0 if on else w)):
                 out[f"{row}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], (p * factor)[m], OLD[name], bar,
-                                            data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]],
-                                            data["ambiguous"][m] if name == "pair" else None)
+                                            data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]], veto)
             p_on = p * w if on else p
-            # the skew check (core/sweep_skew.py, registration.skew_check) on the same poses: raw sweeps only
-            amb = data["ambiguous"][m] if name == "pair" else np.zeros(int(m.sum()), bool)
-            out[f"{name}_skew/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], p_on[m], OLD[name], bar,
-                                              data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]],
-                                              amb | bent[m])
+            out[f"{name}_{'without' if rc.skew_check else 'with'}_skew/{f}"] = summary(
+                data["y"][m] == 1, data[key][m, 0], p_on[m], OLD[name], bar, data["near_ref"][m],
+                np.c_[data["rot"][m], data["trans"][m]], amb | (False if rc.skew_check else bent[m]))
             if name == "good_start" and scene:
                 out[f"good_start_scene_grid/{f}"] = scene_flow(data, m, bar)
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
