@@ -63,4 +63,3 @@ class VerdictStages:
         bends, st.skew = sweep_skew.judge(st.src_pre, st.tgt_pre, st.T, self.config.registration,
                                           self.config.preprocess.min_range)
         st.valid = not bends
-
