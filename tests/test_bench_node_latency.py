@@ -71,7 +71,7 @@ def test_fresh_sources_make_every_period_a_new_scan(bench, tmp_path):
     """Each period's source differs from every earlier one (the node's content-keyed cache must not find a replayed
     frame again) in one point by at most 1 cm; a frame keeps its content until it is published again, so as the
     next period's target it is the cloud just sent; the node's own decoding and cache key see all of that."""
-    from deepbbs_ros.node.inputs import PreprocessCache
+    from deepbbs_ros.node.preprocess_cache import PreprocessCache
 
     write_scans([_spinning_scan(i) for i in range(2)], tmp_path / "seq", "kitti")
     for layout in ("velodyne", "ouster"):

@@ -74,7 +74,8 @@ def test_moved_map_uses_its_own_places_and_says_why(site_map, registration, tmp_
     a place with no map near it is a LocalizationError (the node's one-line 'localization_failed'), not an
     internal RegistrationError."""
     from deepbbs_ros.core.localization import MapLocalizer
-    from deepbbs_ros.node.localization import MapData, NodeLocalization
+    from deepbbs_ros.node.localization import NodeLocalization
+    from deepbbs_ros.node.map_data import MapData
 
     prior = read_map(_moved(site_map, tmp_path, _rz(0.4, (500.0, -300.0, 0.0))))
     loc = MapLocalizer(prior.points, Config(), registration=registration, trajectory=prior.trajectory)

@@ -302,3 +302,47 @@ def test_the_finished_pose_can_be_judged_on_the_grid_it_was_finished_on(monkeypa
         else:  # the finer of the two grids (each about 0.19 m in this 2-3 m corridor), the distance scaled with it
             assert 0.25 * rc.polish_voxel <= grid_m < rc.polish_voxel
             assert dist == pytest.approx(rc.verdict_dist * grid_m / rc.polish_voxel, rel=0.05)
+
+
+def _corridor(seed: int, end_wall: bool = False, n: int = 12000) -> np.ndarray:
+    """A corridor along x (walls at y = +-1.5 m, a floor at z = -1 m, 40 m long): nothing holds x, unless
+    ``end_wall`` closes it at x = 12 m."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-20, 20, n)
+    k = rng.integers(0, 4 if end_wall else 3, n)
+    y = np.where(k == 0, -1.5, np.where(k == 1, 1.5, rng.uniform(-1.5, 1.5, n)))
+    z = np.where(k == 2, -1.0, rng.uniform(-1.0, 1.5, n))
+    x = np.where(k == 3, 12.0, x)
+    return (np.c_[x, y, z] + rng.normal(0, 0.01, (n, 3))).astype(np.float32)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_a_start_off_along_a_free_corridor_is_not_taken_with_the_second_minimum_check(on):
+    """registration.good_start_second_minimum: a vouched start 1.2 m off along a corridor nothing holds; GICP stays
+    there (0.86 m off) and the verdict takes it (off: the hazard); with the check, GICP from that pose moved along its
+    weakest direction finds a minimum as good, so the good start does not take it (no result: the full pipeline
+    answers). Closed by a wall, the right pose is taken either way."""
+    import torch
+
+    from deepbbs_ros.core import good_start
+    from deepbbs_ros.core.network_output import Clock
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
+                                                  "registration.good_start_second_minimum": on}))
+    try:
+        T0 = np.eye(4)
+        T0[0, 3] = 1.2
+        a = good_start.attempt(reg, _corridor(1), _corridor(0), T0, False, Clock(torch.device("cpu")))
+        if on:
+            assert a.result is None and "a second minimum as good along its weakest direction" in a.reason, a.reason
+        else:  # the slid pose taken: what the check is for
+            assert a.result is not None and a.result.path == "gicp", a.reason
+            assert pair_errors(a.result.T_target_source, np.eye(4))[1] > 0.5
+        T0[0, 3] = 0.2
+        a = good_start.attempt(reg, _corridor(1, True), _corridor(0, True), T0, False, Clock(torch.device("cpu")))
+        assert a.result is not None and a.result.path == "gicp" and a.reason == "accepted", a.reason
+        rot, tr = pair_errors(a.result.T_target_source, np.eye(4))
+        assert rot < 0.2 and tr < 0.05, (rot, tr)
+    finally:
+        reg.close()

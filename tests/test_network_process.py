@@ -171,7 +171,7 @@ def _running(pid: int) -> bool:
 def test_node_inputs_leave_the_covariances_to_register(setup):
     # the node's inputs preprocess on arrival with the precision stage's k-d tree and covariances deferred:
     # register() builds them while the network process runs the passes, with the same result
-    from deepbbs_ros.node.inputs import arrival_preprocess
+    from deepbbs_ros.node.preprocess_cache import arrival_preprocess
 
     cfg, path, scans = setup
     here = DeepBBSRegistration(cfg.replace(**{"registration.network_process": "off"}), weights=path)

@@ -21,7 +21,8 @@ from test_node import Harness, at, scan, tiny_config, tiny_registration  # noqa:
 
 from deepbbs_ros.config import Config  # noqa: E402
 from deepbbs_ros.datasets.base import Scan  # noqa: E402
-from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, decode_cloud  # noqa: E402
+from deepbbs_ros.node.inputs import CloudInput, decode_cloud  # noqa: E402
+from deepbbs_ros.node.preprocess_cache import PreprocessCache  # noqa: E402
 from msg_adapters.layouts import driver_cloud  # noqa: E402
 
 ros = test_node.ros  # the module fixture: rclpy context

@@ -255,7 +255,7 @@ def test_map_file_ply_and_pcd_read_alike(tmp_path):
     in node.map_frame; the trajectory beside the PCD comes along."""
     import trimesh
 
-    from deepbbs_ros.node.localization import load_map_file
+    from deepbbs_ros.node.map_data import load_map_file
 
     rng = np.random.default_rng(0)
     pts = rng.uniform(-50, 50, (500, 3)).astype(np.float32)

@@ -16,8 +16,9 @@ import pytest
 
 from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.node.covariance import adjoint, skew, twist_covariance, twist_from_delta
-from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, PreprocessCache, decode_cloud
+from deepbbs_ros.node.inputs import BadInput, Cloud, CloudInput, decode_cloud
 from deepbbs_ros.node.pipeline import UNKNOWN_TWIST_COV, ScanToScanOdometry
+from deepbbs_ros.node.preprocess_cache import PreprocessCache
 from deepbbs_ros.node.worker import LatestSlotWorker
 from deepbbs_ros.replay.synthetic import pose
 from msg_adapters.layouts import OUSTER, VELODYNE, build_cloud

@@ -287,4 +287,9 @@ def test_the_benchmark_counts_the_good_start_with_and_without_the_second_minimum
     assert out["none"] == {"wrong_accepted": 3, "right_rejected": 0}
     assert out["slides"] == {"wrong_accepted": 2, "right_rejected": 0}
     assert out["all"] == {"wrong_accepted": 1, "right_rejected": 0}
+    # looser than 5 tolerances (pinned under 1 / (1 + 5^2)), or than 2 (under 0.2) when not sure (under 0.95):
+    # registration.good_start_second_minimum checks the first three (pinned 0.01: 9.9 tolerances), not the last
+    assert out["taken_loose"] == 3 and out["loose"] == {"wrong_accepted": 1, "right_rejected": 0}
+    sure = bench.checks(y, prob, 0.7, amb, free, err, np.where(np.arange(len(FEATURES)) == pin, 0.1, rows), 0.95)
+    assert sure["taken_loose"] == 2 and sure["loose"]["wrong_accepted"] == 2  # 3 tolerances: the sure one unchecked
     assert out["found"] == [[False, 3.0, 0.2, 0.95, 0.01, 0.05], [False, 2.5, 0.1, 0.8, 0.01, 0.2]]

@@ -18,7 +18,7 @@ def crop_range(points: np.ndarray, min_range: float, max_range: float) -> np.nda
     Returns:
         (N,) bool mask.
     """
-    pts = _as_points(points)
+    pts = as_xyz(points, "preprocess")
     with np.errstate(invalid="ignore", over="ignore"):
         r2 = np.einsum("ij,ij->i", pts, pts)
     # NaN compares False; Inf gives r2 = inf > max_range**2.
@@ -31,15 +31,9 @@ def crop_mask(points: np.ndarray, cfg: PreprocessConfig) -> np.ndarray:
     keep = crop_range(points, cfg.min_range, cfg.max_range)
     box = cfg.self_filter_box
     if len(box) == 6:
-        pts = _as_points(points)
+        pts = as_xyz(points, "preprocess")
         inside = np.ones(len(pts), dtype=bool)
         for axis in range(3):
             inside &= (pts[:, axis] >= box[2 * axis]) & (pts[:, axis] <= box[2 * axis + 1])
         keep &= ~inside
     return keep
-
-
-
-def _as_points(points: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 view/copy of ``points``; RegistrationError otherwise (the shared check, core/points.py)."""
-    return as_xyz(points, "preprocess")

@@ -6,7 +6,9 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 GICP's own settings (registration.polish_*: its iterations, no limit on how far it moves), judged by
                 the verdict on a spread subset of the source's voxels (registration.good_start_probability) wherever
                 it ended; converged beyond registration.good_start_max_trans / _rot_deg or only after
-                good_start_max_iters, the answer says so ("beyond the good start's limits")
+                good_start_max_iters, the answer says so ("beyond the good start's limits"); with
+                registration.good_start_second_minimum a loose pose is also checked for a second minimum as good
+                along its weakest direction (core/second_minimum.py), and one that has it is not taken
     finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
                 polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
@@ -82,16 +84,17 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     pts = good_start_points(spc, rc)
     pol = from_start(spc, tpc, T0, rc)  # GICP's own budget, wherever it goes: the verdict judges where it ended
     prob, sure = _probability(pol, "", pts, tpc, rc, spc), max(rc.good_start_probability, rc.verdict_sure)
-    if verdict.is_valid(prob, rc.good_start_probability):
+    if verdict.is_valid(prob, rc.good_start_probability) and not _slides(pol, prob, pts, spc, tpc, rc):
         beyond = _beyond(pol, rc)
         accepted = f"accepted, beyond the good start's limits (GICP from the start: {beyond})" if beyond else "accepted"
     elif (fine := _finished(pol, spc, tpc, pts, rc)) is not None:  # GICP's minimum on its grid off the place's
         pol, prob = fine
         accepted = f"accepted on the scene's grid (GICP from the start: verdict < {rc.good_start_probability})"
     else:  # not converged, or a pose the verdict does not take (outside GICP's basin, or a wrong one)
-        first = "GICP from the start: " + (pol.reason if not pol.applied else
-                                           f"verdict {prob:.2f} < registration.good_start_probability "
-                                           f"{rc.good_start_probability}")
+        first = "GICP from the start: " + (
+            pol.reason if not pol.applied else f"verdict {prob:.2f} < registration.good_start_probability "
+            f"{rc.good_start_probability}" if not verdict.is_valid(prob, rc.good_start_probability) else
+            "a second minimum as good along its weakest direction (registration.good_start_second_minimum)")
         pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, reg.gicp_threads())  # coarse to fine, when sure
         prob = _probability(pol, why, pts, tpc, rc, spc)
         if not verdict.is_valid(prob, sure):
@@ -137,7 +140,8 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
     if rc.good_start_finish_grid != "scene":
         prob = _probability(fine, "", pts, tpc, rc)
-        return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) else None
+        return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) and not _slides(
+            fine, prob, pts, spc, tpc, rc) else None
     pts, target, dist = verdict.on_scene_grid(spc, tpc, rc)  # finished: both scans have a finer grid
     prob = _probability(fine, "", pts, target, rc, dist=dist)
     if not verdict.is_valid(prob, rc.good_start_probability):
@@ -146,6 +150,17 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     if rc.second_minimum and second_minimum.check(pts, fine.T_target_source, spc.finer(), target, scene).ambiguous:
         return None
     return fine, prob
+
+
+def _slides(pol: Any, prob: float, pts: np.ndarray, spc: PolishCloud, tpc: PolishCloud, rc: Any) -> bool:
+    """Whether the pose of ``pol`` taken on GICP's grid (its probability ``prob``) has a second minimum as good along
+    its weakest direction (core/second_minimum.py), where ``registration.good_start_second_minimum`` asks (and
+    ``second_minimum``): checked where the fit leaves the pose freer than a slide's distance (anchoring.STEPS[-1], 5
+    tolerances: 1.5 m / 5 degrees), or than a wrong pose's (STEPS[0], 2: 0.6 m / 2 degrees) when the verdict is not
+    sure (``registration.verdict_sure``); a pose held closer costs nothing more."""
+    loose = second_minimum.STEPS[0] if prob < rc.verdict_sure else second_minimum.STEPS[-1]
+    return bool(rc.good_start_second_minimum and rc.second_minimum and second_minimum.check(
+        pts, pol.T_target_source, spc, tpc, rc, loose=loose).ambiguous)
 
 
 def _beyond(pol: Any, rc: Any) -> str:

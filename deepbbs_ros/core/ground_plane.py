@@ -42,7 +42,7 @@ def fit_ground_plane(points: np.ndarray, cfg: PreprocessConfig, *, seed: int | N
         RegistrationError: fewer than 3 points within ``ground_seed_radius`` (horizontally), or no
             near-horizontal plane found.
     """
-    pts = _as_points(points)
+    pts = as_xyz(points, "preprocess")
     rng = np.random.default_rng(cfg.seed if seed is None else seed)
     near_idx = np.flatnonzero(_r2_xy(pts) <= np.float32(cfg.ground_seed_radius**2))
     if len(near_idx) < MIN_POINTS:
@@ -75,7 +75,7 @@ def remove_ground(
     Returns:
         ``(nonground_mask (N,) bool, plane (4,) float64)``.
     """
-    pts = _as_points(points)
+    pts = as_xyz(points, "preprocess")
     plane = fit_ground_plane(pts, cfg, seed=seed)
     dist = signed_dist(pts, plane.astype(np.float32))
     return np.abs(dist) > cfg.ground_layer / 2.0, plane
@@ -184,8 +184,3 @@ def signed_dist(pts: np.ndarray, plane: np.ndarray) -> np.ndarray:
 def _r2_xy(pts: np.ndarray) -> np.ndarray:
     """(N,) squared horizontal distance from the sensor of (N, 3) points."""
     return pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1]
-
-
-def _as_points(points: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 view/copy of ``points``; RegistrationError otherwise (the shared check, core/points.py)."""
-    return as_xyz(points, "preprocess")

@@ -34,12 +34,11 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.checkpoint import default_weights_path, load_checkpoint
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
-from deepbbs_ros.core.network_batch import BatchedPasses
+from deepbbs_ros.core.network_batch import BatchedPasses, pass_temperature, small_increment
 from deepbbs_ros.core.network_np import NumpyEntryPoints
 from deepbbs_ros.core.network_output import Clock, NetworkOutput, matrix, orthonormalize, worker_share
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.procrustes import apply_transform
-from deepbbs_ros.core.refine import rotation_angle_deg
 from deepbbs_ros.device import resolve_device
 from deepbbs_ros.errors import ModelError
 
@@ -174,14 +173,12 @@ class DeepBBSNetwork(BatchedPasses, NumpyEntryPoints):
             lap("match")
             # solve: soft map, gamma (T halved every deep iteration), weighted Procrustes
             temperature = float(temp[0]) if k == 0 else temperature
-            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(1)
+            temp_k = pass_temperature(rc, temp, k, 1, src.dtype, self.device)
             dR, dt, _, g = solve_transform_inference(
                 moved, tgt, sb, temp_k, use_gamma=rc.use_gamma, spatial_gamma=rc.spatial_gamma
             )
             R, t, gamma = dR[0] @ R, dR[0] @ t + dt[0], g[0]
-            small_rot = rotation_angle_deg(dR[0]) < rc.deep_rot_tol_deg
-            converged = small_rot and float(dt.norm()) / scale < rc.deep_trans_tol
+            converged = small_increment(rc, dR[0], dt[0], scale)
             lap("solve")
             if converged:
                 break

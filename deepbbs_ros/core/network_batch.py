@@ -7,13 +7,27 @@ from collections.abc import Callable
 
 import torch
 
-from deepbbs_ros.config import Config
+from deepbbs_ros.config import Config, RegistrationConfig
 from deepbbs_ros.core.model import DeepBBSNet, TargetCache, solve_transform_inference
 from deepbbs_ros.core.network_output import NetworkOutput
 from deepbbs_ros.core.procrustes import apply_transform
 from deepbbs_ros.core.refine import rotation_angle_deg
 
-__all__ = ["BatchedPasses"]
+__all__ = ["BatchedPasses", "pass_temperature", "small_increment"]
+
+
+def pass_temperature(rc: RegistrationConfig, temp: torch.Tensor, k: int, n: int, dtype: torch.dtype,
+                     device: torch.device) -> torch.Tensor:
+    """The soft map's T (n,) of deep pass ``k``: the predicted ``temp`` halved every pass, or
+    ``registration.fixed_temperature`` where it is set (> 0)."""
+    temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
+    return torch.as_tensor(temp_k, dtype=dtype, device=device).reshape(-1).expand(n)
+
+
+def small_increment(rc: RegistrationConfig, dR: torch.Tensor, dt: torch.Tensor, scale: float) -> bool:
+    """A pass's increment dR (3, 3), dt (3,) (scaled) within ``registration.deep_rot_tol_deg`` and
+    ``deep_trans_tol`` (m): the passes from that start stop."""
+    return rotation_angle_deg(dR) < rc.deep_rot_tol_deg and float(dt.norm()) / scale < rc.deep_trans_tol
 
 
 def expand_state(cache: TargetCache, k: int) -> TargetCache:
@@ -70,8 +84,7 @@ class BatchedPasses:
             lap("embed")
             sb = self.model.match_inference(phi_src, phi_tgt)
             lap("match")
-            temp_k = rc.fixed_temperature if rc.fixed_temperature > 0 else temp * 0.5**k
-            temp_k = torch.as_tensor(temp_k, dtype=src.dtype, device=self.device).reshape(-1).expand(b)
+            temp_k = pass_temperature(rc, temp, k, b, src.dtype, self.device)
             dR, dt, _, g = solve_transform_inference(
                 moved, tgt.expand(b, *tgt.shape[1:]), sb, temp_k, use_gamma=rc.use_gamma,
                 spatial_gamma=rc.spatial_gamma,
@@ -84,8 +97,7 @@ class BatchedPasses:
                 if k == 0:
                     temperature[i] = float(temp[j])
                 iterations[i] = k + 1
-                converged[i] = (rotation_angle_deg(dR[j]) < rc.deep_rot_tol_deg
-                                and float(dt[j].norm()) / scale < rc.deep_trans_tol)
+                converged[i] = small_increment(rc, dR[j], dt[j], scale)
                 if not converged[i]:
                     keep.append(j)
             lap("solve")

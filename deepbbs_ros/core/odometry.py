@@ -22,6 +22,7 @@
                 against the previous scan; so does a step that deviates from the prediction by more than
                 ``odometry.gate_sigmas`` times the motion model's observed deviation (KISS-ICP's adaptive
                 threshold); a start wins over the prediction's alignment only with a clearly better fit
+                (the starts: core/odometry_starts.py)
     update      map, velocity
 
 Why: scan-to-map GICP is precise (per-frame errors of millimetres to centimetres where KISS-ICP's
@@ -46,13 +47,12 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.core import covariance as _cov
 from deepbbs_ros.core import degeneracy as _deg
-from deepbbs_ros.core import first_motion as _first
 from deepbbs_ros.core import line_share as _lines
-from deepbbs_ros.core import odometry_first as _search
 from deepbbs_ros.core import odometry_hold as _held
 from deepbbs_ros.core.local_map import LocalMap
 from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_check import suspect
+from deepbbs_ros.core.odometry_starts import OdometryStarts
 from deepbbs_ros.core.odometry_step import Laps as _Laps
 from deepbbs_ros.core.odometry_step import OdometryStep, floor_covariance
 from deepbbs_ros.core.odometry_step import cloud_points as _cloud_points
@@ -67,7 +67,7 @@ GATE_FLOOR = 0.1
 __all__ = ["DeepBBSOdometry", "OdometryStep", "deskew", "se3_power"]
 
 
-class DeepBBSOdometry:
+class DeepBBSOdometry(OdometryStarts):
     """Scan-to-local-map GICP odometry with DeepBBS++ as the initialiser where the motion prior fails.
 
     Args:
@@ -199,44 +199,6 @@ class DeepBBSOdometry:
                             path, cov, deg.label, dev, limit, floor_covariance(floor, pose, cov), cross)
 
     # -- stages ------------------------------------------------------------------------------------
-    def _other_starts(self, frame: np.ndarray, cloud: Any, prior: np.ndarray, pose: np.ndarray, fit: float,
-                      deg: _deg.Degeneracy) -> tuple[np.ndarray, float, bool, str, _deg.Degeneracy]:
-        """The other starts of a suspect frame: DeepBBS++'s (no prior needed) and, after the first motion (whose start
-        already was), the prediction refined coarse to fine against the previous scan (a wider basin than the map's
-        voxel); the constant-velocity track (``pose``, ``fit``, ``deg``) stands unless a start's alignment fits
-        better by ``odometry.fit_margin``. -> (pose, fit, won = DeepBBS++'s start won, path, degeneracy)."""
-        won, path = False, "gicp"
-        starts = []
-        T_prev_k = self._deepbbs(frame)
-        if T_prev_k is not None:
-            starts.append((self.pose @ T_prev_k, True, self._deepbbs_path))
-        if self.frames > 1:
-            starts.append((self._coarse_start(frame, prior), False, "gicp"))
-        for init_b, deep, path_b in starts:
-            pose_b, fit_b = self._align(cloud, init_b)
-            pose_b, deg_b = self._hold(pose_b, init_b, cloud)
-            if fit_b > fit + self.config.odometry.fit_margin:
-                pose, fit, won, path, deg = pose_b, fit_b, deep, path_b, deg_b
-        return pose, fit, won, path, deg
-
-    def _along(self, frame: np.ndarray, cloud: Any, pose: np.ndarray, fit: float,
-               deg: _deg.Degeneracy) -> tuple[np.ndarray, float, _deg.Degeneracy, Any]:
-        """The first motion searched along the weakest direction of its alignment, above the floor
-        (core/odometry_first.py): -> (pose, fit, degeneracy, the search)."""
-        oc = self.config.odometry
-        self._align(cloud, pose, 1)  # the Hessian at the answer so far
-        w, V = np.linalg.eigh(0.5 * (self._local.hessian[3:, 3:] + self._local.hessian[3:, 3:].T))
-        if not (np.isfinite(w).all() and w[-1] > 0):
-            return pose, fit, deg, None
-        reach = _search.TOP_SPEED * (self.period if self.period > 0 else 0.1)
-        res = _search.search_along(_search.above_floor(self._prev_points, self.config.preprocess),
-                                  _search.above_floor(frame, self.config.preprocess), pose, pose[:3, :3] @ V[:, 0],
-                                  reach, self.voxel_size, oc.max_corr_dist, oc.fit_margin, oc.neighbors, self.threads)
-        if res.won:
-            pose, fit = self._align(cloud, res.pose)
-            deg = _deg.analyse(self._local.hessian, pose[:3, :3], oc.degenerate_ratio)
-        return pose, fit, deg, res
-
     def _size_voxels(self, frame: np.ndarray) -> None:
         """The map voxel from the first scan (core/local_map.py); the gate's floor follows it."""
         if self._local.size_from(frame):
@@ -322,38 +284,6 @@ class DeepBBSOdometry:
         for d in np.asarray(weak, dtype=np.float64).reshape(-1, 3):
             out[:3, :3] += self._sweep.held_cross(R.T @ d) * np.outer(d, d)
         return out if out.any() else None
-
-    def _coarse_start(self, frame: np.ndarray, start: np.ndarray) -> np.ndarray:
-        """``start`` (4, 4, the first scan's frame) refined on the coarse levels against the previous scan."""
-        oc = self.config.odometry
-        rel = _first.coarse_start(self._prev_points, frame, self.voxel_size, oc.max_corr_dist, oc.neighbors,
-                                  self.threads, np.linalg.inv(self.pose) @ start)
-        return self.pose @ rel
-
-    def _deepbbs(self, frame: np.ndarray) -> np.ndarray | None:
-        """DeepBBS++ ``T_{k-1}_k`` of the (deskewed) scan against the previous one; None if it fails."""
-        reg = self.registration
-        try:
-            if self._prev_pp is None and self._prev_points is not None:
-                self._prev_pp = self._preprocess(self._prev_points)
-            cur = self._preprocess(frame)
-            if self._prev_pp is None:
-                return None
-            res = reg.register(cur, self._prev_pp)
-        except RegistrationError:
-            return None
-        self._cur_pp = cur
-        self.deepbbs_calls += 1
-        self._deepbbs_path = getattr(res, "path", "deepbbs")
-        if not getattr(res, "valid", True):  # the verdict rejected it (no start registered the two scans)
-            self.deepbbs_rejected += 1
-            return None
-        return res.T_target_source
-
-    def _preprocess(self, frame: np.ndarray) -> Any:
-        """DeepBBS++'s preprocessing of a (deskewed) scan, with :attr:`driver` when one is known."""
-        kwargs = {} if self.driver is None else {"driver": self.driver}
-        return self.registration.preprocess(frame.astype(np.float32), **kwargs)
 
     def _restart_deskewed(self, points: np.ndarray, times: np.ndarray) -> tuple[Any, np.ndarray]:
         """Second scan: both scans deskewed with the first velocity and the map rebuilt from the first (a

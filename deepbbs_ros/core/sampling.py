@@ -24,7 +24,7 @@ def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
     Returns:
         (M, 3) float32 centroids, M = number of occupied voxels.
     """
-    pts = _as_points(points)
+    pts = as_xyz(points, "preprocess")
     if voxel_size <= 0 or len(pts) == 0:
         return pts
     # Pack the integer voxel coordinates into one int64 key, 21 bits per axis (no per-axis
@@ -79,7 +79,7 @@ def farthest_point_sample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarr
     Returns:
         (n,) int64 indices into ``points``.
     """
-    pts = _as_points(points)
+    pts = as_xyz(points, "preprocess")
     m = len(pts)
     if m == 0:
         raise RegistrationError("farthest_point_sample: empty point cloud")
@@ -130,9 +130,3 @@ def _fps_exact(pts: np.ndarray, k: int, start: int) -> np.ndarray:
         idx[i] = int(np.argmax(dist))
         dist = np.minimum(dist, np.sum((pts - pts[idx[i]]) ** 2, axis=1))
     return idx
-
-
-
-def _as_points(points: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 view/copy of ``points``; RegistrationError otherwise (the shared check, core/points.py)."""
-    return as_xyz(points, "preprocess")

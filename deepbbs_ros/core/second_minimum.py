@@ -88,11 +88,11 @@ def _moved_by(twist: np.ndarray, T: np.ndarray) -> np.ndarray:
     return D @ T
 
 
-def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1) -> Ambiguity:
+def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1, loose: float = WRONG) -> Ambiguity:
     """Whether the pose ``T`` (4, 4) ``T_target_source`` has a second minimum as good along its weakest direction
     (see the module). ``points``: the verdict's points (N, 3), source frame; ``src_pc`` / ``tgt_pc``: the precision
     stage's clouds (``core.polish.PolishCloud``); ``rc``: the registration section (its ``verdict_dist`` and
-    ``polish*`` keys)."""
+    ``polish*`` keys); ``loose``: tolerances of uncertainty from which the pose is checked (at most that: not)."""
     T = np.asarray(T, np.float64)
     pts = np.asarray(points, np.float64)
     if len(pts) == 0 or getattr(tgt_pc, "T_base", None) is not None or rc.polish not in SMALL_GICP_TYPE:
@@ -102,7 +102,7 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
     dist = rc.verdict_dist
     moved = pts @ T[:3, :3].T + T[:3, 3]
     twist, unc = weakest(moved, tgt_pc, dist, threads)
-    if twist is None or unc <= WRONG:
+    if twist is None or unc <= max(loose, WRONG):
         return Ambiguity(uncertainty=unc)
     k = float(np.clip(unc, STEPS[0], STEPS[-1]))
     f = verdict.fitness(pts, tgt_pc.tree, T, dist, threads)

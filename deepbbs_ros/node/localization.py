@@ -20,69 +20,31 @@ that the next :meth:`step` applies, so neither waits for a registration. With ``
 own prepares the map crop of the place the tracked pose will reach in :data:`PREFETCH_AHEAD_S` s
 (``MapLocalizer.prefetch``), so that the scan that gets there does not wait for it.
 
-A search slower than the scan period does not lose what it finds: the node hands every scan to :meth:`arrived`
-(:class:`~deepbbs_ros.node.bridge.ScanBridge`, ``localization.bridge_scans``), and once a search places a scan,
-:meth:`bridge` tracks the scans that arrived meanwhile in stamp order, so that the worker's next scan is tracked from
-a fresh prediction instead of a pose seconds old. A scan the bridge already answered is skipped by :meth:`step`.
+A search slower than the scan period does not lose what it finds: the scans that arrived meanwhile are tracked once it
+places its scan (node/localization_bridge.py). Its other parts: the map (node/map_data.py), the /diagnostics values
+(node/localization_diagnostics.py).
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.errors import DeepBBSError, NodeError
-from deepbbs_ros.node.bridge import BRIDGE_MAX, ScanBridge, gains
 from deepbbs_ros.node.inputs import BadInput, Cloud
+from deepbbs_ros.node.localization_bridge import SearchBridge
+from deepbbs_ros.node.localization_diagnostics import LocalizationDiagnostics
+from deepbbs_ros.node.map_data import MapData
 from deepbbs_ros.node.pipeline import Registered
 
-#: why the scans kept during a search and not followed by the bridge were dropped (node/drops.py's counter key first)
-BRIDGE_DROP = (f"after a search: passed over by the bridge (it follows at most {BRIDGE_MAX} of the scans that arrived "
-               "meanwhile, then round after round while it gains on the stream, and a scan older than one answered)")
 #: the tracker's states, as /diagnostics shows them
 STATES = ("searching", "tracking", "lost")
 PREFETCH_AHEAD_S = 1.0  # s; node.map_prefetch: the crop of the place the predicted pose reaches this far ahead
-
-
-@dataclass
-class MapData:
-    """A prior map for the node.
-
-    Attributes:
-        points: (N, 3) float32 metres, map frame.
-        frame_id: the map frame (``node.map_frame`` for a file, the message's frame for the topic).
-        source: where it came from (a path or a topic), for log lines.
-        trajectory: (K, 4, 4) float64 ``T_map_sensor`` of the drive the map was built from, or None.
-    """
-
-    points: np.ndarray
-    frame_id: str
-    source: str
-    trajectory: np.ndarray | None = None
-
-
-def load_map_file(path: str | Path, frame_id: str) -> MapData:
-    """Read the map file ``path`` (``.pcd`` / ``.ply``, map frame; the trajectory beside it, ``.tum``, when present).
-
-    Raises:
-        NodeError: one line naming ``localization.map_path`` and what is wrong (missing, another format,
-            unreadable or damaged, no finite point).
-    """
-    from deepbbs_ros.datasets.maps import read_map
-
-    try:
-        prior = read_map(Path(path).expanduser())
-    except DeepBBSError as err:
-        raise NodeError(f"localization.map_path: {err}") from err
-    except OSError as err:  # a directory, no permission: the system's reason
-        raise NodeError(f"localization.map_path: cannot read {path}: {err.strerror or err}") from err
-    return MapData(np.ascontiguousarray(prior.points, dtype=np.float32), frame_id, str(path), prior.trajectory)
 
 
 @dataclass
@@ -104,7 +66,7 @@ class LocalizedScan:
     line: str | None = None
 
 
-class NodeLocalization:
+class NodeLocalization(SearchBridge, LocalizationDiagnostics):
     """The tracker of ``node.target_mode: localization`` and its counters (module docstring).
 
     Args:
@@ -147,27 +109,13 @@ class NodeLocalization:
         self._search_t0: float | None = None  # perf_counter of the first scan of the running search
         self._search_scans = 0
         self._last_search_log = 0.0
-        self._bridge = ScanBridge(config.localization.bridge_scans)
-        self.bridged = 0  # scans answered by the bridge after a search (their poses published)
-        self._found_t: float | None = None  # perf_counter() when the last search placed its scan (bridge.take)
-        #: (why, the last one's stamp, how many): the scans the bridge kept and never answered, said where the node
-        #: says every drop (node/drops.py; set by the node)
-        self.drop_sink: Callable[[str, int, int], None] | None = None
-        self._drops_said = 0  # of self._bridge.dropped
-        self.last_arrival: int | None = None  # the stamp of the last scan handed to arrived() (the worker's slot)
+        self._init_bridge(config.localization.bridge_scans)
         self.skipped = 0  # scans the worker got after the bridge had answered them (not registered twice)
         #: test hooks, called on the worker thread before a scan's registration: ``search_gate`` before a search (a scan
         #: with no pose to track from), ``track_gate`` before a tracked scan, so that a test can make a search outlast
         #: the scan period on a tiny map, or tracking slower than the stream, counted in scans; None in use
         self.search_gate: Callable[[], None] | None = None
         self.track_gate: Callable[[], None] | None = None
-        self.last_bridge = ""  # the last bridge's log line (bridge())
-        self._bridging = False  # bridge() runs (the scans arriving meanwhile are kept too)
-        # a search placed its scan and bridge() has not started yet: the scans arriving in between (while the found
-        # pose is published) are kept too, else the worker's slot keeps only the newest of them
-        self._bridge_pending = False
-        self._followed = 0
-        self._behind = ""  # why the last bridge ended before it caught up ("" when it did)
 
     # -- the map -----------------------------------------------------------------------------------------------
     def build(self, data: MapData) -> str:
@@ -257,39 +205,10 @@ class NodeLocalization:
             cloud.timings_ms["preprocess"] = (time.perf_counter() - t0) * 1e3
 
     @property
-    def keeps_arrivals(self) -> bool:
-        """Whether the scans arriving now are kept for :meth:`bridge` (a search or a bridge runs,
-        ``localization.bridge_scans``): their fate is counted there (followed, or :attr:`dropped`)."""
-        return self._bridge.size > 0 and (self.searching or self._bridging or self._bridge_pending)
-
-    @property
     def searching(self) -> bool:
         """A map and no pose: the next scan searches."""
         tracker = self.tracker
         return tracker is not None and tracker.state != "tracking"
-
-    @property
-    def opens_input(self) -> bool:
-        """Whether the input decodes and prepares every scan now, not only while the worker has room: the bridge
-        keeps them (a search or a bridge runs)."""
-        return self.keeps_arrivals
-
-    @property
-    def dropped(self) -> int:
-        """Scans kept during a search or a bridge and never answered (thinned, passed over, the buffer full)."""
-        return self._bridge.dropped
-
-    def arrived(self, cloud: Cloud) -> None:
-        """A scan on its way to the worker (input thread): kept for :meth:`bridge` while :attr:`keeps_arrivals`."""
-        self.last_arrival = cloud.stamp_ns
-        if self.keeps_arrivals:
-            self._bridge.add(cloud)
-
-    def answered(self, stamp_ns: int | None) -> bool:
-        """Whether the scan stamped ``stamp_ns`` has a pose already (the bridge tracked it: the worker skips it)."""
-        tracker = self.tracker
-        last = tracker.last_stamp_ns if tracker is not None and tracker.state == "tracking" else None
-        return stamp_ns is not None and last is not None and stamp_ns <= last
 
     def step(self, cloud: Cloud) -> LocalizedScan | None:
         """``MapTracker.step`` on one scan (raw points, per-point times, stamp), on the worker thread; None for a scan
@@ -374,72 +293,6 @@ class NodeLocalization:
         reg = Registered(T, res, timings)
         return LocalizedScan(res, reg, getattr(res, "crop", None), self.map.frame_id, line)
 
-    def bridge(self, found: LocalizedScan, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
-        """After a search placed the scan stamped ``stamp_ns`` (``found``: its :meth:`step`): track the scans that
-        arrived meanwhile (:meth:`ScanBridge.take`), in stamp order, yielding each with its :meth:`step` (published
-        like any tracked scan); ends when none is left or the tracker lost the pose. One log line, on the last."""
-        self.last_bridge = ""
-        if found.result.event not in ("found", "relocalized") or self.tracker is None:
-            self._bridge_pending = False
-            return
-        t0 = time.perf_counter()
-        self._bridging, self._bridge_pending = True, False
-        try:
-            yield from self._follow(stamp_ns)
-        finally:
-            self._bridging = False
-        self._say_drops(self.tracker.last_stamp_ns or stamp_ns)
-        if self._followed:
-            self.last_bridge = (f"localization: followed the pose through {self._followed} scan(s) that arrived during "
-                                f"the search in {(time.perf_counter() - t0):.2f} s; "
-                                + (f"it fell behind the stream ({self._behind}): tracking from the newest scan"
-                                   if self._behind else "tracking from the newest"))
-
-    def _follow(self, stamp_ns: int) -> Iterator[tuple[Cloud, LocalizedScan]]:
-        done = self._followed = 0
-        self._behind = ""
-        # scans keep arriving meanwhile: round after round until none is left (a cap on the rounds would leave the
-        # last arrivals to the worker's one-scan slot, where all but the newest are lost) while the bridge gains on the
-        # stream (node/bridge.py gains(): fewer scans arrived while it followed its last `window` than that; else it
-        # ends there)
-        marks: list[int] = []  # the arrivals counted when each followed scan began
-        window = 0
-        while self.tracker.state == "tracking":
-            # the newest too: the worker's slot keeps only one scan, so a scan left there for it is lost when another
-            # arrives before the worker is back (after the bridge, the slot's scan is one answered already: skipped)
-            scans = self._bridge.take(self.tracker.last_stamp_ns or stamp_ns, leave_newest=False,
-                                      keep_since=self._found_t)  # those since the pose was found: every one
-            if not scans:
-                break
-            window = window or max(len(scans), BRIDGE_MAX)
-            for i, cloud in enumerate(scans):
-                marks.append(self._bridge.arrived)
-                try:
-                    loc = self.step(cloud)
-                except BadInput:
-                    loc = None
-                if loc is None:
-                    marks.pop()
-                    continue
-                done += 1
-                self._followed = done
-                self.bridged += bool(loc.result.valid)
-                yield cloud, loc
-                arrived = self._bridge.arrived - marks[max(len(marks) - window, 0)]
-                if not loc.result.valid or not gains(window, arrived):
-                    if loc.result.valid:
-                        self._behind = (f"{arrived} scan(s) arrived while it followed the last "
-                                        f"{min(len(marks), window)}")
-                    self._bridge.restore(scans[i + 1:])  # dropped (counted) once the worker answers a later scan
-                    return  # the worker's next scan goes on from the last good pose
-
-    def _say_drops(self, stamp_ns: int) -> None:
-        """Hand the scans the bridge dropped since the last call to :attr:`drop_sink` (counted and said once)."""
-        n = self._bridge.dropped - self._drops_said
-        if n > 0 and self.drop_sink is not None:
-            self._drops_said += n
-            self.drop_sink(BRIDGE_DROP, stamp_ns, n)
-
     def _prefetch_crop(self, job: tuple[Any, np.ndarray]) -> None:
         localizer, T = job
         if localizer.prefetch(T) >= 0:
@@ -449,53 +302,6 @@ class NodeLocalization:
         """Stop the prefetch thread (the crop it prepares, if any, is finished first)."""
         if self._prefetch is not None:
             self._prefetch.stop()
-
-    # -- /diagnostics ------------------------------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        """``"no map"``, or the tracker's state: ``searching`` | ``tracking`` | ``lost``."""
-        tracker = self.tracker
-        return "no map" if tracker is None else str(tracker.state)
-
-    def warning(self) -> str:
-        """The /diagnostics status message while there is no pose to publish (WARN), else ""."""
-        state = self.state
-        if state == "no map":
-            return "localization: no map yet"
-        if state == "lost":
-            return f"localization lost: {self.last_reason}"
-        if state == "searching" and self.rejected:
-            return f"localization searching: {self.last_reason}"
-        return ""
-
-    def diagnostics(self) -> dict[str, Any]:
-        """The values /diagnostics shows under ``localization.*``."""
-        tracker = self.tracker
-        out: dict[str, Any] = {
-            "state": self.state,
-            "placed": self.placed,
-            "rejected": self.rejected,
-            "recoveries": getattr(tracker, "recoveries", 0),
-            "last event": self.last_event or "-",
-            "last reason": self.last_reason or "-",
-            "last score": f"{self.last_score:.3f}",
-            "last path": self.last_path or "-",
-            "time to first pose (s)": _seconds(self.first_pose_s),
-            "last search took (s)": _seconds(self.time_to_first_pose_s),
-            "map crops prepared ahead": self.prefetched,
-            "scans prepared on arrival": self.prepared,
-            "scans followed after a search": self.bridged,
-            "scans kept during a search, dropped": self.dropped,
-        }
-        if self.map is not None:
-            out["map"] = f"{self.map.source}: {len(self.map.points)} points in {self.map.frame_id!r}"
-            out["map places"] = len(self.localizer.places) if self.localizer is not None else 0
-            out["map build (s)"] = _seconds(self.map_build_s)
-        return out
-
-
-def _seconds(value: float) -> str:
-    return "-" if not np.isfinite(value) else f"{value:.2f}"
 
 
 def _pose_text(T: np.ndarray) -> str:

@@ -159,7 +159,7 @@ class InputHandlers:
     def _on_localization_map(self, index: int, cloud: Cloud) -> None:
         """Localization: a map on the latched topic; its places and descriptors are built here (the map input's
         thread), the next scan searches it."""
-        from deepbbs_ros.node.localization import MapData
+        from deepbbs_ros.node.map_data import MapData
 
         try:
             line = self.localization.build(MapData(cloud.xyz, cloud.frame_id, self.inputs[index].topic))

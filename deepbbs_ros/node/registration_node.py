@@ -74,8 +74,9 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.entry import cli_entry
 from deepbbs_ros.errors import NodeError
 from deepbbs_ros.node.callbacks import GuardedCallbacks
-from deepbbs_ros.node.inputs import CloudInput, PreprocessCache, arrival_preprocess
-from deepbbs_ros.node.localization import NodeLocalization, load_map_file
+from deepbbs_ros.node.inputs import CloudInput
+from deepbbs_ros.node.localization import NodeLocalization
+from deepbbs_ros.node.map_data import load_map_file
 from deepbbs_ros.node.node_diagnostics import NodeDiagnostics, stop_line
 from deepbbs_ros.node.node_inputs import InputHandlers
 from deepbbs_ros.node.node_jobs import JUMP_BACK_S, RegistrationJobs, _result_summary, _step_line  # noqa: F401
@@ -87,6 +88,7 @@ from deepbbs_ros.node.parameters import (
     load_registration,
 )
 from deepbbs_ros.node.pipeline import LocalMapOdometry, MapTarget, PairStart, ScanToScanOdometry, takes_good_start
+from deepbbs_ros.node.preprocess_cache import PreprocessCache, arrival_preprocess
 from deepbbs_ros.node.qos import input_qos, qos_text
 from deepbbs_ros.node.rep105 import Rep105
 from deepbbs_ros.node.run import run_node

@@ -69,36 +69,38 @@ The real-scan pair-mode goal (about 25 minutes):
 from __future__ import annotations
 
 import argparse
-import array
-import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # its parts: _node_streams.py, _node_report.py
+
+from _node_report import ANCHOR, Judged, RunResult, plot_runs, report, save_runs  # noqa: E402
+from _node_streams import (  # noqa: E402 - kitti_rings, stream_pairs: the tests reach them here
+    SEC,
+    STAMP0_NS,
+    FreshSources,
+    Stream,
+    kitti_rings,  # noqa: F401
+    kitti_sequences,
+    kitti_stream,
+    sim_stream,
+    stream_pairs,  # noqa: F401
+)
 
 from deepbbs_ros.entry import cli_entry  # noqa: E402
 from deepbbs_ros.errors import DeepBBSError  # noqa: E402
 
-SEC = 1_000_000_000
-STAMP0_NS = 1_000 * SEC
 METHODS = {  # name -> (module run with -m, node name = pose topic namespace)
     "deepbbs": ("deepbbs_ros.node.registration_node", "deepbbs_registration"),
     "gicp": ("deepbbs_ros.node.gicp_anchor", "gicp_anchor"),
     "managed": ("deepbbs_ros.node.managed", "deepbbs_localizer"),  # the lifecycle node: configured, then activated
 }
-ANCHOR = "gicp"
-STAGES = ("input_wait", "decode", "preprocess", "queue_wait", "register", "register.preprocess",
-          "register.good_start", "register.network_wait", "register.polish", "register.global", "register.crop",
-          "register.register", "map_crop", "publish", "total")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -152,226 +154,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-# -- the clouds -----------------------------------------------------------------------------------------
-@dataclass
-class Stream:
-    """Messages and what is published each period: ``pairs[k % len(pairs)]`` = (source, target) indices."""
-
-    msgs: list
-    pairs: list[tuple[int, int]]
-    desc: str
-    map_path: str = ""  # --mode localization: the map file (PCD, trajectory beside it)
-    map_msg: Any = None  # ... the same map as a PointCloud2 in the map frame (the anchor's latched target)
-    initial_pose: list[float] = field(default_factory=list)  # ... the first published scan's x y z roll pitch yaw
-
-
-def _lidar(layout: str, ouster_beams: int):
-    from deepbbs_ros.sim.lidar import LidarConfig
-
-    if layout == "velodyne":
-        return LidarConfig.hdl64()
-    if ouster_beams == 128:  # OS1-128: 45 deg vertical field of view
-        return LidarConfig.ouster64(beams=128, vfov_min_deg=-22.5, vfov_max_deg=22.5, name="os1-128")
-    return LidarConfig.ouster64(name="os1-64")
-
-
-def playback_order(n_frames: int, n_total: int) -> list[int]:
-    """Frame index of every published scan: 0, 1, ..., n-1, n-2, ..., 1, 0, 1, ... (neighbours only)."""
-    if n_frames < 2:
-        raise DeepBBSError("a stream needs at least 2 frames")
-    cycle = list(range(n_frames)) + list(range(n_frames - 2, 0, -1))
-    return [cycle[k % len(cycle)] for k in range(n_total)]
-
-
-FIXED_SOURCES = 4  # --stream fixed: the sources are frames 1..4 (KITTI: 1-6 m from the target)
-
-
-def stream_pairs(n_frames: int, stream: str) -> list[tuple[int, int]]:
-    """(source, target) frame indices per period: consecutive neighbours back and forth; frame 0 as a fixed
-    target of frames 1, 2, .., FIXED_SOURCES, .., 2 (back and forth); or the same pair (1, 0) every period."""
-    if stream == "same":
-        return [(1, 0)]
-    if stream == "fixed":
-        m = min(FIXED_SOURCES, n_frames - 1)
-        return [(1 + i, 0) for i in playback_order(m, max(1, 2 * m - 2))] if m > 1 else [(1, 0)]
-    order = playback_order(n_frames, 2 * n_frames - 1)
-    return [(order[k + 1], order[k]) for k in range(len(order) - 1)]
-
-
-def _describe(msgs: list, n_valid: float, sensor: str, layout: str) -> str:
-    m = msgs[0]
-    return (f"{sensor} ({layout} driver layout, point_step {m.point_step}, {m.height}x{m.width}, "
-            f"{n_valid:.0f} valid points, {len(m.data) / 1e6:.1f} MB)")  # fmt: skip
-
-
-def sim_stream(args, layout: str, stream: str) -> Stream:
-    from deepbbs_ros.sim import simulate_drive
-    from msg_adapters.layouts import driver_cloud
-
-    lidar = _lidar(layout, args.ouster_beams)
-    t0 = time.perf_counter()
-    scans = list(simulate_drive(args.scene, args.seed, args.scans, lidar=lidar))
-    frame = "velodyne" if layout == "velodyne" else "os_sensor"
-    msgs = [driver_cloud(layout, s.points, s.fields, beams=lidar.beams, columns=lidar.columns, frame_id=frame)
-            for s in scans]  # fmt: skip
-    desc = _describe(msgs, np.mean([len(s.points) for s in scans]), f"simulated {lidar.name}", layout)
-    print(f"  simulated {len(scans)} frames of {desc} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    out = Stream(msgs, stream_pairs(len(msgs), stream), desc)
-    if args.mode == "localization":
-        from deepbbs_ros.sim.simulator import DriveSimulator
-
-        sim = DriveSimulator(args.scene, args.seed, lidar, frames=args.scans, motion_distortion=False)
-        keys = list(range(0, args.scans, max(1, args.map_every)))
-        add_map(args, out, [s.T_world_lidar for s in scans], [(sim.scan_at(k).points, sim.pose_at(k),
-                                                                sim.stamp_ns(k)) for k in keys],
-                f"map_{args.scene}_{args.seed}_{args.scans}")
-    return out
-
-
-def add_map(args, stream: Stream, poses: list[np.ndarray], keys: list[tuple[np.ndarray, np.ndarray, int]],
-            name: str) -> None:
-    """--mode localization: the drive's map (``keys``: (points, true pose, stamp) of every ``--map-every``-th frame,
-    simulated ones without motion distortion, on a ``--map-voxel`` grid) as a PCD with its trajectory (without:
-    ``--no-trajectory``; under ``--out`` or a temporary folder) and as a PointCloud2 in ``map``; the anchor's initial
-    pose = the first published scan's (``poses``: every frame's true pose)."""
-    from scipy.spatial.transform import Rotation
-
-    from deepbbs_ros.core.localization import voxel_downsample
-    from deepbbs_ros.datasets.maps import write_map
-    from msg_adapters.pointcloud2 import arrays_to_pointcloud2
-
-    t0 = time.perf_counter()
-    parts = [np.asarray(pts[:, :3], np.float64) @ P[:3, :3].T + P[:3, 3] for pts, P, _ in keys]
-    points = voxel_downsample(np.concatenate(parts).astype(np.float32), args.map_voxel)
-    folder = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="deepbbs_map_"))
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}{'_alone' if args.no_trajectory else ''}.pcd"
-    write_map(path, points, *((None, None) if args.no_trajectory else
-                              (np.stack([P for _, P, _ in keys]), np.array([s for *_, s in keys]))))
-    stream.map_path = str(path)
-    stream.map_msg = arrays_to_pointcloud2(points, stamp_ns=STAMP0_NS, frame_id="map")
-    first = poses[stream.pairs[0][0]]
-    rpy = Rotation.from_matrix(first[:3, :3]).as_euler("ZYX")[::-1]
-    stream.initial_pose = [*map(float, first[:3, 3]), *map(float, rpy)]
-    stream.desc += (f"; map {len(points)} points from {len(keys)} frames"
-                    + (", no trajectory" if args.no_trajectory else ", with its trajectory"))
-    print(f"  map of {len(points)} points ({len(keys)} frames) in {time.perf_counter() - t0:.1f} s: {path}",
-          file=sys.stderr)
-
-
-def kitti_sequences(path: Path) -> list[Path]:
-    """The KITTI sequence folders at ``path``: itself when it holds ``velodyne/``, else its sub-folders that do."""
-    path = Path(path).expanduser()
-    if (path / "velodyne").is_dir():
-        return [path]
-    seqs = sorted(p for p in path.iterdir() if (p / "velodyne").is_dir()) if path.is_dir() else []
-    if not seqs:
-        raise DeepBBSError(f"--kitti {path}: no KITTI sequence folder (velodyne/NNNNNN.bin) there")
-    return seqs
-
-
-def kitti_rings(xyz: np.ndarray) -> np.ndarray:
-    """(N,) ring (0 = the last laser of the file) of a KITTI scan: each laser's points sweep the azimuth once
-    in file order, so a ring ends where the azimuth wraps around."""
-    az = np.mod(np.arctan2(xyz[:, 1], xyz[:, 0]), 2 * np.pi)
-    k = np.concatenate(([0], np.cumsum(np.diff(az) < -np.pi)))
-    return (k.max() - k).astype(np.uint16)
-
-
-def kitti_stream(args, layout: str, stream: str, seq: Path) -> Stream:
-    """Real HDL-64E scans of one sequence in a driver's layout, with a per-point time field that is all 0
-    (KITTI has no per-point time; Ouster: the 64 rings organised, each ring's points in file order)."""
-    from deepbbs_ros.datasets import open_source
-    from msg_adapters.layouts import driver_cloud
-
-    with open_source(seq) as src:
-        scans = list(src)
-    msgs = []
-    for s in scans:
-        xyz = np.ascontiguousarray(s.points, dtype=np.float32)
-        ring = kitti_rings(xyz)
-        n = len(xyz)
-        fields = {"intensity": np.asarray(s.fields["intensity"], np.float32), "ring": ring,
-                  "time": np.zeros(n, np.float32)}  # fmt: skip
-        if layout == "ouster":
-            order = np.argsort(ring, kind="stable")
-            starts = np.searchsorted(ring[order], np.arange(int(ring.max()) + 1))
-            column = np.empty(n, np.int64)
-            column[order] = np.arange(n) - np.repeat(starts, np.diff(np.append(starts, n)))
-            fields["column"] = column
-        msgs.append((xyz, fields))
-    beams = int(max(f["ring"].max() for _, f in msgs)) + 1
-    columns = int(max(f.get("column", np.zeros(1, np.int64)).max() for _, f in msgs)) + 1
-    frame = "velodyne" if layout == "velodyne" else "os_sensor"
-    out = [driver_cloud(layout, xyz, f, beams=beams, columns=columns, frame_id=frame) for xyz, f in msgs]
-    desc = _describe(out, np.mean([len(x) for x, _ in msgs]), f"KITTI {seq.name} HDL-64E, time field 0", layout)
-    res = Stream(out, stream_pairs(len(out), stream), desc)
-    if getattr(args, "mode", "") == "localization":
-        keys = range(0, len(scans), max(1, args.map_every))
-        add_map(args, res, [s.T_world_lidar for s in scans],
-                [(scans[k].points, scans[k].T_world_lidar, scans[k].stamp_ns) for k in keys], f"map_kitti_{seq.name}")
-    return res
-
-
-class FreshSources:
-    """Makes a replayed frame a new scan: a real sensor never sends the same cloud twice, and the node keeps its
-    recent clouds' preprocessing by content (a fixed target, or the previous source as the next target: both
-    real). The stream has only a few frames, played back and forth, so without this the node would find a
-    source it saw a few periods earlier in its cache (2 of 3 periods of the fixed stream) and skip its work.
-    :meth:`apply` moves one point of the message (a return more than 2 m away) by ``(k % 1000) * 10 um`` along
-    x, in place: different bytes every period, the same cloud to within 1 cm at one of ~120k points. The frame
-    keeps its last content until it is published again, so when it is the next period's target it is the
-    cloud the node just saw (the cache hit a real stream gets)."""
-
-    def __init__(self) -> None:
-        self._where: dict[int, tuple[int, float]] = {}  # id(msg) -> (byte offset of the point's x, its x)
-
-    def _find(self, msg) -> tuple[int, float]:
-        off = {f.name: f.offset for f in msg.fields}
-        step = msg.point_step
-        n = msg.width * msg.height
-        xyz = np.stack([np.ndarray((n,), dtype="<f4", buffer=msg.data, offset=off[c], strides=(step,)) for c in "xyz"],
-                       axis=1)
-        i = int(np.flatnonzero(np.isfinite(xyz).all(axis=1) & (np.linalg.norm(xyz, axis=1) > 2.0))[0])
-        return i * step + off["x"], float(xyz[i, 0])
-
-    def apply(self, msg, k: int) -> None:
-        key = id(msg)
-        if key not in self._where:
-            self._where[key] = self._find(msg)
-        at, x0 = self._where[key]
-        msg.data[at:at + 4] = array.array("B", np.float32(x0 + (k % 1000) * 1e-5).tobytes())
-
-
 # -- one run ---------------------------------------------------------------------------------------------
-@dataclass
-class RunResult:
-    pairs: int = 0
-    latencies_ms: list[float] = field(default_factory=list)
-    periods: list[int] = field(default_factory=list)  # the measured period of each answer (0 = the first measured)
-    frames: list[tuple[int, int]] = field(default_factory=list)  # its (source, target) frames (odometry: (k, k))
-    diagnostics: dict[str, str] = field(default_factory=dict)
-    error: str = ""
-    cpu: str = ""  # CPU ms per period per thread group (cpu_line)
-    cpu_ms: float = float("nan")  # CPU ms per period, every process of the node together (cpu_total)
-    first_pose_s: float = float("nan")  # localization: first scan published -> first pose received (s)
-    after_first: tuple[int, int] = (0, 0)  # localization: scans published after the first pose: (answered, all)
-    ready_s: float = float("nan")  # node process started -> its input subscribed (plain node: map built; managed:
-    #: the configure and activate transitions requested as soon as its services answer)
-    configure_s: float = float("nan")  # managed node: the configure transition (the map and the model loaded)
-    activate_s: float = float("nan")  # managed node: the activate transition (subscribed)
-    published: dict[int, float] = field(default_factory=dict)  # localization: every stamp -> s after the first scan
-    poses: dict[int, float] = field(default_factory=dict)  # localization: answered stamp -> s after the first scan
-    xyz: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # answered stamp -> the pose's position
-
-    @property
-    def answered(self) -> float:
-        return len(self.latencies_ms) / self.pairs if self.pairs else 0.0
-
-    def pct(self, q: float) -> float:
-        return float(np.percentile(self.latencies_ms, q)) if self.latencies_ms else float("nan")
-
-
 def _descendants(pid: int) -> list[int]:
     """``pid`` and every process below it (Linux /proc)."""
     out, todo = [], [pid]
@@ -617,146 +400,6 @@ def run_method(args, method: str, stream: Stream) -> RunResult:
     if ours:
         res.diagnostics = {kv.key: kv.value for kv in ours[-1].values}
     return res
-
-
-# -- report ----------------------------------------------------------------------------------------------
-def _ratio(a: float, b: float) -> str:
-    return f"{a / b:.2f}x" if b > 0 and np.isfinite(a) and np.isfinite(b) else "-"
-
-
-def stage_line(d: dict[str, str]) -> str:
-    """The node's median / p99 per stage and its drop counters, from its last /diagnostics message."""
-    stages = [k for k in STAGES if f"latency_ms.{k}" in d]
-    parts = [f"{k} {d[f'latency_ms.{k}'].replace('median ', '').replace(' p99 ', ' / ').split(' max')[0]}"
-             for k in stages]  # fmt: skip
-    drops = (f"pairs dropped {d.get('pairs dropped (newest wins)', '?')}, clouds dropped before preprocessing "
-             f"{d.get('clouds dropped before preprocessing (oldest first)', '?')}, preprocessing cache hits / "
-             f"misses {d.get('preprocessing cache hits / misses', '?')}, poses the verdict rejected "
-             f"{d.get('poses not published (the verdict rejected them)', '?')}")  # fmt: skip
-    paths = [f"{k.removeprefix('paths.')} {v}" for k, v in d.items() if k.startswith("paths.")]
-    if paths:  # pair mode: which registration path answered (GICP from the good start, the deep passes, the search)
-        drops += f"; paths: {', '.join(paths)}"
-    return f"median / p99 ms: {', '.join(parts) or 'no diagnostics'}; {drops}"
-
-
-def save_runs(out: Path, layout: str, stream: str, runs: list[tuple[str, bool, dict[str, RunResult]]]) -> list[dict]:
-    """Append each (run, node) of one configuration to ``out``/runs.jsonl; -> the records."""
-    recs = []
-    for label, busy, results in runs:
-        for method, r in results.items():
-            recs.append({
-                "layout": layout, "stream": stream, "run": label, "busy": busy, "method": method,
-                "pairs": r.pairs, "answered": r.answered, "p50_ms": r.pct(50), "p99_ms": r.pct(99),
-                "error": r.error, "cpu": r.cpu,
-                "cpu_ms": round(r.cpu_ms, 2) if np.isfinite(r.cpu_ms) else None, "diagnostics": r.diagnostics,
-                "first_pose_s": r.first_pose_s if np.isfinite(r.first_pose_s) else None,
-                "answered_after_first_pose": list(r.after_first),
-                "samples": [{"period": k, "source": f[0], "target": f[1], "latency_ms": round(v, 2)}
-                            for k, v, f in zip(r.periods, r.latencies_ms, r.frames)],
-            })  # fmt: skip
-    with (out / "runs.jsonl").open("a") as f:
-        for rec in recs:
-            f.write(json.dumps(rec, default=float) + "\n")
-    return recs
-
-
-def plot_runs(args, recs: list[dict]) -> Path | str:
-    """``args.out``/latency.png: per configuration (layout, stream), each run's latency per measured period
-    (left) and its sorted latencies (right: the share of pairs answered within a time), the goal's p99 line
-    drawn in; -> the path, or why there is none."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return "none (matplotlib is not installed)"
-    configs = sorted({(r["layout"], r["stream"]) for r in recs})
-    fig, axes = plt.subplots(len(configs), 2, figsize=(13, 3.2 * len(configs)), squeeze=False)
-    for row, (layout, stream) in zip(axes, configs):
-        for r in (r for r in recs if (r["layout"], r["stream"]) == (layout, stream) and r["samples"]):
-            k = [s["period"] for s in r["samples"]]
-            v = np.array([s["latency_ms"] for s in r["samples"]])
-            name = f"{r['method']} {r['run']}"
-            style = "--" if r["method"] == ANCHOR else "-"
-            row[0].plot(k, v, style, lw=0.8, label=name)
-            share = np.arange(1, len(v) + 1) / max(r["pairs"], 1)  # of the pairs published: drops stay below 1
-            row[1].plot(np.sort(v), share, style, lw=1.0, label=f"{name} ({100 * r['answered']:.0f} %)")
-        for ax in row:
-            ax.grid(alpha=0.3)
-        row[0].axhline(args.goal_p99, color="k", lw=0.8, ls=":")
-        row[1].axvline(args.goal_p99, color="k", lw=0.8, ls=":")
-        row[0].set(title=f"{layout}, {stream}: latency per period", xlabel="measured period", ylabel="ms")
-        row[1].set(title=f"{layout}, {stream}: share of pairs answered within", xlabel="ms", ylabel="share",
-                   ylim=(0, 1.02))
-        row[1].legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    path = args.out / "latency.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-@dataclass
-class Judged:
-    label: str
-    busy: bool
-    result: RunResult
-
-    def failures(self, args) -> list[str]:
-        r = self.result
-        if r.error:
-            return ["node failed"]
-        p50, p99, ans = r.pct(50), r.pct(99), 100 * r.answered
-        need_ans, need_p99 = (args.busy_answered, args.busy_p99) if self.busy else (args.goal_answered, args.goal_p99)
-        out = []
-        if ans < need_ans:
-            out.append(f"answered {ans:.0f} % < {need_ans:g} %")
-        if not p99 <= need_p99:
-            out.append(f"p99 {p99:.0f} ms > {need_p99:g} ms")
-        if not self.busy and not p99 <= args.goal_ratio * p50:
-            out.append(f"p99 / p50 {p99 / p50:.2f} > {args.goal_ratio:g}")
-        return out
-
-
-def report(title: str, args, runs: list[tuple[str, bool, dict[str, RunResult]]]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    con = Console(width=160)
-    t = Table(title=f"{title}\n{args.mode} mode, {args.rate:g} Hz, {args.seconds:g} s measured per run (after "
-                    f"{args.warmup:g} s warm-up); latency = source published -> PoseStamped received")  # fmt: skip
-    for c in ("run", "method", "pairs", "answered", "p50 ms", "p99 ms", "p99 / p50", "p50 / anchor",
-              "p99 / anchor", "CPU ms", "CPU / anchor"):  # fmt: skip
-        t.add_column(c, justify="left" if c in ("run", "method") else "right")
-    for label, _, results in runs:
-        anchor = results.get(ANCHOR)
-        ok = anchor and not anchor.error
-        a50, a99, acpu = (anchor.pct(50), anchor.pct(99), anchor.cpu_ms) if ok else (np.nan, np.nan, np.nan)
-        for method, r in results.items():
-            if r.error:
-                t.add_row(label, method, "-", "failed", "-", "-", "-", "-", "-", "-", "-")
-                continue
-            t.add_row(label, method + (" (anchor)" if method == ANCHOR else ""), str(r.pairs),
-                      f"{100 * r.answered:.0f} %", f"{r.pct(50):.1f}", f"{r.pct(99):.1f}",
-                      _ratio(r.pct(99), r.pct(50)), _ratio(r.pct(50), a50), _ratio(r.pct(99), a99),
-                      f"{r.cpu_ms:.1f}", _ratio(r.cpu_ms, acpu))  # fmt: skip
-    con.print(t)
-    for label, _, results in runs:
-        for method, r in results.items():
-            if r.error:
-                con.print(f"[red]{label} {method}: node failed[/red]: {r.error[-2000:]}")
-            else:
-                con.print(f"  {label} {method}: {stage_line(r.diagnostics)}", soft_wrap=True)
-                if args.mode == "localization" and method != ANCHOR:
-                    n, m, d = *r.after_first, r.diagnostics
-                    con.print(f"  {label} {method}: boot: first pose {r.first_pose_s:.2f} s after the first scan; "
-                              f"scans published after it answered: {n} of {m} ({100 * n / max(m, 1):.1f} %); "
-                              f"followed after the search {d.get('localization.scans followed after a search', '-')}, "
-                              f"dropped unanswered {d.get('localization.scans dropped unanswered', '-')}",
-                              soft_wrap=True)
-                if r.cpu:
-                    con.print(f"  {label} {method}: {r.cpu}", soft_wrap=True)
 
 
 @cli_entry("node_latency")

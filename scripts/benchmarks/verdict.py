@@ -29,11 +29,12 @@ the same coefficients; the old ones differed (the
 pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
 (core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
 gives what the good start's counts would be with it, on the same poses: ``none`` (as shipped), ``slides`` (only on a
-pose that can slide: :func:`slides`) and ``all`` (on every pose it takes). Per set and verdict: the poses, right (1 deg
-/ 0.3 m) and wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels) and by
-the probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve: per
-predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything beyond 1 deg
-/ 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg / 0.3 m of GICP
+pose that can slide: :func:`slides`), ``loose`` (looser than 5 tolerances, or 2 when not sure:
+``registration.good_start_second_minimum``) and ``all`` (on every pose it takes). Per set and verdict: the poses, right
+(1 deg / 0.3 m) and wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels)
+and by the probability (``registration.verdict_probability``, ``good_start_probability``); and the reliability curve:
+per predicted-probability bin (0-0.1, ..., 0.9-1) the poses and the share right. A wrong pose here is anything beyond 1
+deg / 0.3 m; ``wrong_accepted_near_gicp_truth`` counts the wrong poses accepted that are within 1 deg / 0.3 m of GICP
 started at the truth (on real sets the recorded truth's resolution, on simulated ones the pattern's: the scans' own
 optimum is there, and the precision stage cannot land closer), ``wrong_accepted_max_err`` their largest errors (deg, m).
 ``classes`` splits the poses in three, as the figures are counted against the goal: right (within 1 deg / 0.3 m), wrong
@@ -128,17 +129,27 @@ def _held() -> tuple[float, float]:
 
 
 def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, slides: np.ndarray,
-           err: np.ndarray, rows: np.ndarray | None = None) -> dict:
+           err: np.ndarray, rows: np.ndarray | None = None, sure: float = 0.95) -> dict:
     """The good start's wrong (beyond 2 deg / 0.5 m) accepted and right rejected with no second-minimum check
-    (``none``, as shipped), with it where the pose slides (``slides``) and on every pose taken (``all``); and
-    how many poses the verdict takes (``taken``) and how many of them slide (``taken_sliding``: the check's two GICP
-    runs each, where their uncertainty exceeds a tolerance); ``found``: the poses taken where the check finds a second
-    minimum, each (right, deg, m, probability, ``pinned``, ``anchored_far``; the last two from ``rows``)."""
+    (``none``, as shipped), with it where the pose slides (``slides``), where the weakest direction is looser than 5
+    tolerances, or than 2 with a probability under ``sure`` (``registration.verdict_sure``) (``loose``,
+    ``registration.good_start_second_minimum``; needs ``rows``) and on every pose taken (``all``); and how many poses
+    the verdict takes (``taken``) and how many of them slide (``taken_sliding``: the check's two GICP runs each, where
+    their uncertainty exceeds a tolerance; ``taken_loose``: those ``loose`` checks); ``found``:
+    the poses taken where the check finds a second minimum, each (right, deg, m, probability, ``pinned``,
+    ``anchored_far``; the last two from ``rows``)."""
+    from deepbbs_ros.core.anchoring import STEPS
+
     y, ok = np.asarray(y, bool), np.asarray(prob) >= bar
     e = np.asarray(err, float).reshape(-1, 2)
     far = (e[:, 0] > 2.0) | (e[:, 1] > 0.5)
-    out = {"taken": int(ok.sum()), "taken_sliding": int(np.sum(ok & slides))}
-    for mode, veto in (("none", np.zeros(len(y), bool)), ("slides", ambiguous & slides), ("all", ambiguous)):
+    # checked where looser than STEPS[-1] tolerances, or than STEPS[0] where not sure (core/good_start.py _slides);
+    # pinned = 1 / (1 + uncertainty^2) (core/visibility.py pinned)
+    loose = np.zeros(len(y), bool) if rows is None else np.asarray(rows)[:, FEATURES.index("pinned")] < 1.0 / (
+        1.0 + np.where(np.asarray(prob) < sure, STEPS[0], STEPS[-1]) ** 2)
+    out = {"taken": int(ok.sum()), "taken_sliding": int(np.sum(ok & slides)), "taken_loose": int(np.sum(ok & loose))}
+    for mode, veto in (("none", np.zeros(len(y), bool)), ("slides", ambiguous & slides), ("loose", ambiguous & loose),
+                       ("all", ambiguous)):
         acc = ok & ~np.asarray(veto, bool)
         out[mode] = {"wrong_accepted": int(np.sum(far & acc)), "right_rejected": int(np.sum(y & ~acc))}
     pin, anc = FEATURES.index("pinned"), FEATURES.index("anchored_far")
@@ -235,7 +246,7 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
                 out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p_on[m], bar, data["ambiguous"][m],
                                                        free[m], np.c_[data["rot"][m], data["trans"][m]],
-                                                       np.asarray(data["good"])[m])
+                                                       np.asarray(data["good"])[m], rc.verdict_sure)
     ran = np.isfinite(data["skew"][:, 0]) & (p >= rc.verdict_probability)  # where the registration runs it
     out["skew_cost"] = {"poses": int(ran.sum()), "ms": round(float(np.median(data["skew"][ran, 6])), 2) if ran.any()
                         else None, "ratio_to_gicp": round(float(np.median(data["skew"][ran, 6] / data["skew"][ran, 7])),
@@ -361,7 +372,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                 r = np.zeros((len(a), len(FEATURES)))
                 r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
                 out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, p_on, bar, a[:, 7] > 0, a[:, 8] > 0,
-                                                            a[:, 4:6], r)
+                                                            a[:, 4:6], r, rc.verdict_sure)
         c = np.median(np.array(cost).reshape(-1, 2), axis=0)
         out[f"cost/{name}"] = {"verdict_ms": round(float(c[0]), 3), "verdict_within_ms": round(float(c[1]), 3),
                                "ratio": round(float(c[1] / max(c[0], 1e-9)), 2)}
