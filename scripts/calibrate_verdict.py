@@ -53,6 +53,7 @@ from deepbbs_ros.config import Config, load_config  # noqa: E402
 from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility, within  # noqa: E402
 from deepbbs_ros.core.polish import correspondence_distance, finer_pair, finish  # noqa: E402
 from deepbbs_ros.core.registration import DeepBBSRegistration, good_start_gicp, good_start_points  # noqa: E402
+from deepbbs_ros.core.sweep_skew import check as check_skew  # noqa: E402
 from deepbbs_ros.errors import RegistrationError  # noqa: E402
 from deepbbs_ros.metrics import pair_errors  # noqa: E402
 from deepbbs_ros.sim.patterns import driver_of  # noqa: E402
@@ -73,6 +74,8 @@ RIGS = (
     ("hdl32", "car", "urban", 2.0), ("vlp16", "car", "suburban", 2.0), ("os1_32", "car", "urban", 2.0),
     ("xt32", "car", "suburban", 2.0),
 )
+#: m; the skew check's points nearer than this are left out (the carrier's body), as the registration's (preprocess)
+MIN_RANGE_SKEW = Config().preprocess.min_range
 GAPS = (1, 3, 6, 10)  # frames between target and source (10 Hz; adding 20 made every refit worse on real scans)
 GAPS_SLOW = (1, 2)  # frames between target and source of the rigs recorded at a lower rate
 #: features left out of the fit (coefficient 0). plane_close reads a rough scene as a loose fit (right poses on real
@@ -241,7 +244,7 @@ class _Scans:
         if k not in self.cache:
             s = self.sim.scan_at(k)
             pts = degrade(s.points, self.rng, self.body) if self.rough else s.points
-            self.cache[k] = (self.reg.preprocess(pts, driver=self.driver), s.T_world_lidar)
+            self.cache[k] = (self.reg.preprocess(pts, *_times(s, len(pts)), driver=self.driver), s.T_world_lidar)
         return self.cache[k]
 
     def prepare(self, points: np.ndarray):
@@ -253,7 +256,21 @@ class _Scans:
         s = self.sim.scan_at(k)
         pts = degrade(s.points, self.rng, self.body) if self.rough else s.points
         off = (np.degrees(np.arctan2(pts[:, 1], pts[:, 0])) - center + 180.0) % 360.0 - 180.0
-        return self.reg.preprocess(pts[np.abs(off) <= width / 2], driver=self.driver), s.T_world_lidar
+        keep = np.abs(off) <= width / 2
+        times, stamp = _times(s, len(pts))
+        return self.reg.preprocess(pts[keep], None if times is None else times[keep], stamp,
+                                   driver=self.driver), s.T_world_lidar
+
+
+def _times(scan, n: int) -> tuple[np.ndarray | None, int | None]:
+    """(per-point times (n,) s, stamp) of a simulated ``scan`` (a raw sweep: the skew check's input) whose points were
+    degraded into ``n`` (:func:`degrade` appends its extra points: spread over the sweep's times); (None, None) for a
+    compensated sweep (no times)."""
+    t = scan.point_times()
+    if t is None:
+        return None, None
+    t = np.asarray(t, np.float64)
+    return np.r_[t, np.linspace(t.min(), t.max(), n - len(t))], scan.stamp_ns
 
 
 def slid_pose(T: np.ndarray, points: np.ndarray, target, dist: float, k: float) -> np.ndarray | None:
@@ -291,7 +308,9 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
     its weakest direction, as the registration's own verdict does (core/second_minimum.py; ``ambiguous``)."""
     (tgt, Tt), (src, Ts) = pair
     T_gt = np.linalg.inv(Tt) @ Ts
+    t_gicp = time.perf_counter()
     ref = good_start_gicp(src.polish_cloud, tgt.polish_cloud, T_gt, rc)  # where GICP settles from the truth
+    gicp_ms = (time.perf_counter() - t_gicp) * 1e3  # the pair's GICP (the skew check's cost is read against it)
     T_ref = ref.T_target_source if ref.applied else T_gt
     poses = []
     for kind, yaw, tr in (("near", (0, 3), (0, 0.5)), ("far", (10, 45), (1, 4)), ("far", (5, 30), (0.5, 3))):
@@ -345,8 +364,11 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
                     fin_within = np.array([_within_on_scene_grid(s_pre.polish_cloud, tgt.polish_cloud,
                                                                  f.T_target_source, rc, w) for w in (False, True)])
         grid = (s_pre.polish_cloud.fine_voxel, tgt.polish_cloud.fine_voxel)
-        for k, v in (("pair", pair), ("good", good), ("fine", fine), ("grid", grid), ("fin", fin), ("fin_y", fin_y),
-                     ("fin_amb", fin_amb), ("fin_within", fin_within),
+        sk = check_skew(s_pre, tgt, T, rc, MIN_RANGE_SKEW)  # scans with per-point times only (raw sweeps)
+        skew = np.full(8, np.nan) if sk is None else np.array(
+            [sk.rot_deg, sk.trans_m, sk.rot_est_deg, sk.trans_est_m, sk.rot_se_deg, sk.trans_se_m, sk.ms, gicp_ms])
+        for k, v in (("skew", skew), ("pair", pair), ("good", good), ("fine", fine), ("grid", grid), ("fin", fin),
+                     ("fin_y", fin_y), ("fin_amb", fin_amb), ("fin_within", fin_within),
                      ("y", y), ("rot", r), ("trans", t), ("rig", ri),
                      ("kind", kind), ("near_ref", near), ("rough", rough[0]), ("self_plane", rough[1]),
                      ("ambiguous", ambiguous), ("cov", cov)):
@@ -422,8 +444,8 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     frames = 100 if turned else frames  # a hand-held walk takes 2.5 m in up to 50 frames
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
-    out = {k: [] for k in ("pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough", "self_plane",
-                           "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb", "fin_within")}
+    out = {k: [] for k in ("skew", "pair", "good", "y", "rot", "trans", "rig", "kind", "near_ref", "rough",
+                           "self_plane", "ambiguous", "cov", "fine", "grid", "fin", "fin_y", "fin_amb", "fin_within")}
     rng = np.random.default_rng(seed if rig0 == 0 else [seed, rig0])
     for ri, (sensor, mount, place, *rate) in enumerate(rigs, rig0):
         t0 = time.perf_counter()

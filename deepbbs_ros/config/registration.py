@@ -181,6 +181,13 @@ class RegistrationConfig:
     # wrong accepted 22 -> 14, right rejected 273 -> 286 (mostly low-overlap), but two more GICP runs on every pose of
     # a corridor nothing pins (OS0-64 legged: CPU x1.27 -> x1.65 GICP's; docs/sensors.md)
     good_start_second_minimum: bool = False
+    # the skew check (core/sweep_skew.py), where the verdict would accept, on Livox-like sweeps with per-point times
+    # only (spinning sweeps and scans without times: nothing runs): each sweep's own motion (one Gauss-Newton step
+    # with the pose and its rate over the sweep); where the pose error the two imply, less skew_sigmas standard errors,
+    # exceeds success_rot_deg / success_trans, the pose cannot be right: not valid ("sweep skew"). On: simulated wrong
+    # solid-state poses accepted 2 -> 0, 4 -> 0 (seeds 39, 40), no right pose rejected on those or held-out seed 41
+    skew_check: bool = True
+    skew_sigmas: float = 2.0  # standard errors taken off the estimate: the least error the sweeps' motion implies
 
     def validate(self) -> None:
         dev = self.device
@@ -245,6 +252,7 @@ class RegistrationConfig:
         _check(self.good_start_max_trans > 0, "registration.good_start_max_trans", "must be > 0")
         _check(self.good_start_max_rot_deg > 0, "registration.good_start_max_rot_deg", "must be > 0")
         _check(self.deep or self.refine, "registration.deep", "and refine cannot both be false")
+        _check(self.skew_sigmas >= 0, "registration.skew_sigmas", "must be >= 0")
 
 
 #: the network alone (``deepbbs-replay --method deepbbs``, ``deepbbs-train evaluate --methods deepbbs``): the deep

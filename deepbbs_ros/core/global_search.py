@@ -193,6 +193,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
     if ((st.valid and (st.replaced is None or sure(st, rc))) or rc.global_search == "off" or not st.yaw_search
+            or st.skew.startswith("rejected")  # the sweep's own motion bends any start's pose: no other start helps
             or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep):
         return st  # the given start's valid answer, or a search answer that is sure
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, sweep_skew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish, polish
@@ -103,7 +103,11 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
             return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
         accepted = f"accepted after coarse to fine ({first})"
     reg._searched.append(False)
-    return Attempt(src, tgt, accepted, _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock))
+    res = _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock)
+    if rc.skew_check and res.deskew != "deskewed":  # per-point times: does a sweep's own motion bend the pose?
+        bends, res.skew = sweep_skew.judge(src, tgt, res.T_target_source, rc, reg.config.preprocess.min_range)
+        res.valid = not bends  # bent: no other start unbends it (not valid, not the full pipeline)
+    return Attempt(src, tgt, accepted, res)
 
 
 def from_start(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:

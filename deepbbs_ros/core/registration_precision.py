@@ -71,6 +71,7 @@ class PrecisionStages:
         (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
         rc = self.config.registration
         if (st.valid or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
+                or st.skew.startswith("rejected")  # a bent sweep: a finer grid does not unbend it
                 or st.src_pc is None or st.tgt_pc is None):
             return
         fine = finish(st.src_pc, st.tgt_pc, st.T, rc)

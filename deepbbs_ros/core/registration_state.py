@@ -48,6 +48,7 @@ class State:
     inlier_ratio: float = 0.0
     polish_reason: str = ""
     deskew: str = ""
+    skew: str = ""  # the skew check's finding (core/sweep_skew.py): "rejected: ...", "passed: ...", "" not run
     T_start: np.ndarray = field(default_factory=lambda: np.eye(4))  # the given start (the global search turns it)
     score: float = float("nan")  # the verdict's fitness (core/verdict.py)
     probability: float = float("nan")  # the verdict: P(right)
@@ -99,6 +100,7 @@ def to_result(st: State, clock: Clock) -> RegistrationResult:
         target=st.tgt_np,
         polish=st.polish_reason,
         deskew=st.deskew,
+        skew=st.skew,
         valid=bool(st.valid),
         score=float(st.score),
         probability=float(st.probability),

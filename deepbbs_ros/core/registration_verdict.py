@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import second_minimum, verdict
+from deepbbs_ros.core import second_minimum, sweep_skew, verdict
 from deepbbs_ros.core.good_start import good_start_points
 from deepbbs_ros.core.registration_state import State
 
@@ -44,6 +44,8 @@ class VerdictStages:
             st.probability = verdict.times_within(st.probability, st.src_pc, st.tgt_pc, st.T, rc,
                                                   rc.verdict_probability)
             st.valid = verdict.is_valid(st.probability, rc.verdict_probability)
+            if st.valid and rc.skew_check and st.deskew != "deskewed":  # per-point times: does a sweep bend the pose?
+                self._skew(st)
             if st.valid and rc.second_minimum:  # a second minimum as good along the weakest direction: not sure
                 st.ambiguity = second_minimum.check(pts, st.T, st.src_pc, st.tgt_pc, rc)
                 st.valid = not st.ambiguity.ambiguous
@@ -53,3 +55,11 @@ class VerdictStages:
         dense = st.tgt_dense is not None and len(st.tgt_dense) >= len(st.tgt_np)
         st.probability = verdict.probability(st.src_np, st.T, st.tgt_dense if dense else st.tgt_np, rc.verdict_dist)
         st.valid = verdict.is_valid(st.score, rc.verdict_threshold)
+
+    def _skew(self, st: State) -> None:
+        """The skew check (core/sweep_skew.py) of the pose of a pair whose scans kept their per-point times: not valid
+        where the motion within either sweep says the pose cannot be within the tolerance; ``st.skew`` says what it
+        found ("" where neither scan has times: nothing runs)."""
+        bends, st.skew = sweep_skew.judge(st.src_pre, st.tgt_pre, st.T, self.config.registration,
+                                          self.config.preprocess.min_range)
+        st.valid = not bends

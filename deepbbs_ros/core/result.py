@@ -34,6 +34,9 @@ class RegistrationResult:
             (``registration.polish`` "none", or no dense points).
         deskew: "deskewed" when the precision stage ran on both scans deskewed with their own velocities,
             else why the raw clouds were kept; "" when neither scan was deskewed.
+        skew: the skew check's finding on scans with per-point times (``registration.skew_check``,
+            core/sweep_skew.py): "rejected: ..." (the motion within a sweep says the pose cannot be within the
+            tolerance: not ``valid``) or "passed: ..."; "" when it did not run (no times, or not accepted before it).
         source, target: the (preprocessed) clouds that were registered, (N, 3)/(M, 3) float32: the sampled points;
             on the "gicp" path the spread subsets of the GICP clouds that its verdict scores.
         valid: the verdict: the pose can be trusted (``probability >= registration.verdict_probability``; on the
@@ -66,6 +69,7 @@ class RegistrationResult:
     target: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.float32))
     polish: str = ""
     deskew: str = ""
+    skew: str = ""
     valid: bool = False
     score: float = float("nan")
     starts: int = 1

@@ -16,6 +16,10 @@ and the good-start verdict (a spread subset of the GICP voxels):
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
   start); the good start's judges GICP answers from the truth moved a little and far (as in the simulation).
 
+With ``registration.skew_check`` (on by default) a simulated pose whose raw Livox-like sweeps' own motion says it
+cannot be right is counted as rejected by both verdicts (core/sweep_skew.py; the real sets carry no per-point times:
+nothing runs); ``<verdict>_without_skew`` (``_with_skew`` when off) judges the same poses the other way, ``skew_cost``
+gives the check's time per pose where it runs and its ratio to GICP from the truth on the same pair (median).
 The verdicts that ``registration.verdict_within`` names ("pair", "all"; "off" by default) multiply the probability by
 P(within 1 deg / 0.3 m | the pose's covariance) (core/within.py); ``<verdict>_without_within`` /
 ``<verdict>_with_within`` judge the same poses the other way (the real pair verdict: the pipeline's answers as
@@ -214,6 +218,7 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     # the other way
     w = np.array([within.probability(None if np.isnan(c).any() else c, rc.success_trans, rc.success_rot_deg)
                   for c in data["cov"]])
+    bent = skew_bent(data["skew"], rc)
     if dump:
         np.savez(dump, p=p, within=w, fam=fam, low=low, turned=turned, **data)
     for name, key, bar in (("pair", "pair", rc.verdict_probability), ("good_start", "good", rc.good_start_probability)):
@@ -224,18 +229,28 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
             m = m if f == "slid" else m & ~slide
             if not m.any():
                 continue
+            # vetoes: the pair verdict's second minimum; the skew check (core/sweep_skew.py) where
+            # registration.skew_check is on (``<verdict>_with_skew`` / ``_without_skew``: the same poses the other way)
+            amb = data["ambiguous"][m] if name == "pair" else np.zeros(int(m.sum()), bool)
+            veto = amb | (bent[m] if rc.skew_check else False)
             for row, factor in ((name, w if on else 1.0), (f"{name}_{'without' if on else 'with'}_within",
                                                            1.0 if on else w)):
                 out[f"{row}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], (p * factor)[m], OLD[name], bar,
-                                            data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]],
-                                            data["ambiguous"][m] if name == "pair" else None)
+                                            data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]], veto)
             p_on = p * w if on else p
+            out[f"{name}_{'without' if rc.skew_check else 'with'}_skew/{f}"] = summary(
+                data["y"][m] == 1, data[key][m, 0], p_on[m], OLD[name], bar, data["near_ref"][m],
+                np.c_[data["rot"][m], data["trans"][m]], amb | (False if rc.skew_check else bent[m]))
             if name == "good_start" and scene:
                 out[f"good_start_scene_grid/{f}"] = scene_flow(data, m, bar)
             if name == "good_start":  # the same poses with no check, and with the check on every pose taken
                 out[f"good_start_checks/{f}"] = checks(data["y"][m] == 1, p_on[m], bar, data["ambiguous"][m],
                                                        free[m], np.c_[data["rot"][m], data["trans"][m]],
                                                        np.asarray(data["good"])[m], rc.verdict_sure)
+    ran = np.isfinite(data["skew"][:, 0]) & (p >= rc.verdict_probability)  # where the registration runs it
+    out["skew_cost"] = {"poses": int(ran.sum()), "ms": round(float(np.median(data["skew"][ran, 6])), 2) if ran.any()
+                        else None, "ratio_to_gicp": round(float(np.median(data["skew"][ran, 6] / data["skew"][ran, 7])),
+                                                          3) if ran.any() else None}
     for f in ("dense", "sparse", "solid", "all"):  # how rough the targets' own surfaces are (real sets: the same)
         m = (~low if f == "all" else (fam == f) & ~low) & ~slide
         q = np.median(np.array([data["rough"][m], data["self_plane"][m]]), axis=1)
@@ -261,6 +276,18 @@ def _cost(pts: np.ndarray, T: np.ndarray, src, tgt, rc, repeats: int = 3) -> tup
         old.append(t1 - t0)
         new.append(t2 - t1)
     return 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
+
+
+def skew_bent(skew: np.ndarray, rc) -> np.ndarray:
+    """Which poses the skew check turns away (core/sweep_skew.py: half the motion within a sweep, less
+    ``registration.skew_sigmas`` standard errors, beyond ``success_rot_deg`` / ``success_trans``) from the rows'
+    ``skew`` columns (calibrate_verdict.py: the least rotation / translation error at the run's sigmas, the estimates,
+    their standard errors, ms, the pair's GICP ms; NaN where the scans carry no times): (N,) bool."""
+    s = np.asarray(skew, np.float64).reshape(-1, 8)
+    with np.errstate(invalid="ignore"):
+        rot = s[:, 2] - rc.skew_sigmas * s[:, 4]
+        tr = s[:, 3] - rc.skew_sigmas * s[:, 5]
+        return np.nan_to_num((rot > rc.success_rot_deg) | (tr > rc.success_trans)).astype(bool)
 
 
 def real_pairs(spec: str):
@@ -409,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
                                      args.sim_low_pairs, args.sim_turned_pairs, args.sim_slid, config,
                                      args.dump_sim, args.sim_scene_grid)
         for k, v in figures["sim"].items():
-            print("sim", k, v if k.startswith(("roughness", "good_start_checks", "good_start_scene")) else
+            print("sim", k, v if k.startswith(("roughness", "good_start_checks", "good_start_scene", "skew_cost")) else
                   ({kk: v.get(kk) for kk in [*list(v)[:9], "wrong_accepted_near_gicp_truth", "wrong_accepted_max_err",
                                              "classes"]}, v["reliability"]), flush=True)
     if args.real or args.pair:
