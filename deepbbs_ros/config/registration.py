@@ -177,10 +177,10 @@ class RegistrationConfig:
     # the second-minimum check (core/second_minimum.py, as the registration's verdict runs it) on the good start's
     # poses taken on GICP's grid too: a pose GICP slides to another minimum as good along its weakest direction is not
     # taken (the next try answers). Checked where the fit leaves the pose freer than a slide's distance (5 tolerances),
-    # or than a wrong pose's (2) when the verdict is not sure (verdict_sure). Off by default: simulated seeds 39-43
-    # wrong accepted 22 -> 14, right rejected 273 -> 286 (mostly low-overlap), but two more GICP runs on every pose of
-    # a corridor nothing pins (OS0-64 legged: CPU x1.27 -> x1.65 GICP's; docs/sensors.md)
-    good_start_second_minimum: bool = False
+    # or than a wrong pose's (2) when the verdict is not sure (verdict_sure). On: simulated seeds 39-43 wrong accepted
+    # 22 -> 14, right rejected 273 -> 286 (mostly low-overlap; nothing chosen on 42, 43: 4 -> 3, 111 -> 116); it costs
+    # two more GICP runs on every pose of a corridor nothing pins (OS0-64 legged: CPU x1.27 -> x1.65 GICP's)
+    good_start_second_minimum: bool = True
     # the skew check (core/sweep_skew.py), where the verdict would accept, on Livox-like sweeps with per-point times
     # only (spinning sweeps and scans without times: nothing runs): each sweep's own motion (one Gauss-Newton step
     # with the pose and its rate over the sweep); where the pose error the two imply, less skew_sigmas standard errors,

@@ -138,15 +138,10 @@ def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, s
     their uncertainty exceeds a tolerance; ``taken_loose``: those ``loose`` checks); ``found``:
     the poses taken where the check finds a second minimum, each (right, deg, m, probability, ``pinned``,
     ``anchored_far``; the last two from ``rows``)."""
-    from deepbbs_ros.core.anchoring import STEPS
-
     y, ok = np.asarray(y, bool), np.asarray(prob) >= bar
     e = np.asarray(err, float).reshape(-1, 2)
     far = (e[:, 0] > 2.0) | (e[:, 1] > 0.5)
-    # checked where looser than STEPS[-1] tolerances, or than STEPS[0] where not sure (core/good_start.py _slides);
-    # pinned = 1 / (1 + uncertainty^2) (core/visibility.py pinned)
-    loose = np.zeros(len(y), bool) if rows is None else np.asarray(rows)[:, FEATURES.index("pinned")] < 1.0 / (
-        1.0 + np.where(np.asarray(prob) < sure, STEPS[0], STEPS[-1]) ** 2)
+    loose = np.zeros(len(y), bool) if rows is None else loose_poses(rows, prob, sure)
     out = {"taken": int(ok.sum()), "taken_sliding": int(np.sum(ok & slides)), "taken_loose": int(np.sum(ok & loose))}
     for mode, veto in (("none", np.zeros(len(y), bool)), ("slides", ambiguous & slides), ("loose", ambiguous & loose),
                        ("all", ambiguous)):
@@ -157,6 +152,16 @@ def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, s
                      *([round(float(rows[i, pin]), 3), round(float(rows[i, anc]), 3)] if rows is not None else [])]
                     for i in np.flatnonzero(ok & np.asarray(ambiguous, bool))]
     return out
+
+
+def loose_poses(rows: np.ndarray, prob: np.ndarray, sure: float) -> np.ndarray:
+    """Which good-start poses ``registration.good_start_second_minimum`` checks (core/good_start.py _slides): looser
+    than STEPS[-1] tolerances, or than STEPS[0] where the probability is under ``sure``; from the feature rows'
+    ``pinned`` = 1 / (1 + uncertainty^2) (core/visibility.py pinned)."""
+    from deepbbs_ros.core.anchoring import STEPS
+
+    return np.asarray(rows)[:, FEATURES.index("pinned")] < 1.0 / (
+        1.0 + np.where(np.asarray(prob) < sure, STEPS[0], STEPS[-1]) ** 2)
 
 
 def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
@@ -231,7 +236,8 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
                 continue
             # vetoes: the pair verdict's second minimum; the skew check (core/sweep_skew.py) where
             # registration.skew_check is on (``<verdict>_with_skew`` / ``_without_skew``: the same poses the other way)
-            amb = data["ambiguous"][m] if name == "pair" else np.zeros(int(m.sum()), bool)
+            amb = data["ambiguous"][m] if name == "pair" else good_start_veto(data["ambiguous"][m], np.asarray(
+                data["good"])[m], (p * (w if on else 1.0))[m], rc)
             veto = amb | (bent[m] if rc.skew_check else False)
             for row, factor in ((name, w if on else 1.0), (f"{name}_{'without' if on else 'with'}_within",
                                                            1.0 if on else w)):
@@ -276,6 +282,14 @@ def _cost(pts: np.ndarray, T: np.ndarray, src, tgt, rc, repeats: int = 3) -> tup
         old.append(t1 - t0)
         new.append(t2 - t1)
     return 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
+
+
+def good_start_veto(ambiguous: np.ndarray, rows: np.ndarray, prob: np.ndarray, rc) -> np.ndarray:
+    """The good start's second-minimum veto as registered: the check's finding on the loose poses where
+    ``registration.good_start_second_minimum`` is on, none where it is off."""
+    if not rc.good_start_second_minimum:
+        return np.zeros(len(ambiguous), bool)
+    return np.asarray(ambiguous, bool) & loose_poses(rows, prob, rc.verdict_sure)
 
 
 def skew_bent(skew: np.ndarray, rc) -> np.ndarray:
@@ -363,14 +377,16 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
             # good start's on GICP's poses; then the same poses judged the other way
             plain = a[:, 7] if key == "pair" else a[:, 2]
             p_on = a[:, 2] if key == "pair" else a[:, 2] * (a[:, -1] if on else 1.0)
+            r = np.zeros((len(a), len(FEATURES)))
+            if key == "good":
+                r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
+            veto = a[:, 6] > 0 if key == "pair" else good_start_veto(a[:, 7] > 0, r, p_on, rc)
             out[f"{verdict}/{name}"] = summary(a[:, 0] > 0, a[:, 1], p_on, OLD[verdict], bar, a[:, 3] > 0,
-                                               a[:, 4:6], a[:, 6] > 0)
+                                               a[:, 4:6], veto)
             out[f"{verdict}_{'without' if on else 'with'}_within/{name}"] = summary(
                 a[:, 0] > 0, a[:, 1], plain * (1.0 if on else a[:, -1]), OLD[verdict], bar, a[:, 3] > 0, a[:, 4:6],
-                a[:, 6] > 0)
+                veto)
             if key == "good":
-                r = np.zeros((len(a), len(FEATURES)))
-                r[:, [FEATURES.index("pinned"), FEATURES.index("anchored_far")]] = a[:, 9:11]
                 out[f"good_start_checks/{name}"] = checks(a[:, 0] > 0, p_on, bar, a[:, 7] > 0, a[:, 8] > 0,
                                                             a[:, 4:6], r, rc.verdict_sure)
         c = np.median(np.array(cost).reshape(-1, 2), axis=0)
