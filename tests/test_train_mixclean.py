@@ -113,4 +113,9 @@ def test_script_runs_the_mix_schedule_on_compensated_mix_drives(tmp_path):
                              capture_output=True, text=True, check=True).stdout
     assert sets == dict(item.split()[0].split("=", 1) for item in control.split("--set ")[1:])
     cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
-    assert cfg.validate().train.num_points == 512 and "--init shipped" in fit
+    assert cfg.validate().train.num_points == 512
+    # it resumes the committed state; a new NAME starts from the shipped weights
+    assert "--resume deepbbs_ros/models/train_state/mixclean/state_latest.pt" in fit
+    fresh = subprocess.run(["sh", str(SCRIPT)], env={**env, "NAME": "no_such_state"}, capture_output=True, text=True,
+                           check=True).stdout
+    assert "--init shipped" in [line for line in fresh.splitlines() if " fit " in line][0]
