@@ -113,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="m; a drive's frames are every s-th sweep, s (at most 10) the smallest whose frames travel "
                         "this far, so slow mounts have pairs as far apart as cars (e.g. 2 x train.max_dist); "
                         "0 = consecutive sweeps; the randomised road drives always are")
+    g.add_argument("--sweeps", choices=("mixed", "compensated"), default="mixed",
+                   help="mixed: each drive's seed draws compensated (half), raw (30 %%) or ideal sweeps; compensated: "
+                        "every sweep compensated to its stamp, so its label (the pose at the stamp) is right")
     g = c.add_argument_group("a user's recording")
     g.add_argument("--source", action="append", default=[], help="bag / mcap / Apollo or KITTI folder (repeatable)")
     g.add_argument("--topic", help="PointCloud2 topic (needed when there are several)")
@@ -225,7 +228,7 @@ def _cmd_cache(args) -> int:
         sensors = [s.strip() for s in args.sensors.split(",") if s.strip()] or None
         mounts = [m.strip() for m in args.mounts.split(",") if m.strip()] or None
         specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
-                                  min_span=args.min_span)
+                                  min_span=args.min_span, sweeps=args.sweeps)
         written += list(C.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
                                           randomize_sensor=randomize, progress=not args.no_progress))
         manifest = out / "manifest.json"
@@ -235,6 +238,7 @@ def _cmd_cache(args) -> int:
             "randomize_sensor": randomize, "cache_points": args.cache_points,
             **({"sensors": sensors, "mounts": mounts} if sensors or mounts else {}),
             **({"min_span": args.min_span} if args.min_span > 0 else {}),
+            **({"sweeps": args.sweeps} if args.sweeps != "mixed" else {}),
             "command": "deepbbs-train " + shlex.join(sys.argv[1:]) if sys.argv else ""}
         manifest.write_text(json.dumps(info, indent=2))
     if not args.source and not (args.drives or args.seeds):

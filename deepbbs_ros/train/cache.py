@@ -226,6 +226,9 @@ class SimDriveSpec:
     # (at most MAX_FRAME_STRIDE) whose frames span this path length: a slow mount (handheld, legged, wheeled at
     # 0.5-1.5 m/s) then has pairs as far apart as a car's, up to train.max_dist (the road drives keep stride 1)
     min_span: float = 0.0
+    # "mixed": the drive's seed draws its sweeps (half compensated to the stamp, 30 % raw, 20 % ideal); "compensated":
+    # every sweep motion-distorted, then compensated to its stamp, so that the ground truth at the stamp is its label
+    sweeps: str = "mixed"
 
     @property
     def name(self) -> str:
@@ -236,12 +239,12 @@ class SimDriveSpec:
 
 def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int, *,
                     sensors: Sequence[str] | None = None, mounts: Sequence[str] | None = None,
-                    min_span: float = 0.0) -> list[SimDriveSpec]:
+                    min_span: float = 0.0, sweeps: str = "mixed") -> list[SimDriveSpec]:
     """Drives for ``seeds``, the scene types cycling over ``scenes`` (seed i -> scenes[i % len]).
 
     sensors / mounts: when given, each drive draws one of them from its seed (``"random"`` in sensors =
     the randomised road sensors); left out, every drive is a car with a randomised road sensor, as before.
-    min_span: :attr:`SimDriveSpec.min_span` of every drive.
+    min_span, sweeps: :attr:`SimDriveSpec.min_span` and :attr:`SimDriveSpec.sweeps` of every drive.
     """
     from deepbbs_ros.sim.mounts import MOUNTS
     from deepbbs_ros.sim.patterns import SENSORS
@@ -252,9 +255,11 @@ def sim_drive_specs(scenes: Sequence[str], seeds: Sequence[int], frames: int, *,
     for name in mounts or ():
         if name not in MOUNTS:
             raise DatasetError(f"training cache: unknown mount {name!r}; choose from {', '.join(MOUNTS)}")
+    if sweeps not in ("mixed", "compensated"):
+        raise DatasetError(f"training cache: sweeps must be 'mixed' or 'compensated', got {sweeps!r}")
     specs = []
     for i, s in enumerate(seeds):
-        spec = SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames), min_span=float(min_span))
+        spec = SimDriveSpec(scenes[i % len(scenes)], int(s), int(frames), min_span=float(min_span), sweeps=sweeps)
         if sensors or mounts:
             pick = np.random.default_rng([int(s), 7920])
             sensor = str(pick.choice(list(sensors))) if sensors else "random"
@@ -300,6 +305,8 @@ def simulate_cached_drive(spec: SimDriveSpec, out_dir: Path, pre: PreprocessConf
         motion, compensate = u < 0.8, u < 0.5
     else:
         lidar, desc, motion, compensate = LidarConfig.hdl64(), {"preset": "hdl64"}, True, True
+    if spec.sweeps == "compensated":  # the seed's draws above stay as they were: same sensor, same scene
+        motion, compensate = True, True
     from deepbbs_ros.sim.scene import SCENES
 
     # the road drives the cache has always made; a car in a garage or a courtyard goes through the rig

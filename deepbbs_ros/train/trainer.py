@@ -144,7 +144,7 @@ class Trainer:
         if tc.grad_clip > 0:
             grad_norm = float(torch.nn.utils.clip_grad_norm_(self.model.parameters(), tc.grad_clip))
         values = [float(terms.total.detach()), float(terms.rot), float(terms.trans), float(terms.corr),
-                  float(terms.partner_ratio)]
+                  float(terms.partner_ratio), float(terms.kept)]
         if self.world_size > 1:  # the mean over the processes: one non-finite loss skips the step everywhere
             from deepbbs_ros.train.distributed import reduce_mean
 
@@ -156,7 +156,7 @@ class Trainer:
         self.step += 1
         return {
             "loss": values[0], "rot": values[1], "trans": values[2], "corr": values[3], "partners": values[4],
-            "grad_norm": grad_norm, "skipped": 0.0 if finite else 1.0,
+            "kept": values[5], "grad_norm": grad_norm, "skipped": 0.0 if finite else 1.0,
         }
 
     # -- validation --------------------------------------------------------------------------------

@@ -77,12 +77,13 @@ def validation_record(model: Any, config: Config, vs: ValidationSet, val_drives:
     reg = DeepBBSRegistration(cfg, model=model, device=str(device))
     rec: dict[str, Any] = {"kind": "val", "step": step, "epoch": epoch}
     with torch.no_grad():
-        # one network pass on the plain pairs: the validation loss
+        # one network pass on the plain pairs: the validation loss, every pair in it (hard ones too)
+        opts = {**loss_options(cfg, epoch), "hard_pair_deg": 0.0}
         losses = []
         for k in range(0, len(vs.plain), tc.batch_size):
             src, tgt, R_gt, t_gt = (x.to(device) for x in collate(vs.plain[k : k + tc.batch_size]))
             out = model(src, tgt)
-            terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, **loss_options(cfg, epoch))
+            terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, **opts)
             losses.append(float(terms.total) * len(src))
         rec["val_loss"] = sum(losses) / max(1, len(vs.plain))
         folder = {d.name: str(d.meta.get("cache", "")) for d in val_drives}
