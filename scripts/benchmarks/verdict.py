@@ -27,8 +27,9 @@ registered, the second-minimum check as it ran); ``cost/<set>``: the verdict's C
 with the factor, on the pipeline's answers. Both verdicts judge a spread subset of the source's GICP voxels with
 the same coefficients; the old ones differed (the
 pair verdict: the fitness of the sampled points). Both count a pose the registration's second-minimum check turns away
-(core/second_minimum.py) as rejected; the pair verdict runs that check, the good start does not. ``good_start_checks``
-gives what the good start's counts would be with it, on the same poses: ``none`` (as shipped), ``slides`` (only on a
+(core/second_minimum.py) as rejected; the pair verdict runs that check, the good start on its loose poses
+(``registration.good_start_second_minimum``). ``good_start_checks``
+gives the good start's counts on the same poses with the check: ``none`` (never), ``slides`` (only on a
 pose that can slide: :func:`slides`), ``loose`` (looser than 5 tolerances, or 2 when not sure:
 ``registration.good_start_second_minimum``) and ``all`` (on every pose it takes). Per set and verdict: the poses, right
 (1 deg / 0.3 m) and wrong; wrong accepted and right rejected by the fixed fitness thresholds (0.35 sampled, 0.65 voxels)
@@ -360,7 +361,7 @@ def real_figures(specs: list[str], pair: str | None, trials: int, reg, dump: Pat
                     f = cv.rows_of(ps, pt, pol.T_target_source, rc)[1]
                     y, r, t = cv.label(pol.T_target_source, T_gt)
                     y, p = y == 1, calibrated.probability(f, "good_start")
-                    # the second-minimum check on every pose taken (not run by the good start: good_start_checks)
+                    # the second-minimum check on every pose taken (the good start's veto: good_start_veto)
                     amb = bool(rc.second_minimum and p >= rc.good_start_probability and second_minimum.check(
                         cv.good_start_points(ps.polish_cloud, rc), pol.T_target_source, ps.polish_cloud,
                         pt.polish_cloud, rc).ambiguous)
