@@ -208,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_cache(args) -> int:
     from deepbbs_ros.train import cache as C
+    from deepbbs_ros.train import sim_cache as S
 
     cfg = _config(args)
     out = Path(args.out)
@@ -227,9 +228,9 @@ def _cmd_cache(args) -> int:
         randomize = args.randomize_sensor == "yes" or (args.randomize_sensor == "auto" and args.split == "train")
         sensors = [s.strip() for s in args.sensors.split(",") if s.strip()] or None
         mounts = [m.strip() for m in args.mounts.split(",") if m.strip()] or None
-        specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
+        specs = S.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
                                   min_span=args.min_span, sweeps=args.sweeps)
-        written += list(C.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
+        written += list(S.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
                                           randomize_sensor=randomize, progress=not args.no_progress))
         manifest = out / "manifest.json"
         info = json.loads(manifest.read_text()) if manifest.exists() else {}
