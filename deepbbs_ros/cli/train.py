@@ -287,7 +287,9 @@ def _fit(args, main_rank: bool) -> int:
             args.cache = args.cache or prev.get("cache", [])
             args.val_cache = args.val_cache or prev.get("val_cache", [])
             args.config = args.config or prev.get("config")
-            args.set = prev.get("set", []) + list(args.set)
+            # each key once, at its first place with its last value (what _overrides makes of the list): a schedule
+            # resuming with its whole --set list again records it once, and the run's command stays reproducible
+            args.set = list({s.partition("=")[0].strip(): s for s in prev.get("set", []) + list(args.set)}.values())
             args.init = None
     if not args.cache:
         raise ConfigError("fit: give --cache FOLDER (build one with 'deepbbs-train cache')")
