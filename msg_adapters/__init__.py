@@ -2,7 +2,8 @@
 
 - :mod:`msg_adapters.pointcloud2`: ``sensor_msgs/PointCloud2`` <-> (N, 3) float32 xyz + named fields.
 - :mod:`msg_adapters.transforms`: (4, 4) float64 transforms <-> Pose / PoseStamped / TransformStamped /
-  Odometry; ``builtin_interfaces/Time`` <-> integer nanoseconds.
+  Odometry; ``builtin_interfaces/Time`` <-> integer nanoseconds (re-exported from :mod:`msg_adapters.stamps`;
+  quaternions, the inverse: :mod:`msg_adapters.rotations`).
 - :mod:`msg_adapters.layouts`: field layouts real LiDAR drivers publish, and a builder for them.
 
 Readers are duck-typed (rclpy and rosbags messages); writers take ``flavor="rclpy" | "rosbags"``.

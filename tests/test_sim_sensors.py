@@ -224,7 +224,8 @@ def test_cli_new_sensor_mount_and_place(tmp_path, capsys):
 def test_training_cache_can_mix_sensors_mounts_and_places(tmp_path):
     from deepbbs_ros.config import Config
     from deepbbs_ros.errors import DatasetError
-    from deepbbs_ros.train.cache import load_drive, sim_drive_specs, simulate_cached_drive
+    from deepbbs_ros.train.cache import load_drive
+    from deepbbs_ros.train.sim_cache import sim_drive_specs, simulate_cached_drive
 
     default = sim_drive_specs(["urban", "garage"], [10, 11], 2)
     assert [(s.name, s.sensor, s.mount) for s in default] == [("urban_10", None, "car"), ("garage_11", None, "car")]

@@ -331,6 +331,26 @@ def _tiny_cli_run(tmp_path) -> tuple:
     return cache, [f"--set={k}={json.dumps(v)}" for k, v in TINY.items()]
 
 
+def test_cli_resume_records_the_set_list_once(tmp_path):
+    """A schedule resuming with its whole --set list again: fit_args.json keeps each key once, at its first place,
+    with its last value (the config the list makes is unchanged: later values win)."""
+    from deepbbs_ros.cli.train import _overrides, main
+
+    cache, sets = _tiny_cli_run(tmp_path)
+    run = ["fit", "--cache", str(cache), "--run", str(tmp_path / "run"), "--max-steps", "1", "--no-progress",
+           "--threads", "1"]
+    assert main([*run, *sets]) == 0
+    first = json.loads((tmp_path / "run" / "fit_args.json").read_text())["set"]
+    assert first == [s.removeprefix("--set=") for s in sets]
+    for _ in range(2):
+        assert main([*run, "--resume", *sets, "--set=train.lr=2e-5"]) == 0
+    again = json.loads((tmp_path / "run" / "fit_args.json").read_text())["set"]
+    assert again == [*first, "train.lr=2e-5"]
+    assert main([*run, "--resume", "--set", "train.steps_per_epoch=3"]) == 0  # a changed value: in its place
+    last = json.loads((tmp_path / "run" / "fit_args.json").read_text())["set"]
+    assert len(last) == len(again) and _overrides(last) == {**_overrides(again), "train.steps_per_epoch": 3}
+    assert last.index("train.steps_per_epoch=3") == again.index("train.steps_per_epoch=2")
+
 def test_cli_fit_and_errors(tmp_path, capsys):
     from deepbbs_ros.cli.train import main
 

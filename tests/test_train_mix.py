@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.train.cache import SimDriveSpec, load_cache, load_drive, save_drive, simulate_cached_drive
+from deepbbs_ros.train.cache import load_cache, load_drive, save_drive
+from deepbbs_ros.train.sim_cache import SimDriveSpec, simulate_cached_drive
 from deepbbs_ros.train.trainer import Trainer
 from tests.test_train import TINY, synthetic_drive
 
@@ -109,7 +110,7 @@ class _Walk:
 
 
 def test_frame_stride_spans_the_travel_asked_for():
-    from deepbbs_ros.train.cache import MAX_FRAME_STRIDE, frame_stride
+    from deepbbs_ros.train.sim_cache import MAX_FRAME_STRIDE, frame_stride
 
     assert frame_stride(_Walk(0.1), 5, 0.0) == 1  # off: consecutive sweeps
     assert frame_stride(_Walk(0.1), 5, 2.0) == 5  # 4 gaps of 5 sweeps of 0.1 m: 2 m
@@ -122,7 +123,7 @@ def test_a_handheld_drive_spread_over_its_span(tmp_path):
     """--min-span on a handheld walk (0.5-1.2 m/s): frames several sweeps apart, travelling the span asked for,
     each with the ground truth of its own sweep."""
     from deepbbs_ros.sim.rig import make_simulator
-    from deepbbs_ros.train.cache import MAX_FRAME_STRIDE
+    from deepbbs_ros.train.sim_cache import MAX_FRAME_STRIDE
 
     spec = SimDriveSpec("corridor", 20006, 3, sensor="vlp16", mount="handheld", min_span=2.0)
     d = load_drive(simulate_cached_drive(spec, tmp_path, Config().preprocess, 256))

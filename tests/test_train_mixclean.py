@@ -14,8 +14,9 @@ import torch
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.model import NetOutput
 from deepbbs_ros.errors import DatasetError
-from deepbbs_ros.train.cache import SimDriveSpec, load_drive, sim_drive_specs, simulate_cached_drive
+from deepbbs_ros.train.cache import load_drive
 from deepbbs_ros.train.loss import deepbbs_loss, loss_options
+from deepbbs_ros.train.sim_cache import SimDriveSpec, sim_drive_specs, simulate_cached_drive
 from deepbbs_ros.train.trainer import Trainer
 from tests.test_train import synthetic_drive, tiny_config
 

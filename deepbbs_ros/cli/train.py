@@ -208,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_cache(args) -> int:
     from deepbbs_ros.train import cache as C
+    from deepbbs_ros.train import sim_cache as S
 
     cfg = _config(args)
     out = Path(args.out)
@@ -227,9 +228,9 @@ def _cmd_cache(args) -> int:
         randomize = args.randomize_sensor == "yes" or (args.randomize_sensor == "auto" and args.split == "train")
         sensors = [s.strip() for s in args.sensors.split(",") if s.strip()] or None
         mounts = [m.strip() for m in args.mounts.split(",") if m.strip()] or None
-        specs = C.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
+        specs = S.sim_drive_specs(scenes, seeds, args.frames, sensors=sensors, mounts=mounts,
                                   min_span=args.min_span, sweeps=args.sweeps)
-        written += list(C.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
+        written += list(S.build_sim_cache(out, specs, cfg.preprocess, args.cache_points,
                                           randomize_sensor=randomize, progress=not args.no_progress))
         manifest = out / "manifest.json"
         info = json.loads(manifest.read_text()) if manifest.exists() else {}
@@ -286,7 +287,9 @@ def _fit(args, main_rank: bool) -> int:
             args.cache = args.cache or prev.get("cache", [])
             args.val_cache = args.val_cache or prev.get("val_cache", [])
             args.config = args.config or prev.get("config")
-            args.set = prev.get("set", []) + list(args.set)
+            # each key once, at its first place with its last value (what _overrides makes of the list): a schedule
+            # resuming with its whole --set list again records it once, and the run's command stays reproducible
+            args.set = list({s.partition("=")[0].strip(): s for s in prev.get("set", []) + list(args.set)}.values())
             args.init = None
     if not args.cache:
         raise ConfigError("fit: give --cache FOLDER (build one with 'deepbbs-train cache')")

@@ -36,7 +36,8 @@ logs one line, loads the registration in the node's process, and runs every requ
 ``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish_cloud.py).
 
 Here: the proxy the node calls. The worker's side is :mod:`deepbbs_ros.node.registration_worker`, the connection
-between them (requests, answers, releases) :mod:`deepbbs_ros.node.registration_link`.
+between them (requests, answers, releases) :mod:`deepbbs_ros.node.registration_link`, the node's handle of a scan
+:mod:`deepbbs_ros.node.scan_handle`.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from deepbbs_ros.core.scans import prepare_scan
 from deepbbs_ros.errors import RegistrationError
 from deepbbs_ros.node.registration_link import RESULT_TIMEOUT_S, WorkerLink, _Lost  # noqa: F401 - RESULT_TIMEOUT_S
 from deepbbs_ros.node.registration_worker import MAX_SCANS, _Expired  # noqa: F401 - MAX_SCANS: imported from here
+from deepbbs_ros.node.scan_handle import ScanHandle, _RemoteStreamDeskew
 
 __all__ = ["RegistrationProcess", "ScanHandle", "wanted"]
 
@@ -70,54 +72,6 @@ def wanted(setting: str, mode: str, device_type: str) -> bool:
     if mode != "pair" or setting == "off":
         return False
     return setting == "on" or (device_type == "cpu" and (os.cpu_count() or 1) >= 2)
-
-
-class ScanHandle:
-    """A scan preprocessed in the registration process (what the node keeps as ``Cloud.pp``).
-
-    Attributes:
-        points: (M, 3) float32 sampled points (``PreprocessResult.points``), None while their sampling waits
-            (``preprocess(..., lazy=True)``).
-        timings_ms: the worker's preprocessing timings.
-        deskew: the worker's ``PreprocessResult.deskew``.
-        local: the ``PreprocessResult`` in the node's process, once the proxy runs there (fallback).
-        driver: the driver that published the scan (``preprocess(..., driver=)``), for a scan preprocessed again.
-        sensor: the sensor whose defaults it was preprocessed with (``PreprocessResult.sensor``).
-    """
-
-    __slots__ = ("id", "xyz", "times", "stamp_ns", "points", "timings_ms", "deskew", "local", "driver",
-                 "sensor", "__weakref__")
-
-    def __init__(self, hid: int, xyz: np.ndarray, times: np.ndarray | None, stamp_ns: int | None,
-                 points: np.ndarray | None = None, timings_ms: dict | None = None, deskew: str = "",
-                 local: Any = None) -> None:
-        self.id, self.xyz, self.times, self.stamp_ns = hid, xyz, times, stamp_ns
-        self.points = points if local is None else (local.points if getattr(local, "sampled", True) else None)
-        self.timings_ms = dict(timings_ms or (local.timings_ms if local is not None else {}))
-        self.deskew = deskew if local is None else local.deskew
-        self.local = local
-        self.driver: str | None = None
-        self.sensor: str = getattr(local, "sensor", "auto")
-
-    def __repr__(self) -> str:
-        where = "local" if self.local is not None else f"remote #{self.id}"
-        return f"ScanHandle({where}, {len(self.xyz)} points, stamp {self.stamp_ns})"
-
-
-class _RemoteStreamDeskew:
-    """``core.deskew.StreamDeskew`` of one input topic, run in the worker (``apply`` / ``reset``)."""
-
-    def __init__(self, owner: RegistrationProcess, key: str) -> None:
-        self._owner, self.key = owner, key
-        self._local: Any = None  # the fallback's StreamDeskew
-
-    def apply(self, pre: ScanHandle) -> ScanHandle:
-        return self._owner._deskew(self, pre)
-
-    def reset(self) -> None:
-        if self._local is not None:
-            self._local.reset()
-        self._owner._send_quiet(("reset_stream", self.key))
 
 
 class RegistrationProcess:
