@@ -81,3 +81,17 @@ def test_nothing_to_check_without_points():
                                threads=1)
     a = second_minimum.check(np.zeros((0, 3)), np.eye(4), tpc, tpc, rc)
     assert not a.ambiguous and a.step == 0.0
+
+
+def test_a_start_back_after_the_first_iterations_is_not_run_further(monkeypatch):
+    """The right pose in the hall: both starts come back within BACK tolerances in LEG iterations and no whole GICP
+    run follows; a slid pose's starts that settle on the next pillar are run whole (the ambiguity found as before)."""
+    runs = []
+    whole = second_minimum.polish
+    monkeypatch.setattr(second_minimum, "polish", lambda *a, **k: runs.append(1) or whole(*a, **k))
+    target, source = (_hall(np.random.default_rng(s), 20000, every=10.0) for s in (0, 1))
+    right = _check(target, source, np.eye(4))
+    assert right.step > 0 and not right.ambiguous and runs == [], (right, runs)  # checked, both starts back at once
+    assert all(d <= second_minimum.BACK for d, _ in right.found), right
+    slid = _check(target, source, _yaw(4.0))
+    assert slid.ambiguous and len(runs) >= 1, (slid, runs)

@@ -19,23 +19,30 @@ The check, on an accepted pose with the precision stage's clouds:
    (the verdict's, at ``verdict_dist``) as good as the pose's: not below it by more than two standard errors of a
    share of ``n`` points, ``2 sqrt(p (1 - p) / n)``, ``p = (f n + 1) / (n + 2)`` (the rule of succession).
 
-Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones).
+Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones); a start whose
+first two iterations bring it back within a quarter tolerance of the pose stops there (``LEG``, ``BACK``: GICP from it
+would only settle on the pose), any other is run whole.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.core import anchoring, verdict
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, polish
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, correspondence_distance, polish, threads_or_all
 
 __all__ = ["Ambiguity", "check", "offset", "weakest"]
 
 WRONG = 1.0  # tolerances: two minima further apart than this cannot both be right
 STEPS = anchoring.STEPS  # tolerances: the shortest and the longest move along the weakest direction
 SIGMAS = 2.0  # standard errors of the fitness within which another minimum fits as well
+# a start GICP's first LEG iterations bring within BACK tolerances of the pose is back in its basin, not run further
+# (the OS0-64 corridor's, 5 tolerances out: 0.00-0.15 after two, 0.08-0.82 after one); one iteration within WRONG
+# is not enough: a pose slid along a free corridor is passed by a start that settles beyond it
+LEG, BACK = 2, 0.25
 
 
 @dataclass
@@ -111,7 +118,10 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
     margin = SIGMAS * np.sqrt(p * (1.0 - p) / n)
     out = Ambiguity(uncertainty=unc, step=k, score=f)
     for sign in (1.0, -1.0):
-        pol = polish(src_pc, tgt_pc, _moved_by(sign * k * twist, T), rc)
+        leg, pol = _from(src_pc, tgt_pc, T, _moved_by(sign * k * twist, T), rc)
+        if pol is None:
+            out.found.append((leg, f))
+            continue  # GICP's first iterations brought it back to the pose: its own basin
         if not pol.applied:
             continue  # not converged (or moved implausibly far): no minimum found from there
         T2 = pol.T_target_source
@@ -124,3 +134,23 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
         if f2 >= f - margin and (out.other is None or f2 > out.other_score):
             out.ambiguous, out.other, out.offset, out.other_score = True, T2, d, f2
     return out
+
+
+def _from(src_pc, tgt_pc, T: np.ndarray, start: np.ndarray, rc) -> tuple[float, Any]:
+    """GICP from ``start`` (4, 4): its first ``LEG`` iterations (core/polish.py's settings), then, unless they brought
+    it within ``BACK`` tolerances of the pose ``T`` (4, 4), the whole run from ``start`` again (the very run without
+    the leg) -> (tolerances from ``T`` after the leg, the :func:`core.polish.polish` result or None: came back)."""
+    import small_gicp
+
+    if rc.polish_max_iters <= LEG:  # no shorter leg than the run itself
+        return 0.0, polish(src_pc, tgt_pc, start, rc)
+    res = small_gicp.align(tgt_pc.cloud, src_pc.cloud, tgt_pc.tree, init_T_target_source=start,
+                           registration_type=SMALL_GICP_TYPE[rc.polish],
+                           max_correspondence_distance=correspondence_distance([src_pc, tgt_pc], rc),
+                           num_threads=1 if rc.exact_gicp else threads_or_all(rc.polish_threads), max_iterations=LEG,
+                           rotation_epsilon=float(np.radians(rc.polish_rot_eps_deg)),
+                           translation_epsilon=rc.polish_trans_eps)
+    leg = offset(T, np.asarray(res.T_target_source, np.float64))
+    if not res.converged and leg <= BACK:
+        return leg, None
+    return leg, polish(src_pc, tgt_pc, start, rc)  # converged within the leg (rare) or not back: the whole run
