@@ -31,26 +31,13 @@ CHUNK=${CHUNK:-100}
 THREADS=${THREADS:-1}
 T="$PY -m deepbbs_ros.cli.train"
 
-if [ "${1:-}" = "--save-state" ]; then
-  mkdir -p "$STATE"
-  for f in state_latest.pt config.yaml fit_args.json log.jsonl; do cp "$RUN/$f" "$STATE/$f"; done
-  ls -la "$STATE"
-  exit 0
-fi
+. scripts/train_resume.sh
+if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 
-# 1. data: the mix drives, compensated (two processes), and the road drives of scripts/train_worlds.sh
+# 1. data: the mix drives, compensated, and the road drives of scripts/train_worlds.sh (scripts/train_mix_data.sh)
 . scripts/train_mix_data.sh
-half=$((20000 + DRIVES / 2))
-for seeds in "20000:$half" "$half:$((20000 + DRIVES))"; do
-  $T cache --out "$CACHE/mixclean_train" --split train --seeds "$seeds" --frames 25 --cache-points 4096 \
-    --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS --sweeps compensated --no-progress --threads 1 &
-done
-wait
-for seeds in 10000:10032 10032:10064; do
-  $T cache --out "$CACHE/worlds_train" --split train --seeds "$seeds" --frames 25 --cache-points 4096 \
-    --no-progress --threads 1 &
-done
-wait
+mix_train mixclean --sweeps compensated
+road_train
 
 # 2. fit: MIX_SCHEDULE and the hard pairs left out, CHUNK steps at a time
 SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 --set train.hard_pair_deg=$HARD"

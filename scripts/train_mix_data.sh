@@ -18,27 +18,37 @@ SCENES=urban,suburban,highway,open_road,corridor,hall,courtyard,garage
 SENSORS=random,random,os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,avia,mid360,mid360
 MOUNTS=car,car,wheeled,legged,handheld
 
-# mix_data NAME [cache options for the mix drives]: $CACHE/NAME_train, $CACHE/NAME_val, the road folders
-mix_data() {
+# mix_train NAME [cache options]: the DRIVES mix training drives in $CACHE/NAME_train (two processes)
+mix_train() {
   name=$1
   shift
   half=$((20000 + DRIVES / 2))
-  $T cache --out "$CACHE/${name}_train" --split train --seeds "20000:$half" --frames 25 --cache-points 4096 \
-    --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS "$@" --no-progress --threads 1 &
-  a=$!
-  $T cache --out "$CACHE/${name}_train" --split train --seeds "$half:$((20000 + DRIVES))" --frames 25 \
-    --cache-points 4096 --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS "$@" --no-progress --threads 1 &
-  wait "$a" $!
+  for seeds in "20000:$half" "$half:$((20000 + DRIVES))"; do
+    $T cache --out "$CACHE/${name}_train" --split train --seeds "$seeds" --frames 25 --cache-points 4096 \
+      --scenes $SCENES --sensors $SENSORS --mounts $MOUNTS "$@" --no-progress --threads 1 &
+  done
+  wait
+}
+
+# road_train: the 64 road drives the shipped model was fine-tuned on, $CACHE/worlds_train (two processes)
+road_train() {
+  for seeds in 10000:10032 10032:10064; do
+    $T cache --out "$CACHE/worlds_train" --split train --seeds "$seeds" --frames 25 --cache-points 4096 \
+      --no-progress --threads 1 &
+  done
+  wait
+}
+
+# mix_data NAME [cache options for the mix drives]: $CACHE/NAME_train, $CACHE/NAME_val, the road folders
+mix_data() {
+  name=$1
+  mix_train "$@"
+  shift
   $T cache --out "$CACHE/${name}_val" --split val --seeds 80100:80116 --frames 30 --cache-points 4096 \
     --scenes $SCENES --sensors os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,mid360 \
     --mounts car,wheeled,legged,handheld "$@" --no-progress --threads 1 &
   a=$!
   $T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1 &
   wait "$a" $!
-  $T cache --out "$CACHE/worlds_train" --split train --seeds 10000:10032 --frames 25 --cache-points 4096 \
-    --no-progress --threads 1 &
-  a=$!
-  $T cache --out "$CACHE/worlds_train" --split train --seeds 10032:10064 --frames 25 --cache-points 4096 \
-    --no-progress --threads 1 &
-  wait "$a" $!
+  road_train
 }

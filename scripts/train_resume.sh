@@ -2,10 +2,10 @@
 # logic the resumable training scripts share. Needs RUN (the run folder), STATE (the committed state
 # folder) and BUDGET (minutes of fitting this invocation, 0 = until the schedule ends).
 
-# save_state: copy the run's resume state, best model, validation history, curves and log into $STATE.
+# save_state: copy the run's resume state, best model, validation history, curves, fit arguments and log into $STATE.
 save_state() {
   mkdir -p "$STATE"
-  for f in state_latest.pt model_best.pt val.csv curves.png config.yaml val_best.json log.jsonl; do
+  for f in state_latest.pt model_best.pt val.csv curves.png config.yaml fit_args.json val_best.json log.jsonl; do
     if [ -f "$RUN/$f" ]; then cp "$RUN/$f" "$STATE/$f"; fi
   done
   if [ -f "$RUN.log" ]; then tail -n 400 "$RUN.log" > "$STATE/train_tail.log"; fi
