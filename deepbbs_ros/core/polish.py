@@ -43,8 +43,8 @@ from deepbbs_ros.core.threads import cpu_cores, threads_or_all
 from deepbbs_ros.reprs import short_repr
 
 __all__ = ["MIN_POLISH_POINTS", "PolishCloud", "PolishResult", "PolishView", "correspondence_distance", "cpu_cores",
-           "finer_pair", "finish", "polish", "prepare_polish_cloud", "prepared_cloud", "scene_voxel", "SMALL_GICP_TYPE",
-           "threads_or_all"]
+           "finer_pair", "finish", "gicp_align", "polish", "prepare_polish_cloud", "prepared_cloud", "scene_voxel",
+           "SMALL_GICP_TYPE", "threads_or_all"]
 
 #: registration.polish -> small_gicp registration_type
 SMALL_GICP_TYPE = {"gicp": "GICP", "plane_icp": "PLANE_ICP"}
@@ -109,6 +109,25 @@ def finish(source: Any, target: Any, T: np.ndarray, cfg: RegistrationConfig) -> 
     return None if fine is None else polish(fine[0], fine[1], T, cfg)
 
 
+def gicp_align(target: Any, source: Any, tree: Any, T_start: np.ndarray, iterations: int, cfg: RegistrationConfig,
+               corr: float) -> Any:
+    """One small_gicp run with the precision stage's settings (``registration.polish*``, ``exact_gicp``): ``source``
+    onto ``target`` (small_gicp point clouds, ``tree`` the target's k-d tree) from ``T_start`` (4, 4)
+    ``T_target_source``, at most ``iterations``, correspondences within ``corr`` metres -> small_gicp's result."""
+    import small_gicp
+
+    return small_gicp.align(
+        target, source, tree,
+        init_T_target_source=T_start,
+        registration_type=SMALL_GICP_TYPE[cfg.polish],
+        max_correspondence_distance=corr,
+        num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
+        max_iterations=iterations,
+        rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
+        translation_epsilon=cfg.polish_trans_eps,
+    )  # fmt: skip
+
+
 def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T_init: np.ndarray,
            cfg: RegistrationConfig, check: tuple | None = None) -> PolishResult:
     """Local fine alignment of ``source`` onto ``target`` from ``T_init`` with small_gicp.
@@ -130,8 +149,6 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     Returns:
         :class:`PolishResult`; ``T_target_source`` is ``T_init`` unless the polish was accepted.
     """
-    import small_gicp
-
     t0 = time.perf_counter()
     T_init = np.asarray(T_init, dtype=np.float64).reshape(4, 4)
     reg_type = SMALL_GICP_TYPE[cfg.polish]
@@ -150,16 +167,8 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
     corr = correspondence_distance(clouds, cfg)
 
     def align(T_start: np.ndarray, iterations: int, source: Any = None) -> Any:
-        return small_gicp.align(
-            clouds[1].cloud, (clouds[0] if source is None else source).cloud, tree,
-            init_T_target_source=T_start,
-            registration_type=reg_type,
-            max_correspondence_distance=corr,
-            num_threads=1 if cfg.exact_gicp else threads_or_all(cfg.polish_threads),
-            max_iterations=iterations,
-            rotation_epsilon=float(np.radians(cfg.polish_rot_eps_deg)),
-            translation_epsilon=cfg.polish_trans_eps,
-        )  # fmt: skip
+        return gicp_align(clouds[1].cloud, (clouds[0] if source is None else source).cloud, tree, T_start, iterations,
+                          cfg, corr)
 
     start = T_init if T_base is None else T_base @ T_init
     stopped = judged = False  # the check stopped it (judge: its judge did)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import anchoring, verdict
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, correspondence_distance, polish, threads_or_all
+from deepbbs_ros.core.polish import SMALL_GICP_TYPE, correspondence_distance, gicp_align, polish
 
 __all__ = ["Ambiguity", "check", "offset", "weakest"]
 
@@ -140,16 +140,10 @@ def _from(src_pc, tgt_pc, T: np.ndarray, start: np.ndarray, rc) -> tuple[float, 
     """GICP from ``start`` (4, 4): its first ``LEG`` iterations (core/polish.py's settings), then, unless they brought
     it within ``BACK`` tolerances of the pose ``T`` (4, 4), the whole run from ``start`` again (the very run without
     the leg) -> (tolerances from ``T`` after the leg, the :func:`core.polish.polish` result or None: came back)."""
-    import small_gicp
-
     if rc.polish_max_iters <= LEG:  # no shorter leg than the run itself
         return 0.0, polish(src_pc, tgt_pc, start, rc)
-    res = small_gicp.align(tgt_pc.cloud, src_pc.cloud, tgt_pc.tree, init_T_target_source=start,
-                           registration_type=SMALL_GICP_TYPE[rc.polish],
-                           max_correspondence_distance=correspondence_distance([src_pc, tgt_pc], rc),
-                           num_threads=1 if rc.exact_gicp else threads_or_all(rc.polish_threads), max_iterations=LEG,
-                           rotation_epsilon=float(np.radians(rc.polish_rot_eps_deg)),
-                           translation_epsilon=rc.polish_trans_eps)
+    corr = correspondence_distance([src_pc, tgt_pc], rc)
+    res = gicp_align(tgt_pc.cloud, src_pc.cloud, tgt_pc.tree, start, LEG, rc, corr)
     leg = offset(T, np.asarray(res.T_target_source, np.float64))
     if not res.converged and leg <= BACK:
         return leg, None
