@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deepbbs_ros.core import anchoring
+from deepbbs_ros.core.se3_covariance import adjoint
 
 __all__ = ["Skew", "check", "judge", "spinning", "sweep_motion"]
 
@@ -142,7 +143,7 @@ def check(src_pre, tgt_pre, T: np.ndarray, rc, min_range: float = 0.0, threads: 
         if mo is None:
             continue
         xi, c, k = mo
-        A = 0.5 * (np.eye(6) if name == "source" else -_adjoint(Ti))  # the target's, in the source's frame
+        A = 0.5 * (np.eye(6) if name == "source" else -adjoint(Ti))  # the target's, in the source's frame
         err, cov = err + A @ xi, cov + A @ c @ A.T
         n.append(k)
         names.append(name)
@@ -169,13 +170,3 @@ def judge(src_pre, tgt_pre, T: np.ndarray, rc, min_range: float = 0.0) -> tuple[
         return False, ""
     bends = sk.bends(rc.success_rot_deg, rc.success_trans)
     return bends, f"{'rejected' if bends else 'passed'}: {sk}"
-
-
-def _adjoint(T: np.ndarray) -> np.ndarray:
-    """The adjoint (6, 6) of ``T`` (4, 4) on twists (translation, rotation): a twist in the frame ``T`` maps from
-    into the frame it maps to (``[R v + t x R w, R w]``)."""
-    R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    A = np.zeros((6, 6))
-    A[:3, :3], A[:3, 3:], A[3:, 3:] = R, tx @ R, R
-    return A
