@@ -10,7 +10,9 @@ and the good-start verdict (a spread subset of the GICP voxels):
   ``--sim-low-pairs`` the low-overlap pairs (``low_overlap``: the target can judge 10-40 % of the source) and with
   ``--sim-turned-pairs`` the turned pairs (``turned``: a solid-state sensor turned and moved between its scans) apart;
   with ``--sim-slid`` also the truth slid 2.5-6 tolerances along its least pinned direction (``slid``: every pose
-  wrong, one that a scene's free direction hides), apart;
+  wrong, one that a scene's free direction hides), apart; ``<verdict>_answers/<family>``: the same counts on the
+  answers a registration gives alone (:data:`ANSWERS`: GICP's, the pipeline's), the poses its verdicts judge, without
+  the truth moved by hand (beyond 2 deg / 0.5 m, or within 0.5 deg / 0.1 m on the low-overlap pairs);
 * ``real``: the real sets given (KITTI-style folders with ground truth: the pair protocol, ``--stride`` /
   ``--max-dist`` per set; a reference pair folder with ``relative.txt``: ``--trials`` starts perturbed by up to 45
   deg / 5 m). The pair verdict judges the whole pipeline's answer (``register`` from identity, or the perturbed
@@ -67,6 +69,10 @@ import numpy as np  # noqa: E402
 from deepbbs_ros.core.visibility import FEATURES  # noqa: E402
 
 OLD = {"pair": 0.35, "good_start": 0.65}  # the fixed fitness thresholds the probability replaced
+#: the simulated poses that are answers a registration gives (calibrate_verdict.py's kinds): GICP's from starts near
+#: and far, the whole pipeline's, GICP's against another place. The others ("moved": the truth moved beyond
+#: 2 deg / 0.5 m, "truth": within 0.5 deg / 0.1 m, "slid") are placed by hand: no run of the registration gives them
+ANSWERS = ("near", "far", "pipeline", "other")
 FAMILY = {"hdl64": "dense", "ouster64": "dense", "os0_64": "dense", "os0_128": "dense", "os1_64": "dense",
           "os1_128": "dense", "avia": "solid", "mid360": "solid"}  # every other simulated sensor: sparse
 
@@ -245,6 +251,11 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
                 out[f"{row}/{f}"] = summary(data["y"][m] == 1, data[key][m, 0], (p * factor)[m], OLD[name], bar,
                                             data["near_ref"][m], np.c_[data["rot"][m], data["trans"][m]], veto)
             p_on = p * w if on else p
+            if f != "slid":  # the answers a registration gives alone: the poses its verdicts judge (ANSWERS)
+                a = np.isin(data["kind"][m], ANSWERS)
+                out[f"{name}_answers/{f}"] = summary(data["y"][m][a] == 1, data[key][m, 0][a], p_on[m][a], OLD[name],
+                                                     bar, data["near_ref"][m][a],
+                                                     np.c_[data["rot"][m], data["trans"][m]][a], veto[a])
             out[f"{name}_{'without' if rc.skew_check else 'with'}_skew/{f}"] = summary(
                 data["y"][m] == 1, data[key][m, 0], p_on[m], OLD[name], bar, data["near_ref"][m],
                 np.c_[data["rot"][m], data["trans"][m]], amb | (False if rc.skew_check else bent[m]))
