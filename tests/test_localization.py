@@ -395,7 +395,7 @@ def test_two_identical_places_are_ambiguous(localizer, world):
 
 
 def test_tracker_found_tracking_lost_relocalized(localizer, world):
-    from deepbbs_ros.core.localization import MapTracker
+    from deepbbs_ros.core.tracking import MapTracker
 
     _, _, drive, other = world
     tracker = MapTracker(localizer)
@@ -449,7 +449,7 @@ def test_tracker_deskews_raw_sweeps_without_drifting(localizer):
     # raw sweeps (each column from the pose at its firing time, per-point times): the tracker deskews each scan with
     # its recent motion read off its own map poses; from the last two poses alone that loop amplified their noise
     # (tilt 0.1 -> 7 deg in 25 scans while the verdict stayed at 0.99); over a window of poses it holds
-    from deepbbs_ros.core.localization import MapTracker
+    from deepbbs_ros.core.tracking import MapTracker
     from deepbbs_ros.sim.simulator import DriveSimulator
 
     raw = DriveSimulator("urban", 5, frames=100)  # the map's drive, motion distortion on
@@ -470,7 +470,8 @@ def test_tracker_deskews_raw_sweeps_without_drifting(localizer):
 def test_a_hint_is_searched_first_and_settles_look_alikes(localizer, world):
     """MapTracker.hint (the node's /initialpose): the map twice, 500 m apart, is ambiguous with no hint; a hint near
     one copy searches its places first and places the scan there; a bad hint is one line."""
-    from deepbbs_ros.core.localization import MapLocalizer, MapTracker
+    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.tracking import MapTracker
 
     map_points, trajectory, drive, _ = world
     shift = np.array([500.0, 0.0, 0.0])
