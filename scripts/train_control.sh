@@ -29,21 +29,8 @@ if [ ! -d "$CACHE/worlds_train" ]; then
   echo "no $CACHE/worlds_train: make it as scripts/train_worlds.sh does (step 1)" >&2; exit 1
 fi
 . scripts/train_mix_data.sh  # MIX_SCHEDULE: the mix runs' schedule, the same string they run
+. scripts/train_resume.sh  # fit_chunks
 SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 ${SETS_EXTRA:-}"
-done_steps=0
-while [ "$done_steps" -lt "$STEPS" ]; do
-  if [ -f "$RUN/state_latest.pt" ]; then
-    FROM="--resume"
-  elif [ "$START" = shipped ]; then
-    FROM="--init shipped"
-  else
-    FROM="--resume $START"
-  fi
-  # shellcheck disable=SC2086
-  $T fit --cache "$CACHE/worlds_train" ${MORE:-} --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM \
-    --max-steps "$CHUNK"
-  step=$($PY -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['step'])" "$RUN/state_latest.pt")
-  cp "$RUN/model_latest.pt" "$RUN/step$step.pt"
-  echo "weights at step $step: $RUN/step$step.pt"
-  done_steps=$((done_steps + CHUNK))
-done
+if [ "$START" = shipped ]; then FIRST="--init shipped"; else FIRST="--resume $START"; fi
+# shellcheck disable=SC2086
+fit_chunks "$FIRST" --cache "$CACHE/worlds_train" ${MORE:-}

@@ -39,23 +39,7 @@ if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 mix_train mixclean --sweeps compensated
 road_train
 
-# 2. fit: MIX_SCHEDULE and the hard pairs left out, CHUNK steps at a time
+# 2. fit: MIX_SCHEDULE and the hard pairs left out, CHUNK steps at a time (fit_chunks, scripts/train_resume.sh)
 SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 --set train.hard_pair_deg=$HARD"
-done_steps=0
-while [ "$done_steps" -lt "$STEPS" ]; do
-  if [ -f "$RUN/state_latest.pt" ]; then
-    FROM="--resume"
-  elif [ -f "$STATE/state_latest.pt" ]; then
-    FROM="--resume $STATE/state_latest.pt"
-  else
-    FROM="--init shipped"
-  fi
-  # shellcheck disable=SC2086
-  $T fit --cache "$CACHE/mixclean_train" --cache "$CACHE/worlds_train" --run "$RUN" --threads "$THREADS" \
-    --no-progress $SETS $FROM --max-steps "$CHUNK"
-  if [ "$PY" = echo ]; then break; fi  # a dry run (PY=echo) prints the commands once
-  step=$($PY -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['step'])" "$RUN/state_latest.pt")
-  cp "$RUN/model_latest.pt" "$RUN/step$step.pt"
-  echo "weights at step $step: $RUN/step$step.pt"
-  done_steps=$((done_steps + CHUNK))
-done
+if [ -f "$STATE/state_latest.pt" ]; then FIRST="--resume $STATE/state_latest.pt"; else FIRST="--init shipped"; fi
+fit_chunks "$FIRST" --cache "$CACHE/mixclean_train" --cache "$CACHE/worlds_train"

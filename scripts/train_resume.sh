@@ -1,6 +1,7 @@
-# Sourced by scripts/train_worlds.sh and scripts/train_mix.sh: the resume, initialisation and budget
-# logic the resumable training scripts share. Needs RUN (the run folder), STATE (the committed state
-# folder) and BUDGET (minutes of fitting this invocation, 0 = until the schedule ends).
+# Sourced by scripts/train_worlds.sh, train_mix.sh, train_mix_clean.sh and train_control.sh: the resume,
+# initialisation, budget and chunked-fit logic the resumable training scripts share. Needs RUN (the run folder),
+# STATE (the committed state folder) and BUDGET (minutes of fitting this invocation, 0 = until the schedule ends);
+# fit_chunks needs T, PY, SETS, STEPS, CHUNK and THREADS.
 
 # save_state: copy the run's resume state, best model, validation history, curves, fit arguments and log into $STATE.
 save_state() {
@@ -25,4 +26,23 @@ start_args() {
     START="--init $RUN/$2"
   fi
   if [ "$BUDGET" != 0 ]; then LIMIT="--time-budget-min $BUDGET"; else LIMIT=""; fi
+}
+
+# fit_chunks FIRST FIT_ARGS...: `$T fit FIT_ARGS... --run $RUN ... $SETS`, STEPS steps CHUNK at a time, resuming
+# $RUN's state, or starting with FIRST ("--init shipped", "--resume STATE_FILE") while $RUN has none; the weights
+# are copied after each chunk to $RUN/stepN.pt. A dry run (PY=echo) prints the fit command once.
+fit_chunks() {
+  first=$1
+  shift
+  done_steps=0
+  while [ "$done_steps" -lt "$STEPS" ]; do
+    if [ -f "$RUN/state_latest.pt" ]; then FROM="--resume"; else FROM=$first; fi
+    # shellcheck disable=SC2086
+    $T fit "$@" --run "$RUN" --threads "$THREADS" --no-progress $SETS $FROM --max-steps "$CHUNK"
+    if [ "$PY" = echo ]; then break; fi
+    step=$($PY -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['step'])" "$RUN/state_latest.pt")
+    cp "$RUN/model_latest.pt" "$RUN/step$step.pt"
+    echo "weights at step $step: $RUN/step$step.pt"
+    done_steps=$((done_steps + CHUNK))
+  done
 }

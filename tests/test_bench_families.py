@@ -224,3 +224,24 @@ def test_node_timing_prepares_both_scans_before_the_clock(monkeypatch):
     recs = [_good_rec(True, "gicp", "accepted", 12.0)]
     recs[0]["timing"] = {**out, "good_node_ms": [5.0], "gicp_node_ms": [4.0]}
     assert families.in_basin(recs)["alternated"]["node"]["p50_over_gicp"] == 1.25
+
+
+def test_the_good_start_alone_is_run_summarised_and_reported(tmp_path, monkeypatch, capsys):
+    """--methods deepbbs++good alone: it applies to the good start only, so the basin offsets' cases have no record;
+    collect returns the recorded ones, and the summary and the report are made of them."""
+    monkeypatch.setattr(families._reg, "make_methods", lambda names, args: {n: ("timed", "answering") for n in names})
+    monkeypatch.setattr(families, "run_good", lambda regs, src, tgt: {
+        "ms": 5.0, "cpu_ms": 6.0, "T": np.eye(4), "valid": True, "score": 0.9, "path": "gicp", "why": "accepted",
+        "stages_ms": {}})
+    sets = {"sim_a": {"sensor": "vlp16", "source": "sim", "mount": "wheeled", "place": "hall",
+                      "frames": [(_cloud(seed=k), np.eye(4)) for k in range(2)]}}
+    cases = [{"set": "sim_a", "i": 1, "j": 0, "level": level, "move": [30.0 * level, 2.0 * level, 0.0]}
+             for level in (0, 1)]
+    args = Namespace(report_only=False, timing_repeats=3)
+    recs = families.collect(cases, sets, [families.GOOD], args, tmp_path / "cases.jsonl")
+    assert [r["level"] for r in recs] == [0] and recs[0][families.GOOD]["ok"]
+    fig = families.summarise(recs, sets, [families.GOOD])
+    assert fig["sim_a"]["good_start"]["gicp_path"] == 1 and fig["sim_a"]["success_pct"] == {families.GOOD: 100.0}
+    families.report(fig, [families.GOOD])
+    assert "deepbbs++good 100 %" in capsys.readouterr().out
+    assert families.collect(cases, sets, [families.GOOD], args, tmp_path / "cases.jsonl") == recs  # a rerun reads it

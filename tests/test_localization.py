@@ -379,23 +379,28 @@ def test_a_first_round_far_below_the_bar_ends_whatever_the_descriptor(localizer,
     assert not slow.valid and "outside" not in slow.reason and len(calls) > quick + slow.candidates
 
 
-def test_two_identical_places_are_ambiguous(localizer, world):
-    """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
+def _twin_map(localizer, world, shift):
+    """A MapLocalizer of the world's map twice, the second copy moved by ``shift`` (3,) m, with both trajectories."""
     from deepbbs_ros.core.localization import MapLocalizer
 
-    map_points, trajectory, drive, _ = world
-    shift = np.array([500.0, 0.0, 0.0])
+    map_points, trajectory, _, _ = world
     twin = trajectory.copy()
     twin[:, :3, 3] += shift
-    loc = MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
-                       registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
+    return MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
+                        registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
+
+
+def test_two_identical_places_are_ambiguous(localizer, world):
+    """The map twice, 500 m apart (a row of identical houses, at its extreme): no pose, and why."""
+    drive = world[2]
+    loc = _twin_map(localizer, world, np.array([500.0, 0.0, 0.0]))
     res = loc.localize(drive.scan_at(48).points)
     assert not res.valid and res.reason.startswith("ambiguous: 2 places, 500")
     assert len(res.alternatives) == 1  # the other copy: (x, y, score)
 
 
 def test_tracker_found_tracking_lost_relocalized(localizer, world):
-    from deepbbs_ros.core.localization import MapTracker
+    from deepbbs_ros.core.tracking import MapTracker
 
     _, _, drive, other = world
     tracker = MapTracker(localizer)
@@ -449,7 +454,7 @@ def test_tracker_deskews_raw_sweeps_without_drifting(localizer):
     # raw sweeps (each column from the pose at its firing time, per-point times): the tracker deskews each scan with
     # its recent motion read off its own map poses; from the last two poses alone that loop amplified their noise
     # (tilt 0.1 -> 7 deg in 25 scans while the verdict stayed at 0.99); over a window of poses it holds
-    from deepbbs_ros.core.localization import MapTracker
+    from deepbbs_ros.core.tracking import MapTracker
     from deepbbs_ros.sim.simulator import DriveSimulator
 
     raw = DriveSimulator("urban", 5, frames=100)  # the map's drive, motion distortion on
@@ -470,15 +475,11 @@ def test_tracker_deskews_raw_sweeps_without_drifting(localizer):
 def test_a_hint_is_searched_first_and_settles_look_alikes(localizer, world):
     """MapTracker.hint (the node's /initialpose): the map twice, 500 m apart, is ambiguous with no hint; a hint near
     one copy searches its places first and places the scan there; a bad hint is one line."""
-    from deepbbs_ros.core.localization import MapLocalizer, MapTracker
+    from deepbbs_ros.core.tracking import MapTracker
 
-    map_points, trajectory, drive, _ = world
+    drive = world[2]
     shift = np.array([500.0, 0.0, 0.0])
-    twin = trajectory.copy()
-    twin[:, :3, 3] += shift
-    loc = MapLocalizer(np.concatenate([map_points, map_points + shift.astype(np.float32)]),
-                       registration=localizer.registration, trajectory=np.concatenate([trajectory, twin]))
-    tracker = MapTracker(loc)
+    tracker = MapTracker(_twin_map(localizer, world, shift))
     T_gt = drive.pose_at(48)
     cov = np.diag([0.25, 0.25, 0.0, 0.0, 0.0, 0.0685])  # RViz's 2D Pose Estimate
     T_twin = T_gt.copy()

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from deepbbs_ros.config import Config, PreprocessConfig
+from deepbbs_ros.config.preprocess import SENSORS
 from deepbbs_ros.core.preprocess import crop_mask, preprocess, voxel_downsample
 from deepbbs_ros.core.scans import prepare_scan
-from deepbbs_ros.core.sensors import SENSORS, azimuth_coverage, guess_sensor, resolve
+from deepbbs_ros.core.sensors import azimuth_coverage, guess_sensor, resolve
 from deepbbs_ros.errors import ConfigError
 from msg_adapters.layouts import FLOAT64_XYZ, HESAI, LIVOX, OUSTER, VELODYNE, build_cloud, recognise_driver
 

@@ -334,7 +334,8 @@ def _tiny_cli_run(tmp_path) -> tuple:
 def test_cli_resume_records_the_set_list_once(tmp_path):
     """A schedule resuming with its whole --set list again: fit_args.json keeps each key once, at its first place,
     with its last value (the config the list makes is unchanged: later values win)."""
-    from deepbbs_ros.cli.train import _overrides, main
+    from deepbbs_ros.cli.train import main
+    from deepbbs_ros.cli.train_parser import _overrides
 
     cache, sets = _tiny_cli_run(tmp_path)
     run = ["fit", "--cache", str(cache), "--run", str(tmp_path / "run"), "--max-steps", "1", "--no-progress",
@@ -359,7 +360,7 @@ def test_cli_fit_and_errors(tmp_path, capsys):
                  "--threads", "1", *sets]) == 0
     assert main(["fit", "--run", str(tmp_path / "run"), "--resume", "--max-steps", "1", "--no-progress"]) == 0
     assert "resumed" in capsys.readouterr().err
-    from deepbbs_ros.cli.train import _state_model_config
+    from deepbbs_ros.cli.train_fit import _state_model_config
 
     assert _state_model_config(tmp_path / "run")["emb_dims"] == 16  # a resume rebuilds the run's own network
     assert main(["fit", "--run", str(tmp_path / "r2"), "--no-progress"]) == 1

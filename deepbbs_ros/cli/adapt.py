@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from deepbbs_ros.cli.train_parser import _config, _overrides
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError
 
@@ -27,7 +28,6 @@ def _strides(text: str) -> list[int]:
 
 
 def run_adapt(args, cfg: Config) -> int:
-    from deepbbs_ros.cli.train import _overrides
     from deepbbs_ros.core.registration import DeepBBSRegistration
     from deepbbs_ros.train import adapt as A
     from deepbbs_ros.train.adapt_report import evaluate_held, held_pairs, markdown
@@ -40,8 +40,6 @@ def run_adapt(args, cfg: Config) -> int:
         prev = json.loads(saved.read_text())
         for k in KEPT:
             setattr(args, k, prev.get(k, getattr(args, k)))
-        from deepbbs_ros.cli.train import _config
-
         cfg = _config(args)
     else:
         saved.write_text(json.dumps({**{k: getattr(args, k) for k in KEPT},

@@ -119,8 +119,9 @@ def build_tracker(prior, cfg, *, weights=None, device=None, quiet=False):
     (MapTracker, LocalizationResults with the map, its places and the set-up time)."""
     import time
 
-    from deepbbs_ros.core.localization import MapLocalizer, MapTracker
+    from deepbbs_ros.core.localization import MapLocalizer
     from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.core.tracking import MapTracker
     from deepbbs_ros.replay.runner import LocalizationResults
 
     reg = DeepBBSRegistration(cfg, weights=weights, device=device)

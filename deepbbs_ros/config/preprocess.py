@@ -3,8 +3,31 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from deepbbs_ros.config.keys import _check
+
+#: the ``sensor`` rows: sensor name -> {PreprocessConfig field: (value, reason)} (applied by core/sensors.py)
+SENSORS: dict[str, dict[str, tuple[Any, str]]] = {
+    "hdl64": {},  # the reference: the defaults (car roof, 2 m ego crop, 80 m crop the model's scale is set for)
+    "hdl32": {},  # spinning, 360 degrees, car or robot: the defaults (a roof or body: preprocess.self_filter_box)
+    "vlp16": {},  # idem; sparse rings are handled by min_candidates, not by a row
+    "ouster": {},  # OS0 / OS1 / OS2 at 32-128 beams: spinning, 360 degrees
+    "hesai": {},  # XT-32 / Pandar: spinning, 360 degrees
+    "robosense": {},  # RS-LiDAR 16 / 32 / Helios: spinning, 360 degrees
+    "livox_avia": {
+        "min_range": (1.0, "non-repetitive rosette with a ~1 m blind zone, handheld or on a small robot: no car "
+                           "body to crop 2 m around"),
+        "voxel_size": (0.2, "3,000-5,000 points a frame over 70 x 77 degrees: a 0.3 m grid leaves too few "
+                            "candidates for the sampling"),
+        "ground_search": ("any", "held at any tilt: the upright fit's 20-degree cone cuts a tilted floor, the floor "
+                                 "search at any tilt does not"),
+    },
+    "livox_mid360": {
+        "min_range": (0.3, "360 x 59 degrees from 0.1 m on a robot: the robot's body belongs in self_filter_box"),
+        "voxel_size": (0.2, "about 20,000 points a frame spread over a hemisphere-like pattern: a finer grid"),
+    },
+}
 
 
 @dataclass
@@ -31,9 +54,9 @@ class PreprocessConfig:
     deskew: bool = True
     seed: int = 0  # makes random steps (RANSAC, FPS start point) deterministic
     # the LiDAR: "auto" (the driver's PointCloud2 layout when recognised, else the cloud's shape) or a name of
-    # deepbbs_ros/core/sensors.py ("hdl64", "hdl32", "vlp16", "ouster", "hesai", "robosense", "livox_avia",
-    # "livox_mid360"); it sets the defaults of min_range, voxel_size and ground_search, a setting changed from its
-    # default always wins
+    # SENSORS in deepbbs_ros/config/preprocess.py ("hdl64", "hdl32", "vlp16", "ouster", "hesai", "robosense",
+    # "livox_avia", "livox_mid360"); it sets the defaults of min_range, voxel_size and ground_search, a setting
+    # changed from its default always wins
     sensor: str = "auto"
     # self-filter: an axis-aligned box [xmin, xmax, ymin, ymax, zmin, zmax] in the sensor frame (m) whose points are
     # dropped (the robot's own body, a car's roof) beside min_range; [] = off
@@ -50,8 +73,6 @@ class PreprocessConfig:
     min_candidates: int = 1024
 
     def validate(self) -> None:
-        from deepbbs_ros.core.sensors import SENSORS
-
         _check(self.sensor == "auto" or self.sensor in SENSORS, "preprocess.sensor",
                f"must be 'auto' or one of {', '.join(SENSORS)}, got {self.sensor!r}")
         _check(len(self.self_filter_box) in (0, 6), "preprocess.self_filter_box",

@@ -94,17 +94,9 @@ from deepbbs_ros.core.map_index import _CellIndex, voxel_downsample
 from deepbbs_ros.core.place_ranking import PlaceRanking
 from deepbbs_ros.core.place_search import MIN_PROBE_POINTS, PlaceSearch  # noqa: F401
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, prepare_polish_cloud
-from deepbbs_ros.core.tracking import (  # noqa: F401
-    DESKEW_WINDOW,
-    HINT_MIN_RADIUS,
-    HINT_MIN_YAW,
-    HINT_SIGMAS,
-    HINT_YAW_STEP,
-    MapTracker,
-)
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 
-__all__ = ["LocalizationResult", "MapLocalizer", "MapTracker", "PreparedScan", "voxel_downsample"]
+__all__ = ["LocalizationResult", "MapLocalizer", "PreparedScan", "voxel_downsample"]
 
 MIN_MAP_POINTS = 100  # a map with fewer points is refused
 #: bytes per voxel of a small_gicp cloud with covariances and normals (point, normal: 4 doubles; covariance: 16) and

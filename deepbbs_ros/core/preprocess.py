@@ -56,10 +56,12 @@ import numpy as np
 
 from deepbbs_ros.config import PreprocessConfig
 from deepbbs_ros.core.crop import crop_mask, crop_range
+from deepbbs_ros.core.ground import choose_floor, find_floor
 from deepbbs_ros.core.ground_plane import MIN_POINTS, fit_ground_plane, remove_ground, signed_dist
 from deepbbs_ros.core.points import as_xyz
 from deepbbs_ros.core.preprocess_result import SAMPLED_FIELDS, PreprocessResult
 from deepbbs_ros.core.sampling import canonical_order, dense_subsample, farthest_point_sample, voxel_downsample
+from deepbbs_ros.core.sensors import resolve
 from deepbbs_ros.core.sweep import SweepTimes, deskew
 from deepbbs_ros.errors import RegistrationError
 
@@ -90,8 +92,6 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
         RegistrationError: empty input, wrong shape, fewer than 3 finite points inside the range crop,
             or fewer than 3 points left after ground removal.
     """
-    from deepbbs_ros.core.sensors import resolve
-
     cfg = resolve(cfg or PreprocessConfig())
     seed = cfg.seed if seed is None else seed
     timings: dict[str, float] = {}
@@ -161,8 +161,6 @@ def preprocess(points: np.ndarray, cfg: PreprocessConfig | None = None, *, seed:
 def _ground(pts: np.ndarray, cfg: PreprocessConfig, seed: int) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Step 2: ``(nonground mask or None, plane or None, ground_status)`` of the valid points (see the module
     docstring: the upright fit, checked as a floor, then the floor search at any tilt)."""
-    from deepbbs_ros.core.ground import choose_floor, find_floor
-
     keep, upright = None, None
     if cfg.ground_search != "any":
         try:

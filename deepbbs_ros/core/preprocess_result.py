@@ -64,8 +64,9 @@ class PreprocessResult:
     velocity: tuple[np.ndarray, float] | None = None
     ground_status: str = ""
     sensor: str = "auto"
-    # (cfg, seed) while the sampling waits (``prepare_scan(..., lazy=True)``: on the grid of ``polish_cloud``, put in
-    # :func:`canonical_order`; (cfg, seed, raw scan (N, 3)) for a scan too sparse for that grid: on its own): the first
+    # (pipeline, cfg, seed) while the sampling waits (``prepare_scan(..., lazy=True)``: on the grid of ``polish_cloud``,
+    # put in :func:`canonical_order`; (pipeline, cfg, seed, raw scan (N, 3)) for a scan too sparse for that grid: on
+    # its own), ``pipeline`` being ``core.preprocess.preprocess``, given by the caller that builds the result: the first
     # read of a sampled field (:data:`SAMPLED_FIELDS`) runs it; None once sampled
     pending_sample: Any = field(default=None, repr=False, compare=False)
 
@@ -97,11 +98,9 @@ class PreprocessResult:
             spec = self.__dict__.get("pending_sample")
             if spec is None:
                 return self
-            cfg, seed, *raw = spec
+            preprocess, cfg, seed, *raw = spec
             t0 = time.perf_counter()
             d = self.__dict__
-            from deepbbs_ros.core.preprocess import preprocess  # the pipeline builds this result: imported here
-
             if raw:  # a sparse scan: its own grid, from the raw scan, as prepare_scan would have sampled at once
                 res = preprocess(raw[0], cfg, seed=seed)
                 d["n_valid"] = res.n_valid

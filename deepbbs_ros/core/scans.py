@@ -117,7 +117,7 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
         # one voxel grid per scan: the precision stage's, whose centroids the network's points are sampled from
         if lazy:  # sampled on first read, from the precision-stage cloud's grid: the same numbers
             res = PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
-                                   pending_sample=(pp, pp.seed))
+                                   pending_sample=(preprocess, pp, pp.seed))
         else:
             grid = pc.points() if ordered else canonical_order(pc.points())
             res = preprocess(grid.astype(np.float32), pp, gridded=True)
@@ -127,7 +127,7 @@ def _sampled(pp: Any, pc: PolishCloud | None, points: np.ndarray, lazy: bool,
         # a sparse raw scan's own grid: sampled on first read from the scan (one with nearly nothing in the crop
         # fails here, as a scan should: at once)
         return PreprocessResult(None, None, len(points), pc.n_cropped, 0, timings_ms={"total": 0.0},
-                                pending_sample=(pp, pp.seed, np.asarray(points, np.float32)))
+                                pending_sample=(preprocess, pp, pp.seed, np.asarray(points, np.float32)))
     return preprocess(points, pp)
 
 

@@ -1,6 +1,7 @@
 """Preprocessing defaults per LiDAR, and which LiDAR a scan comes from (no ROS import).
 
-``preprocess.sensor`` names a row of :data:`SENSORS`; ``"auto"`` picks one from the driver that published the
+``preprocess.sensor`` names a row of :data:`~deepbbs_ros.config.preprocess.SENSORS` (the section's defaults per
+LiDAR, beside the section); ``"auto"`` picks one from the driver that published the
 scan (``driver``: ``msg_adapters.layouts.recognise_driver`` reads it from the PointCloud2 fields, and the caller
 passes it in) or, without one, from the cloud's shape (:func:`guess_sensor`). :func:`resolve` applies the row to a
 :class:`PreprocessConfig`: a setting the user changed from its default always wins over the sensor's.
@@ -15,33 +16,11 @@ azimuth (``core.preprocess.SweepTimes``: spinning sensors, not Livox rosettes).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.config import PreprocessConfig
-
-#: sensor name -> {PreprocessConfig field: (value, reason)}
-SENSORS: dict[str, dict[str, tuple[Any, str]]] = {
-    "hdl64": {},  # the reference: the defaults (car roof, 2 m ego crop, 80 m crop the model's scale is set for)
-    "hdl32": {},  # spinning, 360 degrees, car or robot: the defaults (a roof or body: preprocess.self_filter_box)
-    "vlp16": {},  # idem; sparse rings are handled by min_candidates, not by a row
-    "ouster": {},  # OS0 / OS1 / OS2 at 32-128 beams: spinning, 360 degrees
-    "hesai": {},  # XT-32 / Pandar: spinning, 360 degrees
-    "robosense": {},  # RS-LiDAR 16 / 32 / Helios: spinning, 360 degrees
-    "livox_avia": {
-        "min_range": (1.0, "non-repetitive rosette with a ~1 m blind zone, handheld or on a small robot: no car "
-                           "body to crop 2 m around"),
-        "voxel_size": (0.2, "3,000-5,000 points a frame over 70 x 77 degrees: a 0.3 m grid leaves too few "
-                            "candidates for the sampling"),
-        "ground_search": ("any", "held at any tilt: the upright fit's 20-degree cone cuts a tilted floor, the floor "
-                                 "search at any tilt does not"),
-    },
-    "livox_mid360": {
-        "min_range": (0.3, "360 x 59 degrees from 0.1 m on a robot: the robot's body belongs in self_filter_box"),
-        "voxel_size": (0.2, "about 20,000 points a frame spread over a hemisphere-like pattern: a finer grid"),
-    },
-}
+from deepbbs_ros.config.preprocess import SENSORS
 
 #: ``msg_adapters.layouts.recognise_driver`` names -> the sensor whose defaults apply (a Velodyne's model is unknown
 #: from its fields, and every spinning row is the defaults: None; a Livox is told by its shape)

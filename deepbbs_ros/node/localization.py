@@ -3,7 +3,7 @@
 The map comes from ``localization.map_path`` (a ``.pcd`` / ``.ply`` file in the map frame, with the trajectory
 it was built from beside it when there is one, :func:`load_map_file`) or from the latched map topic
 (``target_cloud``, as ``node.target_mode: latched``). :class:`NodeLocalization` owns the
-:class:`~deepbbs_ros.core.localization.MapTracker` over it and runs one :meth:`~NodeLocalization.step` per scan on
+:class:`~deepbbs_ros.core.tracking.MapTracker` over it and runs one :meth:`~NodeLocalization.step` per scan on
 the registration worker thread: no initial pose (the whole map is searched), then tracking from the
 constant-velocity prediction; the tracker's verdict decides, and only a valid pose is handed on to be published.
 
@@ -160,7 +160,7 @@ class NodeLocalization(SearchBridge, LocalizationDiagnostics):
             self._hint = (np.asarray(T_map_base, dtype=np.float64), np.asarray(covariance, dtype=np.float64))
 
     def _take_requests(self, cloud: Cloud) -> None:
-        from deepbbs_ros.core.localization import MapTracker
+        from deepbbs_ros.core.tracking import MapTracker
 
         with self._lock:
             data, self._pending_map = self._pending_map, None

@@ -3,12 +3,9 @@ its handle (:class:`ScanHandle`, the node's ``Cloud.pp``) and an input topic's `
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from deepbbs_ros.node.registration_process import RegistrationProcess
 
 
 class ScanHandle:
@@ -43,10 +40,19 @@ class ScanHandle:
         return f"ScanHandle({where}, {len(self.xyz)} points, stamp {self.stamp_ns})"
 
 
+class _DeskewOwner(Protocol):
+    """What a :class:`_RemoteStreamDeskew` asks of the ``RegistrationProcess`` that made it (the process imports this
+    module, not the other way)."""
+
+    def _deskew(self, stream: _RemoteStreamDeskew, pre: ScanHandle) -> ScanHandle: ...
+
+    def _send_quiet(self, msg: tuple) -> None: ...
+
+
 class _RemoteStreamDeskew:
     """``core.deskew.StreamDeskew`` of one input topic, run in the worker (``apply`` / ``reset``)."""
 
-    def __init__(self, owner: RegistrationProcess, key: str) -> None:
+    def __init__(self, owner: _DeskewOwner, key: str) -> None:
         self._owner, self.key = owner, key
         self._local: Any = None  # the fallback's StreamDeskew
 

@@ -21,7 +21,7 @@ from deepbbs_ros.errors import DeepBBSError
 # --------------------------------------------------------------------------------------------------
 @dataclass
 class LocalizationRecord:
-    """One scan through the map tracker (:class:`~deepbbs_ros.core.localization.MapTracker`).
+    """One scan through the map tracker (:class:`~deepbbs_ros.core.tracking.MapTracker`).
 
     T_map_est: (4, 4) float64 the tracker's pose of the scan in the map frame (NaN when it gave none);
     published only when ``valid``. T_map_gt: (4, 4) the recording's ground truth (taken to be in the map frame),
@@ -78,7 +78,7 @@ def run_localization(
     results: LocalizationResults | None = None,
 ) -> LocalizationResults:
     """Every ``config.eval.odom_stride``-th scan through ``tracker.step(points, stamp_ns, times)`` (a
-    :class:`~deepbbs_ros.core.localization.MapTracker`: no initial pose, it searches the map first), one
+    :class:`~deepbbs_ros.core.tracking.MapTracker`: no initial pose, it searches the map first), one
     :class:`LocalizationRecord` per scan. A :class:`~deepbbs_ros.errors.DeepBBSError` on a scan (too few points)
     is that scan's "error" event (no pose) and the run goes on. KeyboardInterrupt stops the loop with
     ``complete=False``, the scans so far kept."""

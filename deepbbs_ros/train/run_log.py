@@ -1,5 +1,6 @@
 """A training run's logs: ``log.jsonl`` (one JSON record per training step, ``"kind": "train"``, and per validation,
-``"kind": "val"``), ``val.csv`` (the validation records as a table) and the Markdown report of a run folder."""
+``"kind": "val"``), ``val.csv`` (the validation records as a table) and the Markdown report of a run folder; the
+names of the folder's checkpoint files (written by run_state.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,10 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.errors import ModelError
+
+STATE_FILE = "state_latest.pt"  # everything an exact resume needs (run_state.save_state)
+LATEST_MODEL = "model_latest.pt"  # the latest weights, in the shipped checkpoint format
+BEST_MODEL = "model_best.pt"  # the best validated weights, idem
 
 
 def append_log(run_dir: Path, rec: dict[str, Any]) -> None:
@@ -47,8 +52,6 @@ def write_val_csv(run_dir: Path, history: list[dict[str, Any]]) -> None:
 def run_report(run_dir: str | Path) -> str:
     """Markdown: steps done, training time, seconds per step (by points per cloud), and the validation
     history of a run folder (from ``log.jsonl``)."""
-    from deepbbs_ros.train.run_state import BEST_MODEL
-
     run_dir = Path(run_dir)
     log = run_dir / "log.jsonl"
     if not log.exists():

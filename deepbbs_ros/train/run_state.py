@@ -1,7 +1,10 @@
 """A training run's checkpoints: ``state_latest.pt``, everything an exact resume needs (model, optimiser,
 scheduler, step, every generator, history, best score; with several processes every rank's generators), the
 weights in the shipped checkpoint format (``model_latest.pt``, ``model_best.pt``, ``val_best.json``), and the
-resume that restores a :class:`~deepbbs_ros.train.trainer.Trainer` from them."""
+resume that restores a :class:`~deepbbs_ros.train.trainer.Trainer` from them.
+
+The trainer imports this module, not the other way: what is saved and restored is named by :class:`TrainerState`, the
+attributes read and set here (the folder's file names are run_log.py's)."""
 
 from __future__ import annotations
 
@@ -10,29 +13,51 @@ import random
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
+from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ModelError
-from deepbbs_ros.train.run_log import truncate_log
+from deepbbs_ros.train.run_log import BEST_MODEL, LATEST_MODEL, STATE_FILE, truncate_log
 
-if TYPE_CHECKING:
-    from deepbbs_ros.train.trainer import Trainer
-
-STATE_FILE = "state_latest.pt"
-LATEST_MODEL = "model_latest.pt"
-BEST_MODEL = "model_best.pt"
+__all__ = ["BEST_MODEL", "LATEST_MODEL", "STATE_FILE", "TrainerState", "model_meta", "rank_state", "restore_state",
+           "save_state"]
 
 
-def model_meta(trainer: Trainer, val: dict[str, Any] | None) -> dict[str, Any]:
+class TrainerState(Protocol):
+    """What a training state holds of :class:`deepbbs_ros.train.trainer.Trainer` (read when saved, set on resume)."""
+
+    config: Config
+    run_dir: Path
+    meta: dict[str, Any]
+    model: Any  # torch.nn.Module
+    optimizer: Any  # torch.optim.Optimizer
+    scheduler: Any  # torch.optim.lr_scheduler.LRScheduler
+    device: Any  # torch.device
+    rng: np.random.Generator
+    step: int
+    train_seconds: float
+    best_score: float | None
+    best_val: dict[str, Any] | None
+    history: list[dict[str, Any]]
+    rank: int
+    world_size: int
+    is_main: bool
+    num_points: int
+
+    @property
+    def epoch(self) -> int: ...
+
+
+def model_meta(trainer: TrainerState, val: dict[str, Any] | None) -> dict[str, Any]:
     """The metadata stored in a model checkpoint: the trainer's, its progress and the validation ``val``."""
     return {**trainer.meta, "step": trainer.step, "epoch": trainer.epoch,
             "train_seconds": round(trainer.train_seconds, 1), "num_points": trainer.num_points, "validation": val,
             "saved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
 
 
-def rank_state(trainer: Trainer) -> dict[str, Any]:
+def rank_state(trainer: TrainerState) -> dict[str, Any]:
     """This process's generators and a digest of its weights (the same on every rank when in sync)."""
     import hashlib
 
@@ -46,7 +71,7 @@ def rank_state(trainer: Trainer) -> dict[str, Any]:
             "py_rng": random.getstate(), "weights_sha256": digest.hexdigest()}
 
 
-def save_state(trainer: Trainer, val: dict[str, Any] | None = None, best: bool = False) -> None:
+def save_state(trainer: TrainerState, val: dict[str, Any] | None = None, best: bool = False) -> None:
     """Write ``state_latest.pt`` and ``model_latest.pt`` (and ``model_best.pt`` when ``best``).
     With several processes every rank calls it (their generators are gathered); rank 0 writes."""
     import torch
@@ -90,7 +115,7 @@ def save_state(trainer: Trainer, val: dict[str, Any] | None = None, best: bool =
         (run_dir / "val_best.json").write_text(json.dumps(model_meta(trainer, val), indent=2))
 
 
-def restore_state(trainer: Trainer, path: str | Path | None = None) -> int:
+def restore_state(trainer: TrainerState, path: str | Path | None = None) -> int:
     """Restore everything from ``state_latest.pt`` (or ``path``) into ``trainer``. Returns the step reached."""
     import torch
 

@@ -135,9 +135,8 @@ def families(doc: dict | None, command: list[str], not_run: str) -> list[str]:
 
 
 def sensor_defaults() -> list[str]:
-    """The ``preprocess.sensor`` rows of deepbbs_ros/core/sensors.py: what each one changes, and why."""
-    from deepbbs_ros.config import PreprocessConfig
-    from deepbbs_ros.core.sensors import SENSORS
+    """The ``preprocess.sensor`` rows (SENSORS in deepbbs_ros/config/preprocess.py): what each one changes, and why."""
+    from deepbbs_ros.config.preprocess import SENSORS, PreprocessConfig
 
     generic = PreprocessConfig()
     rows = []

@@ -34,7 +34,8 @@ JUMP = 150  # frames ahead, elsewhere in the same map
 
 def run(kind: str, reps: int, track: int) -> dict:
     from deepbbs_ros.config import Config
-    from deepbbs_ros.core.localization import MapLocalizer, MapTracker, voxel_downsample
+    from deepbbs_ros.core.localization import MapLocalizer, voxel_downsample
+    from deepbbs_ros.core.tracking import MapTracker
     from deepbbs_ros.metrics import pair_errors
     from deepbbs_ros.sim.simulator import DriveSimulator
 

@@ -27,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import localization as bench  # noqa: E402  (puts the checkout first on sys.path)
+from _localization_data import transform, yaw_move  # noqa: E402
 
 SCENES = ("urban", "suburban", "highway", "open_road")
 SLOT = 1400.0  # m between the copies' corners (a 1 km map spans at most about 1.1 km at any yaw)
@@ -46,11 +47,11 @@ def tiled_map(km: int, args) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndar
         scene = SCENES[i % len(SCENES)]
         d = bench.sim_map(scene, TEST_SEED_BASE + 500 + ALL.index(scene), gen)
         pts = d.points * np.array([1.0, -1.0, 1.0], np.float32) if i >= len(SCENES) else d.points  # mirrored
-        R = bench.yaw_move(0.7 * i, 0.0, 0.0)
-        lo = bench.transform(pts, R)[:, :2].min(axis=0).astype(np.float64)
+        R = yaw_move(0.7 * i, 0.0, 0.0)
+        lo = transform(pts, R)[:, :2].min(axis=0).astype(np.float64)
         slot = np.array([(i % cols) * SLOT, (i // cols) * SLOT])
-        M = bench.yaw_move(0.0, *(slot - lo)) @ R
-        parts.append(bench.transform(pts, M))
+        M = yaw_move(0.0, *(slot - lo)) @ R
+        parts.append(transform(pts, M))
         if i == 0:
             queries = [(q.points, M @ q.T_map_scan) for q in d.queries[:args.queries]]
     return np.concatenate(parts), queries

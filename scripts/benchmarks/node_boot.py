@@ -40,6 +40,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import localization as bench  # noqa: E402  (puts the checkout first on sys.path)
 import node_latency as nl  # noqa: E402
+from _localization_sim import LANE_SHIFT  # noqa: E402
 
 LIVE_S = 0.3  # s: an answer this soon after its scan's publication is live tracking (3 periods at 10 Hz)
 MAP_GEN = dict(map_length=1000.0, map_step=2.5, map_range=50.0, map_voxel=0.2, prefixes=[250.0, 500.0], queries=30,
@@ -99,7 +100,7 @@ def sim_streams(args) -> list[tuple[str, nl.Stream, list[np.ndarray]]]:
     out = []
     for i in range(args.starts):
         s0 = float(rng.uniform(s_map[0] + 30.0, s_map[1] - 150.0))  # room to drive on inside the map
-        lane = sim.world.style.ego_offset + (bench.LANE_SHIFT[args.scene] if i % 2 else 0.0)
+        lane = sim.world.style.ego_offset + (LANE_SHIFT[args.scene] if i % 2 else 0.0)
         t0 = time.perf_counter()
         drive = DriveSimulator(args.scene, seed, None, frames=frames, rate_hz=args.rate, world_frames=world_frames,
                                s_start=s0, lane_offset=lane, day=4 + i)

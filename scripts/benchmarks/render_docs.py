@@ -199,7 +199,7 @@ def plots(name: str, docs_bench: Path) -> list[str]:
 def section(name: str, docs: dict[str, dict | None], d: Path) -> list[str]:
     if name in ("machine", "readme"):
         return {"machine": machine, "readme": readme}[name](docs, d)
-    if name == "sensor_defaults":  # docs/sensors.md: the rows of deepbbs_ros/core/sensors.py
+    if name == "sensor_defaults":  # docs/sensors.md: the rows of SENSORS in deepbbs_ros/config/preprocess.py
         return _families_doc.sensor_defaults()
     doc = docs.get("registration") if name == "verdict" else docs.get(name)
     fn = {"registration": registration, "verdict": verdict, "deskew": deskew, "odometry": odometry,

@@ -164,7 +164,7 @@ def summary(rows: list[dict]) -> dict:
 
 
 def _cached(cache: Path, scene: str):
-    import localization as bench
+    from _localization_data import _load
 
     from deepbbs_ros.sim import WORLDS_VERSION
 
@@ -172,7 +172,7 @@ def _cached(cache: Path, scene: str):
     if not hits:
         raise SystemExit(f"no cached map of {scene!r} in {cache} of the simulator's worlds version {WORLDS_VERSION} "
                          f"(build it with localization.py --generate-only)")
-    return bench._load(hits[0], scene)
+    return _load(hits[0], scene)
 
 
 def main(argv: list[str] | None = None) -> int:
