@@ -177,7 +177,7 @@ def sim_sets(args):
                 keys.append(P[k])
                 last = k
             other = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True, world_frames=F,
-                                   lane_offset=None, day=2)
+                                   lane_offset=None, day=None if getattr(args, "same_day", False) else 2)
             queries = [(other.scan_at(k).points, other.pose_at(k)) for k in range(10, F - 10, args.query_every)]
             raw = DriveSimulator(scene, args.seed + 1, lidar, frames=args.odometry_frames,
                                  motion_distortion=not args.ideal_sweeps)
@@ -617,6 +617,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ideal-sweeps", action="store_true", help="the simulated odometry drives without motion within "
                     "the sweep (every point cast from the pose at the stamp, no per-point times: nothing to deskew; a "
                     "check of what the sweep and its deskew cause)")
+    ap.add_argument("--same-day", action="store_true", help="the localization's queries on the map drive's day (its "
+                    "parked cars and traffic; default another day: a check of what the changed world causes)")
     ap.add_argument("--map-covariances", action="store_true", help="the odometry aligns against the map's planes "
                     "(odometry.map_covariances; a check)")
     ap.add_argument("--threads", type=int, default=0, help="the odometry's small_gicp threads (0: every core)")
