@@ -524,6 +524,21 @@ def _in_prev(T_prev: np.ndarray, fl: np.ndarray) -> np.ndarray:
     return B @ fl @ B.T
 
 
+def hindsight_rows(steps: list, chain: list, floors: list) -> list:
+    """A check with the truth (``--pose``'s ``odometry_step_hindsight``): each step's rotation floor replaced by the
+    set's own root mean square rotation error per axis, the best constant a floor could take there, the position's
+    floor and the GICP part kept: what an honest rotation floor alone would make of the steps."""
+    rot = np.sqrt(np.mean(np.square([d[3:] for d, _ in steps]), axis=0))
+    out = []
+    for (d, S), (T_prev, _, T, _), fl in zip(steps, chain, floors):
+        B = np.zeros((6, 6))
+        B[:3, :3] = B[3:, 3:] = T[:3, :3]
+        own = np.diag(B.T @ fl @ B).copy()  # the floor's variances along the scan's axes
+        own[3:] = np.square(rot)
+        out.append((d, S - _in_prev(T_prev, fl) + _in_prev(T_prev, B @ np.diag(own) @ B.T)))
+    return out
+
+
 def fit(rows_by_set: dict, names: list[str]) -> float:
     """The localization's inflation from raw rows (inflation 1) of the simulated sets ``names``: the one factor
     that makes the pooled mean NEES 6 (chi2(6)'s mean, the band's criterion; the medians then show the tails)."""
@@ -595,8 +610,9 @@ def main(argv: list[str] | None = None) -> int:
                     "origin (the first scan's own error at the origin instead of the first motion's floor), yaw (the "
                     "first motion's floor in position and yaw replaced by the first sweep floor measured, at the "
                     "origin), ar1 (the GICP parts' errors an AR(1) per axis, its coefficient from the deviations' "
-                    "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); the raw rows kept in "
-                    "OUT/odometry_rows.pkl")
+                    "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); and the steps with each set's "
+                    "own root mean square rotation error as their rotation floor (hindsight: a check); the raw rows "
+                    "kept in OUT/odometry_rows.pkl")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--max-points", type=int, default=-1, help="the localization's covariance from every k-th pair, "
                     "at most this many (a check; 0: every pair; default LOCALIZATION_MAX_POINTS, every pair)")
@@ -715,6 +731,8 @@ def main(argv: list[str] | None = None) -> int:
                 for n in step_rows}
     tables = [("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)]
     if args.pose and not args.before:
+        tables += [("odometry_step_hindsight", {n: hindsight_rows(step_rows[n], chains[n], floors[n])
+                                                for n in step_rows if len(step_rows[n]) >= 2})]
         tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
                                                               firsts.get(n), helds.get(n)) for n in step_rows})
                    for m in ("independent", "walk", "once", "chain", "origin", "yaw", "ar1", "ar1origin")]
