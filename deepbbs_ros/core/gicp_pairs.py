@@ -51,12 +51,13 @@ def cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
 
 
 def cell_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: np.ndarray,
-               cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               cell: float, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """GICP's Hessian ``H = sum J^T M J`` (6, 6) of the pairs ``a`` (source points (n, 3), covariances ``Ca``
     (n, 3, 3)) and ``b`` (their target points and ``Cb``) at ``T = T_target_source``, for small_gicp's right
     perturbation ``[rot, trans]``, and per cell of a ``cell``-m grid (by the pair's target point) the sum of its pairs'
     gradients ``J^T M r`` (G, 6) and its pairs' share of the Hessian (G, 6, 6): the terms of the cluster-robust
-    covariance (core/covariance.py) -> (H, gradients, Hessians)."""
+    covariance (core/covariance.py) -> (H, gradients, Hessians). ``weights`` (n,): each pair's terms times its weight
+    (scripts/benchmarks/_sweep_share.py: the Hessian weighted by each point's time in the sweep)."""
     R, t = T[:3, :3], T[:3, 3]
     if len(a) == 0:
         return np.zeros((6, 6)), np.zeros((0, 6)), np.zeros((0, 6, 6))
@@ -71,6 +72,8 @@ def cell_terms(a: np.ndarray, Ca: np.ndarray, b: np.ndarray, Cb: np.ndarray, T: 
          [y * P[0][j] - x * P[1][j] for j in range(3)]]
     rows = [u[1] * z - u[2] * y, u[2] * x - u[0] * z, u[0] * y - u[1] * x, -u[0], -u[1], -u[2]]
     rows += [X[i][j] for X in (Q, P, m) for i in range(3) for j in range(3)]
+    if weights is not None:
+        rows = [row * weights for row in rows]
     cluster, G = cells(b, cell)
     tot = np.stack([np.bincount(cluster, weights=row, minlength=G) for row in rows], axis=1)  # (G, 33)
     q, p, mm = (tot[:, k:k + 9].reshape(G, 3, 3) for k in (6, 15, 24))

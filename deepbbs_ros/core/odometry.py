@@ -106,6 +106,7 @@ class DeepBBSOdometry(OdometryStarts):
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
         self._sweep = _cov.MotionFloor()  # the step covariance's model error
         self.swept: np.ndarray | None = None  # the motion per period the last scan was deskewed with (None: not)
+        self.sweep_times: np.ndarray | None = None  # the last frame's per-point times, s since its stamp (None: none)
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)
         self._planes = False  # this scan aligns against the map's planes (map_covariances or line_share)
         self.plane_frames = 0  # frames aligned against the map's planes
@@ -231,14 +232,20 @@ class DeepBBSOdometry(OdometryStarts):
         pts = as_xyz(points, "odometry", dtype=np.float64)  # (N, 3) only (core/points.py)
         if delta is None and self.frames >= 2 and self.period > 0:
             delta = self._motion.deskew_delta()
-        self.swept = None
-        if delta is not None and self._has_times(times):
+        self.swept, self.sweep_times = None, None
+        if self._has_times(times):
             tt = np.asarray(times, dtype=np.float64).reshape(-1)
             if len(tt) == len(pts):
                 ok = np.isfinite(pts).all(axis=1)
-                pts = deskew(pts[ok], tt[ok], delta, self.period)
-                self.swept = delta
-        frame = pts[crop_mask(pts, pp)]
+                pts, tt = pts[ok], tt[ok]
+                if delta is not None:
+                    pts = deskew(pts, tt, delta, self.period)
+                    self.swept = delta
+                self.sweep_times = tt
+        keep = crop_mask(pts, pp)
+        frame = pts[keep]
+        if self.sweep_times is not None:  # each point's time in the sweep (scripts/benchmarks/_sweep_share.py)
+            self.sweep_times = self.sweep_times[keep]
         if len(frame) < 10:
             raise RegistrationError(f"odometry: only {len(frame)} valid points within the crop range")
         return frame

@@ -27,8 +27,9 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   show the sweep floor's premises: how the step's rotation error follows the true rotation the deskew missed within
   the sweep (correlation and slope per axis), and the step error's and the floor's deviation's mean squares over the
   missed rotation's (the floor assumes 0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor``
-  (other estimates of the sweep floor from the same deviations), ``--ideal-sweeps`` (drives without motion within the
-  sweep), ``--map-covariances`` (the odometry against the map's planes).
+  (other estimates of the sweep floor from the same deviations; ``share``: from each scan's share of its sweep's bend,
+  scripts/benchmarks/_sweep_share.py, with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion
+  within the sweep), ``--map-covariances`` (the odometry against the map's planes).
 
 Localization checks (models tried, scripts/benchmarks/_localization_variants.py): ``--estimator cr2`` (the
 bias-reduced cluster-robust covariance instead of the jackknife), ``--coarse-cell M`` (along each direction the larger
@@ -139,6 +140,7 @@ SWEEP_FLOORS = {
     "diff": lambda f: _rms(np.diff(np.asarray(f._swept), axis=0), 2.0 * _gicp_noise(f)) if len(f._swept) > 1
     else np.zeros(3),
     "none": lambda f: np.zeros(3),
+    "share": None,  # scripts/benchmarks/_sweep_share.py: each scan's share of its sweep's bend (installed in main)
 }
 
 
@@ -175,7 +177,7 @@ def sim_sets(args):
                 keys.append(P[k])
                 last = k
             other = DriveSimulator(scene, args.seed, lidar, frames=F, compensate=True, world_frames=F,
-                                   lane_offset=None, day=2)
+                                   lane_offset=None, day=None if getattr(args, "same_day", False) else 2)
             queries = [(other.scan_at(k).points, other.pose_at(k)) for k in range(10, F - 10, args.query_every)]
             raw = DriveSimulator(scene, args.seed + 1, lidar, frames=args.odometry_frames,
                                  motion_distortion=not args.ideal_sweeps)
@@ -291,11 +293,12 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
             cov_ms.append((time.perf_counter() - t) * 1e3)
 
     odomod._cov.odometry_covariance = timed
-    outs, swept = [], []
+    outs, swept, shares = [], [], []
     try:
         for pts, times, stamp, _ in drive:
             t0, n0 = time.perf_counter(), len(cov_ms)
             outs.append(odo.register_frame(pts, times, stamp))
+            shares.append(getattr(odo, "share", None))  # --sweep-floor share: the scan's share of its sweep's bend
             swept.append(None if odo.swept is None else odo.swept.copy())  # the motion the deskew turned it with
             if len(cov_ms) > n0:
                 share.append(cov_ms[-1] / ((time.perf_counter() - t0) * 1e3))
@@ -359,10 +362,27 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
               + ", ".join(f"{x:.2f}" for x in np.mean(err ** 2, 0) / m2) + " (premise 0.5); the deviation from the "
               "deskew's motion's " + ", ".join(f"{x:.2f}" for x in np.mean(dev ** 2, 0) / m2) + " (premise 0.25)",
               flush=True)
+    if len(missed) >= 6 and any(x is not None for x in shares):
+        _share_line(shares, missed)
     held = [i for i, h in enumerate(helds) if h.any()]
     print(f"    held steps sharing a velocity error (the 2nd and later of a stretch held in a row): {len(held)} of "
           f"{len(helds)}", flush=True)
     return steps, chain, floors, firsts, helds
+
+
+def _share_line(shares: list, missed: list) -> None:
+    """``--sweep-floor share``: the scans' shares of their sweep's bend against what the steps' rotation errors show:
+    the least-squares coefficients of each step's error on the next step's missed rotation and on its own (a sweep
+    that starts at the stamp, as the simulator's, spans the motion to the next scan: the first coefficient is then
+    minus the scan's share; the second the previous scan's, plus what the map's bent scans add)."""
+    a = np.array([x for x in shares if x is not None])
+    err, miss = np.array([m[0] for m in missed]), np.array([m[1] for m in missed])
+    coef = [np.linalg.lstsq(np.stack([miss[1:, i], miss[:-1, i]], axis=1), err[:-1, i], rcond=None)[0]
+            for i in range(3)]
+    print("    sweep: share of the bend (roll, pitch, yaw) median " + ", ".join(f"{x:.2f}" for x in np.median(a, 0))
+          + " (10-90 % " + ", ".join(f"{p:.2f}-{q:.2f}" for p, q in zip(*np.percentile(a, [10, 90], axis=0)))
+          + "); step error on the next and this step's missed rotation " + ", ".join(f"{c[0]:+.2f} {c[1]:+.2f}"
+                                                                                       for c in coef), flush=True)
 
 
 def accumulated(steps: list, chain: list, before: bool = False, floors: list | None = None,
@@ -504,6 +524,21 @@ def _in_prev(T_prev: np.ndarray, fl: np.ndarray) -> np.ndarray:
     return B @ fl @ B.T
 
 
+def hindsight_rows(steps: list, chain: list, floors: list) -> list:
+    """A check with the truth (``--pose``'s ``odometry_step_hindsight``): each step's rotation floor replaced by the
+    set's own root mean square rotation error per axis, the best constant a floor could take there, the position's
+    floor and the GICP part kept: what an honest rotation floor alone would make of the steps."""
+    rot = np.sqrt(np.mean(np.square([d[3:] for d, _ in steps]), axis=0))
+    out = []
+    for (d, S), (T_prev, _, T, _), fl in zip(steps, chain, floors):
+        B = np.zeros((6, 6))
+        B[:3, :3] = B[3:, 3:] = T[:3, :3]
+        own = np.diag(B.T @ fl @ B).copy()  # the floor's variances along the scan's axes
+        own[3:] = np.square(rot)
+        out.append((d, S - _in_prev(T_prev, fl) + _in_prev(T_prev, B @ np.diag(own) @ B.T)))
+    return out
+
+
 def fit(rows_by_set: dict, names: list[str]) -> float:
     """The localization's inflation from raw rows (inflation 1) of the simulated sets ``names``: the one factor
     that makes the pooled mean NEES 6 (chi2(6)'s mean, the band's criterion; the medians then show the tails)."""
@@ -575,8 +610,9 @@ def main(argv: list[str] | None = None) -> int:
                     "origin (the first scan's own error at the origin instead of the first motion's floor), yaw (the "
                     "first motion's floor in position and yaw replaced by the first sweep floor measured, at the "
                     "origin), ar1 (the GICP parts' errors an AR(1) per axis, its coefficient from the deviations' "
-                    "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); the raw rows kept in "
-                    "OUT/odometry_rows.pkl")
+                    "lag-1 autocorrelation), ar1origin (ar1 with origin's first floor); and the steps with each set's "
+                    "own root mean square rotation error as their rotation floor (hindsight: a check); the raw rows "
+                    "kept in OUT/odometry_rows.pkl")
     ap.add_argument("--before", action="store_true", help="score the point-to-point covariance the node had")
     ap.add_argument("--max-points", type=int, default=-1, help="the localization's covariance from every k-th pair, "
                     "at most this many (a check; 0: every pair; default LOCALIZATION_MAX_POINTS, every pair)")
@@ -591,10 +627,14 @@ def main(argv: list[str] | None = None) -> int:
                     "check; core/motion_floor.py): shipped (sqrt(2) rms d: d taken as half the missed rotation), half "
                     "(sqrt(2) / 2 rms d: d taken as the whole missed rotation), sub (shipped, less the step's GICP "
                     "variance that d carries), diff (the rms of d's change from scan to scan, less twice that "
-                    "variance), none (no sweep floor: the prediction's floor alone)")
+                    "variance), none (no sweep floor: the prediction's floor alone), share (each scan's share of its "
+                    "sweep's bend from its pairs' Hessian weighted by time in the sweep, bends independent: "
+                    "_sweep_share.py)")
     ap.add_argument("--ideal-sweeps", action="store_true", help="the simulated odometry drives without motion within "
                     "the sweep (every point cast from the pose at the stamp, no per-point times: nothing to deskew; a "
                     "check of what the sweep and its deskew cause)")
+    ap.add_argument("--same-day", action="store_true", help="the localization's queries on the map drive's day (its "
+                    "parked cars and traffic; default another day: a check of what the changed world causes)")
     ap.add_argument("--map-covariances", action="store_true", help="the odometry aligns against the map's planes "
                     "(odometry.map_covariances; a check)")
     ap.add_argument("--threads", type=int, default=0, help="the odometry's small_gicp threads (0: every core)")
@@ -642,7 +682,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.sweep_floor != "shipped":
         import deepbbs_ros.core.motion_floor as floormod
 
-        floormod.MotionFloor._sweep_floor = SWEEP_FLOORS[args.sweep_floor]
+        if args.sweep_floor == "share":
+            import _sweep_share
+
+            import deepbbs_ros.core.odometry as odomod
+
+            _sweep_share.install(odomod, floormod)
+        else:
+            floormod.MotionFloor._sweep_floor = SWEEP_FLOORS[args.sweep_floor]
     config = Config()
     if args.threads > 0:
         config.odometry.threads = args.threads
@@ -684,6 +731,8 @@ def main(argv: list[str] | None = None) -> int:
                 for n in step_rows}
     tables = [("localization", loc_rows), ("odometry_step", step_rows), ("odometry_accumulated", acc_rows)]
     if args.pose and not args.before:
+        tables += [("odometry_step_hindsight", {n: hindsight_rows(step_rows[n], chains[n], floors[n])
+                                                for n in step_rows if len(step_rows[n]) >= 2})]
         tables += [(f"odometry_accumulated_{m}", {n: accumulated(step_rows[n], chains[n], False, floors.get(n), m,
                                                               firsts.get(n), helds.get(n)) for n in step_rows})
                    for m in ("independent", "walk", "once", "chain", "origin", "yaw", "ar1", "ar1origin")]
