@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, sweep_skew, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, finish_verdict, pair_deskew, second_minimum, sweep_skew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish, polish
@@ -132,16 +132,21 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     GICP's grid blends) and judged again: on the same points and target (GICP's grid, ``good_start_finish_grid``
     "gicp"), or on the grids it was finished on with the verdict's distance scaled with them
     (:func:`core.verdict.on_scene_grid`; "scene"), where taken then checked there for a second minimum as good along
-    its weakest direction (core/second_minimum.py, ``registration.second_minimum``) -> (the finished result, its
-    probability) when the verdict takes it, else None (no finer grid, not taken, or ambiguous)."""
+    its weakest direction (core/second_minimum.py, ``registration.second_minimum``), or on GICP's grid, then where
+    that grid does not hold it, on both (core/finish_verdict.py; "both") -> (the finished result, its probability)
+    when the verdict takes it, else None (no finer grid, not taken, or ambiguous)."""
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
     if fine is None or not fine.applied:
         return None
     fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
     if rc.good_start_finish_grid != "scene":
         prob = _probability(fine, "", pts, tpc, rc)
-        return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) and not _slides(
-            fine, prob, pts, spc, tpc, rc) else None
+        if verdict.is_valid(prob, rc.good_start_probability) and not _slides(fine, prob, pts, spc, tpc, rc):
+            return fine, prob
+        if rc.good_start_finish_grid == "gicp":
+            return None
+        prob, why = finish_verdict.judge(pts, fine.T_target_source, spc, tpc, rc, rc.good_start_probability)
+        return None if why else (fine, prob)  # "both": GICP's grid, pinned on the scene's, and the scene's grids
     pts, target, dist = verdict.on_scene_grid(spc, tpc, rc)  # finished: both scans have a finer grid
     prob = _probability(fine, "", pts, target, rc, dist=dist)
     if not verdict.is_valid(prob, rc.good_start_probability):
