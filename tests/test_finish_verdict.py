@@ -1,0 +1,88 @@
+"""core/finish_verdict.py: a pose finished on the scene-sized grids, judged on both grids where GICP's 0.5 m grid
+does not hold it (a narrow corridor's roll about its axis)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core import anchoring, calibrated, finish_verdict, second_minimum, verdict, visibility
+from deepbbs_ros.core.good_start import from_start, good_start_points
+from deepbbs_ros.core.polish import finish
+from deepbbs_ros.metrics import pair_errors
+
+
+@pytest.fixture(scope="module")
+def corridor():
+    """A simulated Mid-360 carried along a 2-3 m corridor (exact truth): pairs 1 m apart from frame 10 and 30, their
+    precision-stage clouds, the good start's points, GICP from identity finished on the scene's grids."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
+    cfg = Config().replace(**{"registration.network_process": "off", "registration.exact_gicp": True})
+    reg = DeepBBSRegistration(cfg)
+    rc, out = cfg.registration, {}
+    try:
+        for start in (10, 30):
+            (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k))
+                                          for k in sim.frames_apart(1.0, 2, start=start)]
+            spc, tpc = (reg.preprocess(p, lazy=True).polish_cloud.complete(1) for p in (src, tgt))
+            fine = finish(spc, tpc, from_start(spc, tpc, np.eye(4), rc).T_target_source, rc)
+            out[start] = (np.linalg.inv(T_w_t) @ T_w_s, spc, tpc, good_start_points(spc, rc), fine.T_target_source)
+    finally:
+        reg.close()
+    return rc, out
+
+
+@pytest.mark.parametrize("start", [10, 30])
+def test_a_right_pose_that_gicps_grid_leaves_free_is_taken_on_both_grids(corridor, start):
+    """GICP's grid reads the finished right pose as free by over 10 tolerances along a roll about the corridor's axis
+    (pinned under the verdict file's held_pinned) and rejects it; read on the scene's grids the roll is pinned, and
+    both grids take it."""
+    rc, pairs = corridor
+    T_gt, spc, tpc, pts, T = pairs[start]
+    rot, trans = pair_errors(T, T_gt)
+    assert rot < 1.0 and trans < 0.3, (rot, trans)  # right
+    f = visibility.pose_features(pts, T, tpc, rc.verdict_dist, 1, True, True)
+    assert calibrated.probability(f, "good_start") < rc.good_start_probability
+    assert f[visibility.FEATURES.index("pinned")] < calibrated.anchored_below()
+    twist, unc = second_minimum.weakest(pts @ T[:3, :3].T + T[:3, 3], tpc, rc.verdict_dist)
+    assert unc > 7 and np.argmax(np.abs(twist / anchoring.SCALE)) == 3  # a roll (about x, the walking direction)
+    prob, why = finish_verdict.judge(pts, T, spc, tpc, rc, rc.good_start_probability)
+    assert why == "" and prob >= rc.good_start_probability, (prob, why)
+
+
+@pytest.mark.parametrize("move", ["slid 0.6 m", "rolled 3 deg", "rolled -3 deg"])
+def test_the_right_pose_moved_along_the_corridor_or_its_roll_is_not_taken(corridor, move):
+    """The same right pose slid 0.6 m along the walking direction, or rolled 3 degrees about the direction GICP's grid
+    leaves free: wrong, and not taken (the scene's grids pin both)."""
+    rc, pairs = corridor
+    T_gt, spc, tpc, pts, T = pairs[30]
+    D = np.eye(4)
+    if move.startswith("slid"):
+        D[:3, 3] = 0.6 * T_gt[:3, 3] / np.linalg.norm(T_gt[:3, 3])
+    else:
+        twist, _ = second_minimum.weakest(pts @ T[:3, :3].T + T[:3, 3], tpc, rc.verdict_dist)
+        D[:3, :3] = anchoring._rotation(float(move.split()[1]) * twist[3:] / np.linalg.norm(twist[3:] / np.radians(1)))
+    T2 = D @ T
+    rot, trans = pair_errors(T2, T_gt)
+    assert rot > 2.0 or trans > 0.5, (rot, trans)  # wrong
+    prob, why = finish_verdict.judge(pts, T2, spc, tpc, rc, rc.good_start_probability)
+    assert why and prob < rc.good_start_probability, (prob, why)
+
+
+def test_a_pose_gicps_grid_holds_is_judged_there_alone(monkeypatch):
+    """Where GICP's grid holds the pose (pinned at least held_pinned), its rejection stands: the scene's grids are not
+    read (a pose slid along a corridor whose door frames pin it elsewhere)."""
+    rc = Config().registration
+    monkeypatch.setattr(visibility, "pose_features", lambda *a, **k: np.r_[np.full(10, 0.5), 0.5, np.full(4, 0.5)])
+    monkeypatch.setattr(calibrated, "probability", lambda f, m: 0.1)
+
+    def scene(*a):
+        raise AssertionError("the scene's grids read")
+
+    monkeypatch.setattr(verdict, "on_scene_grid", scene)
+    prob, why = finish_verdict.judge(np.zeros((10, 3)), np.eye(4), None, None, rc, 0.7)
+    assert prob == pytest.approx(0.1) and why.startswith("GICP's grid holds it"), why
