@@ -10,7 +10,8 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 registration.good_start_second_minimum a loose pose is also checked for a second minimum as good
                 along its weakest direction (core/second_minimum.py), and one that has it is not taken
     finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
-                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again
+                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again, on
+                both grids where GICP's does not hold it (registration.good_start_finish_grid, core/finish_verdict.py)
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
