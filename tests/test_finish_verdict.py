@@ -86,3 +86,31 @@ def test_a_pose_gicps_grid_holds_is_judged_there_alone(monkeypatch):
     monkeypatch.setattr(verdict, "on_scene_grid", scene)
     prob, why = finish_verdict.judge(np.zeros((10, 3)), np.eye(4), None, None, rc, 0.7)
     assert prob == pytest.approx(0.1) and why.startswith("GICP's grid holds it"), why
+
+
+def test_the_good_start_takes_the_finished_pose_on_both_grids_where_asked():
+    """registration.good_start_finish_grid "both": the good start takes that corridor pair's finished right pose on
+    GICP's path; "gicp" (the default) rejects it there and the full pipeline answers."""
+    import torch
+
+    from deepbbs_ros.core import good_start
+    from deepbbs_ros.core.network_output import Clock
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
+    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
+    for grid in ("gicp", "both"):
+        reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
+                                                      "registration.exact_gicp": True,
+                                                      "registration.good_start_finish_grid": grid}))
+        try:
+            a = good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu")))
+        finally:
+            reg.close()
+        if grid == "gicp":
+            assert a.result is None, a.reason
+        else:
+            assert a.result is not None and "scene's grid" in a.reason, a.reason
+            rot, trans = pair_errors(a.result.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
+            assert rot < 1.0 and trans < 0.3, (rot, trans)

@@ -167,14 +167,14 @@ def loose_poses(rows: np.ndarray, prob: np.ndarray, sure: float) -> np.ndarray:
 
 def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     """The good start on the GICP answers (``near`` / ``far``) of the rows ``m`` (``--sim-scene-grid``): taken on
-    GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's grid
-    (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
+    GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's
+    grid (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
     ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"), or on GICP's
     grid, then where it neither takes nor holds the pose on both (``both_grids``, "both", core/finish_verdict.py;
-    tried, not shipped: ``scene_within``, its probability times P(within | the pose's covariance) there, core/within.py,
-    ``scene_within_weak`` with the spread along a weak direction): wrong (beyond 2
-    deg / 0.5 m) accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses
-    that the finish made (deg, m, probability)."""
+    these and, tried, not shipped: ``scene_within``, its probability times P(within | the pose's covariance) there,
+    core/within.py, ``scene_within_weak`` with the spread along a weak direction): wrong (beyond 2 deg / 0.5 m)
+    accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses that the
+    finish made (deg, m, probability)."""
     from deepbbs_ros.core import calibrated, visibility
 
     g = m & np.isin(data["kind"], ["near", "far"])
