@@ -90,7 +90,7 @@ def test_a_pose_gicps_grid_holds_is_judged_there_alone(monkeypatch):
 
 def test_the_good_start_takes_the_finished_pose_on_both_grids_where_asked():
     """registration.good_start_finish_grid "both": the good start takes that corridor pair's finished right pose on
-    GICP's path; "gicp" (the default) rejects it there and the full pipeline answers."""
+    GICP's path; "gicp" (the default) rejects it there, and answers it not valid, degenerate along the roll."""
     import torch
 
     from deepbbs_ros.core import good_start
@@ -108,9 +108,59 @@ def test_the_good_start_takes_the_finished_pose_on_both_grids_where_asked():
             a = good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu")))
         finally:
             reg.close()
-        if grid == "gicp":
-            assert a.result is None, a.reason
+        if grid == "gicp":  # not taken: answered at once, not valid (registration.good_start_degenerate)
+            assert a.result is not None and not a.result.valid, a.reason
+            assert a.reason.startswith("not valid: degenerate along a roll about x"), a.reason
         else:
             assert a.result is not None and "scene's grid" in a.reason, a.reason
             rot, trans = pair_errors(a.result.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
             assert rot < 1.0 and trans < 0.3, (rot, trans)
+
+
+def test_a_degenerate_pose_is_named_and_one_gicps_grid_takes_is_not(corridor):
+    """core/finish_verdict.py degenerate: the corridor's finished right pose, which GICP's grid neither holds nor takes
+    and takes with pinned read on the scene's grids, is degenerate along a roll about the corridor's axis. A box
+    corridor with an end wall and noiseless surfaces, whose right pose GICP's grid takes, is not."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    rc, pairs = corridor
+    T_gt, spc, tpc, pts, T = pairs[30]
+    why = finish_verdict.degenerate(pts, T, spc, tpc, rc, rc.good_start_probability)
+    assert why.startswith("not valid: degenerate along a roll about x"), why
+    rng = np.random.default_rng(0)
+    n = 30000
+    k = rng.integers(0, 5, n)
+    x, y, z = rng.uniform(-12, 6, n), rng.uniform(-1.2, 1.2, n), rng.uniform(-1.0, 1.6, n)
+    y = np.where(k == 0, -1.2, np.where(k == 1, 1.2, y))
+    z = np.where(k == 2, -1.0, np.where(k == 3, 1.6, z))
+    box = np.c_[np.where(k == 4, 6.0, x), y, z]
+    T_box = np.eye(4)
+    T_box[0, 3] = 0.8
+    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off"}))
+    try:
+        src = (box + rng.normal(0, 0.01, box.shape) - T_box[:3, 3]).astype(np.float32)  # seen 0.8 m further along
+        s_pc, t_pc = (reg.preprocess(p, lazy=True).polish_cloud.complete(1) for p in (src, box.astype(np.float32)))
+    finally:
+        reg.close()
+    assert finish_verdict.degenerate(good_start_points(s_pc, rc), T_box, s_pc, t_pc, rc, 0.7) == ""
+
+
+def test_the_good_start_searches_where_asked_not_to_stop_at_a_degenerate_pose():
+    """registration.good_start_degenerate false: the corridor pair's good start goes on to the full pipeline."""
+    import torch
+
+    from deepbbs_ros.core import good_start
+    from deepbbs_ros.core.network_output import Clock
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
+    (tgt, _), (src, _) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
+    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
+                                                  "registration.exact_gicp": True,
+                                                  "registration.good_start_degenerate": False}))
+    try:
+        a = good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu")))
+    finally:
+        reg.close()
+    assert a.result is None and "coarse to fine" in a.reason, a.reason

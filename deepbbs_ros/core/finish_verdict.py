@@ -25,11 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import calibrated, second_minimum, verdict, visibility
+from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility
 
-__all__ = ["judge"]
+__all__ = ["degenerate", "judge"]
 
 _PINNED = visibility.FEATURES.index("pinned")
+#: the twist's components (core/anchoring.py: translation, rotation about the target sensor's origin), by name
+_AXES = ("x", "y", "z", "a roll about x", "a pitch about y", "a yaw about z")
 
 
 def _probability(pts: np.ndarray, T: np.ndarray, target: Any, dist: float,
@@ -69,3 +71,25 @@ def judge(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: floa
     if rc.second_minimum and second_minimum.check(fpts, T, spc.finer(), ftgt, scene_rc).ambiguous:
         return prob, "a second minimum as good along its weakest direction on the scene's grids"
     return prob, ""
+
+
+
+def degenerate(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: float) -> str:
+    """Why no other start makes the verdict take a pose where GICP's finished pose ``T`` (4, 4) lies ("" where one
+    might): GICP's grid neither holds it (``pinned`` under the held bound) nor takes it, yet takes it with ``pinned``
+    read on the scene's grids: what the verdict lacks is the hold along the weakest direction, which the scene's
+    geometry sets, not the start (the full pipeline's answers there are judged the same way). Arguments as
+    :func:`judge`."""
+    held = calibrated.anchored_below()
+    p_gicp, pin = _probability(pts, T, tpc, rc.verdict_dist)
+    scene = verdict.on_scene_grid(spc, tpc, rc)
+    if held <= 0 or pin >= held or verdict.is_valid(p_gicp, bar) or scene is None:
+        return ""
+    fine_pin = _probability(scene[0], T, scene[1], scene[2])[1]
+    p_both, _ = _probability(pts, T, tpc, rc.verdict_dist, fine_pin)
+    if not verdict.is_valid(p_both, bar):
+        return ""
+    twist, unc = second_minimum.weakest(pts @ T[:3, :3].T + T[:3, 3], tpc, rc.verdict_dist)
+    along = "its weakest direction" if twist is None else _AXES[int(np.argmax(np.abs(twist / anchoring.SCALE)))]
+    return (f"not valid: degenerate along {along} (free by {unc:.0f} tolerances on GICP's grid, verdict {p_gicp:.2f}; "
+            f"held as on the scene's grids, {p_both:.2f}): no other start makes the verdict take a pose here")
