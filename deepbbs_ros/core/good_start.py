@@ -14,6 +14,9 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 both grids where GICP's does not hold it (registration.good_start_finish_grid, core/finish_verdict.py)
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
+    degenerate  still not accepted, and GICP's grid takes the finished pose but for the hold of its weakest direction
+                that the scene's grids give it (core/finish_verdict.py degenerate, registration.good_start_degenerate):
+                that pose, not valid, "not valid: degenerate along ..." (no other start makes the verdict take one)
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
 
 Why the first GICP is judged by the verdict alone, however far it moved: the verdict is a probability that the pose
