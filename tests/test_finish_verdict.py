@@ -164,3 +164,23 @@ def test_the_good_start_searches_where_asked_not_to_stop_at_a_degenerate_pose():
     finally:
         reg.close()
     assert a.result is None and "coarse to fine" in a.reason, a.reason
+
+
+@pytest.mark.parametrize("grid", ["gicp", "both"])
+def test_the_pipelines_finished_answer_is_judged_on_both_grids_where_asked(grid):
+    """registration.finish_grid: the full pipeline's right answer to that corridor pair, finished on the scene's grids,
+    is rejected on GICP's grid ("gicp", the default) and taken on both ("both")."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+    from deepbbs_ros.sim.rig import make_simulator
+
+    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
+    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
+    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
+                                                  "registration.exact_gicp": True, "registration.finish_grid": grid}))
+    try:
+        res = reg.register(src, tgt)
+    finally:
+        reg.close()
+    rot, trans = pair_errors(res.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
+    assert rot < 1.0 and trans < 0.3, (rot, trans)
+    assert res.valid == (grid == "both"), res.probability
