@@ -76,8 +76,8 @@ def test_summary_and_its_tables():
     text = "\n".join(_families_doc.families(doc, ["Measured by x."], "not run"))
     assert "| Velodyne VLP-16 | simulated, wheeled, hall | 3 | 0.80 | 66.7 % (3) | 100.0 % (3) | - |" in text
     assert "1 / 1 (of 4)" in text and "x2.00" in text and "overlap 0.80" in text
-    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "coarse_to_fine": 0, "fallback_why": {}, "beyond_limits": 0,
-                               "stages_p50_ms": {}, "accepted_wrong": 0, "rejected_right": 0}
+    assert c["good_start"] == {"pairs": 3, "gicp_path": 3, "degenerate": 0, "coarse_to_fine": 0, "fallback_why": {},
+                               "beyond_limits": 0, "stages_p50_ms": {}, "accepted_wrong": 0, "rejected_right": 0}
     assert families._stages([{"stages_ms": {"preprocess": 4.0, "good_start": 2.0, "total": 6.0}},
                              {"stages_ms": {"preprocess": 6.0, "good_start": 3.0, "global": 90.0, "total": 99.0}}]) == {
         "global": 45.0, "good_start": 2.5, "preprocess": 5.0, "total": 52.5}
@@ -245,3 +245,11 @@ def test_the_good_start_alone_is_run_summarised_and_reported(tmp_path, monkeypat
     families.report(fig, [families.GOOD])
     assert "deepbbs++good 100 %" in capsys.readouterr().out
     assert families.collect(cases, sets, [families.GOOD], args, tmp_path / "cases.jsonl") == recs  # a rerun reads it
+
+
+def test_a_degenerate_good_start_answer_is_not_counted_as_gicps_path():
+    """A good start answered at once, not valid, degenerate (core/finish_verdict.py) has path "gicp" but is its own
+    path in the summaries, not one GICP's path took."""
+    x = {"path": "gicp", "valid": False, "why": "not valid: degenerate along a roll about x (free by 13 tolerances)"}
+    assert families.path_taken(x) == "degenerate"
+    assert families.path_taken({"path": "gicp", "valid": True, "why": "accepted"}) == "gicp"

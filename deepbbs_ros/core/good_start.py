@@ -10,9 +10,13 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
                 registration.good_start_second_minimum a loose pose is also checked for a second minimum as good
                 along its weakest direction (core/second_minimum.py), and one that has it is not taken
     finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
-                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again
+                polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again, on
+                both grids where GICP's does not hold it (registration.good_start_finish_grid, core/finish_verdict.py)
     coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
                 sure (registration.verdict_sure) within the coarse try's reach
+    degenerate  still not accepted, and GICP's grid takes the finished pose but for the hold of its weakest direction
+                that the scene's grids give it (core/finish_verdict.py degenerate, registration.good_start_degenerate):
+                that pose, not valid, "not valid: degenerate along ..." (no other start makes the verdict take one)
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
 
 Why the first GICP is judged by the verdict alone, however far it moved: the verdict is a probability that the pose
@@ -31,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, pair_deskew, second_minimum, sweep_skew, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, finish_verdict, pair_deskew, second_minimum, sweep_skew, verdict, visibility
 from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish, polish
@@ -87,7 +91,7 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     if verdict.is_valid(prob, rc.good_start_probability) and not _slides(pol, prob, pts, spc, tpc, rc):
         beyond = _beyond(pol, rc)
         accepted = f"accepted, beyond the good start's limits (GICP from the start: {beyond})" if beyond else "accepted"
-    elif (fine := _finished(pol, spc, tpc, pts, rc)) is not None:  # GICP's minimum on its grid off the place's
+    elif (fine := _finished(pol, spc, tpc, pts, rc))[1] is not None:  # GICP's minimum on its grid off the place's
         pol, prob = fine
         accepted = f"accepted on the scene's grid (GICP from the start: verdict < {rc.good_start_probability})"
     else:  # not converged, or a pose the verdict does not take (outside GICP's basin, or a wrong one)
@@ -100,7 +104,14 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
         if not verdict.is_valid(prob, sure):
             clock.lap("good_start")
             then = why or f"verdict {prob:.2f} < registration.verdict_sure {sure}"
-            return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
+            stuck = "" if fine[0] is None or not rc.good_start_degenerate else finish_verdict.degenerate(
+                pts, fine[0].T_target_source, spc, tpc, rc, rc.good_start_probability)
+            if not stuck:
+                return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
+            reg._searched.append(False)  # the finished pose, not valid: no search can pin it either
+            res = _result(src, tgt, fine[0], _probability(fine[0], "", pts, tpc, rc), pts, tpc, rc, stuck, clock)
+            res.valid = False
+            return Attempt(src, tgt, stuck, res)
         accepted = f"accepted after coarse to fine ({first})"
     reg._searched.append(False)
     res = _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock)
@@ -126,29 +137,34 @@ def _orthonormal(pol: Any) -> Any:
     return pol
 
 
-def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc: Any) -> tuple[Any, float] | None:
+def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc: Any) -> tuple[Any, float | None]:
     """GICP from the start converged but not taken: finished on the scans' scene-sized grids
     (``registration.polish_voxel_angle``, :func:`core.polish.finish`; a narrow place's walls, floor and ceiling that
     GICP's grid blends) and judged again: on the same points and target (GICP's grid, ``good_start_finish_grid``
     "gicp"), or on the grids it was finished on with the verdict's distance scaled with them
     (:func:`core.verdict.on_scene_grid`; "scene"), where taken then checked there for a second minimum as good along
-    its weakest direction (core/second_minimum.py, ``registration.second_minimum``) -> (the finished result, its
-    probability) when the verdict takes it, else None (no finer grid, not taken, or ambiguous)."""
+    its weakest direction (core/second_minimum.py, ``registration.second_minimum``), or on GICP's grid, then where
+    that grid does not hold it, on both (core/finish_verdict.py; "both") -> (the finished result, None when there is
+    none; its probability when the verdict takes it, else None: not taken, or ambiguous)."""
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
     if fine is None or not fine.applied:
-        return None
+        return None, None
     fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
     if rc.good_start_finish_grid != "scene":
         prob = _probability(fine, "", pts, tpc, rc)
-        return (fine, prob) if verdict.is_valid(prob, rc.good_start_probability) and not _slides(
-            fine, prob, pts, spc, tpc, rc) else None
+        if verdict.is_valid(prob, rc.good_start_probability) and not _slides(fine, prob, pts, spc, tpc, rc):
+            return fine, prob
+        if rc.good_start_finish_grid == "gicp":
+            return fine, None
+        prob, why = finish_verdict.judge(pts, fine.T_target_source, spc, tpc, rc, rc.good_start_probability)
+        return fine, None if why else prob  # "both": GICP's grid, pinned on the scene's, and the scene's grids
     pts, target, dist = verdict.on_scene_grid(spc, tpc, rc)  # finished: both scans have a finer grid
     prob = _probability(fine, "", pts, target, rc, dist=dist)
     if not verdict.is_valid(prob, rc.good_start_probability):
-        return None
+        return fine, None
     scene = dataclasses.replace(rc, verdict_dist=dist)
     if rc.second_minimum and second_minimum.check(pts, fine.T_target_source, spc.finer(), target, scene).ambiguous:
-        return None
+        return fine, None
     return fine, prob
 
 

@@ -22,7 +22,8 @@
 
 With ``good_start=True`` (the caller vouches for ``T_init``: consecutive scans, a fixed mounting, a map from the
 last pose) GICP from ``T_init`` runs first and answers alone when the verdict accepts (then coarse to fine, taken when
-sure); else the stages above run on the same clouds (core/good_start.py).
+sure); else the stages above run on the same clouds (core/good_start.py), unless its pose is degenerate along a
+direction only the scene's geometry could pin (answered at once, not valid: core/finish_verdict.py).
 
 Defaults (measured by scripts/benchmarks/registration.py): 512 sampled points, 2 deep passes for
 the basin, no SoftBBS refinement, and the GICP precision stage on GICP's own clouds for the last
@@ -171,7 +172,8 @@ class DeepBBSRegistration(RegistrationInputs, NetworkStages, RefineStages, Preci
                 (``registration.good_start_*``), answers at about GICP's price (``path`` "gicp"); when that verdict
                 rejects, GICP does not converge within ``good_start_max_iters`` or moves the start implausibly far,
                 GICP coarse to fine from ``T_init`` tries again (core/coarse_rescue.py: taken when sure), then the full
-                pipeline runs from ``T_init`` on the clouds already built. Without ``T_init`` (or with
+                pipeline runs from ``T_init`` on the clouds already built (unless GICP's finished pose is degenerate:
+                answered at once, not valid, core/finish_verdict.py). Without ``T_init`` (or with
                 ``preprocessed`` arrays, which have no precision-stage clouds) it is the full pipeline.
             yaw_search: False: no other start yaws for this call (``registration.global_search`` as "off"), the
                 given start only; per call, so that callers sharing one registration on several threads do not

@@ -10,7 +10,8 @@ import numpy as np
 import torch
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import pair_deskew
+from deepbbs_ros.core import finish_verdict, pair_deskew
+from deepbbs_ros.core.good_start import good_start_points
 from deepbbs_ros.core.model import DeepBBSNet
 from deepbbs_ros.core.network_output import Clock, matrix, orthonormalize
 from deepbbs_ros.core.polish import finish, polish
@@ -28,6 +29,7 @@ class PrecisionStages:
     device: torch.device
     _inlier_ratio: Callable[..., float]  # RefineStages._inlier_ratio
     _verdict: Callable[[State], None]  # VerdictStages._verdict
+    _skew: Callable[[State], None]  # VerdictStages._skew
 
     def _deskew(self, st: State, clock: Clock) -> None:
         """Both scans deskewed with their own stream velocities (``core.deskew.StreamDeskew``): the precision
@@ -67,8 +69,9 @@ class PrecisionStages:
     def _finish(self, st: State, clock: Clock) -> None:
         """An answer the verdict does not take, GICP's (the precision stage applied): finished on the scans'
         scene-sized grids (``registration.polish_voxel_angle``, :func:`core.polish.finish`: a narrow place's walls,
-        floor and ceiling, which GICP's grid blends) and judged again. Not on scans deskewed with their own velocities
-        (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
+        floor and ceiling, which GICP's grid blends) and judged again (``registration.finish_grid`` "both": where
+        GICP's grid does not hold it, on both grids, core/finish_verdict.py). Not on scans deskewed with their own
+        velocities (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
         rc = self.config.registration
         if (st.valid or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
                 or st.skew.startswith("rejected")  # a bent sweep: a finer grid does not unbend it
@@ -81,3 +84,10 @@ class PrecisionStages:
         st.iters["polish"] += fine.iterations
         clock.lap("polish")
         self._verdict(st)
+        if not st.valid and rc.finish_grid == "both" and not st.skew.startswith("rejected"):  # on both grids
+            prob, why = finish_verdict.judge(good_start_points(st.src_pc, rc), st.T, st.src_pc, st.tgt_pc, rc,
+                                             rc.verdict_probability)
+            if not why:
+                st.probability, st.valid = prob, True
+                if rc.skew_check:  # not run on a pose the probability did not take
+                    self._skew(st)

@@ -52,7 +52,8 @@ class RegistrationResult:
             any-start search ran: other start yaws, then shifted starts).
         good_start: ``good_start`` only: "accepted", "accepted, sure, within the coarse try's reach (...)" (GICP
             converged beyond the good start's limits, core/good_start.py), "accepted after coarse to fine (why GICP
-            from the start was not)" (core/coarse_rescue.py), or why the GICP-first path was not (then ``path`` is
+            from the start was not)" (core/coarse_rescue.py), "not valid: degenerate along ..." (``path`` "gicp",
+            not ``valid``: core/finish_verdict.py), or why the GICP-first path was not (then ``path`` is
             "deepbbs" or "search" and ``timings_ms["good_start"]`` is what the attempt cost); "" otherwise.
     """
 

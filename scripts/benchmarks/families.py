@@ -343,10 +343,13 @@ BEYOND = ("beyond the good start's limits", "within the coarse try's reach")
 def path_taken(x: dict) -> str:
     """Which path answered one ``good_start=True`` call: "gicp" (GICP from the start within the good start's limits),
     "beyond limits" (converged beyond them, or only after good_start_max_iters, taken by the verdict), "coarse to
-    fine" (core/coarse_rescue.py), or the full pipeline after the good start was not taken ("deepbbs", "search")."""
+    fine" (core/coarse_rescue.py), "degenerate" (GICP's finished pose answered at once, not valid:
+    core/finish_verdict.py), or the full pipeline after the good start was not taken ("deepbbs", "search")."""
     why = x.get("why", "")
     if x.get("path") != "gicp":
         return x.get("path", "?")
+    if why.startswith("not valid: degenerate"):
+        return "degenerate"
     if "coarse to fine" in why:
         return "coarse to fine"
     return "beyond limits" if any(b in why for b in BEYOND) else "gicp"
@@ -406,7 +409,9 @@ def summarise(recs: list[dict], sets: dict, names: list[str]) -> dict:
             cell["success_pct"][m] = 100.0 * np.mean([x["ok"] for x in ran])
             cell["p50_ms"][m], cell["p95_ms"][m] = float(np.median(ms)), float(np.percentile(ms, 95))
             if m == GOOD:  # answered by GICP and the good-start verdict, or by the full pipeline after it rejected
-                cell["good_start"] = {"pairs": len(ran), "gicp_path": sum(x["path"] == "gicp" for x in ran),
+                cell["good_start"] = {"pairs": len(ran), "gicp_path": sum(x["path"] == "gicp" and path_taken(x) !=
+                                                                          "degenerate" for x in ran),
+                                      "degenerate": sum(path_taken(x) == "degenerate" for x in ran),
                                       "coarse_to_fine": sum("coarse to fine" in x.get("why", "") and x["path"] == "gicp"
                                                             for x in ran),
                                       "fallback_why": _whys([x.get("why", "") for x in ran if x["path"] != "gicp"]),

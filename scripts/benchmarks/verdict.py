@@ -173,14 +173,15 @@ def loose_poses(rows: np.ndarray, prob: np.ndarray, sure: float) -> np.ndarray:
 
 def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     """The good start on the GICP answers (``near`` / ``far``) of the rows ``m`` (``--sim-scene-grid``): taken on
-    GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's grid
-    (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
-    ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"; tried, not
-    shipped: ``scene_within``, its probability times P(within | the pose's covariance) there, core/within.py,
-    ``scene_within_weak`` with the spread along a weak direction): wrong (beyond 2
-    deg / 0.5 m) accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses
-    that the finish made (deg, m, probability)."""
-    from deepbbs_ros.core import calibrated
+    GICP's grid, else finished on the scans' scene-sized grids (core/polish.py finish) and judged again on GICP's
+    grid (``gicp_grid``, ``registration.good_start_finish_grid`` "gicp", the default) or on the scene's grids with
+    ``verdict_dist`` scaled with them, then the second-minimum check there (``scene_grid``, "scene"), or on GICP's
+    grid, then where it neither takes nor holds the pose on both (``both_grids``, "both", core/finish_verdict.py;
+    these and, tried, not shipped: ``scene_within``, its probability times P(within | the pose's covariance) there,
+    core/within.py, ``scene_within_weak`` with the spread along a weak direction): wrong (beyond 2 deg / 0.5 m)
+    accepted, right rejected (the answer or its finish right), right accepted, and the accepted poses that the
+    finish made (deg, m, probability)."""
+    from deepbbs_ros.core import calibrated, visibility
 
     g = m & np.isin(data["kind"], ["near", "far"])
     p0 = calibrated.probability(data["good"], "good_start")
@@ -188,13 +189,25 @@ def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     far0, y0 = (data["rot"] > 2.0) | (data["trans"] > 0.5), data["y"] == 1
     ffar, fright = done & ((fy[:, 1] > 2.0) | (fy[:, 2] > 0.5)), done & (fy[:, 0] == 1)
     out = {"answers": int(g.sum()), "finished": int(np.sum(g & (p0 < bar) & done))}
-    for name, col in (("gicp_grid", 0), ("scene_grid", 1), ("scene_within", 1), ("scene_within_weak", 1)):
+    for name, col in (("gicp_grid", 0), ("scene_grid", 1), ("both_grids", 1), ("scene_within", 1),
+                      ("scene_within_weak", 1)):
         pf = np.zeros(len(p0))
         pf[done] = calibrated.probability(data["fin"][done, col], "good_start")
+        if name == "both_grids":  # "both" (core/finish_verdict.py): where GICP's grid does not take nor hold the pose,
+            both = np.array(data["fin"][:, 0])  # also GICP's grid with pinned read on the scene's; else GICP's grid
+            pin = visibility.FEATURES.index("pinned")
+            both[:, pin] = data["fin"][:, 1, pin]
+            pg = np.zeros(len(p0))
+            pg[done] = calibrated.probability(data["fin"][done, 0], "good_start")
+            free = done & (pg < bar) & (data["fin"][:, 0, pin] < calibrated.anchored_below())
+            pb = np.zeros(len(p0))
+            pb[free] = calibrated.probability(both[free], "good_start")
+            pf = np.where(free, np.minimum(pf, pb), pg)
         if name.startswith("scene_within"):  # times P(within | the pose's covariance) on the scene's grids (tried);
             # _weak: that covariance with the spread along a weak direction (core/within.py pose_covariance weak)
             pf = pf * np.nan_to_num(np.asarray(data["fin_within"], np.float64)[:, int(name.endswith("weak"))], nan=0.0)
-        first, then = p0 >= bar, (p0 < bar) & (pf >= bar) & ~(data["fin_amb"].astype(bool) if col else False)
+        amb = data["fin_amb"].astype(bool) & (free if name == "both_grids" else True) if col else False
+        first, then = p0 >= bar, (p0 < bar) & (pf >= bar) & ~amb
         out[name] = {"wrong_accepted": int(np.sum(g & ((first & far0) | (then & ffar)))),
                      "right_rejected": int(np.sum(g & ~first & ~then & (y0 | fright))),
                      "right_accepted": int(np.sum(g & ((first & y0) | (then & fright)))),
