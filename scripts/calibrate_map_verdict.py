@@ -97,10 +97,8 @@ def _weakest(prep, crop, T_map_scan: np.ndarray, dist: float) -> np.ndarray:
     pts = good_start_points(spc, _RC)
     T = np.linalg.inv(crop.T_map_place) @ T_map_scan
     moved = _moved(pts, T)
-    P, N = map_verdict._base_arrays(tpc.cloud)
-    at = moved @ tpc.tree.R.T + tpc.tree.t
-    idx, sq = tpc.tree.base.batch_nearest_neighbor_search(at, num_threads=1)
-    n = N[np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist]].astype(np.float64) @ tpc.tree.R
+    idx, sq = tpc.tree.batch_nearest_neighbor_search(moved, num_threads=1)
+    n = tpc.at(np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist])[1]
     if len(n) < 6:
         return np.array([1.0, 0.0, 0.0])
     return np.linalg.eigh(n.T @ n / len(n))[1][:, 0]

@@ -99,6 +99,13 @@ class PlaceSearch(TiltedSearch):
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
                                       alternatives=alternatives, probability=best.prob)
+        t = time.perf_counter()
+        second = acceptance.second_minimum(src, best.crop, best.T, self.config)
+        timings["second_minimum"] = (time.perf_counter() - t) * 1e3
+        if second.ambiguous:
+            return LocalizationResult(best.T, False, best.score, "global", "ambiguous: another minimum as good "
+                                      f"{second.offset:.1f} tolerances along the direction the fit leaves free",
+                                      candidates=n, path="deepbbs", place=best.place, probability=best.prob)
         T = self._refine(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,
