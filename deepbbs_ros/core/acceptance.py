@@ -7,7 +7,8 @@ narrow field of view, a corridor) is refused when GICP from it, moved both ways 
 minimum as good beyond a right pose's tolerance (:func:`second_minimum`, ``localization.second_minimum``): the map
 verdict judges a pose by how the scan lies on the map there, and a handheld Livox Avia scan moved 1 m / 2 degrees
 still lies within its distance of a dense crop (0.89-0.97 on the real loop); GICP from it falls back to the truth,
-3.4 tolerances away, with a better fit. The answer chosen is refused as ambiguous when another accepted answer far
+3.4 tolerances away, with a better fit. The global search's answer is left to its probes (core/place_search.py) and
+checked only where none ran. The answer chosen is refused as ambiguous when another accepted answer far
 enough away fits about as well (:func:`rivals`). ``config`` is the whole :class:`~deepbbs_ros.config.Config`;
 ``src`` the scan's PreprocessResult; answers are ``_Answer`` (core/localization_types.py). Used by
 :class:`~deepbbs_ros.core.localization.MapLocalizer`.
