@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from calibrate_verdict import body_points, degrade, fit_logistic, label, perturb  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
-from deepbbs_ros.core import calibrated, map_verdict  # noqa: E402
+from deepbbs_ros.core import acceptance, calibrated, map_verdict  # noqa: E402
 from deepbbs_ros.core.good_start import from_start  # noqa: E402
 from deepbbs_ros.core.localization import MapLocalizer  # noqa: E402
 from deepbbs_ros.core.polish import polish  # noqa: E402
@@ -97,10 +97,8 @@ def _weakest(prep, crop, T_map_scan: np.ndarray, dist: float) -> np.ndarray:
     pts = good_start_points(spc, _RC)
     T = np.linalg.inv(crop.T_map_place) @ T_map_scan
     moved = _moved(pts, T)
-    P, N = map_verdict._base_arrays(tpc.cloud)
-    at = moved @ tpc.tree.R.T + tpc.tree.t
-    idx, sq = tpc.tree.base.batch_nearest_neighbor_search(at, num_threads=1)
-    n = N[np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist]].astype(np.float64) @ tpc.tree.R
+    idx, sq = tpc.tree.batch_nearest_neighbor_search(moved, num_threads=1)
+    n = tpc.at(np.asarray(idx, np.int64)[np.asarray(sq) <= dist * dist])[1]
     if len(n) < 6:
         return np.array([1.0, 0.0, 0.0])
     return np.linalg.eigh(n.T @ n / len(n))[1][:, 0]
@@ -118,7 +116,7 @@ def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndar
     reg = DeepBBSRegistration(cfg)
     rc = cfg.registration
     rng = np.random.default_rng(seed)
-    out = {k: [] for k in ("x", "y", "rot", "trans", "rig", "kind")}
+    out = {k: [] for k in ("x", "y", "rot", "trans", "rig", "kind", "accepted", "turned")}
     outside: list[np.ndarray] = []  # the last rig's query scans: outside the next rig's map
 
     def add(ri, kind, loc, prep, T, crop, T_gt):
@@ -126,7 +124,11 @@ def collect(rigs, seed: int, log=print, slid: bool = False) -> dict[str, np.ndar
         if y < 0:
             return
         x = map_verdict.answer_features(prep.pre, crop, T, cfg, map_normals=True)
-        for k, v in (("x", x), ("y", y), ("rot", r), ("trans", t), ("rig", ri), ("kind", kind)):
+        # the localization's acceptance with the shipped coefficients: accepted, then turned away by the check?
+        ok = acceptance.accepts(cfg, acceptance.probability(prep.pre, crop, T, cfg))
+        turned = ok and acceptance.second_minimum(prep.pre, crop, T, cfg).ambiguous
+        for k, v in (("x", x), ("y", y), ("rot", r), ("trans", t), ("rig", ri), ("kind", kind), ("accepted", ok),
+                     ("turned", turned)):
             out[k].append(v)
 
     for ri, (sensor, mount, place) in enumerate(rigs):
@@ -230,6 +232,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {kind}: {int(m.sum())} poses, right {int(y[m].sum())}, p of right min "
               f"{p[m & (y == 1)].min() if (m & (y == 1)).any() else float('nan'):.3f}, p of wrong max "
               f"{p[m & (y == 0)].max() if (m & (y == 0)).any() else float('nan'):.3f}")
+    if "turned" in data:  # the shipped acceptance on these rows: the map verdict, then the second-minimum check
+        acc, turned = data["accepted"].astype(bool), data["turned"].astype(bool)
+        print(f"shipped acceptance: right accepted {int(np.sum(acc & (y == 1)))} of {int(y.sum())}, turned away by "
+              f"the second-minimum check {int(np.sum(turned & (y == 1)))}; wrong accepted "
+              f"{int(np.sum(acc & (y == 0)))} of {int((1 - y).sum())}, turned away {int(np.sum(turned & (y == 0)))}")
+        for i in np.flatnonzero(acc & ((y == 0) | turned)):
+            print(f"  {RIGS[int(data['rig'][i])]} {data['kind'][i]} right {int(y[i])}: {data['rot'][i]:.2f} deg "
+                  f"{data['trans'][i]:.2f} m, {'turned away' if turned[i] else 'accepted'}")
     print("reliability (fitted rows):")
     print("\n".join(reliability(p, y)))
     doc = {"features": list(FEATURES_USED), "transform": calibrated.TRANSFORM, "map_normals": True,

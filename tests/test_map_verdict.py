@@ -172,3 +172,43 @@ def test_a_scan_slid_along_a_single_wall_is_not_likely():
     row = map_verdict.features(pts, slid, tgt, dist)
     assert row[names.index("fitness")] > 0.95 and row[names.index("pinned")] < 0.05, row
     assert map_verdict.probability(row) < 0.2, map_verdict.probability(row)
+
+
+def test_the_acceptance_turns_away_a_pose_slid_along_a_corridor_and_keeps_the_true_one():
+    """A corridor 4 m wide closed by a wall 6 m ahead, the map a view of its GICP cloud 120 m from the map's origin
+    (a map crop, core/polish_view.py), a 70-degree scan looking down it: slid 0.6 or 1.2 m along the corridor, the scan
+    still lies on the map's walls and floor (the map verdict accepts it), but the fit leaves the pose free along the
+    corridor and GICP from it, moved along that direction both ways, settles on the true pose with a better fit: the
+    acceptance (core/acceptance.py) turns it away. The true pose: both starts come back, it is kept."""
+    from types import SimpleNamespace
+
+    from deepbbs_ros.core import acceptance
+    from deepbbs_ros.core.polish import PolishView, prepare_polish_cloud
+
+    cfg = Config()
+    rc = cfg.registration
+    planes = [(2, -1.5, -50.0, 50.0), (1, 2.0, -50.0, 6.0), (1, -2.0, -50.0, 6.0), (0, 6.0, -2.0, 2.0)]
+    world = np.concatenate([_cast(np.array([x, 0.0, 0.0]), planes, np.arange(-180.0, 180.0, 0.4),
+                                  np.arange(-25.0, 15.0, 0.5)) for x in np.arange(-20.0, 5.0, 4.0)])
+    scan = _cast(np.zeros(3), planes, np.arange(-35.0, 35.0, 0.2), np.arange(-38.0, 38.0, 0.3))
+    offset = np.array([120.0, -40.0, 3.0])
+    base = prepare_polish_cloud(world + offset, rc.polish_voxel, rc.polish_neighbors, threads=1)
+    T_map_place = np.eye(4)
+    T_map_place[:3, 3] = offset
+    crop = SimpleNamespace(T_map_place=T_map_place, pre=SimpleNamespace(
+        polish_cloud=PolishView.of(base, base.points() - offset, T_map_place)))
+    src = SimpleNamespace(polish_cloud=prepare_polish_cloud(scan, rc.polish_voxel, rc.polish_neighbors, threads=1))
+    for dx in (0.0, -0.6, -1.2, 1.2):
+        T = T_map_place.copy()
+        T[0, 3] += dx
+        assert acceptance.accepts(cfg, acceptance.probability(src, crop, T, cfg)), dx  # the map verdict alone
+        a = acceptance.second_minimum(src, crop, T, cfg)
+        assert a.step > 0, a  # checked: free along the corridor
+        if dx == 0.0:
+            assert not a.ambiguous and acceptance.accepts_pose(src, crop, T, cfg), a
+        else:
+            assert a.ambiguous and a.other_score > a.score, (dx, a)
+            assert np.linalg.norm(a.other[:3, 3]) < 0.1, (dx, a.other)  # the other minimum: the true pose
+            assert not acceptance.accepts_pose(src, crop, T, cfg)
+            off = cfg.replace(**{"localization.second_minimum": False})
+            assert acceptance.accepts_pose(src, crop, T, off)  # the map verdict alone accepts it

@@ -112,6 +112,12 @@ class LocalizationConfig:
     # a probe that stays off is a rival only within this score of the pose (a free slide scores the same; a correct
     # pose with a slightly worse optimum nearby scores a few hundredths less)
     ambiguity_probe_margin: float = 0.03
+    # an accepted pose the fit leaves freer than a wrong pose's distance (2 tolerances of 0.3 m / 1 deg) along some
+    # direction (a narrow field of view, a corridor) is refused when GICP from it moved along that direction both ways
+    # finds another minimum beyond the tolerance that fits as well (core/second_minimum.py on the map crop:
+    # tracking's answers, a hint's; a search's where no probe ran, ambiguity_probe): a handheld Livox Avia scan moved
+    # 1 m / 2 deg still scored 0.89-0.99
+    second_minimum: bool = True
     # m; > 0: the probe's GICP runs on the scan's GICP cloud put on this coarser grid (about half the probe's time; its
     # poses are refined on the whole cloud). 0 = the whole cloud: on a straight highway the coarse cloud's probes all
     # settled on a pose slid 0.76 m along the road, the whole cloud's found the right one beside it (better score)

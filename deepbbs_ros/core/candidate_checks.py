@@ -82,8 +82,9 @@ class CandidateChecks:
         return acceptance.threshold(self.config)
 
     def _accepts_at(self, src: Any, crop: _Crop, T_map_scan: np.ndarray) -> bool:
-        """The map verdict accepts the scan at ``T_map_scan`` on ``crop``."""
-        return acceptance.accepts(self.config, acceptance.probability(src, crop, T_map_scan, self.config))
+        """The map verdict accepts the scan at ``T_map_scan`` on ``crop``, and the pose has no second minimum as good
+        (core/acceptance.py ``accepts_pose``)."""
+        return acceptance.accepts_pose(src, crop, T_map_scan, self.config)
 
     # -- GICP: refine, covariance ----------------------------------------------------------------------------------
     def _refine(self, src: Any, crop: _Crop, T_map_scan: np.ndarray, timings: dict[str, float]) -> np.ndarray:

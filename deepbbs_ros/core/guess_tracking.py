@@ -106,7 +106,8 @@ class GuessTracking:
         it (GICP's own settings, ``registration.polish_*``, taken wherever the verdict accepts it: core/good_start.py
         from_start) and its verdict: the share of a spread subset of the scan's GICP voxels (``good_start_points``) on
         the crop, judged by the map verdict (core/map_verdict.py) as every answer in a map (the registration's
-        good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran low for right poses). With
+        good-start probability is calibrated on scan-to-scan pairs: on a map crop it ran low for right poses) and its
+        second-minimum check (core/acceptance.py). With
         more than one start, they are tried in the order of their fitness (the share of those voxels on the crop at
         the start itself; a tie keeps the prediction first) until one is accepted.
         Only the GICP clouds: the scan's lazy sampling (ground removal, FPS) is not run. -> (the accepted answer, else
@@ -132,6 +133,8 @@ class GuessTracking:
             score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
             prob = map_verdict.probability(map_verdict.features(pts, T, tpc, rc.verdict_dist))
             ans = _Answer(score, acceptance.accepts(self.config, prob), crop.T_map_place @ T, place, crop, prob=prob)
+            if ans.ok and acceptance.second_minimum(src, crop, ans.T, self.config).ambiguous:
+                ans.ok = False  # another minimum as good along the direction the fit leaves free: not this one
             if ans.ok:
                 return ans, float("nan"), starts[i]
             if best is None or ans.score > best.score:

@@ -33,6 +33,7 @@ import numpy as np
 
 from deepbbs_ros.core import calibrated, visibility
 from deepbbs_ros.core.polish import PolishView
+from deepbbs_ros.core.polish_view import base_arrays
 from deepbbs_ros.errors import VerdictModelError
 
 DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "map_verdict_model.json"
@@ -71,21 +72,6 @@ def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: flo
     return np.r_[vis, covered / len(pts), close / covered if covered else 0.0]
 
 
-def _base_arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(points (M, 3), unit normals (M, 3)) float32 of a map's whole GICP cloud (the base of its crops' views, its
-    frame), read once per map (the last map's kept: a node holds one)."""
-    global _BASE
-    kept = _BASE  # one assignment below: a thread beside this one sees the old pair or the new one
-    if kept[0] is not cloud:
-        kept = (cloud, (np.asarray(cloud.points())[:, :3].astype(np.float32),
-                        np.asarray(cloud.normals())[:, :3].astype(np.float32)))
-        _BASE = kept
-    return kept[1]
-
-
-_BASE: tuple[Any, Any] = (None, None)  # (the map's GICP cloud, its points and normals)
-
-
 def _view_target(view: PolishView, dist: float) -> tuple:
     """A crop view's visibility target, kept on the view: (its direction cells (core/visibility.py
     ``directions``), self planarity, ``plane_own``'s tolerance), the last two from an even subset of the crop's points
@@ -94,7 +80,7 @@ def _view_target(view: PolishView, dist: float) -> tuple:
     if kept is not None and kept[0] == dist:
         return kept[1]
     local = np.asarray(view.local, np.float64)
-    P, N = _base_arrays(view.cloud)
+    P, N = base_arrays(view.cloud)
     R, t = view.tree.R, view.tree.t
     sub = local[:: max(1, len(local) // visibility._SELF_POINTS)] @ R.T + t
     idx, sq = view.tree.base.batch_knn_search(sub, 2, num_threads=1)
@@ -112,7 +98,7 @@ def _view_features(moved: np.ndarray, view: PolishView, dist: float, threads: in
     map's GICP cloud, with the map's tangent planes and normals (the view's own cloud is the whole map's: its normals
     do not line up with the crop's points) -> (features, squared distances (N,))."""
     table, own, tol = _view_target(view, dist)
-    P, N = _base_arrays(view.cloud)
+    P, N = base_arrays(view.cloud)
     R, t = view.tree.R, view.tree.t
     at = moved @ R.T + t  # the map's frame
     idx, sq = view.tree.base.batch_nearest_neighbor_search(at, num_threads=max(1, threads))

@@ -99,6 +99,15 @@ class PlaceSearch(TiltedSearch):
                                       f"ambiguous: {what}, {far:.1f} m apart, score {best.score:.2f} / "
                                       f"{rivals[0].score:.2f}", candidates=n, path="deepbbs", place=best.place,
                                       alternatives=alternatives, probability=best.prob)
+        # the probes looked for other minima around it (a better one is the answer now, one as good a rival); without
+        # probes, the second-minimum check does (core/acceptance.py)
+        t = time.perf_counter()
+        second = acceptance.second_minimum(src, best.crop, best.T, self.config) if not probes else None
+        timings["second_minimum"] = (time.perf_counter() - t) * 1e3
+        if second is not None and second.ambiguous:
+            return LocalizationResult(best.T, False, best.score, "global", "ambiguous: another minimum as good "
+                                      f"{second.offset:.1f} tolerances along the direction the fit leaves free",
+                                      candidates=n, path="deepbbs", place=best.place, probability=best.prob)
         T = self._refine(src, best.crop, best.T, timings)
         return LocalizationResult(T, True, best.score, "global", "", candidates=n, path="deepbbs",
                                   crop=_crop_cloud(best.crop), place=best.place, alternatives=alternatives,

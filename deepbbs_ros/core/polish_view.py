@@ -49,8 +49,30 @@ class PolishView(PolishCloud):
     def points(self) -> np.ndarray:
         return self.local.copy()
 
+    def at(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The base cloud's points and unit normals at indices ``idx`` (K,) of its k-d tree's answers, in frame A ->
+        ((K, 3), (K, 3)) float64."""
+        P, N = base_arrays(self.cloud)
+        R, t = self.tree.R, self.tree.t
+        return (P[idx] - t) @ R, N[idx].astype(np.float64) @ R
+
     def __reduce__(self) -> tuple:
         return _plain_cloud, (self.__getstate__(),)
+
+
+def base_arrays(cloud: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(points (M, 3), unit normals (M, 3)) float32 of a map's whole GICP cloud (the base of its crops' views, its
+    frame), read once per map (the last map's kept: a node holds one)."""
+    global _BASE
+    kept = _BASE  # one assignment below: a thread beside this one sees the old pair or the new one
+    if kept[0] is not cloud:
+        kept = (cloud, (np.asarray(cloud.points())[:, :3].astype(np.float32),
+                        np.asarray(cloud.normals())[:, :3].astype(np.float32)))
+        _BASE = kept
+    return kept[1]
+
+
+_BASE: tuple[Any, Any] = (None, None)  # (the map's GICP cloud, its points and normals)
 
 
 def _plain_cloud(state: dict) -> PolishCloud:

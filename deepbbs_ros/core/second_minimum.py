@@ -33,6 +33,7 @@ import numpy as np
 
 from deepbbs_ros.core import anchoring, verdict
 from deepbbs_ros.core.polish import SMALL_GICP_TYPE, correspondence_distance, gicp_align, polish
+from deepbbs_ros.core.polish_view import PolishView
 
 __all__ = ["Ambiguity", "check", "offset", "weakest"]
 
@@ -67,15 +68,18 @@ def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[n
     matches on the target's normals."""
     idx, sq = tgt_pc.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
     idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
-    normals = np.asarray(tgt_pc.cloud.normals())[:, :3]
-    tpts = np.asarray(tgt_pc.cloud.points())[:, :3]
-    if len(normals) != len(tpts) or not np.any(normals):
-        return None, float("inf")
-    plane = np.einsum("ij,ij->i", moved - tpts[idx], normals[idx])
+    if isinstance(tgt_pc, PolishView):  # a map crop: the map's points and normals, in the crop's frame
+        tpts, normals = tgt_pc.at(idx)
+    else:
+        normals, tpts = np.asarray(tgt_pc.cloud.normals())[:, :3], np.asarray(tgt_pc.cloud.points())[:, :3]
+        if len(normals) != len(tpts) or not np.any(normals):
+            return None, float("inf")
+        tpts, normals = tpts[idx], normals[idx]
+    plane = np.einsum("ij,ij->i", moved - tpts, normals)
     m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
     if m.sum() < anchoring.MIN_MATCHES:
         return None, float("inf")
-    w, v = np.linalg.eigh(anchoring.information(moved[m], normals[idx[m]]))
+    w, v = np.linalg.eigh(anchoring.information(moved[m], normals[m]))
     s = float(np.sqrt(max(w[0], 0.0)))
     return v[:, 0] * anchoring.SCALE, (0.2 * dist / s if s > 0 else float("inf"))
 
@@ -95,14 +99,17 @@ def _moved_by(twist: np.ndarray, T: np.ndarray) -> np.ndarray:
     return D @ T
 
 
-def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1, loose: float = WRONG) -> Ambiguity:
+def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1, loose: float = WRONG,
+          crop: bool = False) -> Ambiguity:
     """Whether the pose ``T`` (4, 4) ``T_target_source`` has a second minimum as good along its weakest direction
     (see the module). ``points``: the verdict's points (N, 3), source frame; ``src_pc`` / ``tgt_pc``: the precision
     stage's clouds (``core.polish.PolishCloud``); ``rc``: the registration section (its ``verdict_dist`` and
-    ``polish*`` keys); ``loose``: tolerances of uncertainty from which the pose is checked (at most that: not)."""
+    ``polish*`` keys); ``loose``: tolerances of uncertainty from which the pose is checked (at most that: not);
+    ``crop``: a map crop (``core.polish.PolishView``) is checked too (the map verdict's acceptance, core/acceptance.py),
+    else not."""
     T = np.asarray(T, np.float64)
     pts = np.asarray(points, np.float64)
-    if len(pts) == 0 or getattr(tgt_pc, "T_base", None) is not None or rc.polish not in SMALL_GICP_TYPE:
+    if len(pts) == 0 or (isinstance(tgt_pc, PolishView) and not crop) or rc.polish not in SMALL_GICP_TYPE:
         # no points, a map crop (core.polish.PolishView: localization judges its own way), or no GICP to run
         # (registration.polish "none")
         return Ambiguity()
@@ -143,8 +150,10 @@ def _from(src_pc, tgt_pc, T: np.ndarray, start: np.ndarray, rc) -> tuple[float, 
     if rc.polish_max_iters <= LEG:  # no shorter leg than the run itself
         return 0.0, polish(src_pc, tgt_pc, start, rc)
     corr = correspondence_distance([src_pc, tgt_pc], rc)
-    res = gicp_align(tgt_pc.cloud, src_pc.cloud, tgt_pc.tree, start, LEG, rc, corr)
-    leg = offset(T, np.asarray(res.T_target_source, np.float64))
+    base = tgt_pc.T_base if isinstance(tgt_pc, PolishView) else np.eye(4)  # a map crop: aligned in the map's frame
+    tree = tgt_pc.tree.base if isinstance(tgt_pc, PolishView) else tgt_pc.tree
+    res = gicp_align(tgt_pc.cloud, src_pc.cloud, tree, base @ start, LEG, rc, corr)
+    leg = offset(T, np.linalg.solve(base, np.asarray(res.T_target_source, np.float64)))
     if not res.converged and leg <= BACK:
         return leg, None
     return leg, polish(src_pc, tgt_pc, start, rc)  # converged within the leg (rare) or not back: the whole run
