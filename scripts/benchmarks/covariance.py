@@ -29,7 +29,8 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   missed rotation's (the floor assumes 0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor``
   (other estimates of the sweep floor from the same deviations; ``share``: from each scan's share of its sweep's bend,
   scripts/benchmarks/_sweep_share.py, with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion
-  within the sweep), ``--map-covariances`` (the odometry against the map's planes).
+  within the sweep), ``--map-covariances`` (the odometry against the map's planes), ``--position-floor`` (the prediction
+floor's position part from a chi-square estimate that never clips at 0, scripts/benchmarks/_position_floor.py).
 
 Localization checks (models tried, scripts/benchmarks/_localization_variants.py): ``--estimator cr2`` (the
 bias-reduced cluster-robust covariance instead of the jackknife), ``--coarse-cell M`` (along each direction the larger
@@ -622,6 +623,10 @@ def main(argv: list[str] | None = None) -> int:
                     "k-th pair, at most this many (a check; 0: every pair; default ODOMETRY_MAX_POINTS)")
     ap.add_argument("--odometry-student", choices=["on", "off"], help="the odometry's step covariance widened as "
                     "Student's t or not (a check; default ODOMETRY_STUDENT)")
+    ap.add_argument("--position-floor", choices=["shipped", "posterior", "median"], default="shipped",
+                    help="the position part of the odometry's prediction floor: the module's (the missed variance "
+                    "clipped at 0) or a chi-square estimate from the window's n deviations (models tried: "
+                    "scripts/benchmarks/_position_floor.py)")
     ap.add_argument("--sweep-floor", choices=sorted(SWEEP_FLOORS), default="shipped", help="the odometry's sweep "
                     "floor per rotation axis from the deviations d of the registered motion from the deskew's (a "
                     "check; core/motion_floor.py): shipped (sqrt(2) rms d: d taken as half the missed rotation), half "
@@ -679,6 +684,12 @@ def main(argv: list[str] | None = None) -> int:
         _variants.install(args.estimator, args.coarse_cell, args.directions)
     if args.map_planes:
         _variants.install_map_planes()
+    if args.position_floor != "shipped":
+        import _position_floor
+
+        import deepbbs_ros.core.motion_floor as floormod
+
+        _position_floor.install(floormod, args.position_floor)
     if args.sweep_floor != "shipped":
         import deepbbs_ros.core.motion_floor as floormod
 
