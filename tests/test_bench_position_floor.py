@@ -57,3 +57,14 @@ def test_installed_on_the_motion_floor(monkeypatch):
     assert 0.0 < low < SWEEP_SPREAD * G ** 0.5
     assert high > 2 * low and high == pytest.approx(SWEEP_SPREAD * pf.posterior(np.array([6 * G]),
                                                                                   np.array([2 * G]), 10)[0] ** 0.5)
+
+
+def test_position_line_reads_the_rows():
+    # steps of 10 mm error along x with a published 10 mm, constant steps (no difference), no floor
+    steps = [(np.array([0.01, 0, 0, 0, 0, 0]), np.eye(6) * 1e-4) for _ in range(6)]
+    step = np.eye(4)
+    step[0, 3] = 1.0
+    chain = [(np.eye(4), step, step, step) for _ in range(6)]
+    line = pf.position_line(steps, chain, [np.zeros((6, 6))] * 6)
+    assert "step error rms 10.0, 0.0, 0.0; published sd rms 10.0, 10.0, 10.0" in line
+    assert "sqrt 2 0.0, 0.0, 0.0; prediction floor under 1 mm on 100%, 100%, 100%" in line

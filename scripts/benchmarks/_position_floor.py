@@ -52,3 +52,29 @@ def install(floormod: Any, name: str) -> None:
         return out
 
     floormod.MotionFloor._missed = _missed
+
+
+def position_line(steps: list, chain: list, floors: list) -> str:
+    """``--pose``'s ``position`` line of a drive (scripts/benchmarks/covariance.py ``odometry_rows``), x, y, z of the
+    previous scan's axes, mm, over the steps after the first: the steps' root mean square error; the published
+    standard deviation's (root mean square of the covariance's diagonal); the consecutive steps' difference's root
+    mean square over ``sqrt(2)`` (what the deviations from a constant velocity hold when the steps' errors are
+    independent and the true motion constant: the floor's view of the error); the share of steps whose prediction
+    floor is under 1 mm."""
+    from deepbbs_ros.core.covariance import pose_error
+
+    err = np.array([d[:3] for d, _ in steps[1:]])
+    sd = np.array([np.diag(c)[:3] for _, c in steps[1:]])
+    diff = np.array([pose_error(a[1], b[1])[:3] for a, b in zip(chain[1:-1], chain[2:])])
+    low = []
+    for (T_prev, *_), fl in zip(chain[1:], floors[1:]):
+        B = np.asarray(T_prev, dtype=np.float64)[:3, :3]
+        low.append(np.sqrt(np.maximum(np.diag(B.T @ np.asarray(fl)[:3, :3] @ B), 0.0)) < 1e-3)
+
+    def mm(x: np.ndarray) -> str:
+        return ", ".join(f"{v * 1e3:.1f}" for v in x)
+
+    return (f"position (x, y, z; mm): step error rms {mm(np.sqrt(np.mean(err ** 2, 0)))}; published sd rms "
+            f"{mm(np.sqrt(np.mean(sd, 0)))}; consecutive steps' difference rms / sqrt 2 "
+            f"{mm(np.sqrt(np.mean(diff ** 2, 0) / 2))}; prediction floor under 1 mm on "
+            + ", ".join(f"{v:.0%}" for v in np.mean(low, 0)) + " of the steps")

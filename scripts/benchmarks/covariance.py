@@ -345,6 +345,10 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
         mean, sem = e.mean(0) * scale, e.std(0) * scale / len(e) ** 0.5
         print("    step errors, mean (mm, mdeg) and t (mean / its standard error): "
               + ", ".join(f"{m:.1f} (t {m / max(s, 1e-12):.1f})" for m, s in zip(mean, sem)), flush=True)
+    if args.pose and len(chain) >= 5:  # the position's error against what the prediction floor sees of it
+        import _position_floor
+
+        print("    " + _position_floor.position_line(steps, chain, floors), flush=True)
     if args.pose and len(chain) >= 5:  # the ar1 model's coefficient from the deviations, at the drive's end
         rho = ar1_coefficient([c[1] for c in chain])
         print("    ar1: rho from the deviations' lag-1 autocorrelation (x, y, z, roll, pitch, yaw): "
