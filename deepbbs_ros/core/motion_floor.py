@@ -102,11 +102,17 @@ class MotionFloor:
         # of the one before it (the prediction repeats that step's motion): twice a step's GICP variance, which the
         # step's own GICP part counts already
         noise = np.mean(np.asarray(self._noise), axis=0) if self._noise else np.zeros(6)
-        missed = np.mean(np.square(np.asarray(self._devs)), axis=0) - 2.0 * noise
-        floor = SWEEP_SPREAD * np.sqrt(np.maximum(missed, 0.0))
+        missed = self._missed(np.mean(np.square(np.asarray(self._devs)), axis=0), 2.0 * noise)
+        floor = SWEEP_SPREAD * np.sqrt(missed)
         if self._swept:  # kept whole: see the class docstring
             floor[3:] = np.maximum(floor[3:], self._sweep_floor())
         return floor
+
+    def _missed(self, mean_square: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """(6,) the variance per axis of the motion the model missed: the window's mean square deviation
+        ``mean_square`` less the registration ``noise`` it carries, not below 0 (scripts/benchmarks/covariance.py
+        ``--position-floor`` scores estimates that never reach 0)."""
+        return np.maximum(mean_square - noise, 0.0)
 
     def _sweep_floor(self) -> np.ndarray:
         """(3,) rad: the sweep's floor per rotation axis of the scan, from the last deviations of the registered

@@ -12,24 +12,26 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   in another lane on another day (every ``--query-every`` th), tracked from their true pose moved by a start error
   (``--start-sigma`` m and deg per axis, the tracking prediction's); real scans: the map of the even scans of each
   ``--real`` folder, the odd ones localized from a start error as well.
-* odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each
-  scan's motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the
-  node publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own
-  sweep error once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models
-  of it: "independent" (the held steps composed as independent, without the velocity error they share), "walk"
-  (every step's whole covariance, floor included, composed as a random walk), "once" (the current step's
-  whole floor added), "chain" (the GICP parts alone, no floor), "origin" (the first motion's floor replaced by the
-  first scan's own error, a bias all poses share: the current scan's share of the sweep floor composed at the
-  origin), "ar1" and "ar1origin" (the node's and the origin model with the GICP parts' errors an AR(1) per axis,
-  its coefficient measured from the deviations from the prediction: models tried), the lag-1 correlation of
-  consecutive step errors per axis (-0.5 where each scan's own error dominates and the next step undoes it, 0 for
-  independent steps) and their mean (away from 0: a drift the steps share). Per simulated drive the ``sweep:`` lines
-  show the sweep floor's premises: how the step's rotation error follows the true rotation the deskew missed within
-  the sweep (correlation and slope per axis), and the step error's and the floor's deviation's mean squares over the
-  missed rotation's (the floor assumes 0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor``
-  (other estimates of the sweep floor from the same deviations; ``share``: from each scan's share of its sweep's bend,
-  scripts/benchmarks/_sweep_share.py, with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion
-  within the sweep), ``--map-covariances`` (the odometry against the map's planes).
+* odometry: ``DeepBBSOdometry`` on a simulated drive and on each ``--real`` folder; "step" is the NEES of each scan's
+  motion ``T_{k-1}_k`` with the step covariance, "accumulated" that of ``T_first_k`` with the covariance the node
+  publishes on ``~/odometry`` (the steps' GICP parts composed along the chain, plus the current scan's own sweep error
+  once: node/odometry_pipeline.py ``LocalMapOdometry``); ``--pose`` adds the tables of the other models of it:
+  "independent" (the held steps composed as independent, without the velocity error they share), "walk" (every step's
+  whole covariance, floor included, composed as a random walk), "once" (the current step's whole floor added), "chain"
+  (the GICP parts alone, no floor), "origin" (the first motion's floor replaced by the first scan's own error, a bias
+  all poses share: the current scan's share of the sweep floor composed at the origin), "ar1" and "ar1origin" (the
+  node's and the origin model with the GICP parts' errors an AR(1) per axis, its coefficient measured from the
+  deviations from the prediction: models tried), the lag-1 correlation of consecutive step errors per axis (-0.5 where
+  each scan's own error dominates and the next step undoes it, 0 for independent steps) and their mean (away from 0: a
+  drift the steps share), and the ``position`` line (the steps' position error against what the prediction floor sees
+  of it: _position_floor.position_line). Per simulated drive the ``sweep:`` lines show the sweep floor's premises: how
+  the step's rotation error follows the true rotation the deskew missed within the sweep (correlation and slope per
+  axis), and the step error's and the floor's deviation's mean squares over the missed rotation's (the floor assumes
+  0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor`` (other estimates of the sweep floor
+  from the same deviations; ``share``: from each scan's share of its sweep's bend, scripts/benchmarks/_sweep_share.py,
+  with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion within the sweep), ``--map-covariances``
+  (the odometry against the map's planes), ``--position-floor`` (the prediction floor's position part from a
+  chi-square estimate that never clips at 0, scripts/benchmarks/_position_floor.py).
 
 Localization checks (models tried, scripts/benchmarks/_localization_variants.py): ``--estimator cr2`` (the
 bias-reduced cluster-robust covariance instead of the jackknife), ``--coarse-cell M`` (along each direction the larger
@@ -344,6 +346,10 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
         mean, sem = e.mean(0) * scale, e.std(0) * scale / len(e) ** 0.5
         print("    step errors, mean (mm, mdeg) and t (mean / its standard error): "
               + ", ".join(f"{m:.1f} (t {m / max(s, 1e-12):.1f})" for m, s in zip(mean, sem)), flush=True)
+    if args.pose and len(chain) >= 5:  # the position's error against what the prediction floor sees of it
+        import _position_floor
+
+        print("    " + _position_floor.position_line(steps, chain, floors), flush=True)
     if args.pose and len(chain) >= 5:  # the ar1 model's coefficient from the deviations, at the drive's end
         rho = ar1_coefficient([c[1] for c in chain])
         print("    ar1: rho from the deviations' lag-1 autocorrelation (x, y, z, roll, pitch, yaw): "
@@ -622,6 +628,10 @@ def main(argv: list[str] | None = None) -> int:
                     "k-th pair, at most this many (a check; 0: every pair; default ODOMETRY_MAX_POINTS)")
     ap.add_argument("--odometry-student", choices=["on", "off"], help="the odometry's step covariance widened as "
                     "Student's t or not (a check; default ODOMETRY_STUDENT)")
+    ap.add_argument("--position-floor", choices=["shipped", "posterior", "median"], default="shipped",
+                    help="the position part of the odometry's prediction floor: the module's (the missed variance "
+                    "clipped at 0) or a chi-square estimate from the window's n deviations (models tried: "
+                    "scripts/benchmarks/_position_floor.py)")
     ap.add_argument("--sweep-floor", choices=sorted(SWEEP_FLOORS), default="shipped", help="the odometry's sweep "
                     "floor per rotation axis from the deviations d of the registered motion from the deskew's (a "
                     "check; core/motion_floor.py): shipped (sqrt(2) rms d: d taken as half the missed rotation), half "
@@ -679,6 +689,12 @@ def main(argv: list[str] | None = None) -> int:
         _variants.install(args.estimator, args.coarse_cell, args.directions)
     if args.map_planes:
         _variants.install_map_planes()
+    if args.position_floor != "shipped":
+        import _position_floor
+
+        import deepbbs_ros.core.motion_floor as floormod
+
+        _position_floor.install(floormod, args.position_floor)
     if args.sweep_floor != "shipped":
         import deepbbs_ros.core.motion_floor as floormod
 
