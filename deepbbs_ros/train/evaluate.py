@@ -44,7 +44,7 @@ from deepbbs_ros.train.eval_report import (  # noqa: F401  (re-exported)
     print_report,
     summarise,
 )
-from deepbbs_ros.train.pairs import inv_T, make_T, transform, yaw_matrix
+from deepbbs_ros.train.rigid import inv_T, make_T, transform, yaw_matrix
 
 METHODS = ("deepbbs++", "deepbbs", "refine-only", "gicp", "gicp-gt")
 
