@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.network import NetworkOutput
-from deepbbs_ros.core.worker_process import handshake, spawn_worker, stop_worker
+from deepbbs_ros.core.worker_process import handshake, spawn_worker, started, stop_worker
 from deepbbs_ros.errors import ModelError, RegistrationError
 
 __all__ = ["NetworkOutput", "NetworkProcess", "NetworkProcessLost", "wanted"]
@@ -213,31 +213,32 @@ class Pending:
         return msg[1]
 
 
+def _build(weights: str, flat_config: dict[str, Any]) -> tuple[Any, tuple]:
+    """The worker's network (on the CPU, in its process), warmed up for the search's batches -> ((it, its config),
+    the ``("ready",)`` answer)."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.network import DeepBBSNetwork
+
+    cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
+    net = DeepBBSNetwork(cfg, weights=weights)
+    from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
+
+    net.warmup(batches=batch_sizes(cfg.registration)[0],
+               rank_points=rank_size(cfg.registration, cfg.preprocess.num_points))
+    return (net, cfg), ("ready",)
+
+
 def _worker_main(fd: int) -> int:
     """The worker: read (weights, flat config), load the checkpoint, warm up, then answer
     ("run", src, tgt, T_init[, speculate]) (a second answer with the speculative starts' outputs) and ("starts",
     src, tgt, T_starts, n_passes), and take ("target", tgt) ahead of a run (no answer) and ("cancel",) (no answer),
     until ("stop",) or until the caller is gone (EOF)."""
-    from multiprocessing.connection import Connection
+    conn, built, rc = started(fd, _build)
+    if built is None:
+        return rc
+    net, cfg = built
+    from deepbbs_ros.core.global_search import rank_size  # (imported by _build)
 
-    conn = Connection(fd)
-    try:
-        weights, flat_config = conn.recv()
-        from deepbbs_ros.config import Config
-        from deepbbs_ros.core.network import DeepBBSNetwork
-
-        cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
-        net = DeepBBSNetwork(cfg, weights=weights)
-        from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
-
-        net.warmup(batches=batch_sizes(cfg.registration)[0],
-                   rank_points=rank_size(cfg.registration, cfg.preprocess.num_points))
-    except (EOFError, OSError):
-        return 0
-    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
-        conn.send(("error", f"{type(err).__name__}: {err}"))
-        return 1
-    conn.send(("ready",))
     while True:
         try:
             msg = conn.recv()
