@@ -16,7 +16,7 @@ truth comes from ``gt_topic`` (``geometry_msgs/msg/PoseStamped``, ``nav_msgs/msg
 ``/ground_truth/pose`` when present, else from the only pose-typed topic whose name contains
 ``ground_truth``/``groundtruth``/``gt``; other pose topics (e.g. wheel ``/odom``) are never taken as
 ground truth silently. Ground truth is matched by header stamp (see
-:class:`~deepbbs_ros.datasets.base.PoseTrack`: exact, else interpolated between the two bracketing
+:class:`~deepbbs_ros.datasets.poses.PoseTrack`: exact, else interpolated between the two bracketing
 poses within the tolerance, else the nearest within it). Ground-truth quaternions are normalised on
 reading (:func:`msg_adapters.transforms.quaternion_to_matrix`), so every pose is a rotation to about 1e-16.
 
@@ -54,7 +54,8 @@ from deepbbs_ros.datasets.bag_common import (
 from deepbbs_ros.datasets.bag_mcap import McapBackend
 from deepbbs_ros.datasets.bag_topics import cloud_topics, gt_to_matrix, pick_gt_topic, pick_topic, several_clouds
 from deepbbs_ros.datasets.bag_write import qos_profile, rosbag2_writer, write_rosbag, write_rosbag1
-from deepbbs_ros.datasets.base import PoseTrack, Scan, ScanSource
+from deepbbs_ros.datasets.base import Scan, ScanSource
+from deepbbs_ros.datasets.poses import PoseTrack
 from deepbbs_ros.errors import BagError, DeepBBSError
 
 __all__ = [  # the public names, wherever they live
