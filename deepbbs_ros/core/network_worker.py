@@ -18,7 +18,7 @@ def _build(weights: str, flat_config: dict[str, Any]) -> tuple[Any, tuple]:
 
     cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
     net = DeepBBSNetwork(cfg, weights=weights)
-    from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
+    from deepbbs_ros.core.search_starts import batch_sizes, rank_size  # the search's batches
 
     net.warmup(batches=batch_sizes(cfg.registration)[0],
                rank_points=rank_size(cfg.registration, cfg.preprocess.num_points))
@@ -34,7 +34,7 @@ def _worker_main(fd: int) -> int:
     if built is None:
         return rc
     net, cfg = built
-    from deepbbs_ros.core.global_search import rank_size  # (imported by _build)
+    from deepbbs_ros.core.search_starts import rank_size  # (imported by _build)
 
     while True:
         try:
