@@ -35,7 +35,7 @@ def transform(args: argparse.Namespace) -> tuple[Any, str, str]:
     import numpy as np
     from scipy.spatial.transform import Rotation
 
-    from deepbbs_ros.datasets.base import xyzquat_to_T
+    from deepbbs_ros.datasets.poses import xyzquat_to_T
 
     for key in ("frame_id", "child_frame_id"):
         frame = getattr(args, key)

@@ -74,7 +74,8 @@ def _cmd_cache(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    from deepbbs_ros.train.evaluate import evaluate, print_report
+    from deepbbs_ros.train.eval_report import print_report
+    from deepbbs_ros.train.evaluate import evaluate
 
     cfg = _config(args)
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -85,7 +86,7 @@ def _cmd_evaluate(args) -> int:
                       raw_sweeps=args.raw_sweeps, rigs=[r.strip() for r in args.rigs.split(",") if r.strip()])
     print_report(report)
     if args.markdown:
-        from deepbbs_ros.train.evaluate import markdown_report
+        from deepbbs_ros.train.eval_report import markdown_report
 
         Path(args.markdown).write_text(markdown_report(report))
         print(f"wrote {args.markdown}")

@@ -16,6 +16,8 @@ with the same configuration into the same :class:`~deepbbs_ros.core.network.Deep
 in-process path runs (this module imports the network only, never the registration), so its results
 are the in-process ones. If it dies or does not answer in time, the caller logs it once and runs the network
 itself from then on: nothing is lost. No ROS import.
+
+Here: the caller's side; the worker's is :mod:`deepbbs_ros.core.network_worker`.
 """
 
 from __future__ import annotations
@@ -213,59 +215,9 @@ class Pending:
         return msg[1]
 
 
-def _worker_main(fd: int) -> int:
-    """The worker: read (weights, flat config), load the checkpoint, warm up, then answer
-    ("run", src, tgt, T_init[, speculate]) (a second answer with the speculative starts' outputs) and ("starts",
-    src, tgt, T_starts, n_passes), and take ("target", tgt) ahead of a run (no answer) and ("cancel",) (no answer),
-    until ("stop",) or until the caller is gone (EOF)."""
-    from multiprocessing.connection import Connection
-
-    conn = Connection(fd)
-    try:
-        weights, flat_config = conn.recv()
-        from deepbbs_ros.config import Config
-        from deepbbs_ros.core.network import DeepBBSNetwork
-
-        cfg = Config.from_flat({**flat_config, "registration.network_process": "off", "registration.device": "cpu"})
-        net = DeepBBSNetwork(cfg, weights=weights)
-        from deepbbs_ros.core.global_search import batch_sizes, rank_size  # the search's batches (no registration)
-
-        net.warmup(batches=batch_sizes(cfg.registration)[0],
-                   rank_points=rank_size(cfg.registration, cfg.preprocess.num_points))
-    except (EOFError, OSError):
-        return 0
-    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
-        conn.send(("error", f"{type(err).__name__}: {err}"))
-        return 1
-    conn.send(("ready",))
-    while True:
-        try:
-            msg = conn.recv()
-        except (EOFError, OSError):
-            return 0
-        if msg[0] == "target":
-            try:
-                net.prepare_target_np(msg[1])
-            except Exception:  # noqa: BLE001 - best effort: the run that follows computes it and reports
-                pass
-            continue
-        if msg[0] == "cancel":  # it came after the speculative passes were done
-            continue
-        if msg[0] not in ("run", "starts"):
-            return 0
-        try:
-            out = net.network_np(*msg[1:4]) if msg[0] == "run" else net.starts_np(*msg[1:])
-            conn.send(("ok", out))
-            if msg[0] == "run" and len(msg) > 4:  # the global search's other starts, until another message comes
-                k = rank_size(cfg.registration, min(len(msg[1]), len(msg[2])))  # the ranking passes' points
-                conn.send(("ok", net.speculate_np(msg[1][:k], msg[2][:k], msg[4], stop=lambda: conn.poll(0))))
-        except (EOFError, OSError):
-            return 0
-        except Exception as err:  # noqa: BLE001 - the caller raises it as a RegistrationError
-            conn.send(("error", f"{type(err).__name__}: {err}"))
-
-
-if __name__ == "__main__":
+if __name__ == "__main__":  # the worker (network_worker.py), started under this module's name
     import sys
+
+    from deepbbs_ros.core.network_worker import _worker_main
 
     sys.exit(_worker_main(int(sys.argv[1])))

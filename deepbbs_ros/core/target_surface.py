@@ -1,6 +1,8 @@
 """A target cloud's own surfaces (no ROS): its points, normals and direction cells as the verdict judges against them
 (kept on a precision-stage cloud), and how rough its surfaces are (the residual of its points to their neighbours'
-tangent planes): what core/visibility.py's ``plane_rel`` and ``plane_own`` measure a pose's fit against.
+tangent planes): what core/visibility.py's ``plane_rel`` and ``plane_own`` measure a pose's fit against; and the
+spread subset of a cloud's voxels the verdict judges as a source (:func:`spread_subset`, kept by
+:func:`spread_points`).
 """
 
 from __future__ import annotations
@@ -72,12 +74,23 @@ def _same_voxels(cloud, kept: tuple) -> bool:
     return all(a is b for a, b in zip(_voxels(cloud), kept))
 
 
+def spread_subset(points: np.ndarray, n: int, cell: float) -> np.ndarray:
+    """About ``n`` of ``points`` (N, 3) (voxel centroids, metres), chosen by a hash of their ``cell`` m grid cell:
+    the same subset for the same set of points in any order (small_gicp's threaded voxel grid returns its centroids
+    in a run-dependent order), evenly spread, O(N) with no sort. All of them when N <= n. -> (K, 3) float64."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) <= n:
+        return pts
+    ijk = np.floor(pts / max(cell, 1e-6)).astype(np.int64)
+    h = (ijk[:, 0] * 73856093) ^ (ijk[:, 1] * 19349663) ^ (ijk[:, 2] * 83492791)
+    h = (h * 2654435761) & 0xFFFFF  # mixed, 20 bits
+    return pts[h < int(n / len(pts) * 0x100000)]
+
+
 def spread_points(cloud, n: int, cell: float) -> np.ndarray:
-    """:func:`core.verdict.spread_subset` of a precision-stage cloud's voxels (``points()``), kept on the cloud
+    """:func:`spread_subset` of a precision-stage cloud's voxels (``points()``), kept on the cloud
     (read-only; drawn again when its voxels were replaced): a scan judged as the source of one pair and as the target
     of the next (a stream), or against every crop of a map, draws it once. -> (K, 3) float64."""
-    from deepbbs_ros.core.verdict import spread_subset
-
     kept = getattr(cloud, "_spread", None)
     if kept is not None and kept[0] == (n, cell) and _same_voxels(cloud, kept[1]):
         return kept[2]

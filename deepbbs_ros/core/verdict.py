@@ -36,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import anchoring
+from deepbbs_ros.core import anchoring, calibrated, visibility
+from deepbbs_ros.core.target_surface import spread_subset
 
 __all__ = ["fitness", "fitness_to_points", "is_valid", "on_scene_grid", "probability", "spread_subset", "times_within"]
 
@@ -69,8 +70,6 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     """The calibrated probability (0..1) that ``T`` (4, 4) ``T_target_source`` is right, from ``points`` (N, 3)
     (source frame: the sampled points for the ``"pair"`` model, the spread voxel subset for ``"good_start"``)
     against ``target`` (its precision-stage cloud, or a plain (M, 3) cloud). 0 for no points."""
-    from deepbbs_ros.core import calibrated, visibility
-
     if len(points) == 0:
         return 0.0
     anchor = calibrated.weighs(("anchored", "anchored_far"), model, floor=False)  # more searches, where they count
@@ -115,16 +114,3 @@ def times_within(prob: float, source, target, T: np.ndarray, rc, bar: float, ver
 def is_valid(score: float, threshold: float) -> bool:
     """The decision: the score reaches the threshold (a NaN score is never valid)."""
     return bool(np.isfinite(score) and score >= threshold)
-
-
-def spread_subset(points: np.ndarray, n: int, cell: float) -> np.ndarray:
-    """About ``n`` of ``points`` (N, 3) (voxel centroids, metres), chosen by a hash of their ``cell`` m grid cell:
-    the same subset for the same set of points in any order (small_gicp's threaded voxel grid returns its centroids
-    in a run-dependent order), evenly spread, O(N) with no sort. All of them when N <= n. -> (K, 3) float64."""
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) <= n:
-        return pts
-    ijk = np.floor(pts / max(cell, 1e-6)).astype(np.int64)
-    h = (ijk[:, 0] * 73856093) ^ (ijk[:, 1] * 19349663) ^ (ijk[:, 2] * 83492791)
-    h = (h * 2654435761) & 0xFFFFF  # mixed, 20 bits
-    return pts[h < int(n / len(pts) * 0x100000)]

@@ -1,4 +1,5 @@
-"""Starting a worker process of this package: a subprocess on a socket pair, and its first answer (no torch).
+"""Starting a worker process of this package: a subprocess on a socket pair, and its first answer, on both sides
+(no torch).
 
 What the network's worker (core/network_process.py) and the node's registration process
 (node/registration_process.py) share: ``python -m <module> FD`` in its own session, so that a Ctrl-C in the
@@ -9,12 +10,13 @@ terminal goes to the caller only and the worker ends when its socket closes; not
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from deepbbs_ros.errors import ModelError
 
-__all__ = ["handshake", "spawn_worker", "stop_worker"]
+__all__ = ["handshake", "spawn_worker", "started", "stop_worker"]
 
 
 def spawn_worker(module: str, what: str) -> tuple[Any, Any]:
@@ -59,6 +61,26 @@ def handshake(conn: Any, proc: Any, hello: tuple, what: str, timeout_s: float) -
     if msg[0] != "ready":
         raise ModelError(f"{what}: {msg[1]}")
     return msg
+
+
+def started(fd: int, build: Callable[[str, dict[str, Any]], tuple[Any, tuple]]) -> tuple[Any, Any, int]:
+    """The worker's side of :func:`handshake`: on its socket ``fd``, read (weights, flat config), ``build`` what it
+    serves from them (-> (that, its ``("ready", ...)`` message)) and answer that message: -> (the connection, what
+    was built, 0). Where the caller is gone (EOF) -> (connection, None, 0); where ``build`` raises, its error goes
+    back as one line ``("error", "Type: message")`` -> (connection, None, 1): the worker exits with that code."""
+    from multiprocessing.connection import Connection
+
+    conn = Connection(fd)
+    try:
+        weights, flat_config = conn.recv()
+        built, ready = build(weights, flat_config)
+    except (EOFError, OSError):
+        return conn, None, 0
+    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return conn, None, 1
+    conn.send(ready)
+    return conn, built, 0
 
 
 def stop_worker(conn: Any, proc: Any, grace_s: float, keep_open: bool = False) -> None:

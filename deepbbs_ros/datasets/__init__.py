@@ -20,11 +20,11 @@ from deepbbs_ros.datasets.base import (
     APOLLO_LIDAR_TOPIC,
     GT_POSE_TOPIC,
     WORLD_FRAME,
-    PoseTrack,
     Scan,
     ScanSource,
 )
 from deepbbs_ros.datasets.pcd import read_pcd, write_pcd
+from deepbbs_ros.datasets.poses import PoseTrack
 from deepbbs_ros.errors import DatasetError
 
 WRITE_FORMATS = ("apollo", "kitti", "mcap", "db3", "bag")

@@ -21,17 +21,14 @@ from deepbbs_ros.datasets.base import (
     APOLLO_LIDAR_FRAME,
     Scan,
     ScanSource,
-    T_to_xyzquat,
     check_ground_truth,
     missing_pose_error,
     numbered_files,
-    parse_stamp,
     prepare_output,
     scan_intensity,
-    stamp_to_str,
-    xyzquat_to_T,
 )
 from deepbbs_ros.datasets.pcd import read_pcd_points, write_pcd
+from deepbbs_ros.datasets.poses import T_to_xyzquat, parse_stamp, stamp_to_str, xyzquat_to_T
 from deepbbs_ros.errors import DatasetError
 
 POSE_FILE = Path("poses") / "gt_poses.txt"

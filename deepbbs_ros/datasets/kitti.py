@@ -36,11 +36,10 @@ from deepbbs_ros.datasets.base import (
     check_ground_truth,
     missing_pose_error,
     numbered_files,
-    parse_stamp,
     prepare_output,
     scan_intensity,
-    stamp_to_str,
 )
+from deepbbs_ros.datasets.poses import parse_stamp, stamp_to_str
 from deepbbs_ros.errors import DatasetError
 from deepbbs_ros.metrics import project_pose
 

@@ -16,7 +16,7 @@ truth comes from ``gt_topic`` (``geometry_msgs/msg/PoseStamped``, ``nav_msgs/msg
 ``/ground_truth/pose`` when present, else from the only pose-typed topic whose name contains
 ``ground_truth``/``groundtruth``/``gt``; other pose topics (e.g. wheel ``/odom``) are never taken as
 ground truth silently. Ground truth is matched by header stamp (see
-:class:`~deepbbs_ros.datasets.base.PoseTrack`: exact, else interpolated between the two bracketing
+:class:`~deepbbs_ros.datasets.poses.PoseTrack`: exact, else interpolated between the two bracketing
 poses within the tolerance, else the nearest within it). Ground-truth quaternions are normalised on
 reading (:func:`msg_adapters.transforms.quaternion_to_matrix`), so every pose is a rotation to about 1e-16.
 
@@ -38,23 +38,23 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 from deepbbs_ros.datasets.bag_any import AnyBackend
 from deepbbs_ros.datasets.bag_common import (
     POINTCLOUD2,
     POSE_TYPES,
-    bag_typestore,
     count_messages,
     detail,
     is_bag,
     is_mcap,
     metadata_counts,
 )
+from deepbbs_ros.datasets.bag_copy import copy_messages
 from deepbbs_ros.datasets.bag_mcap import McapBackend
 from deepbbs_ros.datasets.bag_topics import cloud_topics, gt_to_matrix, pick_gt_topic, pick_topic, several_clouds
-from deepbbs_ros.datasets.bag_write import qos_profile, rosbag2_writer, write_rosbag, write_rosbag1
-from deepbbs_ros.datasets.base import PoseTrack, Scan, ScanSource
+from deepbbs_ros.datasets.bag_write import rosbag2_writer, write_rosbag, write_rosbag1
+from deepbbs_ros.datasets.base import Scan, ScanSource
+from deepbbs_ros.datasets.poses import PoseTrack
 from deepbbs_ros.errors import BagError, DeepBBSError
 
 __all__ = [  # the public names, wherever they live
@@ -200,45 +200,7 @@ class BagSource(ScanSource):
         serialisation: see :func:`write_rosbag`). Damage stops the copy as reading does (strict: BagError;
         lenient: recorded in ``errors``, the copy holds everything before it). Returns the clouds written.
         """
-        if self.format == "rosbag1":
-            raise BagError(f"{self.path}: a ROS 1 bag cannot be copied message by message; convert it with --repack")
-        if self.topic is None:
-            raise several_clouds(self.path, self.cloud_topics)
-        names = {self.topic: topic or self.topic}
-        if self.gt_topic is not None:
-            names[self.gt_topic] = gt_topic or self.gt_topic
-        typestore = bag_typestore()
-        qos = [qos_profile()]
-        n = 0
-        last_cloud_t = None
-        try:
-            with rosbag2_writer(out, storage) as writer:
-                conns: dict[str, Any] = {}
-                try:
-                    for src_topic, typ, t, data in self.backend.raw(list(names)):
-                        if src_topic == self.topic:
-                            if max_frames is not None and n >= max_frames:
-                                break
-                            n += 1
-                            last_cloud_t = t
-                        elif max_frames is not None and n >= max_frames and t > last_cloud_t:
-                            continue  # ground truth after the last cloud copied
-                        if isinstance(self.backend, McapBackend):
-                            self.backend._register(data[0])
-                            payload = data[2].data
-                        else:
-                            payload = data
-                        if src_topic not in conns:
-                            conns[src_topic] = writer.add_connection(names[src_topic], typ, typestore=typestore,
-                                                                     offered_qos_profiles=qos)
-                        writer.write(conns[src_topic], t, payload)
-                except BagError as err:
-                    self.fault(err)
-        except Exception as err:  # noqa: BLE001 - the writer's own errors (rosbags WriterError, disk full)
-            if isinstance(err, DeepBBSError):
-                raise
-            raise BagError(f"{out}: cannot write bag: {detail(err)}") from None
-        return n
+        return copy_messages(self, out, storage, topic, gt_topic, max_frames)
 
     def info(self) -> dict:
         """What the recording holds, counted by reading it (``frames`` = scans on the LiDAR topic);

@@ -31,13 +31,12 @@ also keeps at most :data:`MAX_SCANS` (the oldest forgotten). What comes back is 
 The worker is started like the network process (``core/network_process.py``: a subprocess on a socket
 pair, in its own session, the same checkpoint and config). A RegistrationError there (bad input) comes
 back as a RegistrationError with its one-line message. If the worker dies or stops answering, the proxy
-logs one line, loads the registration in the node's process, and runs every request there from then on
-(a handle of the dead worker is preprocessed again from its points: nothing is lost but time). A
+logs one line and runs every request in the node's process from then on (nothing is lost but time). A
 ``PolishCloud`` pickles as its voxel grid, its k-d tree and covariances deferred (core/polish_cloud.py).
 
-Here: the proxy the node calls. The worker's side is :mod:`deepbbs_ros.node.registration_worker`, the connection
-between them (requests, answers, releases) :mod:`deepbbs_ros.node.registration_link`, the node's handle of a scan
-:mod:`deepbbs_ros.node.scan_handle`.
+Here: the proxy the node calls. Its fallback in the node's process is :mod:`deepbbs_ros.node.registration_fallback`,
+the worker's side :mod:`deepbbs_ros.node.registration_worker`, the connection between them (requests, answers,
+releases) :mod:`deepbbs_ros.node.registration_link`, the node's handle of a scan :mod:`deepbbs_ros.node.scan_handle`.
 """
 
 from __future__ import annotations
@@ -55,6 +54,7 @@ import numpy as np
 
 from deepbbs_ros.core.scans import prepare_scan
 from deepbbs_ros.errors import RegistrationError
+from deepbbs_ros.node.registration_fallback import LocalFallback
 from deepbbs_ros.node.registration_link import RESULT_TIMEOUT_S, WorkerLink, _Lost  # noqa: F401 - RESULT_TIMEOUT_S
 from deepbbs_ros.node.registration_worker import MAX_SCANS, _Expired  # noqa: F401 - MAX_SCANS: imported from here
 from deepbbs_ros.node.scan_handle import ScanHandle, _RemoteStreamDeskew
@@ -74,7 +74,7 @@ def wanted(setting: str, mode: str, device_type: str) -> bool:
     return setting == "on" or (device_type == "cpu" and (os.cpu_count() or 1) >= 2)
 
 
-class RegistrationProcess:
+class RegistrationProcess(LocalFallback):
     """The node's DeepBBS++ registration in a worker process, behind the interface the node uses:
     ``preprocess(xyz, times, stamp_ns, *, defer)`` -> :class:`ScanHandle`, ``register(src, tgt, *, T_init)`` ->
     ``RegistrationResult``, ``stream_deskew()`` (a ``StreamDeskew`` per input topic), ``close()``.
@@ -157,12 +157,7 @@ class RegistrationProcess:
                 return h
             except _Lost as err:
                 self._failed(err)
-        local = self._fallback()
-        h = ScanHandle(0, points, times, stamp_ns, local=local.preprocess(points, times, stamp_ns, motion,
-                                                                          defer=defer and local.defers_precision,
-                                                                          lazy=lazy, driver=driver))
-        h.driver = driver
-        return h
+        return self._local_preprocess(points, times, stamp_ns, motion, defer, lazy, driver)
 
     def register(self, source: Any, target: Any, *, T_init: np.ndarray | None = None,
                  preprocessed: bool = False, good_start: bool = False) -> Any:
@@ -237,14 +232,7 @@ class RegistrationProcess:
                 return h
             except _Lost as err:
                 self._failed(err)
-        local = self._fallback()
-        if stream._local is None:
-            from deepbbs_ros.core.deskew import StreamDeskew
-
-            stream._local = StreamDeskew(local)
-        h = ScanHandle(0, pre.xyz, pre.times, pre.stamp_ns, local=stream._local.apply(self._localized(pre)))
-        h.driver = pre.driver
-        return h
+        return self._local_deskew(stream, pre)
 
     def _adopt(self, hid: int, xyz: np.ndarray, times: Any, stamp: Any, motion: Any, lazy: bool = False,
                driver: str | None = None) -> dict:
@@ -265,42 +253,9 @@ class RegistrationProcess:
         h.id = hid
         weakref.finalize(h, self._released.append, hid)  # (the old id's finalizer releases a forgotten scan)
 
-    def _localized(self, h: ScanHandle) -> Any:
-        """The handle's PreprocessResult in this process (preprocessed again once, after a fallback)."""
-        if h.local is None:
-            local = self._fallback()
-            h.local = local.preprocess(h.xyz, h.times, h.stamp_ns, defer=local.defers_precision, lazy=True,
-                                       driver=h.driver)
-        return h.local
-
     def _send_quiet(self, msg: tuple) -> None:
         if self._state == "running":
             self._link.send_quiet(msg)  # a failure: the next request finds out
-
-    def _failed(self, err: Exception) -> None:
-        """Log once, stop the worker and register in this process from now on."""
-        with self._local_lock:
-            if self._state == "failed":
-                return
-            stopping = self._state == "stopped"
-            self._state = "failed"
-        if not stopping:
-            self._log(f"{err}: registering in the node's process from now on")
-        self._link.stop()
-
-    def _fallback(self) -> Any:
-        """The DeepBBSRegistration of this process (built once, on the first request after a failure)."""
-        if self._state == "running":
-            raise RegistrationError("registration process: internal error (fallback while running)")
-        with self._local_lock:
-            if self._local is None:
-                if self._state == "stopped":
-                    raise RegistrationError("registration process: closed")
-                from deepbbs_ros.core.registration import DeepBBSRegistration
-
-                self._local = DeepBBSRegistration(self.config, weights=self.weights)
-                self._local.warmup()
-            return self._local
 
 
 if __name__ == "__main__":  # the worker (registration_worker.py), started under this module's name

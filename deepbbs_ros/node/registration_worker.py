@@ -12,6 +12,7 @@ import time
 from collections import OrderedDict, deque
 from typing import Any
 
+from deepbbs_ros.core.worker_process import started
 from deepbbs_ros.errors import RegistrationError
 
 MAX_SCANS = 16  # scans kept by the worker (the node releases the ones it drops; this bounds a leak)
@@ -152,26 +153,23 @@ class _Worker:
         raise ValueError(f"unknown request {op!r}")
 
 
+def _build(weights: str, flat_config: dict[str, Any]) -> tuple[Any, tuple]:
+    """The node's registration, warmed up -> (it, the ``("ready", network process state, device)`` answer)."""
+    from deepbbs_ros.config import Config
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    reg = DeepBBSRegistration(Config.from_flat(flat_config), weights=weights)
+    reg.warmup()
+    return reg, ("ready", reg.network_process_state, str(reg.device))
+
+
 def _worker_main(fd: int) -> int:
     """Read (weights, flat config), build and warm up the registration, answer ``("ready", network process
     state, device)``, then serve ``(request id, lane, request)`` messages (and ``("release", ids)``,
     ``("reset_stream", key)``) until ``("stop",)`` or until the node is gone (EOF)."""
-    from multiprocessing.connection import Connection
-
-    conn = Connection(fd)
-    try:
-        weights, flat_config = conn.recv()
-        from deepbbs_ros.config import Config
-        from deepbbs_ros.core.registration import DeepBBSRegistration
-
-        reg = DeepBBSRegistration(Config.from_flat(flat_config), weights=weights)
-        reg.warmup()
-    except (EOFError, OSError):
-        return 0
-    except Exception as err:  # noqa: BLE001 - reported to the caller as one line
-        conn.send(("error", f"{type(err).__name__}: {err}"))
-        return 1
-    conn.send(("ready", reg.network_process_state, str(reg.device)))
+    conn, reg, rc = started(fd, _build)
+    if reg is None:
+        return rc
     worker = _Worker(conn, reg)
     try:
         while True:

@@ -20,17 +20,13 @@ import numpy as np
 
 from deepbbs_ros.datasets.base import APOLLO_LIDAR_FRAME, Scan
 from deepbbs_ros.errors import SimulationError
+from deepbbs_ros.sim.frames import Frames
 from deepbbs_ros.sim.lidar import LidarConfig, RayCaster, lidar_sweep
 from deepbbs_ros.sim.mounts import MOUNTS, MountTrajectory
 from deepbbs_ros.sim.patterns import SolidStateConfig, driver_fields, make_sensor
 from deepbbs_ros.sim.places import PLACES, build_place
 from deepbbs_ros.sim.scene import ROAD_DZ, SCENES, World
-from deepbbs_ros.sim.simulator import (
-    ANCHOR_STEP,
-    S_START,
-    DriveSimulator,
-    Frames,
-)
+from deepbbs_ros.sim.simulator import ANCHOR_STEP, S_START, DriveSimulator
 from deepbbs_ros.sim.solid_state import pattern_sweep
 
 ALL_PLACES = (*SCENES, *PLACES)

@@ -30,49 +30,14 @@ import numpy as np
 
 from deepbbs_ros.datasets.base import APOLLO_LIDAR_FRAME, Scan
 from deepbbs_ros.errors import SimulationError
+from deepbbs_ros.sim.frames import STAMP0_NS, Frames  # noqa: F401  (STAMP0_NS re-exported)
 from deepbbs_ros.sim.lidar import LidarConfig, RayCaster, lidar_sweep
 from deepbbs_ros.sim.scene import SCENES, World
+from deepbbs_ros.sim.sweep import compensate, rays_towards
 from deepbbs_ros.sim.trajectory import Trajectory, euler_to_matrix
 
-STAMP0_NS = 1_600_000_000 * 10**9  # stamp of frame 0 (2020-09-13T12:26:40Z), keeps stamps non-zero
 ANCHOR_STEP = 40.0  # m of route length between rebuilds of the ray-casting scene
 S_START = 80.0  # m of road behind the start position
-
-
-class Frames:
-    """A drive as frames: ``frames`` scans ``period`` s apart, frame k stamped ``STAMP0_NS + k period``; the
-    subclass gives ``T_world_lidar(t)`` and ``scan_at(k)``."""
-
-    frames: int
-    period: float
-
-    def __len__(self) -> int:
-        return self.frames
-
-    def __iter__(self) -> Iterator[Scan]:
-        for k in range(self.frames):
-            yield self.scan_at(k)
-
-    def pose_at(self, frame: int) -> np.ndarray:
-        """(4, 4) float64 ground-truth ``T_world_lidar`` at the stamp of ``frame`` (no ray casting)."""
-        return self.T_world_lidar(frame * self.period)
-
-    def stamp_ns(self, frame: int) -> int:
-        return STAMP0_NS + int(round(frame * self.period * 1e9))
-
-    def frames_apart(self, spacing: float, count: int, start: int = 0) -> list[int]:
-        """Up to ``count`` frames from ``start`` on, each at least ``spacing`` m (ground truth) from the one
-        picked before it."""
-        picks: list[int] = []
-        last = None
-        for k in range(start, self.frames):
-            p = self.pose_at(k)[:3, 3]
-            if last is None or np.linalg.norm(p - last) >= spacing:
-                picks.append(k)
-                last = p
-                if len(picks) == count:
-                    break
-        return picks
 
 
 class DriveSimulator(Frames):
@@ -174,42 +139,6 @@ class DriveSimulator(Frames):
         self._casters.move_to_end(key)
         return self._casters[key]
 
-    def _rays_towards(self, vertices: np.ndarray, T_first: np.ndarray, T_last: np.ndarray, nb: int) -> np.ndarray:
-        """Indices of the rays of the columns whose world azimuth can reach one of the boxes in
-        ``vertices`` ((8 M, 3) world, 8 corners per box), seen from the sensor at the start
-        (``T_first``) and the end (``T_last``) of the sweep."""
-        ncol = self.lidar.columns
-        yaw0 = np.arctan2(T_first[1, 0], T_first[0, 0])
-        dyaw = abs(np.angle(np.exp(1j * (np.arctan2(T_last[1, 0], T_last[0, 0]) - yaw0))))
-        pad = np.deg2rad(1.0) + dyaw
-        nbins = 720
-        bins = np.zeros(nbins, bool)
-        for T in (T_first, T_last):
-            rel = vertices[:, :2] - T[:2, 3]
-            if np.min(np.hypot(rel[:, 0], rel[:, 1])) < 1.5:
-                return np.arange(ncol * nb)  # (nearly) touching the sensor: no culling
-            a = np.arctan2(rel[:, 1], rel[:, 0]).reshape(-1, 8)
-            da = np.angle(np.exp(1j * (a - a[:, :1])))
-            lo = (a[:, 0] + da.min(1) - pad + np.pi) / (2 * np.pi) * nbins
-            hi = (a[:, 0] + da.max(1) + pad + np.pi) / (2 * np.pi) * nbins
-            for x0, x1 in zip(np.floor(lo).astype(int), np.floor(hi).astype(int)):
-                bins[np.arange(x0, x1 + 1) % nbins] = True
-        col_az = np.mod(self.lidar.azimuths() + yaw0 + np.pi, 2 * np.pi)
-        cols = np.flatnonzero(bins[(col_az / (2 * np.pi) * nbins).astype(np.int64) % nbins])
-        return (cols[:, None] * nb + np.arange(nb)[None, :]).reshape(-1)
-
-    def _compensate(self, pts: np.ndarray, fields: dict, T_cols: np.ndarray) -> tuple[np.ndarray, dict]:
-        """Express every point in the sensor frame at the stamp with the true pose of its column (what
-        Apollo's compensator does with its localisation); the ``time`` field goes, since re-applying
-        it would distort the scan again."""
-        fields = dict(fields)
-        t = fields.pop("time")
-        col = np.minimum(np.rint(t.astype(np.float64) / (self.period / self.lidar.columns)).astype(np.int64),
-                         self.lidar.columns - 1)
-        T_rel = np.linalg.inv(T_cols[0]) @ T_cols  # (C, 4, 4) T_lidar0_lidarc
-        p = np.einsum("nij,nj->ni", T_rel[col, :3, :3], pts.astype(np.float64)) + T_rel[col, :3, 3]
-        return p.astype(np.float32), fields
-
     def scan_at(self, frame: int) -> Scan:
         """Simulate frame ``frame`` (0-based): a :class:`~deepbbs_ros.datasets.base.Scan`."""
         if not 0 <= int(frame) < self.frames:
@@ -228,7 +157,7 @@ class DriveSimulator(Frames):
         mv, mf, ma = self.world.moving_mesh(t0 + 0.5 * self.period, T0[:2, 3], lid.max_range + 30.0,
                                              ego_xy=self.T_world_lidar(t0 + 0.5 * self.period)[:2, 3])
         if len(mf):  # moving cars, frozen at mid-sweep; only rays whose azimuth can reach them
-            sel = self._rays_towards(mv, T_cols[0], T_cols[-1], nb)
+            sel = rays_towards(lid, mv, T_cols[0], T_cols[-1], nb)
             dynamic = (RayCaster(mv, mf, caster.origin), ma, sel)
         rng = np.random.default_rng([self.seed, frame, 606])
         pts, fields = lidar_sweep(
@@ -242,7 +171,7 @@ class DriveSimulator(Frames):
             timings=self.timings_s,
         )
         if self.compensate:
-            pts, fields = self._compensate(pts, fields, T_cols)
+            pts, fields = compensate(pts, fields, T_cols, self.period, lid.columns)
         return Scan(
             index=frame,
             stamp_ns=self.stamp_ns(frame),

@@ -28,8 +28,9 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.errors import ConfigError, DatasetError
+from deepbbs_ros.train.augment import AugmentConfig, augment_pair
 from deepbbs_ros.train.cache import Drive
-from deepbbs_ros.train.pairs import AugmentConfig, Pair, _augment
+from deepbbs_ros.train.pairs import Pair
 from deepbbs_ros.train.pseudo import Labels, candidate_pairs, cycle_consistency, label_quality, register_pairs
 
 LABELS_FILE = "labels.npz"
@@ -112,7 +113,8 @@ class LabelSampler:
     def draw(self, rng: np.random.Generator) -> Pair:
         k = int(rng.integers(len(self.i)))
         i, j = int(self.i[k]), int(self.j[k])
-        src, tgt, T = _augment(self.drive.frame(i), self.drive.frame(j), self.T[k], rng, self.aug, self.aug.trans_aug)
+        src, tgt, T = augment_pair(self.drive.frame(i), self.drive.frame(j), self.T[k], rng, self.aug,
+                                   self.aug.trans_aug)
         return Pair(src, tgt, T, scene="recording", ref=f"adapt:{i}->{j}")
 
     def batch(self, rng: np.random.Generator, batch_size: int) -> list[Pair]:

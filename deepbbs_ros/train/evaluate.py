@@ -20,6 +20,8 @@ e.g. along a corridor with little structure or with traffic moving at the ego's 
 The DeepBBS variants share one preprocessing of each scan (the rotated source is the same points
 rotated: preprocessing commutes with a yaw about the sensor axis up to the FPS start point), passed
 as the ``PreprocessResult`` (with its dense points) when the registration takes one.
+
+The summary, the goal checks and the tables are :mod:`deepbbs_ros.train.eval_report`'s.
 """
 
 from __future__ import annotations
@@ -35,26 +37,16 @@ from deepbbs_ros.config.registration import NETWORK_ALONE
 from deepbbs_ros.errors import ConfigError
 from deepbbs_ros.metrics import pair_errors
 from deepbbs_ros.train.cache import TEST_SEED_BASE
-from deepbbs_ros.train.pairs import inv_T, make_T, transform, yaw_matrix
+from deepbbs_ros.train.eval_report import (  # noqa: F401  (re-exported)
+    GOALS,
+    goal_checks,
+    markdown_report,
+    print_report,
+    summarise,
+)
+from deepbbs_ros.train.rigid import inv_T, make_T, transform, yaw_matrix
 
 METHODS = ("deepbbs++", "deepbbs", "refine-only", "gicp", "gicp-gt")
-GOALS = {"rot_mean_deg": 0.05, "trans_mean_m": 0.04, "success": 0.99, "success_yaw": 0.95}
-
-
-def _summary(rot: list[float], trans: list[float], ms: list[float], cfg: Config) -> dict[str, Any]:
-    from deepbbs_ros.metrics import success_rate, summarize
-
-    r, t = np.asarray(rot, dtype=np.float64), np.asarray(trans, dtype=np.float64)
-    sr, st = summarize(r), summarize(t)
-    return {
-        "pairs": int(len(r)),
-        "rot_mean_deg": sr["mean"], "rot_rmse_deg": sr["rmse"], "rot_median_deg": sr["median"],
-        "rot_p95_deg": sr["p95"], "rot_max_deg": sr["max"],
-        "trans_mean_m": st["mean"], "trans_rmse_m": st["rmse"], "trans_median_m": st["median"],
-        "trans_p95_m": st["p95"], "trans_max_m": st["max"],
-        "success": success_rate(r, t, cfg.eval.success_rot_deg, cfg.eval.success_trans) if len(r) else float("nan"),
-        "ms_mean": float(np.mean(ms)) if ms else float("nan"),
-    }
 
 
 def evaluate(config: Config | None = None, *, weights: str | None = "", device: str | None = None,
@@ -165,30 +157,8 @@ def evaluate(config: Config | None = None, *, weights: str | None = "", device: 
             bar.update(1)
     bar.close()
 
-    summary: dict[str, Any] = {}
-    for variant, _ in variants:
-        summary[variant] = {}
-        for m in methods:
-            summary[variant][m] = {}
-            for sc in [*scenes, "all"]:
-                sel = [r for r in records if r["variant"] == variant and r["method"] == m
-                       and (sc == "all" or r["scene"] == sc)]
-                summary[variant][m][sc] = _summary([r["rot_err_deg"] for r in sel], [r["trans_err_m"] for r in sel],
-                                                   [r["ms"] for r in sel], cfg_used)
-    goals = {}
-    if "deepbbs++" in methods:
-        a = summary["plain"]["deepbbs++"]["all"]
-        goals = {
-            "rot_mean_deg": {"goal": GOALS["rot_mean_deg"], "measured": a["rot_mean_deg"],
-                             "met": a["rot_mean_deg"] <= GOALS["rot_mean_deg"]},
-            "trans_mean_m": {"goal": GOALS["trans_mean_m"], "measured": a["trans_mean_m"],
-                             "met": a["trans_mean_m"] <= GOALS["trans_mean_m"]},
-            "success": {"goal": GOALS["success"], "measured": a["success"], "met": a["success"] >= GOALS["success"]},
-        }
-        if "yaw" in summary:
-            y = summary["yaw"]["deepbbs++"]["all"]
-            goals["success_yaw"] = {"goal": GOALS["success_yaw"], "measured": y["success"],
-                                    "met": y["success"] >= GOALS["success_yaw"]}
+    summary = summarise(records, [v for v, _ in variants], methods, scenes, cfg_used)
+    goals = goal_checks(summary)
     return {
         "protocol": {"seeds": [seeds[0], seeds[-1]], "scenes": scenes, "drives_per_scene": drives_per_scene,
                      "frames": frames, "stride": stride, "max_dist_m": cfg_used.eval.max_dist, "yaw_deg": yaw_deg,
@@ -239,57 +209,3 @@ def _meta_brief(meta: Any) -> Any:
     if not isinstance(meta, dict):
         return None
     return {k: meta[k] for k in ("step", "epoch", "train_seconds", "saved_utc") if k in meta}
-
-
-def print_report(report: dict[str, Any], console: Any = None) -> None:
-    """Rich tables: per variant, method and scene type, with units in the header."""
-    from rich.console import Console
-    from rich.table import Table
-
-    if console is None:
-        console = Console()
-        if not console.is_terminal:  # log files: wide enough for every column
-            console = Console(width=132)
-    for variant, per_method in report["summary"].items():
-        yaw = report["protocol"]["yaw_deg"]
-        title = "held-out pairs, no initial guess"
-        if variant == "yaw":
-            title += f", extra random yaw up to {yaw:g} deg"
-        table = Table(title=title)
-        for col, just in (("method", "left"), ("scene", "left"), ("pairs", "right"), ("MAE rot [deg]", "right"),
-                          ("MTE [m]", "right"), ("p95 rot [deg]", "right"), ("p95 trans [m]", "right"),
-                          ("success [%]", "right"), ("time [ms]", "right")):
-            table.add_column(col, justify=just)
-        for method, per_scene in per_method.items():
-            for scene, s in per_scene.items():
-                if not s["pairs"]:
-                    continue
-                table.add_row(method, scene, str(s["pairs"]), f"{s['rot_mean_deg']:.4f}", f"{s['trans_mean_m']:.4f}",
-                              f"{s['rot_p95_deg']:.3f}", f"{s['trans_p95_m']:.3f}", f"{100 * s['success']:.1f}",
-                              f"{s['ms_mean']:.0f}", end_section=scene == "all")
-        console.print(table)
-    for name, g in report.get("goals", {}).items():
-        console.print(f"goal {name}: measured {g['measured']:.4g} vs goal {g['goal']:g}: "
-                      f"{'met' if g['met'] else 'MISSED'}")
-
-
-def markdown_report(report: dict[str, Any]) -> str:
-    """The summary tables as Markdown (per variant: method x scene)."""
-    lines = []
-    yaw = report["protocol"]["yaw_deg"]
-    for variant, per_method in report["summary"].items():
-        extra = f", extra random yaw up to {yaw:g} deg" if variant == "yaw" else ""
-        lines += [f"**Held-out pairs, no initial guess{extra}**", "",
-                  "| method | scene | pairs | MAE rot (deg) | MTE (m) | p95 rot (deg) | p95 trans (m) | success (%) "
-                  "| time (ms) |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-        for method, per_scene in per_method.items():
-            for scene, s in per_scene.items():
-                if s["pairs"]:
-                    lines.append(f"| {method} | {scene} | {s['pairs']} | {s['rot_mean_deg']:.4f} | "
-                                 f"{s['trans_mean_m']:.4f} | {s['rot_p95_deg']:.3f} | {s['trans_p95_m']:.3f} | "
-                                 f"{100 * s['success']:.1f} | {s['ms_mean']:.0f} |")
-        lines.append("")
-    for name, g in report.get("goals", {}).items():
-        lines.append(f"- goal `{name}`: measured {g['measured']:.4g}, goal {g['goal']:g}: "
-                     f"{'met' if g['met'] else '**missed**'}")
-    return "\n".join(lines) + "\n"

@@ -1,13 +1,10 @@
-"""Training and validation pairs with their ground truth, and the augmentation that widens the basin.
+"""Training and validation pairs with their ground truth, augmented to widen the basin.
 
 A pair is (source, target, T_target_source): p_target = R p_source + t (CONVENTIONS.md). From two
 frames i (source) and j (target) of a drive with ground truth,
-``T_target_source = inv(T_world_lidar[j]) @ T_world_lidar[i]``. Augmentation then moves the source
-cloud by a random rigid motion A (yaw up to ``yaw_aug_deg`` about the sensor z axis, translation up
-to ``trans_aug`` metres), so the ground truth becomes ``T_target_source @ inv(A)``; crops one cloud
-to a partial view (a missing azimuth sector, like an occluding truck); samples both clouds
-independently (a random subset, then farthest-point sampling from a random start) to ``num_points``;
-and adds Gaussian noise.
+``T_target_source = inv(T_world_lidar[j]) @ T_world_lidar[i]``, then augmented
+(:mod:`deepbbs_ros.train.augment`: a random motion of the source, a crop, sampling, noise; the rigid-motion helpers
+are :mod:`deepbbs_ros.train.rigid`'s).
 
 Recordings without ground truth give self-supervised pairs: two different samplings and crops of the
 same scan, the source moved by a known random motion (translation up to ``max_dist``).
@@ -20,27 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from deepbbs_ros.errors import DatasetError
+from deepbbs_ros.train.augment import AugmentConfig, augment_pair, crop_sector, sample_points  # noqa: F401  (re-exported)
 from deepbbs_ros.train.cache import Drive
-
-
-@dataclass
-class AugmentConfig:
-    """What the training pairs vary (filled from ``TrainConfig``)."""
-
-    num_points: int = 1000
-    max_dist: float = 5.0  # m; frames at most this far apart make a pair
-    yaw_aug_deg: float = 45.0
-    trans_aug: float = 1.0  # m
-    crop_prob: float = 0.3
-    noise_sigma: float = 0.01  # m
-    subset_min: float = 0.7  # each cloud is FPS-sampled from a random subset of this fraction or more
-    pair_balance: str = "pairs"  # "pairs" or "distance" (train.pair_balance)
-
-    @classmethod
-    def from_train(cls, train, num_points: int) -> AugmentConfig:
-        return cls(num_points=num_points, max_dist=train.max_dist, yaw_aug_deg=train.yaw_aug_deg,
-                   trans_aug=train.trans_aug, crop_prob=train.crop_prob, noise_sigma=train.noise_sigma,
-                   pair_balance=train.pair_balance)
+from deepbbs_ros.train.rigid import inv_T, make_T, random_motion, transform, yaw_matrix  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -60,98 +39,6 @@ class Pair:
     T_target_source: np.ndarray
     scene: str = ""
     ref: str = ""
-
-
-# -- rigid-motion helpers ------------------------------------------------------------------------
-def yaw_matrix(yaw: float) -> np.ndarray:
-    """(3, 3) float64 rotation by ``yaw`` radians about z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
-
-
-def inv_T(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid (4, 4) transform."""
-    R, t = T[:3, :3], T[:3, 3]
-    return make_T(R.T, -R.T @ t)
-
-
-def transform(points: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """``points @ R.T + t`` for (N, 3) points and a (4, 4) transform, same dtype as ``points``."""
-    return (points @ T[:3, :3].T.astype(points.dtype) + T[:3, 3].astype(points.dtype)).astype(points.dtype)
-
-
-def random_motion(rng: np.random.Generator, yaw_max_deg: float, trans_max: float, small_tilt_deg: float = 1.0,
-                  ) -> np.ndarray:
-    """A random rigid motion: yaw uniform in +-yaw_max_deg, small roll/pitch, translation uniform in a
-    disc of radius ``trans_max`` (horizontal) with a small vertical part. (4, 4) float64."""
-    yaw = np.deg2rad(rng.uniform(-yaw_max_deg, yaw_max_deg))
-    roll, pitch = np.deg2rad(rng.uniform(-small_tilt_deg, small_tilt_deg, size=2))
-    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    R = yaw_matrix(yaw) @ Ry @ Rx
-    r = trans_max * np.sqrt(rng.random())
-    phi = rng.uniform(0, 2 * np.pi)
-    t = np.array([r * np.cos(phi), r * np.sin(phi), rng.uniform(-0.1, 0.1) * min(trans_max, 1.0)])
-    return make_T(R, t)
-
-
-# -- sampling ------------------------------------------------------------------------------------
-def sample_points(points: np.ndarray, n: int, rng: np.random.Generator, subset_min: float = 0.7) -> np.ndarray:
-    """(n, 3) float32: farthest-point sampling from a random subset (random start), so two calls on
-    the same cloud give different samplings. Clouds with fewer than n points are padded by repeats."""
-    import fpsample
-
-    m = len(points)
-    if m == 0:
-        raise DatasetError("training pairs: a frame has no points after preprocessing")
-    if m <= n:
-        idx = np.concatenate([rng.permutation(m), rng.integers(0, m, size=n - m)])
-        return np.ascontiguousarray(points[idx], dtype=np.float32)
-    keep = max(n, int(m * rng.uniform(subset_min, 1.0)))
-    sub = points[np.sort(rng.choice(m, size=keep, replace=False))] if keep < m else points
-    if keep == n:
-        return np.ascontiguousarray(sub, dtype=np.float32)
-    start = int(rng.integers(0, keep))
-    h = int(np.clip(int(np.log2(keep)) - 7, 3, 9))  # tree height as in core.preprocess
-    idx = fpsample.bucket_fps_kdline_sampling(np.ascontiguousarray(sub, dtype=np.float32), n, h, start_idx=start)
-    return np.ascontiguousarray(sub[np.asarray(idx, dtype=np.int64)], dtype=np.float32)
-
-
-def crop_sector(points: np.ndarray, rng: np.random.Generator, min_deg: float = 20.0, max_deg: float = 90.0,
-                ) -> np.ndarray:
-    """Remove the points of one random azimuth sector (a partial view, e.g. an occluding vehicle)."""
-    width = np.deg2rad(rng.uniform(min_deg, max_deg))
-    start = rng.uniform(-np.pi, np.pi)
-    az = np.arctan2(points[:, 1], points[:, 0])
-    inside = np.mod(az - start, 2 * np.pi) < width
-    kept = points[~inside]
-    return kept if len(kept) >= 0.5 * len(points) else points
-
-
-def _augment(src: np.ndarray, tgt: np.ndarray, T_ts: np.ndarray, rng: np.random.Generator, aug: AugmentConfig,
-             trans_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    if aug.crop_prob > 0 and rng.random() < aug.crop_prob:
-        if rng.random() < 0.5:
-            src = crop_sector(src, rng)
-        else:
-            tgt = crop_sector(tgt, rng)
-    src = sample_points(src, aug.num_points, rng, aug.subset_min)
-    tgt = sample_points(tgt, aug.num_points, rng, aug.subset_min)
-    A = random_motion(rng, aug.yaw_aug_deg, trans_max)
-    src = transform(src, A)
-    T_ts = T_ts @ inv_T(A)
-    if aug.noise_sigma > 0:
-        src = src + rng.normal(0.0, aug.noise_sigma, src.shape).astype(np.float32)
-        tgt = tgt + rng.normal(0.0, aug.noise_sigma, tgt.shape).astype(np.float32)
-    return src.astype(np.float32), tgt.astype(np.float32), T_ts
 
 
 # -- pair index ----------------------------------------------------------------------------------
@@ -232,7 +119,7 @@ def make_pair(drive: Drive, i: int, j: int, rng: np.random.Generator, aug: Augme
         # self-supervised: the same scan twice, a known motion as large as a real one
         T_ts = np.eye(4)
         trans_max = max(aug.trans_aug, aug.max_dist)
-    src, tgt, T = _augment(drive.frame(i), drive.frame(j), T_ts, rng, aug, trans_max)
+    src, tgt, T = augment_pair(drive.frame(i), drive.frame(j), T_ts, rng, aug, trans_max)
     return Pair(src, tgt, T, scene=drive.scene, ref=f"{drive.name}:{i}->{j}")
 
 

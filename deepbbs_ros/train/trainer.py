@@ -23,17 +23,15 @@ saves (time budget, periodic checkpoints, a non-finite loss) is rank 0's, taken 
 Rank 0 alone validates and writes files; the state file holds every rank's generators (``ranks``), so a
 resume with the same number of processes continues exactly.
 
-The loop is here; the state file, checkpoints and resume are :mod:`deepbbs_ros.train.run_state`'s, the logs and the
-report :mod:`deepbbs_ros.train.run_log`'s, the held-out pairs, errors and score :mod:`deepbbs_ros.train.validation`'s.
+A step is here, the loop that runs them :mod:`deepbbs_ros.train.fit_loop`'s; the state file, checkpoints and resume
+are :mod:`deepbbs_ros.train.run_state`'s, the logs and the report :mod:`deepbbs_ros.train.run_log`'s, the held-out
+pairs, errors and score :mod:`deepbbs_ros.train.validation`'s.
 """
 
 from __future__ import annotations
 
 import math
 import random
-import sys
-import time
-import traceback
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +39,12 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.train.cache import Drive
+from deepbbs_ros.train.fit_loop import train_loop
 from deepbbs_ros.train.loss import deepbbs_loss, loss_options
 from deepbbs_ros.train.pairs import AugmentConfig, Pair, PairSampler, collate
 from deepbbs_ros.train.run_log import append_log, write_val_csv
-from deepbbs_ros.train.run_state import STATE_FILE, restore_state, save_state
-from deepbbs_ros.train.validation import ValidationSet, format_val, score, validation_record
+from deepbbs_ros.train.run_state import restore_state, save_state
+from deepbbs_ros.train.validation import ValidationSet, score, validation_record
 
 
 class Trainer:
@@ -72,11 +71,11 @@ class Trainer:
 
         from deepbbs_ros.core.model import DeepBBSNet
         from deepbbs_ros.device import resolve_device
-        from deepbbs_ros.train import distributed
+        from deepbbs_ros.train.distributed import world
 
         self.config = config.validate()
         tc = config.train
-        self.rank, self.world_size = distributed.world()
+        self.rank, self.world_size = world()
         self.is_main = self.rank == 0
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -216,91 +215,4 @@ class Trainer:
         Validates every ``val_every`` epochs, saves the latest state at every epoch end and every
         ``checkpoint_minutes``, and the best model by :meth:`score`. Ctrl-C / SIGTERM save first.
         """
-        from tqdm import tqdm
-
-        tc = self.config.train
-        end = self.total_steps if max_steps is None else min(self.total_steps, self.step + max_steps)
-        if self.is_main:
-            (self.run_dir / "config.yaml").write_text(self.config.to_yaml())
-        t_start = time.perf_counter()
-        last_save = time.perf_counter()
-        bar = tqdm(total=end, initial=self.step, unit="step", desc="train", disable=not self.progress,
-                   dynamic_ncols=True, file=sys.stderr)
-        try:
-            while self.step < end:
-                t0 = time.perf_counter()
-                terms = self.train_step()
-                dt = time.perf_counter() - t0
-                self.train_seconds += dt
-                rec = {"kind": "train", "step": self.step, "epoch": (self.step - 1) // tc.steps_per_epoch,
-                       "lr": self.optimizer.param_groups[0]["lr"], "s_per_step": round(dt, 4),
-                       **{k: round(v, 7) for k, v in terms.items()}}
-                self._log(rec)
-                self._tail.append(rec)
-                del self._tail[:-10]
-                bar.update(1)
-                bar.set_postfix(loss=f"{terms['loss']:.4g}", s_step=f"{dt:.2f}", epoch=rec["epoch"])
-                if not self.progress and self.is_main and self.step % 10 == 0:  # plain progress lines for log files
-                    m = {k: np.mean([r[k] for r in self._recent(10)]) for k in ("loss", "rot", "trans", "corr",
-                                                                                 "s_per_step")}
-                    print(f"step {self.step}/{end} epoch {rec['epoch']} loss {m['loss']:.4g} (rot {m['rot']:.3g} "
-                          f"trans {m['trans']:.3g} corr {m['corr']:.3g}) {m['s_per_step']:.2f} s/step "
-                          f"lr {rec['lr']:.3g} {time.strftime('%H:%M:%S')}", flush=True)
-                epoch_end = self.step % tc.steps_per_epoch == 0
-                if epoch_end:
-                    val = None
-                    if self.val_drives and self.is_main and (self.epoch % tc.val_every == 0 or self.step >= end):
-                        try:
-                            val = self.validate()
-                        except Exception:  # noqa: BLE001 - a long unattended run keeps training; the bug is logged
-                            traceback.print_exc()
-                            bar.write(f"validation failed at step {self.step} (traceback above); training goes on")
-                            self.model.train()
-                    if val is not None:
-                        val["train_seconds"] = round(self.train_seconds, 1)
-                        self.history.append(val)
-                        self._log(val)
-                        self._write_val_csv()
-                        bar.write(format_val(val))
-                        sys.stdout.flush()
-                    is_best = False
-                    if val is not None:
-                        sc = self.score(val)
-                        if self.best_score is None or sc > self.best_score:
-                            self.best_score, self.best_val, is_best = sc, val, True
-                    elif not self.val_drives:
-                        is_best = True  # without validation the latest is the best we know
-                    self.save(val, best=is_best)
-                    self.plot()
-                    last_save = time.perf_counter()
-                save_now = (not epoch_end and tc.checkpoint_minutes > 0
-                            and time.perf_counter() - last_save > 60 * tc.checkpoint_minutes)
-                stop = time_budget_s is not None and time.perf_counter() - t_start > time_budget_s
-                if self.world_size > 1:  # rank 0's clock decides for every process
-                    from deepbbs_ros.train.distributed import agree
-
-                    save_now, stop = agree([save_now, stop], self.device)
-                if save_now:
-                    self.save()
-                    last_save = time.perf_counter()
-                if stop:
-                    if self.is_main:
-                        bar.write(f"time budget of {time_budget_s:.0f} s reached at step {self.step}")
-                    break
-        except KeyboardInterrupt:
-            if self.world_size > 1:  # the processes may be at different steps: keep the last common save
-                if self.is_main:
-                    print(f"interrupted at step {self.step}: the state saved last in {self.run_dir / STATE_FILE} "
-                          "is kept (resume from it)", file=sys.stderr)
-                raise
-            bar.write(f"interrupted at step {self.step}: saving {self.run_dir / STATE_FILE}")
-            self.save()
-            self.plot()
-            raise
-        finally:
-            bar.close()
-        if self.step % tc.steps_per_epoch:
-            self.save()
-        self.plot()
-        return {"step": self.step, "epoch": self.epoch, "train_seconds": self.train_seconds,
-                "best_val": self.best_val}
+        return train_loop(self, max_steps, time_budget_s)
