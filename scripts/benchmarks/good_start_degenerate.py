@@ -9,7 +9,9 @@ runs with the rule on and off (two registrations, the same prepared clouds). Per
 ``solid``, ``low_overlap``, ``turned``) and setting: right (1 deg / 0.3 m) and valid, wrong (beyond 2 deg / 0.5 m)
 and valid (a wrong answer accepted), in between and valid, right not valid, not right nor valid; the wall time (ms,
 medians) and the ratio on / off per start (median); ``lost``: the starts whose answer is right and valid off and not
-on. ``starts``: every start's good start alone: taken, fired, left to the full pipeline. ::
+on. ``starts``: every start's good start alone: taken, fired, left to the full pipeline; per row ``beyond``: how GICP
+from the start went beyond the good start's limits (``registration.good_start_max_*``, "" within), ``moved``: each
+answer's distance from the start (deg, m). ::
 
     python scripts/benchmarks/good_start_degenerate.py --seed 39 --out /tmp/degenerate39   # and 40, 41, 42, 43
 """
@@ -28,6 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
 import verdict  # noqa: E402
+
+from deepbbs_ros.metrics import pair_errors  # noqa: E402
 
 CLASSES = ("right_valid", "wrong_valid", "between_valid", "right_not_valid", "not_right_not_valid")
 
@@ -74,17 +78,26 @@ class Runs:
         self.starts.setdefault(fam, {"taken": 0, "fired": 0, "pipeline": 0})[what] += 1
         if not fired and self.rng.random() >= self.control:
             return
-        row = {"family": fam, "kind": kind, "fired": fired}
+        row = {"family": fam, "kind": kind, "fired": fired, "beyond": self.beyond(src, tgt, T0)}
         for name, reg in (("off", self.off), ("on", self.on)):  # the search first: it builds the lazy samples
             t0 = time.perf_counter()
             res = reg.register(src, tgt, T_init=T0, preprocessed=True, good_start=True)
             ms = (time.perf_counter() - t0) * 1e3
             cls, r, t = outcome(res, T_gt)
-            row[name] = {"class": cls, "deg": round(r, 2), "m": round(t, 2), "ms": round(ms, 1), "path": res.path,
+            moved = [round(float(v), 2) for v in pair_errors(res.T_target_source, T0)]  # from the start
+            row[name] = {"class": cls, "deg": round(r, 2), "m": round(t, 2), "moved": moved, "ms": round(ms, 1),
+                         "path": res.path,
                          "probability": round(float(res.probability), 3), "why": res.good_start[:80]}
         self.rows.append(row)
         print(fam, kind, "fired" if fired else "control", {k: row[k]["class"] for k in ("off", "on")},
               row["off"]["ms"], "->", row["on"]["ms"], "ms", flush=True)
+
+    def beyond(self, src, tgt, T0: np.ndarray) -> str:
+        """How GICP from the start went beyond the good start's limits (core/good_start.py ``_beyond``; "" within)."""
+        from deepbbs_ros.core import good_start
+
+        rc = self.alone.config.registration
+        return good_start._beyond(good_start.from_start(src.polish_cloud, tgt.polish_cloud, T0, rc), rc)
 
 
 def tally(rows: list[dict], fired: bool) -> dict:
