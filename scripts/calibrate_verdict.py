@@ -306,7 +306,7 @@ def slid_pose(T: np.ndarray, points: np.ndarray, target, dist: float, k: float) 
 
 
 def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: int, truth: bool = False,
-               reg=None, slid: bool = False, second: bool = False, scene: bool = False) -> None:
+               reg=None, slid: bool = False, second: bool = False, scene: bool = False, starts=None) -> None:
     """Append to ``out`` the rows of the poses of one pair (``pair``: the target's and the source's (prepared scan,
     T_world_lidar); ``far()``: the same for a scan of another place; see the module). ``truth``: also the truth
     moved a little (within 0.5 deg / 0.1 m), a right pose where GICP may not find one; ``reg``: also the whole
@@ -317,7 +317,9 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
     distance, ``fin_y``: its label, degrees, metres; ``fin_amb``: taken on the scene's grids, the second-minimum check
     there finds another minimum as good); NaN (False) where a scan has no finer grid or when off;
     ``second``: a pose the verdict takes (``verdict_probability``) is also checked for a second minimum as good along
-    its weakest direction, as the registration's own verdict does (core/second_minimum.py; ``ambiguous``)."""
+    its weakest direction, as the registration's own verdict does (core/second_minimum.py; ``ambiguous``);
+    ``starts``: ``starts(kind, src, tgt, T_start, T_gt, ri)`` on each near / far start instead of any row (the same
+    draws: scripts/benchmarks/good_start_degenerate.py)."""
     (tgt, Tt), (src, Ts) = pair
     T_gt = np.linalg.inv(Tt) @ Ts
     t_gicp = time.perf_counter()
@@ -326,7 +328,11 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
     T_ref = ref.T_target_source if ref.applied else T_gt
     poses = []
     for kind, yaw, tr in (("near", (0, 3), (0, 0.5)), ("far", (10, 45), (1, 4)), ("far", (5, 30), (0.5, 3))):
-        pol = good_start_gicp(src.polish_cloud, tgt.polish_cloud, perturb(rng, yaw, tr) @ T_gt, rc)
+        T0 = perturb(rng, yaw, tr) @ T_gt
+        if starts is not None:
+            starts(kind, src, tgt, T0, T_gt, ri)
+            continue
+        pol = good_start_gicp(src.polish_cloud, tgt.polish_cloud, T0, rc)
         if pol.applied:
             poses.append((kind, pol.T_target_source))
     poses.append(("moved", perturb(rng, (2, 15), (0.5, 2.5)) @ T_gt))
@@ -341,6 +347,8 @@ def _pair_rows(pair: tuple, far, rng: np.random.Generator, rc, out: dict, ri: in
     if reg is not None:
         poses.append(("pipeline", reg.register(src, tgt, preprocessed=True).T_target_source))
     other, To = far()
+    if starts is not None:  # the draws are made: no row
+        return
     if np.linalg.norm(To[:3, 3] - Tt[:3, 3]) > 8.0:  # another place: any answer is wrong
         pol = good_start_gicp(other.polish_cloud, tgt.polish_cloud, np.eye(4), rc)
         poses.append(("other", pol.T_target_source if pol.applied else np.eye(4)))
@@ -442,7 +450,8 @@ def _turned(scan, i: int, rng: np.random.Generator, rc) -> tuple | None:
 
 def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool = False,
             rig0: int = 0, turned: bool = False, slid: bool = False,
-            config: Config | None = None, second: bool = False, scene: bool = False) -> dict[str, np.ndarray]:
+            config: Config | None = None, second: bool = False, scene: bool = False,
+            starts=None) -> dict[str, np.ndarray]:
     """Feature rows of poses on simulated pairs (see the module): {"pair", "good", "y", "rot", "trans", "rig",
     "kind", "near_ref", "rough", "self_plane", "ambiguous"} (``rough``, ``self_plane``: the target's
     :func:`visibility.roughness`;
@@ -452,7 +461,8 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
     index of the first rig (its ``rig`` rows, its simulator's seed); ``config``: the registration's (default: the
     defaults); ``second``: the second-minimum check on the poses the verdict takes (``ambiguous``, see
     :func:`_pair_rows`); ``scene``: the rows on the scene-sized grids too (``fine``, ``fin``, ``fin_y``: see
-    :func:`_pair_rows`; ``grid``: both scans' finer grids, m, 0 for none, always)."""
+    :func:`_pair_rows`; ``grid``: both scans' finer grids, m, 0 for none, always); ``starts``: see :func:`_pair_rows`
+    (no rows then)."""
     frames = 100 if turned else frames  # a hand-held walk takes 2.5 m in up to 50 frames
     reg = DeepBBSRegistration(config or Config())
     rc = reg.config.registration
@@ -476,7 +486,8 @@ def collect(rigs, seed: int, pairs: int, frames: int = 60, log=print, low: bool 
                 (scan(i), scan(j))
             if pair is not None:
                 _pair_rows(pair, partial(scan, min(frames - 1, i + FAR)), rng, rc, out, ri, truth=low,
-                           reg=reg if turned else None, slid=slid, second=second, scene=scene)
+                           reg=reg if turned and starts is None else None, slid=slid, second=second, scene=scene,
+                           starts=starts)
         n = sum(1 for r in out["rig"] if r == ri)
         log(f"{sensor}/{mount}/{place}{' degraded' if rough else ''}{' skewed' if skewed else ''}: {n} poses, "
             f"{time.perf_counter() - t0:.1f} s")

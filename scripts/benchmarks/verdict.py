@@ -216,6 +216,27 @@ def scene_flow(data: dict, m: np.ndarray, bar: float) -> dict:
     return out
 
 
+def sim_parts(pairs: int, seed: int, low_pairs: int = 0, turned_pairs: int = 0, **kw) -> list[dict]:
+    """calibrate_verdict.py ``collect`` on the simulated rigs (``pairs`` each), the low-overlap rigs (``low_pairs``)
+    and the turned rigs (``turned_pairs``), each with its own rig indices (:func:`family`) -> their rows."""
+    import calibrate_verdict as cv
+
+    parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
+    if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
+        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), **kw))
+    if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
+        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS),
+                                **kw))
+    return parts
+
+
+def family(rig: int) -> str:
+    """The family of the simulated rig index ``rig`` (:func:`sim_parts`): "dense", "sparse" or "solid"."""
+    import calibrate_verdict as cv
+
+    return FAMILY.get((cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS)[rig][0], "sparse")
+
+
 def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int = 0, slid: bool = False,
                 config=None, dump: Path | None = None, scene: bool = False) -> dict:
     import calibrate_verdict as cv
@@ -223,15 +244,9 @@ def sim_figures(pairs: int, seed: int, rc, low_pairs: int = 0, turned_pairs: int
     from deepbbs_ros.core import calibrated, within
 
     kw = {"slid": slid, "config": config, "second": True, "scene": scene}  # the pair verdict's second-minimum check
-    parts = [cv.collect(cv.RIGS, seed, pairs, **kw)]
-    if low_pairs:  # low-overlap pairs (the source's share the target can judge at the truth 10-40 %), apart
-        parts.append(cv.collect(cv.LOW_RIGS, seed, low_pairs, low=True, rig0=len(cv.RIGS), **kw))
-    if turned_pairs:  # a sensor turned and moved between its scans (sim/turned.py), apart
-        parts.append(cv.collect(cv.TURNED_RIGS, seed, turned_pairs, turned=True, rig0=len(cv.RIGS) + len(cv.LOW_RIGS),
-                                **kw))
+    parts = sim_parts(pairs, seed, low_pairs, turned_pairs, **kw)
     data = {k: np.concatenate([d[k] for d in parts if len(d["y"])]) for k in parts[0]}
-    rigs = cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS
-    fam = np.array([FAMILY.get(rigs[r][0], "sparse") for r in data["rig"]])
+    fam = np.array([family(r) for r in data["rig"]])
     low = data["rig"] >= len(cv.RIGS)
     turned = data["rig"] >= len(cv.RIGS) + len(cv.LOW_RIGS)
     slide = data["kind"] == "slid"
