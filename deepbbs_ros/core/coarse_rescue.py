@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core.first_motion import coarse_start
+from deepbbs_ros.core.start_gicp import good_start_gicp
 
 __all__ = ["DENSE", "REACH", "VOXEL_FACTORS", "coarse_then_fine", "moved", "pyramid"]
 
@@ -47,8 +48,6 @@ def coarse_then_fine(src_pc: Any, tgt_pc: Any, T_init: np.ndarray, rc: Any, thre
     """GICP on the pyramid from ``T_init`` (4, 4), then the good start's GICP from where it ended, on the
     precision-stage clouds ``src_pc`` / ``tgt_pc`` (``core.polish.PolishCloud``). -> (the :func:`core.polish.polish`
     result, "" when it is within the rescue's reach of ``T_init``, else why not: then it must not be taken)."""
-    from deepbbs_ros.core.good_start import good_start_gicp
-
     pol = good_start_gicp(src_pc, tgt_pc, pyramid(src_pc, tgt_pc, T_init, rc, threads), rc)
     if not pol.applied:
         return pol, pol.reason.replace("polish_max_", "registration.good_start_max_")

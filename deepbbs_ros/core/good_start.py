@@ -3,10 +3,10 @@
 The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map from the last pose)::
 
     gicp first  precision-stage clouds only (the sampling waits: PreprocessResult.sample), GICP from T_init with
-                GICP's own settings (registration.polish_*: its iterations, no limit on how far it moves), judged by
-                the verdict on a spread subset of the source's voxels (registration.good_start_probability) wherever
-                it ended; converged beyond registration.good_start_max_trans / _rot_deg or only after
-                good_start_max_iters, the answer says so ("beyond the good start's limits"); with
+                GICP's own settings (core/start_gicp.py; registration.polish_*: its iterations, no limit on how far
+                it moves), judged by the verdict on a spread subset of the source's voxels (registration.
+                good_start_probability) wherever it ended; converged beyond registration.good_start_max_trans /
+                _rot_deg or only after good_start_max_iters, the answer says so ("beyond the good start's limits"); with
                 registration.good_start_second_minimum a loose pose is also checked for a second minimum as good
                 along its weakest direction (core/second_minimum.py), and one that has it is not taken
     finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
@@ -36,11 +36,11 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import coarse_rescue, finish_verdict, pair_deskew, second_minimum, sweep_skew, verdict, visibility
-from deepbbs_ros.core.network import orthonormalize
 from deepbbs_ros.core.points import as_transform, as_xyz
-from deepbbs_ros.core.polish import PolishCloud, finish, polish
+from deepbbs_ros.core.polish import PolishCloud, finish
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
+from deepbbs_ros.core.start_gicp import from_start, good_start_gicp, orthonormal
 
 __all__ = ["Attempt", "attempt", "from_start", "good_start_gicp", "good_start_points"]
 
@@ -54,15 +54,6 @@ class Attempt:
     target: Any
     reason: str = ""
     result: RegistrationResult | None = None
-
-
-def good_start_gicp(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
-    """GICP from a vouched start ``T_init`` (4, 4) within the good start's limits (``registration.good_start_max_*``
-    in place of ``polish_max_*``) -> the :func:`core.polish.polish` result, its rotation orthonormalised when applied
-    (the coarse try's fine GICP, core/coarse_rescue.py)."""
-    cfg = dataclasses.replace(rc, polish_max_iters=rc.good_start_max_iters, polish_max_trans=rc.good_start_max_trans,
-                              polish_max_rot_deg=rc.good_start_max_rot_deg)
-    return _orthonormal(polish(src_pc, tgt_pc, T_init, cfg))
 
 
 def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
@@ -121,22 +112,6 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
     return Attempt(src, tgt, accepted, res)
 
 
-def from_start(src_pc: PolishCloud, tgt_pc: PolishCloud, T_init: np.ndarray, rc: Any) -> Any:
-    """GICP from the vouched start ``T_init`` (4, 4) with GICP's own settings (``registration.polish_*``: its
-    iterations, the GICP baseline's; no limit on how far it moves, as GICP alone) -> the :func:`core.polish.polish`
-    result, its rotation orthonormalised when applied."""
-    if rc.polish_max_trans or rc.polish_max_rot_deg:  # the full pipeline's limits on the precision stage's move
-        rc = dataclasses.replace(rc, polish_max_trans=0.0, polish_max_rot_deg=0.0)
-    return _orthonormal(polish(src_pc, tgt_pc, T_init, rc))
-
-
-def _orthonormal(pol: Any) -> Any:
-    """The :func:`core.polish.polish` result ``pol``, its rotation orthonormalised when applied."""
-    if pol.applied:
-        pol.T_target_source[:3, :3] = orthonormalize(pol.T_target_source[:3, :3])
-    return pol
-
-
 def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc: Any) -> tuple[Any, float | None]:
     """GICP from the start converged but not taken: finished on the scans' scene-sized grids
     (``registration.polish_voxel_angle``, :func:`core.polish.finish`; a narrow place's walls, floor and ceiling that
@@ -149,7 +124,7 @@ def _finished(pol: Any, spc: PolishCloud, tpc: PolishCloud, pts: np.ndarray, rc:
     fine = finish(spc, tpc, pol.T_target_source, rc) if pol.applied else None
     if fine is None or not fine.applied:
         return None, None
-    fine = dataclasses.replace(_orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
+    fine = dataclasses.replace(orthonormal(fine), iterations=pol.iterations + fine.iterations, converged=pol.converged)
     if rc.good_start_finish_grid != "scene":
         prob = _probability(fine, "", pts, tpc, rc)
         if verdict.is_valid(prob, rc.good_start_probability) and not _slides(fine, prob, pts, spc, tpc, rc):
