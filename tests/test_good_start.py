@@ -175,9 +175,9 @@ def test_coarse_to_fine_second_try_stays_within_its_reach():
 
 
 def test_the_good_starts_score_and_inlier_ratio_are_the_verdicts_fitness():
-    """core/good_start.py scores its answer with one nearest-neighbour search for both shares: the same numbers as
-    core.verdict.fitness at registration.verdict_dist and registration.inlier_dist."""
-    from deepbbs_ros.core import good_start
+    """core/good_start_answer.py scores the good start's answer with one nearest-neighbour search for both shares: the
+    same numbers as core.verdict.fitness at registration.verdict_dist and registration.inlier_dist."""
+    from deepbbs_ros.core import good_start, good_start_answer
     from deepbbs_ros.core.scans import polish_cloud
     from deepbbs_ros.replay.synthetic import pose
 
@@ -188,10 +188,10 @@ def test_the_good_starts_score_and_inlier_ratio_are_the_verdicts_fitness():
     spc, tpc = (polish_cloud(cfg, p).complete(1) for p in (src, tgt))
     pts = good_start.good_start_points(spc, rc)
     for T in (np.eye(4), pose(0.7, -0.4, 0.1, np.radians(3.0))):
-        got = good_start._shares(pts, tpc, T, (rc.verdict_dist, rc.inlier_dist))
+        got = good_start_answer.shares(pts, tpc, T, (rc.verdict_dist, rc.inlier_dist))
         assert got == [verdict.fitness(pts, tpc.tree, T, rc.verdict_dist), verdict.fitness(pts, tpc.tree, T,
                                                                                             rc.inlier_dist)]
-    assert good_start._shares(pts[:0], tpc, np.eye(4), (0.5,)) == [0.0]
+    assert good_start_answer.shares(pts[:0], tpc, np.eye(4), (0.5,)) == [0.0]
 
 
 def test_a_good_start_in_a_box_scene_takes_the_gicp_path_and_is_right(reg):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core import good_start, sensors, verdict, visibility
+from deepbbs_ros.core import good_start, good_start_answer, sensors, verdict, visibility
 from deepbbs_ros.core.scans import prepare_scan
 
 
@@ -114,9 +114,9 @@ def test_good_start_score_and_features_from_one_search_are_the_two_searches_ones
         moved = pts @ T[:3, :3].T + T[:3, 3]
         _, sq = fresh.tree.batch_nearest_neighbor_search(moved, num_threads=1)
         want = [float(np.mean(np.asarray(sq) <= d * d)) for d in (rc.verdict_dist, rc.inlier_dist)]
-        assert good_start._shares(pts, tgt, T, (rc.verdict_dist, rc.inlier_dist)) == want
+        assert good_start_answer.shares(pts, tgt, T, (rc.verdict_dist, rc.inlier_dist)) == want
         assert want[0] == verdict.fitness(pts, fresh.tree, T, rc.verdict_dist)
     other = pts[::2]  # other points on the same cloud: searched again, not the kept answer
     _, sq = tgt.tree.batch_nearest_neighbor_search(other, num_threads=1)
-    assert good_start._shares(other, tgt, np.eye(4), (rc.verdict_dist,)) == [
+    assert good_start_answer.shares(other, tgt, np.eye(4), (rc.verdict_dist,)) == [
         float(np.mean(np.asarray(sq) <= rc.verdict_dist ** 2))]

@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, finish_verdict, pair_deskew, second_minimum, sweep_skew, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, finish_verdict, second_minimum, sweep_skew, verdict, visibility
+from deepbbs_ros.core.good_start_answer import answer
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish
 from deepbbs_ros.core.preprocess import PreprocessResult
@@ -100,12 +101,12 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
             if not stuck:
                 return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
             reg._searched.append(False)  # the finished pose, not valid: no search can pin it either
-            res = _result(src, tgt, fine[0], _probability(fine[0], "", pts, tpc, rc), pts, tpc, rc, stuck, clock)
+            res = answer(src, tgt, fine[0], _probability(fine[0], "", pts, tpc, rc), pts, tpc, rc, stuck, clock)
             res.valid = False
             return Attempt(src, tgt, stuck, res)
         accepted = f"accepted after coarse to fine ({first})"
     reg._searched.append(False)
-    res = _result(src, tgt, pol, prob, pts, tpc, rc, accepted, clock)
+    res = answer(src, tgt, pol, prob, pts, tpc, rc, accepted, clock)
     if rc.skew_check and res.deskew != "deskewed":  # per-point times: does a sweep's own motion bend the pose?
         bends, res.skew = sweep_skew.judge(src, tgt, res.T_target_source, rc, reg.config.preprocess.min_range)
         res.valid = not bends  # bent: no other start unbends it (not valid, not the full pipeline)
@@ -178,40 +179,3 @@ def _probability(pol: Any, why: str, pts: np.ndarray, tpc: PolishCloud, rc: Any,
     d = rc.verdict_dist if dist is None else dist
     prob = verdict.probability(pts, pol.T_target_source, tpc, d, "good_start")
     return verdict.times_within(prob, spc, tpc, pol.T_target_source, rc, rc.good_start_probability, "good_start")
-
-
-def _shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:
-    """:func:`core.verdict.fitness` of ``pts`` under ``T`` at each of ``dists`` m, from one nearest-neighbour search
-    (the verdict's on the same pose: kept on the cloud)."""
-    if len(pts) == 0:
-        return [0.0 for _ in dists]
-    T = np.asarray(T, np.float64)
-    moved = np.asarray(pts, np.float64) @ T[:3, :3].T + T[:3, 3]  # as the verdict moved them: its search's answer
-    _, sq = visibility._nearest(tpc, moved, 1)
-    sq = np.asarray(sq, np.float64)
-    return [float(np.mean(sq <= d * d)) for d in dists]
-
-
-def _target_points(tpc: PolishCloud, rc: Any) -> np.ndarray:
-    """:func:`good_start_points` of the target (kept on its cloud: drawn when it was a stream's source)."""
-    return visibility.spread_points(tpc, rc.good_start_points, rc.polish_voxel or 0.5)  # its source's, in a stream
-
-
-def _result(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, pts: np.ndarray, tpc: PolishCloud,
-            rc: Any, text: str, clock: Any) -> RegistrationResult:
-    """The good start's answer: GICP's pose (again on both scans deskewed, when they are), its verdict."""
-    T = pol.T_target_source
-    score, inliers = _shares(pts, tpc, T, (rc.verdict_dist, rc.inlier_dist))
-    clock.lap("good_start")
-    T, deskew, more = pair_deskew.again(src, tgt, T, rc)  # both scans deskewed (node.pair_deskew): again on them
-    if more:
-        clock.lap("deskew")
-    timings = dict(clock.ms)
-    timings["total"] = sum(timings.values())
-    return RegistrationResult(
-        T_target_source=T, converged=bool(pol.converged),
-        iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
-        gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
-        source=pts.astype(np.float32), target=_target_points(tpc, rc).astype(np.float32), polish="ok",
-        deskew=deskew, valid=True, score=float(score), starts=1, path="gicp", good_start=text,
-        probability=float(prob))
