@@ -95,3 +95,26 @@ def test_a_start_back_after_the_first_iterations_is_not_run_further(monkeypatch)
     assert all(d <= second_minimum.BACK for d, _ in right.found), right
     slid = _check(target, source, _yaw(4.0))
     assert slid.ambiguous and len(runs) >= 1, (slid, runs)
+
+
+def test_a_start_converged_within_the_first_iterations_is_that_run_whole(monkeypatch):
+    """A start GICP's first LEG iterations bring to convergence (one a few centimetres off the right pose in the
+    hall) is not run again: its answer is the whole run's from the start, bit for bit (one thread, as
+    registration.exact_gicp), from the same iterations."""
+    rc = Config().replace(**{"registration.exact_gicp": True}).registration
+    target, source = (_hall(np.random.default_rng(s), 20000, every=10.0) for s in (0, 1))
+    tpc, spc = (prepare_polish_cloud(c, rc.polish_voxel, rc.polish_neighbors, threads=1) for c in (target, source))
+    start = np.eye(4)
+    start[:3, 3] = [0.03, -0.02, 0.01]
+    whole = second_minimum.polish(spc, tpc, start, rc)
+    assert whole.applied and whole.iterations < second_minimum.LEG, whole  # converged within the leg
+    runs = []
+    monkeypatch.setattr(second_minimum, "polish", lambda *a, **k: runs.append(1) or whole)
+    leg, pol = second_minimum._from(spc, tpc, np.eye(4), start, rc)
+    assert runs == [] and pol is not None, runs
+    for k in ("applied", "reason", "converged", "iterations", "num_inliers", "delta_trans_m", "delta_rot_deg"):
+        assert getattr(pol, k) == getattr(whole, k), k
+    np.testing.assert_array_equal(pol.T_target_source, whole.T_target_source)
+    np.testing.assert_array_equal(pol.hessian[0], whole.hessian[0])
+    assert pol.hessian[1:] == whole.hessian[1:]
+    assert leg == second_minimum.offset(np.eye(4), whole.T_target_source)

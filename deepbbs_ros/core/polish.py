@@ -14,14 +14,14 @@ when it moves the estimate by more than ``polish_max_trans`` metres or ``polish_
 has too few points.
 
 Modules: the prepared clouds in ``core/polish_cloud.py`` (:class:`PolishCloud`, :func:`prepare_polish_cloud`) and
-``core/polish_view.py`` (:class:`PolishView`, a map crop); the thread counts in ``core/threads.py``; their names are
-importable from here too.
+``core/polish_view.py`` (:class:`PolishView`, a map crop); a run's result and its judging in ``core/polish_result.py``
+(:class:`PolishResult`, :func:`outcome`); the thread counts in ``core/threads.py``; their names are importable from
+here too.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -38,9 +38,9 @@ from deepbbs_ros.core.polish_cloud import (
     prepared_cloud,
     scene_voxel,
 )
+from deepbbs_ros.core.polish_result import PolishResult, outcome
 from deepbbs_ros.core.polish_view import PolishView
 from deepbbs_ros.core.threads import cpu_cores, threads_or_all
-from deepbbs_ros.reprs import short_repr
 
 __all__ = ["MIN_POLISH_POINTS", "PolishCloud", "PolishResult", "PolishView", "correspondence_distance", "cpu_cores",
            "finer_pair", "finish", "gicp_align", "polish", "prepare_polish_cloud", "prepared_cloud", "scene_voxel",
@@ -59,38 +59,6 @@ def _as_cloud(c: np.ndarray | PolishCloud, cfg: RegistrationConfig, reg_type: st
     pts = as_xyz(c, "polish", dtype=np.float64)
     return _prepared(pts[np.isfinite(pts).all(axis=1)], cfg.polish_voxel, cfg.polish_neighbors, reg_type,
                      cfg.polish_threads)
-
-
-@dataclass
-class PolishResult:
-    """The outcome of one polish.
-
-    Attributes:
-        T_target_source: (4, 4) float64; the polished estimate when ``applied``, else ``T_init``.
-        applied: the polish was accepted.
-        reason: "ok", or why it was rejected ("not converged", "moved 2.4 m > 2.0 m", ...).
-        converged: small_gicp's own convergence flag (False when it did not run).
-        iterations: small_gicp iterations (0 when it did not run).
-        num_inliers: correspondences within ``polish_max_corr_dist`` at the end.
-        delta_trans_m, delta_rot_deg: how far the polish moved the estimate (also when rejected).
-        timings_ms: {"prepare": voxel grid + trees + covariances (0 for prepared clouds), "align", "total"}.
-    """
-
-    __repr__ = short_repr  # one readable line: arrays as shape and dtype (deepbbs_ros/reprs.py)
-
-    T_target_source: np.ndarray
-    applied: bool
-    reason: str
-    converged: bool = False
-    iterations: int = 0
-    num_inliers: int = 0
-    delta_trans_m: float = 0.0
-    delta_rot_deg: float = 0.0
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    check_score: float = float("nan")  # the score at the check (polish(..., check=...)); nan when none was made
-    #: small_gicp's (H (6, 6), error, inliers) at its last linearisation (core/covariance.py reads a pose's covariance
-    #: from them); None when it did not run
-    hessian: tuple[np.ndarray, float, int] | None = None
 
 
 def correspondence_distance(clouds, cfg: RegistrationConfig) -> float:
@@ -196,37 +164,9 @@ def polish(source: np.ndarray | PolishCloud, target: np.ndarray | PolishCloud, T
             res = align(T_now, cfg.polish_max_iters - check[0])
             iterations += int(res.iterations)
     t2 = time.perf_counter()
-    T = np.asarray(res.T_target_source, dtype=np.float64).copy()
-    if T_base is not None:
-        T = np.linalg.solve(T_base, T)
-    dT = np.linalg.inv(T_init) @ T
-    d_trans = float(np.linalg.norm(T[:3, 3] - T_init[:3, 3]))
-    d_rot = float(np.degrees(np.arccos(np.clip((np.trace(dT[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
+    stop = ""
     if judged:
-        reason = f"stopped after {iterations} iterations: judged hopeless there (score {check_score:.2f})"
+        stop = f"stopped after {iterations} iterations: judged hopeless there (score {check_score:.2f})"
     elif stopped:
-        reason = f"stopped after {iterations} iterations: score {check_score:.2f} < {check[1]:.2f}"
-    elif not res.converged:
-        reason = f"not converged in {iterations} iterations"
-    elif int(res.num_inliers) < MIN_POLISH_POINTS:
-        reason = f"only {res.num_inliers} correspondences within {corr:.2f} m"
-    elif 0 < cfg.polish_max_trans < d_trans:
-        reason = f"moved {d_trans:.2f} m > polish_max_trans {cfg.polish_max_trans} m"
-    elif 0 < cfg.polish_max_rot_deg < d_rot:
-        reason = f"turned {d_rot:.2f} deg > polish_max_rot_deg {cfg.polish_max_rot_deg} deg"
-    else:
-        reason = "ok"
-    applied = reason == "ok"
-    return PolishResult(
-        T_target_source=T if applied else T_init.copy(),
-        applied=applied,
-        reason=reason,
-        converged=bool(res.converged),
-        iterations=iterations,
-        num_inliers=int(res.num_inliers),
-        delta_trans_m=d_trans,
-        delta_rot_deg=d_rot,
-        check_score=check_score,
-        timings_ms={"prepare": (t1 - t0) * 1e3, "align": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3},
-        hessian=(np.asarray(res.H, dtype=np.float64), float(res.error), int(res.num_inliers)),
-    )
+        stop = f"stopped after {iterations} iterations: score {check_score:.2f} < {check[1]:.2f}"
+    return outcome(res, T_init, cfg, corr, T_base, iterations, check_score, stop, (t0, t1, t2))

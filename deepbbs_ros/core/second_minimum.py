@@ -21,7 +21,7 @@ The check, on an accepted pose with the precision stage's clouds:
 
 Cost: two nearest-neighbour searches and two GICP runs on the poses it checks (none on well-pinned ones); a start whose
 first two iterations bring it back within a quarter tolerance of the pose stops there (``LEG``, ``BACK``: GICP from it
-would only settle on the pose), any other is run whole.
+would only settle on the pose), one they bring to convergence is that run whole, any other is run whole.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.core import anchoring, verdict
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, correspondence_distance, gicp_align, polish
+from deepbbs_ros.core.polish import MIN_POLISH_POINTS, SMALL_GICP_TYPE, correspondence_distance, gicp_align, polish
+from deepbbs_ros.core.polish_result import outcome
 from deepbbs_ros.core.polish_view import PolishView
 
 __all__ = ["Ambiguity", "check", "offset", "weakest"]
@@ -146,14 +147,18 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
 def _from(src_pc, tgt_pc, T: np.ndarray, start: np.ndarray, rc) -> tuple[float, Any]:
     """GICP from ``start`` (4, 4): its first ``LEG`` iterations (core/polish.py's settings), then, unless they brought
     it within ``BACK`` tolerances of the pose ``T`` (4, 4), the whole run from ``start`` again (the very run without
-    the leg) -> (tolerances from ``T`` after the leg, the :func:`core.polish.polish` result or None: came back)."""
+    the leg; converged within the leg, the leg is that run: the same iterations, not run again) -> (tolerances from
+    ``T`` after the leg, the :func:`core.polish.polish` result or None: came back)."""
     if rc.polish_max_iters <= LEG:  # no shorter leg than the run itself
         return 0.0, polish(src_pc, tgt_pc, start, rc)
     corr = correspondence_distance([src_pc, tgt_pc], rc)
-    base = tgt_pc.T_base if isinstance(tgt_pc, PolishView) else np.eye(4)  # a map crop: aligned in the map's frame
-    tree = tgt_pc.tree.base if isinstance(tgt_pc, PolishView) else tgt_pc.tree
+    view = isinstance(tgt_pc, PolishView)
+    base = tgt_pc.T_base if view else np.eye(4)  # a map crop: aligned in the map's frame
+    tree = tgt_pc.tree.base if view else tgt_pc.tree
     res = gicp_align(tgt_pc.cloud, src_pc.cloud, tree, base @ start, LEG, rc, corr)
     leg = offset(T, np.linalg.solve(base, np.asarray(res.T_target_source, np.float64)))
-    if not res.converged and leg <= BACK:
-        return leg, None
-    return leg, polish(src_pc, tgt_pc, start, rc)  # converged within the leg (rare) or not back: the whole run
+    if not res.converged:
+        return leg, None if leg <= BACK else polish(src_pc, tgt_pc, start, rc)  # not back: the whole run
+    if any(c.pending is not None or c.n_points < MIN_POLISH_POINTS for c in (src_pc, tgt_pc)):
+        return leg, polish(src_pc, tgt_pc, start, rc)  # a cloud still to prepare, or too few points: polish's answer
+    return leg, outcome(res, np.asarray(start, np.float64), rc, corr, base if view else None)  # the whole run's
