@@ -494,3 +494,13 @@ def test_a_hint_is_searched_first_and_settles_look_alikes(localizer, world):
         assert _ok(res.T_map_scan, T_true)[0]
     with pytest.raises(LocalizationError, match="^hint: "):
         tracker.hint(np.full((4, 4), np.nan))
+
+
+def test_the_localizer_and_the_tracker_are_importable_from_core_localization():
+    """core/localization.py names the localizer (core/map_localizer.py) and the tracker (core/tracking.py), as it
+    always did; neither of those imports it."""
+    from deepbbs_ros.core import localization, map_localizer, tracking
+
+    assert localization.MapLocalizer is map_localizer.MapLocalizer and localization.MapTracker is tracking.MapTracker
+    assert (localization.HINT_SIGMAS, localization.DESKEW_WINDOW) == (tracking.HINT_SIGMAS, tracking.DESKEW_WINDOW)
+    assert {"MapLocalizer", "MapTracker"} <= set(localization.__all__)

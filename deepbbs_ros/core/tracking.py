@@ -19,7 +19,7 @@ from deepbbs_ros.core.localization_types import LocalizationResult, PreparedScan
 from deepbbs_ros.errors import LocalizationError
 
 if TYPE_CHECKING:
-    from deepbbs_ros.core.localization import MapLocalizer
+    from deepbbs_ros.core.map_localizer import MapLocalizer
 
 #: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
 DESKEW_WINDOW = 5
