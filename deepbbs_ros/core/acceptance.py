@@ -24,6 +24,7 @@ from deepbbs_ros.config import Config
 from deepbbs_ros.core import map_verdict
 from deepbbs_ros.core.localization_types import _Answer
 from deepbbs_ros.core.second_minimum import STEPS, Ambiguity, check
+from deepbbs_ros.core.verdict import good_start_points
 
 
 def threshold(config: Config) -> float:
@@ -51,8 +52,6 @@ def second_minimum(src: Any, crop: Any, T_map_scan: np.ndarray, config: Config, 
     shares cannot see); not checked (``Ambiguity()``, or one with ``step`` 0) when ``localization.second_minimum``
     is off, either has no GICP cloud, or the fit pins the pose closer. Two GICP runs where it checks (their first two
     iterations where they come back), two nearest-neighbour searches where it does not."""
-    from deepbbs_ros.core.registration import good_start_points
-
     rc = config.registration
     spc, tpc = getattr(src, "polish_cloud", None), getattr(crop.pre, "polish_cloud", None)
     if not config.localization.second_minimum or spc is None or tpc is None:

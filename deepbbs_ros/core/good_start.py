@@ -35,13 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import coarse_rescue, finish_verdict, second_minimum, sweep_skew, verdict, visibility
+from deepbbs_ros.core import coarse_rescue, finish_verdict, second_minimum, sweep_skew, verdict
 from deepbbs_ros.core.good_start_answer import answer
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
 from deepbbs_ros.core.start_gicp import from_start, good_start_gicp, orthonormal
+from deepbbs_ros.core.verdict import good_start_points
 
 __all__ = ["Attempt", "attempt", "from_start", "good_start_gicp", "good_start_points"]
 
@@ -55,12 +56,6 @@ class Attempt:
     target: Any
     reason: str = ""
     result: RegistrationResult | None = None
-
-
-def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
-    """The points the good start's verdict scores: a spread, order-independent subset of the cloud's GICP voxels
-    (``registration.good_start_points``; :func:`core.verdict.spread_subset`)."""
-    return visibility.spread_points(pc, rc.good_start_points, rc.polish_voxel or 0.5)  # kept on the cloud
 
 
 def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed: bool, clock: Any) -> Attempt:

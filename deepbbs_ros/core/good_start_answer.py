@@ -12,8 +12,9 @@ from deepbbs_ros.core import pair_deskew, visibility
 from deepbbs_ros.core.polish import PolishCloud
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
+from deepbbs_ros.core.verdict import good_start_points
 
-__all__ = ["answer", "shares", "target_points"]
+__all__ = ["answer", "shares"]
 
 
 def shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float, ...]) -> list[float]:
@@ -28,12 +29,6 @@ def shares(pts: np.ndarray, tpc: PolishCloud, T: np.ndarray, dists: tuple[float,
     return [float(np.mean(sq <= d * d)) for d in dists]
 
 
-def target_points(tpc: PolishCloud, rc: Any) -> np.ndarray:
-    """:func:`core.good_start.good_start_points` of the target (kept on its cloud: drawn when it was a stream's
-    source)."""
-    return visibility.spread_points(tpc, rc.good_start_points, rc.polish_voxel or 0.5)  # its source's, in a stream
-
-
 def answer(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, pts: np.ndarray, tpc: PolishCloud,
            rc: Any, text: str, clock: Any) -> RegistrationResult:
     """The good start's answer: GICP's pose (again on both scans deskewed, when they are), its verdict."""
@@ -45,10 +40,11 @@ def answer(src: PreprocessResult, tgt: PreprocessResult, pol: Any, prob: float, 
         clock.lap("deskew")
     timings = dict(clock.ms)
     timings["total"] = sum(timings.values())
+    # the target's points: kept on its cloud (drawn when it was a stream's source)
     return RegistrationResult(
         T_target_source=T, converged=bool(pol.converged),
         iterations={"deep": 0, "refine": 0, "dense": 0, "polish": int(pol.iterations) + more},
         gamma=np.ones(len(pts), np.float32), inlier_ratio=float(inliers), temperature=0.0, timings_ms=timings,
-        source=pts.astype(np.float32), target=target_points(tpc, rc).astype(np.float32), polish="ok",
+        source=pts.astype(np.float32), target=good_start_points(tpc, rc).astype(np.float32), polish="ok",
         deskew=deskew, valid=True, score=float(score), starts=1, path="gicp", good_start=text,
         probability=float(prob))

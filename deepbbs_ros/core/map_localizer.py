@@ -44,11 +44,12 @@ place, then a fixed number of registrations.
 :class:`MapTracker` (core/tracking.py) is the state machine around it (the node's and the replay's): constant-velocity
 prediction, lost after localization.lost_after rejected scans, then the global search until found again. The results
 and the search's data types are in core/localization_types.py, the map's cell index in core/map_index.py; this module
-builds the map (places, descriptors, GICP cloud); ``MapLocalizer`` takes its crops from core/map_crops.py, a scan's
-description and ranking from core/place_ranking.py, registration on a crop and its checks from
-core/candidate_checks.py, its global search from :class:`~deepbbs_ros.core.place_search.PlaceSearch` and its tracking
-from a guess from :class:`~deepbbs_ros.core.guess_tracking.GuessTracking`. Its public names, and the tracker's, are
-importable from core/localization.py.
+composes the parts: ``MapLocalizer`` builds the map (places, descriptors, GICP cloud) with core/map_build.py, takes
+its crops from core/map_crops.py, a scan's description and ranking from core/place_ranking.py, registration on a crop
+and its checks from core/candidate_checks.py, its global search from
+:class:`~deepbbs_ros.core.place_search.PlaceSearch`, its tracking from a guess from
+:class:`~deepbbs_ros.core.guess_tracking.GuessTracking` and its registration from a pose hint from core/pose_hint.py.
+Its public names, and the tracker's, are importable from core/localization.py.
 
 Frames (docs/CONVENTIONS.md): map points and poses are in the map frame; a scan is in its sensor frame;
 ``T_map_scan`` (4, 4) float64 with p_map = R p_scan + t. A place's frame is gravity-aligned (map axes) with its
@@ -65,34 +66,20 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.core.candidate_checks import CandidateChecks
-from deepbbs_ros.core.descriptors import _HeightGrid, _PolarTemplate, _spectra
-from deepbbs_ros.core.drive_places import keyframe_places
 from deepbbs_ros.core.guess_tracking import GuessTracking
-from deepbbs_ros.core.localization_types import (
-    MIN_SCAN_POINTS,
-    LocalizationResult,
-    PreparedScan,
-    _as_cloud,
-    _Crop,
-    _rz,
-)
+from deepbbs_ros.core.localization_types import MIN_SCAN_POINTS, LocalizationResult, PreparedScan, _as_cloud, _Crop
+from deepbbs_ros.core.map_build import CLOUD_BYTES, MIN_MAP_POINTS, MapBuild  # noqa: F401  (the constants re-exported)
 from deepbbs_ros.core.map_crops import MapCrops
-from deepbbs_ros.core.map_fit import check_trajectory
-from deepbbs_ros.core.map_index import _CellIndex, voxel_downsample
+from deepbbs_ros.core.map_index import voxel_downsample
 from deepbbs_ros.core.place_ranking import PlaceRanking
 from deepbbs_ros.core.place_search import PlaceSearch
-from deepbbs_ros.core.polish import SMALL_GICP_TYPE, prepare_polish_cloud
+from deepbbs_ros.core.pose_hint import HintSearch
 from deepbbs_ros.errors import DeepBBSError, LocalizationError
 
 __all__ = ["LocalizationResult", "MapLocalizer", "PreparedScan", "voxel_downsample"]
 
-MIN_MAP_POINTS = 100  # a map with fewer points is refused
-#: bytes per voxel of a small_gicp cloud with covariances and normals (point, normal: 4 doubles; covariance: 16) and
-#: its k-d tree (about 32)
-CLOUD_BYTES = 224
 
-
-class MapLocalizer(GuessTracking, PlaceSearch, MapCrops, PlaceRanking, CandidateChecks):
+class MapLocalizer(MapBuild, HintSearch, GuessTracking, PlaceSearch, MapCrops, PlaceRanking, CandidateChecks):
     """Finds a scan's pose in a prior map (module docstring).
 
     Args:
@@ -121,33 +108,7 @@ class MapLocalizer(GuessTracking, PlaceSearch, MapCrops, PlaceRanking, Candidate
         t0 = time.perf_counter()
         self.config = cfg = config if config is not None else (registration.config if registration is not None
                                                                else Config())
-        lc = cfg.localization
-        pts = _as_cloud(map_points, "map")
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        if len(pts) < MIN_MAP_POINTS:
-            raise LocalizationError(f"map: {len(pts)} finite points, at least {MIN_MAP_POINTS} are needed")
-        self._index = _CellIndex(voxel_downsample(pts, lc.map_voxel), cell=10.0)
-        self.points = self._index.points  # (N, 3) float32 the map on its voxel grid (sorted by 10 m cells)
-        self.crop_radius = lc.crop_radius or cfg.preprocess.max_range
-        self.grid = _HeightGrid(self.points, lc.descriptor_cell, pad=lc.descriptor_radius)
-        self.template = _PolarTemplate(lc.descriptor_radius, lc.descriptor_rings, lc.descriptor_sectors,
-                                       lc.descriptor_cell)
-        self.trajectory_warning = ""  # a trajectory that does not fit the map (core/map_fit.py): grid places instead
-        if trajectory is not None:  # its poses off the map (a cropped map) are no place either
-            fit = check_trajectory(self.points, trajectory)
-            self.trajectory_warning = fit.message
-            trajectory = np.asarray(trajectory, dtype=np.float64)[fit.on_map] if fit.fits else None
-        if trajectory is not None:
-            self._places, self.keyframes = keyframe_places(trajectory, self.grid, lc)
-        else:
-            self._places = self._grid_places()
-            self.keyframes = 0
-        if len(self._places) == 0:
-            raise LocalizationError("map: no candidate place (no free space with ground under it; give the map's "
-                                    "trajectory, or lower localization.free_clearance)")
-        self.descriptors = self.template.describe(self.grid, self._places[:, :2, 3])
-        skip = min(lc.descriptor_skip_rings, lc.descriptor_rings - 1)
-        self._spectra = _spectra(self.descriptors[:, skip:])  # the places' half of every query's match
+        self._build_map(map_points, trajectory)  # points, places, descriptors (core/map_build.py)
         self._crops: OrderedDict[int, _Crop] = OrderedDict()
         self._track_place = -1  # the place whose crop tracking used last
         self._track_scores: deque[float] = deque(maxlen=10)  # GICP scores of the last scans tracked from a guess
@@ -162,42 +123,6 @@ class MapLocalizer(GuessTracking, PlaceSearch, MapCrops, PlaceRanking, Candidate
         t0 = time.perf_counter()
         self._cloud, self._voxels = self._map_cloud()
         self.build_ms += (time.perf_counter() - t0) * 1e3
-
-    def _map_cloud(self) -> tuple[Any, _CellIndex | None]:
-        """(the map's GICP cloud in the map frame, its voxel centroids by 10 m cell) when crops are views of it
-        (``localization.shared_cloud``), else (None, None)."""
-        rc = self.config.registration
-        if not self.config.localization.shared_cloud or rc.polish == "none":
-            return None, None
-        pc = prepare_polish_cloud(self.points, rc.polish_voxel, rc.polish_neighbors,
-                                  registration_type=SMALL_GICP_TYPE[rc.polish],
-                                  threads=self.registration.gicp_threads())
-        return pc, _CellIndex(pc.points(), cell=10.0)
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes held for the map besides the crops' cache: its points, the height grid, the descriptors, its GICP
-        cloud (``shared_cloud``)."""
-        g = self.grid
-        cloud = 0 if self._cloud is None else self._cloud.n_points * CLOUD_BYTES + self._voxels.points.nbytes
-        return int(self.points.nbytes + self._index.starts.nbytes + g.height.nbytes
-                   + g.ground.nbytes + g.zmax.nbytes + g.count.nbytes + g.occupied.nbytes + self.descriptors.nbytes
-                   + sum(a.nbytes for a in self._spectra) + cloud)
-
-    # -- places ----------------------------------------------------------------------------------------------------
-    @property
-    def places(self) -> np.ndarray:
-        """(P, 4, 4) float64 candidate place poses ``T_map_place`` (gravity-aligned, at the sensor's position)."""
-        return self._places
-
-    def _grid_places(self) -> np.ndarray:
-        """Places over the map's drivable space (core/places.py): one per ``grid_spacing`` square block, the column
-        farthest from obstacles, ``sensor_height`` above its ground (the search puts the scan at its own height)."""
-        from deepbbs_ros.core.places import grid_places
-
-        lc, g = self.config.localization, self.grid
-        return grid_places(self.points, g.origin, g.cell, g.shape, lc.grid_spacing, lc.free_clearance,
-                           lc.sensor_height, lc.map_voxel)
 
     # -- localize --------------------------------------------------------------------------------------------------
     def localize(self, scan: Any, guess: np.ndarray | None = None, *, times: np.ndarray | None = None,
@@ -238,46 +163,6 @@ class MapLocalizer(GuessTracking, PlaceSearch, MapCrops, PlaceRanking, Candidate
         res.timings_ms = timings
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return res
-
-    def localize_near(self, scan: Any, T_hint: np.ndarray, yaws: Any = (0.0,)) -> LocalizationResult:
-        """The pose of ``scan`` (raw (N, 3) or a :class:`PreparedScan`) registered from a pose hint ``T_hint``
-        (``T_map_scan`` (4, 4); its height replaced by the scan's own above the map's ground there) turned by each of
-        ``yaws`` (rad) in turn, on the crop nearest it: DeepBBS++ from each start, the first the verdict accepts (mode
-        "hint"); none: not valid, the best of them."""
-        t0 = time.perf_counter()
-        timings: dict[str, float] = {}
-        prepared = scan if isinstance(scan, PreparedScan) else self.prepare(scan)
-        src = prepared.pre
-        T = np.asarray(T_hint, dtype=np.float64).copy()
-        d = np.linalg.norm(self._places[:, :2, 3] - T[:2, 3], axis=1)
-        near = int(np.argmin(d))
-        if d[near] <= max(self.config.localization.place_spacing, 0.25 * self.crop_radius):
-            crop = self._crop(near)
-        else:  # off the places: a crop at the hint
-            C = np.eye(4)
-            C[:3, 3] = T[:3, 3]
-            near, crop = -1, self._crop(-1, C)
-        h, g = self._sensor_height(src), self.grid.ground_at(T[None, :2, 3], np.nan)[0]
-        if h is not None and np.isfinite(g):
-            T[2, 3] = g + h
-        best = LocalizationResult(T, False, float("nan"), "hint", "no start from the hint passed the verdict",
-                                  candidates=0, path="deepbbs", place=near)
-        for yaw in yaws:
-            t = time.perf_counter()
-            reg = self._register(src, crop, np.linalg.inv(crop.T_map_place) @ T @ _rz(float(yaw)), yaw_search=False)
-            timings["register"] = timings.get("register", 0.0) + (time.perf_counter() - t) * 1e3
-            best.candidates += 1
-            T_map_scan = crop.T_map_place @ reg.T_target_source
-            if self._accepts_at(src, crop, T_map_scan):
-                res = self._tracked(src, crop, T_map_scan, float(reg.score), "deepbbs", near, timings)
-                res.mode, res.candidates = "hint", best.candidates
-                best = res
-                break
-            if not (reg.score <= best.score):  # nan-safe: the better one
-                best.T_map_scan, best.score = T_map_scan, float(reg.score)
-        best.timings_ms = timings
-        timings["total"] = (time.perf_counter() - t0) * 1e3
-        return best
 
     def prepare(self, scan: Any, times: np.ndarray | None = None, stamp_ns: int | None = None,
                 motion: tuple[np.ndarray, float] | None = None) -> PreparedScan:

@@ -34,6 +34,7 @@ import numpy as np
 from deepbbs_ros.core import calibrated, visibility
 from deepbbs_ros.core.polish import PolishView
 from deepbbs_ros.core.polish_view import base_arrays
+from deepbbs_ros.core.verdict import good_start_points
 from deepbbs_ros.errors import VerdictModelError
 
 DEFAULT_PATH = Path(__file__).resolve().parents[1] / "resources" / "map_verdict_model.json"
@@ -112,8 +113,6 @@ def answer_features(src: Any, crop: Any, T_map_scan: np.ndarray, config: Any, th
     """:func:`features` of a localization answer: the scan's PreprocessResult ``src`` at ``T_map_scan`` (4, 4) on a
     map crop (``_Crop``: ``T_map_place`` and its PreprocessResult); the scan's points are a spread subset of its GICP
     voxels (``registration.good_start_points``). -> an all-zero row when either has no GICP cloud."""
-    from deepbbs_ros.core.registration import good_start_points
-
     spc, tpc = getattr(src, "polish_cloud", None), getattr(crop.pre, "polish_cloud", None)
     if spc is None or tpc is None:
         return np.zeros(len(names()))

@@ -4,8 +4,8 @@
 Constant-velocity prediction from the last accepted poses, tracking from it, from the last pose at rest or from the
 prediction mirrored (turned back), whichever the scan fits best (``MapLocalizer.localize`` with a guess and those
 starts), lost after ``localization.lost_after`` rejected scans (or an implausible speed), then the global search until
-found again; a pose hint (:meth:`MapTracker.hint`) searches near it first. ``MapTracker.motion`` gives the sensor's
-recent motion for deskewing the next scan.
+found again; a pose hint (:meth:`MapTracker.hint`, core/pose_hint.py) searches near it first. ``MapTracker.motion``
+gives the sensor's recent motion for deskewing the next scan.
 """
 
 from __future__ import annotations
@@ -15,22 +15,23 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from deepbbs_ros.config import Config
-from deepbbs_ros.core.localization_types import LocalizationResult, PreparedScan, _yaw
-from deepbbs_ros.errors import LocalizationError
+from deepbbs_ros.core.localization_types import LocalizationResult, PreparedScan
+from deepbbs_ros.core.pose_hint import (  # noqa: F401  (the hint's constants re-exported)
+    HINT_MIN_RADIUS,
+    HINT_MIN_YAW,
+    HINT_SIGMAS,
+    HINT_YAW_STEP,
+    HintSteps,
+)
 
 if TYPE_CHECKING:
     from deepbbs_ros.core.map_localizer import MapLocalizer
 
 #: accepted poses the tracker keeps; the deskew motion is their mean over the window (MapTracker.motion)
 DESKEW_WINDOW = 5
-#: MapTracker.hint: the places within this many standard deviations of the hint's position are searched first, and an
-#: answer within as many of its yaw accepted; at least HINT_MIN_RADIUS m / HINT_MIN_YAW rad (an exact hint)
-HINT_SIGMAS, HINT_MIN_RADIUS, HINT_MIN_YAW = 3.0, 10.0, np.radians(30.0)
-#: MapTracker.hint: DeepBBS++ starts from the hint's yaw, and this far apart either side within its yaw window
-HINT_YAW_STEP = np.radians(45.0)
 
 
-class MapTracker:
+class MapTracker(HintSteps):
     """The state machine shared by the node and the replay (module docstring).
 
     One scan in -> one :class:`LocalizationResult` out with its ``event``: "found" (first pose), "tracking",
@@ -51,52 +52,6 @@ class MapTracker:
         self.rejected = 0
         self._poses: list[tuple[int, np.ndarray]] = []  # (stamp_ns, T_map_scan) of the last accepted scans
         self._hint: tuple[np.ndarray, float, float] | None = None  # hint(): pose, radius (m), yaw window (rad)
-
-    def hint(self, T_map_scan: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        """A pose hint (an operator's initial pose, RViz's "2D Pose Estimate"): forget the pose, and the next
-        :meth:`step` registers the scan from the hint (:meth:`MapLocalizer.localize_near`: its yaw, and
-        ``HINT_YAW_STEP`` steps within ``HINT_SIGMAS`` sigma of it), then searches the places within ``HINT_SIGMAS``
-        standard deviations of its position (at least ``HINT_MIN_RADIUS`` m), accepting an answer only within that reach
-        and ``HINT_SIGMAS`` sigma of its yaw (at least ``HINT_MIN_YAW``); when the verdict rejects there, the whole map.
-        ``T_map_scan`` (4, 4); ``covariance`` (6, 6) x y z rot x rot y rot z (None: the minimum reach)."""
-        T = np.asarray(T_map_scan, dtype=np.float64)
-        if T.shape != (4, 4) or not np.isfinite(T).all():
-            raise LocalizationError(f"hint: expected a finite (4, 4) T_map_scan, got shape {T.shape}")
-        cov = np.zeros((6, 6)) if covariance is None else np.nan_to_num(np.asarray(covariance, dtype=np.float64))
-        sigma_xy = float(np.sqrt(max(cov[0, 0], cov[1, 1], 0.0)))
-        sigma_yaw = float(np.sqrt(max(cov[5, 5], 0.0)))
-        self.reset()
-        self._hint = (T, max(HINT_SIGMAS * sigma_xy, HINT_MIN_RADIUS), max(HINT_SIGMAS * sigma_yaw, HINT_MIN_YAW))
-
-    def _step_hint(self, scan: Any) -> LocalizationResult | None:
-        """The search near a pending :meth:`hint` (consumed) for a :class:`PreparedScan`: DeepBBS++ from the hint,
-        then the places within its reach; the result when the verdict accepts a pose within its reach, else None (the
-        caller searches the whole map)."""
-        T_hint, radius, max_yaw = self._hint
-        self._hint = None
-        # DeepBBS++ from the hint, at its yaw, then HINT_YAW_STEP either side within its window
-        steps = np.arange(1, int(min(max_yaw, np.pi) / HINT_YAW_STEP) + 1) * HINT_YAW_STEP
-        yaws = [0.0] + [s * y for y in steps for s in (1.0, -1.0)]
-        res = self.localizer.localize_near(scan, T_hint, yaws)
-        if res.valid and self._near(res, T_hint, radius, max_yaw):
-            return res
-        xy = self.localizer.places[:, :2, 3]
-        d = np.linalg.norm(xy - T_hint[:2, 3], axis=1)
-        among = np.flatnonzero(d <= radius)
-        if len(among) == 0:
-            among = np.argsort(d)[:1]  # the hint off the places: the nearest one
-        res = self.localizer.localize(scan, None, among=among)
-        if not res.valid or not self._near(res, T_hint, radius, max_yaw):
-            return None  # no pose, or one outside the hint's reach: the whole map decides
-        res.mode = "hint"
-        return res
-
-    @staticmethod
-    def _near(res: LocalizationResult, T_hint: np.ndarray, radius: float, max_yaw: float) -> bool:
-        """Whether a pose lies within a hint's reach: ``radius`` m and ``max_yaw`` rad of its yaw."""
-        off = float(np.linalg.norm(res.T_map_scan[:2, 3] - T_hint[:2, 3]))
-        turn = abs(float(np.angle(np.exp(1j * (_yaw(res.T_map_scan) - _yaw(T_hint))))))
-        return off <= radius and (max_yaw >= np.pi or turn <= max_yaw)
 
     @property
     def last_stamp_ns(self) -> int | None:

@@ -32,14 +32,24 @@ pose free to slide is consistent anywhere along the slide.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from deepbbs_ros.core import anchoring, calibrated, visibility
 from deepbbs_ros.core.target_surface import spread_subset
 
-__all__ = ["fitness", "fitness_to_points", "is_valid", "on_scene_grid", "probability", "spread_subset", "times_within"]
+if TYPE_CHECKING:
+    from deepbbs_ros.core.polish_cloud import PolishCloud
+
+__all__ = ["fitness", "fitness_to_points", "good_start_points", "is_valid", "on_scene_grid", "probability",
+           "spread_subset", "times_within"]
+
+
+def good_start_points(pc: PolishCloud, rc: Any) -> np.ndarray:
+    """The points the good start's verdict scores: a spread, order-independent subset of the cloud's GICP voxels
+    (``registration.good_start_points``; :func:`spread_subset`)."""
+    return visibility.spread_points(pc, rc.good_start_points, rc.polish_voxel or 0.5)  # kept on the cloud
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
