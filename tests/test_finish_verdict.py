@@ -13,24 +13,53 @@ from deepbbs_ros.core.polish import finish
 from deepbbs_ros.metrics import pair_errors
 
 
-@pytest.fixture(scope="module")
-def corridor():
-    """A simulated Mid-360 carried along a 2-3 m corridor (exact truth): pairs 1 m apart from frame 10 and 30, their
-    precision-stage clouds, the good start's points, GICP from identity finished on the scene's grids."""
-    from deepbbs_ros.core.registration import DeepBBSRegistration
+def _corridor_pair(start: int):
+    """A simulated Mid-360 carried along a 2-3 m corridor (exact truth): its scans 1 m apart from frame `start` as
+    (source, target, T_target_source)."""
     from deepbbs_ros.sim.rig import make_simulator
 
     sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
-    cfg = Config().replace(**{"registration.network_process": "off", "registration.exact_gicp": True})
-    reg = DeepBBSRegistration(cfg)
-    rc, out = cfg.registration, {}
+    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k))
+                                  for k in sim.frames_apart(1.0, 2, start=start)]
+    return src, tgt, np.linalg.inv(T_w_t) @ T_w_s
+
+
+def _registration(**settings):
+    """The registration in this process with exact GICP and the given registration settings."""
+    from deepbbs_ros.core.registration import DeepBBSRegistration
+
+    return DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
+                                                   "registration.exact_gicp": True,
+                                                   **{f"registration.{k}": v for k, v in settings.items()}}))
+
+
+def _good_start_attempt(**settings):
+    """The good start's attempt on the corridor pair from frame 30, from identity, and the pair's truth."""
+    import torch
+
+    from deepbbs_ros.core import good_start
+    from deepbbs_ros.core.network_output import Clock
+
+    src, tgt, T_gt = _corridor_pair(30)
+    reg = _registration(**settings)
+    try:
+        return good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu"))), T_gt
+    finally:
+        reg.close()
+
+
+@pytest.fixture(scope="module")
+def corridor():
+    """The corridor pairs from frame 10 and 30, their precision-stage clouds, the good start's points, GICP from
+    identity finished on the scene's grids."""
+    reg = _registration()
+    rc, out = reg.config.registration, {}
     try:
         for start in (10, 30):
-            (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k))
-                                          for k in sim.frames_apart(1.0, 2, start=start)]
+            src, tgt, T_gt = _corridor_pair(start)
             spc, tpc = (reg.preprocess(p, lazy=True).polish_cloud.complete(1) for p in (src, tgt))
             fine = finish(spc, tpc, from_start(spc, tpc, np.eye(4), rc).T_target_source, rc)
-            out[start] = (np.linalg.inv(T_w_t) @ T_w_s, spc, tpc, good_start_points(spc, rc), fine.T_target_source)
+            out[start] = (T_gt, spc, tpc, good_start_points(spc, rc), fine.T_target_source)
     finally:
         reg.close()
     return rc, out
@@ -91,29 +120,14 @@ def test_a_pose_gicps_grid_holds_is_judged_there_alone(monkeypatch):
 def test_the_good_start_takes_the_finished_pose_on_both_grids_where_asked():
     """registration.good_start_finish_grid "both": the good start takes that corridor pair's finished right pose on
     GICP's path; "gicp" (the default) rejects it there, and answers it not valid, degenerate along the roll."""
-    import torch
-
-    from deepbbs_ros.core import good_start
-    from deepbbs_ros.core.network_output import Clock
-    from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.sim.rig import make_simulator
-
-    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
-    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
     for grid in ("gicp", "both"):
-        reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
-                                                      "registration.exact_gicp": True,
-                                                      "registration.good_start_finish_grid": grid}))
-        try:
-            a = good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu")))
-        finally:
-            reg.close()
+        a, T_gt = _good_start_attempt(good_start_finish_grid=grid)
         if grid == "gicp":  # not taken: answered at once, not valid (registration.good_start_degenerate)
             assert a.result is not None and not a.result.valid, a.reason
             assert a.reason.startswith("not valid: degenerate along a roll about x"), a.reason
         else:
             assert a.result is not None and "scene's grid" in a.reason, a.reason
-            rot, trans = pair_errors(a.result.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
+            rot, trans = pair_errors(a.result.T_target_source, T_gt)
             assert rot < 1.0 and trans < 0.3, (rot, trans)
 
 
@@ -147,22 +161,7 @@ def test_a_degenerate_pose_is_named_and_one_gicps_grid_takes_is_not(corridor):
 
 def test_the_good_start_searches_where_asked_not_to_stop_at_a_degenerate_pose():
     """registration.good_start_degenerate false: the corridor pair's good start goes on to the full pipeline."""
-    import torch
-
-    from deepbbs_ros.core import good_start
-    from deepbbs_ros.core.network_output import Clock
-    from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.sim.rig import make_simulator
-
-    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
-    (tgt, _), (src, _) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
-    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
-                                                  "registration.exact_gicp": True,
-                                                  "registration.good_start_degenerate": False}))
-    try:
-        a = good_start.attempt(reg, src, tgt, np.eye(4), False, Clock(torch.device("cpu")))
-    finally:
-        reg.close()
+    a, _ = _good_start_attempt(good_start_degenerate=False)
     assert a.result is None and "coarse to fine" in a.reason, a.reason
 
 
@@ -170,17 +169,12 @@ def test_the_good_start_searches_where_asked_not_to_stop_at_a_degenerate_pose():
 def test_the_pipelines_finished_answer_is_judged_on_both_grids_where_asked(grid):
     """registration.finish_grid: the full pipeline's right answer to that corridor pair, finished on the scene's grids,
     is rejected on GICP's grid ("gicp", the default) and taken on both ("both")."""
-    from deepbbs_ros.core.registration import DeepBBSRegistration
-    from deepbbs_ros.sim.rig import make_simulator
-
-    sim = make_simulator("corridor", 4, "mid360", "handheld", frames=60, compensate=True)
-    (tgt, T_w_t), (src, T_w_s) = [(sim.scan_at(k).points, sim.pose_at(k)) for k in sim.frames_apart(1.0, 2, start=30)]
-    reg = DeepBBSRegistration(Config().replace(**{"registration.network_process": "off",
-                                                  "registration.exact_gicp": True, "registration.finish_grid": grid}))
+    src, tgt, T_gt = _corridor_pair(30)
+    reg = _registration(finish_grid=grid)
     try:
         res = reg.register(src, tgt)
     finally:
         reg.close()
-    rot, trans = pair_errors(res.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
+    rot, trans = pair_errors(res.T_target_source, T_gt)
     assert rot < 1.0 and trans < 0.3, (rot, trans)
     assert res.valid == (grid == "both"), res.probability
