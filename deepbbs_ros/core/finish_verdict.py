@@ -45,17 +45,26 @@ def _probability(pts: np.ndarray, T: np.ndarray, target: Any, dist: float,
     return float(calibrated.probability(f, "good_start")), own
 
 
-def judge(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: float) -> tuple[float, str]:
-    """The pose ``T`` (4, 4), finished on the scene-sized grids of the precision-stage clouds ``spc`` / ``tpc``
-    (``core.polish.PolishCloud``), judged on both grids (see the module); ``pts``: the verdict's points on GICP's
-    grid (source frame), ``bar``: the probability to reach -> (its probability: the lower of the two grids', "" when
-    taken, else why not)."""
+def _unheld(pts: np.ndarray, T: np.ndarray, tpc: Any, rc: Any, bar: float) -> tuple[float, str]:
+    """(GICP's grid's probability of ``T``; why the scene's grids are not read: "" where GICP's grid neither takes the
+    pose nor holds it, ``pinned`` under the verdict file's held bound). Arguments as :func:`judge`."""
     held = calibrated.anchored_below()
     p_gicp, pin = _probability(pts, T, tpc, rc.verdict_dist)
     if verdict.is_valid(p_gicp, bar):  # not taken for GICP's grid's own checks (a second minimum): they stand
         return p_gicp, f"taken by GICP's grid's probability {p_gicp:.2f}, not by its checks"
     if held <= 0 or pin >= held:
         return p_gicp, f"GICP's grid holds it (pinned {pin:.3f}) and gives {p_gicp:.2f}"
+    return p_gicp, ""
+
+
+def judge(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: float) -> tuple[float, str]:
+    """The pose ``T`` (4, 4), finished on the scene-sized grids of the precision-stage clouds ``spc`` / ``tpc``
+    (``core.polish.PolishCloud``), judged on both grids (see the module); ``pts``: the verdict's points on GICP's
+    grid (source frame), ``bar``: the probability to reach -> (its probability: the lower of the two grids', "" when
+    taken, else why not)."""
+    p_gicp, why = _unheld(pts, T, tpc, rc, bar)
+    if why:
+        return p_gicp, why
     scene = verdict.on_scene_grid(spc, tpc, rc)
     if scene is None:
         return p_gicp, "no scene-sized grid"
@@ -73,17 +82,15 @@ def judge(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: floa
     return prob, ""
 
 
-
 def degenerate(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar: float) -> str:
     """Why no other start makes the verdict take a pose where GICP's finished pose ``T`` (4, 4) lies ("" where one
     might): GICP's grid neither holds it (``pinned`` under the held bound) nor takes it, yet takes it with ``pinned``
     read on the scene's grids: what the verdict lacks is the hold along the weakest direction, which the scene's
     geometry sets, not the start (the full pipeline's answers there are judged the same way). Arguments as
     :func:`judge`."""
-    held = calibrated.anchored_below()
-    p_gicp, pin = _probability(pts, T, tpc, rc.verdict_dist)
-    scene = verdict.on_scene_grid(spc, tpc, rc)
-    if held <= 0 or pin >= held or verdict.is_valid(p_gicp, bar) or scene is None:
+    p_gicp, why = _unheld(pts, T, tpc, rc, bar)
+    scene = None if why else verdict.on_scene_grid(spc, tpc, rc)
+    if scene is None:
         return ""
     fine_pin = _probability(scene[0], T, scene[1], scene[2])[1]
     p_both, _ = _probability(pts, T, tpc, rc.verdict_dist, fine_pin)
