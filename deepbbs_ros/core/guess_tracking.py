@@ -132,9 +132,9 @@ class GuessTracking:
             T = pol.T_target_source
             score = verdict.fitness(pts, tpc.tree, T, rc.verdict_dist)
             prob = map_verdict.probability(map_verdict.features(pts, T, tpc, rc.verdict_dist))
-            ans = _Answer(score, acceptance.accepts(self.config, prob), crop.T_map_place @ T, place, crop, prob=prob)
-            if ans.ok and acceptance.second_minimum(src, crop, ans.T, self.config).ambiguous:
-                ans.ok = False  # another minimum as good along the direction the fit leaves free: not this one
+            T_map = crop.T_map_place @ T  # accepted: no other minimum as good along a direction the fit leaves free
+            ans = _Answer(score, acceptance.accepts_pose(src, crop, T_map, self.config, prob), T_map, place, crop,
+                          prob=prob)
             if ans.ok:
                 return ans, float("nan"), starts[i]
             if best is None or ans.score > best.score:
