@@ -43,8 +43,11 @@ from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
 from deepbbs_ros.core.start_gicp import from_start, good_start_gicp, orthonormal
 from deepbbs_ros.core.verdict import good_start_points
+from deepbbs_ros.core.visibility import FEATURES
 
 __all__ = ["Attempt", "attempt", "from_start", "good_start_gicp", "good_start_points"]
+
+_PINNED = FEATURES.index("pinned")
 
 
 @dataclass
@@ -144,10 +147,15 @@ def _slides(pol: Any, prob: float, pts: np.ndarray, spc: PolishCloud, tpc: Polis
     its weakest direction (core/second_minimum.py), where ``registration.good_start_second_minimum`` asks (and
     ``second_minimum``): checked where the fit leaves the pose freer than a slide's distance (anchoring.STEPS[-1], 5
     tolerances: 1.5 m / 5 degrees), or than a wrong pose's (STEPS[0], 2: 0.6 m / 2 degrees) when the verdict is not
-    sure (``registration.verdict_sure``); a pose held closer costs nothing more."""
+    sure (``registration.verdict_sure``); a pose held closer costs nothing more: the verdict's ``pinned`` (the same
+    plane matches, ``s^2 / (s^2 + tol^2)``) gives the check's uncertainty ``tol / s`` already."""
     loose = second_minimum.STEPS[0] if prob < rc.verdict_sure else second_minimum.STEPS[-1]
-    return bool(rc.good_start_second_minimum and rc.second_minimum and second_minimum.check(
-        pts, pol.T_target_source, spc, tpc, rc, loose=loose).ambiguous)
+    if not (rc.good_start_second_minimum and rc.second_minimum):
+        return False
+    pin = float(verdict.features(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")[_PINNED])
+    if 0.0 < pin <= 1.0 and np.sqrt((1.0 - pin) / pin) < max(loose, second_minimum.WRONG) * (1.0 - 1e-6):
+        return False  # held within ``loose``: the check stops there (its own eigenvalue: the margin covers rounding)
+    return bool(second_minimum.check(pts, pol.T_target_source, spc, tpc, rc, loose=loose).ambiguous)
 
 
 def _beyond(pol: Any, rc: Any) -> str:

@@ -42,7 +42,7 @@ from deepbbs_ros.core.target_surface import spread_subset
 if TYPE_CHECKING:
     from deepbbs_ros.core.polish_cloud import PolishCloud
 
-__all__ = ["fitness", "fitness_to_points", "good_start_points", "is_valid", "on_scene_grid", "probability",
+__all__ = ["features", "fitness", "fitness_to_points", "good_start_points", "is_valid", "on_scene_grid", "probability",
            "spread_subset", "times_within"]
 
 
@@ -82,11 +82,18 @@ def probability(points: np.ndarray, T: np.ndarray, target, dist: float, model: s
     against ``target`` (its precision-stage cloud, or a plain (M, 3) cloud). 0 for no points."""
     if len(points) == 0:
         return 0.0
+    return calibrated.probability(features(points, T, target, dist, model, threads), model)
+
+
+def features(points: np.ndarray, T: np.ndarray, target, dist: float, model: str = "pair",
+             threads: int = 1) -> np.ndarray:
+    """The features (core/visibility.py ``FEATURES``) :func:`probability` reads with the ``model``: those it does not
+    weigh left unmeasured (kept on a precision-stage ``target``: asked again, not measured again)."""
     anchor = calibrated.weighs(("anchored", "anchored_far"), model, floor=False)  # more searches, where they count
     view = calibrated.weighs(("in_view", "observable_rel"), model)  # the field of view, likewise
     # where only a bound on ``pinned`` reads ``anchored_far``: measured for a pose under it only
     bound = True if anchor else calibrated.anchored_below()
-    return calibrated.probability(visibility.pose_features(points, T, target, dist, threads, bound, view), model)
+    return visibility.pose_features(points, T, target, dist, threads, bound, view)
 
 
 def on_scene_grid(source, target, rc) -> tuple[np.ndarray, Any, float] | None:

@@ -39,7 +39,9 @@ from deepbbs_ros.core.target_surface import (  # noqa: F401  (re-exported)
     _SELF_POINTS,
     _pca_normals,
     _quantile,
+    _same_voxels,
     _target,
+    _voxels,
     own_tolerance,
     roughness,
     self_planarity,
@@ -201,9 +203,31 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     searches each, against a precision-stage cloud; else 1, as without one); a number: only ``anchored_far`` (what a
     bound reads; ``anchored`` 1, as unmeasured), only for a pose whose ``pinned`` is under it. ``view``: measure
     ``in_view`` (else 1: :func:`features`). ``pinned`` is measured once, here, for both :func:`features` and the
-    anchoring (the same plane matches)."""
+    anchoring (the same plane matches). Against a precision-stage cloud the last few answers are kept on it (the
+    good start judges a pose on it again: its answer, the finished pose's verdicts on both grids)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
+    if getattr(target, "tree", None) is None:
+        return _pose_features(moved, target, dist, threads, anchor, view)
+    flag = ("b", bool(anchor)) if isinstance(anchor, (bool, np.bool_)) else ("f", float(anchor))
+    key = (moved.tobytes(), float(dist), flag, bool(view))
+    kept = getattr(target, "_features_kept", None)
+    if kept is not None and _same_voxels(target, kept[0]):
+        for k, f in kept[1]:
+            if k == key:  # the same points, pose and settings, compared exactly: the same features
+                return f.copy()
+    f = _pose_features(moved, target, dist, threads, anchor, view)
+    old = kept[1] if kept is not None and _same_voxels(target, kept[0]) else ()
+    target._features_kept = (_voxels(target), ((key, f.copy()), *old[:_KEPT - 1]))  # one assignment: thread-safe
+    return f
+
+
+_KEPT = 4  # poses whose features a precision-stage cloud keeps
+
+
+def _pose_features(moved: np.ndarray, target, dist: float, threads: int, anchor: bool | float,
+                   view: bool) -> np.ndarray:
+    """:func:`pose_features` of the points already moved (``moved`` (N, 3), the target's frame)."""
     tree = getattr(target, "tree", None)
     tpts, table, own, normals, tol = _target(target, dist)
     if len(moved) == 0 or len(tpts) == 0:
