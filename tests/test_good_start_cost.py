@@ -1,0 +1,57 @@
+"""What the good start reads twice it measures once (core/good_start.py, core/visibility.py): the verdict's features
+kept on the target cloud are the features measured afresh, and the verdict's ``pinned`` gives the second-minimum
+check's uncertainty along the weakest direction, so a pose held closer than the check looks is not checked again."""
+
+from __future__ import annotations
+
+import numpy as np
+from plane_scenes import FLOOR, STREET, scene
+
+from deepbbs_ros.config import Config
+from deepbbs_ros.core import second_minimum, verdict, visibility
+from deepbbs_ros.core.good_start import good_start_points
+from deepbbs_ros.core.polish import prepare_polish_cloud
+
+_PINNED = visibility.FEATURES.index("pinned")
+
+
+def _clouds(planes, seed: int = 0):
+    rc = Config().registration
+    target, source = (scene(planes, np.random.default_rng(seed + k), 4000) for k in (0, 1))
+    tpc, spc = (prepare_polish_cloud(c, rc.polish_voxel, rc.polish_neighbors, threads=1) for c in (target, source))
+    return rc, spc, tpc
+
+
+def _moved(yaw_deg: float, x: float) -> np.ndarray:
+    a = np.radians(yaw_deg)
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[0, 3] = x
+    return T
+
+
+def test_the_features_kept_on_the_target_are_the_features_measured_afresh():
+    rc, spc, tpc = _clouds(STREET)
+    pts = good_start_points(spc, rc)
+    for T in (np.eye(4), _moved(1.0, 0.2), _moved(-3.0, 1.5)):
+        for anchor, view in ((True, True), (0.02, True), (False, False)):
+            first = visibility.pose_features(pts, T, tpc, rc.verdict_dist, 1, anchor, view)
+            first[_PINNED] = -1.0  # a caller's change to its copy (core/finish_verdict.py) stays its own
+            again = visibility.pose_features(pts, T, tpc, rc.verdict_dist, 1, anchor, view)
+            _, _, fresh_tpc = _clouds(STREET)  # the same scans, nothing kept yet
+            fresh = visibility.pose_features(pts, T, fresh_tpc, rc.verdict_dist, 1, anchor, view)
+            np.testing.assert_array_equal(again, fresh)
+
+
+def test_pinned_gives_the_second_minimum_checks_uncertainty():
+    """``pinned = s^2 / (s^2 + tol^2)`` and the check's uncertainty ``tol / s`` come from the same plane matches: on a
+    street (held along every direction but along it) and on a floor alone (free along it and about z)."""
+    for planes in (STREET, FLOOR):
+        rc, spc, tpc = _clouds(planes)
+        pts = good_start_points(spc, rc)
+        for T in (np.eye(4), _moved(0.5, 0.1), _moved(2.0, -0.5)):
+            pin = float(verdict.features(pts, T, tpc, rc.verdict_dist, "good_start")[_PINNED])
+            _, unc = second_minimum.weakest(pts @ T[:3, :3].T + T[:3, 3], tpc, rc.verdict_dist)
+            if not np.isfinite(unc) or pin <= 0.0:
+                continue
+            assert abs(np.sqrt((1.0 - pin) / pin) - unc) <= 1e-9 * max(unc, 1.0), (pin, unc)
