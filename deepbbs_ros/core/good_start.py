@@ -39,6 +39,7 @@ from deepbbs_ros.core import coarse_rescue, finish_verdict, second_minimum, swee
 from deepbbs_ros.core.good_start_answer import answer
 from deepbbs_ros.core.points import as_transform, as_xyz
 from deepbbs_ros.core.polish import PolishCloud, finish
+from deepbbs_ros.core.polish_view import PolishView
 from deepbbs_ros.core.preprocess import PreprocessResult
 from deepbbs_ros.core.result import RegistrationResult
 from deepbbs_ros.core.start_gicp import from_start, good_start_gicp, orthonormal
@@ -152,9 +153,10 @@ def _slides(pol: Any, prob: float, pts: np.ndarray, spc: PolishCloud, tpc: Polis
     loose = second_minimum.STEPS[0] if prob < rc.verdict_sure else second_minimum.STEPS[-1]
     if not (rc.good_start_second_minimum and rc.second_minimum):
         return False
-    pin = float(verdict.features(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")[_PINNED])
-    if 0.0 < pin <= 1.0 and np.sqrt((1.0 - pin) / pin) < max(loose, second_minimum.WRONG) * (1.0 - 1e-6):
-        return False  # held within ``loose``: the check stops there (its own eigenvalue: the margin covers rounding)
+    if not isinstance(tpc, PolishView):  # a scan's cloud: the features are kept on it (a map crop's: not checked)
+        pin = float(verdict.features(pts, pol.T_target_source, tpc, rc.verdict_dist, "good_start")[_PINNED])
+        if 0.0 < pin <= 1.0 and np.sqrt((1.0 - pin) / pin) < max(loose, second_minimum.WRONG) * (1.0 - 1e-6):
+            return False  # held within ``loose``: the check stops there (its own eigenvalue: the margin is rounding's)
     return bool(second_minimum.check(pts, pol.T_target_source, spc, tpc, rc, loose=loose).ambiguous)
 
 

@@ -203,11 +203,12 @@ def pose_features(points: np.ndarray, T: np.ndarray, target, dist: float, thread
     searches each, against a precision-stage cloud; else 1, as without one); a number: only ``anchored_far`` (what a
     bound reads; ``anchored`` 1, as unmeasured), only for a pose whose ``pinned`` is under it. ``view``: measure
     ``in_view`` (else 1: :func:`features`). ``pinned`` is measured once, here, for both :func:`features` and the
-    anchoring (the same plane matches). Against a precision-stage cloud the last few answers are kept on it (the
-    good start judges a pose on it again: its answer, the finished pose's verdicts on both grids)."""
+    anchoring (the same plane matches). Against a scan's precision-stage cloud the last few answers are kept on it
+    (the good start judges a pose on it again: its second-minimum check, the finished pose's verdicts, its answer)."""
     T = np.asarray(T, np.float64)
     moved = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
-    if getattr(target, "tree", None) is None:
+    tree = getattr(target, "tree", None)
+    if tree is None or hasattr(tree, "base"):  # a plain cloud, or a map crop's view (many of them: nothing kept)
         return _pose_features(moved, target, dist, threads, anchor, view)
     flag = ("b", bool(anchor)) if isinstance(anchor, (bool, np.bool_)) else ("f", float(anchor))
     key = (moved.tobytes(), float(dist), flag, bool(view))
