@@ -33,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402  (puts the checkout first on sys.path)
+import _good_start_parts as _parts  # noqa: E402
 import registration as _reg  # noqa: E402
 
 METHODS = "deepbbs++,deepbbs++good,gicp,kiss-matcher+gicp"
@@ -189,6 +190,9 @@ def collect(cases, sets, names, args, path: Path) -> list[dict]:
                     and "timing" not in rec):  # a start in GICP's basin (in_basin): timed again, alternately
                 rec["timing"] = alternate(regs[GOOD][0], regs["gicp"][0], src, tgt, args.timing_repeats,
                                          getattr(args, "stream_timing", False), getattr(args, "node_timing", False))
+            if (case["level"] == 0 and getattr(args, "parts", 0) and GOOD in rec and rec.get("gicp", {}).get("ok")
+                    and "parts" not in rec):  # in GICP's basin: where the good start's CPU time goes
+                rec["parts"] = _parts.parts(regs[GOOD][0], regs["gicp"][0], src, tgt, args.parts)
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
             by_key[_key(rec)] = rec
@@ -380,6 +384,8 @@ def in_basin(good: list[dict]) -> dict:
     rep = _alternated(inside)
     if rep:
         out["alternated"] = rep
+    if part := _parts.summary(inside):
+        out["parts_cpu_p50_ms"] = part
     out["accepted_wrong"] = sum(r[GOOD]["valid"] and not r[GOOD]["ok"] for r in inside)
     out["rejected_right"] = sum(r[GOOD]["ok"] and not r[GOOD]["valid"] for r in inside)
     return out
@@ -527,6 +533,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--node-timing", action="store_true", help="with --timing-repeats: also timed as the node's "
                    "registration process runs a stream (both scans prepared before, the target's verdict tables "
                    "too: the registration alone)")
+    p.add_argument("--parts", type=int, default=0, help="good-start pairs in GICP's basin: where its CPU time goes "
+                   "beyond GICP's, part by part, over this many calls of each (0 = not; _good_start_parts.py)")
     args = p.parse_args(argv)
     if args.quick:
         args.pairs_per_set, args.basin_pairs, args.sim_frames = 8, 2, 5
