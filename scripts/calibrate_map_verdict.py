@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import _fit_output  # noqa: E402
 from calibrate_verdict import body_points, degrade, fit_logistic, label, perturb  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
@@ -64,14 +65,7 @@ MAP_EVERY = 3
 MAP_RANGE = 50.0  # m, a map scan's points kept this close
 QUERIES = 6  # scans in between the map's per rig
 FEATURES_USED = map_verdict.names()  # the model's inputs (every feature)
-DEFAULT_OUT = Path("results") / "map_verdict_model.json"  # relative to the working directory
-PACKAGE = ROOT / "deepbbs_ros"  # files in it are shipped: replaced only with --force
 _RC = Config().registration
-
-
-def shipped(path: Path) -> bool:
-    """Whether ``path`` names a file inside the installed package (the shipped coefficients or beside them)."""
-    return Path(path).resolve().is_relative_to(PACKAGE.resolve())
 
 
 def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -219,19 +213,14 @@ def reliability(p: np.ndarray, y: np.ndarray, edges=(0, 0.05, 0.2, 0.5, 0.7, 0.9
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=61)
-    ap.add_argument("--out", type=Path, default=DEFAULT_OUT,
-                    help=f"where to write the fitted coefficients (default {DEFAULT_OUT}, in the working directory); "
-                    f"the shipped file is {map_verdict.DEFAULT_PATH.relative_to(ROOT)}")
-    ap.add_argument("--force", action="store_true", help="allow --out to replace a file inside the package (the "
-                    "shipped coefficients); without it such an --out is refused before anything runs")
+    _fit_output.add_out(ap, "map_verdict_model.json", map_verdict.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--rigs", type=int, default=len(RIGS), help="the first this many rigs only (a quick try)")
     ap.add_argument("--rows", type=Path, help="refit from rows written by --dump (no simulation)")
     ap.add_argument("--slid", action="store_true", help="also poses slid along their weakest direction (wrong); the "
                     "shipped fit is without them (with them, right poses on straight highways are rejected)")
     args = ap.parse_args(argv)
-    if shipped(args.out) and not args.force:
-        ap.error(f"--out {args.out} is a shipped file of the package; add --force to replace it")
+    _fit_output.check_out(ap, args)
     t0 = time.perf_counter()
     data = dict(np.load(args.rows, allow_pickle=False)) if args.rows else collect(RIGS[:args.rigs], args.seed,
                                                                                          slid=args.slid)
@@ -262,8 +251,7 @@ def main(argv: list[str] | None = None) -> int:
            "coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6),
            "fitted_on": f"{len(y)} simulated poses in maps, {len(RIGS)} rigs (sensor/mount/place), seed {args.seed}",
            "command": "python scripts/calibrate_map_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    _fit_output.write(args.out, json.dumps(doc, indent=1) + "\n")
     map_verdict.load.cache_clear()
     map_verdict.uses_map_normals.cache_clear()
     print(f"wrote {args.out}")

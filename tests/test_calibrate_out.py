@@ -1,6 +1,7 @@
-"""scripts/calibrate_map_verdict.py's output: without --out it writes results/map_verdict_model.json in the working
-directory; an --out inside the package (the shipped coefficients) is refused without --force, before anything runs,
-and the shipped file is left as it was."""
+"""The calibration scripts' output (scripts/_fit_output.py): without --out calibrate_map_verdict.py writes
+results/map_verdict_model.json in the working directory; an --out inside the package (the shipped coefficients) is
+refused without --force, before anything runs, by it and calibrate_verdict.py, and the shipped file is left as it
+was."""
 
 from __future__ import annotations
 
@@ -12,9 +13,11 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import _fit_output  # noqa: E402
 import calibrate_map_verdict as cmv  # noqa: E402
+import calibrate_verdict as cv  # noqa: E402
 
-from deepbbs_ros.core import map_verdict  # noqa: E402
+from deepbbs_ros.core import calibrated, map_verdict  # noqa: E402
 
 
 def _rows(path: Path) -> Path:
@@ -36,11 +39,12 @@ def test_default_output_is_in_the_working_directory(tmp_path, monkeypatch):
     assert map_verdict.DEFAULT_PATH.read_bytes() == before
 
 
-def test_the_shipped_file_is_refused_without_force(tmp_path, capsys):
+@pytest.mark.parametrize("script, shipped", [(cmv, map_verdict.DEFAULT_PATH), (cv, calibrated.DEFAULT_PATH)])
+def test_the_shipped_file_is_refused_without_force(tmp_path, capsys, script, shipped):
     rows = _rows(tmp_path / "rows.npz")
-    before = map_verdict.DEFAULT_PATH.read_bytes()
+    before = shipped.read_bytes()
     with pytest.raises(SystemExit) as e:
-        cmv.main(["--rows", str(rows), "--out", str(map_verdict.DEFAULT_PATH)])
+        script.main(["--rows", str(rows), "--out", str(shipped)])
     assert e.value.code == 2 and "--force" in capsys.readouterr().err
-    assert map_verdict.DEFAULT_PATH.read_bytes() == before
-    assert cmv.shipped(map_verdict.DEFAULT_PATH) and not cmv.shipped(tmp_path / "m.json")
+    assert shipped.read_bytes() == before
+    assert _fit_output.shipped(shipped) and not _fit_output.shipped(tmp_path / "m.json")
