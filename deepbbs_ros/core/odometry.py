@@ -53,7 +53,7 @@ from deepbbs_ros.core.motion_model import MotionModel, se3_power
 from deepbbs_ros.core.odometry_scan import GATE_FLOOR, OdometryScan
 from deepbbs_ros.core.odometry_stages import Frame, OdometryStages
 from deepbbs_ros.core.odometry_starts import OdometryStarts
-from deepbbs_ros.core.odometry_step import OdometryStep
+from deepbbs_ros.core.odometry_step import Laps, OdometryStep
 from deepbbs_ros.core.odometry_step import cloud_points as _cloud_points
 from deepbbs_ros.core.polish import threads_or_all
 from deepbbs_ros.core.preprocess import deskew
@@ -140,7 +140,8 @@ class DeepBBSOdometry(OdometryStages, OdometryScan, OdometryStarts):
         """Add scan k: (N, 3) xyz in its sensor frame (metres, NaN rows dropped; another shape is a
         RegistrationError, :mod:`deepbbs_ros.core.points`), optional (N,) per-point times in seconds since
         ``stamp_ns`` (the scan stamp, ns). Returns the :class:`OdometryStep`."""
-        f = Frame(points, times, stamp_ns, *self._motion.time_scale(stamp_ns))
+        clock = Laps()  # the timings count from the call's start
+        f = Frame(points, times, stamp_ns, *self._motion.time_scale(stamp_ns), clock=clock)
         self._deskew_and_prepare(f)
         if self.frames == 0:
             return self._first(f.frame, f.cloud, stamp_ns, f.clock, points, times)
