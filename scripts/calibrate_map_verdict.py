@@ -16,13 +16,16 @@ scan only, the carrier's body; ``scripts/calibrate_verdict.py``'s :func:`degrade
 * a short map (three scans) that covers part of a scan taken further on: its right pose, and wrong ones.
 
 Right: within 1 degree / 0.3 m of the truth; wrong: beyond 2 degrees or 0.5 m; in between left out. A logistic
-regression (classes weighted equally) on :func:`core.calibrated.design` of the features is written to
-``deepbbs_ros/resources/map_verdict_model.json``; a reliability table (predicted probability against the share
-right) is printed. About 5-10 minutes on two cores. ::
+regression (classes weighted equally) on :func:`core.calibrated.design` of the features is written to ``--out``
+(``results/map_verdict_model.json`` in the working directory unless told); a reliability table (predicted probability
+against the share right) is printed. About 5-10 minutes on two cores. The shipped coefficients
+(``deepbbs_ros/resources/map_verdict_model.json``) are replaced only when ``--out`` names a file in the package and
+``--force`` is given; without it the script refuses before it simulates anything. ::
 
-    python scripts/calibrate_map_verdict.py                  # fit and write the shipped coefficients
+    python scripts/calibrate_map_verdict.py                  # fit, write results/map_verdict_model.json
     python scripts/calibrate_map_verdict.py --dump rows.npz  # also keep the rows
     python scripts/calibrate_map_verdict.py --rows rows.npz  # refit from kept rows (no simulation)
+    python scripts/calibrate_map_verdict.py --out deepbbs_ros/resources/map_verdict_model.json --force  # ship it
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import _fit_output  # noqa: E402
 from calibrate_verdict import body_points, degrade, fit_logistic, label, perturb  # noqa: E402
 
 from deepbbs_ros.config import Config  # noqa: E402
@@ -209,13 +213,14 @@ def reliability(p: np.ndarray, y: np.ndarray, edges=(0, 0.05, 0.2, 0.5, 0.7, 0.9
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=61)
-    ap.add_argument("--out", type=Path, default=map_verdict.DEFAULT_PATH)
+    _fit_output.add_out(ap, "map_verdict_model.json", map_verdict.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--rigs", type=int, default=len(RIGS), help="the first this many rigs only (a quick try)")
     ap.add_argument("--rows", type=Path, help="refit from rows written by --dump (no simulation)")
     ap.add_argument("--slid", action="store_true", help="also poses slid along their weakest direction (wrong); the "
                     "shipped fit is without them (with them, right poses on straight highways are rejected)")
     args = ap.parse_args(argv)
+    _fit_output.check_out(ap, args)
     t0 = time.perf_counter()
     data = dict(np.load(args.rows, allow_pickle=False)) if args.rows else collect(RIGS[:args.rigs], args.seed,
                                                                                          slid=args.slid)
@@ -246,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
            "coef": [round(float(c), 6) for c in coef], "intercept": round(icpt, 6),
            "fitted_on": f"{len(y)} simulated poses in maps, {len(RIGS)} rigs (sensor/mount/place), seed {args.seed}",
            "command": "python scripts/calibrate_map_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    _fit_output.write(args.out, json.dumps(doc, indent=1) + "\n")
     map_verdict.load.cache_clear()
     map_verdict.uses_map_normals.cache_clear()
     print(f"wrote {args.out}")

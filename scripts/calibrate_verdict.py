@@ -26,10 +26,11 @@ the fit. Each pose gives two feature rows (core/visibility.py): the network's sa
 for comparison) and a spread subset of the GICP voxels ("good_start": the model both verdicts of the registration
 use). A logistic regression per row kind (classes weighted equally; the features of :data:`UNUSED` left out), and
 one per row kind with the shares :data:`RELATIVE_SHARES` read over ``in_view`` (``_relative``: they judge the poses
-the fit holds, :data:`HELD_BOUNDS`), are written to ``deepbbs_ros/resources/verdict_model.json`` with this command
-line and the floor on ``pinned`` (:data:`MIN_PINNED`, ``--min-pinned``). ::
+the fit holds, :data:`HELD_BOUNDS`), are written to ``--out`` (``results/verdict_model.json`` in the working
+directory unless told) with this command line and the floor on ``pinned`` (:data:`MIN_PINNED`, ``--min-pinned``);
+the shipped file, ``deepbbs_ros/resources/verdict_model.json``, only with ``--out`` naming it and ``--force``. ::
 
-    python scripts/calibrate_verdict.py --pairs 12         # fit and write the shipped coefficients (see below)
+    python scripts/calibrate_verdict.py --pairs 12         # fit as the shipped coefficients were (see below)
     python scripts/calibrate_verdict.py --dump rows.npz    # also keep the rows (the benchmark reads them)
 
 The shipped file was fitted on 1123 poses; the same command collects 1095 with the current code (which has changed
@@ -518,12 +519,15 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-3,
 
 
 def main(argv: list[str] | None = None) -> int:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import _fit_output
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=6, help="pairs per rig (default 6)")
     ap.add_argument("--seed", type=int, default=38)
     ap.add_argument("--config", type=Path, help="config YAML of the registration whose clouds the poses are scored on "
                     "(default: the defaults)")
-    ap.add_argument("--out", type=Path, default=calibrated.DEFAULT_PATH)
+    _fit_output.add_out(ap, "verdict_model.json", calibrated.DEFAULT_PATH)
     ap.add_argument("--dump", type=Path, help="also write the feature rows here (.npz)")
     ap.add_argument("--low-pairs", type=int, default=0,
                     help="low-overlap pairs per rig of LOW_RIGS (default 0: see LOW_RIGS)")
@@ -550,6 +554,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--unused", nargs="*", default=list(UNUSED), choices=visibility.FEATURES, metavar="FEATURE",
                     help=f"features left out of the fit (default: {' '.join(UNUSED) or 'none'})")
     args = ap.parse_args(argv)
+    _fit_output.check_out(ap, args)
     config = load_config(args.config) if args.config else None
     if args.rows:
         parts = [dict(np.load(f, allow_pickle=False)) for f in args.rows]
@@ -590,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
            "fitted_on": f"{len(data['y'])} simulated poses, {len(np.unique(data['rig']))} rigs (sensor/mount/place), "
                         f"seed {' '.join(map(str, args.seeds or [args.seed]))}",
            "command": "python scripts/calibrate_verdict.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    _fit_output.write(args.out, json.dumps(doc, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0
 

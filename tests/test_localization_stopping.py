@@ -28,10 +28,10 @@ def test_a_sure_answer_registers_only_look_alike_places_after_it(localizer, worl
 def _gicps(loc, scan, overrides: dict, monkeypatch):
     """``scan`` localized under the config ``overrides``, every GICP of the search recorded: -> (result, the
     PolishResults of the candidates' GICP, DeepBBS++'s precision stage and GICP alone)."""
-    from deepbbs_ros.core import place_search, registration_precision
+    from deepbbs_ros.core import place_probe, place_retry, registration_precision
 
     seen = []
-    for mod in (place_search, registration_precision):
+    for mod in (place_retry, place_probe, registration_precision):
         def rec(*a, _f=mod.polish, **k):
             r = _f(*a, **k)
             seen.append(r)

@@ -35,6 +35,14 @@ def _drive(n: int) -> list[Scan]:
     return synthetic_drive(n, seed=7, keep=0.5)  # ~20k points per scan with intensity, 10 Hz, ground truth
 
 
+def _bag(tmp_path: Path, n: int) -> tuple[list[Scan], Path]:
+    """``n`` scans of the drive and the mcap bag they are written to."""
+    scans = _drive(n)
+    bag = tmp_path / "drive.mcap"
+    write_scans(scans, bag, "mcap")
+    return scans, bag
+
+
 @pytest.fixture(scope="module")
 def ros():
     rclpy.init()
@@ -50,9 +58,7 @@ def _spin_until(node, cond, timeout):
 
 
 def test_play_publishes_every_frame_with_clock(ros, tmp_path):
-    scans = _drive(6)
-    bag = tmp_path / "drive.mcap"
-    write_scans(scans, bag, "mcap")
+    scans, bag = _bag(tmp_path, 6)
     node = rclpy.create_node("play_listener")
     clouds, clocks = [], []
     node.create_subscription(PointCloud2, "/played/points", clouds.append, 20)
@@ -91,9 +97,7 @@ def test_play_errors_are_one_line(tmp_path):
 def test_play_wait_that_expires_is_an_error(tmp_path):
     """--wait S with no subscriber by then plays nothing and exits 1 with one line naming the topics; never
     'published N frames' to nobody."""
-    scans = _drive(2)
-    bag = tmp_path / "drive.mcap"
-    write_scans(scans, bag, "mcap")
+    scans, bag = _bag(tmp_path, 2)
     res = subprocess.run(
         [sys.executable, "-m", "deepbbs_ros.cli.play", str(bag), "--cloud-topic", "/nobody/points",
          "--previous-topic", "/nobody/previous", "--wait", "1", "--quiet", "--local"],
@@ -112,9 +116,7 @@ def test_play_wait_that_expires_is_an_error(tmp_path):
 def test_play_previous_topic_restamps_the_scan_before(ros, tmp_path):
     """--previous-topic: scan k on the cloud topic and scan k-1 (its points and frame) with scan k's stamp on
     the previous topic, so that the node's two pair inputs pair by stamp."""
-    scans = _drive(4)
-    bag = tmp_path / "drive.mcap"
-    write_scans(scans, bag, "mcap")
+    scans, bag = _bag(tmp_path, 4)
     node = rclpy.create_node("play_previous_listener")
     clouds, previous = [], []
     node.create_subscription(PointCloud2, "/pp/points", clouds.append, 20)
@@ -143,9 +145,7 @@ def test_play_previous_topic_restamps_the_scan_before(ros, tmp_path):
 def test_play_stops_cleanly_on_sigterm_and_sigint(ros, tmp_path, sig, code):
     """SIGTERM (launch, systemd, kill) ends the playback between two messages with exit code 0; Ctrl-C with
     130; never an RCLError traceback from a publish() on a context the signal shut down."""
-    scans = _drive(3)
-    bag = tmp_path / "drive.mcap"
-    write_scans(scans, bag, "mcap")
+    scans, bag = _bag(tmp_path, 3)
     node = rclpy.create_node("play_stop_listener")
     clouds = []
     node.create_subscription(PointCloud2, "/stopped/points", clouds.append, 20)

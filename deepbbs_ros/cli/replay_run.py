@@ -119,6 +119,7 @@ def _replay_loop(args, cfg, source, methods, results):
     :class:`PositionLog` of pairs mode or None). Ctrl-C ends it with the results so far, marked incomplete."""
     from tqdm import tqdm
 
+    from deepbbs_ros.replay.loop import mark_interrupted
     from deepbbs_ros.replay.runner import OdometryResults, PairResults, run_localization, run_odometry, run_pairs
 
     total = len(source)
@@ -150,7 +151,6 @@ def _replay_loop(args, cfg, source, methods, results):
     try:
         loop()
     except KeyboardInterrupt:  # outside the loop proper (e.g. while closing the reader)
-        res.complete = False
-        res.errors.append("interrupted by the user (Ctrl-C)")
+        mark_interrupted(res)
     bar.close()
     return res, logged

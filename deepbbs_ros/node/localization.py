@@ -21,8 +21,9 @@ own prepares the map crop of the place the tracked pose will reach in :data:`PRE
 (``MapLocalizer.prefetch``), so that the scan that gets there does not wait for it.
 
 A search slower than the scan period does not lose what it finds: the scans that arrived meanwhile are tracked once it
-places its scan (node/localization_bridge.py). Its other parts: the map (node/map_data.py), the /diagnostics values
-(node/localization_diagnostics.py).
+places its scan (node/localization_bridge.py). Its other parts: the map (node/map_data.py), the requests of other
+threads (node/localization_requests.py), the counters and state lines (node/localization_account.py), the
+/diagnostics values (node/localization_diagnostics.py).
 """
 
 from __future__ import annotations
@@ -35,10 +36,12 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.errors import DeepBBSError, NodeError
+from deepbbs_ros.errors import DeepBBSError
 from deepbbs_ros.node.inputs import BadInput, Cloud
+from deepbbs_ros.node.localization_account import LocalizationAccount
 from deepbbs_ros.node.localization_bridge import SearchBridge
 from deepbbs_ros.node.localization_diagnostics import LocalizationDiagnostics
+from deepbbs_ros.node.localization_requests import LocalizationRequests
 from deepbbs_ros.node.map_data import MapData
 from deepbbs_ros.node.pipeline import Registered
 
@@ -66,7 +69,7 @@ class LocalizedScan:
     line: str | None = None
 
 
-class NodeLocalization(SearchBridge, LocalizationDiagnostics):
+class NodeLocalization(LocalizationRequests, LocalizationAccount, SearchBridge, LocalizationDiagnostics):
     """The tracker of ``node.target_mode: localization`` and its counters (module docstring).
 
     Args:
@@ -116,70 +119,6 @@ class NodeLocalization(SearchBridge, LocalizationDiagnostics):
         #: the scan period on a tiny map, or tracking slower than the stream, counted in scans; None in use
         self.search_gate: Callable[[], None] | None = None
         self.track_gate: Callable[[], None] | None = None
-
-    # -- the map -----------------------------------------------------------------------------------------------
-    def build(self, data: MapData) -> str:
-        """Build the localizer over ``data`` (places, descriptors: seconds on a big map) and queue it for the next
-        scan (the tracker starts searching). Returns the log line. Raises NodeError on a map the localizer refuses."""
-        from deepbbs_ros.core.localization import MapLocalizer
-
-        t0 = time.perf_counter()
-        try:
-            localizer = MapLocalizer(data.points, self.config, registration=self.registration,
-                                     trajectory=data.trajectory)
-        except DeepBBSError as err:
-            raise NodeError(f"map from {data.source}: {err}") from err
-        build_s = time.perf_counter() - t0
-        with self._lock:
-            self._pending_map = data
-            self._pending_localizer = localizer
-            self.map_build_s = build_s
-        places = len(localizer.places)
-        #: one line when the map's trajectory does not fit it (core/map_fit.py; the node logs it as a warning)
-        self.map_warning = f"map from {data.source}: {localizer.trajectory_warning}" if (
-            getattr(localizer, "trajectory_warning", "")) else ""
-        fits = data.trajectory is not None and not self.map_warning
-        how = "keyframes of its trajectory" if fits else "a grid over its free space"
-        return (f"map from {data.source}: {len(data.points)} points in {data.frame_id!r}, {places} candidate places "
-                f"({how}), built in {build_s:.1f} s")
-
-    @property
-    def has_map(self) -> bool:
-        with self._lock:
-            return self.tracker is not None or self._pending_map is not None
-
-    def relocalize(self) -> None:
-        """Forget the pose: the next scan searches the whole map (applied by the next :meth:`step`)."""
-        with self._lock:
-            self._relocalize = True
-
-    def hint(self, T_map_base: np.ndarray, covariance: np.ndarray) -> None:
-        """A pose hint (``/initialpose``: the base's pose in the map, (4, 4), and its (6, 6) covariance): the next
-        :meth:`step` searches near it first (``MapTracker.hint``), then the whole map."""
-        with self._lock:
-            self._hint = (np.asarray(T_map_base, dtype=np.float64), np.asarray(covariance, dtype=np.float64))
-
-    def _take_requests(self, cloud: Cloud) -> None:
-        from deepbbs_ros.core.tracking import MapTracker
-
-        with self._lock:
-            data, self._pending_map = self._pending_map, None
-            localizer, self._pending_localizer = self._pending_localizer, None
-            relocalize, self._relocalize = self._relocalize, False
-            hint, self._hint = self._hint, None
-        if data is not None or relocalize:
-            self._bridge.forget_until(cloud.stamp_ns - 1)  # scans before the request: not this search's
-        if data is not None:
-            self.map, self.localizer = data, localizer
-            self.tracker = MapTracker(localizer, self.config)
-            self._search_t0 = None
-            self.first_pose_s = float("nan")
-        elif relocalize and self.tracker is not None:
-            self.tracker.reset()
-            self._search_t0 = None
-        if hint is not None and self.tracker is not None:
-            self.tracker.hint(hint[0] @ self.extrinsic(cloud.frame_id), hint[1])  # the sensor's pose
-            self._search_t0 = None
 
     # -- one scan ----------------------------------------------------------------------------------------------
     def prepare(self, cloud: Cloud) -> None:
@@ -251,38 +190,7 @@ class NodeLocalization(SearchBridge, LocalizationDiagnostics):
         T = np.asarray(res.T_map_scan, dtype=np.float64)
         valid = bool(res.valid) and T.shape == (4, 4) and bool(np.all(np.isfinite(T)))
         res.valid = valid
-        self.events[res.event] = self.events.get(res.event, 0) + 1
-        self.last_event, self.last_score, self.last_path = res.event, float(res.score), res.path
-        line = None
-        if valid:
-            self.placed += 1
-            self.last_reason = ""
-            if self._search_t0 is not None:  # a search ended: found / relocalized
-                took = time.perf_counter() - self._search_t0
-                self.time_to_first_pose_s = took
-                if np.isnan(self.first_pose_s):
-                    self.first_pose_s = took
-                near = " near the initial pose" if getattr(res, "mode", "") == "hint" else ""
-                line = (f"localization {'relocalized' if res.event == 'relocalized' else 'found'}{near}: "
-                        f"{_pose_text(T)} in {self.map.frame_id!r} after {self._search_scans + 1} scan(s), "
-                        f"{took:.2f} s (score {res.score:.2f}, {res.candidates} candidate place(s))")
-                self._search_t0 = None
-                self._bridge_pending = not self._bridging
-                self._found_t = time.perf_counter()  # the scans received from now on are all bridged
-        else:
-            self.rejected += 1
-            self.last_reason = res.reason or "rejected"
-            if res.event == "lost":
-                self._search_t0, self._search_scans = time.perf_counter(), 0
-                line = (f"localization lost at scan {cloud.stamp_ns} ns: {self.last_reason}; searching the whole "
-                        "map from the next scan (no pose is published meanwhile)")
-            elif tracker.state != "tracking":
-                self._search_scans += 1
-                now = time.monotonic()
-                if now - self._last_search_log >= max(self.config.node.error_log_period, 1e-9):
-                    self._last_search_log = now
-                    line = (f"localization searching: no pose for {self._search_scans} scan(s), last: "
-                            f"{self.last_reason}")
+        line = self._account(res, T, valid, cloud, tracker)
         if valid and self._prefetch is not None and hasattr(self.localizer, "prefetch"):
             ahead = tracker.predict(cloud.stamp_ns + int(PREFETCH_AHEAD_S * 1e9))
             if ahead is not None:
@@ -302,10 +210,3 @@ class NodeLocalization(SearchBridge, LocalizationDiagnostics):
         """Stop the prefetch thread (the crop it prepares, if any, is finished first)."""
         if self._prefetch is not None:
             self._prefetch.stop()
-
-
-def _pose_text(T: np.ndarray) -> str:
-    """``x 12.30 y -4.10 z 1.90 m, yaw 35.0 deg``."""
-    yaw = np.degrees(np.arctan2(T[1, 0], T[0, 0]))
-    x, y, z = T[:3, 3]
-    return f"x {x:.2f} y {y:.2f} z {z:.2f} m, yaw {yaw:.1f} deg"

@@ -38,6 +38,7 @@ from deepbbs_ros.errors import ConfigError, DeepBBSError
 from deepbbs_ros.replay.fleet_results import FleetResult, Recording, pool_metrics
 from deepbbs_ros.replay.fleet_sources import LIST_SUFFIXES, expand_sources, recording_names
 from deepbbs_ros.replay.fleet_summary import print_summary, write_summary
+from deepbbs_ros.replay.loop import mark_interrupted
 
 __all__ = [
     "LIST_SUFFIXES", "FleetResult", "Recording", "expand_sources", "init_ray", "pool_metrics", "print_summary",
@@ -174,8 +175,7 @@ def run_fleet(replay_one: Callable[[Any], int], args: Any, sources: list[str], r
     except KeyboardInterrupt:
         for ref in pending:
             ray.cancel(ref, force=True)
-        res.complete = False
-        res.errors.append("interrupted by the user (Ctrl-C)")
+        mark_interrupted(res)
     finally:
         bar.close()
         if started:

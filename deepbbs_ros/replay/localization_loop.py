@@ -14,6 +14,7 @@ from deepbbs_ros import metrics
 from deepbbs_ros.config import Config
 from deepbbs_ros.datasets.base import Scan
 from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.replay.loop import keep_on_interrupt, strided
 
 
 # --------------------------------------------------------------------------------------------------
@@ -85,13 +86,8 @@ def run_localization(
     ev = config.eval
     res = results or LocalizationResults()
     nan4 = np.full((4, 4), np.nan)
-    try:
-        for pos, scan in enumerate(scans):
-            res.frames_read += 1
-            if progress:
-                progress(1)
-            if pos % ev.odom_stride:
-                continue
+    with keep_on_interrupt(res):
+        for _, scan in strided(scans, res, ev.odom_stride, progress):
             if max_frames is not None and len(res.records) >= max_frames:
                 break
             res.frame_id = res.frame_id or scan.frame_id
@@ -119,7 +115,4 @@ def run_localization(
                     float(tr), dict(getattr(out, "timings_ms", {}) or {}))
             res.records.append(rec)
             res.recoveries = int(getattr(tracker, "recoveries", 0))
-    except KeyboardInterrupt:
-        res.complete = False
-        res.errors.append("interrupted by the user (Ctrl-C)")
     return res

@@ -13,6 +13,7 @@ import numpy as np
 from deepbbs_ros.config import Config
 from deepbbs_ros.datasets.base import Scan
 from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.replay.loop import keep_on_interrupt, strided
 from deepbbs_ros.replay.pair_loop import random_perturbation
 
 
@@ -97,13 +98,8 @@ def run_odometry(
         res.failed.setdefault(name, [])
     state: dict[str, dict[str, Any]] = {name: {} for name in methods}
     T_world_0 = None
-    try:
-        for pos, scan in enumerate(scans):
-            res.frames_read += 1
-            if progress:
-                progress(1)
-            if pos % ev.odom_stride or pos in drops:
-                continue
+    with keep_on_interrupt(res):
+        for pos, scan in strided(scans, res, ev.odom_stride, progress, skip=drops):
             if max_frames is not None and len(res.stamps_ns) >= max_frames:
                 break
             k = len(res.stamps_ns)
@@ -157,9 +153,6 @@ def run_odometry(
             res.stamps_ns.append(scan.stamp_ns)
             res.indices.append(scan.index)
             res.T_world_gt.append(None if scan.T_world_lidar is None else scan.T_world_lidar.copy())
-    except KeyboardInterrupt:
-        res.complete = False
-        res.errors.append("interrupted by the user (Ctrl-C)")
     n = res.frames  # drop a frame only some methods finished
     for name in res.T_world_est:
         del res.T_world_est[name][n:]

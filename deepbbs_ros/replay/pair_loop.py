@@ -13,6 +13,7 @@ from deepbbs_ros import metrics
 from deepbbs_ros.config import Config
 from deepbbs_ros.datasets.base import Scan
 from deepbbs_ros.errors import DeepBBSError
+from deepbbs_ros.replay.loop import counted, keep_on_interrupt
 
 
 # --------------------------------------------------------------------------------------------------
@@ -112,12 +113,6 @@ class PairResults:
         return [r for r in self.records if r.method == method]
 
 
-def _count_frames(scans: Iterable[Scan], results: Any) -> Iterator[Scan]:
-    for scan in scans:
-        results.frames_read += 1
-        yield scan
-
-
 def run_pairs(
     scans: Iterable[Scan],
     methods: dict[str, Any],
@@ -138,16 +133,10 @@ def run_pairs(
     res = results or PairResults(list(methods))
     res.inputs = {name: getattr(m, "input", "") for name, m in methods.items()}
     rng = np.random.default_rng(ev.seed)
-    last_read = 0
-
     observers = [m for m in methods.values() if hasattr(m, "observe")]
 
-    def counted():
-        nonlocal last_read
-        for scan in _count_frames(scans, res):
-            if progress:
-                progress(res.frames_read - last_read)
-            last_read = res.frames_read
+    def observed():
+        for _, scan in counted(scans, res, progress):
             times = scan.point_times()
             for m in observers if times is not None else ():
                 try:  # the recording's velocity at every scan, in order (deskew of raw sweeps)
@@ -156,8 +145,8 @@ def run_pairs(
                     pass  # the scan's own prepare() reports the error where it is used
             yield scan
 
-    try:
-        for src, tgt in iter_pairs(counted(), ev.stride, ev.max_dist, ev.max_pair_frames):
+    with keep_on_interrupt(res):
+        for src, tgt in iter_pairs(observed(), ev.stride, ev.max_dist, ev.max_pair_frames):
             if max_pairs is not None and res.pairs >= max_pairs:
                 break
             T_gt = np.linalg.inv(tgt.T_world_lidar) @ src.T_world_lidar  # T_target_source
@@ -191,9 +180,6 @@ def run_pairs(
                     if keep_cloud and t == 0:
                         res.clouds[-1]["T_est"][name] = T_est
             res.pairs += 1
-    except KeyboardInterrupt:
-        res.complete = False
-        res.errors.append("interrupted by the user (Ctrl-C)")
     return res
 
 

@@ -8,8 +8,9 @@ everything computed so far in the results (``complete = False``). No ROS import,
 (see :mod:`deepbbs_ros.replay.report`).
 
 Modules: :mod:`~deepbbs_ros.replay.pair_loop`, :mod:`~deepbbs_ros.replay.odometry_loop`,
-:mod:`~deepbbs_ros.replay.localization_loop`; this one holds the thread settings of an offline run, and every loop's
-names are imported from here too.
+:mod:`~deepbbs_ros.replay.localization_loop`, what they share (reading, counting, Ctrl-C) in
+:mod:`~deepbbs_ros.replay.loop`; this one holds the thread settings of an offline run, and every loop's names are
+imported from here too.
 """
 
 from __future__ import annotations

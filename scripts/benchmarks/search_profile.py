@@ -85,11 +85,12 @@ def _stage(path: str) -> str:
 
 def instrument(clock: StageClock, reg) -> None:
     """Wrap the stages the search calls in the modules (once per process) and of the shared registration ``reg``."""
-    from deepbbs_ros.core import acceptance, place_search, registration_precision
+    from deepbbs_ros.core import acceptance, place_probe, place_retry, registration_precision
 
     reg.register = clock.wrap("register", reg.register)
     acceptance.probability = clock.wrap("verdict", acceptance.probability)
-    place_search.polish = clock.wrap("polish", place_search.polish)
+    place_retry.polish = clock.wrap("polish", place_retry.polish)
+    place_probe.polish = clock.wrap("polish", place_probe.polish)
     registration_precision.polish = clock.wrap("polish", registration_precision.polish)
 
 
