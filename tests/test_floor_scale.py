@@ -51,10 +51,19 @@ def test_the_bound_lies_above_the_estimate():
 def test_nis_root():
     nu = np.array([[1.0, 2.0, 0.5], [0.5, 1.0, 1.0]])
     a, b = np.full((2, 3), 0.1), np.ones((2, 3))
-    lam = nis_root(nu, a, b, 3.0)
+    lam = nis_root(nu, a, b)
     assert np.mean(np.sum(nu ** 2 / (a + lam * b), axis=1)) == pytest.approx(3.0, rel=1e-5)
-    assert nis_root(nu, np.full((2, 3), 10.0), b, 3.0) == 0.0  # the GICP parts explain the innovations
-    assert nis_root(nu, a, np.zeros((2, 3)), 3.0) == 0.0  # no floor to scale
+    assert nis_root(nu, np.full((2, 3), 10.0), b) == 0.0  # the GICP parts explain the innovations
+    assert nis_root(nu, a, np.zeros((2, 3))) == 0.0  # no floor to scale
+    # an axis without a floor is left out with its degree of freedom: its innovations, however large, move nothing
+    b0 = b.copy()
+    b0[:, 1] = 0.0
+    big = nu.copy()
+    big[:, 1] = 100.0
+    lam0 = nis_root(big, a, b0)
+    kept = [0, 2]
+    assert np.mean(np.sum(nu[:, kept] ** 2 / (a[:, kept] + lam0 * b[:, kept]), axis=1)) == pytest.approx(2.0, rel=1e-5)
+    assert nis_root(big, a, b0, bound=True) >= lam0
 
 
 def _turn(rotvec) -> np.ndarray:

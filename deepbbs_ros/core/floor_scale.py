@@ -23,8 +23,9 @@ shows less of it than the steps carry, so the scale comes out too small). Then p
 and the normalized innovation squared (NIS) ``sum_i nu_{k,i}^2 / S_{k,i}(lam)`` is chi-square with 3 degrees of
 freedom. ``lam`` is the root of ``(1 / N) sum_k NIS_k(lam) = 3`` over the last ``N`` innovations (the mean NIS of
 the window equal to its expectation: ``adaptive``), one scale for the rotation block so that the floor keeps its
-per-axis shape; 0 where the GICP parts alone leave the mean NIS at or under 3. ``adaptive_bound``: the largest scale
-the window does not reject as too small at 2.5 % (its NIS sum equal to ``chi2.ppf(0.025, 3 N)``). The window is
+per-axis shape; 0 where the GICP parts alone leave the mean NIS at or under 3; an axis without a floor has nothing to
+scale and is left out with its degree of freedom. ``adaptive_bound``: the largest scale the window does not reject as
+too small at 2.5 % (its NIS sum equal to ``chi2.ppf(0.025, 3 N)``). The window is
 the floor's own (``MOTION_WINDOW`` steps, KISS-ICP's adaptive threshold's idea: the motion model's recent error);
 the mean NIS of ``N`` innovations has a relative standard deviation of about ``1 / sqrt(N)`` (per axis a mean of
 ``N`` squared unit normals whose neighbours correlate by -1/2, sharing a step: variance ``2 (1 + 2 / 4) / N``, a third
@@ -85,30 +86,34 @@ class InnovationScale:
         nu, a, b = self._pairs()
         if not len(nu):
             return 1.0
-        target = 3.0
-        if self.bound:
-            from scipy.stats import chi2
-
-            target = float(chi2.ppf(0.025, 3 * len(nu))) / len(nu)
-        return nis_root(nu, a, b, target)
+        return nis_root(nu, a, b, bound=self.bound)
 
 
-def nis_root(nu: np.ndarray, a: np.ndarray, b: np.ndarray, target: float) -> float:
-    """``lam >= 0`` with ``mean_k sum_i nu_ki^2 / (a_ki + lam b_ki) = target`` (the mean NIS, decreasing in
-    ``lam``); 0 where ``lam = 0`` leaves it at or under ``target``, or where the floors are all zero."""
-    nu2 = np.square(nu)
-    a = np.maximum(a, 1e-30)
+def nis_root(nu: np.ndarray, a: np.ndarray, b: np.ndarray, bound: bool = False) -> float:
+    """``lam >= 0`` with ``mean sum_i nu_ki^2 / (a_ki + lam b_ki)`` over the innovations ``k`` (rows) equal to the
+    axes' count: the mean NIS at its expectation, decreasing in ``lam``; ``bound``: the NIS sum at its 2.5 % quantile
+    instead. Only the axes with a floor (``b > 0``) count, with their own degrees of freedom: an axis without one (the
+    prediction's floor at 0 where the deviations are all registration noise) has nothing to scale. 0 where ``lam = 0``
+    leaves the NIS at or under its target, or where no axis has a floor."""
+    keep = np.asarray(b) > 0
+    if not keep.any():
+        return 0.0
+    nu2, a, b = np.square(nu)[keep], np.maximum(np.asarray(a)[keep], 1e-30), np.asarray(b)[keep]
+    n = len(nu2)  # the degrees of freedom: one per axis and innovation
+    target = 1.0
+    if bound:
+        from scipy.stats import chi2
+
+        target = float(chi2.ppf(0.025, n)) / n
 
     def excess(lam: float) -> float:
-        return float(np.mean(np.sum(nu2 / (a + lam * b), axis=1))) - target
+        return float(np.mean(nu2 / (a + lam * b))) - target
 
-    if excess(0.0) <= 0.0 or not np.any(b > 0):
+    if excess(0.0) <= 0.0:
         return 0.0
     hi = 1.0
-    while excess(hi) > 0.0 and hi < 1e9:
+    while excess(hi) > 0.0:
         hi *= 4.0
-    if excess(hi) > 0.0:
-        return hi
     from scipy.optimize import brentq
 
     return float(brentq(excess, 0.0, hi, xtol=1e-6, rtol=1e-6))

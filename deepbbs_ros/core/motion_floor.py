@@ -69,6 +69,8 @@ class MotionFloor:
       velocity error, and :meth:`held_cross` is what the accumulated pose gains from it beyond the steps' own."""
 
     def __init__(self, mode: str = "fixed") -> None:
+        """``mode`` (``odometry.sweep_floor``): "fixed", the floor above; "adaptive" or "adaptive_bound", its rotation
+        part's variance scaled by core/floor_scale.py's ``InnovationScale`` (a model tried, not the default)."""
         from collections import deque
 
         from deepbbs_ros.core.floor_scale import InnovationScale
