@@ -371,6 +371,10 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
               + ", ".join(f"{x:.2f}" for x in np.mean(err ** 2, 0) / m2) + " (premise 0.5); the deviation from the "
               "deskew's motion's " + ", ".join(f"{x:.2f}" for x in np.mean(dev ** 2, 0) / m2) + " (premise 0.25)",
               flush=True)
+    if len(chain) >= 5 and not args.before:  # what the innovations show of the steps' rotation errors
+        import _innovations
+
+        print("    " + _innovations.innovation_line(steps, chain, floors), flush=True)
     if args.sweep_floor.startswith("adaptive"):
         print("    floor scale (the rotation floor's variance, innovations' NIS): median "
               f"{np.median(scales[2:]):.2f}, 10-90 % "
