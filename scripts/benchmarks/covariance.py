@@ -27,9 +27,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   of it: _position_floor.position_line). Per simulated drive the ``sweep:`` lines show the sweep floor's premises: how
   the step's rotation error follows the true rotation the deskew missed within the sweep (correlation and slope per
   axis), and the step error's and the floor's deviation's mean squares over the missed rotation's (the floor assumes
-  0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor`` (other estimates of the sweep floor
-  from the same deviations; ``share``: from each scan's share of its sweep's bend, scripts/benchmarks/_sweep_share.py,
-  with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion within the sweep), ``--map-covariances``
+  0.5 and 0.25), the ``innovations`` line (what the innovations from the constant-velocity prediction show of the
+  steps' rotation errors: scripts/benchmarks/_innovations.py); and the covariance's time per scan. Checks:
+  ``--sweep-floor`` (other estimates of the sweep floor from the same deviations; ``share``: from each scan's share of
+  its sweep's bend, scripts/benchmarks/_sweep_share.py, with its ``sweep: share`` line; ``adaptive``,
+  ``adaptive-bound``: its variance scaled to the innovations, core/floor_scale.py, with a ``floor scale`` line),
+  ``--ideal-sweeps`` (drives without motion within the sweep), ``--map-covariances``
   (the odometry against the map's planes), ``--position-floor`` (the prediction floor's position part from a
   chi-square estimate that never clips at 0, scripts/benchmarks/_position_floor.py).
 
