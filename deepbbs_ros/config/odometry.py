@@ -53,6 +53,11 @@ class OdometryConfig:
     # voxel means within the scan's reach are new or moved by more than 5 % of a voxel since the last build; 0 = after
     # every scan
     map_refresh: float = 0.2
+    # the step covariance's rotation floor: fixed (core/motion_floor.py) | adaptive (its variance scaled so that the
+    # last steps' innovations from the constant-velocity prediction have their expected mean NIS) | adaptive_bound
+    # (the largest such scale their NIS does not reject at 2.5 %); core/floor_scale.py: not the default, measured
+    # overconfident on the simulated VLP-16 drives
+    sweep_floor: str = "fixed"
 
     def validate(self) -> None:
         _check(self.deepbbs_init in ("auto", "always", "never"), "odometry.deepbbs_init",
@@ -74,3 +79,5 @@ class OdometryConfig:
         _check(self.gate_sigmas >= 0, "odometry.gate_sigmas", "must be >= 0 (0 = off)")
         _check(0 <= self.line_share <= 1, "odometry.line_share", "must be in [0, 1] (1 = never)")
         _check(0 <= self.map_refresh < 1, "odometry.map_refresh", "must be in [0, 1) (0 = after every scan)")
+        _check(self.sweep_floor in ("fixed", "adaptive", "adaptive_bound"), "odometry.sweep_floor",
+               f"must be 'fixed', 'adaptive' or 'adaptive_bound', got {self.sweep_floor!r}")

@@ -68,9 +68,16 @@ class MotionFloor:
       over the steps held in a row (the velocity along it is not measured again meanwhile); the held steps share that
       velocity error, and :meth:`held_cross` is what the accumulated pose gains from it beyond the steps' own."""
 
-    def __init__(self) -> None:
+    def __init__(self, mode: str = "fixed") -> None:
+        """``mode`` (``odometry.sweep_floor``): "fixed", the floor above; "adaptive" or "adaptive_bound", its rotation
+        part's variance scaled by core/floor_scale.py's ``InnovationScale`` (a model tried, not the default)."""
         from collections import deque
 
+        from deepbbs_ros.core.floor_scale import InnovationScale
+
+        # ``odometry.sweep_floor``: the rotation floor's variance scaled to the innovations (core/floor_scale.py)
+        self._scale = None if mode == "fixed" else InnovationScale(MOTION_WINDOW, bound=mode == "adaptive_bound")
+        self.last_scale = 1.0  # the scale the last floor took (1: fixed, or no innovation known yet)
         self._devs: Any = deque(maxlen=MOTION_WINDOW)
         self._swept: Any = deque(maxlen=MOTION_WINDOW)
         self._free: Any = deque(maxlen=MOTION_WINDOW)  # position deviations of the steps not held
@@ -81,6 +88,8 @@ class MotionFloor:
         """The variance (6,) of a step's GICP part along the scan's axes (m^2, rad^2; :func:`odometry_covariance`):
         the registration's own noise, which the deviations of the next steps carry (:meth:`update`)."""
         self._noise.append(np.asarray(variance, dtype=np.float64))
+        if self._scale is not None:
+            self._scale.add_noise(self._noise[-1][3:])
 
     def update(self, pose: np.ndarray, prediction: np.ndarray | None, motion: np.ndarray | None = None,
                swept: np.ndarray | None = None, held: bool = False) -> np.ndarray | None:
@@ -96,8 +105,11 @@ class MotionFloor:
             if motion is not None and swept is not None:
                 self._swept.append(_log(np.linalg.solve(np.asarray(swept, dtype=np.float64), motion))[3:])
         self._held = self._held + 1 if held and self._devs else 0
-        if not self._devs:
-            return None
+        if not self._devs or prediction is None:
+            if self._scale is not None:
+                self._scale.add_step(None, None)
+            if not self._devs:
+                return None
         # a deviation from the prediction is the motion the model missed plus the registration noise of the step and
         # of the one before it (the prediction repeats that step's motion): twice a step's GICP variance, which the
         # step's own GICP part counts already
@@ -106,6 +118,10 @@ class MotionFloor:
         floor = SWEEP_SPREAD * np.sqrt(missed)
         if self._swept:  # kept whole: see the class docstring
             floor[3:] = np.maximum(floor[3:], self._sweep_floor())
+        if self._scale is not None and prediction is not None:  # the scale from the innovations before this one
+            lam = self.last_scale = self._scale.scale()
+            self._scale.add_step(self._devs[-1][3:], np.square(floor[3:]))
+            floor[3:] *= lam ** 0.5
         return floor
 
     def _missed(self, mean_square: np.ndarray, noise: np.ndarray) -> np.ndarray:

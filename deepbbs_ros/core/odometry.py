@@ -99,7 +99,7 @@ class DeepBBSOdometry(OdometryStages, OdometryScan, OdometryStarts):
         self.deepbbs_rejected = 0  # DeepBBS++ answers the verdict rejected (the constant-velocity track stood)
         self._deepbbs_path = "deepbbs"  # the path of DeepBBS++'s last answer (RegistrationResult.path)
         self._gate = _deg.MotionGate(oc.gate_sigmas, oc.fit_window, GATE_FLOOR * self.voxel_size)
-        self._sweep = _cov.MotionFloor()  # the step covariance's model error
+        self._sweep = _cov.MotionFloor(oc.sweep_floor)  # the step covariance's model error
         self.swept: np.ndarray | None = None  # the motion per period the last scan was deskewed with (None: not)
         self.sweep_times: np.ndarray | None = None  # the last frame's per-point times, s since its stamp (None: none)
         self.degenerate_frames = 0  # frames in a degenerate place (a direction held)

@@ -27,9 +27,12 @@ the first row's NEES (for the odometry: its first step, which has no constant-ve
   of it: _position_floor.position_line). Per simulated drive the ``sweep:`` lines show the sweep floor's premises: how
   the step's rotation error follows the true rotation the deskew missed within the sweep (correlation and slope per
   axis), and the step error's and the floor's deviation's mean squares over the missed rotation's (the floor assumes
-  0.5 and 0.25); and the covariance's time per scan. Checks: ``--sweep-floor`` (other estimates of the sweep floor
-  from the same deviations; ``share``: from each scan's share of its sweep's bend, scripts/benchmarks/_sweep_share.py,
-  with its ``sweep: share`` line), ``--ideal-sweeps`` (drives without motion within the sweep), ``--map-covariances``
+  0.5 and 0.25), the ``innovations`` line (what the innovations from the constant-velocity prediction show of the
+  steps' rotation errors: scripts/benchmarks/_innovations.py); and the covariance's time per scan. Checks:
+  ``--sweep-floor`` (other estimates of the sweep floor from the same deviations; ``share``: from each scan's share of
+  its sweep's bend, scripts/benchmarks/_sweep_share.py, with its ``sweep: share`` line; ``adaptive``,
+  ``adaptive-bound``: its variance scaled to the innovations, core/floor_scale.py, with a ``floor scale`` line),
+  ``--ideal-sweeps`` (drives without motion within the sweep), ``--map-covariances``
   (the odometry against the map's planes), ``--position-floor`` (the prediction floor's position part from a
   chi-square estimate that never clips at 0, scripts/benchmarks/_position_floor.py).
 
@@ -143,6 +146,8 @@ SWEEP_FLOORS = {
     else np.zeros(3),
     "none": lambda f: np.zeros(3),
     "share": None,  # scripts/benchmarks/_sweep_share.py: each scan's share of its sweep's bend (installed in main)
+    "adaptive": None,  # odometry.sweep_floor adaptive: scaled to the innovations (core/floor_scale.py)
+    "adaptive-bound": None,  # odometry.sweep_floor adaptive_bound
 }
 
 
@@ -295,12 +300,13 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
             cov_ms.append((time.perf_counter() - t) * 1e3)
 
     odomod._cov.odometry_covariance = timed
-    outs, swept, shares = [], [], []
+    outs, swept, shares, scales = [], [], [], []
     try:
         for pts, times, stamp, _ in drive:
             t0, n0 = time.perf_counter(), len(cov_ms)
             outs.append(odo.register_frame(pts, times, stamp))
             shares.append(getattr(odo, "share", None))  # --sweep-floor share: the scan's share of its sweep's bend
+            scales.append(odo._sweep.last_scale)  # --sweep-floor adaptive: the rotation floor's variance scale
             swept.append(None if odo.swept is None else odo.swept.copy())  # the motion the deskew turned it with
             if len(cov_ms) > n0:
                 share.append(cov_ms[-1] / ((time.perf_counter() - t0) * 1e3))
@@ -368,6 +374,14 @@ def odometry_rows(drive, config, args) -> tuple[list, list, list, list, list]:
               + ", ".join(f"{x:.2f}" for x in np.mean(err ** 2, 0) / m2) + " (premise 0.5); the deviation from the "
               "deskew's motion's " + ", ".join(f"{x:.2f}" for x in np.mean(dev ** 2, 0) / m2) + " (premise 0.25)",
               flush=True)
+    if len(chain) >= 5 and not args.before:  # what the innovations show of the steps' rotation errors
+        import _innovations
+
+        print("    " + _innovations.innovation_line(steps, chain, floors), flush=True)
+    if args.sweep_floor.startswith("adaptive"):
+        print("    floor scale (the rotation floor's variance, innovations' NIS): median "
+              f"{np.median(scales[2:]):.2f}, 10-90 % "
+              + "-".join(f"{x:.2f}" for x in np.percentile(scales[2:], [10, 90])), flush=True)
     if len(missed) >= 6 and any(x is not None for x in shares):
         _share_line(shares, missed)
     held = [i for i, h in enumerate(helds) if h.any()]
@@ -639,7 +653,10 @@ def main(argv: list[str] | None = None) -> int:
                     "variance that d carries), diff (the rms of d's change from scan to scan, less twice that "
                     "variance), none (no sweep floor: the prediction's floor alone), share (each scan's share of its "
                     "sweep's bend from its pairs' Hessian weighted by time in the sweep, bends independent: "
-                    "_sweep_share.py)")
+                    "_sweep_share.py), adaptive (shipped, its variance scaled so that the last steps' innovations "
+                    "from the constant-velocity prediction have their expected mean NIS: odometry.sweep_floor "
+                    "adaptive, core/floor_scale.py), adaptive-bound (the largest scale their NIS does not reject at "
+                    "2.5 %%)")
     ap.add_argument("--ideal-sweeps", action="store_true", help="the simulated odometry drives without motion within "
                     "the sweep (every point cast from the pose at the stamp, no per-point times: nothing to deskew; a "
                     "check of what the sweep and its deskew cause)")
@@ -695,7 +712,7 @@ def main(argv: list[str] | None = None) -> int:
         import deepbbs_ros.core.motion_floor as floormod
 
         _position_floor.install(floormod, args.position_floor)
-    if args.sweep_floor != "shipped":
+    if args.sweep_floor != "shipped" and not args.sweep_floor.startswith("adaptive"):
         import deepbbs_ros.core.motion_floor as floormod
 
         if args.sweep_floor == "share":
@@ -710,6 +727,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads > 0:
         config.odometry.threads = args.threads
     config.odometry.map_covariances = config.odometry.map_covariances or args.map_covariances
+    if args.sweep_floor.startswith("adaptive"):
+        config.odometry.sweep_floor = args.sweep_floor.replace("-", "_")
     loc_rows, step_rows, chains, floors, firsts, helds, truth, notes = {}, {}, {}, {}, {}, {}, {}, {}
     t0 = time.perf_counter()
     if args.refit:
