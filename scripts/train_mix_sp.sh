@@ -7,7 +7,7 @@
 # distance the road drives alone moved them in 400 steps (scripts/train_control.sh: 0.337), as strong as the median
 # gradient of those steps (0.130): the mix may move the network as far as the roads did, and further only where its
 # gradient outweighs that pull.
-# Validated every 100 steps on the 16 compensated mix and the 8 HDL-64E road validation drives (each folder weighing
+# Validated every 100 steps on 2 pairs of each of the 16 compensated mix and the 8 HDL-64E road validation drives (each folder weighing
 # the same): runs/NAME/model_best.pt; the weights are also copied every CHUNK steps to runs/NAME/stepN.pt.
 #   STEPS=400 nice -n 10 scripts/train_mix_sp.sh > runs/mix_sp.log 2>&1 &
 #   scripts/train_mix_sp.sh --save-state      # copy the run's state to deepbbs_ros/models/train_state/NAME
@@ -47,7 +47,7 @@ if [ ! -d "$CACHE/worlds_val" ]; then
 fi
 
 # 2. fit: MIX_SCHEDULE, validated every epoch, and the pull to the shipped weights, CHUNK steps at a time
-SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 --set train.val_every=1 --set train.val_pairs=16 \
+SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 --set train.val_every=1 --set train.val_pairs=48 \
   --set train.hard_pair_deg=$HARD --set train.sp_weight=$SP"
 if [ -f "$STATE/state_latest.pt" ]; then FIRST="--resume $STATE/state_latest.pt"; else FIRST="--init shipped"; fi
 fit_chunks "$FIRST" --cache "$CACHE/mixclean_train" --cache "$CACHE/worlds_train" \
