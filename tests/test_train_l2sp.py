@@ -100,3 +100,11 @@ def test_script_runs_the_mix_schedule_with_the_pull_to_the_shipped_weights(tmp_p
     assert sets == dict(item.split()[0].split("=", 1) for item in schedule.split("--set ")[1:])
     cfg = Config().replace(**{k: v if k == "train.pair_balance" else json.loads(v) for k, v in sets.items()})
     assert cfg.validate().train.num_points == 512
+    # the committed state resumes (the shipped weights it is held to are in it)
+    committed = subprocess.run(["sh", str(root / "scripts" / "train_mix_sp.sh")], env={**env, "NAME": "mix_sp"},
+                               capture_output=True, text=True, check=True).stdout
+    assert "--resume deepbbs_ros/models/train_state/mix_sp/state_latest.pt" in committed
+    state = torch.load(root / "deepbbs_ros/models/train_state/mix_sp/state_latest.pt", weights_only=False)
+    shipped = torch.load(root / "deepbbs_ros/models/deepbbspp_lidar.pt", weights_only=False)["state_dict"]
+    assert state["sp_anchor"].keys() <= shipped.keys()
+    assert all(torch.equal(v, shipped[k]) for k, v in state["sp_anchor"].items())
