@@ -30,6 +30,9 @@ class TrainConfig:
     # is: every pair counts, as the shipped model was trained). Sensor-mix pairs in halls and garages the network
     # cannot solve in one pass (>10 deg) carried 94-95 % of the rotation term and cost the translation precision
     hard_pair_deg: float = 0.0
+    # L2-SP: alpha of alpha/2 ||w - w_start||^2 added to each step's loss, w_start the weights the run started from
+    # (--init); 0 = off. Holds a fine-tune near the shipped weights (train/anchor.py)
+    sp_weight: float = 0.0
     max_dist: float = 5.0  # m; pairs of frames at most this far apart
     # how pairs are drawn: "pairs" = drives in proportion to their pair count (capped at 2000), then any of their
     # pairs; "distance" = every drive alike, then the pair's distance uniform over tenths of max_dist (slow
@@ -53,6 +56,7 @@ class TrainConfig:
         _check(self.pose_loss in ("squared", "bounded"), "train.pose_loss",
                f"must be 'squared' or 'bounded', got {self.pose_loss!r}")
         _check(self.hard_pair_deg >= 0, "train.hard_pair_deg", "must be >= 0")
+        _check(self.sp_weight >= 0, "train.sp_weight", "must be >= 0")
         _check(self.checkpoint_minutes >= 0, "train.checkpoint_minutes", "must be >= 0")
         _check(self.lr > 0, "train.lr", "must be > 0")
         _check(0 < self.lr_gamma <= 1, "train.lr_gamma", "must be in (0, 1]")

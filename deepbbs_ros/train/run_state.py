@@ -45,6 +45,7 @@ class TrainerState(Protocol):
     world_size: int
     is_main: bool
     num_points: int
+    sp_anchor: dict[str, Any] | None  # L2-SP's start weights (train/anchor.py), None when train.sp_weight is 0
 
     @property
     def epoch(self) -> int: ...
@@ -103,6 +104,7 @@ def save_state(trainer: TrainerState, val: dict[str, Any] | None = None, best: b
         "meta": trainer.meta,
         "world_size": trainer.world_size,
         "ranks": ranks,
+        "sp_anchor": trainer.sp_anchor,
     }
     run_dir = trainer.run_dir
     tmp = run_dir / (STATE_FILE + ".tmp")
@@ -134,6 +136,10 @@ def restore_state(trainer: TrainerState, path: str | Path | None = None) -> int:
     if saved_model != trainer.config.to_dict()["model"]:
         raise ModelError(f"resume: {path} was trained with a different model config ({saved_model})")
     trainer.model.load_state_dict(state["model"])
+    if trainer.sp_anchor is not None:  # L2-SP: the saved start, else the weights resumed with
+        from deepbbs_ros.train.anchor import anchor_of
+
+        trainer.sp_anchor = state.get("sp_anchor") or anchor_of(trainer.model)
     trainer.optimizer.load_state_dict(state["optimizer"])
     trainer.scheduler.load_state_dict(state["scheduler"])
     trainer.step = int(state["step"])

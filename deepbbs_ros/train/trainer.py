@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.train.anchor import anchor_of, sp_distance2
 from deepbbs_ros.train.cache import Drive
 from deepbbs_ros.train.fit_loop import train_loop
 from deepbbs_ros.train.loss import deepbbs_loss, loss_options
@@ -91,6 +92,8 @@ class Trainer:
         self.rng = np.random.default_rng(tc.seed if self.world_size == 1 else [tc.seed, self.rank])
 
         self.model = (model if model is not None else DeepBBSNet(config.model)).to(self.device)
+        # L2-SP (train.sp_weight, train/anchor.py): the weights the run starts from; a resume restores the saved ones
+        self.sp_anchor = anchor_of(self.model) if tc.sp_weight > 0 else None
         self.net = self.model  # what a training step calls: the model, or its DistributedDataParallel wrapper
         if self.world_size > 1:
             from torch.nn.parallel import DistributedDataParallel
@@ -137,12 +140,16 @@ class Trainer:
         self.model.train()
         out = self.net(src, tgt)
         terms = deepbbs_loss(out, src, tgt, R_gt, t_gt, **loss_options(self.config, self.epoch))
+        total, sp_dist = terms.total, 0.0
+        if self.sp_anchor is not None:
+            d2 = sp_distance2(self.model, self.sp_anchor)
+            total, sp_dist = total + 0.5 * tc.sp_weight * d2, float(d2.detach()) ** 0.5
         self.optimizer.zero_grad(set_to_none=True)
-        terms.total.backward()
+        total.backward()
         grad_norm = float("nan")
         if tc.grad_clip > 0:
             grad_norm = float(torch.nn.utils.clip_grad_norm_(self.model.parameters(), tc.grad_clip))
-        values = [float(terms.total.detach()), float(terms.rot), float(terms.trans), float(terms.corr),
+        values = [float(total.detach()), float(terms.rot), float(terms.trans), float(terms.corr),
                   float(terms.partner_ratio), float(terms.kept)]
         if self.world_size > 1:  # the mean over the processes: one non-finite loss skips the step everywhere
             from deepbbs_ros.train.distributed import reduce_mean
@@ -155,7 +162,7 @@ class Trainer:
         self.step += 1
         return {
             "loss": values[0], "rot": values[1], "trans": values[2], "corr": values[3], "partners": values[4],
-            "kept": values[5], "grad_norm": grad_norm, "skipped": 0.0 if finite else 1.0,
+            "kept": values[5], "grad_norm": grad_norm, "skipped": 0.0 if finite else 1.0, "sp_dist": sp_dist,
         }
 
     # -- validation --------------------------------------------------------------------------------
