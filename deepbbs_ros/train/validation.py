@@ -56,11 +56,25 @@ class ValidationSet:
               stride: int = 10) -> ValidationSet:
         tc = config.train
         per_drive = max(1, math.ceil(max_pairs / max(1, len(drives))))
+        folder = {d.name: str(d.meta.get("cache", "")) for d in drives}
         plain = validation_pairs(drives, num_points, stride=stride, max_dist=tc.max_dist, seed=tc.seed,
-                                 per_drive=per_drive)[:max_pairs]
+                                 per_drive=per_drive)
         yaw = validation_pairs(drives, num_points, stride=stride, max_dist=tc.max_dist, yaw_deg=tc.yaw_aug_deg,
-                               seed=tc.seed + 1, per_drive=per_drive)[:max_pairs]
-        return cls(plain, yaw, tc.yaw_aug_deg)
+                               seed=tc.seed + 1, per_drive=per_drive)
+        return cls(_shared_out(plain, folder)[:max_pairs], _shared_out(yaw, folder)[:max_pairs], tc.yaw_aug_deg)
+
+
+def _shared_out(pairs: list[Pair], folder: dict[str, str]) -> list[Pair]:
+    """``pairs`` taken in turn from each validation folder (a pair's folder: its drive's cache), each folder's in its
+    own order, so that cutting the list to ``max_pairs`` keeps every folder; one folder: the list as it is."""
+    by_folder: dict[str, list[Pair]] = {}
+    for p in pairs:
+        by_folder.setdefault(folder.get(p.ref.split(":")[0], ""), []).append(p)
+    queues = list(by_folder.values())
+    out: list[Pair] = []
+    for k in range(max((len(q) for q in queues), default=0)):
+        out.extend(q[k] for q in queues if k < len(q))
+    return out
 
 
 def validation_record(model: Any, config: Config, vs: ValidationSet, val_drives: list[Drive], device: Any,
