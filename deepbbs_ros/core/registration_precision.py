@@ -73,7 +73,7 @@ class PrecisionStages:
         GICP's grid does not hold it, on both grids, core/finish_verdict.py). Not on scans deskewed with their own
         velocities (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
         rc = self.config.registration
-        if (st.valid or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
+        if (st.valid or st.rival or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
                 or st.skew.startswith("rejected")  # a bent sweep: a finer grid does not unbend it
                 or st.src_pc is None or st.tgt_pc is None):
             return

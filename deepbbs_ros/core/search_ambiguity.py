@@ -1,0 +1,59 @@
+"""The global search's answer weighed against the other poses its candidates reached (no ROS).
+
+The verdict's probability is that of one pose being right, judged alone. The search (core/global_search.py) takes
+several candidates through the precision stage and the verdict; two of them further apart than a wrong pose's
+tolerance (2 degrees or 0.5 m) cannot both be right, so where both look right the scene is ambiguous to the verdict
+(a symmetric place and its 180-degree flip, a corridor seen from either end). Of two such poses with probabilities
+``p`` and ``p_other``, read as the chances of two exclusive events, the answer is right with probability at most
+``p / (p + p_other)``: when that falls under ``registration.verdict_probability`` the answer is not valid
+(``registration.search_ambiguity``). A candidate the search itself would not take whatever its probability (a fitness
+under ``registration.search_min_score``: a flip that lays the ground on the ground; a sweep's motion that says it
+cannot be right) does not count. Nothing is fitted: the bar is the verdict's own.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["WRONG_DEG", "WRONG_M", "distinct", "rival", "weigh"]
+
+WRONG_DEG, WRONG_M = 2.0, 0.5  # two poses further apart than this cannot both be right (the goal's wrong pose)
+
+
+def distinct(A: np.ndarray, B: np.ndarray) -> bool:
+    """Two poses (4, 4) further apart than :data:`WRONG_DEG` degrees or :data:`WRONG_M` m."""
+    d = np.linalg.solve(np.asarray(A, np.float64), np.asarray(B, np.float64))
+    cos = np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return bool(np.degrees(np.arccos(cos)) > WRONG_DEG or np.linalg.norm(d[:3, 3]) > WRONG_M)
+
+
+def rival(best: Any, seen: list, rc: Any) -> Any:
+    """The most probable of the candidates ``seen`` (registration states after the verdict) distinct from ``best``
+    that the search could take (fitness at least ``search_min_score``, not turned away by the skew check), or None."""
+    out = None
+    for c in seen:
+        if c is best or not np.isfinite(c.probability) or not c.score >= rc.search_min_score:
+            continue
+        if str(getattr(c, "skew", "")).startswith("rejected") or not distinct(best.T, c.T):
+            continue
+        if out is None or c.probability > out.probability:
+            out = c
+    return out
+
+
+def weigh(best: Any, seen: list, rc: Any) -> tuple[bool, str]:
+    """Whether ``best`` (valid) stays valid against its :func:`rival` among ``seen``: ``p / (p + p_other)`` reaches
+    ``registration.verdict_probability``. -> (stays valid, "" or why not)."""
+    other = rival(best, seen, rc)
+    if other is None:
+        return True, ""
+    p, q = float(best.probability), float(other.probability)
+    share = p / (p + q) if p + q > 0 else 0.0
+    if share >= rc.verdict_probability:
+        return True, ""
+    d = np.linalg.solve(np.asarray(best.T, np.float64), np.asarray(other.T, np.float64))
+    ang = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    return False, (f"ambiguous: a second pose {ang:.1f} deg / {np.linalg.norm(d[:3, 3]):.2f} m away at probability "
+                   f"{q:.2f} (this one {p:.2f}: at most {share:.2f} of being right)")
