@@ -17,9 +17,11 @@ sample itself: the same coverage at a quarter of the network's cost at 256 of 51
 passes on all of them. When none is valid, the starts are ranked again on all the points and the best finished.
 When still none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
-get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
-runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
-good start (consecutive scans, odometry) pays nothing more.
+get the same treatment: a pair that does not overlap pays for all 21 starts. With ``registration.search_ambiguity``
+the given start's valid answer that is not sure goes through the same weighing, and the answer kept is not valid
+where another candidate, beyond 2 degrees / 0.5 m of it, is one the verdict would accept too
+(core/search_ambiguity.py). ``DeepBBSRegistration.register`` runs the search when the answer from the given start
+does not fit (``registration.global_search: auto``), so a good start (consecutive scans, odometry) pays nothing more.
 
 Where the deep passes run: with a network process (a CPU, core/network_process.py) the other start yaws' first
 passes run there right after the given start's, while the caller still builds the GICP clouds
@@ -124,18 +126,17 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     """The answer still fails the verdict after the precision stage, or came from another start and is not sure
     (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
     precision stage and the verdict, then (still not sure) the given start's GICP answer, GICP coarse to fine from the
-    given start and the best one's twin; the most probable valid answer wins. Runs the search first if it did not run
-    (``auto`` and a fitting deep answer)."""
+    given start and the best one's twin; the most probable valid answer wins, unless another candidate makes it
+    ambiguous (``registration.search_ambiguity``: then also on the given start's valid answer that is not sure). Runs
+    the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
     if (rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep
             or st.skew.startswith("rejected")):  # the sweep's own motion bends any start's pose: no other start helps
         return st
-    if st.valid and (sure(st, rc) or (st.replaced is None and not rc.search_ambiguity)):
-        # a sure answer; or the given start's valid answer, unless registration.search_ambiguity: then one that is not
-        # sure is weighed against the search's candidates as a search answer is (core/search_ambiguity.py)
-        return st
+    if st.valid and (sure(st, rc) or (st.replaced is None and not _weighed(st, rc))):
+        return st  # a sure answer, or the given start's valid answer (unless weighed)
     seen = [st]  # every candidate through the verdict
 
     def tensors(out: Any) -> tuple:
@@ -178,6 +179,19 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
         best = _shift_retry(reg, best, st, seen)
     clock.lap("global")
     return _weigh(best, seen, rc)
+
+
+def _weighed(st: Any, rc: Any) -> bool:
+    """``registration.search_ambiguity`` weighs the given start's valid answer that is not sure against the search's
+    candidates, as a search answer is; not where the caller vouched for the start (``register(..., good_start=True)``)
+    and the answer stayed within the good start's limits of it (``registration.good_start_max_*``): a stream of good
+    starts pays nothing more."""
+    if not rc.search_ambiguity:
+        return False
+    if not st.vouched:
+        return True
+    trans, rot = coarse_rescue.moved(st.T_start, st.T)
+    return trans > rc.good_start_max_trans or rot > rc.good_start_max_rot_deg
 
 
 def _weigh(best: Any, seen: list, rc: Any) -> Any:

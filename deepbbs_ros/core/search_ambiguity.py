@@ -3,12 +3,13 @@
 The verdict's probability is that of one pose being right, judged alone. The search (core/global_search.py) takes
 several candidates through the precision stage and the verdict; two of them further apart than a wrong pose's
 tolerance (2 degrees or 0.5 m) cannot both be right, so where both look right the scene is ambiguous to the verdict
-(a symmetric place and its 180-degree flip, a corridor seen from either end). Of two such poses with probabilities
-``p`` and ``p_other``, read as the chances of two exclusive events, the answer is right with probability at most
-``p / (p + p_other)``: when that falls under ``registration.verdict_probability`` the answer is not valid
-(``registration.search_ambiguity``). A candidate the search itself would not take whatever its probability (a fitness
-under ``registration.search_min_score``: a flip that lays the ground on the ground; a sweep's motion that says it
-cannot be right) does not count. Nothing is fitted: the bar is the verdict's own.
+(a symmetric place and its 180-degree flip, a corridor seen from either end). A rival is another candidate the
+verdict and the search would accept alone (valid: probability ``p_other`` at least ``registration.verdict_probability``,
+no second minimum as good, not bent by its sweeps, a fitness of ``registration.search_min_score``); of two such
+exclusive poses, the answer (``p``) is right with probability at most ``p / (p + p_other)``, under 0.6 (p <= 1), so
+the answer is not valid (``registration.search_ambiguity``). A less probable candidate does not count: the calibrated
+probability of a wrong pose reaches 0.6 in a courtyard 90 degrees off, where the right one scores 1.0. Nothing is
+fitted: the bar is the verdict's own.
 """
 
 from __future__ import annotations
@@ -30,13 +31,11 @@ def distinct(A: np.ndarray, B: np.ndarray) -> bool:
 
 
 def rival(best: Any, seen: list, rc: Any) -> Any:
-    """The most probable of the candidates ``seen`` (registration states after the verdict) distinct from ``best``
-    that the search could take (fitness at least ``search_min_score``, not turned away by the skew check), or None."""
+    """The most probable of the candidates ``seen`` (registration states after the verdict and the search's fitness
+    floor) distinct from ``best`` that are valid (the verdict and the search would take them alone), or None."""
     out = None
     for c in seen:
-        if c is best or not np.isfinite(c.probability) or not c.score >= rc.search_min_score:
-            continue
-        if str(getattr(c, "skew", "")).startswith("rejected") or not distinct(best.T, c.T):
+        if c is best or not c.valid or not distinct(best.T, c.T):
             continue
         if out is None or c.probability > out.probability:
             out = c

@@ -11,7 +11,9 @@ offsets, taken in turn from pair to pair. Per family: right (1 deg / 0.3 m) acce
 and rejected, wrong (beyond 2 deg / 0.5 m) accepted and rejected; ``wrong_accepted_rows``: each wrong pose accepted
 (deg, m, probability, the offset, path, starts); ``rows``: every run. With ``--compare`` the same starts also run
 with ``registration.search_ambiguity`` the other way (``off`` / ``on`` counts; ``changed``: the runs whose class
-differs). ::
+differs). ``--good-start``: ``register(..., good_start=True)`` (GICP from the start first, core/good_start.py);
+``--identity``: once per pair from the recorded start (identity) instead, what a stream of neighbouring scans pays
+(``ms_p50``). ::
 
     python scripts/benchmarks/far_starts.py --seed 39 --sim-pairs 1 --sim-low-pairs 1 --sim-turned-pairs 1 \\
         --compare --out /tmp/far39
@@ -64,36 +66,59 @@ class Runs:
     """The pipeline from far starts on each pair (the ``starts`` callback of verdict.py's :func:`sim_parts`, and
     :meth:`pair` for the real ones): ``regs`` {setting: DeepBBSRegistration}."""
 
-    def __init__(self, regs: dict, levels: int, seed: int):
+    def __init__(self, regs: dict, levels: int, seed: int, good_start: bool = False, identity: bool = False):
+        self.good_start, self.identity = good_start, identity
         self.regs, self.levels, self.rng, self.rows, self.turn = regs, levels, np.random.default_rng(seed), [], 0
         self.last: dict = {}
+        self.rig = ""
         _spy(self)
 
     def __call__(self, kind: str, src, tgt, T0: np.ndarray, T_gt: np.ndarray, rig: int) -> None:
         import good_start_degenerate as gsd
 
         if kind == "near":  # once per pair (verdict.py's near and far starts are not used)
+            import calibrate_verdict as cv
+
+            self.rig = "/".join((cv.RIGS + cv.LOW_RIGS + cv.TURNED_RIGS)[rig][:3])
             self.pair(gsd.family(rig), src, tgt, T_gt)
 
     def pair(self, family: str, src, tgt, T_gt: np.ndarray) -> None:
         """``--levels`` basin offsets from the truth ``T_gt`` of one prepared pair, each registered with every
-        setting."""
-        for k in range(self.levels):
-            level = (self.turn + k) % len(BASIN)
-            P = offset(self.rng, level)
-            row = {"family": family, "level": level, "offset": [round(float(v), 2) for v in (
+        setting (both clouds' GICP trees built first, as a stream's target is: every setting sees the same)."""
+        for pc in (getattr(src, "polish_cloud", None), getattr(tgt, "polish_cloud", None)):
+            if pc is not None:
+                pc.complete()
+        for k in range(1 if self.identity else self.levels):
+            level = -1 if self.identity else (self.turn + k) % len(BASIN)
+            P = np.eye(4) if self.identity else offset(self.rng, level)
+            row = {"family": family, "rig": self.rig, "level": level, "offset": [round(float(v), 2) for v in (
                 np.degrees(np.arctan2(P[1, 0], P[0, 0])), P[0, 3], P[1, 3])]}
             for name, reg in self.regs.items():
                 t0, self.last = time.perf_counter(), {}
-                res = reg.register(src, tgt, T_init=T_gt @ P, preprocessed=True)
+                T0 = P if self.identity else T_gt @ P
+                res = reg.register(src, tgt, T_init=T0, preprocessed=True, good_start=self.good_start)
                 cls, r, t = classify(res, T_gt)
                 row[name] = {"class": cls, "deg": round(r, 2), "m": round(t, 2), "p": round(float(res.probability), 3),
                              "path": res.path, "starts": res.starts, "ms": round((time.perf_counter() - t0) * 1e3),
                              **self.last}
+                if res.valid and not cls.startswith("right") and getattr(src, "polish_cloud", None) is not None:
+                    row[name]["features"] = features(src, tgt, res.T_target_source, reg.config.registration)
             self.rows.append(row)
-            print(family, BASIN[level], {n: (row[n]["class"], row[n]["deg"], row[n]["m"], row[n]["p"])
-                                         for n in self.regs}, flush=True)
+            print(family, BASIN[level] if level >= 0 else "recorded start",
+                  {n: (row[n]["class"], row[n]["deg"], row[n]["m"], row[n]["p"], row[n]["ms"]) for n in self.regs},
+                  flush=True)
         self.turn += self.levels
+
+
+def features(src, tgt, T: np.ndarray, rc) -> dict:
+    """The good-start verdict's features (core/visibility.py) of an accepted pose that is not right: what it looked
+    like (``fitness``, ``observable``, ``in_view``, ``pinned``, ``anchored_far``)."""
+    from deepbbs_ros.core import visibility
+    from deepbbs_ros.core.good_start import good_start_points
+
+    f = visibility.pose_features(good_start_points(src.polish_cloud, rc), T, tgt.polish_cloud, rc.verdict_dist)
+    return {k: round(float(f[visibility.FEATURES.index(k)]), 3)
+            for k in ("fitness", "observable", "in_view", "pinned", "anchored_far")}
 
 
 def _spy(runs: Runs) -> None:
@@ -109,7 +134,9 @@ def _spy(runs: Runs) -> None:
         other = search_ambiguity.rival(best, seen, rc)
         out = weigh(best, seen, rc)
         runs.last = {"candidates": len(seen), "why": out.rival, "rival": None if other is None else [
-            round(float(other.probability), 3), *(round(float(v), 2) for v in pair_errors(other.T, best.T))]}
+            round(float(other.probability), 3), *(round(float(v), 2) for v in pair_errors(other.T, best.T))],
+            "rivals_p": sorted(round(float(c.probability), 3) for c in seen
+                               if c is not best and search_ambiguity.distinct(best.T, c.T))[::-1][:3]}
         return out
 
     global_search._weigh = spy
@@ -121,10 +148,14 @@ def tally(rows: list[dict], name: str) -> dict:
     for fam in sorted({r["family"] for r in rows}):
         rs = [r[name] | {"level": r["level"]} for r in rows if r["family"] == fam and name in r]
         out[fam] = {"runs": len(rs), **{c: sum(r["class"] == c for r in rs) for c in CLASSES},
-                    "wrong_accepted_rows": [[r["deg"], r["m"], r["p"], list(BASIN[r["level"]]), r["path"], r["starts"]]
+                    "wrong_accepted_rows": [[r["deg"], r["m"], r["p"], _level(r["level"]), r["path"], r["starts"]]
                                             for r in rs if r["class"] == "wrong_accepted"],
                     "ms_p50": round(float(np.median([r["ms"] for r in rs])))}
     return out
+
+
+def _level(level: int) -> list:
+    return list(BASIN[level]) if level >= 0 else []
 
 
 def real_pairs(specs: list[str], pair: str | None, n: int) -> list[tuple]:
@@ -151,6 +182,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--real", nargs="*", default=[], metavar="FOLDER:STRIDE:MAX_DIST", help="real sets")
     ap.add_argument("--real-pairs", type=int, default=4, help="pairs per real set (default 4)")
     ap.add_argument("--pair", help="a reference pair folder (two .pcd and relative.txt)")
+    ap.add_argument("--good-start", action="store_true",
+                    help="register(..., good_start=True): GICP from the start first, then the full pipeline")
+    ap.add_argument("--identity", action="store_true",
+                    help="once per pair from the recorded start (identity) instead of the basin offsets: the cost")
     ap.add_argument("--compare", action="store_true",
                     help="also run registration.search_ambiguity the other way on the same starts")
     ap.add_argument("--threads", type=int, default=1, help="torch / GICP threads (default 1)")
@@ -169,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.compare:
         other = dataclasses.replace(rc, search_ambiguity=not rc.search_ambiguity)
         regs["other"] = DeepBBSRegistration(dataclasses.replace(config, registration=other))
-    runs = Runs(regs, args.levels, args.seed)
+    runs = Runs(regs, args.levels, args.seed, args.good_start, args.identity)
     if args.sim_pairs or args.sim_low_pairs or args.sim_turned_pairs:
         verdict.sim_parts(args.sim_pairs, args.seed, args.sim_low_pairs, args.sim_turned_pairs, config=config,
                           starts=runs)
@@ -183,14 +218,14 @@ def main(argv: list[str] | None = None) -> int:
                     ps, pt = reg.preprocess(s), reg.preprocess(t)
                 runs.pair(name, ps, pt, T_gt)
     names = {"shipped": "on" if rc.search_ambiguity else "off", "other": "off" if rc.search_ambiguity else "on"}
-    figures = {"seed": args.seed, "basin": BASIN, "levels": args.levels, "load": _load(),
+    figures = {"seed": args.seed, "good_start": args.good_start, "basin": BASIN, "levels": args.levels, "load": _load(),
                **{names[n]: tally(runs.rows, n) for n in regs},
                "changed": [r for r in runs.rows if "other" in r and r["shipped"]["class"] != r["other"]["class"]],
                "rows": runs.rows}
     for n in regs:
         print(names[n], {f: {c: v[c] for c in (*CLASSES, "wrong_accepted_rows")} for f, v in
                          figures[names[n]].items()}, flush=True)
-    _common.write_json(args.out, f"far_starts_{args.seed}.json", figures)
+    _common.write_json(args.out, f"far_starts_{args.seed}{'_good_start' if args.good_start else ''}.json", figures)
     return 0
 
 
