@@ -92,11 +92,11 @@ def _scene(symmetric: bool) -> np.ndarray:
 
 def test_the_search_answers_not_valid_in_a_place_symmetric_about_a_half_turn():
     """End to end (the shipped model): two scans 1.1 m / 10 degrees apart in a hall that a half turn about its centre
-    maps onto itself, registered from the flip (the truth turned 180 degrees about that centre). Both the truth and its flip fit exactly and the
-    verdict takes either (probability about 1). With registration.verdict_sure 1 every valid answer is weighed against
-    the search's candidates: without the weighing (search_ambiguity off) the flip is answered, valid; with it the
-    answer is not valid. In a place with no symmetry (boxes at random) the answer from a start near the truth has no
-    rival and stays valid, and right."""
+    maps onto itself, registered from the flip (the truth turned 180 degrees about that centre). Both the truth and
+    its flip fit exactly and the verdict takes either (probability about 1). With registration.verdict_sure 1 every
+    valid answer is weighed against the search's candidates: without the weighing (search_ambiguity off) the flip is
+    answered, valid; with it the answer is not valid. In a place with no symmetry (boxes at random) the answer from a
+    start near the truth has no rival and stays valid, and right."""
     from deepbbs_ros.core.registration import DeepBBSRegistration
     from deepbbs_ros.metrics import pair_errors
     from deepbbs_ros.replay.synthetic import scan_at
