@@ -59,6 +59,22 @@ def test_rivals_the_search_would_not_take_do_not_count():
     assert search_ambiguity.weigh(best, seen, rc) == (True, "")
 
 
+def test_which_given_start_answers_are_weighed():
+    """The given start's valid answer that is not sure is weighed (search_ambiguity on), unless the caller vouched
+    for the start (good_start) and the answer stayed within good_start_max_trans / good_start_max_rot_deg (3 m,
+    10 degrees) of it; off, never."""
+    rc = Config().registration
+    on = Config().replace(**{"registration.search_ambiguity": True}).registration
+    start = pose(1.0, 1.0, 0.0, 0.3)
+    near, far = start @ pose(2.0, 0.0, 0.0, np.radians(8.0)), start @ pose(0.0, 0.0, 0.0, np.radians(12.0))
+    st = SimpleNamespace(T_start=start, T=near, vouched=False)
+    assert not search_ambiguity.weighed(st, rc) and search_ambiguity.weighed(st, on)
+    st.vouched = True
+    assert not search_ambiguity.weighed(st, on)
+    st.T = far
+    assert search_ambiguity.weighed(st, on)
+
+
 def _box(rng: np.random.Generator, c, size, n: int) -> np.ndarray:
     """Points on the four sides of an upright box centred at c (2,) of size (sx, sy, sz) m."""
     (x, y), (sx, sy, sz) = c, size

@@ -135,7 +135,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     if (rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep
             or st.skew.startswith("rejected")):  # the sweep's own motion bends any start's pose: no other start helps
         return st
-    if st.valid and (sure(st, rc) or (st.replaced is None and not _weighed(st, rc))):
+    if st.valid and (sure(st, rc) or (st.replaced is None and not search_ambiguity.weighed(st, rc))):
         return st  # a sure answer, or the given start's valid answer (unless weighed)
     seen = [st]  # every candidate through the verdict
 
@@ -178,29 +178,7 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
         best = _shift_retry(reg, best, st, seen)
     clock.lap("global")
-    return _weigh(best, seen, rc)
-
-
-def _weighed(st: Any, rc: Any) -> bool:
-    """``registration.search_ambiguity`` weighs the given start's valid answer that is not sure against the search's
-    candidates, as a search answer is; not where the caller vouched for the start (``register(..., good_start=True)``)
-    and the answer stayed within the good start's limits of it (``registration.good_start_max_*``): a stream of good
-    starts pays nothing more."""
-    if not rc.search_ambiguity:
-        return False
-    if not st.vouched:
-        return True
-    trans, rot = coarse_rescue.moved(st.T_start, st.T)
-    return trans > rc.good_start_max_trans or rot > rc.good_start_max_rot_deg
-
-
-def _weigh(best: Any, seen: list, rc: Any) -> Any:
-    """``best`` not valid where another candidate of ``seen`` makes it ambiguous (``registration.search_ambiguity``,
-    core/search_ambiguity.py; ``best.rival`` says why)."""
-    if rc.search_ambiguity and best.valid:
-        best.valid, why = search_ambiguity.weigh(best, seen, rc)
-        best.rival = why
-    return best
+    return search_ambiguity.settle(best, seen, rc)
 
 
 def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any, seen: list | None = None) -> Any:

@@ -18,9 +18,32 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["WRONG_DEG", "WRONG_M", "distinct", "rival", "weigh"]
+__all__ = ["WRONG_DEG", "WRONG_M", "distinct", "rival", "settle", "weigh", "weighed"]
 
 WRONG_DEG, WRONG_M = 2.0, 0.5  # two poses further apart than this cannot both be right (the goal's wrong pose)
+
+
+def weighed(st: Any, rc: Any) -> bool:
+    """Whether the given start's valid answer that is not sure (``st``, a registration state) is weighed against the
+    search's candidates, as a search answer is (core/global_search.py ``retry``): with
+    ``registration.search_ambiguity``, unless the caller vouched for the start (``register(..., good_start=True)``)
+    and the answer stayed within the good start's limits of it (``registration.good_start_max_*``): a stream of good
+    starts pays nothing more."""
+    if not rc.search_ambiguity:
+        return False
+    if not st.vouched:
+        return True
+    d = np.linalg.solve(np.asarray(st.T_start, np.float64), np.asarray(st.T, np.float64))
+    rot = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    return bool(np.linalg.norm(d[:3, 3]) > rc.good_start_max_trans or rot > rc.good_start_max_rot_deg)
+
+
+def settle(best: Any, seen: list, rc: Any) -> Any:
+    """The search's answer ``best`` (a registration state), not valid where a candidate of ``seen`` makes it ambiguous
+    (:func:`weigh`, with ``registration.search_ambiguity``; ``best.rival`` says why)."""
+    if rc.search_ambiguity and best.valid:
+        best.valid, best.rival = weigh(best, seen, rc)
+    return best
 
 
 def distinct(A: np.ndarray, B: np.ndarray) -> bool:

@@ -122,24 +122,24 @@ def features(src, tgt, T: np.ndarray, rc) -> dict:
 
 
 def _spy(runs: Runs) -> None:
-    """Record, on ``runs.last``, what the search's end (core/global_search.py ``_weigh``) saw: its candidates through
+    """Record, on ``runs.last``, what the search's end (core/search_ambiguity.py ``settle``) saw: its candidates through
     the verdict, the most probable one distinct from the answer (``rival``: probability, deg, m) and why the answer
     was made not valid (``why``)."""
-    from deepbbs_ros.core import global_search, search_ambiguity
+    from deepbbs_ros.core import search_ambiguity
     from deepbbs_ros.metrics import pair_errors
 
-    weigh = global_search._weigh
+    settle = search_ambiguity.settle
 
     def spy(best, seen, rc):
         other = search_ambiguity.rival(best, seen, rc)
-        out = weigh(best, seen, rc)
+        out = settle(best, seen, rc)
         runs.last = {"candidates": len(seen), "why": out.rival, "rival": None if other is None else [
             round(float(other.probability), 3), *(round(float(v), 2) for v in pair_errors(other.T, best.T))],
             "rivals_p": sorted(round(float(c.probability), 3) for c in seen
                                if c is not best and search_ambiguity.distinct(best.T, c.T))[::-1][:3]}
         return out
 
-    global_search._weigh = spy
+    search_ambiguity.settle = spy
 
 
 def tally(rows: list[dict], name: str) -> dict:
