@@ -139,6 +139,11 @@ class RegistrationConfig:
     # this too: a flip that lays the ground on the ground fits little else (simulated Avia courtyard flips scored
     # 0.002-0.01 with probability 0.91-0.92; right answers on a real handheld Livox Avia walk scored 0.25 and more)
     search_min_score: float = 0.1
+    # the global search's answer is weighed against its other candidates (core/search_ambiguity.py): where one beyond
+    # 2 deg / 0.5 m of it is valid too, P(right) is at most p / (p + p_other) and the answer is not valid; the given
+    # start's valid answer that is not sure (verdict_sure) runs the search to be weighed too, unless register() was told
+    # good_start and the answer stayed within good_start_max_*. Far starts: docs/sensors.md
+    search_ambiguity: bool = False
     # the fitness under which the global search ("auto") runs on the deep answer; and the verdict on clouds without a
     # precision stage (registration.polish none, preprocessed arrays), for which the probability is not calibrated
     verdict_threshold: float = 0.35

@@ -17,9 +17,11 @@ sample itself: the same coverage at a quarter of the network's cost at 256 of 51
 passes on all of them. When none is valid, the starts are ranked again on all the points and the best finished.
 When still none passes, the best pose turned by 180 degrees (a road seen backwards) and starts
 ``registration.global_shift`` and twice that m around both (a right yaw slid along a road: pairs 10-15 m apart)
-get the same treatment: a pair that does not overlap pays for all 21 starts. ``DeepBBSRegistration.register``
-runs the search when the answer from the given start does not fit (``registration.global_search: auto``), so a
-good start (consecutive scans, odometry) pays nothing more.
+get the same treatment: a pair that does not overlap pays for all 21 starts. With ``registration.search_ambiguity``
+the given start's valid answer that is not sure goes through the same weighing, and the answer kept is not valid
+where another candidate, beyond 2 degrees / 0.5 m of it, is one the verdict would accept too
+(core/search_ambiguity.py). ``DeepBBSRegistration.register`` runs the search when the answer from the given start
+does not fit (``registration.global_search: auto``), so a good start (consecutive scans, odometry) pays nothing more.
 
 Where the deep passes run: with a network process (a CPU, core/network_process.py) the other start yaws' first
 passes run there right after the given start's, while the caller still builds the GICP clouds
@@ -41,7 +43,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepbbs_ros.core import coarse_rescue
+from deepbbs_ros.core import coarse_rescue, search_ambiguity
 from deepbbs_ros.core.network import Clock, matrix
 from deepbbs_ros.core.search_starts import (  # noqa: F401  (re-exported)
     SHIFT_STARTS,
@@ -124,15 +126,18 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     """The answer still fails the verdict after the precision stage, or came from another start and is not sure
     (:func:`sure`): the next best starts of the search (the given one included, ``global_polish`` in all) through the
     precision stage and the verdict, then (still not sure) the given start's GICP answer, GICP coarse to fine from the
-    given start and the best one's twin; the most probable valid answer wins. Runs the search first if it did not run
-    (``auto`` and a fitting deep answer)."""
+    given start and the best one's twin; the most probable valid answer wins, unless another candidate makes it
+    ambiguous (``registration.search_ambiguity``: then also on the given start's valid answer that is not sure). Runs
+    the search first if it did not run (``auto`` and a fitting deep answer)."""
     rc = reg.config.registration
     if st.replaced is not None:
         _floor(st, rc)  # the answer came from another start: the search's fitness floor
-    if ((st.valid and (st.replaced is None or sure(st, rc))) or rc.global_search == "off" or not st.yaw_search
-            or st.skew.startswith("rejected")  # the sweep's own motion bends any start's pose: no other start helps
-            or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep):
-        return st  # the given start's valid answer, or a search answer that is sure
+    if (rc.global_search == "off" or not st.yaw_search or rc.global_yaws < 2 or not reg.network.n_deep or not rc.deep
+            or st.skew.startswith("rejected")):  # the sweep's own motion bends any start's pose: no other start helps
+        return st
+    if st.valid and (sure(st, rc) or (st.replaced is None and not search_ambiguity.weighed(st, rc))):
+        return st  # a sure answer, or the given start's valid answer (unless weighed)
+    seen = [st]  # every candidate through the verdict
 
     def tensors(out: Any) -> tuple:
         return tuple(torch.as_tensor(x, dtype=torch.float32, device=reg.device) for x in (out.R, out.t, out.gamma))
@@ -151,35 +156,35 @@ def retry(reg: Any, st: Any, clock: Any) -> Any:
     def from_tensors(cand: Any, start: tuple) -> None:
         cand.R, cand.t, cand.gamma = start
 
-    best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors)
+    best = _finish_best(reg, st, st, others[: max(0, rc.global_polish - 1)], from_tensors, seen)
     if not sure(best, rc):  # the given start itself, and the best answer's 180-degree twin, through the precision stage
         flip = twin(best.T, st.src_np)
-        best = _finish_best(reg, st, best, [st.T_start], _from_pose(reg))
+        best = _finish_best(reg, st, best, [st.T_start], _from_pose(reg), seen)
         if (not sure(best, rc) and st.src_pc is not None and st.tgt_pc is not None and st.polish_check is None
                 and rc.polish != "none"):
             # outside GICP's fine basin but near: the given start coarse to fine (the network's answers missed it); not
             # in a search over candidate places (a polish_check: most are wrong, each kept cheap), and not without a
             # precision stage (registration.polish "none": the network alone runs no GICP)
             best = _finish_best(reg, st, best, [coarse_rescue.pyramid(st.src_pc, st.tgt_pc, st.T_start, rc,
-                                                                      reg.gicp_threads())], _from_pose(reg))
-        best = _finish_best(reg, st, best, [flip], _from_pose(reg)) if not sure(best, rc) else best
+                                                                      reg.gicp_threads())], _from_pose(reg), seen)
+        best = _finish_best(reg, st, best, [flip], _from_pose(reg), seen) if not sure(best, rc) else best
     n = min(len(st.src_np), len(st.tgt_np))
     if not best.valid and rank_size(rc, n) < n:  # ranked on a prefix: the yaw starts ranked again on all the points
         probe = dataclasses.replace(st, iters=dict(st.iters), spec=None, replaced=None)
         with torch.inference_mode(), reg.network.torch_threads():
             before_precision(reg, probe, clock, force=True, full=True)
         if probe.replaced is not None:
-            best = _finish_best(reg, st, best, [(probe.R, probe.t, probe.gamma)], from_tensors)
+            best = _finish_best(reg, st, best, [(probe.R, probe.t, probe.gamma)], from_tensors, seen)
     if not best.valid and rc.global_shift > 0:  # right yaw, slid along a road: starts shifted around the best
-        best = _shift_retry(reg, best, st)
+        best = _shift_retry(reg, best, st, seen)
     clock.lap("global")
-    return best
+    return search_ambiguity.settle(best, seen, rc)
 
 
-def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
+def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any, seen: list | None = None) -> Any:
     """Each deep answer of ``starts`` (in order) set on a copy of ``st`` by ``apply(cand, start)``, then the
-    precision stage, the deskew stage and the verdict; the most probable so far is kept, and the first sure one
-    (:func:`sure`) ends the loop."""
+    precision stage, the deskew stage and the verdict (each appended to ``seen``); the most probable so far is kept,
+    and the first sure one (:func:`sure`) ends the loop."""
     for start in starts:
         cand = dataclasses.replace(st, iters=dict(st.iters), polish_reason="", deskew="")
         apply(cand, start)
@@ -187,6 +192,8 @@ def _finish_best(reg: Any, st: Any, best: Any, starts: list, apply: Any) -> Any:
         reg._deskew(cand, Clock(reg.device))
         reg._verdict(cand)
         _floor(cand, reg.config.registration)
+        if seen is not None:
+            seen.append(cand)
         if (cand.valid, cand.probability, cand.score) > (best.valid, best.probability, best.score):
             best = cand
         if sure(best, reg.config.registration):
@@ -228,7 +235,7 @@ def sure(st: Any, rc: Any) -> bool:
     return bool(st.valid and st.probability >= rc.verdict_sure)
 
 
-def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
+def _shift_retry(reg: Any, best: Any, st: Any, seen: list | None = None) -> Any:
     """The best pose so far turned by 180 degrees (a road seen backwards), and starts ``registration.global_shift``
     and twice that m from both (four horizontal directions, in the target frame): the full deep passes from
     each (17 starts), the best fitting ones through the precision stage."""
@@ -242,6 +249,6 @@ def _shift_retry(reg: Any, best: Any, st: Any) -> Any:
             T = matrix(out.R, out.t, scale)
             outs.append((reg._score(st, T, 2.0 * rc.verdict_dist), out))
     outs.sort(key=lambda o: -o[0])
-    best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network)
+    best = _finish_best(reg, st, best, [out for _, out in outs[: rc.global_polish]], reg._apply_network, seen)
     best.starts = rc.global_yaws + len(outs)
     return best

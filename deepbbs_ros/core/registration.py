@@ -197,6 +197,7 @@ class DeepBBSRegistration(RegistrationInputs, NetworkStages, RefineStages, Preci
             clock.lap("startup")
         st = self._start(source, target, T_init, preprocessed)  # preprocess (raw scans only)
         st.yaw_search, st.polish_check = yaw_search, polish_check
+        st.vouched = good_start and T_init is not None  # the caller vouches for the start (core/global_search.py)
         clock.lap("preprocess")
         with torch.inference_mode(), self.network.torch_threads(), answer_read(st):
             self._deep_passes(st, clock)  # embed / match / solve, repeated on the moved source (or sent off)

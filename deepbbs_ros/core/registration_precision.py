@@ -71,9 +71,10 @@ class PrecisionStages:
         scene-sized grids (``registration.polish_voxel_angle``, :func:`core.polish.finish`: a narrow place's walls,
         floor and ceiling, which GICP's grid blends) and judged again (``registration.finish_grid`` "both": where
         GICP's grid does not hold it, on both grids, core/finish_verdict.py). Not on scans deskewed with their own
-        velocities (the finer grids are the scans as measured); an answer the verdict takes stays GICP's."""
+        velocities (the finer grids are the scans as measured), nor on one another candidate of the search made
+        ambiguous (core/search_ambiguity.py); an answer the verdict takes stays GICP's."""
         rc = self.config.registration
-        if (st.valid or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
+        if (st.valid or st.rival or rc.polish == "none" or st.polish_reason != "ok" or st.deskew == "deskewed"
                 or st.skew.startswith("rejected")  # a bent sweep: a finer grid does not unbend it
                 or st.src_pc is None or st.tgt_pc is None):
             return

@@ -54,6 +54,8 @@ class State:
     probability: float = float("nan")  # the verdict: P(right)
     valid: bool = False
     ambiguity: Any = None  # core.second_minimum.Ambiguity of the verdict's check (None: not checked)
+    vouched: bool = False  # register(good_start=True) with a T_init: the caller vouches for the start
+    rival: str = ""  # the search's answer ambiguous with another candidate (core/search_ambiguity.py): why
     starts: int = 1
     others: Any = None  # the global search's other starts, ranked: [(score, NetworkOutput, T)]
     replaced: Any = None  # (R, t, gamma) of the given start's answer when the search replaced it
