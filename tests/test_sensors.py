@@ -66,6 +66,9 @@ def test_guess_from_the_shape_of_every_simulated_sensor(mount, place):
         with_driver = {"avia": "livox_avia", "mid360": "livox_mid360"}.get(name) or by_driver[driver_of(name)]
         for compensate in (False, True):
             scan = make_simulator(place, 5, name, mount, frames=3, compensate=compensate).scan_at(1).points
+            # the guess's subsample says what every point says
+            full, kept = azimuth_coverage(scan, len(scan)), azimuth_coverage(scan)
+            assert (kept < 0.5) == (full < 0.5), (name, kept, full)
             if name != "mid360":
                 assert guess_sensor(scan) == ("livox_avia" if name == "avia" else None), (name, compensate)
             assert guess_sensor(scan, driver_of(name)) == with_driver, (name, compensate)

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import anchoring, calibrated, second_minimum, verdict, visibility
+from deepbbs_ros.core import anchoring, calibrated, plane_matches, second_minimum, verdict, visibility
 
 __all__ = ["degenerate", "judge"]
 
@@ -37,8 +37,9 @@ _AXES = ("x", "y", "z", "a roll about x", "a pitch about y", "a yaw about z")
 def _probability(pts: np.ndarray, T: np.ndarray, target: Any, dist: float,
                  pinned: float | None = None) -> tuple[float, float]:
     """(the good-start verdict's probability of ``T`` (4, 4) from ``pts`` against ``target`` at ``dist`` m, with
-    ``pinned`` in place of the measured one when given; the measured ``pinned``)."""
-    f = visibility.pose_features(pts, T, target, dist, 1, True, True)
+    ``pinned`` in place of the measured one when given; the measured ``pinned``): the features it reads
+    (core/verdict.py ``features``: kept on the target, the good start's own verdict of the same pose)."""
+    f = verdict.features(pts, T, target, dist, "good_start")
     own = float(f[_PINNED])
     if pinned is not None:
         f[_PINNED] = pinned
@@ -92,7 +93,7 @@ def degenerate(pts: np.ndarray, T: np.ndarray, spc: Any, tpc: Any, rc: Any, bar:
     scene = None if why else verdict.on_scene_grid(spc, tpc, rc)
     if scene is None:
         return ""
-    fine_pin = _probability(scene[0], T, scene[1], scene[2])[1]
+    fine_pin = plane_matches.pose_pinned(scene[0], T, scene[1], scene[2])  # its hold alone: the rest is GICP's grid's
     p_both, _ = _probability(pts, T, tpc, rc.verdict_dist, fine_pin)
     if not verdict.is_valid(p_both, bar):
         return ""

@@ -12,11 +12,12 @@ The caller vouches for ``T_init`` (consecutive scans, a fixed mounting, a map fr
     finish      converged, not accepted: GICP's pose finished on the scans' scene-sized grids (registration.
                 polish_voxel_angle, core/polish.py finish: a narrow place GICP's grid blends), judged again, on
                 both grids where GICP's does not hold it (registration.good_start_finish_grid, core/finish_verdict.py)
-    coarse      not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict is
-                sure (registration.verdict_sure) within the coarse try's reach
-    degenerate  still not accepted, and GICP's grid takes the finished pose but for the hold of its weakest direction
+    degenerate  not accepted, and GICP's grid takes the finished pose but for the hold of its weakest direction
                 that the scene's grids give it (core/finish_verdict.py degenerate, registration.good_start_degenerate):
-                that pose, not valid, "not valid: degenerate along ..." (no other start makes the verdict take one)
+                that pose, not valid, "not valid: degenerate along ..." (no other start makes the verdict take one:
+                the coarse try took none of them, scripts/benchmarks/good_start_degenerate.py seeds 39-43)
+    coarse      still not accepted: GICP coarse to fine from T_init (core/coarse_rescue.py), taken when the verdict
+                is sure (registration.verdict_sure) within the coarse try's reach
     else        the full pipeline on the same clouds (:class:`Attempt` hands them over)
 
 Why the first GICP is judged by the verdict alone, however far it moved: the verdict is a probability that the pose
@@ -90,19 +91,20 @@ def attempt(reg: Any, source: Any, target: Any, T_init: np.ndarray, preprocessed
             pol.reason if not pol.applied else f"verdict {prob:.2f} < registration.good_start_probability "
             f"{rc.good_start_probability}" if not verdict.is_valid(prob, rc.good_start_probability) else
             "a second minimum as good along its weakest direction (registration.good_start_second_minimum)")
+        stuck = "" if fine[0] is None or not rc.good_start_degenerate else finish_verdict.degenerate(
+            pts, fine[0].T_target_source, spc, tpc, rc, rc.good_start_probability)
+        if stuck:  # before the coarse try (see the module)
+            clock.lap("good_start")
+            reg._searched.append(False)  # the finished pose, not valid: no search can pin it either
+            res = answer(src, tgt, fine[0], _probability(fine[0], "", pts, tpc, rc), pts, tpc, rc, stuck, clock)
+            res.valid = False
+            return Attempt(src, tgt, stuck, res)
         pol, why = coarse_rescue.coarse_then_fine(spc, tpc, T0, rc, reg.gicp_threads())  # coarse to fine, when sure
         prob = _probability(pol, why, pts, tpc, rc, spc)
         if not verdict.is_valid(prob, sure):
             clock.lap("good_start")
             then = why or f"verdict {prob:.2f} < registration.verdict_sure {sure}"
-            stuck = "" if fine[0] is None or not rc.good_start_degenerate else finish_verdict.degenerate(
-                pts, fine[0].T_target_source, spc, tpc, rc, rc.good_start_probability)
-            if not stuck:
-                return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
-            reg._searched.append(False)  # the finished pose, not valid: no search can pin it either
-            res = answer(src, tgt, fine[0], _probability(fine[0], "", pts, tpc, rc), pts, tpc, rc, stuck, clock)
-            res.valid = False
-            return Attempt(src, tgt, stuck, res)
+            return Attempt(src, tgt, reason=f"{first}; coarse to fine: {then}")
         accepted = f"accepted after coarse to fine ({first})"
     reg._searched.append(False)
     res = answer(src, tgt, pol, prob, pts, tpc, rc, accepted, clock)

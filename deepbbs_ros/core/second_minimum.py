@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from deepbbs_ros.core import anchoring, verdict
+from deepbbs_ros.core import anchoring, plane_matches, verdict
 from deepbbs_ros.core.polish import MIN_POLISH_POINTS, SMALL_GICP_TYPE, correspondence_distance, gicp_align, polish
 from deepbbs_ros.core.polish_result import outcome
 from deepbbs_ros.core.polish_view import PolishView
@@ -67,14 +67,15 @@ def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[n
     """The twist (6,) of one tolerance along the weakest direction of the pose that moved the verdict's points to
     ``moved`` (N, 3), and the uncertainty along it in tolerances (see the module); (None, inf) with too few plane
     matches on the target's normals."""
-    idx, sq = tgt_pc.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
-    idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
     if isinstance(tgt_pc, PolishView):  # a map crop: the map's points and normals, in the crop's frame
+        idx, sq = tgt_pc.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
+        idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
         tpts, normals = tgt_pc.at(idx)
-    else:
-        normals, tpts = np.asarray(tgt_pc.cloud.normals())[:, :3], np.asarray(tgt_pc.cloud.points())[:, :3]
-        if len(normals) != len(tpts) or not np.any(normals):
+    else:  # a scan's cloud: the verdict's search of the same points and its normals, kept on it
+        tpts, normals = plane_matches.surface(tgt_pc)
+        if normals is None:
             return None, float("inf")
+        idx, sq = plane_matches._nearest(tgt_pc, moved, threads)
         tpts, normals = tpts[idx], normals[idx]
     plane = np.einsum("ij,ij->i", moved - tpts, normals)
     m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
@@ -120,7 +121,10 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
     if twist is None or unc <= max(loose, WRONG):
         return Ambiguity(uncertainty=unc)
     k = float(np.clip(unc, STEPS[0], STEPS[-1]))
-    f = verdict.fitness(pts, tgt_pc.tree, T, dist, threads)
+    if isinstance(tgt_pc, PolishView):
+        f = verdict.fitness(pts, tgt_pc.tree, T, dist, threads)
+    else:  # the same share from the search :func:`weakest` read (kept on the cloud)
+        f = float(np.mean(plane_matches._nearest(tgt_pc, moved, threads)[1] <= dist * dist))
     n = len(pts)
     p = (f * n + 1.0) / (n + 2.0)  # the share's estimate by the rule of succession: a spread even at 0 or 1
     margin = SIGMAS * np.sqrt(p * (1.0 - p) / n)

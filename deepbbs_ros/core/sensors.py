@@ -29,13 +29,16 @@ DRIVER_SENSORS: dict[str, str | None] = {"velodyne": None, "ouster": "ouster", "
 
 _NARROW = 0.5  # a cloud filling less than this fraction of the azimuth circle is a narrow solid-state sensor
 _AZ_BINS = 36  # 10-degree azimuth bins
-_MAX_SHAPE_POINTS = 4096  # the shape guess reads an even subsample
+#: the shape guess reads an even subsample of about this many points (1,024 gave the same guess on every real set and
+#: simulated sensor, but not on a simulated Mid-360 corridor scan moved 2 m off its sensor: 0.50 against 0.47)
+_MAX_SHAPE_POINTS = 4096
 
 
-def azimuth_coverage(points: np.ndarray) -> float:
+def azimuth_coverage(points: np.ndarray, max_points: int = _MAX_SHAPE_POINTS) -> float:
     """Fraction of the 36 ten-degree azimuth bins (sensor frame, around +z) holding at least 0.2 % of the
-    finite points of ``points`` (N, 3): about 1 for a spinning sensor, about 0.2 for a Livox Avia."""
-    pts = np.asarray(points)[:: max(1, len(points) // _MAX_SHAPE_POINTS)]
+    finite points of ``points`` (N, 3) (an even subsample of about ``max_points``): about 1 for a spinning sensor,
+    about 0.2 for a Livox Avia."""
+    pts = np.asarray(points)[:: max(1, len(points) // max_points)]
     if pts.ndim == 2 and pts.shape[1] == 3:  # column by column: a quarter of the time of a row-wise all()
         finite = np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & np.isfinite(pts[:, 2])
     else:
@@ -45,7 +48,9 @@ def azimuth_coverage(points: np.ndarray) -> float:
     if len(pts) == 0:
         return 0.0
     az = np.arctan2(pts[:, 1], pts[:, 0])
-    hist = np.bincount(((az + np.pi) / (2 * np.pi) * _AZ_BINS).astype(int) % _AZ_BINS, minlength=_AZ_BINS)
+    hist = np.bincount(((az + np.pi) / (2 * np.pi) * _AZ_BINS).astype(np.int64), minlength=_AZ_BINS + 1)
+    hist[0] += hist[_AZ_BINS:].sum()  # +pi is -pi's bin (a modulo costs more than the rest)
+    hist = hist[:_AZ_BINS]
     return float(np.count_nonzero(hist >= 0.002 * len(pts))) / _AZ_BINS
 
 

@@ -34,6 +34,14 @@ from deepbbs_ros.core.directions import (  # noqa: F401  (re-exported)
     directions,
     in_view,
 )
+from deepbbs_ros.core.plane_matches import (  # noqa: F401  (re-exported)
+    _PIN_MIN,
+    _nearest,
+    _plane_matches,
+    pinned,
+    pose_pinned,
+    surface,
+)
 from deepbbs_ros.core.target_surface import (  # noqa: F401  (re-exported)
     _OWN_Q,
     _SELF_POINTS,
@@ -50,27 +58,11 @@ from deepbbs_ros.core.target_surface import (  # noqa: F401  (re-exported)
     target_points,
 )
 
-
-def _nearest(target, moved: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
-    """(index, squared distance) of the nearest target point of each of ``moved`` (N, 3) in a precision-stage cloud's
-    k-d tree; the last answer is kept on the cloud, so that the same points asked again (the verdict's features,
-    then the good start's score of the same pose) cost one search. Kept whole (the points' bytes with the answer) and
-    compared exactly: threads asking side by side get a right answer either way."""
-    key = moved.tobytes()
-    last = getattr(target, "_nearest_last", None)
-    if last is not None and last[0] == key:
-        return last[1], last[2]
-    idx, sq = anchoring.nearest(target.tree, moved, threads)
-    target._nearest_last = (key, idx, sq)
-    return idx, sq
-
-
 #: the features :func:`features` returns, in order
 FEATURES = ("fitness", "fitness_close", "plane_close", "consistency", "observable", "violations", "plane_rel",
             "plane_own", "violations_nb", "consistency_nb", "pinned", "in_view", "observable_rel", "anchored",
             "anchored_far")
 _NEIGHBOURS = np.array([di + dj for di in (-100_000, 0, 100_000) for dj in (-1, 0, 1)], np.int64)  # the 3 x 3 cells
-_PIN_MIN = 6  # close plane matches ``pinned`` needs (fewer: 0)
 
 
 def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: float,
@@ -164,29 +156,6 @@ def features(moved: np.ndarray, sq_dist: np.ndarray, target: np.ndarray, dist: f
                      *((1.0, 1.0) if anchored is None else anchored)])
 
 
-def pinned(points: np.ndarray, normals: np.ndarray, tol: float, info: np.ndarray | None = None) -> float:
-    """How well point-to-plane matches pin a pose: ``s^2 / (s^2 + tol^2)`` (its log-odds: ``2 log(s / tol)``).
-
-    ``s`` (m) is the root-mean-square change of the matches' point-to-plane residuals when the pose moves by one
-    unit along its weakest direction, a unit being a right pose's tolerance (0.3 m, 1 degree): the smallest eigenvalue
-    of the per-point information ``mean(a a^T)``, ``a = [n, p x n]`` (the target's normal ``n`` at the match, the moved
-    point ``p``), scaled to those units. Equivalently ``tol / s`` is the pose's uncertainty along that direction in
-    those units, when each residual is known to ``tol``. A single wall or a corridor leaves a direction free (near 0);
-    a box corner or a street with cross walls pins every one. Per point, so that it means the same for 3,000 points as
-    for 120,000; below :data:`_PIN_MIN` matches, 0.
-
-    Args:
-        points: (K, 3) the matched points moved into the target's frame, metres.
-        normals: (K, 3) the target's unit normals at their matches.
-        tol: m, the residual tolerance (``plane_close``'s, ``dist / 5``).
-        info: their ``anchoring.information``, when the caller has it (None: computed here).
-    """
-    if len(points) < _PIN_MIN:
-        return 0.0
-    s2 = max(float(np.linalg.eigvalsh(anchoring.information(points, normals) if info is None else info)[0]), 0.0)
-    return s2 / (s2 + tol * tol)
-
-
 def _around(ukey: np.ndarray, nearest: np.ndarray, skey: np.ndarray) -> np.ndarray:
     """The nearest target return (m) in each of the cells ``skey`` and their 8 neighbours (inf where none)."""
     k = (skey[None, :] + _NEIGHBOURS[:, None]).ravel()
@@ -248,12 +217,7 @@ def _pose_features(moved: np.ndarray, target, dist: float, threads: int, anchor:
     sq = np.asarray(sq, np.float64)
     if normals is None:
         return features(moved, sq, table, dist, None, own, tol, view=view)
-    nidx = normals[idx]
-    plane = np.einsum("ij,ij->i", moved - tpts[idx], nidx)
-    m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s: features' on_plane)
-    pm, nm = moved[m], nidx[m]
-    info = anchoring.information(pm, nm) if len(pm) >= _PIN_MIN else None
-    pin = pinned(pm, nm, 0.2 * dist, info)
+    nidx, plane, pm, nm, info, pin = _plane_matches(moved, idx, sq, tpts, normals, dist)
     held = None
     if anchor:
         bound = None if isinstance(anchor, (bool, np.bool_)) else float(anchor)
