@@ -14,7 +14,7 @@
 The result is a :class:`MapBuild`: (N, 3) map points and the (K, 4, 4) ``T_map_sensor`` poses of the scans
 used, which a :class:`~deepbbs_ros.core.localization.MapLocalizer` takes as its ``trajectory``. Frames: see
 CONVENTIONS.md (``T_map_sensor``: p_map = R p_sensor + t). No ROS import, no file I/O (see
-:mod:`deepbbs_ros.datasets.maps`).
+:mod:`deepbbs_ros.datasets.maps`). The voxel grid: :mod:`deepbbs_ros.core.voxel_map` (imported from here too).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deepbbs_ros.config import Config
+from deepbbs_ros.core.voxel_map import VoxelMap, voxel_down_sample  # noqa: F401  (re-exported)
 from deepbbs_ros.datasets.base import Scan
 from deepbbs_ros.errors import DatasetError, DeepBBSError
 from deepbbs_ros.reprs import short_repr
@@ -34,54 +35,6 @@ __all__ = ["MAP_SOURCES", "MapBuild", "VoxelMap", "build_map"]
 
 #: where a map's poses come from: ``auto`` = the ground truth when the recording has it, else the odometry
 MAP_SOURCES = ("auto", "truth", "odometry")
-
-
-def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(N, 3) -> (M, 3) float64, one point per ``voxel``-metre cell (the first one in ``points`` order)."""
-    from kiss_icp.voxelization import voxel_down_sample as kiss_voxel_down_sample
-
-    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    if not len(pts):
-        return pts
-    return np.asarray(kiss_voxel_down_sample(pts, float(voxel)), dtype=np.float64).reshape(-1, 3)
-
-
-class VoxelMap:
-    """Points accumulated on a voxel grid: ``add`` world points, ``points`` the grid's (M, 3) float64.
-
-    New points wait in a buffer and are merged (the grid's points first, so theirs stay) once the buffer holds
-    ``flush_points`` or as many points as the grid, whichever is more: each merge costs about the points added
-    since the last one (amortised linear in the scans), memory stays within about twice the map."""
-
-    def __init__(self, voxel: float, flush_points: int = 2_000_000) -> None:
-        if not voxel > 0:
-            raise DatasetError(f"map voxel must be > 0 m, got {voxel}")
-        self.voxel = float(voxel)
-        self.flush_points = int(flush_points)
-        self._grid = np.zeros((0, 3))
-        self._pending: list[np.ndarray] = []
-        self._pending_n = 0
-
-    def add(self, points: np.ndarray) -> None:
-        """``points`` (N, 3) in the map frame, metres."""
-        self._pending.append(voxel_down_sample(points, self.voxel))  # a scan's own duplicates first: cheaper
-        self._pending_n += len(self._pending[-1])
-        if self._pending_n >= max(self.flush_points, len(self._grid)):
-            self._flush()
-
-    def _flush(self) -> None:
-        if self._pending:
-            self._grid = voxel_down_sample(np.concatenate([self._grid, *self._pending]), self.voxel)
-            self._pending, self._pending_n = [], 0
-
-    @property
-    def points(self) -> np.ndarray:
-        """(M, 3) float64 map points, one per voxel."""
-        self._flush()
-        return self._grid
-
-    def __len__(self) -> int:
-        return len(self.points)
 
 
 @dataclass

@@ -4,7 +4,8 @@ Apollo-SouthBay ships its scans as ``pcds/N.pcd`` with fields ``x y z intensity`
 possible). This module reads any PCD field layout (types F/I/U of size 1, 2, 4, 8, any COUNT,
 padding fields named ``_``) and writes the three encodings. ``binary_compressed`` uses LZF
 (liblzf's format, in pure Python in datasets/lzf.py, so no C extension is needed) over the data
-stored field by field (all x, then all y, ...), as PCL does.
+stored field by field (all x, then all y, ...), as PCL does. The writer is in datasets/pcd_write.py, the
+format's types and encodings in datasets/pcd_format.py (every name is imported from here too).
 """
 
 from __future__ import annotations
@@ -14,23 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from deepbbs_ros.datasets.base import check_scan_file, valid_mask
-from deepbbs_ros.datasets.lzf import lzf_compress, lzf_decompress
+from deepbbs_ros.datasets.lzf import lzf_compress, lzf_decompress  # noqa: F401  (lzf_compress re-exported)
+from deepbbs_ros.datasets.pcd_format import _ENCODINGS, _HEADER_KEYS, _TYPES
+from deepbbs_ros.datasets.pcd_write import write_pcd  # noqa: F401  (re-exported)
 from deepbbs_ros.errors import DatasetError
-
-_TYPES = {
-    ("F", 4): np.float32,
-    ("F", 8): np.float64,
-    ("I", 1): np.int8,
-    ("I", 2): np.int16,
-    ("I", 4): np.int32,
-    ("I", 8): np.int64,
-    ("U", 1): np.uint8,
-    ("U", 2): np.uint16,
-    ("U", 4): np.uint32,
-    ("U", 8): np.uint64,
-}
-_HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
-_ENCODINGS = ("ascii", "binary", "binary_compressed")
 
 
 # --------------------------------------------------------------------------------------------- read
@@ -169,7 +157,6 @@ def read_pcd(path: Path | str) -> dict[str, np.ndarray]:
     return out
 
 
-# -------------------------------------------------------------------------------------------- write
 def read_pcd_points(path: Path | str, *, require_points: bool = False) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """A PCD file as a point cloud: (xyz (N, 3) float32 metres, the other fields (N,)), rows with a
     non-finite coordinate dropped.
@@ -186,73 +173,3 @@ def read_pcd_points(path: Path | str, *, require_points: bool = False) -> tuple[
     if require_points:
         check_scan_file(Path(path), len(xyz), int(keep.sum()))
     return xyz[keep], {k: v[keep] for k, v in arrays.items()}
-
-
-def _pcd_type(dtype: np.dtype) -> tuple[str, int]:
-    dtype = np.dtype(dtype)
-    kind = {"f": "F", "i": "I", "u": "U", "b": "U"}.get(dtype.kind)
-    if kind is None or (kind, dtype.itemsize) not in _TYPES:
-        raise DatasetError(f"cannot write dtype {dtype} to PCD")
-    return kind, dtype.itemsize
-
-
-def write_pcd(path: Path | str, arrays: dict[str, np.ndarray], encoding: str = "binary") -> None:
-    """Write a PCD v0.7 file.
-
-    Args:
-        path: output file.
-        arrays: ``{name: (N,) or (N, count) array}``; ``x``, ``y``, ``z`` first when present. A
-            ``points``/``xyz`` entry of shape (N, 3) is written as fields ``x y z``.
-            Apollo layout: ``{"points": (N, 3) float32, "intensity": (N,) float32}``.
-        encoding: ``"binary"`` (default), ``"ascii"`` or ``"binary_compressed"`` (LZF).
-    """
-    path = Path(path)
-    if encoding not in _ENCODINGS:
-        raise DatasetError(f"PCD encoding must be one of {', '.join(_ENCODINGS)}, got {encoding!r}")
-    cols: dict[str, np.ndarray] = {}
-    for name, arr in arrays.items():
-        arr = np.asarray(arr)
-        if name in ("points", "xyz"):
-            arr = arr.reshape(-1, 3)
-            cols.update({"x": arr[:, 0], "y": arr[:, 1], "z": arr[:, 2]})
-        else:
-            cols[name] = arr
-    order = [k for k in ("x", "y", "z") if k in cols] + [k for k in cols if k not in ("x", "y", "z")]
-    cols = {k: (cols[k].reshape(len(cols[k]), -1) if cols[k].ndim > 1 else cols[k].reshape(-1, 1)) for k in order}
-    sizes_n = {len(v) for v in cols.values()}
-    if len(sizes_n) > 1:
-        raise DatasetError(f"{path}: PCD fields have different lengths {sorted(sizes_n)}")
-    npoints = sizes_n.pop() if sizes_n else 0
-    types = [_pcd_type(v.dtype) for v in cols.values()]
-    header = (
-        "# .PCD v0.7 - Point Cloud Data file format\n"
-        "VERSION 0.7\n"
-        f"FIELDS {' '.join(cols)}\n"
-        f"SIZE {' '.join(str(s) for _, s in types)}\n"
-        f"TYPE {' '.join(t for t, _ in types)}\n"
-        f"COUNT {' '.join(str(v.shape[1]) for v in cols.values())}\n"
-        f"WIDTH {npoints}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {npoints}\nDATA {encoding}\n"
-    ).encode("ascii")
-    le = {k: np.ascontiguousarray(v.astype(v.dtype.newbyteorder("<"))) for k, v in cols.items()}
-    if encoding == "binary":
-        rec = np.empty(npoints, dtype=[(f"f{i}", v.dtype, (v.shape[1],)) for i, v in enumerate(le.values())])
-        for i, v in enumerate(le.values()):  # interleave: one record per point
-            rec[f"f{i}"] = v
-        body = rec.tobytes()
-    elif encoding == "binary_compressed":
-        raw = b"".join(v.tobytes() for v in le.values())
-        comp = lzf_compress(raw) if raw else b""
-        body = np.array([len(comp), len(raw)], dtype="<u4").tobytes() + comp
-    else:
-        fmts = []
-        for v in cols.values():
-            f = "%.9g" if v.dtype == np.float32 else "%.17g" if v.dtype.kind == "f" else "%d"
-            fmts += [f] * v.shape[1]
-        table = [v.astype(object) if v.dtype.kind != "f" else v for v in cols.values()]
-        lines = []
-        for i in range(npoints):
-            vals = [x for v in table for x in v[i]]
-            lines.append(" ".join(f % x for f, x in zip(fmts, vals)))
-        body = ("\n".join(lines) + ("\n" if lines else "")).encode("ascii")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(header + body)

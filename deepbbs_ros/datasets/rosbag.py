@@ -40,16 +40,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from deepbbs_ros.datasets.bag_any import AnyBackend
-from deepbbs_ros.datasets.bag_common import (
-    POINTCLOUD2,
-    POSE_TYPES,
-    count_messages,
-    detail,
-    is_bag,
-    is_mcap,
-    metadata_counts,
-)
-from deepbbs_ros.datasets.bag_copy import copy_messages
+from deepbbs_ros.datasets.bag_common import POINTCLOUD2, POSE_TYPES, detail, is_bag, is_mcap
+from deepbbs_ros.datasets.bag_info import BagInfo
 from deepbbs_ros.datasets.bag_mcap import McapBackend
 from deepbbs_ros.datasets.bag_topics import cloud_topics, gt_to_matrix, pick_gt_topic, pick_topic, several_clouds
 from deepbbs_ros.datasets.bag_write import rosbag2_writer, write_rosbag, write_rosbag1
@@ -62,13 +54,14 @@ __all__ = [  # the public names, wherever they live
 ]
 
 
-class BagSource(ScanSource):
+class BagSource(BagInfo, ScanSource):
     """Scans from a ROS 1/ROS 2 bag or bare mcap file, in recording order, index 0-based.
 
     Recording order is stamp order for bags written by this package (log time = header stamp)
     and for normal recordings of one LiDAR. Scans and ground truth are read in one pass: a scan is
     yielded once the poses around its stamp have been read, so damage in the middle of a recording
-    costs only what comes after it.
+    costs only what comes after it. What it holds (``info``, ``read_counts``) and its copy (``copy_to``):
+    datasets/bag_info.py.
     """
 
     def __init__(
@@ -181,46 +174,3 @@ class BagSource(ScanSource):
 
     def close(self) -> None:
         self.backend.close()
-
-    def read_counts(self) -> tuple[dict[str, tuple[str, int]], str | None]:
-        """Read the whole recording (every chunk CRC-checked, nothing decoded): ({topic: (type, count)},
-        the damage met or None)."""
-        topics, _lo, _hi, error = count_messages(self.backend)
-        if isinstance(self.backend, McapBackend):
-            crc = self.backend.data_crc_errors()
-            if crc and not error:  # damage outside the chunks (their own CRCs passed)
-                error = "; ".join(crc)
-        return topics, error
-
-    def copy_to(self, out: Path | str, storage: str = "mcap", *, topic: str | None = None,
-                gt_topic: str | None = None, max_frames: int | None = None) -> int:
-        """Copy the LiDAR topic (and the ground-truth topic) message by message into a new rosbag2:
-        the clouds keep their bytes (layout, fields, organisation, frame), each topic its type; ``topic``
-        / ``gt_topic`` rename them in the copy. ROS 2 recordings only (a ROS 1 cloud has another
-        serialisation: see :func:`write_rosbag`). Damage stops the copy as reading does (strict: BagError;
-        lenient: recorded in ``errors``, the copy holds everything before it). Returns the clouds written.
-        """
-        return copy_messages(self, out, storage, topic, gt_topic, max_frames)
-
-    def info(self) -> dict:
-        """What the recording holds, counted by reading it (``frames`` = scans on the LiDAR topic);
-        ``metadata_counts`` where metadata.yaml states other counts, ``damage`` where reading stopped."""
-        counts, damage = self.read_counts()
-        types = {t: typ for t, (typ, _) in self.backend.topics.items()}
-        d = super().info()  # path, format, topics, frames (here: as counted), ground truth
-        d["frames"] = counts.get(self.topic, ("", 0))[1] if self.topic else None
-        d.update({
-            "cloud_topics": self.cloud_topics,
-            "duration_s": (self.backend.end_ns - self.backend.start_ns) * 1e-9,
-            "start_ns": self.backend.start_ns,
-            "topics": [{"topic": t, "type": types.get(t, counts.get(t, ("?",))[0]), "count": counts.get(t, ("", 0))[1]}
-                       for t in sorted(set(types) | set(counts))],
-        })
-        meta = metadata_counts(self.path)
-        if meta is not None:
-            differ = {t: n for t, n in meta.items() if n != counts.get(t, ("", 0))[1]}
-            if differ:
-                d["metadata_counts"] = differ
-        if damage:
-            d["damage"] = damage
-        return d

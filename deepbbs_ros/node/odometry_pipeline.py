@@ -1,19 +1,23 @@
 """The node's odometry, one ``step(cloud)`` per scan (no ROS import): :class:`LocalMapOdometry` (the default) and
-:class:`ScanToScanOdometry`, each returning an :class:`OdometryEstimate` (see :mod:`deepbbs_ros.node.pipeline`)."""
+:class:`ScanToScanOdometry` (node/scan_to_scan.py), each returning an :class:`OdometryEstimate`
+(node/odometry_estimate.py; see :mod:`deepbbs_ros.node.pipeline`); those names are imported from here too."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from deepbbs_ros.core.covariance import SWEEP_SPREAD, compose
 from deepbbs_ros.errors import RegistrationError
-from deepbbs_ros.node.covariance import alignment_quality, twist_covariance, twist_from_delta
+from deepbbs_ros.node.covariance import alignment_quality
 from deepbbs_ros.node.inputs import BadInput, Cloud
-from deepbbs_ros.node.pair_registration import UNKNOWN_TWIST_COV, Registered, register_clouds, registration_covariance
+from deepbbs_ros.node.odometry_estimate import OdometryEstimate, motion_twist
+from deepbbs_ros.node.pair_registration import UNKNOWN_TWIST_COV, Registered
+from deepbbs_ros.node.scan_to_scan import ScanToScanOdometry
+
+__all__ = ["SCAN_FLOOR_SHARE", "LocalMapOdometry", "OdometryEstimate", "ScanToScanOdometry", "motion_twist"]
 
 #: the share of a step's sweep floor (``OdometryStep.covariance_floor``) that is the scan's own pose error: the floor
 #: is a step's, the difference of two scans each off by its own sweep's error, so twice one scan's variance
@@ -21,88 +25,11 @@ from deepbbs_ros.node.pair_registration import UNKNOWN_TWIST_COV, Registered, re
 SCAN_FLOOR_SHARE = SWEEP_SPREAD ** 2
 
 
-def motion_twist(T_prev_curr: np.ndarray, cov_prev_curr: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """((6,) twist in the current frame, (6, 6) its covariance) of the motion ``T_prev_curr`` over ``dt`` s;
-    zero with a huge covariance when ``dt`` is (near) zero."""
-    if abs(dt) <= 1e-3:
-        return np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV
-    return twist_from_delta(T_prev_curr, dt), twist_covariance(T_prev_curr, cov_prev_curr, dt)
-
-
 def _step_part(out, name: str) -> np.ndarray:
     """(6, 6) the step's covariance part ``name`` (``OdometryStep.covariance_floor``, ``covariance_held``: odometry
     frame); zeros where the odometry gave no covariance or no such part."""
     part = getattr(out, name, None) if getattr(out, "covariance", None) is not None else None
     return np.zeros((6, 6)) if part is None else np.asarray(part, dtype=np.float64)
-
-
-@dataclass
-class OdometryEstimate:
-    """What odometry mode publishes for one scan.
-
-    Attributes:
-        T_odom: (4, 4) float64 ``T_odom_k``, the scan's sensor pose in the odometry frame.
-        pose_covariance: (6, 6) covariance of ``T_odom`` (zeros at the origin scan).
-        twist: (6,) ``[vx, vy, vz, wx, wy, wz]`` in the scan's frame (m/s, rad/s).
-        twist_covariance: (6, 6); huge when the velocity is unknown (first scan).
-        T_prev_curr: (4, 4) motion since the previous scan, ``T_{k-1}_k``; None at the origin scan.
-        registered: the registration behind the step (None at the origin scan).
-        dt: the stamp gap of ``T_prev_curr``, s (0 at the origin scan).
-    """
-
-    T_odom: np.ndarray
-    pose_covariance: np.ndarray
-    twist: np.ndarray
-    twist_covariance: np.ndarray
-    T_prev_curr: np.ndarray | None = None
-    registered: Registered | None = None
-    dt: float = 0.0
-
-
-class ScanToScanOdometry:
-    """Scan-to-scan odometry over preprocessed clouds: scan k is registered against scan k-1.
-
-    Args:
-        registration: the node's registration (``register(source_pp, target_pp)``).
-        covariance: compute the twist and the pose / twist covariances (``node.publish_odometry``);
-            without it they are zeros (only ``~/odometry`` carries them).
-
-    The pose covariance accumulates the step covariances along the chain ``T_odom_k = T_odom_{k-1} @ T_step``
-    (:func:`deepbbs_ros.core.covariance.compose`).
-    """
-
-    def __init__(self, registration: Any, *, covariance: bool = True) -> None:
-        self.registration = registration
-        self.covariance = covariance
-        self.reset()
-
-    def reset(self) -> None:
-        """Restart at identity: the next scan becomes the origin."""
-        self._prev: Cloud | None = None
-        self._T_odom = np.eye(4)
-        self._cov_odom = np.zeros((6, 6))
-
-    def step(self, cloud: Cloud) -> OdometryEstimate:
-        """Register ``cloud`` (scan k) against the previous scan and advance ``T_odom``.
-
-        Raises:
-            BadInput: the registration failed (the previous scan stays the reference).
-        """
-        prev = self._prev
-        if prev is None:  # the first scan is the origin: pose known exactly, velocity unknown
-            self._prev, self._T_odom, self._cov_odom = cloud, np.eye(4), np.zeros((6, 6))
-            return OdometryEstimate(np.eye(4), np.zeros((6, 6)), np.zeros(6), np.eye(6) * UNKNOWN_TWIST_COV)
-        reg = register_clouds(self.registration, cloud, prev)  # T_{k-1}_k
-        dt = (cloud.stamp_ns - prev.stamp_ns) * 1e-9
-        if self.covariance:
-            cov_step = registration_covariance(cloud, prev, reg)
-            self._cov_odom = compose(self._T_odom, self._cov_odom, reg.T, cov_step)
-            twist, twist_cov = motion_twist(reg.T, cov_step, dt)
-        else:
-            twist, twist_cov = np.zeros(6), np.zeros((6, 6))
-        self._T_odom = self._T_odom @ reg.T
-        self._prev = cloud
-        return OdometryEstimate(self._T_odom.copy(), self._cov_odom.copy(), twist, twist_cov, reg.T, reg, dt)
 
 
 class LocalMapOdometry:

@@ -19,8 +19,9 @@ or None), ``cloud.stamp_ns``, and the preprocessed ``cloud.pp`` (computed on arr
 only; None for the local map, which preprocesses for DeepBBS++ itself, only when it consults it).
 
 Modules: :mod:`~deepbbs_ros.node.pair_registration` (:func:`register_clouds`, :class:`PairStart`),
-:mod:`~deepbbs_ros.node.odometry_pipeline` (both odometries), :mod:`~deepbbs_ros.node.map_target`
-(:class:`MapTarget`); every name is imported from here too.
+:mod:`~deepbbs_ros.node.odometry_pipeline` (both odometries: the scan-to-scan one in
+:mod:`~deepbbs_ros.node.scan_to_scan`, their estimate in :mod:`~deepbbs_ros.node.odometry_estimate`),
+:mod:`~deepbbs_ros.node.map_target` (:class:`MapTarget`); every name is imported from here too.
 """
 
 from __future__ import annotations

@@ -3,7 +3,9 @@
 Every pairwise method has ``prepare(points, times, stamp_ns) -> (prepared, ms)`` (preprocessing of one raw scan) and
 ``align(src, tgt, T_init) -> (T_target_source, info, ms)``; the runtime of a pair is the sum of both
 preparations and the alignment (reading excluded). KISS-ICP is an odometry (scan-to-map with its own
-state), so it only has ``step(scan) -> (T_first_k, ms)``. No ROS import.
+state), so it only has ``step(scan) -> (T_first_k, ms)``. No ROS import. The DeepBBS methods and
+:func:`build_methods` are here, the baselines in replay/baseline_methods.py, the names and ``--method`` parsing in
+replay/method_names.py (every name is imported from here too).
 """
 
 from __future__ import annotations
@@ -16,53 +18,19 @@ import numpy as np
 
 from deepbbs_ros.config import Config
 from deepbbs_ros.config.registration import NETWORK_ALONE
-from deepbbs_ros.errors import ConfigError
+from deepbbs_ros.replay.baseline_methods import KissMatcherMethod, KissMethod, SmallGicpMethod
+from deepbbs_ros.replay.method_names import (  # noqa: F401  (re-exported)
+    DEEPBBS_VARIANTS,
+    GLOBAL,
+    INPUTS,
+    METHODS,
+    ODOMETRY_ONLY,
+    PAIRWISE,
+    parse_methods,
+    topic_name,
+)
 
-METHODS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-icp",
-           "kiss-matcher", "kiss-matcher+gicp")
-PAIRWISE = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs", "icp", "plane-icp", "gicp", "kiss-matcher",
-            "kiss-matcher+gicp")
-GLOBAL = ("kiss-matcher", "kiss-matcher+gicp")  # global registrations: pairs mode only
-ODOMETRY_ONLY = ("kiss-icp", "deepbbs++s2s")
-DEEPBBS_VARIANTS = ("deepbbs++", "deepbbs++s2s", "deepbbs++gicp", "deepbbs")
 MAX_MOTIONS = 100_000  # per-scan velocities kept by a DeepBBS method (a few hundred bytes each)
-
-#: how each method's input clouds are made (reported in metrics.json)
-INPUTS = {
-    "deepbbs++": "DeepBBS++ preprocessing (crop, ground removal, voxel grid, FPS to preprocess.num_points) and, "
-                 "with registration.polish on (default), the GICP precision stage on the whole voxelised scan",
-    "deepbbs++gicp": "DeepBBS++ with the GICP precision stage forced on (registration.polish = gicp; the default)",
-    "deepbbs": "DeepBBS++ preprocessing; the network alone: deep passes from the one start (no refinement, no "
-               "precision stage, no global search)",
-    "deepbbs++s2s": "DeepBBS++ scan-to-scan, chained (the paper's pipeline as an odometry)",
-    "deepbbs++odom": "DeepBBS++ odometry (core/odometry.py): KISS-ICP-style scan-to-local-map ICP on the raw scan "
-                     "(crop, voxel map, deskew from per-point times), DeepBBS++ where the motion prior fails",
-    "kiss-matcher": "KISS-Matcher (global, no initial guess) on the raw scan cropped to the preprocess ranges, "
-                    "its own voxel grid (eval.kiss_matcher_voxel)",
-    "kiss-matcher+gicp": "KISS-Matcher, then small_gicp GICP from its answer on the GICP baseline's clouds",
-    "kiss-icp": "KISS-ICP's own pipeline on the raw scan (crop to preprocess ranges, voxel map, deskew)",
-}
-
-
-def parse_methods(text: str, mode: str) -> list[str]:
-    """``"deepbbs++,gicp"`` -> ``["deepbbs++", "gicp"]``; ConfigError on unknown / mode-incompatible names."""
-    names = [m.strip().lower() for m in text.split(",") if m.strip()]
-    if not names:
-        raise ConfigError("--method: give at least one method")
-    for m in names:
-        if m not in METHODS:
-            raise ConfigError(f"--method: unknown method {m!r} (known: {', '.join(METHODS)})")
-        if m in ODOMETRY_ONLY and mode != "odometry":
-            raise ConfigError(f"--method: {m} is an odometry and runs only with --mode odometry")
-        if m in GLOBAL and mode == "odometry":
-            raise ConfigError(f"--method: {m} is a global pair registration and runs only with --mode pairs")
-    return list(dict.fromkeys(names))
-
-
-def topic_name(method: str) -> str:
-    """A ROS-legal name for a method: ``deepbbs++`` -> ``deepbbs_pp``, ``deepbbs++gicp`` -> ``deepbbs_pp_gicp``,
-    ``plane-icp`` -> ``plane_icp``."""
-    return method.replace("++gicp", "_pp_gicp").replace("++", "_pp").replace("+", "_").replace("-", "_")
 
 
 class DeepBBSMethod:
@@ -135,65 +103,6 @@ class DeepBBSMethod:
             info["polish"] = res.polish
             info["polish_ms"] = float(res.timings_ms.get("polish", 0.0))
         return np.asarray(res.T_target_source, dtype=np.float64), info, ms
-
-
-class SmallGicpMethod:
-    """``icp``, ``plane-icp``, ``gicp`` via :class:`deepbbs_ros.baselines.SmallGicpRegistration`."""
-
-    def __init__(self, name: str, config: Config) -> None:
-        from deepbbs_ros.baselines import SmallGicpRegistration
-
-        self.name = name
-        self.reg = SmallGicpRegistration(name, config)
-        ev = config.eval
-        if ev.baseline_input == "dense":
-            self.input = (f"crop [{config.preprocess.min_range}, {config.preprocess.max_range}] m + "
-                          f"{ev.baseline_voxel_size} m voxel grid, ground kept (small_gicp)")
-        else:
-            self.input = "DeepBBS++ preprocessing (small_gicp on the same 1000 points)"
-
-    def prepare(self, points: np.ndarray, times: np.ndarray | None = None,
-                stamp_ns: int | None = None) -> tuple[Any, float]:
-        """The baseline as small_gicp runs it: per-point times are not used (no deskew)."""
-        prep = self.reg.preprocess(points)
-        return prep, prep.preprocess_ms
-
-    def align(self, src: Any, tgt: Any, T_init: np.ndarray | None) -> tuple[np.ndarray, dict, float]:
-        res = self.reg.align(src, tgt, T_init)
-        info = {"converged": res.converged, "iterations": res.iterations, "num_inliers": res.num_inliers}
-        return res.T_target_source, info, res.timings_ms["register"]
-
-
-class KissMatcherMethod(SmallGicpMethod):
-    """``kiss-matcher``, ``kiss-matcher+gicp`` via :class:`deepbbs_ros.baselines.KissMatcherRegistration`
-    (the start guess moves the source cloud: a global method is judged from every start alike); ``prepare`` and
-    ``align`` as the small_gicp baselines'."""
-
-    def __init__(self, name: str, config: Config) -> None:
-        from deepbbs_ros.baselines import KissMatcherRegistration
-
-        self.name = name
-        self.reg = KissMatcherRegistration(name, config)
-        self.input = INPUTS[name]
-
-
-class KissMethod:
-    """KISS-ICP odometry (scan-to-map); ``step`` returns the pose relative to the first scan."""
-
-    def __init__(self, name: str, config: Config) -> None:
-        from deepbbs_ros.baselines import KissICPOdometry
-
-        self.name = name
-        self.odom = KissICPOdometry(config)
-        self.input = INPUTS[name]
-
-    def step(self, points: np.ndarray, times: np.ndarray | None,
-             stamp_ns: int | None = None) -> tuple[np.ndarray, float]:
-        return self.odom.register(points, times)
-
-    def corrupt_prior(self, T: np.ndarray) -> None:
-        """Robustness benchmark: the next constant-velocity prediction is off by ``T`` (4, 4)."""
-        self.odom.corrupt_prior(T)
 
 
 class DeepBBSOdomMethod:
