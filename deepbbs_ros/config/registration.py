@@ -129,6 +129,11 @@ class RegistrationConfig:
     # a valid pose left free by more than a tolerance along its weakest direction is checked for a second minimum there
     # (core/second_minimum.py: GICP from the pose moved both ways along it); one as good beyond the tolerance -> invalid
     second_minimum: bool = True
+    # the pair's check (not the good start's, not localization's) where its first starts find no other minimum and
+    # the fit leaves a slide free: GICP from the pose moved 2, 4, ... times as far along its weakest translation,
+    # both ways, up to the target cloud's extent along it (the scene's own size); a minimum within half a step of
+    # its start that fits as well -> invalid (a slide of metres along a hall lies beyond the first starts' 1.5 m)
+    second_minimum_reach: bool = False
     # the verdict's probability times P(the pose within success_rot_deg / success_trans | its covariance)
     # (core/within.py: the cluster-robust covariance of its GICP pairs, core/covariance.py), where that can change
     # the decision: a pose free to slide (a corridor, a straight road) is consistent anywhere along the slide, but

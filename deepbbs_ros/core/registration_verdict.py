@@ -47,7 +47,8 @@ class VerdictStages:
             if st.valid and rc.skew_check and st.deskew != "deskewed":  # per-point times: does a sweep bend the pose?
                 self._skew(st)
             if st.valid and rc.second_minimum:  # a second minimum as good along the weakest direction: not sure
-                st.ambiguity = second_minimum.check(pts, st.T, st.src_pc, st.tgt_pc, rc)
+                st.ambiguity = second_minimum.check(pts, st.T, st.src_pc, st.tgt_pc, rc,
+                                                      reach=rc.second_minimum_reach)
                 st.valid = not st.ambiguity.ambiguous
             return
         # no precision stage: the voxelised non-ground points, else the sampled ones, for which the probability is

@@ -63,10 +63,12 @@ class Ambiguity:
     found: list = field(default_factory=list)  # (offset, fitness) of each start's minimum, in the order tried
 
 
-def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[np.ndarray | None, float]:
+def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1,
+            translation: bool = False) -> tuple[np.ndarray | None, float]:
     """The twist (6,) of one tolerance along the weakest direction of the pose that moved the verdict's points to
     ``moved`` (N, 3), and the uncertainty along it in tolerances (see the module); (None, inf) with too few plane
-    matches on the target's normals."""
+    matches on the target's normals. ``translation``: the weakest of the translations alone (a slide; the rotation
+    held), whose twist has no rotation."""
     if isinstance(tgt_pc, PolishView):  # a map crop: the map's points and normals, in the crop's frame
         idx, sq = tgt_pc.tree.batch_nearest_neighbor_search(moved, num_threads=max(1, threads))
         idx, sq = np.asarray(idx, np.int64), np.asarray(sq, np.float64)
@@ -81,9 +83,11 @@ def weakest(moved: np.ndarray, tgt_pc, dist: float, threads: int = 1) -> tuple[n
     m = (sq <= dist * dist) & (np.abs(plane) <= 0.2 * dist)  # the plane matches (``pinned``'s)
     if m.sum() < anchoring.MIN_MATCHES:
         return None, float("inf")
-    w, v = np.linalg.eigh(anchoring.information(moved[m], normals[m]))
+    info = anchoring.information(moved[m], normals[m])
+    w, v = np.linalg.eigh(info[:3, :3] if translation else info)
     s = float(np.sqrt(max(w[0], 0.0)))
-    return v[:, 0] * anchoring.SCALE, (0.2 * dist / s if s > 0 else float("inf"))
+    twist = np.r_[v[:, 0], np.zeros(3)] if translation else v[:, 0]
+    return twist * anchoring.SCALE, (0.2 * dist / s if s > 0 else float("inf"))
 
 
 def offset(T: np.ndarray, T2: np.ndarray) -> float:
@@ -102,13 +106,15 @@ def _moved_by(twist: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 
 def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 1, loose: float = WRONG,
-          crop: bool = False) -> Ambiguity:
+          crop: bool = False, reach: bool = False) -> Ambiguity:
     """Whether the pose ``T`` (4, 4) ``T_target_source`` has a second minimum as good along its weakest direction
     (see the module). ``points``: the verdict's points (N, 3), source frame; ``src_pc`` / ``tgt_pc``: the precision
     stage's clouds (``core.polish.PolishCloud``); ``rc``: the registration section (its ``verdict_dist`` and
     ``polish*`` keys); ``loose``: tolerances of uncertainty from which the pose is checked (at most that: not);
     ``crop``: a map crop (``core.polish.PolishView``) is checked too (the map verdict's acceptance, core/acceptance.py),
-    else not."""
+    else not; ``reach``: where the first two starts find no other minimum and the fit leaves a slide free (the weakest
+    translation, the rotation held, looser than ``loose``), starts moved along that slide 2, 4, ... times as far both
+    ways are tried too, up to the target cloud's extent along it (:func:`reaches`)."""
     T = np.asarray(T, np.float64)
     pts = np.asarray(points, np.float64)
     if len(pts) == 0 or (isinstance(tgt_pc, PolishView) and not crop) or rc.polish not in SMALL_GICP_TYPE:
@@ -129,8 +135,43 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
     p = (f * n + 1.0) / (n + 2.0)  # the share's estimate by the rule of succession: a spread even at 0 or 1
     margin = SIGMAS * np.sqrt(p * (1.0 - p) / n)
     out = Ambiguity(uncertainty=unc, step=k, score=f)
+    _try(out, k, twist, pts, T, f, margin, src_pc, tgt_pc, rc, threads)
+    if not reach or out.ambiguous:
+        return out
+    slide, unc_t = weakest(moved, tgt_pc, dist, threads, translation=True)
+    if slide is None or unc_t <= max(loose, WRONG):
+        return out  # the fit holds every slide within a tolerance
+    k_t = float(np.clip(unc_t, STEPS[0], STEPS[-1]))
+    for step in reaches(k_t, slide, tgt_pc)[1:]:  # 2, 4, ... times as far, each minimum within half a step of its start
+        _try(out, step, slide, pts, T, f, margin, src_pc, tgt_pc, rc, threads, near=step / 2)
+        if out.ambiguous:
+            break
+    return out
+
+
+def reaches(k: float, twist: np.ndarray, tgt_pc) -> list[float]:
+    """The steps (tolerances) ``k``, ``2 k``, ``4 k``, ... along ``twist`` (6,) (one tolerance) while the move stays
+    within the target cloud's extent along its translation (max - min of the points' projections) and half a turn."""
+    t, r = float(np.linalg.norm(twist[:3])), float(np.linalg.norm(twist[3:]))
+    pts = np.asarray(tgt_pc.cloud.points())[:, :3]
+    limit = np.pi / r if r > 0 else float("inf")
+    if t > 0 and len(pts):
+        proj = pts @ (twist[:3] / t)
+        limit = min(limit, float(proj.max() - proj.min()) / t)
+    steps = [k]
+    while steps[-1] * 2.0 <= limit:
+        steps.append(steps[-1] * 2.0)
+    return steps
+
+
+def _try(out: Ambiguity, k: float, twist: np.ndarray, pts: np.ndarray, T: np.ndarray, f: float, margin: float,
+         src_pc, tgt_pc, rc, threads: int, near: float = float("inf")) -> None:
+    """GICP from ``T`` moved ``k`` tolerances both ways along ``twist``; what it finds goes into ``out`` (a minimum
+    further than ``near`` tolerances from its start is not one along the direction: left out)."""
+    dist = rc.verdict_dist
     for sign in (1.0, -1.0):
-        leg, pol = _from(src_pc, tgt_pc, T, _moved_by(sign * k * twist, T), rc)
+        start = _moved_by(sign * k * twist, T)
+        leg, pol = _from(src_pc, tgt_pc, T, start, rc)
         if pol is None:
             out.found.append((leg, f))
             continue  # GICP's first iterations brought it back to the pose: its own basin
@@ -141,11 +182,12 @@ def check(points: np.ndarray, T: np.ndarray, src_pc, tgt_pc, rc, threads: int = 
         if d <= WRONG:
             out.found.append((d, f))
             continue  # back to the pose: its own basin
+        if offset(start, T2) > near:
+            continue  # settled far from its start: not a minimum along the direction
         f2 = verdict.fitness(pts, tgt_pc.tree, T2, dist, threads)
         out.found.append((d, f2))
         if f2 >= f - margin and (out.other is None or f2 > out.other_score):
             out.ambiguous, out.other, out.offset, out.other_score = True, T2, d, f2
-    return out
 
 
 def _from(src_pc, tgt_pc, T: np.ndarray, start: np.ndarray, rc) -> tuple[float, Any]:

@@ -10,10 +10,10 @@ simulated pairs (the same draws: :func:`verdict.sim_parts`; families ``dense``, 
 offsets, taken in turn from pair to pair. Per family: right (1 deg / 0.3 m) accepted and rejected, in between accepted
 and rejected, wrong (beyond 2 deg / 0.5 m) accepted and rejected; ``wrong_accepted_rows``: each wrong pose accepted
 (deg, m, probability, the offset, path, starts); ``rows``: every run. With ``--compare`` the same starts also run
-with ``registration.search_ambiguity`` the other way (``off`` / ``on`` counts; ``changed``: the runs whose class
-differs). ``--good-start``: ``register(..., good_start=True)`` (GICP from the start first, core/good_start.py);
-``--identity``: once per pair from the recorded start (identity) instead, what a stream of neighbouring scans pays
-(``ms_p50``). ::
+with ``registration.search_ambiguity`` (``--toggle``: another key) the other way (``off`` / ``on`` counts;
+``changed``: the runs whose class differs). ``--good-start``: ``register(..., good_start=True)`` (GICP from the
+start first, core/good_start.py); ``--identity``: once per pair from the recorded start (identity) instead, what a
+stream of neighbouring scans pays (``ms_p50``). ::
 
     python scripts/benchmarks/far_starts.py --seed 39 --sim-pairs 1 --sim-low-pairs 1 --sim-turned-pairs 1 \\
         --compare --out /tmp/far39
@@ -188,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="once per pair from the recorded start (identity) instead of the basin offsets: the cost")
     ap.add_argument("--compare", action="store_true",
                     help="also run registration.search_ambiguity the other way on the same starts")
+    ap.add_argument("--toggle", default="search_ambiguity",
+                    help="the registration key (bool) --compare turns the other way (default search_ambiguity)")
     ap.add_argument("--threads", type=int, default=1, help="torch / GICP threads (default 1)")
     ap.add_argument("--config", type=Path, help="config YAML of the registration (default: the defaults)")
     ap.add_argument("--out", type=Path, default=Path("results/benchmarks"))
@@ -202,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     rc = config.registration
     regs = {"shipped": DeepBBSRegistration(config)}
     if args.compare:
-        other = dataclasses.replace(rc, search_ambiguity=not rc.search_ambiguity)
+        other = dataclasses.replace(rc, **{args.toggle: not getattr(rc, args.toggle)})
         regs["other"] = DeepBBSRegistration(dataclasses.replace(config, registration=other))
     runs = Runs(regs, args.levels, args.seed, args.good_start, args.identity)
     if args.sim_pairs or args.sim_low_pairs or args.sim_turned_pairs:
@@ -217,8 +219,10 @@ def main(argv: list[str] | None = None) -> int:
                 else:
                     ps, pt = reg.preprocess(s), reg.preprocess(t)
                 runs.pair(name, ps, pt, T_gt)
-    names = {"shipped": "on" if rc.search_ambiguity else "off", "other": "off" if rc.search_ambiguity else "on"}
-    figures = {"seed": args.seed, "good_start": args.good_start, "basin": BASIN, "levels": args.levels, "load": _load(),
+    on = getattr(rc, args.toggle)
+    names = {"shipped": "on" if on else "off", "other": "off" if on else "on"}
+    figures = {"seed": args.seed, "toggle": args.toggle, "good_start": args.good_start, "basin": BASIN,
+               "levels": args.levels, "load": _load(),
                **{names[n]: tally(runs.rows, n) for n in regs},
                "changed": [r for r in runs.rows if "other" in r and r["shipped"]["class"] != r["other"]["class"]],
                "rows": runs.rows}
