@@ -55,7 +55,7 @@ Truth error: the real sets' ground truth is itself off by centimetres (KITTI abo
 5 cm / 0.3 deg: the data's README); the "+truth" columns add that as an isotropic covariance (per axis) to the
 estimate's, the plain ones do not.
 
-    python scripts/benchmarks/covariance.py --real ../shared/realdata/kitti/00 ../shared/realdata/nuscenes_hdl32
+    python scripts/benchmarks/covariance.py --real PATH/TO/kitti/00 PATH/TO/nuscenes_hdl32
     python scripts/benchmarks/covariance.py --scenes urban --lidars hdl64 --fit      # the factors, quickly
 """
 

@@ -16,9 +16,9 @@ start first, core/good_start.py); ``--identity``: once per pair from the recorde
 stream of neighbouring scans pays (``ms_p50``). ::
 
     python scripts/benchmarks/far_starts.py --seed 39 --sim-pairs 1 --sim-low-pairs 1 --sim-turned-pairs 1 \\
-        --compare --out /tmp/far39
+        --compare --out results/far39
     python scripts/benchmarks/far_starts.py --sim-pairs 0 --real PATH/livox_avia_loop:4:2 PATH/nuscenes_hdl32:1:5 \\
-        PATH/kitti/00:1:5 --pair PATH/hdl32_pair --compare --out /tmp/far_real
+        PATH/kitti/00:1:5 --pair PATH/hdl32_pair --compare --out results/far_real
 """
 
 from __future__ import annotations

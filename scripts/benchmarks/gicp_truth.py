@@ -12,7 +12,7 @@ the truth, finished on each scan's scene-sized grid (``registration.polish_voxel
 ``finish``). ::
 
     python scripts/benchmarks/gicp_truth.py --sims mid360:handheld:corridor mid360:legged:garage \\
-        --grids 0.5:2.0 0.25:1.0 --finish 0.0625 --out /tmp/gicp_truth
+        --grids 0.5:2.0 0.25:1.0 --finish 0.0625 --out results/gicp_truth
 """
 
 from __future__ import annotations

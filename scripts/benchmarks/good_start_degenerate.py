@@ -13,7 +13,7 @@ on. ``starts``: every start's good start alone: taken, fired, left to the full p
 from the start went beyond the good start's limits (``registration.good_start_max_*``, "" within), ``moved``: each
 answer's distance from the start (deg, m). ::
 
-    python scripts/benchmarks/good_start_degenerate.py --seed 39 --out /tmp/degenerate39   # and 40, 41, 42, 43
+    python scripts/benchmarks/good_start_degenerate.py --seed 39 --out results/degenerate39   # and 40, 41, 42, 43
 """
 
 from __future__ import annotations

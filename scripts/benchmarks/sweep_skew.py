@@ -10,7 +10,7 @@ answers, accepted (``valid``) or rejected, off and on; and the check's CPU per a
 timed again on the answer, one thread) over the good start's GICP (the same pair, from the same start). ::
 
     python scripts/benchmarks/sweep_skew.py --rigs mid360:legged:hall avia:handheld:hall --seed 39 --pairs 6 \\
-        --out /tmp/sweep_skew
+        --out results/sweep_skew
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ judged there as they are), and ``choose``: the more probable of the two: wrong (
 right (1 deg / 0.3 m) rejected, per rig and in all. ::
 
     python scripts/benchmarks/sweep_velocity.py --rigs mid360:legged:hall avia:handheld:hall --seed 39 --pairs 8 \\
-        --out /tmp/sweep_velocity
+        --out results/sweep_velocity
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ the set's targets), to compare the simulation with real scans. ::
 
     python scripts/benchmarks/verdict.py --real PATH/nuscenes_hdl32:1:5 PATH/livox_avia_loop:4:2 \\
         PATH/kitti/00:1:5 PATH/kitti/02:1:5 --pair PATH/hdl32_pair --out results/benchmarks
-    python scripts/benchmarks/verdict.py --sim-pairs 2 --out /tmp/v      # simulation only, quick
+    python scripts/benchmarks/verdict.py --sim-pairs 2 --out results/v      # simulation only, quick
 """
 
 from __future__ import annotations
