@@ -1,7 +1,7 @@
 """``deepbbs-sim``: simulate a LiDAR recording (a drive, a robot, a hand) and write it.
 
     deepbbs-sim --scene urban --seed 0 --frames 100 --format mcap --out drives/urban0
-    deepbbs-sim --scene highway --seed 3 --frames 50 --lidar vlp16 --no-motion-distortion --format apollo --out drives/hw
+    deepbbs-sim --scene highway --seed 3 --frames 50 --lidar vlp16 --no-motion-distortion --format apollo --out hw3
     deepbbs-sim --scene corridor --mount handheld --lidar avia --raw --frames 100 --out walks/corridor0
 
 Frames are 10 Hz sweeps (``--rate``) with per-point intensity and ring, and the ground-truth pose of
