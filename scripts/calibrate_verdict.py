@@ -187,7 +187,7 @@ def perturb(rng: np.random.Generator, yaw_deg: tuple[float, float], trans: tuple
 
 def degrade(points: np.ndarray, rng: np.random.Generator, body: np.ndarray | None) -> np.ndarray:
     """A simulated scan (N, 3) made more like a real one: range noise (up to 12 cm: at 10 cm the target's own plane
-    residuals, core/visibility.py's ``self_residuals``, reach real scans': 90 % within 0.21-0.27 m on KITTI,
+    residuals, core/target_surface.py's ``self_residuals``, reach real scans': 90 % within 0.21-0.27 m on KITTI,
     nuScenes and the Livox walk, 0.11-0.20 m on clean simulated scans), 0-4 boxes seen in this scan
     only (cars and people that moved), and ``body`` (K, 3), the carrier's own points, fixed to the sensor."""
     p = np.asarray(points, np.float64)

@@ -190,10 +190,10 @@ class RegistrationConfig:
     # the same for the full pipeline's answer finished on the scene-sized grids: "gicp" (judged again on GICP's grid)
     # or "both" (then as good_start_finish_grid "both", at verdict_probability; tried, not the default)
     finish_grid: str = "gicp"
-    # where GICP from the start, its finish and the coarse try are all rejected and the finished pose is degenerate
-    # (core/finish_verdict.py degenerate: GICP's grid neither holds nor takes it, and takes it with pinned read on the
-    # scene's grids: the hold the verdict lacks is the scene's, which no other start changes), answer it at once, not
-    # valid ("not valid: degenerate along ..."), instead of the full pipeline
+    # where GICP from the start and its finish are rejected and the finished pose is degenerate (core/finish_verdict.py
+    # degenerate: GICP's grid neither holds nor takes it, and takes it with pinned read on the scene's grids: the hold
+    # the verdict lacks is the scene's, which no other start changes), answer it at once, not valid ("not valid:
+    # degenerate along ..."), instead of the coarse try and the full pipeline
     good_start_degenerate: bool = True
     # the second-minimum check (core/second_minimum.py, as the registration's verdict runs it) on the good start's
     # poses taken on GICP's grid too: a pose GICP slides to another minimum as good along its weakest direction is not

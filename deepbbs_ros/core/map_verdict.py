@@ -74,9 +74,10 @@ def features(points: np.ndarray, T_place_scan: np.ndarray, cloud: Any, dist: flo
 
 
 def _view_target(view: PolishView, dist: float) -> tuple:
-    """A crop view's visibility target, kept on the view: (its direction cells (core/visibility.py
+    """A crop view's visibility target, kept on the view: (its direction cells (core/directions.py
     ``directions``), self planarity, ``plane_own``'s tolerance), the last two from an even subset of the crop's points
-    against their nearest other map point's tangent plane (visibility's ``self_residuals`` on the map's cloud)."""
+    against their nearest other map point's tangent plane (core/target_surface.py's ``self_residuals`` on the map's
+    cloud)."""
     kept = getattr(view, "_map_verdict", None)
     if kept is not None and kept[0] == dist:
         return kept[1]

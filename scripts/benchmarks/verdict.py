@@ -164,7 +164,7 @@ def checks(y: np.ndarray, prob: np.ndarray, bar: float, ambiguous: np.ndarray, s
 def loose_poses(rows: np.ndarray, prob: np.ndarray, sure: float) -> np.ndarray:
     """Which good-start poses ``registration.good_start_second_minimum`` checks (core/good_start.py _slides): looser
     than STEPS[-1] tolerances, or than STEPS[0] where the probability is under ``sure``; from the feature rows'
-    ``pinned`` = 1 / (1 + uncertainty^2) (core/visibility.py pinned)."""
+    ``pinned`` = 1 / (1 + uncertainty^2) (core/plane_matches.py pinned)."""
     from deepbbs_ros.core.anchoring import STEPS
 
     return np.asarray(rows)[:, FEATURES.index("pinned")] < 1.0 / (
