@@ -39,16 +39,26 @@ road_train() {
   wait
 }
 
-# mix_data NAME [cache options for the mix drives]: $CACHE/NAME_train, $CACHE/NAME_val, the road folders
-mix_data() {
+# mix_val NAME [cache options]: the 16 mix validation drives in $CACHE/NAME_val
+mix_val() {
   name=$1
-  mix_train "$@"
   shift
   $T cache --out "$CACHE/${name}_val" --split val --seeds 80100:80116 --frames 30 --cache-points 4096 \
     --scenes $SCENES --sensors os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,mid360 \
-    --mounts car,wheeled,legged,handheld "$@" --no-progress --threads 1 &
+    --mounts car,wheeled,legged,handheld "$@" --no-progress --threads 1
+}
+
+# road_val: the 8 HDL-64E road validation drives in $CACHE/worlds_val
+road_val() {
+  $T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1
+}
+
+# mix_data NAME [cache options for the mix drives]: $CACHE/NAME_train, $CACHE/NAME_val, the road folders
+mix_data() {
+  mix_train "$@"
+  mix_val "$@" &
   a=$!
-  $T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1 &
+  road_val &
   wait "$a" $!
   road_train
 }

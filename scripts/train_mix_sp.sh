@@ -37,14 +37,8 @@ if [ "${1:-}" = "--save-state" ]; then save_state; exit 0; fi
 . scripts/train_mix_data.sh
 if [ ! -d "$CACHE/mixclean_train" ]; then mix_train mixclean --sweeps compensated; fi
 if [ ! -d "$CACHE/worlds_train" ]; then road_train; fi
-if [ ! -d "$CACHE/mixclean_val" ]; then
-  $T cache --out "$CACHE/mixclean_val" --split val --seeds 80100:80116 --frames 30 --cache-points 4096 \
-    --scenes $SCENES --sensors os0_32,os0_64,os1_64,os1_128,xt32,helios32,vlp16,hdl32,avia,mid360 \
-    --mounts car,wheeled,legged,handheld --sweeps compensated --no-progress --threads 1
-fi
-if [ ! -d "$CACHE/worlds_val" ]; then
-  $T cache --out "$CACHE/worlds_val" --split val --drives 8 --frames 30 --cache-points 4096 --no-progress --threads 1
-fi
+if [ ! -d "$CACHE/mixclean_val" ]; then mix_val mixclean --sweeps compensated; fi
+if [ ! -d "$CACHE/worlds_val" ]; then road_val; fi
 
 # 2. fit: MIX_SCHEDULE, validated every epoch, and the pull to the shipped weights, CHUNK steps at a time
 SETS="$MIX_SCHEDULE --set train.checkpoint_minutes=0 --set train.val_every=1 --set train.val_pairs=48 \
