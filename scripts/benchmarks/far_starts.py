@@ -33,11 +33,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import _common  # noqa: E402
+import families  # noqa: E402
 import numpy as np  # noqa: E402
+import registration as _reg  # noqa: E402
 import verdict  # noqa: E402
 
 #: the families table's basin offsets beyond the good start: (|yaw| deg, shift m)
-BASIN = [(30.0, 2.0), (60.0, 4.0), (90.0, 6.0), (135.0, 8.0), (180.0, 10.0)]
+BASIN = families.BASIN[1:]  # the families table's basin offsets, less its first (the start as recorded)
 CLASSES = ("right_accepted", "right_rejected", "between_accepted", "between_rejected", "wrong_accepted",
            "wrong_rejected")
 
@@ -46,11 +48,8 @@ def offset(rng: np.random.Generator, level: int) -> np.ndarray:
     """(4, 4) the basin offset ``level``: its yaw (random sign) about the source's origin, its shift in a random
     horizontal direction."""
     yaw, shift = BASIN[level]
-    a, phi = np.radians(yaw * rng.choice([-1, 1])), rng.uniform(0, 2 * np.pi)
-    P = np.eye(4)
-    P[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-    P[:2, 3] = shift * np.cos(phi), shift * np.sin(phi)
-    return P
+    yaw, phi = yaw * rng.choice([-1, 1]), rng.uniform(0, 2 * np.pi)
+    return _reg.yaw_shift(yaw, shift * np.cos(phi), shift * np.sin(phi))
 
 
 def classify(res, T_gt: np.ndarray) -> tuple[str, float, float]:
