@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from deepbbs_ros.core.coarse_rescue import moved
+
 __all__ = ["WRONG_DEG", "WRONG_M", "distinct", "rival", "settle", "weigh", "weighed"]
 
 WRONG_DEG, WRONG_M = 2.0, 0.5  # two poses further apart than this cannot both be right (the goal's wrong pose)
@@ -33,9 +35,8 @@ def weighed(st: Any, rc: Any) -> bool:
         return False
     if not st.vouched:
         return True
-    d = np.linalg.solve(np.asarray(st.T_start, np.float64), np.asarray(st.T, np.float64))
-    rot = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
-    return bool(np.linalg.norm(d[:3, 3]) > rc.good_start_max_trans or rot > rc.good_start_max_rot_deg)
+    trans, rot = moved(st.T_start, st.T)
+    return trans > rc.good_start_max_trans or rot > rc.good_start_max_rot_deg
 
 
 def settle(best: Any, seen: list, rc: Any) -> Any:
@@ -48,9 +49,8 @@ def settle(best: Any, seen: list, rc: Any) -> Any:
 
 def distinct(A: np.ndarray, B: np.ndarray) -> bool:
     """Two poses (4, 4) further apart than :data:`WRONG_DEG` degrees or :data:`WRONG_M` m."""
-    d = np.linalg.solve(np.asarray(A, np.float64), np.asarray(B, np.float64))
-    cos = np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return bool(np.degrees(np.arccos(cos)) > WRONG_DEG or np.linalg.norm(d[:3, 3]) > WRONG_M)
+    trans, rot = moved(A, B)
+    return rot > WRONG_DEG or trans > WRONG_M
 
 
 def rival(best: Any, seen: list, rc: Any) -> Any:
@@ -75,7 +75,6 @@ def weigh(best: Any, seen: list, rc: Any) -> tuple[bool, str]:
     share = p / (p + q) if p + q > 0 else 0.0
     if share >= rc.verdict_probability:
         return True, ""
-    d = np.linalg.solve(np.asarray(best.T, np.float64), np.asarray(other.T, np.float64))
-    ang = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
-    return False, (f"ambiguous: a second pose {ang:.1f} deg / {np.linalg.norm(d[:3, 3]):.2f} m away at probability "
+    trans, ang = moved(best.T, other.T)
+    return False, (f"ambiguous: a second pose {ang:.1f} deg / {trans:.2f} m away at probability "
                    f"{q:.2f} (this one {p:.2f}: at most {share:.2f} of being right)")
